@@ -1,0 +1,65 @@
+"""The `compgw` command line. Exit codes: 0 ok, 1 bad input, 2 usage, 3 runtime fault."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+EXIT_OK = 0
+EXIT_BAD_INPUT = 1
+EXIT_USAGE = 2
+EXIT_RUNTIME = 3
+
+
+def _not_yet(name: str, issue: int) -> int:
+    print(f"compgw {name}: not implemented yet (tracked in issue {issue})", file=sys.stderr)
+    return EXIT_RUNTIME
+
+
+def _cmd_sim(args: argparse.Namespace) -> int:
+    from sim.server import main as sim_main
+
+    return sim_main(args.config)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="compgw",
+        description="Modbus compensation gateway: pitch, backlash, XY and thermal correction.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("run", help="run the gateway daemon (foreground)")
+    p.add_argument("-c", "--config", required=True, help="gateway YAML config")
+    p.set_defaults(func=lambda a: _not_yet("run", 4))
+
+    p = sub.add_parser("check", help="validate config and tables, print the resolved setup")
+    p.add_argument("-c", "--config", required=True, help="gateway YAML config")
+    p.set_defaults(func=lambda a: _not_yet("check", 4))
+
+    p = sub.add_parser("sim", help="run the simulated drives and instruments")
+    p.add_argument("-c", "--config", required=True, help="simulator YAML config")
+    p.set_defaults(func=_cmd_sim)
+
+    p = sub.add_parser("demo", help="sim + gateway + scripted upper computer, before/after")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=lambda a: _not_yet("demo", 4))
+
+    for name in ("calibrate", "fit", "report", "export"):
+        p = sub.add_parser(name, help=f"calibration: {name}")
+        p.set_defaults(func=lambda a, n=name: _not_yet(n, 5))
+
+    p = sub.add_parser("status", help="read the live gateway's status registers")
+    p.add_argument("-c", "--config", required=True, help="gateway YAML config")
+    p.set_defaults(func=lambda a: _not_yet("status", 4))
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
