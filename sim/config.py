@@ -1,0 +1,471 @@
+"""The simulator's YAML config: pydantic models and a loader with one-line error messages.
+
+Every key is validated (``extra="forbid"``); a bad file raises :class:`SimConfigError` whose
+message names the YAML path, the value and the rule, e.g.
+``sim.axes.X.registers.target.address: 70000 is not in 0..65535``.
+Register vocabulary (``target``, ``feedback``, ``status``, ``trigger``) matches the gateway's
+config so a gateway config can point at the simulated drives unchanged.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+import yaml
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    model_validator,
+)
+
+
+class SimConfigError(ValueError):
+    """A bad simulator config; ``str(err)`` is one line naming the YAML path."""
+
+
+def _in_range(lo: int, hi: int):
+    def check(value: int) -> int:
+        if not lo <= value <= hi:
+            raise ValueError(f"is not in {lo}..{hi}")
+        return value
+
+    return AfterValidator(check)
+
+
+Address = Annotated[int, _in_range(0, 0xFFFF)]
+UnitId = Annotated[int, _in_range(1, 247)]
+Bit = Annotated[int, _in_range(0, 15)]
+Word = Annotated[int, _in_range(0, 0xFFFF)]
+PositiveFloat = Annotated[float, Field(gt=0)]
+NonNegFloat = Annotated[float, Field(ge=0)]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+# ---------------------------------------------------------------- transports
+class TcpConfig(_Model):
+    """Modbus TCP listener; port 0 binds a free port (printed at start)."""
+
+    host: str = "127.0.0.1"
+    port: Annotated[int, _in_range(0, 65535)] = 5021
+
+
+class RtuConfig(_Model):
+    """Modbus RTU on a serial port (a pty in tests; a pty ignores the baud rate)."""
+
+    port: str
+    baudrate: PositiveFloat = 115200
+    parity: Literal["N", "E", "O"] = "E"
+    stopbits: Literal[1, 2] = 1
+    bytesize: Literal[7, 8] = 8
+
+
+# ---------------------------------------------------------------- drive registers
+class TargetRegister(_Model):
+    """Signed 32-bit target position in command pulses (holding registers)."""
+
+    address: Address = 0x6201
+    words: Literal[2] = 2
+    order: Literal["hi_lo", "lo_hi"] = "hi_lo"
+
+
+class FeedbackRegister(_Model):
+    """Signed 32-bit motor-side position (semi-closed loop) = pulses x counts_per_pulse."""
+
+    address: Address = 0x602A
+    table: Literal["holding", "input"] = "holding"
+    words: Literal[2] = 2
+    order: Literal["hi_lo", "lo_hi"] = "hi_lo"
+    counts_per_pulse: Annotated[int, Field(ge=1)] = 1
+
+
+class StatusRegister(_Model):
+    """Status word; each bit is optional (None = not reported)."""
+
+    address: Address = 0x1003
+    alarm_bit: Bit | None = 0
+    enabled_bit: Bit | None = 1
+    moving_bit: Bit | None = 2
+    in_position_bit: Bit | None = 4
+    homed_bit: Bit | None = 6
+
+
+class TriggerRegister(_Model):
+    """How a move starts: write of ``value``, any write (no value), or a rising ``rising_bit``.
+
+    ``home_value`` (value-style only) starts homing instead of a move.
+    """
+
+    address: Address = 0x6002
+    value: Word | None = 0x10
+    rising_bit: Bit | None = None
+    home_value: Word | None = 0x20
+
+    @model_validator(mode="after")
+    def _one_style(self) -> TriggerRegister:
+        if self.value is not None and self.rising_bit is not None:
+            raise ValueError("give either value or rising_bit, not both")
+        return self
+
+
+class SpeedRegister(_Model):
+    """Unsigned 16-bit speed; speed_mm_s = register x scale_mm_s (0 = the axis default)."""
+
+    address: Address = 0x6203
+    scale_mm_s: PositiveFloat = 1.0
+
+
+class MemoryBlock(_Model):
+    """Plain read/write holding registers (parameters the sim stores but does not act on)."""
+
+    address: Address
+    count: Annotated[int, Field(ge=1, le=0x10000)]
+
+
+class EepromConfig(_Model):
+    """EEPROM wear model: a counter of target writes that went to EEPROM.
+
+    ``counter`` (uint32, high word first) counts target writes unless ``ram_only`` is set;
+    writing ``ram_only_param.value`` to ``ram_only_param.address`` switches to RAM at run time
+    (as Inovance H0C.13 = 0 does).
+    """
+
+    counter: MemoryBlock | None = None
+    ram_only: bool = False
+    ram_only_param: RamOnlyParam | None = None
+
+
+class RamOnlyParam(_Model):
+    """A parameter register; writing ``value`` keeps writes in RAM, anything else EEPROM."""
+
+    address: Address
+    value: Word = 0
+
+
+EepromConfig.model_rebuild()
+
+
+class DriveRegisters(_Model):
+    """Register layout of one drive (default: Leadshine-like PR mode, see sim/README.md)."""
+
+    target: TargetRegister = TargetRegister()
+    feedback: FeedbackRegister = FeedbackRegister()
+    status: StatusRegister = StatusRegister()
+    trigger: TriggerRegister | None = TriggerRegister()
+    speed: SpeedRegister | None = SpeedRegister()
+    memory: tuple[MemoryBlock, ...] = (MemoryBlock(address=0x6200, count=8),)
+    eeprom: EepromConfig = EepromConfig(counter=MemoryBlock(address=0x7F00, count=2))
+    fc16_max_words: Annotated[int, Field(ge=1, le=123)] | None = None
+
+    @model_validator(mode="after")
+    def _no_overlap(self) -> DriveRegisters:
+        spans: list[tuple[str, int, int]] = [
+            ("target", self.target.address, 2),
+            ("status", self.status.address, 1),
+        ]
+        if self.feedback.table == "holding":
+            spans.append(("feedback", self.feedback.address, 2))
+        if self.trigger is not None:
+            spans.append(("trigger", self.trigger.address, 1))
+        if self.speed is not None:
+            spans.append(("speed", self.speed.address, 1))
+        if self.eeprom.counter is not None:
+            spans.append(("eeprom.counter", self.eeprom.counter.address, 2))
+        for i, (name_a, a0, na) in enumerate(spans):
+            if a0 + na - 1 > 0xFFFF:
+                raise ValueError(f"{name_a} at {a0:#06x} runs past 0xFFFF")
+            for name_b, b0, nb in spans[i + 1 :]:
+                if a0 < b0 + nb and b0 < a0 + na:
+                    raise ValueError(f"{name_a} ({a0:#06x}) overlaps {name_b} ({b0:#06x})")
+        return self
+
+
+class AxisConfig(_Model):
+    """One simulated drive + axis."""
+
+    unit: UnitId
+    pulse_mm: PositiveFloat = 0.001
+    travel_mm: tuple[float, float] = (0.0, 800.0)
+    overtravel_mm: NonNegFloat = 1.0
+    speed_mm_s: PositiveFloat = 100.0
+    homed_at_start: bool = True
+    registers: DriveRegisters = DriveRegisters()
+
+    @model_validator(mode="after")
+    def _travel_order(self) -> AxisConfig:
+        if not self.travel_mm[0] < self.travel_mm[1]:
+            raise ValueError(f"travel_mm {list(self.travel_mm)} must be [min, max] with min < max")
+        return self
+
+
+# ---------------------------------------------------------------- the true machine
+class PeriodicTerm(_Model):
+    """amplitude * sin(2 pi x / period + phase): e.g. once-per-lead screw error."""
+
+    amplitude_um: float
+    period_mm: PositiveFloat
+    phase_deg: float = 0.0
+
+
+class PitchTable(_Model):
+    """A measured error curve from CSV: columns position (mm) and error (um); blanks skipped."""
+
+    path: str
+    position_column: str = "position_mm"
+    error_column: str = "error_um"
+    scale: float = 1.0
+
+
+class PitchConfig(_Model):
+    """Pitch error (true - commanded, um) as a sum of the given terms.
+
+    slope over travel, ``poly_um[k] * t**k`` with t = (x - travel_min)/travel_length in 0..1,
+    periodic terms, and an interpolated table (constant beyond its ends).
+    """
+
+    slope_um_per_m: float = 0.0
+    poly_um: tuple[float, ...] = ()
+    periodic: tuple[PeriodicTerm, ...] = ()
+    table: PitchTable | None = None
+
+
+class ThermalConfig(_Model):
+    """Screw heating: per metre travelled at ref speed; Newton cooling to ambient.
+
+    Heat of a move = heat_K_per_m * distance_m * speed/ref_speed; spread over the move.
+    Growth = alpha * (T - ambient) * (x - origin_mm): proportional from the fixed end.
+    """
+
+    alpha_per_K: float = 11.5e-6
+    origin_mm: float = 0.0
+    heat_K_per_m: NonNegFloat = 0.0
+    ref_speed_mm_s: PositiveFloat = 100.0
+    tau_s: PositiveFloat = 600.0
+    ambient_C: float = 20.0
+
+
+class AxisErrors(_Model):
+    """The true errors of one axis (all optional; absent = perfect)."""
+
+    pitch: PitchConfig = PitchConfig()
+    backlash_um: NonNegFloat = 0.0
+    backlash_um_per_m: float = 0.0
+    repeatability_um: NonNegFloat = 0.0
+    thermal: ThermalConfig | None = None
+
+
+class PlaneConfig(_Model):
+    """XY plane errors between two axes (first = X, second = Y).
+
+    squareness: X_true += (y - y_min) * tan(angle): positive = the Y axis leans towards +X.
+    straightness_x_um: Y deviation bow over X travel (peak at mid travel, 0 at the ends).
+    straightness_y_um: X deviation bow over Y travel.
+    cross_um: X error = cross_um * tx * ty (tx, ty = normalised positions 0..1).
+    """
+
+    axes: tuple[str, str]
+    squareness_arcsec: float = 0.0
+    straightness_x_um: float = 0.0
+    straightness_y_um: float = 0.0
+    cross_um: float = 0.0
+
+
+# ---------------------------------------------------------------- instruments
+class LaserConfig(_Model):
+    """Laser interferometer: one int32 (nm) per axis, true table position."""
+
+    unit: UnitId = 20
+    axes: tuple[str, ...] | None = None
+    resolution_um: PositiveFloat = 0.1
+    noise_um: NonNegFloat = 0.0
+
+
+class XYConfig(_Model):
+    """2-D measuring device (e.g. grid encoder): true X and Y, int32 nm each."""
+
+    unit: UnitId = 21
+    resolution_um: PositiveFloat = 0.1
+    noise_um: NonNegFloat = 0.0
+
+
+class DeltaAConfig(_Model):
+    """Displacement sensor at reference point A (seed 002): reads the screw growth there."""
+
+    unit: UnitId = 22
+    axis: str
+    a_mm: float
+    resolution_um: PositiveFloat = 1.0
+    noise_um: NonNegFloat = 0.0
+
+
+class TemperatureConfig(_Model):
+    """Temperature sensors: one int16 per channel, 0.01 degC; channels = axis names or 'ambient'."""
+
+    unit: UnitId = 23
+    channels: tuple[str, ...] | None = None
+    noise_C: NonNegFloat = 0.0
+
+
+class InstrumentsConfig(_Model):
+    """Measuring instruments, each on its own unit id (absent = not simulated)."""
+
+    laser: LaserConfig | None = None
+    xy: XYConfig | None = None
+    delta_a: DeltaAConfig | None = None
+    temperature: TemperatureConfig | None = None
+
+
+class FaultsConfig(_Model):
+    """The fault/control unit (holding registers; map in sim/faults.py)."""
+
+    unit: Annotated[int, _in_range(1, 255)] = 250
+
+
+# ---------------------------------------------------------------- root
+class SimSection(_Model):
+    """Everything under the top-level ``sim:`` key."""
+
+    seed: int = 1
+    time_scale: NonNegFloat = 0.0
+    tcp: TcpConfig | None = None
+    rtu: RtuConfig | None = None
+    axes: dict[str, AxisConfig]
+    machine: dict[str, AxisErrors] = Field(default_factory=dict)
+    plane: PlaneConfig | None = None
+    instruments: InstrumentsConfig = InstrumentsConfig()
+    faults: FaultsConfig = FaultsConfig()
+
+    @model_validator(mode="after")
+    def _cross_refs(self) -> SimSection:
+        if not self.axes:
+            raise ValueError("axes: at least one axis is needed")
+        for name in self.machine:
+            if name not in self.axes:
+                raise ValueError(f"machine.{name}: no such axis (axes: {list(self.axes)})")
+        if self.plane is not None:
+            for name in self.plane.axes:
+                if name not in self.axes:
+                    raise ValueError(f"plane.axes: {name!r} is not an axis")
+            if self.plane.axes[0] == self.plane.axes[1]:
+                raise ValueError("plane.axes: the two axes must differ")
+        units: dict[int, str] = {}
+
+        def claim(unit: int, who: str) -> None:
+            if unit in units:
+                raise ValueError(f"{who}: unit {unit} is already used by {units[unit]}")
+            units[unit] = who
+
+        for name, axis in self.axes.items():
+            claim(axis.unit, f"axes.{name}")
+        ins = self.instruments
+        for key in ("laser", "xy", "delta_a", "temperature"):
+            item = getattr(ins, key)
+            if item is not None:
+                claim(item.unit, f"instruments.{key}")
+        claim(self.faults.unit, "faults")
+        if ins.laser is not None and ins.laser.axes is not None:
+            for name in ins.laser.axes:
+                if name not in self.axes:
+                    raise ValueError(f"instruments.laser.axes: {name!r} is not an axis")
+        if ins.xy is not None and self.plane is None:
+            raise ValueError("instruments.xy needs a plane (which axes are X and Y)")
+        if ins.delta_a is not None:
+            if ins.delta_a.axis not in self.axes:
+                raise ValueError(f"instruments.delta_a.axis: {ins.delta_a.axis!r} is not an axis")
+            errs = self.machine.get(ins.delta_a.axis)
+            if errs is None or errs.thermal is None:
+                raise ValueError("instruments.delta_a: its axis has no machine thermal model")
+        if ins.temperature is not None and ins.temperature.channels is not None:
+            for ch in ins.temperature.channels:
+                if ch != "ambient" and ch not in self.axes:
+                    raise ValueError(f"instruments.temperature.channels: {ch!r} is not an axis")
+        return self
+
+
+class SimConfig(_Model):
+    """The whole file; ``base_dir`` resolves relative paths (pitch tables)."""
+
+    sim: SimSection
+    base_dir: str = "."
+
+
+# ---------------------------------------------------------------- loading
+def _format_error(err: ValidationError) -> str:
+    """First validation error as ``yaml.path: value rule``."""
+    first = err.errors(include_url=False)[0]
+    loc = ".".join(str(p) for p in first["loc"])
+    msg = first["msg"].removeprefix("Value error, ")
+    if first["type"] == "missing":
+        return f"{loc}: missing (required)"
+    if first["type"] == "extra_forbidden":
+        return f"{loc}: unknown key"
+    value = first.get("input")
+    if isinstance(value, dict | list | tuple):
+        return f"{loc}: {msg}"
+    if msg.startswith("is "):
+        return f"{loc}: {value!r} {msg}"
+    return f"{loc}: {value!r}: {msg[:1].lower()}{msg[1:]}"
+
+
+def parse_config(data: object, base_dir: str | Path = ".") -> SimConfig:
+    """Validate already-parsed YAML data; raise :class:`SimConfigError` on any problem."""
+    if not isinstance(data, dict) or "sim" not in data:
+        raise SimConfigError("sim: missing (the file needs a top-level 'sim:' key)")
+    try:
+        cfg = SimConfig.model_validate({**data, "base_dir": str(base_dir)})
+    except ValidationError as err:
+        raise SimConfigError(_format_error(err)) from None
+    for name, errs in cfg.sim.machine.items():
+        if errs.pitch.table is not None:
+            try:
+                load_pitch_table(errs.pitch.table, cfg.base_dir)
+            except (OSError, ValueError, KeyError) as err:
+                raise SimConfigError(f"sim.machine.{name}.pitch.table: {err}") from None
+    return cfg
+
+
+def load_config(path: str | Path) -> SimConfig:
+    """Read and validate a sim YAML file; raise :class:`SimConfigError` with one line."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as err:
+        raise SimConfigError(f"{path}: cannot read ({err.strerror})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        raise SimConfigError(f"{path}:{where} not valid YAML") from None
+    return parse_config(data, path.parent)
+
+
+def load_pitch_table(table: PitchTable, base_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read (position_mm, error_um) sorted by position; rows with a blank cell are skipped."""
+    path = Path(table.path)
+    if not path.is_absolute():
+        path = Path(base_dir) / path
+    xs: list[float] = []
+    es: list[float] = []
+    with path.open(newline="", encoding="utf-8") as fh:
+        reader = csv.DictReader(fh)
+        for col in (table.position_column, table.error_column):
+            if reader.fieldnames is None or col not in reader.fieldnames:
+                raise ValueError(f"{path}: no column {col!r}")
+        for row in reader:
+            x, e = row[table.position_column].strip(), row[table.error_column].strip()
+            if x and e:
+                xs.append(float(x))
+                es.append(float(e) * table.scale)
+    if len(xs) < 2:
+        raise ValueError(f"{path}: needs at least 2 rows with both values")
+    order = np.argsort(xs)
+    return np.asarray(xs)[order], np.asarray(es)[order]

@@ -1,0 +1,132 @@
+"""Simulated measuring instruments, each a read-only Modbus unit (FC03 and FC04 both work).
+
+Register maps (0-based addresses; int32 = two registers, high word first, two's complement):
+
+* laser interferometer (``instruments.laser``): axis k (config order, or ``axes``) at
+  registers 2k, 2k+1: true table position along that axis, int32 in nanometres, quantised
+  to ``resolution_um``, plus normal noise ``noise_um`` per read.
+* 2-D device (``instruments.xy``): 0-1 true X, 2-3 true Y of the plane axes, int32 nm.
+* displacement sensor at reference point A (``instruments.delta_a``): 0 = delta_a as int16
+  in steps of ``resolution_um`` (so a gateway reads it with ``scale_mm = resolution_um/1000``),
+  1-2 = delta_a as int32 nm (same quantisation).
+* temperatures (``instruments.temperature``): channel k at register k, int16 in 0.01 degC;
+  a channel is an axis name (its screw temperature) or ``ambient``.
+Every read request samples once (so the two words of an int32 always belong together) and
+draws fresh noise from the instrument's own seeded generator.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.clock import MachineClock
+from sim.config import DeltaAConfig, LaserConfig, TemperatureConfig, XYConfig
+from sim.machine import Machine
+from sim.pdu import ILLEGAL_ADDRESS, ModbusError, int32_to_words
+
+
+def _quantised_nm(value_mm: float, resolution_um: float) -> int:
+    steps = round(value_mm * 1000.0 / resolution_um)
+    return round(steps * resolution_um * 1000.0)
+
+
+class Instrument:
+    """Base: a read-only bank of registers computed on each read."""
+
+    def __init__(self, machine: Machine, clock: MachineClock, rng: np.random.Generator) -> None:
+        self.machine = machine
+        self.clock = clock
+        self.rng = rng
+
+    def sample(self) -> list[int]:
+        """All registers of the instrument, sampled now."""
+        raise NotImplementedError
+
+    def _noise(self, sigma: float) -> float:
+        return float(self.rng.normal(0.0, sigma)) if sigma > 0 else 0.0
+
+    def read(self, table: str, address: int, count: int) -> list[int]:
+        """Read registers (holding and input tables are the same)."""
+        regs = self.sample()
+        if address + count > len(regs):
+            raise ModbusError(ILLEGAL_ADDRESS, f"{len(regs)} registers")
+        return regs[address : address + count]
+
+    def write(self, address: int, values: list[int], function_code: int) -> None:
+        """Instruments are read-only."""
+        raise ModbusError(ILLEGAL_ADDRESS, "read-only")
+
+
+class Laser(Instrument):
+    """Laser interferometer, one channel per axis."""
+
+    def __init__(self, cfg: LaserConfig, axes: list[str], *args) -> None:
+        super().__init__(*args)
+        self.cfg = cfg
+        self.axes = list(cfg.axes) if cfg.axes is not None else axes
+
+    def sample(self) -> list[int]:
+        """Axis k at 2k: true position, nm."""
+        now_s = self.clock.now_s()
+        out: list[int] = []
+        for name in self.axes:
+            pos_mm = self.machine.table_mm(name, now_s) + self._noise(self.cfg.noise_um) / 1000
+            out += int32_to_words(_quantised_nm(pos_mm, self.cfg.resolution_um), "hi_lo")
+        return out
+
+
+class XYDevice(Instrument):
+    """2-D measuring device over the plane axes."""
+
+    def __init__(self, cfg: XYConfig, *args) -> None:
+        super().__init__(*args)
+        self.cfg = cfg
+
+    def sample(self) -> list[int]:
+        """0-1 X nm, 2-3 Y nm."""
+        x_mm, y_mm = self.machine.table_xy_mm(self.clock.now_s())
+        out: list[int] = []
+        for v_mm in (x_mm, y_mm):
+            v_mm += self._noise(self.cfg.noise_um) / 1000
+            out += int32_to_words(_quantised_nm(v_mm, self.cfg.resolution_um), "hi_lo")
+        return out
+
+
+class DeltaASensor(Instrument):
+    """Displacement sensor at reference point A on the screw."""
+
+    def __init__(self, cfg: DeltaAConfig, *args) -> None:
+        super().__init__(*args)
+        self.cfg = cfg
+
+    def sample(self) -> list[int]:
+        """0 = int16 resolution steps, 1-2 = int32 nm."""
+        d_mm = self.machine.delta_a_mm(self.cfg.axis, self.cfg.a_mm, self.clock.now_s())
+        d_mm += self._noise(self.cfg.noise_um) / 1000
+        steps = round(d_mm * 1000.0 / self.cfg.resolution_um)
+        steps = max(-32768, min(32767, steps))
+        nm = _quantised_nm(d_mm, self.cfg.resolution_um)
+        return [steps & 0xFFFF, *int32_to_words(nm, "hi_lo")]
+
+
+class TemperatureSensors(Instrument):
+    """Screw and ambient temperatures."""
+
+    def __init__(self, cfg: TemperatureConfig, axes: list[str], *args) -> None:
+        super().__init__(*args)
+        self.cfg = cfg
+        self.channels = list(cfg.channels) if cfg.channels is not None else [*axes, "ambient"]
+
+    def sample(self) -> list[int]:
+        """Channel k at k: int16, 0.01 degC."""
+        now_s = self.clock.now_s()
+        out: list[int] = []
+        for ch in self.channels:
+            temp_C = (
+                self.machine.ambient_C()
+                if ch == "ambient"
+                else self.machine.screw_temp_C(ch, now_s)
+            )
+            temp_C += self._noise(self.cfg.noise_C)
+            out.append(max(-32768, min(32767, round(temp_C * 100.0))) & 0xFFFF)
+        return out

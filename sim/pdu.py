@@ -1,0 +1,110 @@
+"""Modbus PDU handling for the simulated units: parse a request PDU, call the unit, encode.
+
+Works on raw PDU bytes (function code + data) so that the transports (TCP, RTU) only frame
+and unframe, and every unit sees exactly one call per request (no double calls, no lost
+transaction ids). Supported: FC03, FC04, FC06, FC16, FC23; anything else -> exception 0x01.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import Protocol
+
+ILLEGAL_FUNCTION = 0x01
+ILLEGAL_ADDRESS = 0x02
+ILLEGAL_VALUE = 0x03
+DEVICE_FAILURE = 0x04
+GATEWAY_NO_RESPONSE = 0x0B
+
+
+class ModbusError(Exception):
+    """Raised by a unit to answer with a Modbus exception code."""
+
+    def __init__(self, code: int, why: str = "") -> None:
+        super().__init__(f"exception {code:#04x}{': ' + why if why else ''}")
+        self.code = code
+
+
+class RegisterUnit(Protocol):
+    """What a simulated unit implements; register addresses are 0-based PDU addresses."""
+
+    def read(self, table: str, address: int, count: int) -> list[int]:
+        """Read ``count`` registers from ``table`` ("holding" or "input")."""
+        ...
+
+    def write(self, address: int, values: list[int], function_code: int) -> None:
+        """Write holding registers (all or nothing); raise ModbusError to refuse."""
+        ...
+
+
+def exception_pdu(function_code: int, code: int) -> bytes:
+    """The exception response for a request with this function code."""
+    return bytes([(function_code | 0x80) & 0xFF, code & 0xFF])
+
+
+def _registers(values: list[int]) -> bytes:
+    return struct.pack(f">B{len(values)}H", 2 * len(values), *values)
+
+
+def handle_pdu(unit: RegisterUnit, pdu: bytes) -> bytes:
+    """Execute one request PDU against ``unit`` and return the response PDU."""
+    if not pdu:
+        raise ValueError("empty PDU")
+    fc = pdu[0]
+    try:
+        return _dispatch(unit, fc, pdu[1:])
+    except ModbusError as err:
+        return exception_pdu(fc, err.code)
+    except struct.error:
+        return exception_pdu(fc, ILLEGAL_VALUE)
+
+
+def _dispatch(unit: RegisterUnit, fc: int, data: bytes) -> bytes:
+    if fc in (0x03, 0x04):
+        address, count = struct.unpack(">HH", data[:4])
+        if not 1 <= count <= 125:
+            raise ModbusError(ILLEGAL_VALUE, "read count")
+        _check_span(address, count)
+        values = unit.read("holding" if fc == 0x03 else "input", address, count)
+        return bytes([fc]) + _registers(values)
+    if fc == 0x06:
+        address, value = struct.unpack(">HH", data[:4])
+        unit.write(address, [value], fc)
+        return bytes([fc]) + data[:4]
+    if fc == 0x10:
+        address, count, nbytes = struct.unpack(">HHB", data[:5])
+        if not 1 <= count <= 123 or nbytes != 2 * count or len(data) < 5 + nbytes:
+            raise ModbusError(ILLEGAL_VALUE, "write count")
+        _check_span(address, count)
+        values = list(struct.unpack(f">{count}H", data[5 : 5 + nbytes]))
+        unit.write(address, values, fc)
+        return bytes([fc]) + data[:4]
+    if fc == 0x17:
+        r_addr, r_count, w_addr, w_count, nbytes = struct.unpack(">HHHHB", data[:9])
+        if not (1 <= r_count <= 125 and 1 <= w_count <= 121 and nbytes == 2 * w_count):
+            raise ModbusError(ILLEGAL_VALUE, "read/write count")
+        _check_span(r_addr, r_count)
+        _check_span(w_addr, w_count)
+        values = list(struct.unpack(f">{w_count}H", data[9 : 9 + nbytes]))
+        unit.write(w_addr, values, fc)
+        return bytes([fc]) + _registers(unit.read("holding", r_addr, r_count))
+    raise ModbusError(ILLEGAL_FUNCTION, f"function {fc:#04x}")
+
+
+def _check_span(address: int, count: int) -> None:
+    if address + count > 0x10000:
+        raise ModbusError(ILLEGAL_ADDRESS, "past 0xFFFF")
+
+
+def int32_to_words(value: int, order: str) -> list[int]:
+    """Signed 32-bit value (wrapped) as two registers in ``order`` ("hi_lo" or "lo_hi")."""
+    raw = value & 0xFFFFFFFF
+    hi, lo = raw >> 16, raw & 0xFFFF
+    return [hi, lo] if order == "hi_lo" else [lo, hi]
+
+
+def words_to_int32(words: list[int], order: str) -> int:
+    """Two registers in ``order`` as a signed 32-bit value."""
+    hi, lo = (words[0], words[1]) if order == "hi_lo" else (words[1], words[0])
+    raw = (hi << 16) | lo
+    return raw - (1 << 32) if raw & 0x80000000 else raw

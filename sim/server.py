@@ -1,0 +1,292 @@
+"""The simulator's Modbus server (TCP and/or RTU serial) and the ``compgw sim`` entry point.
+
+Frame-level on purpose, using pymodbus's framers (``FramerSocket``, ``FramerRTU``) only to
+split and build frames: the faults need the unit id of every request and control over
+whether, when and how a reply leaves (silence, delay, garbage bytes), and each request must
+reach its unit exactly once with its own transaction id. pymodbus's SimDevice action hook
+gets no unit id, runs twice for FC06 and answers pipelined TCP requests with the wrong
+transaction id (see PYMODBUS.md), so the sim answers frames itself.
+
+In-process use (tests, demo)::
+
+    cfg = load_config("config/example-sim.yaml")
+    async with SimServer(cfg, tcp_port=0) as server:
+        port = server.tcp_port              # the bound port
+        server.sim.machine ...              # the truth, for assertions
+
+Unknown unit ids: no reply on RTU (another device's address on a shared line); exception
+0x0B (gateway target failed to respond) on TCP, as a TCP-to-RS-485 gateway answers.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import signal
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import serial
+from pymodbus.framer import FramerRTU, FramerSocket
+from pymodbus.pdu import DecodePDU
+
+from sim.config import RtuConfig, SimConfig, SimConfigError, TcpConfig, load_config
+from sim.pdu import GATEWAY_NO_RESPONSE, exception_pdu
+from sim.simulation import Reply, Simulation
+
+EXIT_OK, EXIT_BAD_CONFIG, EXIT_RUNTIME = 0, 1, 3
+RTU_GAP_S = 0.05  # an incomplete RTU frame older than this is dropped (line silence)
+_PARITY = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
+
+
+class SimServer:
+    """The simulation served over Modbus TCP and/or RTU; an async context manager.
+
+    Keyword overrides replace the config's values (``tcp_port=0`` binds a free port,
+    ``rtu_port`` names a serial device, e.g. a pty); ``tcp_port`` given without a ``tcp``
+    section listens on 127.0.0.1.
+    """
+
+    def __init__(
+        self,
+        config: SimConfig,
+        *,
+        tcp_port: int | None = None,
+        rtu_port: str | None = None,
+        time_scale: float | None = None,
+        seed: int | None = None,
+        wall_s: Callable[[], float] = time.monotonic,
+    ) -> None:
+        section = config.sim
+        updates: dict[str, object] = {}
+        if tcp_port is not None:
+            updates["tcp"] = (section.tcp or TcpConfig()).model_copy(update={"port": tcp_port})
+        if rtu_port is not None:
+            updates["rtu"] = (section.rtu or RtuConfig(port=rtu_port)).model_copy(
+                update={"port": rtu_port}
+            )
+        if time_scale is not None:
+            updates["time_scale"] = time_scale
+        if seed is not None:
+            updates["seed"] = seed
+        self.config = config.model_copy(update={"sim": section.model_copy(update=updates)})
+        self.sim = Simulation(self.config, wall_s)
+        self.tcp_port: int | None = None
+        self.rtu_port: str | None = None
+        self._tcp_server: asyncio.Server | None = None
+        self._rtu: _RtuLine | None = None
+        self._tasks: set[asyncio.Task] = set()
+
+    async def start(self) -> None:
+        """Open the configured listeners; raises OSError/SerialException if one fails."""
+        cfg = self.config.sim
+        try:
+            if cfg.tcp is not None:
+                self._tcp_server = await asyncio.start_server(
+                    self._serve_tcp_client, cfg.tcp.host, cfg.tcp.port
+                )
+                self.tcp_port = self._tcp_server.sockets[0].getsockname()[1]
+            if cfg.rtu is not None:
+                self._rtu = _RtuLine(cfg.rtu, self.sim)
+                self._rtu.open()
+                self.rtu_port = cfg.rtu.port
+        except BaseException:
+            await self.stop()
+            raise
+
+    async def stop(self) -> None:
+        """Close listeners and connections."""
+        if self._rtu is not None:
+            await self._rtu.close()
+            self._rtu = None
+        if self._tcp_server is not None:
+            self._tcp_server.close()
+            for task in list(self._tasks):
+                task.cancel()
+            await asyncio.gather(*self._tasks, return_exceptions=True)
+            await self._tcp_server.wait_closed()
+            self._tcp_server = None
+
+    async def __aenter__(self) -> SimServer:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+    # ------------------------------------------------------------ TCP
+    async def _serve_tcp_client(
+        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter
+    ) -> None:
+        """One connection: requests answered in order, each with its own transaction id."""
+        task = asyncio.current_task()
+        if task is not None:
+            self._tasks.add(task)
+        framer = FramerSocket(DecodePDU(is_server=True))
+        buffer = b""
+        try:
+            while True:
+                chunk = await reader.read(4096)
+                if not chunk:
+                    return
+                buffer += chunk
+                while len(buffer) >= framer.MIN_SIZE:
+                    if buffer[2:4] != b"\x00\x00":
+                        return  # not Modbus: drop the connection
+                    used, unit, tid, pdu = framer.decode(buffer)
+                    if not used:
+                        break
+                    buffer = buffer[used:]
+                    await self._answer_tcp(writer, framer, unit, tid, pdu)
+        except (ConnectionError, asyncio.CancelledError):
+            pass
+        finally:
+            if task is not None:
+                self._tasks.discard(task)
+            writer.close()
+            with contextlib.suppress(Exception):
+                await writer.wait_closed()
+
+    async def _answer_tcp(
+        self, writer: asyncio.StreamWriter, framer: FramerSocket, unit: int, tid: int, pdu: bytes
+    ) -> None:
+        reply = self.sim.respond(unit, pdu)
+        if reply.unknown_unit and pdu:
+            reply = Reply(exception_pdu(pdu[0], GATEWAY_NO_RESPONSE))
+        if reply.pdu is None:
+            return
+        if reply.delay_s > 0:
+            await asyncio.sleep(reply.delay_s)
+        body = self.sim.scramble(reply.pdu) if reply.garbage else reply.pdu
+        writer.write(framer.encode(body, unit, tid))
+        await writer.drain()
+
+
+class _RtuLine:
+    """Modbus RTU on one serial port: one request at a time, replies in order."""
+
+    def __init__(self, cfg: RtuConfig, sim: Simulation) -> None:
+        self.cfg = cfg
+        self.sim = sim
+        self.framer = FramerRTU(DecodePDU(is_server=True))
+        self._port: serial.Serial | None = None
+        self._buffer = b""
+        self._gap: asyncio.TimerHandle | None = None
+        self._queue: asyncio.Queue[tuple[int, bytes]] = asyncio.Queue()
+        self._worker: asyncio.Task | None = None
+
+    def open(self) -> None:
+        """Open the port and start reading (raises serial.SerialException)."""
+        self._port = serial.Serial(
+            port=self.cfg.port,
+            baudrate=int(self.cfg.baudrate),
+            parity=_PARITY[self.cfg.parity],
+            stopbits=self.cfg.stopbits,
+            bytesize=self.cfg.bytesize,
+            timeout=0,
+        )
+        loop = asyncio.get_running_loop()
+        loop.add_reader(self._port.fileno(), self._on_readable)
+        self._worker = loop.create_task(self._work())
+
+    async def close(self) -> None:
+        """Stop reading and close the port."""
+        if self._gap is not None:
+            self._gap.cancel()
+        if self._worker is not None:
+            self._worker.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._worker
+        if self._port is not None:
+            with contextlib.suppress(Exception):
+                asyncio.get_running_loop().remove_reader(self._port.fileno())
+            self._port.close()
+            self._port = None
+
+    def _on_readable(self) -> None:
+        assert self._port is not None
+        try:
+            chunk = self._port.read(4096)
+        except (serial.SerialException, OSError):
+            return
+        if not chunk:
+            return
+        self._buffer += chunk
+        used, unit, _tid, pdu = self.framer.decode(self._buffer)
+        if used:
+            self._buffer = b""  # a frame, or a bad CRC: either way the buffer is spent
+            if pdu and unit != 0:
+                self._queue.put_nowait((unit, pdu))
+        if self._gap is not None:
+            self._gap.cancel()
+            self._gap = None
+        if self._buffer:
+            self._gap = asyncio.get_running_loop().call_later(RTU_GAP_S, self._drop_partial)
+
+    def _drop_partial(self) -> None:
+        self._buffer = b""
+        self._gap = None
+
+    async def _work(self) -> None:
+        while True:
+            unit, pdu = await self._queue.get()
+            reply = self.sim.respond(unit, pdu)
+            if reply.pdu is None:
+                continue
+            if reply.delay_s > 0:
+                await asyncio.sleep(reply.delay_s)
+            frame = self.framer.encode(reply.pdu, unit, 0)
+            if reply.garbage:
+                frame = self.sim.scramble(frame)
+                if FramerRTU.check_CRC(frame[:-2], int.from_bytes(frame[-2:], "big")):
+                    frame = frame[:-1] + bytes([frame[-1] ^ 0xFF])
+            if self._port is not None:
+                self._port.write(frame)
+
+
+# ---------------------------------------------------------------- command line
+async def _serve(config: SimConfig) -> int:
+    """Run until SIGINT/SIGTERM."""
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    server = SimServer(config)
+    try:
+        await server.start()
+    except (OSError, serial.SerialException) as err:
+        print(f"compgw sim: cannot listen: {err}", file=sys.stderr)
+        return EXIT_RUNTIME
+    cfg = server.config.sim
+    if server.tcp_port is not None and cfg.tcp is not None:
+        print(f"compgw sim: modbus tcp on {cfg.tcp.host}:{server.tcp_port}", flush=True)
+    if server.rtu_port is not None:
+        print(f"compgw sim: modbus rtu on {server.rtu_port}", flush=True)
+    units = ", ".join(f"{n}={a.unit}" for n, a in cfg.axes.items())
+    print(f"compgw sim: drives {units}; faults unit {cfg.faults.unit}", flush=True)
+    try:
+        await stop.wait()
+    finally:
+        await server.stop()
+    return EXIT_OK
+
+
+def main(config_path: str) -> int:
+    """``compgw sim -c FILE``: 0 ok, 1 bad config (one line naming the YAML path), 3 fault."""
+    try:
+        config = load_config(config_path)
+    except SimConfigError as err:
+        print(f"compgw sim: {Path(config_path)}: {err}", file=sys.stderr)
+        return EXIT_BAD_CONFIG
+    if config.sim.tcp is None and config.sim.rtu is None:
+        print(f"compgw sim: {config_path}: sim: give tcp and/or rtu", file=sys.stderr)
+        return EXIT_BAD_CONFIG
+    try:
+        return asyncio.run(_serve(config))
+    except KeyboardInterrupt:
+        return EXIT_OK
+    except Exception as err:  # a runtime fault, reported in one line
+        print(f"compgw sim: runtime fault: {type(err).__name__}: {err}", file=sys.stderr)
+        return EXIT_RUNTIME
