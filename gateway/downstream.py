@@ -1,0 +1,479 @@
+"""Modbus clients toward the drives: one :class:`Bus` per RS-485 line or TCP drive endpoint.
+
+Shape after python-can's ``BusABC``: the base class :class:`Bus` does the fair queue, the
+retry/timeout loop and the reply checks once (unit id, transaction id, function, byte
+count, echoed address and quantity); each transport fills a few small hooks (``_open``,
+``_prepare``, ``_send``, ``_recv_internal``, ``_after_timeout``, ``_close``).
+
+Errors the gateway turns into Modbus exceptions upstream:
+:class:`DriveTimeout` (0x0B, the drive stayed silent) and :class:`BusUnavailable` (0x0A,
+the port or connection is down). A drive's own exception response is returned as is.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import contextvars
+import logging
+import socket
+import time
+from abc import ABC, abstractmethod
+from collections import OrderedDict, deque
+from collections.abc import Hashable
+from dataclasses import dataclass
+
+from pymodbus.framer import FramerSocket
+from pymodbus.pdu import DecodePDU
+
+from .frames import (
+    GATEWAY_PATH_UNAVAILABLE,
+    GATEWAY_TARGET_NO_RESPONSE,
+    MAX_PDU_BYTES,
+    ModbusError,
+    response_matches,
+    rtu_encode,
+    rtu_response_length,
+)
+from .serialline import SerialLine, SerialLineLost
+
+log = logging.getLogger(__name__)
+
+#: Who is asking, for fair queuing: the upstream server sets it per master connection,
+#: so each master gets its turn on a busy bus whatever the others have queued.
+current_caller: contextvars.ContextVar[Hashable | None] = contextvars.ContextVar(
+    "compgw_caller", default=None)
+
+
+class BusError(ModbusError):
+    """A transaction could not be completed on the bus."""
+
+
+class DriveTimeout(BusError):
+    """The drive did not answer within timeout_s × (retries + 1): upstream gets 0x0B."""
+
+    code = GATEWAY_TARGET_NO_RESPONSE
+
+
+class BusUnavailable(BusError):
+    """The serial port or TCP connection is down: upstream gets 0x0A."""
+
+    code = GATEWAY_PATH_UNAVAILABLE
+
+
+@dataclass
+class BusCounters:
+    """Monotonic counters for metrics."""
+
+    transactions: int = 0  # transact() calls that reached the bus
+    replies: int = 0  # answered (normal or exception response)
+    timeouts: int = 0  # attempts that timed out
+    retries: int = 0  # attempts after the first
+    dropped: int = 0  # late or mismatched replies discarded
+    unavailable: int = 0  # transactions refused with BusUnavailable
+    reconnects: int = 0  # successful (re)opens of the port/connection
+
+
+class FairQueue:
+    """Grants one holder at a time: round-robin between callers, FIFO within one caller.
+
+    A master that pipelines many requests cannot starve another: after each transaction
+    the turn passes to the next caller that is waiting.
+    """
+
+    def __init__(self) -> None:
+        self._lanes: OrderedDict[Hashable | None, deque[asyncio.Future[None]]] = OrderedDict()
+        self._busy = False
+
+    @property
+    def depth(self) -> int:
+        """Requests waiting (not counting the one on the bus)."""
+        return sum(len(lane) for lane in self._lanes.values())
+
+    async def acquire(self, caller: Hashable | None) -> None:
+        if not self._busy and not self._lanes:
+            self._busy = True
+            return
+        fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._lanes.setdefault(caller, deque()).append(fut)
+        try:
+            await fut
+        except asyncio.CancelledError:
+            if fut.done() and not fut.cancelled():
+                self.release()  # granted just as we were cancelled: pass the turn on
+            else:
+                lane = self._lanes.get(caller)
+                if lane is not None and fut in lane:
+                    lane.remove(fut)
+                    if not lane:
+                        del self._lanes[caller]
+            raise
+
+    def release(self) -> None:
+        while self._lanes:
+            caller, lane = next(iter(self._lanes.items()))
+            fut = lane.popleft()
+            if lane:
+                self._lanes.move_to_end(caller)
+            else:
+                del self._lanes[caller]
+            if not fut.done():
+                fut.set_result(None)
+                return
+        self._busy = False
+
+
+class Bus(ABC):
+    """One transaction at a time toward the drives on one line or endpoint.
+
+    ``timeout_s`` is per attempt; ``retries`` extra attempts follow a timeout (never an
+    exception response, never a write that was answered). ``min_silence_s`` is extra line
+    silence between frames for drives that need more than t3.5 (Delta: 0.01).
+    ``reconnect_min_s``/``reconnect_max_s`` bound the exponential backoff between
+    attempts to reopen a failed port/connection: meanwhile transactions fail at once
+    with :class:`BusUnavailable` (no busy loop, no master left hanging).
+    """
+
+    def __init__(self, *, name: str = "bus", timeout_s: float = 0.1, retries: int = 1,
+                 min_silence_s: float = 0.0, reconnect_min_s: float = 0.1,
+                 reconnect_max_s: float = 5.0) -> None:
+        if timeout_s <= 0 or retries < 0 or min_silence_s < 0:
+            raise ValueError("timeout_s must be > 0, retries and min_silence_s >= 0")
+        self.name = name
+        self.timeout_s = timeout_s
+        self.retries = retries
+        self.min_silence_s = min_silence_s
+        self.reconnect_min_s = reconnect_min_s
+        self.reconnect_max_s = reconnect_max_s
+        self.counters = BusCounters()
+        self._queue = FairQueue()
+        self._backoff_s = reconnect_min_s
+        self._next_open_s = 0.0
+        self._closed = False
+
+    # ------------------------------------------------------------------ public
+
+    @property
+    def queue_depth(self) -> int:
+        """Transactions waiting for the bus (metrics)."""
+        return self._queue.depth
+
+    @property
+    @abstractmethod
+    def connected(self) -> bool:
+        """True while the port/connection is open."""
+
+    async def transact(self, unit_id: int, pdu: bytes, *, caller: Hashable | None = None
+                       ) -> bytes:
+        """Send request ``pdu`` to ``unit_id`` and return the drive's response PDU.
+
+        The response may be an exception PDU (relayed as is). Raises :class:`DriveTimeout`
+        or :class:`BusUnavailable`; ``ValueError`` for a PDU that cannot be sent.
+        """
+        if not 1 <= len(pdu) <= MAX_PDU_BYTES or not 0 <= unit_id <= 255:
+            raise ValueError(f"cannot send unit {unit_id} PDU of {len(pdu)} bytes")
+        if caller is None:
+            caller = current_caller.get()
+        await self._queue.acquire(caller)
+        try:
+            return await self._transact_locked(unit_id, pdu)
+        finally:
+            self._queue.release()
+
+    async def connect(self) -> bool:
+        """Open the port/connection now (e.g. at start-up); False if it is down."""
+        try:
+            await self._ensure_open(force=True)
+        except BusUnavailable:
+            return False
+        return True
+
+    async def close(self) -> None:
+        """Close for good; later transactions raise :class:`BusUnavailable`."""
+        self._closed = True
+        await self._close()
+
+    # ------------------------------------------------------------------ the loop
+
+    async def _transact_locked(self, unit_id: int, pdu: bytes) -> bytes:
+        self.counters.transactions += 1
+        for attempt in range(self.retries + 1):
+            if attempt:
+                self.counters.retries += 1
+            await self._ensure_open()
+            in_flight = False
+            try:
+                await self._prepare()
+                tid = await self._send(unit_id, pdu)
+                in_flight = True
+                if self._no_reply_expected(unit_id):
+                    return b""
+                reply = await self._await_reply(unit_id, tid, pdu)
+                in_flight = False
+            except (OSError, ConnectionError, EOFError) as err:
+                await self._lost(err)
+                if attempt < self.retries:
+                    continue
+                self.counters.unavailable += 1
+                raise BusUnavailable(f"{self.name}: {err}") from err
+            finally:
+                if in_flight:  # cancelled or failed with a request on the line
+                    self._after_timeout()
+            if reply is not None:
+                self.counters.replies += 1
+                return reply
+            self.counters.timeouts += 1
+            self._after_timeout()
+            log.debug("%s: unit %d FC%02d attempt %d timed out", self.name, unit_id, pdu[0],
+                      attempt + 1)
+        raise DriveTimeout(f"{self.name}: unit {unit_id} did not answer FC{pdu[0]:02d}")
+
+    async def _await_reply(self, unit_id: int, tid: int | None, pdu: bytes) -> bytes | None:
+        """Receive until a matching reply or the attempt's deadline; drop the others."""
+        deadline = time.monotonic() + self.timeout_s + self._extra_wait_s(pdu)
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return None
+            got = await self._recv_internal(remaining)
+            if got is None:
+                return None
+            r_unit, r_tid, r_pdu = got
+            if ((r_unit is None or r_unit == unit_id) and (tid is None or r_tid == tid)
+                    and response_matches(pdu, r_pdu)):
+                return r_pdu
+            self.counters.dropped += 1
+            log.debug("%s: dropped reply unit %d tid %s %s (waiting for unit %d tid %s)",
+                      self.name, r_unit, r_tid, r_pdu.hex(), unit_id, tid)
+
+    async def _ensure_open(self, force: bool = False) -> None:
+        if self._closed:
+            self.counters.unavailable += 1
+            raise BusUnavailable(f"{self.name}: closed")
+        if self.connected:
+            return
+        now = time.monotonic()
+        if now < self._next_open_s and not force:
+            self.counters.unavailable += 1
+            raise BusUnavailable(f"{self.name}: down, next attempt in "
+                                 f"{self._next_open_s - now:.2f} s")
+        try:
+            await self._open()
+        except (OSError, ConnectionError, asyncio.TimeoutError) as err:
+            self._next_open_s = time.monotonic() + self._backoff_s
+            self._backoff_s = min(self._backoff_s * 2, self.reconnect_max_s)
+            log.warning("%s: cannot open: %s", self.name, err)
+            self.counters.unavailable += 1
+            raise BusUnavailable(f"{self.name}: {err}") from err
+        self._backoff_s = self.reconnect_min_s
+        self.counters.reconnects += 1
+        log.info("%s: open", self.name)
+
+    async def _lost(self, err: BaseException) -> None:
+        log.warning("%s: connection lost: %s", self.name, err)
+        await self._close()
+
+    # ------------------------------------------------------------------ hooks
+
+    @abstractmethod
+    async def _open(self) -> None:
+        """Open the port/connection; raise OSError if it cannot be."""
+
+    @abstractmethod
+    async def _close(self) -> None:
+        """Close the port/connection (idempotent)."""
+
+    async def _prepare(self) -> None:  # noqa: B027  (optional hook)
+        """Before each request: let the line settle, drop stale input."""
+
+    @abstractmethod
+    async def _send(self, unit_id: int, pdu: bytes) -> int | None:
+        """Send one request; return its transaction id (None where there is none)."""
+
+    @abstractmethod
+    async def _recv_internal(self, timeout_s: float) -> tuple[int | None, int | None, bytes] | None:
+        """Next frame as (unit id, transaction id, PDU), or None on timeout (unit or tid
+        None: not checked)."""
+
+    def _after_timeout(self) -> None:  # noqa: B027  (optional hook)
+        """A request went unanswered: its reply may still come."""
+
+    def _extra_wait_s(self, pdu: bytes) -> float:
+        """Added to timeout_s for one attempt (wire time on serial lines)."""
+        return 0.0
+
+    def _no_reply_expected(self, unit_id: int) -> bool:
+        return False
+
+
+class RtuBus(Bus):
+    """An RS-485 line (or pty) with Modbus RTU framing, one transaction at a time.
+
+    Before each request the line must have been quiet for t3.5 + ``min_silence_s``; after
+    a timeout (or a cancelled transaction) input is flushed until the line stays quiet, so a
+    late reply is dropped, not handed to the next request. Unit 0 is broadcast: sent, no
+    reply awaited, ``b""`` returned.
+    """
+
+    def __init__(self, port: str, *, baudrate: int = 19200, bytesize: int = 8,
+                 parity: str = "E", stopbits: float = 1, silence_s: float | None = None,
+                 serial_kwargs: dict[str, object] | None = None, **bus_kwargs: object) -> None:
+        bus_kwargs.setdefault("name", port)
+        super().__init__(**bus_kwargs)  # type: ignore[arg-type]
+        self.line = SerialLine(port, baudrate=baudrate, bytesize=bytesize, parity=parity,
+                               stopbits=stopbits, silence_s=silence_s, **(serial_kwargs or {}))
+        self._dirty = False
+
+    @property
+    def connected(self) -> bool:
+        return self.line.is_open
+
+    async def _open(self) -> None:
+        try:
+            self.line.open()
+        except SerialLineLost as err:
+            raise OSError(str(err)) from err
+        self._dirty = True  # whatever was on the line before we listened is stale
+
+    async def _close(self) -> None:
+        self.line.close()
+
+    async def _prepare(self) -> None:
+        gap_s = self.line.silence_s + self.min_silence_s
+        if self._dirty:
+            # A reply may still be coming: drop input until quiet for a full reply slot.
+            dropped = await self.line.wait_quiet(gap_s, max_wait_s=self.timeout_s)
+            self._dirty = False
+        else:
+            dropped = self.line.discard()
+            remaining = gap_s - self.line.quiet_for_s()
+            if remaining > 0:
+                await asyncio.sleep(remaining)
+                dropped += self.line.discard()
+        if dropped:
+            self.counters.dropped += 1
+            self.line.garbage_bytes += dropped
+
+    async def _send(self, unit_id: int, pdu: bytes) -> int | None:
+        await self.line.write(rtu_encode(unit_id, pdu))
+        return None
+
+    async def _recv_internal(self, timeout_s: float
+                             ) -> tuple[int | None, int | None, bytes] | None:
+        frame = await self.line.read_frame(rtu_response_length, timeout_s)
+        if frame is None:
+            return None
+        return frame[0], None, frame[1:-2]
+
+    def _after_timeout(self) -> None:
+        self._dirty = True
+
+    def _extra_wait_s(self, pdu: bytes) -> float:
+        return self.line.wire_time_s(len(pdu) + 3)
+
+    def _no_reply_expected(self, unit_id: int) -> bool:
+        return unit_id == 0
+
+
+class TcpBus(Bus):
+    """A Modbus TCP drive (or TCP-to-RTU converter): one persistent connection.
+
+    Replies are matched by MBAP transaction id, so a late reply to a timed-out request is
+    recognised and dropped. The connection is opened on first use and reopened after a
+    failure with exponential backoff; a peer that closes an idle connection is reconnected
+    transparently on the next request.
+    """
+
+    def __init__(self, host: str, port: int = 502, *, connect_timeout_s: float | None = None,
+                 check_unit: bool = True, **bus_kwargs: object) -> None:
+        bus_kwargs.setdefault("name", f"{host}:{port}")
+        super().__init__(**bus_kwargs)  # type: ignore[arg-type]
+        self.host = host
+        self.port = port
+        self.connect_timeout_s = connect_timeout_s or max(self.timeout_s, 1.0)
+        self.check_unit = check_unit
+        self._framer = FramerSocket(DecodePDU(is_server=False))
+        self._reader: asyncio.StreamReader | None = None
+        self._writer: asyncio.StreamWriter | None = None
+        self._rx: asyncio.Queue[tuple[int, int | None, bytes] | None] = asyncio.Queue(64)
+        self._rx_task: asyncio.Task[None] | None = None
+        self._tid = 0
+
+    @property
+    def connected(self) -> bool:
+        return self._writer is not None and self._rx_task is not None \
+            and not self._rx_task.done()
+
+    async def _open(self) -> None:
+        await self._close()
+        reader, writer = await asyncio.wait_for(
+            asyncio.open_connection(self.host, self.port), self.connect_timeout_s)
+        sock = writer.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+        self._reader, self._writer = reader, writer
+        self._rx = asyncio.Queue(64)
+        self._rx_task = asyncio.create_task(self._read_loop(reader, self._rx),
+                                            name=f"compgw-rx-{self.name}")
+
+    async def _close(self) -> None:
+        task, writer = self._rx_task, self._writer
+        self._rx_task = self._writer = self._reader = None
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+        if writer is not None:
+            writer.close()
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(writer.wait_closed(), 1.0)
+
+    async def _read_loop(self, reader: asyncio.StreamReader,
+                         rx: asyncio.Queue[tuple[int, int | None, bytes] | None]) -> None:
+        """Cut the byte stream into MBAP frames; None on the queue = connection gone."""
+        try:
+            while True:
+                header = await reader.readexactly(6)
+                length = int.from_bytes(header[4:6], "big")
+                if header[2:4] != b"\x00\x00" or not 2 <= length <= MAX_PDU_BYTES + 1:
+                    log.warning("%s: bad MBAP header %s: closing", self.name, header.hex())
+                    break
+                frame = header + await reader.readexactly(length)
+                _, unit, tid, pdu = self._framer.decode(frame)
+                if rx.full():
+                    self.counters.dropped += 1
+                    continue
+                rx.put_nowait((unit, tid, pdu))
+        except (asyncio.IncompleteReadError, OSError):
+            pass
+        finally:
+            with contextlib.suppress(asyncio.QueueFull):
+                rx.put_nowait(None)
+
+    async def _prepare(self) -> None:
+        while not self._rx.empty():  # stale replies from timed-out requests
+            if self._rx.get_nowait() is None:
+                raise ConnectionError("connection closed by drive")
+            self.counters.dropped += 1
+        if self.min_silence_s:
+            await asyncio.sleep(self.min_silence_s)
+
+    async def _send(self, unit_id: int, pdu: bytes) -> int | None:
+        assert self._writer is not None
+        self._tid = self._tid % 0xFFFF + 1
+        self._writer.write(self._framer.encode(pdu, unit_id, self._tid))
+        await self._writer.drain()
+        return self._tid
+
+    async def _recv_internal(self, timeout_s: float
+                             ) -> tuple[int | None, int | None, bytes] | None:
+        try:
+            got = await asyncio.wait_for(self._rx.get(), timeout_s)
+        except asyncio.TimeoutError:
+            return None
+        if got is None:
+            raise ConnectionError("connection closed by drive")
+        if not self.check_unit:
+            return None, got[1], got[2]
+        return got
