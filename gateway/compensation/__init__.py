@@ -1,0 +1,52 @@
+"""Pure compensation math: pitch, backlash, planar (XY), thermal, and their chain.
+
+No I/O here: the Modbus layers move bytes and call these functions; file formats live in
+``gateway.formats``. Positions are in mm (degrees for rotary axes) unless a name says
+``_pulses``; deviations follow the ISO 230-2 sign (actual − commanded).
+"""
+
+from .backlash import BacklashStage
+from .chain import AxisChain, AxisInput, Chain, round_pulses, round_pulses_array
+from .errors import (
+    CompensationError,
+    ConvergenceError,
+    CorrectionLimitError,
+    TableError,
+    TravelError,
+)
+from .monotone_map import MonotoneMap
+from .pitch import PitchStage, PitchTable
+from .planar import GridModel, PlanarMeasurement, PlanarStage, PolyModel
+from .thermal import (
+    STEEL_ALPHA_PER_K,
+    ThermalStage,
+    delta_a_from_temperature,
+    pulse_equivalent_mm,
+    pulses_for_travel,
+)
+
+__all__ = [
+    "STEEL_ALPHA_PER_K",
+    "AxisChain",
+    "AxisInput",
+    "BacklashStage",
+    "Chain",
+    "CompensationError",
+    "ConvergenceError",
+    "CorrectionLimitError",
+    "GridModel",
+    "MonotoneMap",
+    "PitchStage",
+    "PitchTable",
+    "PlanarMeasurement",
+    "PlanarStage",
+    "PolyModel",
+    "TableError",
+    "ThermalStage",
+    "TravelError",
+    "delta_a_from_temperature",
+    "pulse_equivalent_mm",
+    "pulses_for_travel",
+    "round_pulses",
+    "round_pulses_array",
+]

@@ -1,0 +1,75 @@
+"""Thermal pulse-equivalent correction (seed 002).
+
+A reference point A on the screw, at length ``a`` from the screw's fixed end, moves by Δa as
+the screw grows. With growth proportional along the screw, the pulse equivalent becomes
+``C1 = C·(a + Δa)/a`` and the pulses for a travel y are ``n1 = y / C1``. Positions are
+measured from ``origin_mm``, the fixed end of the screw in axis coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import CompensationError
+
+STEEL_ALPHA_PER_K = 11.5e-6
+
+
+def pulse_equivalent_mm(pulse_mm: float, length_mm: float, delta_a_mm: float) -> float:
+    """Current pulse equivalent ``C1 = C·(a + Δa)/a`` (mm per pulse)."""
+    return pulse_mm * (length_mm + delta_a_mm) / length_mm
+
+
+def pulses_for_travel(travel_mm: ArrayLike, pulse_equivalent_now_mm: float) -> NDArray[np.float64]:
+    """Pulses ``n1 = y / C1`` that move the (grown) screw by ``travel_mm``."""
+    return np.asarray(travel_mm, dtype=np.float64) / pulse_equivalent_now_mm
+
+
+def delta_a_from_temperature(
+    alpha_per_k: float, length_mm: float, temperature_c: float, reference_c: float
+) -> float:
+    """Δa (mm) of a screw of length ``a`` at temperature T: ``α·a·(T − T0)``."""
+    return alpha_per_k * length_mm * (temperature_c - reference_c)
+
+
+@dataclass(frozen=True)
+class ThermalStage:
+    """Scale positions about ``origin_mm`` by the screw's growth ratio ``(a + Δa)/a``."""
+
+    length_mm: float
+    origin_mm: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.length_mm) or self.length_mm <= 0:
+            raise CompensationError(f"thermal length_mm: {self.length_mm!r} must be > 0")
+        if not np.isfinite(self.origin_mm):
+            raise CompensationError(f"thermal origin_mm: {self.origin_mm!r} must be finite")
+
+    def growth_ratio(self, delta_a_mm: float) -> float:
+        """``C1 / C``: how much farther each pulse moves now than when cold."""
+        ratio = (self.length_mm + delta_a_mm) / self.length_mm
+        if not np.isfinite(ratio) or ratio <= 0:
+            raise CompensationError(f"thermal: Δa {delta_a_mm!r} mm is not plausible")
+        return ratio
+
+    def forward(self, target_mm: ArrayLike, delta_a_mm: float) -> NDArray[np.float64]:
+        """Cold-screw command (mm) that lands on ``target_mm`` on the grown screw."""
+        p = np.asarray(target_mm, dtype=np.float64)
+        return self.origin_mm + (p - self.origin_mm) / self.growth_ratio(delta_a_mm)
+
+    def inverse(self, command_mm: ArrayLike, delta_a_mm: float) -> NDArray[np.float64]:
+        c = np.asarray(command_mm, dtype=np.float64)
+        return self.origin_mm + (c - self.origin_mm) * self.growth_ratio(delta_a_mm)
+
+    def forward_scalar(self, target_mm: float, delta_a_mm: float) -> float:
+        return self.origin_mm + (target_mm - self.origin_mm) * self.length_mm / (
+            self.length_mm + delta_a_mm
+        )
+
+    def inverse_scalar(self, command_mm: float, delta_a_mm: float) -> float:
+        return self.origin_mm + (command_mm - self.origin_mm) * (
+            self.length_mm + delta_a_mm
+        ) / self.length_mm

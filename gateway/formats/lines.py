@@ -1,0 +1,43 @@
+"""Line-oriented reading shared by the table formats: comments, blanks, line numbers."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+from ..compensation.errors import TableError
+
+
+def data_lines(path: str | os.PathLike[str]) -> Iterator[tuple[int, str]]:
+    """Yield ``(line_number, text)`` of non-blank lines with ``#`` comments removed."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise TableError(f"{path}: file not found") from None
+    except UnicodeDecodeError as exc:
+        raise TableError(f"{path}: not a UTF-8 text file ({exc.reason})") from None
+    except OSError as exc:
+        raise TableError(f"{path}: cannot read ({exc.strerror})") from None
+    for number, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        if line:
+            yield number, line
+
+
+def parse_number(path: str | os.PathLike[str], number: int, field: str, text: str) -> float:
+    """A finite float, or a TableError naming file, line and field."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise TableError(
+            f"{path}: line {number}: {field} {text.strip()!r} is not a number"
+        ) from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise TableError(f"{path}: line {number}: {field} {text.strip()!r} is not finite")
+    return value
+
+
+def fmt(value: float) -> str:
+    """Shortest text that reads back as the same float."""
+    return repr(float(value))
