@@ -197,7 +197,9 @@ class Bus(ABC):
 
     async def _transact_locked(self, unit_id: int, pdu: bytes) -> bytes:
         self.counters.transactions += 1
+        timed_out = False
         for attempt in range(self.retries + 1):
+            final = attempt == self.retries
             if attempt:
                 self.counters.retries += 1
             await self._ensure_open()
@@ -207,23 +209,28 @@ class Bus(ABC):
                 tid = await self._send(unit_id, pdu)
                 in_flight = True
                 if self._no_reply_expected(unit_id):
+                    in_flight = False
                     return b""
                 reply = await self._await_reply(unit_id, tid, pdu)
                 in_flight = False
             except (OSError, ConnectionError, EOFError) as err:
+                in_flight = False
                 await self._lost(err)
-                if attempt < self.retries:
+                if not final:
                     continue
                 self.counters.unavailable += 1
                 raise BusUnavailable(f"{self.name}: {err}") from err
             finally:
-                if in_flight:  # cancelled or failed with a request on the line
-                    self._after_timeout()
+                if in_flight:  # cancelled with a request on the line: its reply may come
+                    self._after_timeout(final=True)
             if reply is not None:
                 self.counters.replies += 1
+                if timed_out:  # an earlier attempt may still be answered: a duplicate
+                    self._after_timeout(final=True)
                 return reply
+            timed_out = True
             self.counters.timeouts += 1
-            self._after_timeout()
+            self._after_timeout(final)
             log.debug("%s: unit %d FC%02d attempt %d timed out", self.name, unit_id, pdu[0],
                       attempt + 1)
         raise DriveTimeout(f"{self.name}: unit {unit_id} did not answer FC{pdu[0]:02d}")
@@ -295,8 +302,10 @@ class Bus(ABC):
         """Next frame as (unit id, transaction id, PDU), or None on timeout (unit or tid
         None: not checked)."""
 
-    def _after_timeout(self) -> None:  # noqa: B027  (optional hook)
-        """A request went unanswered: its reply may still come."""
+    def _after_timeout(self, final: bool) -> None:  # noqa: B027  (optional hook)
+        """A request went unanswered, its reply may still come. ``final``: the next frame
+        sent will be another request (not a retry of this one, whose late reply would be
+        a valid answer)."""
 
     def _extra_wait_s(self, pdu: bytes) -> float:
         """Added to timeout_s for one attempt (wire time on serial lines)."""
@@ -309,20 +318,28 @@ class Bus(ABC):
 class RtuBus(Bus):
     """An RS-485 line (or pty) with Modbus RTU framing, one transaction at a time.
 
-    Before each request the line must have been quiet for t3.5 + ``min_silence_s``; after
-    a timeout (or a cancelled transaction) input is flushed until the line stays quiet, so a
-    late reply is dropped, not handed to the next request. Unit 0 is broadcast: sent, no
+    Before each request the line must have been quiet for t3.5 + ``min_silence_s``.
+    After a request that went unanswered (timeout, cancelled transaction), the next
+    *different* request waits ``late_guard_s`` (default ``timeout_s``) from that moment,
+    discarding whatever arrives, then for a quiet line: a late reply inside that window is
+    dropped. One arriving even later is still checked against the new request (unit,
+    function, byte count, echoed address and quantity) and dropped if it does not fit; a
+    late reply of the very same shape after the guard is the one case RTU cannot tell,
+    hence the guard. Retries of the same request are sent without the guard (a late answer
+    to the first attempt is a correct answer to the retry). Unit 0 is broadcast: sent, no
     reply awaited, ``b""`` returned.
     """
 
     def __init__(self, port: str, *, baudrate: int = 19200, bytesize: int = 8,
                  parity: str = "E", stopbits: float = 1, silence_s: float | None = None,
+                 late_guard_s: float | None = None,
                  serial_kwargs: dict[str, object] | None = None, **bus_kwargs: object) -> None:
         bus_kwargs.setdefault("name", port)
         super().__init__(**bus_kwargs)  # type: ignore[arg-type]
         self.line = SerialLine(port, baudrate=baudrate, bytesize=bytesize, parity=parity,
                                stopbits=stopbits, silence_s=silence_s, **(serial_kwargs or {}))
-        self._dirty = False
+        self.late_guard_s = self.timeout_s if late_guard_s is None else late_guard_s
+        self._hold_until_s = 0.0  # no new request before this (monotonic)
 
     @property
     def connected(self) -> bool:
@@ -333,19 +350,22 @@ class RtuBus(Bus):
             self.line.open()
         except SerialLineLost as err:
             raise OSError(str(err)) from err
-        self._dirty = True  # whatever was on the line before we listened is stale
+        self._hold_until_s = time.monotonic() + self.line.silence_s  # drop what was there
 
     async def _close(self) -> None:
         self.line.close()
 
     async def _prepare(self) -> None:
         gap_s = self.line.silence_s + self.min_silence_s
-        if self._dirty:
-            # A reply may still be coming: drop input until quiet for a full reply slot.
-            dropped = await self.line.wait_quiet(gap_s, max_wait_s=self.timeout_s)
-            self._dirty = False
+        dropped = self.line.discard()
+        hold_s = self._hold_until_s - time.monotonic()
+        if hold_s > 0:  # a late reply may still come: listen and drop it
+            while hold_s > 0 and self.line.is_open:
+                await self.line.wait_data(hold_s)
+                dropped += self.line.discard()
+                hold_s = self._hold_until_s - time.monotonic()
+            dropped += await self.line.wait_quiet(gap_s, max_wait_s=self.timeout_s)
         else:
-            dropped = self.line.discard()
             remaining = gap_s - self.line.quiet_for_s()
             if remaining > 0:
                 await asyncio.sleep(remaining)
@@ -365,8 +385,9 @@ class RtuBus(Bus):
             return None
         return frame[0], None, frame[1:-2]
 
-    def _after_timeout(self) -> None:
-        self._dirty = True
+    def _after_timeout(self, final: bool) -> None:
+        if final:
+            self._hold_until_s = time.monotonic() + self.late_guard_s
 
     def _extra_wait_s(self, pdu: bytes) -> float:
         return self.line.wire_time_s(len(pdu) + 3)

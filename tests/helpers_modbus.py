@@ -18,6 +18,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import TypeVar
 
 from pymodbus.constants import ExcCodes
+from pymodbus.pdu import ModbusPDU
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
@@ -60,6 +61,17 @@ async def _action(function_code: int, start_address: int, address: int, count: i
     return None
 
 
+def _only_units(units: tuple[int, ...]) -> Callable[[bool, ModbusPDU], ModbusPDU | None]:
+    """trace_pdu hook: requests for other units get no reply at all (a silent drive)."""
+
+    def trace(sending: bool, pdu: ModbusPDU) -> ModbusPDU | None:
+        if not sending and pdu.dev_id not in units:
+            return None
+        return pdu
+
+    return trace
+
+
 def drive_device(unit: int = DRIVE_UNIT) -> SimDevice:
     """A drive with REGISTERS holding registers (coils share them), slow and failing spots."""
     return SimDevice(unit, [SimData(0, count=REGISTERS, values=0, datatype=DataType.REGISTERS)],
@@ -70,7 +82,7 @@ def drive_device(unit: int = DRIVE_UNIT) -> SimDevice:
 async def tcp_drive(units: tuple[int, ...] = (DRIVE_UNIT,)) -> AsyncIterator[int]:
     """A pymodbus TCP server on 127.0.0.1, port 0; yields its port. Other units are silent."""
     server = ModbusTcpServer([drive_device(u) for u in units], address=("127.0.0.1", 0),
-                             ignore_missing_devices=True)
+                             trace_pdu=_only_units(units))  # type: ignore[arg-type]
     await server.serve_forever(background=True)
     try:
         yield server.transport.sockets[0].getsockname()[1]
@@ -83,7 +95,7 @@ async def rtu_drive(port: str, units: tuple[int, ...] = (DRIVE_UNIT,)
                     ) -> AsyncIterator[ModbusSerialServer]:
     """A pymodbus RTU server on serial ``port`` (a pty); other units are silent."""
     server = ModbusSerialServer([drive_device(u) for u in units], port=port, baudrate=115200,
-                                ignore_missing_devices=True)
+                                trace_pdu=_only_units(units))  # type: ignore[arg-type]
     await server.serve_forever(background=True)
     try:
         yield server
