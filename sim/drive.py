@@ -115,8 +115,8 @@ class Drive:
         span = range(address, address + count)
         fb_span = {r.feedback.address, r.feedback.address + 1}
         if fb_table == table and fb_span.intersection(span):
-                words = int32_to_words(self.feedback_counts(), r.feedback.order)
-                computed[r.feedback.address], computed[r.feedback.address + 1] = words
+            words = int32_to_words(self.feedback_counts(), r.feedback.order)
+            computed[r.feedback.address], computed[r.feedback.address + 1] = words
         if table == "holding":
             if r.status.address in span:
                 computed[r.status.address] = self.status_word()

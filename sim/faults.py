@@ -98,10 +98,8 @@ class FaultControl:
         """Write the control block; side effects apply at once."""
         span = range(address, address + len(values))
         for a in span:
-            if a >= _END or len(self._regs) <= a < ADDR_ADVANCE_S or a in (
-                ADDR_CLOCK_MS,
-                ADDR_CLOCK_MS + 1,
-            ):
+            read_only = a in (ADDR_CLOCK_MS, ADDR_CLOCK_MS + 1)
+            if a >= _END or len(self._regs) <= a < ADDR_ADVANCE_S or read_only:
                 raise ModbusError(ILLEGAL_ADDRESS, f"{a:#06x}")
             if a < len(self._regs) and a % UNIT_STRIDE == 0 and values[a - address] > 3:
                 raise ModbusError(ILLEGAL_VALUE, "mode is 0..3")

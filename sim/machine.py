@@ -160,9 +160,7 @@ class Machine:
         self.axes: dict[str, AxisState] = {}
         for (name, axis_cfg), seq in zip(cfg.axes.items(), seeds, strict=True):
             errs = cfg.machine.get(name, AxisErrors())
-            thermal = (
-                ThermalState(errs.thermal, errs.thermal.ambient_C) if errs.thermal else None
-            )
+            thermal = ThermalState(errs.thermal, errs.thermal.ambient_C) if errs.thermal else None
             self.axes[name] = AxisState(
                 name=name,
                 cfg=axis_cfg,
