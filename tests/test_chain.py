@@ -233,3 +233,18 @@ def test_planar_field_too_steep_is_refused():
     meas = PlanarMeasurement(cmd, cmd * 1.5, source="xy.csv")  # 50 % scale error: not a table
     with pytest.raises(TableError, match=r"xy\.csv: planar error field changes by 0\.5"):
         PlanarStage(GridModel.from_measurement(meas, "linear"), source="xy.csv")
+
+
+def test_direction_follows_targets_and_starts_from_home_direction():
+    from gateway.compensation import MotionState
+
+    state = MotionState(-1)
+    state = state.approach(1000)  # first target after homing: homing decided the flank
+    assert state.direction == -1
+    state = state.approach(2000)
+    assert state.direction == 1
+    state = state.approach(2000)  # same target: no reversal
+    assert state.direction == 1
+    assert state.approach(1500).direction == -1
+    with pytest.raises(CompensationError, match="home_direction"):
+        MotionState(0)

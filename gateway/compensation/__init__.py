@@ -7,6 +7,7 @@ No I/O here: the Modbus layers move bytes and call these functions; file formats
 
 from .backlash import BacklashStage
 from .chain import AxisChain, AxisInput, Chain, round_pulses, round_pulses_array
+from .direction import MotionState
 from .errors import (
     CompensationError,
     ConvergenceError,
@@ -36,6 +37,7 @@ __all__ = [
     "CorrectionLimitError",
     "GridModel",
     "MonotoneMap",
+    "MotionState",
     "PitchStage",
     "PitchTable",
     "PlanarMeasurement",
