@@ -29,6 +29,16 @@ def example_dict() -> dict[str, Any]:
     return copy.deepcopy(yaml.safe_load(EXAMPLE.read_text()))
 
 
+def with_rtu(data: dict[str, Any]) -> dict[str, Any]:
+    """Add an RTU section (port filled in by SimServer(rtu_port=...)).
+
+    Parity N: on this kernel a pty configured with parity accepts tcsetattr only once, and
+    pymodbus's serial transport sets it twice; a pty ignores line settings anyway.
+    """
+    data["sim"]["rtu"] = {"port": "unset", "baudrate": 115200, "parity": "N", "stopbits": 1}
+    return data
+
+
 def config_from(data: dict[str, Any]) -> SimConfig:
     """Validate a dict (paths relative to the config directory)."""
     return parse_config(data, EXAMPLE.parent)
@@ -129,10 +139,18 @@ async def tcp_client(port: int, timeout_s: float = 1.0) -> AsyncModbusTcpClient:
     return client
 
 
-async def rtu_client(port: str, timeout_s: float = 1.0) -> AsyncModbusSerialClient:
-    """A connected RTU client on a serial device (a pty)."""
+async def rtu_client(
+    port: str, timeout_s: float = 1.0, trace_packet: Any = None
+) -> AsyncModbusSerialClient:
+    """A connected RTU client on a serial device (a pty); open each pty end only once."""
     client = AsyncModbusSerialClient(
-        port, baudrate=115200, parity="E", stopbits=1, timeout=timeout_s, retries=0
+        port,
+        baudrate=115200,
+        parity="N",
+        stopbits=1,
+        timeout=timeout_s,
+        retries=0,
+        trace_packet=trace_packet,
     )
     assert await client.connect()
     return client
