@@ -71,7 +71,8 @@ class BusCounters:
     retries: int = 0  # attempts after the first
     dropped: int = 0  # late or mismatched replies discarded
     unavailable: int = 0  # transactions refused with BusUnavailable
-    reconnects: int = 0  # successful (re)opens of the port/connection
+    open_attempts: int = 0  # attempts to (re)open the port/connection
+    reconnects: int = 0  # successful (re)opens
 
 
 class FairQueue:
@@ -264,6 +265,7 @@ class Bus(ABC):
             self.counters.unavailable += 1
             raise BusUnavailable(f"{self.name}: down, next attempt in "
                                  f"{self._next_open_s - now:.2f} s")
+        self.counters.open_attempts += 1
         try:
             await self._open()
         except (OSError, ConnectionError, asyncio.TimeoutError) as err:
@@ -319,9 +321,10 @@ class RtuBus(Bus):
     """An RS-485 line (or pty) with Modbus RTU framing, one transaction at a time.
 
     Before each request the line must have been quiet for t3.5 + ``min_silence_s``.
-    After a request that went unanswered (timeout, cancelled transaction), the next
-    *different* request waits ``late_guard_s`` (default ``timeout_s``) from that moment,
-    discarding whatever arrives, then for a quiet line: a late reply inside that window is
+    After a request that may still be answered (it timed out, its transaction was cancelled,
+    or it was a retry whose first attempt may answer twice), the next *different* request
+    waits until ``timeout_s + late_guard_s`` (default guard: ``timeout_s``) after that
+    request was sent, discarding whatever arrives, then for a quiet line: a late reply inside that window is
     dropped. One arriving even later is still checked against the new request (unit,
     function, byte count, echoed address and quantity) and dropped if it does not fit; a
     late reply of the very same shape after the guard is the one case RTU cannot tell,
@@ -340,6 +343,7 @@ class RtuBus(Bus):
                                stopbits=stopbits, silence_s=silence_s, **(serial_kwargs or {}))
         self.late_guard_s = self.timeout_s if late_guard_s is None else late_guard_s
         self._hold_until_s = 0.0  # no new request before this (monotonic)
+        self._last_send_s = 0.0
 
     @property
     def connected(self) -> bool:
@@ -376,6 +380,7 @@ class RtuBus(Bus):
 
     async def _send(self, unit_id: int, pdu: bytes) -> int | None:
         await self.line.write(rtu_encode(unit_id, pdu))
+        self._last_send_s = time.monotonic()
         return None
 
     async def _recv_internal(self, timeout_s: float
@@ -386,8 +391,8 @@ class RtuBus(Bus):
         return frame[0], None, frame[1:-2]
 
     def _after_timeout(self, final: bool) -> None:
-        if final:
-            self._hold_until_s = time.monotonic() + self.late_guard_s
+        if final:  # the last request sent may still be answered until well after its timeout
+            self._hold_until_s = self._last_send_s + self.timeout_s + self.late_guard_s
 
     def _extra_wait_s(self, pdu: bytes) -> float:
         return self.line.wire_time_s(len(pdu) + 3)

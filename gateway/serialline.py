@@ -169,6 +169,11 @@ class SerialLine:
         """Time since the line last carried a byte (received or sent)."""
         return time.monotonic() - max(self.last_rx_s, self.tx_end_s)
 
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes received and not yet consumed."""
+        return len(self._buf)
+
     def discard(self) -> int:
         """Drop buffered bytes; returns how many."""
         n = len(self._buf)

@@ -28,7 +28,7 @@ T = TypeVar("T")
 
 DRIVE_UNIT = 1
 SLOW_ADDRESS = 500  # reading/writing here makes the drive sleep SLOW_S before answering
-SLOW_S = 0.25
+SLOW_S = 0.15
 EXC_ADDRESS = 600  # the drive answers 0x03 here
 REGISTERS = 1000
 
@@ -79,9 +79,10 @@ def drive_device(unit: int = DRIVE_UNIT) -> SimDevice:
 
 
 @contextlib.asynccontextmanager
-async def tcp_drive(units: tuple[int, ...] = (DRIVE_UNIT,)) -> AsyncIterator[int]:
-    """A pymodbus TCP server on 127.0.0.1, port 0; yields its port. Other units are silent."""
-    server = ModbusTcpServer([drive_device(u) for u in units], address=("127.0.0.1", 0),
+async def tcp_drive(units: tuple[int, ...] = (DRIVE_UNIT,), port: int = 0) -> AsyncIterator[int]:
+    """A pymodbus TCP server on 127.0.0.1 (port 0: any); yields its port. Other units are
+    silent."""
+    server = ModbusTcpServer([drive_device(u) for u in units], address=("127.0.0.1", port),
                              trace_pdu=_only_units(units))  # type: ignore[arg-type]
     await server.serve_forever(background=True)
     try:

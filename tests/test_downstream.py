@@ -1,0 +1,283 @@
+"""Downstream buses against real pymodbus drives: late replies, timeouts, unavailability,
+reconnection, fairness, cancellation, garbage on the line."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import tempfile
+import time
+
+import pytest
+
+from gateway import frames as f
+from gateway.downstream import BusUnavailable, DriveTimeout, RtuBus, TcpBus
+from tests.helpers_modbus import (
+    DRIVE_UNIT,
+    EXC_ADDRESS,
+    SLOW_ADDRESS,
+    SLOW_S,
+    PtyBridge,
+    rtu_drive,
+    run,
+    tcp_drive,
+    wait_for_condition,
+)
+
+READ_ONE = f.build_read_request(3, 10, 1)
+
+
+async def seed(bus: TcpBus | RtuBus) -> None:
+    await bus.transact(DRIVE_UNIT, f.build_write_multiple_registers(10, [111, 222]))
+
+
+def test_tcp_late_reply_is_dropped_by_transaction_id_and_shape() -> None:
+    async def main() -> None:
+        async with tcp_drive() as port:
+            bus = TcpBus("127.0.0.1", port, timeout_s=0.1, retries=0)
+            await seed(bus)
+            t0 = time.monotonic()
+            with pytest.raises(DriveTimeout):
+                await bus.transact(DRIVE_UNIT, f.build_read_request(3, SLOW_ADDRESS, 2))
+            assert 0.1 <= time.monotonic() - t0 < 0.14
+            # Keep asking while the late reply arrives: never the wrong answer.
+            deadline = time.monotonic() + 2.0
+            while bus.counters.dropped == 0 and time.monotonic() < deadline:
+                assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x6f"
+                await asyncio.sleep(0.01)
+            assert bus.counters.dropped >= 1
+            assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x6f"
+            await bus.close()
+
+    run(main())
+
+
+@pytest.mark.parametrize("guard", ["default-guard", "no-guard-shape-check"])
+def test_rtu_late_reply_never_reaches_next_request(guard: str) -> None:
+    async def main() -> None:
+        bridge = PtyBridge()
+        try:
+            async with rtu_drive(bridge.b):
+                kwargs = {} if guard == "default-guard" else {"late_guard_s": 0.0}
+                bus = RtuBus(bridge.a, baudrate=115200, timeout_s=0.1, retries=0, **kwargs)
+                await seed(bus)
+                # Same shape as the next request with the guard; a different one without.
+                count = 1 if guard == "default-guard" else 2
+                with pytest.raises(DriveTimeout):
+                    await bus.transact(DRIVE_UNIT, f.build_read_request(3, SLOW_ADDRESS, count))
+                t0 = time.monotonic()
+                try:
+                    reply = await bus.transact(DRIVE_UNIT, READ_ONE)
+                    assert reply == b"\x03\x02\x00\x6f"
+                except DriveTimeout:
+                    # Without a guard the drive may still be busy: a timeout is fine, a
+                    # wrong answer is not.
+                    assert guard != "default-guard"
+                assert time.monotonic() - t0 < 0.5
+                # The late reply is dropped either during the guard or before the next request.
+                await wait_for_condition(lambda: bus.counters.dropped >= 1
+                                         or bus.line.pending_bytes > 0, 2.0)
+                assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x6f"
+                assert bus.counters.dropped >= 1
+                await bus.close()
+        finally:
+            bridge.unplug()
+
+    run(main())
+
+
+def test_rtu_retry_then_answer_and_exception_relayed() -> None:
+    async def main() -> None:
+        bridge = PtyBridge()
+        try:
+            async with rtu_drive(bridge.b):
+                bus = RtuBus(bridge.a, baudrate=115200, timeout_s=0.1, retries=1)
+                # The drive takes 0.15 s: attempt 1 times out, its late answer serves the retry.
+                reply = await bus.transact(DRIVE_UNIT, f.build_read_request(3, SLOW_ADDRESS, 1))
+                assert reply == b"\x03\x02\x00\x00"
+                assert (bus.counters.timeouts, bus.counters.retries) == (1, 1)
+                assert await bus.transact(DRIVE_UNIT, f.build_read_request(3, EXC_ADDRESS, 1)) \
+                    == b"\x83\x03"
+                assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x00"
+                await bus.close()
+        finally:
+            bridge.unplug()
+
+    run(main())
+
+
+def test_rtu_garbage_on_the_line_is_skipped() -> None:
+    async def main() -> None:
+        bridge = PtyBridge()
+        try:
+            async with rtu_drive(bridge.b):
+                bus = RtuBus(bridge.a, baudrate=115200, timeout_s=0.2, retries=0)
+                await seed(bus)
+                bridge.inject_to_a(b"\x01\x03\x02\xff")  # a stale fragment before the request
+                assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x6f"
+                assert bus.counters.timeouts == 0
+                await bus.close()
+        finally:
+            bridge.unplug()
+
+    run(main())
+
+
+def test_tcp_drive_down_unavailable_with_backoff_then_reconnects() -> None:
+    async def main() -> None:
+        async with tcp_drive() as port:
+            bus = TcpBus("127.0.0.1", port, timeout_s=0.1, retries=0, reconnect_min_s=0.2)
+            assert await bus.connect()
+            await seed(bus)
+        # The drive is gone: 0x0A at once, and no connection storm.
+        t0 = time.monotonic()
+        for _ in range(50):
+            with pytest.raises(BusUnavailable):
+                await bus.transact(DRIVE_UNIT, READ_ONE)
+        assert time.monotonic() - t0 < 0.5
+        assert bus.counters.open_attempts <= 3
+        assert not bus.connected
+        # It comes back on the same port: the bus reconnects by itself after the backoff.
+        async with tcp_drive(port=port):
+            deadline = time.monotonic() + 3.0
+            while True:
+                try:
+                    reply = await bus.transact(DRIVE_UNIT, READ_ONE)
+                    break
+                except BusUnavailable:
+                    assert time.monotonic() < deadline
+                    await asyncio.sleep(0.05)
+            assert reply == b"\x03\x02\x00\x00"  # a fresh drive
+            assert bus.counters.reconnects == 2
+        await bus.close()
+
+    run(main())
+
+
+def test_tcp_idle_close_by_drive_is_transparent() -> None:
+    async def main() -> None:
+        async with tcp_drive() as port:
+            bus = TcpBus("127.0.0.1", port, timeout_s=0.2, retries=1)
+            await seed(bus)
+            assert bus._writer is not None
+            bus._writer.close()  # as if the drive dropped an idle connection
+            await wait_for_condition(lambda: not bus.connected)
+            assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x6f"
+            await bus.close()
+
+    run(main())
+
+
+def test_rtu_port_disappears_and_comes_back() -> None:
+    async def main() -> None:
+        with tempfile.TemporaryDirectory() as tmp:
+            link = os.path.join(tmp, "ttyBUS")
+            bridge = PtyBridge()
+            os.symlink(bridge.a, link)
+            bus = RtuBus(link, baudrate=115200, timeout_s=0.1, retries=0, reconnect_min_s=0.1)
+            async with rtu_drive(bridge.b):
+                await seed(bus)
+                bridge.unplug()
+                t0 = time.monotonic()
+                for _ in range(30):
+                    with pytest.raises(BusUnavailable):
+                        await bus.transact(DRIVE_UNIT, READ_ONE)
+                assert time.monotonic() - t0 < 0.5
+                assert bus.counters.open_attempts <= 3
+            bridge2 = PtyBridge()
+            os.unlink(link)
+            os.symlink(bridge2.a, link)
+            try:
+                async with rtu_drive(bridge2.b):
+                    deadline = time.monotonic() + 3.0
+                    while True:
+                        try:
+                            reply = await bus.transact(DRIVE_UNIT, READ_ONE)
+                            break
+                        except BusUnavailable:
+                            assert time.monotonic() < deadline
+                            await asyncio.sleep(0.05)
+                    assert reply == b"\x03\x02\x00\x00"
+                    await bus.close()
+            finally:
+                bridge2.unplug()
+
+    run(main())
+
+
+def test_fair_queue_between_callers_and_depth() -> None:
+    async def main() -> None:
+        async with tcp_drive() as port:
+            bus = TcpBus("127.0.0.1", port, timeout_s=0.5, retries=0)
+            await seed(bus)
+            order: list[str] = []
+            depths: list[int] = []
+
+            async def one(caller: str, i: int) -> None:
+                await bus.transact(DRIVE_UNIT, READ_ONE, caller=caller)
+                order.append(f"{caller}{i}")
+                depths.append(bus.queue_depth)
+
+            greedy = [asyncio.create_task(one("A", i)) for i in range(20)]
+            await asyncio.sleep(0)  # A's 20 are queued first
+            polite = [asyncio.create_task(one("B", i)) for i in range(3)]
+            await asyncio.gather(*greedy, *polite)
+            # B is served every other turn, not after all of A.
+            assert max(order.index(f"B{i}") for i in range(3)) <= 7, order
+            assert [o for o in order if o[0] == "A"] == [f"A{i}" for i in range(20)]
+            assert max(depths) >= 15 and bus.queue_depth == 0
+            await bus.close()
+
+    run(main())
+
+
+def test_cancelled_waiter_leaves_the_queue() -> None:
+    async def main() -> None:
+        async with tcp_drive() as port:
+            bus = TcpBus("127.0.0.1", port, timeout_s=0.5, retries=0)
+            await seed(bus)
+            slow = asyncio.create_task(bus.transact(DRIVE_UNIT,
+                                                    f.build_read_request(3, SLOW_ADDRESS, 1)))
+            await asyncio.sleep(0.01)
+            waiting = asyncio.create_task(bus.transact(DRIVE_UNIT, READ_ONE))
+            await wait_for_condition(lambda: bus.queue_depth == 1)
+            waiting.cancel()
+            await wait_for_condition(lambda: bus.queue_depth == 0)
+            assert await slow == b"\x03\x02\x00\x00"
+            assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x6f"
+            await bus.close()
+            with pytest.raises(BusUnavailable):
+                await bus.transact(DRIVE_UNIT, READ_ONE)
+
+    run(main())
+
+
+def test_bad_requests_rejected_before_the_bus() -> None:
+    async def main() -> None:
+        bus = TcpBus("127.0.0.1", 1, timeout_s=0.1)
+        with pytest.raises(ValueError):
+            await bus.transact(1, b"")
+        with pytest.raises(ValueError):
+            await bus.transact(256, READ_ONE)
+        assert bus.counters.open_attempts == 0
+
+    run(main())
+
+
+def test_min_silence_between_frames() -> None:
+    async def main() -> None:
+        bridge = PtyBridge()
+        try:
+            async with rtu_drive(bridge.b):
+                bus = RtuBus(bridge.a, baudrate=115200, timeout_s=0.2, retries=0,
+                             min_silence_s=0.02)
+                await seed(bus)
+                t0 = time.monotonic()
+                for _ in range(5):
+                    await bus.transact(DRIVE_UNIT, READ_ONE)
+                assert time.monotonic() - t0 >= 5 * 0.02
+                await bus.close()
+        finally:
+            bridge.unplug()
+
+    run(main())
