@@ -324,13 +324,13 @@ class RtuBus(Bus):
     After a request that may still be answered (it timed out, its transaction was cancelled,
     or it was a retry whose first attempt may answer twice), the next *different* request
     waits until ``timeout_s + late_guard_s`` (default guard: ``timeout_s``) after that
-    request was sent, discarding whatever arrives, then for a quiet line: a late reply inside that window is
-    dropped. One arriving even later is still checked against the new request (unit,
-    function, byte count, echoed address and quantity) and dropped if it does not fit; a
-    late reply of the very same shape after the guard is the one case RTU cannot tell,
-    hence the guard. Retries of the same request are sent without the guard (a late answer
-    to the first attempt is a correct answer to the retry). Unit 0 is broadcast: sent, no
-    reply awaited, ``b""`` returned.
+    request was sent, discarding whatever arrives, then for a quiet line: a late reply
+    inside that window is dropped. One arriving even later is still checked against the
+    new request (unit, function, byte count, echoed address and quantity) and dropped if
+    it does not fit; a late reply of the very same shape after the guard is the one case
+    RTU cannot tell, hence the guard. Retries of the same request are sent without the
+    guard (a late answer to the first attempt is a correct answer to the retry). Unit 0 is
+    broadcast: sent, no reply awaited, ``b""`` returned.
     """
 
     def __init__(self, port: str, *, baudrate: int = 19200, bytesize: int = 8,

@@ -16,7 +16,6 @@ from tests.helpers_modbus import (
     DRIVE_UNIT,
     EXC_ADDRESS,
     SLOW_ADDRESS,
-    SLOW_S,
     PtyBridge,
     rtu_drive,
     run,
