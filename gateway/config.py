@@ -1,0 +1,394 @@
+"""The gateway's YAML config: pydantic models, the single source of truth of what a user sets.
+
+Every error is one line naming the YAML path, the value and the rule, e.g.
+``axes.X.registers.target.address: 70000 is not in 0..65535``. Unknown keys are errors.
+Table paths are relative to the config file.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+
+class ConfigError(ValueError):
+    """A config that must not run; the message is one line naming the YAML path."""
+
+
+def _in_range(lo: int, hi: int):
+    def check(value: int) -> int:
+        if not lo <= value <= hi:
+            raise ValueError(f"is not in {lo}..{hi}")
+        return value
+
+    return AfterValidator(check)
+
+
+def _positive(value: float) -> float:
+    if not value > 0:
+        raise ValueError("must be > 0")
+    return value
+
+
+Address = Annotated[int, _in_range(0, 65535)]
+Port = Annotated[int, _in_range(0, 65535)]
+UnitId = Annotated[int, _in_range(1, 247)]
+Bit = Annotated[int, _in_range(0, 15)]
+Positive = Annotated[float, AfterValidator(_positive)]
+WordOrder = Literal["hi_lo", "lo_hi"]
+
+
+class Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+# -- upstream -------------------------------------------------------------------------------
+class TcpListen(Model):
+    """Modbus TCP server for the upper computer."""
+
+    host: str = "127.0.0.1"
+    port: Port = 502
+    allow: list[str] = Field(default_factory=lambda: ["127.0.0.0/8", "::1/128"])
+    max_connections: Annotated[int, _in_range(1, 1024)] = 16
+    idle_timeout_s: float = Field(default=0.0, ge=0.0)
+
+    @field_validator("allow")
+    @classmethod
+    def _networks(cls, value: list[str]) -> list[str]:
+        for net in value:
+            try:
+                ipaddress.ip_network(net, strict=False)
+            except ValueError:
+                raise ValueError(f"{net!r} is not an IP network (like 127.0.0.0/8)") from None
+        return value
+
+
+class SerialLine(Model):
+    """An RS-485/RS-232 line: device path and serial settings."""
+
+    port: str
+    baudrate: Annotated[int, _in_range(300, 4_000_000)] = 19200
+    parity: Literal["N", "E", "O"] = "E"
+    stopbits: Literal[1, 2] = 1
+    bytesize: Literal[7, 8] = 8
+
+
+class Upstream(Model):
+    tcp: TcpListen | None = None
+    rtu: SerialLine | None = None
+
+    @model_validator(mode="after")
+    def _one_at_least(self) -> Upstream:
+        if self.tcp is None and self.rtu is None:
+            raise ValueError("needs tcp, rtu or both")
+        return self
+
+
+# -- downstream -----------------------------------------------------------------------------
+class TcpEndpoint(Model):
+    host: str
+    port: Port = 502
+
+
+class Bus(Model):
+    """One drive-side bus: an RS-485 line (rtu) or a Modbus TCP endpoint (tcp)."""
+
+    rtu: SerialLine | None = None
+    tcp: TcpEndpoint | None = None
+    timeout_s: float = Field(default=0.1, gt=0.0, le=10.0)
+    retries: Annotated[int, _in_range(0, 5)] = 1
+    min_silence_s: float = Field(default=0.0, ge=0.0, le=1.0)
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> Bus:
+        if (self.rtu is None) == (self.tcp is None):
+            raise ValueError("needs exactly one of rtu or tcp")
+        return self
+
+
+# -- axes -----------------------------------------------------------------------------------
+class TargetRegister(Model):
+    """The 32-bit signed position target (holding registers)."""
+
+    address: Address
+    words: Literal[2] = 2
+    order: WordOrder = "hi_lo"
+
+
+class FeedbackRegister(Model):
+    """The 32-bit signed position feedback; ``counts_per_pulse`` scales encoder counts."""
+
+    address: Address
+    table: Literal["holding", "input"] = "holding"
+    words: Literal[2] = 2
+    order: WordOrder = "hi_lo"
+    counts_per_pulse: Positive = 1.0
+
+
+class StatusRegister(Model):
+    address: Address
+    table: Literal["holding", "input"] = "holding"
+    homed_bit: Bit | None = None
+
+
+class TriggerRegister(Model):
+    """What starts a move: any write (no value), a write of ``value``, or ``rising_bit``."""
+
+    address: Address
+    value: Annotated[int, _in_range(0, 65535)] | None = None
+    rising_bit: Bit | None = None
+
+    @model_validator(mode="after")
+    def _one_rule(self) -> TriggerRegister:
+        if self.value is not None and self.rising_bit is not None:
+            raise ValueError("give value or rising_bit, not both")
+        return self
+
+
+class Registers(Model):
+    target: TargetRegister
+    feedback: FeedbackRegister
+    status: StatusRegister | None = None
+    trigger: TriggerRegister | None = None
+
+    @model_validator(mode="after")
+    def _no_overlap(self) -> Registers:
+        t = self.target.address
+        f = self.feedback.address
+        if self.feedback.table == "holding" and abs(t - f) < 2:
+            raise ValueError(f"target {t} and feedback {f} registers overlap")
+        if self.trigger is not None and t <= self.trigger.address <= t + 1:
+            raise ValueError(f"trigger {self.trigger.address} overlaps the target pair")
+        return self
+
+
+class PitchFile(Model):
+    """A pitch table file and how to interpolate it."""
+
+    file: str
+    format: Literal["csv", "linuxcnc0", "linuxcnc1"] = "csv"
+    interpolation: Literal["linear", "smooth", "pchip"] = "linear"
+    outside: Literal["hold", "taper"] = "hold"
+    taper_mm: float = Field(default=0.0, ge=0.0)
+
+
+class AxisThermal(Model):
+    source: str
+    length_mm: Positive
+    origin_mm: float = 0.0
+
+
+class Compensation(Model):
+    pitch: str | PitchFile | None = None
+    backlash_mm: float = Field(default=0.0, ge=0.0, le=1.0)
+    backlash_table_direction: Literal["mean", "forward", "reverse"] = "mean"
+    allow_backlash_with_bidirectional: bool = False
+    thermal: AxisThermal | None = None
+    max_correction_mm: float = Field(default=0.2, gt=0.0, le=5.0)
+    enabled: bool = True
+
+    @property
+    def pitch_file(self) -> PitchFile | None:
+        return PitchFile(file=self.pitch) if isinstance(self.pitch, str) else self.pitch
+
+
+class Axis(Model):
+    bus: str
+    unit: UnitId
+    upstream_unit: UnitId | None = None
+    pulse_mm: Positive
+    rotary: bool = False
+    travel_mm: tuple[float, float]
+    home_direction: Literal[1, -1] = 1
+    registers: Registers
+    compensation: Compensation = Field(default_factory=Compensation)
+
+    @field_validator("travel_mm")
+    @classmethod
+    def _ordered(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not value[0] < value[1]:
+            raise ValueError(f"[{value[0]:g}, {value[1]:g}] must be [low, high] with low < high")
+        return value
+
+    @property
+    def upstream(self) -> int:
+        return self.upstream_unit if self.upstream_unit is not None else self.unit
+
+
+class Planar(Model):
+    axes: tuple[str, str]
+    model: str
+    commit: Literal["on_trigger", "immediate"] = "on_trigger"
+
+
+class SourceRegister(Model):
+    address: Address
+    table: Literal["holding", "input"] = "input"
+    words: Literal[1, 2] = 1
+    order: WordOrder = "hi_lo"
+    signed: bool = True
+
+
+class ThermalSource(Model):
+    """A Δa source: a displacement sensor (scale_mm per count) or a temperature sensor."""
+
+    bus: str
+    unit: UnitId
+    source_register: SourceRegister = Field(alias="register")
+    kind: Literal["displacement", "temperature"] = "displacement"
+    scale_mm: float = 0.001
+    scale_c: float = 0.01
+    alpha_per_k: float = 11.5e-6
+    reference_c: float = 20.0
+    poll_s: float = Field(default=1.0, gt=0.0, le=3600.0)
+    smoothing: float = Field(default=0.3, gt=0.0, le=1.0)
+    range_mm: tuple[float, float] = (-0.5, 0.5)
+    max_rate_mm_s: float = Field(default=0.01, gt=0.0)
+    hold_s: float = Field(default=30.0, ge=0.0)
+    fallback: Literal["hold", "zero", "disable"] = "hold"
+
+
+class Status(Model):
+    upstream_unit: UnitId = 247
+    remote_control: bool = False
+
+
+class Passthrough(Model):
+    """An upstream unit forwarded untouched to a unit on a bus."""
+
+    bus: str
+    unit: UnitId
+
+
+class GatewayConfig(Model):
+    upstream: Upstream
+    buses: dict[str, Bus]
+    axes: dict[str, Axis] = Field(default_factory=dict)
+    planar: Planar | None = None
+    thermal_sources: dict[str, ThermalSource] = Field(default_factory=dict)
+    status: Status = Field(default_factory=Status)
+    passthrough: dict[int, Passthrough] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _references(self) -> GatewayConfig:
+        for name, axis in self.axes.items():
+            _require(self.buses, axis.bus, ("axes", name, "bus"), "buses")
+            thermal = axis.compensation.thermal
+            if thermal is not None:
+                path = ("axes", name, "compensation", "thermal", "source")
+                _require(self.thermal_sources, thermal.source, path, "thermal_sources")
+        for name, src in self.thermal_sources.items():
+            _require(self.buses, src.bus, ("thermal_sources", name, "bus"), "buses")
+        seen: dict[int, str] = {self.status.upstream_unit: "status.upstream_unit"}
+        for name, axis in self.axes.items():
+            _claim(seen, axis.upstream, f"axes.{name}")
+        for unit, route in self.passthrough.items():
+            _require(self.buses, route.bus, ("passthrough", unit, "bus"), "buses")
+            _claim(seen, unit, f"passthrough.{unit}")
+        if self.planar is not None:
+            for i, name in enumerate(self.planar.axes):
+                _require(self.axes, name, ("planar", "axes", i), "axes")
+                if self.axes[name].rotary:
+                    raise _PathError(("planar", "axes", i), name, "is a rotary axis")
+            if self.planar.axes[0] == self.planar.axes[1]:
+                raise _PathError(("planar", "axes"), list(self.planar.axes), "must differ")
+        return self
+
+
+def _require(mapping: dict[Any, Any], key: Any, path: tuple[Any, ...], what: str) -> None:
+    if key not in mapping:
+        raise _PathError(path, key, f"is not one of {what}: {_names(mapping)}")
+
+
+class _PathError(ValueError):
+    def __init__(self, path: tuple[Any, ...], value: Any, rule: str) -> None:
+        super().__init__(f"{_dotted(path)}: {value!r} {rule}")
+
+
+def _claim(seen: dict[int, str], unit: int, owner: str) -> None:
+    if unit in seen:
+        raise _PathError((owner,), unit, f"upstream unit already used by {seen[unit]}")
+    seen[unit] = owner
+
+
+def _names(mapping: dict[str, Any]) -> str:
+    return ", ".join(map(str, mapping)) or "(none)"
+
+
+def _dotted(path: tuple[Any, ...]) -> str:
+    return ".".join(str(p) for p in path)
+
+
+def format_validation_error(exc: ValidationError, data: Any) -> str:
+    """One line for the first error: YAML path, the offending value, the rule."""
+    def clean(loc: tuple[Any, ...]) -> tuple[Any, ...]:
+        return tuple(p for p in loc if not (isinstance(p, str) and p in _UNION_TAGS))
+
+    # in a union, the member that got furthest explains the mistake best
+    err = max(exc.errors(), key=lambda e: len(clean(e["loc"])))
+    loc = clean(err["loc"])
+    message = str(err["msg"])
+    ctx_error = (err.get("ctx") or {}).get("error")
+    if isinstance(ctx_error, _PathError):
+        return str(ctx_error)
+    for prefix in ("Value error, ", "Assertion failed, "):
+        if message.startswith(prefix):
+            message = message[len(prefix):]
+    kind = err["type"]
+    path = _dotted(loc) or "(top level)"
+    if kind == "extra_forbidden":
+        return f"{path}: unknown key"
+    if kind == "missing":
+        return f"{path}: missing (required)"
+    value = err.get("input")
+    if isinstance(value, (dict, list)) and kind not in ("value_error",):
+        return f"{path}: {message}"
+    return f"{path}: {value!r} {message[0].lower() + message[1:] if message else ''}".rstrip()
+
+
+_UNION_TAGS = {"str", "PitchFile", "function-after[_one_rule(), TriggerRegister]"}
+
+
+def parse_config(data: Any, source: str = "<config>") -> GatewayConfig:
+    """Validate already-parsed YAML data."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: the top level must be a mapping (upstream, buses, axes…)")
+    try:
+        return GatewayConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(f"{source}: {format_validation_error(exc, data)}") from None
+
+
+def load_config(path: str | Path) -> GatewayConfig:
+    """Read and validate a gateway config file; raises ConfigError with one line."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: file not found") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}: " if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"{path}: {where}not valid YAML ({problem})") from None
+    return parse_config(data, str(path))
+
+
+def json_schema() -> dict[str, Any]:
+    """The JSON schema of the config, generated from the models."""
+    return GatewayConfig.model_json_schema()

@@ -1,0 +1,133 @@
+# ruff: noqa: E501  (a table of cases reads best one case per line)
+"""Config validation: every bad config is refused with one line naming the YAML path."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import pytest
+import yaml
+
+from gateway.config import ConfigError, load_config, parse_config
+
+BASE = {
+    "upstream": {"tcp": {"host": "127.0.0.1", "port": 5020}},
+    "buses": {"line1": {"tcp": {"host": "127.0.0.1", "port": 5021}, "timeout_s": 0.1}},
+    "axes": {
+        "X": {
+            "bus": "line1",
+            "unit": 1,
+            "pulse_mm": 0.001,
+            "travel_mm": [0, 800],
+            "registers": {
+                "target": {"address": 0x6201, "order": "hi_lo"},
+                "feedback": {"address": 0x602A},
+                "status": {"address": 0x1003, "homed_bit": 6},
+                "trigger": {"address": 0x6002, "value": 0x10},
+            },
+            "compensation": {"backlash_mm": 0.01, "max_correction_mm": 0.2},
+        },
+        "Y": {
+            "bus": "line1",
+            "unit": 2,
+            "pulse_mm": 0.001,
+            "travel_mm": [0, 600],
+            "registers": {"target": {"address": 0x6201}, "feedback": {"address": 0x602A}},
+        },
+    },
+    "thermal_sources": {
+        "x_ref": {"bus": "line1", "unit": 10, "register": {"address": 0}, "scale_mm": 0.001}
+    },
+    "status": {"upstream_unit": 247},
+}
+
+
+def with_change(path: str, value):
+    data = copy.deepcopy(BASE)
+    keys = path.split(".")
+    node = data
+    for key in keys[:-1]:
+        node = node[int(key) if isinstance(node, list) else key]
+    if value is _DELETE:
+        del node[keys[-1]]
+    else:
+        node[keys[-1]] = value
+    return data
+
+
+_DELETE = object()
+
+BAD = [
+    ("axes.X.registers.target.address", 70000, r"axes\.X\.registers\.target\.address: 70000 is not in 0\.\.65535"),
+    ("axes.X.registers.target.order", "big", r"axes\.X\.registers\.target\.order: 'big'"),
+    ("axes.X.registers.target.words", 3, r"axes\.X\.registers\.target\.words: 3"),
+    ("axes.X.registers.feedback.counts_per_pulse", 0, r"axes\.X\.registers\.feedback\.counts_per_pulse: 0 must be > 0"),
+    ("axes.X.registers.feedback.table", "coil", r"axes\.X\.registers\.feedback\.table: 'coil'"),
+    ("axes.X.registers.status.homed_bit", 16, r"axes\.X\.registers\.status\.homed_bit: 16 is not in 0\.\.15"),
+    ("axes.X.registers.trigger.rising_bit", 3, r"axes\.X\.registers\.trigger: .*value or rising_bit"),
+    ("axes.X.registers.feedback.address", 0x6202, r"axes\.X\.registers: .*overlap"),
+    ("axes.X.registers.target", _DELETE, r"axes\.X\.registers\.target: missing"),
+    ("axes.X.unit", 0, r"axes\.X\.unit: 0 is not in 1\.\.247"),
+    ("axes.X.unit", 248, r"axes\.X\.unit: 248 is not in 1\.\.247"),
+    ("axes.X.unit", "one", r"axes\.X\.unit: 'one'"),
+    ("axes.X.upstream_unit", 2, r"axes\.Y: 2 upstream unit already used by axes\.X"),
+    ("axes.X.bus", "line9", r"axes\.X\.bus: 'line9' is not one of buses: line1"),
+    ("axes.X.pulse_mm", -0.001, r"axes\.X\.pulse_mm: -0\.001 must be > 0"),
+    ("axes.X.pulse_mm", _DELETE, r"axes\.X\.pulse_mm: missing"),
+    ("axes.X.travel_mm", [800, 0], r"axes\.X\.travel_mm: .*low < high"),
+    ("axes.X.travel_mm", [0], r"axes\.X\.travel_mm"),
+    ("axes.X.home_direction", 0, r"axes\.X\.home_direction: 0"),
+    ("axes.X.speed", 5, r"axes\.X\.speed: unknown key"),
+    ("axes.X.compensation.backlash_mm", -0.01, r"axes\.X\.compensation\.backlash_mm: -0\.01"),
+    ("axes.X.compensation.max_correction_mm", 0, r"axes\.X\.compensation\.max_correction_mm: 0"),
+    ("axes.X.compensation.pitch", {"file": "x.csv", "interpolation": "cubic"}, r"axes\.X\.compensation\.pitch\.interpolation: 'cubic'"),
+    ("axes.X.compensation.thermal", {"source": "nope", "length_mm": 800}, r"axes\.X\.compensation\.thermal\.source: 'nope' is not one of thermal_sources: x_ref"),
+    ("axes.X.compensation.thermal", {"source": "x_ref", "length_mm": 0}, r"axes\.X\.compensation\.thermal\.length_mm: 0 must be > 0"),
+    ("buses.line1.timeout_s", 0, r"buses\.line1\.timeout_s: 0"),
+    ("buses.line1.retries", 9, r"buses\.line1\.retries: 9 is not in 0\.\.5"),
+    ("buses.line1.rtu", {"port": "/dev/ttyS0"}, r"buses\.line1: .*exactly one of rtu or tcp"),
+    ("buses.line1.tcp.port", 70000, r"buses\.line1\.tcp\.port: 70000 is not in 0\.\.65535"),
+    ("buses.line1.tcp", {"host": "127.0.0.1", "port": 1, "tls": True}, r"buses\.line1\.tcp\.tls: unknown key"),
+    ("upstream.tcp.allow", ["127.0.0.0/33"], r"upstream\.tcp\.allow: .*not an IP network"),
+    ("upstream.tcp", None, r"upstream: .*needs tcp, rtu or both"),
+    ("upstream.rtu", {"port": "/dev/ttyS1", "parity": "X"}, r"upstream\.rtu\.parity: 'X'"),
+    ("upstream.rtu", {"port": "/dev/ttyS1", "stopbits": 3}, r"upstream\.rtu\.stopbits: 3"),
+    ("thermal_sources.x_ref.bus", "line2", r"thermal_sources\.x_ref\.bus: 'line2' is not one of buses"),
+    ("thermal_sources.x_ref.register.words", 4, r"thermal_sources\.x_ref\.register\.words: 4"),
+    ("status.upstream_unit", 1, r"axes\.X: 1 upstream unit already used by status\.upstream_unit"),
+    ("status.remote_control", "maybe", r"status\.remote_control: 'maybe'"),
+    ("planar", {"axes": ["X", "Z"], "model": "xy.yaml"}, r"planar\.axes\.1: 'Z' is not one of axes: X, Y"),
+    ("planar", {"axes": ["X", "Y"], "model": "xy.yaml", "commit": "later"}, r"planar\.commit: 'later'"),
+    ("passthrough", {30: {"bus": "line7", "unit": 5}}, r"passthrough\.30\.bus: 'line7' is not one of buses"),
+    ("colour", "blue", r"colour: unknown key"),
+]
+
+
+def test_base_config_is_valid():
+    config = parse_config(copy.deepcopy(BASE))
+    assert config.axes["X"].upstream == 1
+    assert config.axes["X"].registers.trigger.value == 0x10
+
+
+@pytest.mark.parametrize(("path", "value", "message"), BAD, ids=[b[0] + "=" + repr(b[1])[:20] for b in BAD])
+def test_bad_config_names_the_field(path, value, message):
+    with pytest.raises(ConfigError, match=message) as info:
+        parse_config(with_change(path, value), source="gw.yaml")
+    text = str(info.value)
+    assert text.startswith("gw.yaml: ")
+    assert "\n" not in text
+
+
+def test_bad_yaml_and_missing_file(tmp_path: Path):
+    path = tmp_path / "gw.yaml"
+    path.write_text("upstream:\n  tcp: {host: 127.0.0.1\n")
+    with pytest.raises(ConfigError, match=r"gw\.yaml: line \d+: not valid YAML"):
+        load_config(path)
+    with pytest.raises(ConfigError, match="file not found"):
+        load_config(tmp_path / "nope.yaml")
+    path.write_text("- a list\n")
+    with pytest.raises(ConfigError, match="top level must be a mapping"):
+        load_config(path)
+    path.write_text(yaml.safe_dump(BASE))
+    assert load_config(path).buses["line1"].timeout_s == 0.1
