@@ -10,6 +10,7 @@ config so a gateway config can point at the simulated drives unchanged.
 from __future__ import annotations
 
 import csv
+import re
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -202,7 +203,7 @@ class AxisConfig(_Model):
     @model_validator(mode="after")
     def _travel_order(self) -> AxisConfig:
         if not self.travel_mm[0] < self.travel_mm[1]:
-            raise ValueError(f"travel_mm {list(self.travel_mm)} must be [min, max] with min < max")
+            raise ValueError(f"travel_mm: {list(self.travel_mm)} must be [min, max], min < max")
         return self
 
 
@@ -360,7 +361,7 @@ class SimSection(_Model):
 
         def claim(unit: int, who: str) -> None:
             if unit in units:
-                raise ValueError(f"{who}: unit {unit} is already used by {units[unit]}")
+                raise ValueError(f"{who}.unit: {unit} is already used by {units[unit]}")
             units[unit] = who
 
         for name, axis in self.axes.items():
@@ -376,7 +377,7 @@ class SimSection(_Model):
                 if name not in self.axes:
                     raise ValueError(f"instruments.laser.axes: {name!r} is not an axis")
         if ins.xy is not None and self.plane is None:
-            raise ValueError("instruments.xy needs a plane (which axes are X and Y)")
+            raise ValueError("instruments.xy: needs a plane (which axes are X and Y)")
         if ins.delta_a is not None:
             if ins.delta_a.axis not in self.axes:
                 raise ValueError(f"instruments.delta_a.axis: {ins.delta_a.axis!r} is not an axis")
@@ -409,6 +410,10 @@ def _format_error(err: ValidationError) -> str:
         return f"{loc}: unknown key"
     value = first.get("input")
     if isinstance(value, dict | list | tuple):
+        # a model-level rule may name the key it is about: "axes.Y.unit: 1 is ..."
+        head, sep, rest = msg.partition(": ")
+        if sep and re.fullmatch(r"[\w.]+", head):
+            return f"{loc}.{head}: {rest}"
         return f"{loc}: {msg}"
     if msg.startswith("is "):
         return f"{loc}: {value!r} {msg}"
