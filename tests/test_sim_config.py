@@ -12,7 +12,8 @@ import pytest
 import yaml
 
 from sim.config import SimConfigError, load_config, parse_config
-from tests.test_sim_support import EXAMPLE, ROOT, example_dict
+from sim.server import SimServer
+from tests.test_sim_support import EXAMPLE, ROOT, Master, example_dict, run, tcp_client
 
 
 def test_example_loads() -> None:
@@ -68,8 +69,44 @@ def test_pitch_table_from_real_data(tmp_path: Path) -> None:
     data["sim"]["machine"]["X"]["pitch"] = {
         "table": {"path": str(csv), "position_column": "target_mm", "error_column": "dev_fwd_um"}
     }
+    data["sim"]["machine"]["X"]["repeatability_um"] = 0.0
+    data["sim"]["machine"]["X"].pop("thermal")
+    data["sim"]["instruments"].pop("delta_a")
+    data["sim"]["instruments"]["laser"]["noise_um"] = 0.0
     cfg = parse_config(data, tmp_path)
-    assert cfg.sim.machine["X"].pitch.table is not None
+
+    async def script() -> list[float]:
+        async with SimServer(cfg, tcp_port=0) as server:
+            m = Master(await tcp_client(server.tcp_port), data)
+            out = []
+            for x_mm in (200.0, 600.0):
+                await m.move_mm("X", x_mm)
+                out.append(await m.laser_um("X") - x_mm * 1000)
+            m.client.close()
+            return out
+
+    # linear between the table points (blank rows skipped): -5 um at 200, -2.5 um at 600
+    assert run(script()) == pytest.approx([-5.0, -2.5], abs=0.06)
+
+
+def test_sim_never_imports_the_correction() -> None:
+    """Truth and correction are written independently."""
+    for path in (ROOT / "sim").glob("*.py"):
+        text = path.read_text()
+        assert "gateway.compensation" not in text.replace("``gateway.compensation``", "")
+        assert "import gateway" not in text and "from gateway" not in text, path
+
+
+def test_cli_runtime_fault_exits_3(tmp_path: Path) -> None:
+    data = example_dict()
+    data["sim"]["tcp"]["port"] = 0
+    data["sim"]["rtu"] = {"port": str(tmp_path / "no-such-tty")}
+    cfg = tmp_path / "sim.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    proc = _cli(cfg)
+    _out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 3
+    assert len(err.strip().splitlines()) == 1, err
 
 
 def _cli(config: Path, *extra: str) -> subprocess.Popen:
