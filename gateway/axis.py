@@ -1,0 +1,89 @@
+"""Per-axis state the gateway keeps between transactions, and the word-level rules.
+
+The master writes a 32-bit signed nominal target as one FC16, inside a longer FC16 block,
+or as two FC06 in either order. The drive must only ever receive a whole, corrected value,
+so the words are collected in a *shadow* (what the master wrote, returned on reads of the
+target register) and the pair is committed when both halves have been written since the
+last commit, or when a trigger write forces it (the other half then comes from the shadow).
+No compensation math here: the router asks the chain.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from .compensation import MotionState
+
+WordOrder = Literal["hi_lo", "lo_hi"]
+
+_INT32_MIN = -(1 << 31)
+_INT32_MAX = (1 << 31) - 1
+
+
+def words_to_int32(first: int, second: int, order: WordOrder) -> int:
+    """Signed 32-bit value of two registers in address order (``first`` at the base)."""
+    high, low = (first, second) if order == "hi_lo" else (second, first)
+    value = ((high & 0xFFFF) << 16) | (low & 0xFFFF)
+    return value - (1 << 32) if value & 0x80000000 else value
+
+
+def int32_to_words(value: int, order: WordOrder) -> tuple[int, int]:
+    """The two registers (address order) holding signed 32-bit ``value``."""
+    if not _INT32_MIN <= value <= _INT32_MAX:
+        raise OverflowError(f"{value} does not fit a signed 32-bit register pair")
+    raw = value & 0xFFFFFFFF
+    high, low = raw >> 16, raw & 0xFFFF
+    return (high, low) if order == "hi_lo" else (low, high)
+
+
+@dataclass
+class AxisState:
+    """What the gateway remembers of one axis; survives a config reload."""
+
+    motion: MotionState
+    shadow: list[int] = field(default_factory=lambda: [0, 0])
+    shadow_known: bool = False
+    halves_written: set[int] = field(default_factory=set)
+    last_nominal_pulses: int | None = None
+    last_command_pulses: int | None = None
+    enabled: bool = True
+
+    def write_words(self, offset: int, words: list[int]) -> None:
+        """Record master writes of target words (offset 0 or 1 within the pair)."""
+        for i, word in enumerate(words):
+            self.shadow[offset + i] = word & 0xFFFF
+            self.halves_written.add(offset + i)
+
+    def pair_complete(self) -> bool:
+        return self.halves_written >= {0, 1}
+
+    def nominal_target(self, order: WordOrder) -> int:
+        """The nominal target (pulses) the shadow holds now."""
+        return words_to_int32(self.shadow[0], self.shadow[1], order)
+
+    def committed(self, nominal_pulses: int, command_pulses: int) -> None:
+        """A corrected target reached the drive."""
+        self.motion = self.motion.approach(nominal_pulses)
+        self.last_nominal_pulses = nominal_pulses
+        self.last_command_pulses = command_pulses
+        self.shadow_known = True
+        self.halves_written.clear()
+
+    def reported_feedback(self, command_pulses: int, nominal_from_chain: float) -> int:
+        """Nominal feedback for the master.
+
+        At rest on the last corrected target, report exactly the nominal target the master
+        wrote, so "feedback == target" checks in the master hold despite whole-pulse
+        rounding of the command; elsewhere (in motion), the chain's inverse, rounded.
+        """
+        if command_pulses == self.last_command_pulses and self.last_nominal_pulses is not None:
+            return self.last_nominal_pulses
+        return round(nominal_from_chain)
+
+
+def overlap(start: int, count: int, base: int, width: int = 2) -> range:
+    """Offsets (0..width-1) of the register pair at ``base`` covered by [start, start+count)."""
+    lo = max(start, base)
+    hi = min(start + count, base + width)
+    return range(lo - base, hi - base) if lo < hi else range(0)
