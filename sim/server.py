@@ -210,6 +210,8 @@ class _RtuLine:
         try:
             chunk = self._port.read(4096)
         except (serial.SerialException, OSError):
+            # the line is gone (adapter unplugged): stop watching it instead of spinning
+            asyncio.get_running_loop().remove_reader(self._port.fileno())
             return
         if not chunk:
             return

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import asyncio
 import time
 
 import pytest
 from pymodbus.exceptions import ModbusIOException
-from pymodbus.framer import FramerRTU
+from pymodbus.framer import FramerRTU, FramerSocket
+from pymodbus.pdu import DecodePDU
 
 from sim.server import SimServer
 from tests.conftest import PtyPair
@@ -187,3 +189,28 @@ def test_control_block_rejects_bad_values() -> None:
             client.close()
 
     run(script())
+
+
+def test_garbage_and_pipelining_on_tcp() -> None:
+    """Two pipelined requests in one segment: each answered with its own transaction id;
+    in garbage mode the MBAP header stays valid and the PDU is scrambled."""
+    data = example_dict()
+    mbap = FramerSocket(DecodePDU(is_server=False))
+    req = b"\x03\x10\x03\x00\x01"
+
+    async def script() -> tuple[bytes, bytes]:
+        async with SimServer(config_from(data), tcp_port=0) as server:
+            reader, writer = await asyncio.open_connection("127.0.0.1", server.tcp_port)
+            writer.write(mbap.encode(req, 1, 7) + mbap.encode(req, 2, 8))
+            clean = await reader.readexactly(2 * 11)
+            server.sim.faults.set_fault(1, mode=3)
+            writer.write(mbap.encode(req, 1, 9))
+            dirty = await reader.readexactly(11)
+            writer.close()
+            return clean, dirty
+
+    clean, dirty = run(script())
+    assert clean[0:2] == (7).to_bytes(2, "big") and clean[11:13] == (8).to_bytes(2, "big")
+    assert clean[7:9] == b"\x03\x02" and clean[18:20] == b"\x03\x02"
+    assert dirty[:7] == (9).to_bytes(2, "big") + b"\x00\x00\x00\x05\x01"
+    assert dirty[7:] != clean[7:11]
