@@ -11,30 +11,9 @@ No compensation math here: the router asks the chain.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
 
 from .compensation import MotionState
-
-WordOrder = Literal["hi_lo", "lo_hi"]
-
-_INT32_MIN = -(1 << 31)
-_INT32_MAX = (1 << 31) - 1
-
-
-def words_to_int32(first: int, second: int, order: WordOrder) -> int:
-    """Signed 32-bit value of two registers in address order (``first`` at the base)."""
-    high, low = (first, second) if order == "hi_lo" else (second, first)
-    value = ((high & 0xFFFF) << 16) | (low & 0xFFFF)
-    return value - (1 << 32) if value & 0x80000000 else value
-
-
-def int32_to_words(value: int, order: WordOrder) -> tuple[int, int]:
-    """The two registers (address order) holding signed 32-bit ``value``."""
-    if not _INT32_MIN <= value <= _INT32_MAX:
-        raise OverflowError(f"{value} does not fit a signed 32-bit register pair")
-    raw = value & 0xFFFFFFFF
-    high, low = raw >> 16, raw & 0xFFFF
-    return (high, low) if order == "hi_lo" else (low, high)
+from .frames import WordOrder, unpack_int32
 
 
 @dataclass
@@ -60,7 +39,7 @@ class AxisState:
 
     def nominal_target(self, order: WordOrder) -> int:
         """The nominal target (pulses) the shadow holds now."""
-        return words_to_int32(self.shadow[0], self.shadow[1], order)
+        return unpack_int32(self.shadow, order)
 
     def committed(self, nominal_pulses: int, command_pulses: int) -> None:
         """A corrected target reached the drive."""
