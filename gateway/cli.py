@@ -16,6 +16,23 @@ def _not_yet(name: str, issue: int) -> int:
     return EXIT_RUNTIME
 
 
+def _cmd_check(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .config import ConfigError, load_config
+    from .setup_report import describe
+    from .tables import build_chain
+
+    try:
+        config = load_config(args.config)
+        chain = build_chain(config, Path(args.config).resolve().parent)
+    except ConfigError as exc:
+        print(f"compgw check: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    print(describe(config, chain))
+    return EXIT_OK
+
+
 def _cmd_sim(args: argparse.Namespace) -> int:
     from sim.server import main as sim_main
 
@@ -35,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("check", help="validate config and tables, print the resolved setup")
     p.add_argument("-c", "--config", required=True, help="gateway YAML config")
-    p.set_defaults(func=lambda a: _not_yet("check", 4))
+    p.set_defaults(func=_cmd_check)
 
     p = sub.add_parser("sim", help="run the simulated drives and instruments")
     p.add_argument("-c", "--config", required=True, help="simulator YAML config")

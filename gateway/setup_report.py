@@ -1,0 +1,82 @@
+"""The resolved setup `compgw check` prints: what will be intercepted and corrected."""
+
+from __future__ import annotations
+
+from .compensation import Chain
+from .config import GatewayConfig
+
+
+def describe(config: GatewayConfig, chain: Chain) -> str:
+    lines = ["upstream:"]
+    if config.upstream.tcp is not None:
+        tcp = config.upstream.tcp
+        lines.append(f"  tcp {tcp.host}:{tcp.port} allow {', '.join(tcp.allow)}")
+    if config.upstream.rtu is not None:
+        rtu = config.upstream.rtu
+        lines.append(f"  rtu {rtu.port} {rtu.baudrate} {rtu.bytesize}{rtu.parity}{rtu.stopbits}")
+    lines.append("buses:")
+    for name, bus in config.buses.items():
+        where = (
+            f"rtu {bus.rtu.port} {bus.rtu.baudrate} {bus.rtu.bytesize}{bus.rtu.parity}"
+            f"{bus.rtu.stopbits}"
+            if bus.rtu is not None
+            else f"tcp {bus.tcp.host}:{bus.tcp.port}"  # type: ignore[union-attr]
+        )
+        lines.append(f"  {name}: {where}, timeout {bus.timeout_s:g} s, retries {bus.retries}")
+    lines.append("axes:")
+    for name, axis in config.axes.items():
+        regs = axis.registers
+        stages = chain.axes[name]
+        lines.append(
+            f"  {name}: upstream unit {axis.upstream} -> {axis.bus} unit {axis.unit}, "
+            f"{axis.pulse_mm:g} {'deg' if axis.rotary else 'mm'}/pulse, "
+            f"travel [{axis.travel_mm[0]:g}, {axis.travel_mm[1]:g}]"
+        )
+        lines.append(
+            f"    target 0x{regs.target.address:04X} ({regs.target.order}), feedback "
+            f"0x{regs.feedback.address:04X} {regs.feedback.table} ({regs.feedback.order}, "
+            f"{regs.feedback.counts_per_pulse:g} counts/pulse)"
+        )
+        if regs.trigger is not None:
+            rule = (
+                f"value 0x{regs.trigger.value:X}"
+                if regs.trigger.value is not None
+                else f"rising bit {regs.trigger.rising_bit}"
+                if regs.trigger.rising_bit is not None
+                else "any write"
+            )
+            lines.append(f"    trigger 0x{regs.trigger.address:04X} on {rule}")
+        parts = []
+        if stages.pitch is not None:
+            table = stages.pitch.table
+            parts.append(
+                f"pitch {table.source} ({table.position_mm.size} points, "
+                f"{'bi' if table.bidirectional else 'uni'}directional, "
+                f"{stages.pitch.interpolation}, "
+                f"max {stages.pitch.max_abs_correction_mm() * 1e3:.1f} µm)"
+            )
+        if stages.backlash is not None:
+            parts.append(
+                f"backlash {stages.backlash.backlash_mm * 1e3:.1f} µm "
+                f"({stages.backlash.table_direction})"
+            )
+        if stages.thermal is not None:
+            parts.append(
+                f"thermal from {axis.compensation.thermal.source} "  # type: ignore[union-attr]
+                f"(a = {stages.thermal.length_mm:g} mm, origin {stages.thermal.origin_mm:g} mm)"
+            )
+        lines.append("    compensation: " + ("; ".join(parts) if parts else "none"))
+        lines.append(f"    max_correction_mm {axis.compensation.max_correction_mm:g}")
+    if chain.planar is not None and config.planar is not None:
+        model = chain.planar.model
+        degree = getattr(model, "degree", None)
+        detail = f"degree {degree}" if degree is not None else getattr(model, "method", "")
+        lines.append(
+            f"planar: {'/'.join(config.planar.axes)} {model.kind} {detail}, commit "
+            f"{config.planar.commit}, max {chain.planar.max_abs_correction_mm() * 1e3:.1f} µm"
+        )
+    lines.append(
+        f"status: upstream unit {config.status.upstream_unit}, remote control "
+        f"{'on' if config.status.remote_control else 'off'}"
+    )
+    return "\n".join(lines)

@@ -1,0 +1,83 @@
+"""Build the compensation chain a config describes: read its tables, check them, compose.
+
+Everything is validated before anything is used: a config whose tables are malformed, not
+monotone, or need corrections above ``max_correction_mm`` anywhere in the travel does not
+load, and the error names the file and the point.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .compensation import (
+    AxisChain,
+    BacklashStage,
+    Chain,
+    CompensationError,
+    PitchStage,
+    PitchTable,
+    PlanarStage,
+    ThermalStage,
+)
+from .config import Axis, ConfigError, GatewayConfig
+from .formats import load_planar_model, read_linuxcnc, read_pitch_csv
+
+
+def _read_pitch(axis_name: str, axis: Axis, base_dir: Path) -> PitchStage | None:
+    spec = axis.compensation.pitch_file
+    if spec is None:
+        return None
+    path = base_dir / spec.file
+    table: PitchTable
+    if spec.format == "csv":
+        table = read_pitch_csv(path)
+    else:
+        table = read_linuxcnc(path, int(spec.format[-1]))
+    if table.rotary != axis.rotary:
+        kind = "rotary (position_deg)" if table.rotary else "linear (position_mm)"
+        raise CompensationError(
+            f"axes.{axis_name}.compensation.pitch: {path} is a {kind} table but the axis is "
+            f"{'rotary' if axis.rotary else 'linear'}"
+        )
+    stage = PitchStage(table, spec.interpolation, spec.outside, spec.taper_mm)
+    stage.check_cap(axis.compensation.max_correction_mm)
+    return stage
+
+
+def build_axis(name: str, axis: Axis, base_dir: Path) -> AxisChain:
+    comp = axis.compensation
+    backlash = None
+    if comp.backlash_mm > 0:
+        backlash = BacklashStage(comp.backlash_mm, comp.backlash_table_direction)
+    thermal = None
+    if comp.thermal is not None:
+        thermal = ThermalStage(comp.thermal.length_mm, comp.thermal.origin_mm)
+    return AxisChain(
+        name,
+        axis.pulse_mm,
+        pitch=_read_pitch(name, axis, base_dir),
+        backlash=backlash,
+        thermal=thermal,
+        rotary=axis.rotary,
+        travel_mm=axis.travel_mm,
+        max_correction_mm=comp.max_correction_mm,
+        allow_backlash_with_bidirectional=comp.allow_backlash_with_bidirectional,
+    )
+
+
+def build_chain(config: GatewayConfig, base_dir: str | Path) -> Chain:
+    """The chain for ``config``, table paths relative to ``base_dir``; raises ConfigError."""
+    base = Path(base_dir)
+    try:
+        axes = {name: build_axis(name, axis, base) for name, axis in config.axes.items()}
+        planar = None
+        if config.planar is not None:
+            model_path = base / config.planar.model
+            planar = PlanarStage(
+                load_planar_model(model_path), tuple(config.planar.axes), source=str(model_path)
+            )
+        chain = Chain(axes, planar)
+        chain.check_limits()
+    except CompensationError as exc:
+        raise ConfigError(str(exc)) from None
+    return chain

@@ -1,0 +1,120 @@
+"""`compgw check`: a valid config prints the resolved setup; bad ones exit 1 with one line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+from gateway.config import json_schema
+
+ROOT = Path(__file__).resolve().parent.parent
+
+CONFIG = {
+    "upstream": {"tcp": {"host": "127.0.0.1", "port": 5020}},
+    "buses": {"line1": {"tcp": {"host": "127.0.0.1", "port": 5021}}},
+    "axes": {
+        "X": {
+            "bus": "line1",
+            "unit": 1,
+            "pulse_mm": 0.001,
+            "travel_mm": [0, 800],
+            "registers": {
+                "target": {"address": 0x6201},
+                "feedback": {"address": 0x602A},
+                "trigger": {"address": 0x6002, "value": 0x10},
+            },
+            "compensation": {
+                "pitch": {"file": "tables/x.csv", "interpolation": "smooth"},
+                "max_correction_mm": 0.2,
+            },
+        },
+        "Y": {
+            "bus": "line1",
+            "unit": 2,
+            "pulse_mm": 0.001,
+            "travel_mm": [0, 600],
+            "registers": {"target": {"address": 0x6201}, "feedback": {"address": 0x602A}},
+            "compensation": {"backlash_mm": 0.008},
+        },
+    },
+    "planar": {"axes": ["X", "Y"], "model": "tables/xy.yaml"},
+}
+
+
+def _write(tmp_path: Path, x_csv: str, config=CONFIG) -> Path:
+    (tmp_path / "tables").mkdir(exist_ok=True)
+    (tmp_path / "tables" / "x.csv").write_text(x_csv)
+    rows = "".join(
+        f"{x},{y},{0.145 * y / 1000 * 1000:.3f},{0.02 * x:.3f}\n"
+        for x in (0, 200, 400, 600, 800)
+        for y in (0, 300, 600)
+    )
+    (tmp_path / "tables" / "xy.csv").write_text("x_mm,y_mm,dx_um,dy_um\n" + rows)
+    (tmp_path / "tables" / "xy.yaml").write_text("points: xy.csv\nmodel: poly\n")
+    path = tmp_path / "gw.yaml"
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+def _check(path: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "gateway.cli", "check", "-c", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+
+
+GOOD_X = "position_mm,forward_um,reverse_um\n0,0,10\n400,12,22\n800,25,35\n"
+
+
+def test_check_prints_the_resolved_setup(tmp_path: Path):
+    result = _check(_write(tmp_path, GOOD_X))
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    assert "X: upstream unit 1 -> line1 unit 1" in out
+    assert "trigger 0x6002 on value 0x10" in out
+    assert "3 points, bidirectional, smooth" in out
+    assert "backlash 8.0 µm (mean)" in out
+    assert "planar: X/Y poly degree 1" in out
+
+
+def test_check_refuses_a_bad_table_naming_file_and_line(tmp_path: Path):
+    bad = "position_mm,forward_um,reverse_um\n0,0,10\n400,12\n800,25,35\n"
+    result = _check(_write(tmp_path, bad))
+    assert result.returncode == 1
+    assert result.stderr.count("\n") == 1
+    assert "x.csv: line 3: expected 3 comma-separated fields" in result.stderr
+
+
+def test_check_refuses_a_correction_above_the_cap(tmp_path: Path):
+    big = "position_mm,forward_um,reverse_um\n0,0,10\n400,250,260\n800,25,35\n"
+    result = _check(_write(tmp_path, big))
+    assert result.returncode == 1
+    assert "x.csv: line 3 (position 400 mm): forward correction 0.25 mm exceeds" in result.stderr
+
+
+def test_check_refuses_pitch_plus_planar_above_the_cap(tmp_path: Path):
+    config = json.loads(json.dumps(CONFIG))
+    config["axes"]["X"]["compensation"]["max_correction_mm"] = 0.1
+    result = _check(_write(tmp_path, GOOD_X, config))
+    assert result.returncode == 1
+    assert "axes.X.compensation: correction 112.0 µm at X=800, Y=600 mm" in result.stderr
+
+
+def test_check_refuses_a_bad_config_naming_the_field(tmp_path: Path):
+    config = json.loads(json.dumps(CONFIG))
+    config["axes"]["X"]["registers"]["target"]["address"] = 70000
+    result = _check(_write(tmp_path, GOOD_X, config))
+    assert result.returncode == 1
+    assert "axes.X.registers.target.address: 70000 is not in 0..65535" in result.stderr
+
+
+def test_schema_file_is_generated_from_the_models():
+    committed = json.loads((ROOT / "config" / "schema.json").read_text())
+    assert committed == json_schema(), "run: make schema"
