@@ -25,6 +25,17 @@ def data_lines(path: str | os.PathLike[str]) -> Iterator[tuple[int, str]]:
             yield number, line
 
 
+def csv_header(
+    path: str | os.PathLike[str], rows: Iterator[tuple[int, str]]
+) -> tuple[int, tuple[str, ...]]:
+    """The first data line of a CSV as a tuple of column names, with its line number."""
+    try:
+        number, text = next(rows)
+    except StopIteration:
+        raise TableError(f"{path}: empty table (no header, no points)") from None
+    return number, tuple(cell.strip() for cell in text.split(","))
+
+
 def parse_number(path: str | os.PathLike[str], number: int, field: str, text: str) -> float:
     """A finite float, or a TableError naming file, line and field."""
     try:

@@ -24,7 +24,7 @@ import numpy as np
 from ..compensation.errors import TableError
 from ..compensation.pitch import PitchTable
 from .atomic import atomic_write_text
-from .lines import data_lines, fmt, parse_number
+from .lines import csv_header, data_lines, fmt, parse_number
 
 _LINEAR_HEADERS = {
     ("position_mm", "error_um"): False,
@@ -43,18 +43,14 @@ _VALUE_SCALE = 1e-3
 def read_pitch_csv(path: str | os.PathLike[str]) -> PitchTable:
     """Read a compgw pitch CSV; every malformed line is an error naming file and line."""
     rows = data_lines(path)
-    try:
-        header_line, header_text = next(rows)
-    except StopIteration:
-        raise TableError(f"{path}: empty table (no header, no points)") from None
-    header = tuple(h.strip() for h in header_text.split(","))
+    header_line, header = csv_header(path, rows)
     if header in _LINEAR_HEADERS:
         rotary, has_reverse = False, _LINEAR_HEADERS[header]
     elif header in _ROTARY_HEADERS:
         rotary, has_reverse = True, _ROTARY_HEADERS[header]
     else:
         raise TableError(
-            f"{path}: line {header_line}: header {header_text!r} is not one of "
+            f"{path}: line {header_line}: header {','.join(header)!r} is not one of "
             f"'position_mm,forward_um,reverse_um', 'position_mm,error_um' "
             f"(or the position_deg/..._mdeg forms for rotary axes)"
         )

@@ -25,7 +25,7 @@ import yaml
 from ..compensation.errors import TableError
 from ..compensation.planar import GridModel, PlanarMeasurement, PlanarModel, PolyModel
 from .atomic import atomic_write_text
-from .lines import data_lines, fmt, parse_number
+from .lines import csv_header, data_lines, fmt, parse_number
 
 _HEADER = ("x_mm", "y_mm", "dx_um", "dy_um")
 _MODEL_KEYS = {"points", "model", "method", "degree"}
@@ -33,11 +33,7 @@ _MODEL_KEYS = {"points", "model", "method", "degree"}
 
 def read_planar_csv(path: str | os.PathLike[str]) -> PlanarMeasurement:
     rows = data_lines(path)
-    try:
-        header_line, header_text = next(rows)
-    except StopIteration:
-        raise TableError(f"{path}: empty file (no header, no points)") from None
-    header = tuple(h.strip() for h in header_text.split(","))
+    header_line, header = csv_header(path, rows)
     if header != _HEADER:
         raise TableError(f"{path}: line {header_line}: header must be {','.join(_HEADER)}")
     lines: list[int] = []
