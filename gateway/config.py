@@ -11,47 +11,24 @@ import ipaddress
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import yaml
-from pydantic import (
-    AfterValidator,
-    BaseModel,
-    ConfigDict,
-    Field,
-    ValidationError,
-    field_validator,
-    model_validator,
+from pydantic import Field, ValidationError, field_validator, model_validator
+
+from .config_types import (
+    Address,
+    Bit,
+    Port,
+    Positive,
+    UnitId,
+    WordOrder,
+    format_validation_error,
+    in_range,
+    read_yaml,
 )
+from .config_types import StrictModel as Model
 
 
 class ConfigError(ValueError):
     """A config that must not run; the message is one line naming the YAML path."""
-
-
-def _in_range(lo: int, hi: int):
-    def check(value: int) -> int:
-        if not lo <= value <= hi:
-            raise ValueError(f"is not in {lo}..{hi}")
-        return value
-
-    return AfterValidator(check)
-
-
-def _positive(value: float) -> float:
-    if not value > 0:
-        raise ValueError("must be > 0")
-    return value
-
-
-Address = Annotated[int, _in_range(0, 65535)]
-Port = Annotated[int, _in_range(0, 65535)]
-UnitId = Annotated[int, _in_range(1, 247)]
-Bit = Annotated[int, _in_range(0, 15)]
-Positive = Annotated[float, AfterValidator(_positive)]
-WordOrder = Literal["hi_lo", "lo_hi"]
-
-
-class Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
 
 # -- upstream -------------------------------------------------------------------------------
@@ -61,7 +38,7 @@ class TcpListen(Model):
     host: str = "127.0.0.1"
     port: Port = 502
     allow: list[str] = Field(default_factory=lambda: ["127.0.0.0/8", "::1/128"])
-    max_connections: Annotated[int, _in_range(1, 1024)] = 16
+    max_connections: Annotated[int, in_range(1, 1024)] = 16
     idle_timeout_s: float = Field(default=0.0, ge=0.0)
 
     @field_validator("allow")
@@ -79,7 +56,7 @@ class SerialLine(Model):
     """An RS-485/RS-232 line: device path and serial settings."""
 
     port: str
-    baudrate: Annotated[int, _in_range(300, 4_000_000)] = 19200
+    baudrate: Annotated[int, in_range(300, 4_000_000)] = 19200
     parity: Literal["N", "E", "O"] = "E"
     stopbits: Literal[1, 2] = 1
     bytesize: Literal[7, 8] = 8
@@ -108,7 +85,7 @@ class Bus(Model):
     rtu: SerialLine | None = None
     tcp: TcpEndpoint | None = None
     timeout_s: float = Field(default=0.1, gt=0.0, le=10.0)
-    retries: Annotated[int, _in_range(0, 5)] = 1
+    retries: Annotated[int, in_range(0, 5)] = 1
     min_silence_s: float = Field(default=0.0, ge=0.0, le=1.0)
 
     @model_validator(mode="after")
@@ -147,7 +124,7 @@ class TriggerRegister(Model):
     """What starts a move: any write (no value), a write of ``value``, or ``rising_bit``."""
 
     address: Address
-    value: Annotated[int, _in_range(0, 65535)] | None = None
+    value: Annotated[int, in_range(0, 65535)] | None = None
     rising_bit: Bit | None = None
 
     @model_validator(mode="after")
@@ -301,64 +278,30 @@ class GatewayConfig(Model):
             for i, name in enumerate(self.planar.axes):
                 _require(self.axes, name, ("planar", "axes", i), "axes")
                 if self.axes[name].rotary:
-                    raise _PathError(("planar", "axes", i), name, "is a rotary axis")
+                    raise _path_error(("planar", "axes", i), name, "is a rotary axis")
             if self.planar.axes[0] == self.planar.axes[1]:
-                raise _PathError(("planar", "axes"), list(self.planar.axes), "must differ")
+                raise _path_error(("planar", "axes"), list(self.planar.axes), "must differ")
         return self
 
 
 def _require(mapping: dict[Any, Any], key: Any, path: tuple[Any, ...], what: str) -> None:
     if key not in mapping:
-        raise _PathError(path, key, f"is not one of {what}: {_names(mapping)}")
-
-
-class _PathError(ValueError):
-    def __init__(self, path: tuple[Any, ...], value: Any, rule: str) -> None:
-        super().__init__(f"{_dotted(path)}: {value!r} {rule}")
+        names = ", ".join(map(str, mapping)) or "(none)"
+        raise _path_error(path, key, f"is not one of {what}: {names}")
 
 
 def _claim(seen: dict[int, str], unit: int, owner: str) -> None:
     if unit in seen:
-        raise _PathError((owner,), unit, f"upstream unit already used by {seen[unit]}")
+        raise _path_error((owner,), unit, f"upstream unit already used by {seen[unit]}")
     seen[unit] = owner
 
 
-def _names(mapping: dict[str, Any]) -> str:
-    return ", ".join(map(str, mapping)) or "(none)"
+def _path_error(path: tuple[Any, ...], value: Any, rule: str) -> ValueError:
+    """A model-level error that names the key it is about (see format_validation_error)."""
+    return ValueError(f"{'.'.join(str(p) for p in path)}: {value!r} {rule}")
 
 
-def _dotted(path: tuple[Any, ...]) -> str:
-    return ".".join(str(p) for p in path)
-
-
-def format_validation_error(exc: ValidationError, data: Any) -> str:
-    """One line for the first error: YAML path, the offending value, the rule."""
-    def clean(loc: tuple[Any, ...]) -> tuple[Any, ...]:
-        return tuple(p for p in loc if not (isinstance(p, str) and p in _UNION_TAGS))
-
-    # in a union, the member that got furthest explains the mistake best
-    err = max(exc.errors(), key=lambda e: len(clean(e["loc"])))
-    loc = clean(err["loc"])
-    message = str(err["msg"])
-    ctx_error = (err.get("ctx") or {}).get("error")
-    if isinstance(ctx_error, _PathError):
-        return str(ctx_error)
-    for prefix in ("Value error, ", "Assertion failed, "):
-        if message.startswith(prefix):
-            message = message[len(prefix):]
-    kind = err["type"]
-    path = _dotted(loc) or "(top level)"
-    if kind == "extra_forbidden":
-        return f"{path}: unknown key"
-    if kind == "missing":
-        return f"{path}: missing (required)"
-    value = err.get("input")
-    if isinstance(value, (dict, list)) and kind not in ("value_error",):
-        return f"{path}: {message}"
-    return f"{path}: {value!r} {message[0].lower() + message[1:] if message else ''}".rstrip()
-
-
-_UNION_TAGS = {"str", "PitchFile", "function-after[_one_rule(), TriggerRegister]"}
+_UNION_TAGS = frozenset({"str", "PitchFile"})
 
 
 def parse_config(data: Any, source: str = "<config>") -> GatewayConfig:
@@ -368,25 +311,12 @@ def parse_config(data: Any, source: str = "<config>") -> GatewayConfig:
     try:
         return GatewayConfig.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(f"{source}: {format_validation_error(exc, data)}") from None
+        raise ConfigError(f"{source}: {format_validation_error(exc, _UNION_TAGS)}") from None
 
 
 def load_config(path: str | Path) -> GatewayConfig:
     """Read and validate a gateway config file; raises ConfigError with one line."""
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: file not found") from None
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}: " if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(f"{path}: {where}not valid YAML ({problem})") from None
-    return parse_config(data, str(path))
+    return parse_config(read_yaml(path, ConfigError), str(path))
 
 
 def json_schema() -> dict[str, Any]:

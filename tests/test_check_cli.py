@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 import subprocess
 import sys
@@ -10,39 +11,24 @@ from pathlib import Path
 import yaml
 
 from gateway.config import json_schema
+from tests.test_config import BASE
 
 ROOT = Path(__file__).resolve().parent.parent
 
-CONFIG = {
-    "upstream": {"tcp": {"host": "127.0.0.1", "port": 5020}},
-    "buses": {"line1": {"tcp": {"host": "127.0.0.1", "port": 5021}}},
-    "axes": {
-        "X": {
-            "bus": "line1",
-            "unit": 1,
-            "pulse_mm": 0.001,
-            "travel_mm": [0, 800],
-            "registers": {
-                "target": {"address": 0x6201},
-                "feedback": {"address": 0x602A},
-                "trigger": {"address": 0x6002, "value": 0x10},
-            },
-            "compensation": {
-                "pitch": {"file": "tables/x.csv", "interpolation": "smooth"},
-                "max_correction_mm": 0.2,
-            },
-        },
-        "Y": {
-            "bus": "line1",
-            "unit": 2,
-            "pulse_mm": 0.001,
-            "travel_mm": [0, 600],
-            "registers": {"target": {"address": 0x6201}, "feedback": {"address": 0x602A}},
-            "compensation": {"backlash_mm": 0.008},
-        },
-    },
-    "planar": {"axes": ["X", "Y"], "model": "tables/xy.yaml"},
-}
+def _config() -> dict:
+    """The bad-config table's base, plus a pitch table, a planar model and no sources."""
+    config = copy.deepcopy(BASE)
+    del config["thermal_sources"], config["axes"]["X"]["registers"]["status"]
+    config["axes"]["X"]["compensation"] = {
+        "pitch": {"file": "tables/x.csv", "interpolation": "smooth"},
+        "max_correction_mm": 0.2,
+    }
+    config["axes"]["Y"]["compensation"] = {"backlash_mm": 0.008}
+    config["planar"] = {"axes": ["X", "Y"], "model": "tables/xy.yaml"}
+    return config
+
+
+CONFIG = _config()
 
 
 def _write(tmp_path: Path, x_csv: str, config=CONFIG) -> Path:

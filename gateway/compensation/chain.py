@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -160,6 +160,8 @@ class Chain:
 
     axes: Mapping[str, AxisChain]
     planar: PlanarStage | None = None
+    #: planar iteration tolerance (mm): ITERATION_TOLERANCE_PULSES of the finer planar axis
+    planar_tolerance_mm: float = field(init=False, default=0.0)
 
     def __post_init__(self) -> None:
         if self.planar is not None:
@@ -168,6 +170,8 @@ class Chain:
                     raise CompensationError(f"planar.axes: {name!r} is not a configured axis")
                 if self.axes[name].rotary:
                     raise CompensationError(f"planar.axes: {name!r} is rotary")
+            finest = min(self.axes[n].pulse_mm for n in self.planar.axes)
+            object.__setattr__(self, "planar_tolerance_mm", ITERATION_TOLERANCE_PULSES * finest)
 
     def partner(self, axis: str) -> str | None:
         """The other axis of the planar pair, or None."""
@@ -175,10 +179,6 @@ class Chain:
             return None
         a, b = self.planar.axes
         return b if axis == a else a
-
-    def _tolerance_mm(self) -> float:
-        assert self.planar is not None
-        return ITERATION_TOLERANCE_PULSES * min(self.axes[n].pulse_mm for n in self.planar.axes)
 
     # -- scalar (per transaction) -------------------------------------------------------
     def command_pulses(self, axis: str, inputs: Mapping[str, AxisInput]) -> int:
@@ -195,7 +195,7 @@ class Chain:
             other_mm = inputs[partner].pulses * self.axes[partner].pulse_mm
             first = axis == self.planar.axes[0]
             xy = (nominal_mm, other_mm) if first else (other_mm, nominal_mm)
-            cxy = self.planar.forward_scalar(xy[0], xy[1], self._tolerance_mm())
+            cxy = self.planar.forward_scalar(xy[0], xy[1], self.planar_tolerance_mm)
             target_mm = cxy[0] if first else cxy[1]
         command_mm = chain.command_mm_scalar(target_mm, own.direction, own.delta_a_mm)
         chain.check_correction(nominal_mm, command_mm)
@@ -251,7 +251,7 @@ class Chain:
         if self.planar is not None and all(a in target for a in self.planar.axes):
             a, b = self.planar.axes
             xy = np.stack(np.broadcast_arrays(target[a], target[b]), axis=-1)
-            cxy = self.planar.forward(xy, self._tolerance_mm())
+            cxy = self.planar.forward(xy, self.planar_tolerance_mm)
             target[a], target[b] = cxy[..., 0], cxy[..., 1]
         return {
             name: self.axes[name].command_mm(

@@ -4,21 +4,14 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
-from pathlib import Path
 
 from ..compensation.errors import TableError
+from ..config_types import read_text
 
 
 def data_lines(path: str | os.PathLike[str]) -> Iterator[tuple[int, str]]:
     """Yield ``(line_number, text)`` of non-blank lines with ``#`` comments removed."""
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise TableError(f"{path}: file not found") from None
-    except UnicodeDecodeError as exc:
-        raise TableError(f"{path}: not a UTF-8 text file ({exc.reason})") from None
-    except OSError as exc:
-        raise TableError(f"{path}: cannot read ({exc.strerror})") from None
+    text = read_text(path, TableError)
     for number, raw in enumerate(text.splitlines(), start=1):
         line = raw.split("#", 1)[0].strip()
         if line:

@@ -20,10 +20,10 @@ import os
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from ..compensation.errors import TableError
 from ..compensation.planar import GridModel, PlanarMeasurement, PlanarModel, PolyModel
+from ..config_types import read_yaml
 from .atomic import atomic_write_text
 from .lines import csv_header, data_lines, fmt, parse_number
 
@@ -65,12 +65,7 @@ def write_planar_csv(path: str | os.PathLike[str], meas: PlanarMeasurement) -> N
 
 def load_planar_model(path: str | os.PathLike[str]) -> PlanarModel:
     """Build the planar model a model file describes (errors name the file and key)."""
-    try:
-        spec = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise TableError(f"{path}: file not found") from None
-    except yaml.YAMLError as exc:
-        raise TableError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    spec = read_yaml(path, TableError)
     if not isinstance(spec, dict):
         raise TableError(f"{path}: expected a mapping with keys {', '.join(sorted(_MODEL_KEYS))}")
     unknown = set(spec) - _MODEL_KEYS

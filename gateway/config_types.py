@@ -1,0 +1,106 @@
+"""Config vocabulary shared by the gateway and the simulator.
+
+Ranged integers, strict models, reading text/YAML files, and turning a pydantic error into
+one line that names the YAML path, the value and the rule
+(``axes.X.registers.target.address: 70000 is not in 0..65535``). The simulator shares this
+vocabulary on purpose: one spelling of a register address for both configs.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+
+
+def in_range(lo: int, hi: int) -> AfterValidator:
+    """Validator: an integer in ``lo..hi`` (message ``is not in lo..hi``)."""
+
+    def check(value: int) -> int:
+        if not lo <= value <= hi:
+            raise ValueError(f"is not in {lo}..{hi}")
+        return value
+
+    return AfterValidator(check)
+
+
+def _greater_than_zero(value: float) -> float:
+    if not value > 0:
+        raise ValueError("must be > 0")
+    return value
+
+
+Address = Annotated[int, in_range(0, 0xFFFF)]
+Word = Annotated[int, in_range(0, 0xFFFF)]
+Port = Annotated[int, in_range(0, 65535)]
+UnitId = Annotated[int, in_range(1, 247)]
+Bit = Annotated[int, in_range(0, 15)]
+Positive = Annotated[float, AfterValidator(_greater_than_zero)]
+PositiveFloat = Annotated[float, Field(gt=0)]
+NonNegFloat = Annotated[float, Field(ge=0)]
+WordOrder = Literal["hi_lo", "lo_hi"]
+
+
+class StrictModel(BaseModel):
+    """Unknown keys are errors; a loaded config never changes."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+_RELATIVE_PATH = re.compile(r"[\w.]+")
+
+
+def format_validation_error(exc: ValidationError, union_tags: frozenset[str] = frozenset()) -> str:
+    """One line for a validation error: ``yaml.path: value rule``.
+
+    In a union, the member that got furthest explains the mistake best; ``union_tags`` are
+    the member names pydantic puts into the path, removed here. A model-level rule may name
+    the key it is about as ``"relative.path: rest"``; that path is appended to the location.
+    """
+
+    def clean(loc: tuple[Any, ...]) -> tuple[Any, ...]:
+        return tuple(p for p in loc if not (isinstance(p, str) and p in union_tags))
+
+    err = max(exc.errors(include_url=False), key=lambda e: len(clean(e["loc"])))
+    loc = ".".join(str(p) for p in clean(err["loc"]))
+    message = str(err["msg"]).removeprefix("Value error, ")
+    if err["type"] == "missing":
+        return f"{loc}: missing (required)"
+    if err["type"] == "extra_forbidden":
+        return f"{loc}: unknown key"
+    value = err.get("input")
+    if isinstance(value, dict | list | tuple):
+        head, sep, rest = message.partition(": ")
+        if sep and _RELATIVE_PATH.fullmatch(head):
+            return f"{loc}.{head}: {rest}" if loc else f"{head}: {rest}"
+        return f"{loc or '(top level)'}: {message}"
+    if message.startswith(("is ", "must ")):
+        return f"{loc}: {value!r} {message}"
+    return f"{loc}: {value!r}: {message[:1].lower()}{message[1:]}"
+
+
+def read_text(path: str | Path, error: type[Exception]) -> str:
+    """A UTF-8 text file, or ``error`` with one line naming the file and what went wrong."""
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{path}: file not found") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not a UTF-8 text file ({exc.reason})") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror})") from None
+
+
+def read_yaml(path: str | Path, error: type[Exception]) -> Any:
+    """Parsed YAML of a file, or ``error`` naming the file and the line of a syntax error."""
+    text = read_text(path, error)
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}: " if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise error(f"{path}: {where}not valid YAML ({problem})") from None
