@@ -27,6 +27,9 @@ class AxisState:
     last_nominal_pulses: int | None = None
     last_command_pulses: int | None = None
     enabled: bool = True
+    #: whether the last committed target was corrected (False: sent as written, e.g.
+    #: compensation off or drive not homed); feedback is inverted only when it was
+    applied: bool = False
 
     def write_words(self, offset: int, words: list[int]) -> None:
         """Record master writes of target words (offset 0 or 1 within the pair)."""

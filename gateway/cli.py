@@ -33,6 +33,19 @@ def _cmd_check(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_run(args: argparse.Namespace) -> int:
+    import asyncio
+    import logging
+
+    from .app import serve
+
+    logging.basicConfig(
+        level=getattr(logging, args.log_level.upper()),
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    return asyncio.run(serve(args.config))
+
+
 def _cmd_sim(args: argparse.Namespace) -> int:
     from sim.server import main as sim_main
 
@@ -48,7 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run the gateway daemon (foreground)")
     p.add_argument("-c", "--config", required=True, help="gateway YAML config")
-    p.set_defaults(func=lambda a: _not_yet("run", 4))
+    p.add_argument(
+        "--log-level", default="info", choices=["debug", "info", "warning", "error"]
+    )
+    p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("check", help="validate config and tables, print the resolved setup")
     p.add_argument("-c", "--config", required=True, help="gateway YAML config")

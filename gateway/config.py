@@ -256,7 +256,7 @@ class GatewayConfig(Model):
     planar: Planar | None = None
     thermal_sources: dict[str, ThermalSource] = Field(default_factory=dict)
     status: Status = Field(default_factory=Status)
-    passthrough: dict[int, Passthrough] = Field(default_factory=dict)
+    passthrough: dict[UnitId, Passthrough] = Field(default_factory=dict)
 
     @model_validator(mode="after")
     def _references(self) -> GatewayConfig:

@@ -1,0 +1,173 @@
+"""The daemon: buses, listeners and the request handler assembled from a config.
+
+`compgw run -c FILE` runs :func:`run` in the foreground: SIGTERM/SIGINT stop it (the
+transaction in flight finishes), SIGHUP reloads the config and tables — validated
+completely first; an invalid one is logged and the old one stays.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import signal
+from pathlib import Path
+
+from .compensation import Chain
+from .config import Bus as BusConfig
+from .config import ConfigError, GatewayConfig, load_config
+from .downstream import Bus, RtuBus, TcpBus
+from .router import Gateway
+from .tables import build_chain
+from .upstream import RtuServer, TcpServer
+
+log = logging.getLogger(__name__)
+
+
+def make_bus(name: str, cfg: BusConfig) -> Bus:
+    """The downstream bus a config section describes."""
+    common = {
+        "name": name,
+        "timeout_s": cfg.timeout_s,
+        "retries": cfg.retries,
+        "min_silence_s": cfg.min_silence_s,
+    }
+    if cfg.tcp is not None:
+        return TcpBus(cfg.tcp.host, cfg.tcp.port, **common)
+    assert cfg.rtu is not None
+    return RtuBus(
+        cfg.rtu.port,
+        baudrate=cfg.rtu.baudrate,
+        bytesize=cfg.rtu.bytesize,
+        parity=cfg.rtu.parity,
+        stopbits=cfg.rtu.stopbits,
+        **common,
+    )
+
+
+def load(path: str | Path) -> tuple[GatewayConfig, Chain]:
+    """Config and chain from a file, fully validated (raises ConfigError)."""
+    config = load_config(path)
+    return config, build_chain(config, Path(path).resolve().parent)
+
+
+class GatewayApp:
+    """A running gateway: ``async with GatewayApp(config, chain) as app: app.tcp_port``."""
+
+    def __init__(self, config: GatewayConfig, chain: Chain, *, source: str | None = None) -> None:
+        self.config = config
+        self.source = source
+        self.buses = {name: make_bus(name, cfg) for name, cfg in config.buses.items()}
+        self.gateway = Gateway(config, chain, self.buses)
+        self.tcp: TcpServer | None = None
+        self.rtu: RtuServer | None = None
+
+    @property
+    def tcp_port(self) -> int:
+        assert self.tcp is not None, "no TCP listener configured"
+        return self.tcp.port
+
+    def upstream_units(self) -> set[int]:
+        units = {axis.upstream for axis in self.config.axes.values()}
+        units |= set(self.config.passthrough)
+        units.add(self.config.status.upstream_unit)
+        return units
+
+    async def start(self) -> None:
+        """Connect the buses (a bus that is down is retried on use) and listen."""
+        for name, bus in self.buses.items():
+            if not await bus.connect():
+                log.warning("bus %s is down at start; requests get 0x0A until it is back", name)
+        up = self.config.upstream
+        try:
+            if up.tcp is not None:
+                self.tcp = TcpServer(
+                    self.gateway.handle,
+                    up.tcp.host,
+                    up.tcp.port,
+                    allow=up.tcp.allow,
+                    max_connections=up.tcp.max_connections,
+                    idle_timeout_s=up.tcp.idle_timeout_s or None,
+                )
+                await self.tcp.start()
+            if up.rtu is not None:
+                self.rtu = RtuServer(
+                    self.gateway.handle,
+                    up.rtu.port,
+                    unit_ids=self.upstream_units(),
+                    baudrate=up.rtu.baudrate,
+                    bytesize=up.rtu.bytesize,
+                    parity=up.rtu.parity,
+                    stopbits=up.rtu.stopbits,
+                )
+                await self.rtu.start()
+        except BaseException:
+            await self.stop()
+            raise
+
+    async def stop(self) -> None:
+        """Stop listening (in-flight transactions finish), then close the buses."""
+        for listener in (self.tcp, self.rtu):
+            if listener is not None:
+                await listener.close()
+        for bus in self.buses.values():
+            await bus.close()
+
+    def reload(self, config: GatewayConfig, chain: Chain) -> None:
+        """Swap tables and per-axis settings between transactions.
+
+        Listeners and buses stay as they are: a changed upstream or bus section needs a
+        restart, and is refused here with a log line.
+        """
+        if config.upstream != self.config.upstream or config.buses != self.config.buses:
+            raise ConfigError("upstream and buses cannot change on reload; restart instead")
+        self.gateway.reload(config, chain)
+        self.config = config
+
+    async def __aenter__(self) -> GatewayApp:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+
+async def serve(path: str | Path) -> int:
+    """Run until SIGTERM/SIGINT; SIGHUP reloads. Returns an exit code."""
+    try:
+        config, chain = load(path)
+    except ConfigError as exc:
+        log.error("%s", exc)
+        return 1
+    app = GatewayApp(config, chain, source=str(path))
+    try:
+        await app.start()
+    except OSError as exc:
+        log.error("cannot listen: %s", exc)
+        return 3
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+
+    def do_reload() -> None:
+        try:
+            new_config, new_chain = load(path)
+            app.reload(new_config, new_chain)
+        except ConfigError as exc:
+            log.error("reload refused, old config kept: %s", exc)
+            return
+        log.info("reloaded %s", path)
+
+    loop.add_signal_handler(signal.SIGTERM, stop.set)
+    loop.add_signal_handler(signal.SIGINT, stop.set)
+    loop.add_signal_handler(signal.SIGHUP, do_reload)
+    where = f"{config.upstream.tcp.host}:{app.tcp_port}" if app.tcp is not None else ""
+    log.info("compgw running: upstream %s", where or config.upstream.rtu.port)  # type: ignore[union-attr]
+    try:
+        await stop.wait()
+    finally:
+        for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+            with contextlib.suppress(Exception):
+                loop.remove_signal_handler(sig)
+        await app.stop()
+    log.info("compgw stopped")
+    return 0

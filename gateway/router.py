@@ -1,0 +1,485 @@
+"""The request handler: route by unit id, intercept targets and feedback, pass the rest.
+
+Every upstream request arrives here as ``(unit_id, pdu)``. The unit id picks a route: an
+axis's drive (intercepted), a pass-through unit (forwarded untouched), or the status unit;
+anything else is refused with 0x0A. On an axis:
+
+- writes of the target pair (one FC16, the pair inside a longer FC16 block, or two
+  single-register writes in either order) update the *shadow* of what the master wrote;
+  the drive only ever receives a whole, corrected value (one FC16 of the pair or the
+  rewritten block);
+- ``commit: on_trigger`` (planar axes) holds targets until a trigger write, then writes
+  every planar axis's corrected target and forwards the trigger; ``immediate`` corrects
+  at once with the partner's latest target;
+- reads of the target pair return the shadow; reads of the feedback pair return the
+  inverse-corrected (nominal) position; reads touching half a pair are widened;
+- everything else is forwarded byte for byte and the drive's reply relayed as it is.
+
+The math is the chain's (``gateway.compensation``); this module moves words.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from .axis import AxisState, overlap
+from .compensation import (
+    AxisInput,
+    Chain,
+    CompensationError,
+    CorrectionLimitError,
+    MotionState,
+    TravelError,
+)
+from .config import Axis, GatewayConfig
+from .downstream import Bus
+from .frames import (
+    GATEWAY_PATH_UNAVAILABLE,
+    ILLEGAL_DATA_VALUE,
+    MAX_READ_REGISTERS,
+    READ_HOLDING_REGISTERS,
+    READ_INPUT_REGISTERS,
+    READ_WRITE_MULTIPLE_REGISTERS,
+    SERVER_DEVICE_FAILURE,
+    WRITE_MULTIPLE_REGISTERS,
+    WRITE_SINGLE_REGISTER,
+    FrameError,
+    ModbusError,
+    Request,
+    build_read_registers_response,
+    build_read_request,
+    build_write_multiple_registers,
+    build_write_single_register,
+    is_exception,
+    pack_int32,
+    parse_read_registers_response,
+    parse_request,
+    response_for_write,
+    unpack_int32,
+)
+
+log = logging.getLogger(__name__)
+
+DeltaA = Callable[[str], float | None]
+
+
+def _no_thermal(_axis: str) -> float | None:
+    return None
+
+
+@dataclass(frozen=True)
+class Setup:
+    """One consistent view of config + chain; swapped whole on reload, between requests."""
+
+    config: GatewayConfig
+    chain: Chain
+    axis_by_unit: dict[int, str]
+
+    @classmethod
+    def build(cls, config: GatewayConfig, chain: Chain) -> Setup:
+        return cls(config, chain, {axis.upstream: name for name, axis in config.axes.items()})
+
+    def hold_until_trigger(self, axis: str) -> bool:
+        planar = self.config.planar
+        return planar is not None and planar.commit == "on_trigger" and axis in planar.axes
+
+    def planar_partner(self, axis: str) -> str | None:
+        return self.chain.partner(axis)
+
+
+@dataclass
+class GatewayCounters:
+    """Monotonic counters for the status unit and metrics."""
+
+    commits: int = 0
+    refused_travel: int = 0
+    refused_correction: int = 0
+    feedback_reads: int = 0
+
+
+@dataclass
+class _Trigger:
+    last_value: int = 0
+
+
+@dataclass
+class _AxisRuntime:
+    state: AxisState
+    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    trigger: _Trigger = field(default_factory=_Trigger)
+    last_correction_mm: float = 0.0
+
+
+class Gateway:
+    """The upstream handler: ``await gateway.handle(unit_id, pdu)``."""
+
+    def __init__(
+        self,
+        config: GatewayConfig,
+        chain: Chain,
+        buses: dict[str, Bus],
+        *,
+        delta_a_mm: DeltaA = _no_thermal,
+        status_handler: Callable[[bytes], bytes] | None = None,
+    ) -> None:
+        self.buses = buses
+        self.delta_a_mm = delta_a_mm
+        self.status_handler = status_handler
+        self.counters = GatewayCounters()
+        self._axes: dict[str, _AxisRuntime] = {}
+        self.setup = Setup.build(config, chain)
+        self._adopt_axes(config)
+
+    # -- reload ---------------------------------------------------------------------------
+    def reload(self, config: GatewayConfig, chain: Chain) -> None:
+        """Swap to a validated config; axis states (shadow, direction) survive."""
+        self._adopt_axes(config)
+        self.setup = Setup.build(config, chain)
+
+    def _adopt_axes(self, config: GatewayConfig) -> None:
+        for name, axis in config.axes.items():
+            if name not in self._axes:
+                state = AxisState(MotionState(axis.home_direction))
+                state.enabled = axis.compensation.enabled
+                self._axes[name] = _AxisRuntime(state)
+
+    def axis_state(self, name: str) -> AxisState:
+        return self._axes[name].state
+
+    def last_correction_mm(self, name: str) -> float:
+        return self._axes[name].last_correction_mm
+
+    # -- routing --------------------------------------------------------------------------
+    async def handle(self, unit_id: int, pdu: bytes) -> bytes | None:
+        setup = self.setup
+        axis_name = setup.axis_by_unit.get(unit_id)
+        if axis_name is not None:
+            return await self._axis_request(setup, axis_name, pdu)
+        route = setup.config.passthrough.get(unit_id)
+        if route is not None:
+            return await self.buses[route.bus].transact(route.unit, pdu)
+        if unit_id == setup.config.status.upstream_unit and self.status_handler is not None:
+            return self.status_handler(pdu)
+        raise ModbusError(f"unit {unit_id} is not routed", GATEWAY_PATH_UNAVAILABLE)
+
+    async def _axis_request(self, setup: Setup, name: str, pdu: bytes) -> bytes:
+        axis = setup.config.axes[name]
+        bus = self.buses[axis.bus]
+        fc = pdu[0]
+        if fc not in (
+            READ_HOLDING_REGISTERS,
+            READ_INPUT_REGISTERS,
+            WRITE_SINGLE_REGISTER,
+            WRITE_MULTIPLE_REGISTERS,
+            READ_WRITE_MULTIPLE_REGISTERS,
+        ):
+            return await bus.transact(axis.unit, pdu)
+        try:
+            req = parse_request(pdu)
+        except FrameError:
+            return await bus.transact(axis.unit, pdu)  # the drive answers malformed PDUs
+        if fc in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS):
+            return await self._read(setup, name, axis, req, pdu)
+        if fc == READ_WRITE_MULTIPLE_REGISTERS:
+            return await self._read_write(setup, name, axis, req, pdu)
+        return await self._write(setup, name, axis, req, pdu)
+
+    # -- reads ----------------------------------------------------------------------------
+    def _pairs_read_by(self, axis: Axis, table: str) -> list[int]:
+        """Base addresses of intercepted pairs a read of ``table`` may touch."""
+        regs = axis.registers
+        bases = []
+        if table == "holding":
+            bases.append(regs.target.address)
+        if regs.feedback.table == table:
+            bases.append(regs.feedback.address)
+        return bases
+
+    async def _read(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
+        table = "holding" if req.function == READ_HOLDING_REGISTERS else "input"
+        start, count = req.read_address or 0, req.read_count
+        bases = [b for b in self._pairs_read_by(axis, table) if overlap(start, count, b)]
+        if not bases:
+            return await self.buses[axis.bus].transact(axis.unit, pdu)
+        lo = min([start, *bases])
+        hi = max([start + count, *(b + 2 for b in bases)])
+        if hi - lo > MAX_READ_REGISTERS:
+            return await self.buses[axis.bus].transact(axis.unit, pdu)  # cannot widen: raw
+        reply = await self.buses[axis.bus].transact(
+            axis.unit, build_read_request(req.function, lo, hi - lo)
+        )
+        if is_exception(reply):
+            return reply
+        words = parse_read_registers_response(reply)
+        if len(words) != hi - lo:
+            raise ModbusError(
+                f"axis {name}: drive answered {len(words)} words", SERVER_DEVICE_FAILURE
+            )
+        self._rewrite_read(setup, name, axis, table, lo, words)
+        return build_read_registers_response(req.function, words[start - lo : start - lo + count])
+
+    def _rewrite_read(
+        self, setup: Setup, name: str, axis: Axis, table: str, lo: int, words: list[int]
+    ) -> None:
+        """Replace drive words of intercepted pairs inside ``words`` (which start at ``lo``)."""
+        regs = axis.registers
+        runtime = self._axes[name]
+        state = runtime.state
+        if table == "holding" and regs.target.address - lo in range(len(words) - 1):
+            i = regs.target.address - lo
+            if state.shadow_known or state.halves_written:
+                words[i : i + 2] = state.shadow
+            else:
+                command = unpack_int32(words[i : i + 2], regs.target.order)
+                nominal = self._nominal(setup, name, axis, command)
+                words[i : i + 2] = pack_int32(round(nominal), regs.target.order)
+        if regs.feedback.table == table and regs.feedback.address - lo in range(len(words) - 1):
+            i = regs.feedback.address - lo
+            counts = unpack_int32(words[i : i + 2], regs.feedback.order)
+            command = counts / regs.feedback.counts_per_pulse
+            self.counters.feedback_reads += 1
+            exact = self._nominal(setup, name, axis, command)
+            nominal = state.reported_feedback(round(command), exact)
+            nominal_counts = round(nominal * regs.feedback.counts_per_pulse)
+            words[i : i + 2] = pack_int32(_clamp_int32(nominal_counts), regs.feedback.order)
+
+    def _nominal(self, setup: Setup, name: str, axis: Axis, command_pulses: float) -> float:
+        """Nominal position (pulses) of a drive at ``command_pulses``; identity when the
+        last target was sent uncorrected (compensation off or not homed)."""
+        state = self._axes[name].state
+        if not state.applied:
+            return command_pulses
+        inputs = {name: AxisInput(command_pulses, state.motion.direction, self._delta_a(name))}
+        partner = setup.planar_partner(name)
+        if partner is not None:
+            other = self._axes[partner].state
+            if other.last_command_pulses is not None and other.applied:
+                inputs[partner] = AxisInput(
+                    other.last_command_pulses, other.motion.direction, self._delta_a(partner)
+                )
+        try:
+            return setup.chain.nominal_pulses(name, inputs)
+        except CompensationError as exc:
+            log.warning("axis %s: feedback not corrected: %s", name, exc)
+            return command_pulses
+
+    async def _read_write(
+        self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes
+    ) -> bytes:
+        """FC23: writes touching the target or trigger are refused (they need the split
+        and commit rules); reads of intercepted pairs are rewritten when fully covered."""
+        regs = axis.registers
+        w_start, w_count = req.write_address or 0, req.write_count
+        touched = [regs.target.address] + ([regs.trigger.address] if regs.trigger else [])
+        if any(overlap(w_start, w_count, a, 2 if a == regs.target.address else 1) for a in touched):
+            raise ModbusError(
+                f"axis {name}: FC23 writing the target or trigger is not supported",
+                ILLEGAL_DATA_VALUE,
+            )
+        reply = await self.buses[axis.bus].transact(axis.unit, pdu)
+        if is_exception(reply):
+            return reply
+        words = parse_read_registers_response(reply)
+        start = req.read_address or 0
+        self._rewrite_read(setup, name, axis, "holding", start, words)
+        return build_read_registers_response(req.function, words)
+
+    # -- writes ---------------------------------------------------------------------------
+    async def _write(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
+        regs = axis.registers
+        start, count = req.write_address or 0, req.write_count
+        target_offsets = overlap(start, count, regs.target.address)
+        trigger = regs.trigger
+        trigger_hit = trigger is not None and bool(overlap(start, count, trigger.address, 1))
+        if not target_offsets and not trigger_hit:
+            return await self.buses[axis.bus].transact(axis.unit, pdu)
+        if target_offsets and count > 1 and len(target_offsets) == 1:
+            raise ModbusError(
+                f"axis {name}: a register block must hold both words of the target",
+                ILLEGAL_DATA_VALUE,
+            )
+        runtime = self._axes[name]
+        partner = setup.planar_partner(name)
+        locks = [runtime.lock] + ([self._axes[partner].lock] if partner else [])
+        locks.sort(key=id)
+        async with _all(locks):
+            if target_offsets:
+                first = target_offsets[0]
+                index = regs.target.address + first - start
+                words = req.values[index : index + len(target_offsets)]
+                runtime.state.write_words(first, list(words))
+            if trigger_hit and self._trigger_fires(runtime, axis, req, start):
+                return await self._trigger_write(setup, name, axis, req)
+            if target_offsets:
+                return await self._target_write(setup, name, axis, req)
+            return await self.buses[axis.bus].transact(axis.unit, pdu)
+
+    def _trigger_fires(self, runtime: _AxisRuntime, axis: Axis, req: Request, start: int) -> bool:
+        rule = axis.registers.trigger
+        assert rule is not None
+        value = req.values[rule.address - start]
+        previous = runtime.trigger.last_value
+        runtime.trigger.last_value = value
+        if rule.rising_bit is not None:
+            bit = 1 << rule.rising_bit
+            return bool(value & bit) and not previous & bit
+        return rule.value is None or value == rule.value
+
+    async def _target_write(self, setup: Setup, name: str, axis: Axis, req: Request) -> bytes:
+        """Target words written, no trigger fired: commit now, or hold (half a pair, or a
+        planar axis with ``commit: on_trigger``)."""
+        state = self._axes[name].state
+        hold = setup.hold_until_trigger(name) and axis.registers.trigger is not None
+        if not state.pair_complete() or hold:
+            if req.function == WRITE_MULTIPLE_REGISTERS and req.write_count > 2:
+                await self._forward_around_target(name, axis, req)
+            return response_for_write(req)
+        block = req if req.write_count > 1 else None
+        await self._commit(setup, name, [], block)
+        return response_for_write(req)
+
+    async def _trigger_write(self, setup: Setup, name: str, axis: Axis, req: Request) -> bytes:
+        """A trigger write that fires: commit pending targets (the planar partner's too
+        when ``on_trigger``), then forward the trigger (or the block that holds it)."""
+        partner = setup.planar_partner(name)
+        partners = [partner] if partner is not None and setup.hold_until_trigger(name) else []
+        target = axis.registers.target.address
+        block = req if overlap(req.write_address or 0, req.write_count, target) else None
+        await self._commit(setup, name, partners, block)
+        if block is not None:
+            return response_for_write(req)
+        return await self.buses[axis.bus].transact(axis.unit, _build_write(req))
+
+    async def _forward_around_target(self, name: str, axis: Axis, req: Request) -> None:
+        """Forward the words of a held block that are not the target, as sub-blocks."""
+        start = req.write_address or 0
+        target = axis.registers.target.address
+        before = req.values[: target - start]
+        after = req.values[target + 2 - start :]
+        for address, values in ((start, before), (target + 2, after)):
+            if values:
+                reply = await self.buses[axis.bus].transact(
+                    axis.unit, build_write_multiple_registers(address, list(values))
+                )
+                if is_exception(reply):
+                    raise ModbusError(f"axis {name}: drive refused a held block", reply[1])
+
+    async def _commit(
+        self, setup: Setup, owner: str, partners: list[str], block: Request | None
+    ) -> None:
+        """Correct and write the targets of ``partners`` then ``owner``.
+
+        ``block``, when given, is the owner's register block holding its target (and maybe
+        its trigger): it goes out whole with the target words corrected. Every correction
+        is computed before anything is written, so a refused target (outside travel,
+        correction above the cap) sends nothing at all.
+        """
+        plans: list[tuple[str, int, int, bool]] = []
+        for name in [*partners, owner]:
+            state = self._axes[name].state
+            if not (state.shadow_known or state.halves_written):
+                continue
+            nominal = state.nominal_target(setup.config.axes[name].registers.target.order)
+            pending = bool(state.halves_written) or state.last_nominal_pulses != nominal
+            if not pending and not (block is not None and name == owner):
+                continue
+            homed = await self._homed(setup.config.axes[name])
+            plans.append((name, nominal, *self._correct(setup, name, nominal, homed)))
+        for name, nominal, command, applied in plans:
+            axis = setup.config.axes[name]
+            words = list(pack_int32(command, axis.registers.target.order))
+            if block is not None and name == owner:
+                values = list(block.values)
+                offset = axis.registers.target.address - (block.write_address or 0)
+                values[offset : offset + 2] = words
+                pdu = build_write_multiple_registers(block.write_address or 0, values)
+            else:
+                pdu = build_write_multiple_registers(axis.registers.target.address, words)
+            reply = await self.buses[axis.bus].transact(axis.unit, pdu)
+            if is_exception(reply):
+                raise ModbusError(f"axis {name}: drive refused the target", reply[1])
+            runtime = self._axes[name]
+            runtime.state.committed(nominal, command)
+            runtime.state.applied = applied
+            runtime.last_correction_mm = (command - nominal) * axis.pulse_mm
+            self.counters.commits += 1
+
+    async def _homed(self, axis: Axis) -> bool:
+        """Whether the drive reports homed (True when no homed bit is configured)."""
+        status = axis.registers.status
+        if status is None or status.homed_bit is None:
+            return True
+        fc = READ_HOLDING_REGISTERS if status.table == "holding" else READ_INPUT_REGISTERS
+        request = build_read_request(fc, status.address, 1)
+        reply = await self.buses[axis.bus].transact(axis.unit, request)
+        if is_exception(reply):
+            raise ModbusError("drive refused the status read", reply[1])
+        return bool(parse_read_registers_response(reply)[0] >> status.homed_bit & 1)
+
+    def _correct(self, setup: Setup, name: str, nominal: int, homed: bool) -> tuple[int, bool]:
+        """Corrected command for ``name`` and whether compensation was applied."""
+        axis_cfg = setup.config.axes[name]
+        state = self._axes[name].state
+        chain_axis = setup.chain.axes[name]
+        try:
+            chain_axis.check_travel(nominal * axis_cfg.pulse_mm)
+        except TravelError as exc:
+            self.counters.refused_travel += 1
+            log.warning("%s", exc)
+            raise ModbusError(str(exc), ILLEGAL_DATA_VALUE) from None
+        if not (state.enabled and homed):
+            return nominal, False
+        direction = state.motion.approach(nominal).direction
+        inputs = {name: AxisInput(nominal, direction, self._delta_a(name))}
+        partner = setup.planar_partner(name)
+        if partner is not None:
+            other = self._axes[partner].state
+            if other.shadow_known or other.halves_written:
+                order = setup.config.axes[partner].registers.target.order
+                other_nominal = other.nominal_target(order)
+                inputs[partner] = AxisInput(
+                    other_nominal,
+                    other.motion.approach(other_nominal).direction,
+                    self._delta_a(partner),
+                )
+        try:
+            return setup.chain.command_pulses(name, inputs), True
+        except CorrectionLimitError as exc:
+            self.counters.refused_correction += 1
+            log.error("%s: target refused", exc)
+            raise ModbusError(str(exc), SERVER_DEVICE_FAILURE) from None
+        except CompensationError as exc:
+            log.error("axis %s: target refused: %s", name, exc)
+            raise ModbusError(str(exc), SERVER_DEVICE_FAILURE) from None
+
+    def _delta_a(self, name: str) -> float:
+        value = self.delta_a_mm(name)
+        return 0.0 if value is None else value
+
+
+def _build_write(req: Request) -> bytes:
+    if req.function == WRITE_SINGLE_REGISTER:
+        return build_write_single_register(req.write_address or 0, req.values[0])
+    return build_write_multiple_registers(req.write_address or 0, list(req.values))
+
+
+def _clamp_int32(value: int) -> int:
+    return max(-(1 << 31), min((1 << 31) - 1, value))
+
+
+class _all:
+    """Acquire several asyncio locks in the given order (a fixed order avoids deadlock)."""
+
+    def __init__(self, locks: list[asyncio.Lock]) -> None:
+        self.locks = locks
+
+    async def __aenter__(self) -> None:
+        for lock in self.locks:
+            await lock.acquire()
+
+    async def __aexit__(self, *exc: object) -> None:
+        for lock in reversed(self.locks):
+            lock.release()
