@@ -403,6 +403,10 @@ class ThermalSensor:
             raw = None
             self.last_error = f"{type(err).__name__}: {err}"
             log.debug("thermal %s: read failed: %s", self.name, self.last_error)
+        except Exception as err:  # a bug must not stop the polling: a failed read, logged
+            raw = None
+            self.last_error = f"{type(err).__name__}: {err}"
+            log.exception("thermal %s: unexpected error while reading", self.name)
         before = self.filter.state
         verdict = self.filter.step(self.clock(), raw)
         self._log_transition(before, self.filter.state, verdict)
@@ -454,11 +458,21 @@ class SensorSet:
     def __init__(self, sensors: Mapping[str, ThermalSensor],
                  axis_thermal: Mapping[str, AxisThermal] | None = None) -> None:
         self.sensors = dict(sensors)
-        self.axis_thermal = dict(axis_thermal or {})
-        for axis, thermal in self.axis_thermal.items():
+        self.axis_thermal: dict[str, AxisThermal] = {}
+        self.set_axis_thermal(axis_thermal or {})
+
+    def set_axis_thermal(self, axis_thermal: Mapping[str, AxisThermal]) -> None:
+        """Replace the axis → (source, length) map (config reload); checked first."""
+        for axis, thermal in axis_thermal.items():
             if thermal.source not in self.sensors:
                 raise ValueError(f"axes.{axis}.compensation.thermal.source: "
                                  f"{thermal.source!r} is not a thermal source")
+        self.axis_thermal = dict(axis_thermal)
+
+    def set_axes(self, axes: Mapping[str, Axis]) -> None:
+        """:meth:`set_axis_thermal` from the config's axes (reload)."""
+        self.set_axis_thermal({name: ax.compensation.thermal for name, ax in axes.items()
+                               if ax.compensation.thermal is not None})
 
     @classmethod
     def from_config(cls, sources: Mapping[str, ThermalSource], buses: Mapping[str, Bus], *,
@@ -466,16 +480,18 @@ class SensorSet:
                     clock: Callable[[], float] = time.monotonic) -> SensorSet:
         """One sensor per source on the caller's buses; temperature sources take the
         longest axis length that uses them as reference length."""
-        axis_thermal = {name: ax.compensation.thermal for name, ax in (axes or {}).items()
-                        if ax.compensation.thermal is not None}
         sensors: dict[str, ThermalSensor] = {}
+        lengths = {name: [ax.compensation.thermal.length_mm for ax in (axes or {}).values()
+                          if ax.compensation.thermal is not None
+                          and ax.compensation.thermal.source == name] for name in sources}
         for name, src in sources.items():
             if src.bus not in buses:
                 raise ValueError(f"thermal_sources.{name}.bus: {src.bus!r} has no Bus")
-            lengths = [t.length_mm for t in axis_thermal.values() if t.source == name]
             sensors[name] = ThermalSensor(name, src, buses[src.bus], clock=clock,
-                                          reference_length_mm=max(lengths, default=None))
-        return cls(sensors, axis_thermal)
+                                          reference_length_mm=max(lengths[name], default=None))
+        out = cls(sensors)
+        out.set_axes(axes or {})
+        return out
 
     def __getitem__(self, name: str) -> ThermalSensor:
         return self.sensors[name]

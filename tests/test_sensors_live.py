@@ -311,3 +311,19 @@ def test_silent_sensor_does_not_hog_the_line() -> None:
             assert bus.counters.timeouts == sensor.counters.reads
 
     run(main())
+
+
+def test_sensor_set_checks_buses_and_axis_sources() -> None:
+    cfg = gateway_config(1)
+    bus = TcpBus("127.0.0.1", 1)
+    with pytest.raises(ValueError, match=r"thermal_sources\.x_ref\.bus"):
+        SensorSet.from_config(cfg.thermal_sources, {}, axes=cfg.axes)
+    sensors = SensorSet.from_config(cfg.thermal_sources, {"line1": bus}, axes=cfg.axes)
+    assert set(sensors.axis_thermal) == {"X", "Y"}
+    y = cfg.axes["Y"].compensation.thermal
+    assert y is not None
+    with pytest.raises(ValueError, match=r"axes\.Y\.compensation\.thermal\.source"):
+        sensors.set_axis_thermal({"Y": y.model_copy(update={"source": "nope"})})
+    assert set(sensors.axis_thermal) == {"X", "Y"}  # unchanged after a refused reload
+    sensors.set_axes({"X": cfg.axes["X"]})
+    assert sensors.axis_delta_a_mm("Y") is None and sensors.axis_delta_a_mm("X") == 0.0
