@@ -1,0 +1,149 @@
+"""Tables from raw data: pitch tables (bi- or unidirectional + backlash), planar points, and
+folding a residual measured with compensation on into the table (seed 001 iteration).
+
+Signs follow :mod:`gateway.compensation`: tables hold the deviation ``actual − commanded``
+(ISO 230-2 sign). Identification runs have compensation off, so commanded = target. Lost
+motion makes an axis stop short in the direction of motion: x̄↑ < x̄↓, the ISO reversal
+value B̄ = mean(x̄↑ − x̄↓) is negative and the backlash is B = −B̄ ≥ 0, applied with the
+``mean`` convention of :class:`~gateway.compensation.BacklashStage` (±B/2 around the mean
+table).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..compensation import PitchTable, PlanarMeasurement
+from ..compensation.errors import TableError
+from .rawdata import TARGET_TOLERANCE_MM, AxisDeviations, RawData
+
+TableDirection = Literal["mean", "forward", "reverse"]
+
+
+def _means_mm(dev: AxisDeviations) -> tuple[NDArray[np.float64] | None, ...]:
+    out = []
+    for name, x in (("+", dev.up_mm), ("-", dev.down_mm)):
+        if x is None:
+            out.append(None)
+            continue
+        missing = np.flatnonzero(~np.isfinite(x).any(axis=1))
+        if missing.size:
+            raise TableError(
+                f"{dev.source}: axis {dev.axis}: target {dev.target_mm[missing[0]]:g} mm "
+                f"never measured approaching in {name}"
+            )
+        out.append(np.nanmean(x, axis=1))
+    return tuple(out)
+
+
+def bidirectional_table(dev: AxisDeviations, source: str | None = None) -> PitchTable:
+    """Bidirectional pitch table: mean deviation per target and direction (positions = targets)."""
+    up, down = _means_mm(dev)
+    if up is None or down is None:
+        raise TableError(f"{dev.source}: axis {dev.axis}: a bidirectional table needs + and -")
+    return PitchTable(dev.target_mm.copy(), up, down, source=source or f"{dev.source}:{dev.axis}")
+
+
+@dataclass(frozen=True, eq=False)
+class UnidirectionalFit:
+    """Unidirectional table and the backlash to use with it (``None`` if not measured).
+
+    ``reversal_mean_mm`` is ISO 230-2 B̄ (x̄↑ − x̄↓ averaged over targets, signed).
+    """
+
+    table: PitchTable
+    backlash_mm: float | None
+    table_direction: TableDirection
+    reversal_mean_mm: float | None
+
+
+def unidirectional_table(dev: AxisDeviations, source: str | None = None) -> UnidirectionalFit:
+    """Mean of both directions + backlash −B̄ (≥ 0); one direction only: that direction."""
+    up, down = _means_mm(dev)
+    name = source or f"{dev.source}:{dev.axis}"
+    if up is not None and down is not None:
+        reversal = float(np.mean(up - down))
+        table = PitchTable(dev.target_mm.copy(), 0.5 * (up + down), source=name)
+        return UnidirectionalFit(table, max(0.0, -reversal), "mean", reversal)
+    values, direction = (up, "forward") if up is not None else (down, "reverse")
+    return UnidirectionalFit(PitchTable(dev.target_mm.copy(), values, source=name), None,
+                             direction, None)  # fmt: skip
+
+
+def planar_measurement(raw: RawData, axes: tuple[str, str] = ("X", "Y")) -> PlanarMeasurement:
+    """Commanded and actual XY points of a grid run (rows of a point paired by run and point).
+
+    Each measured point has one row per axis; both carry the commanded point in the
+    ``<x>_mm`` and ``<y>_mm`` columns (axis names in lower case), e.g. ``x_mm,y_mm``.
+    """
+    cols = tuple(f"{a.lower()}_mm" for a in axes)
+    for col in cols:
+        if col not in raw.extra:
+            raise TableError(f"{raw.source}: an XY run needs the column {col!r}")
+    cmd = np.column_stack([raw.column_mm(c) for c in cols])
+    names = np.array(raw.axis)
+    key_scale = 1.0 / TARGET_TOLERANCE_MM
+    pairs: dict[tuple[int, int, int], dict[str, int]] = {}
+    for k in np.flatnonzero(np.isin(names, axes)):
+        a = str(names[k])
+        if abs(raw.target_mm[k] - cmd[k, axes.index(a)]) > TARGET_TOLERANCE_MM:
+            raise TableError(f"{raw.where(int(k))}: target_mm differs from {cols[axes.index(a)]}")
+        key = (int(raw.run[k]), *np.round(cmd[k] * key_scale).astype(np.int64).tolist())
+        slot = pairs.setdefault(key, {})
+        if a in slot:
+            raise TableError(f"{raw.where(int(k))}: axis {a} measured twice at this point")
+        slot[a] = int(k)
+    lonely = [s for s in pairs.values() if len(s) != 2]
+    if lonely:
+        k = next(iter(lonely[0].values()))
+        raise TableError(f"{raw.where(k)}: point has no reading of the other axis")
+    rows = [(s[axes[0]], s[axes[1]]) for s in pairs.values()]
+    ix, iy = (np.array(v, dtype=np.intp) for v in zip(*rows))
+    return PlanarMeasurement(
+        command_mm=cmd[ix],
+        actual_mm=np.column_stack([raw.actual_mm[ix], raw.actual_mm[iy]]),
+        source=raw.source,
+        lines=tuple(raw.lines[k] for k in ix),
+    )
+
+
+def fold_residual(table: PitchTable, residual: PitchTable) -> PitchTable:
+    """Table corrected by a residual measured with ``table`` applied (seed 001 iteration).
+
+    With the table e_t applied, the axis is commanded c with c + e_t(c) = p and lands at
+    c + e(c), so the residual measured at the target p is r(p) = e(c) − e_t(c): the true
+    deviation at the command c is e_t(c) + r(c + e_t(c)). At each table point x_k the new
+    value is e_t(x_k) + r(x_k + e_t(x_k)), the residual interpolated linearly (held beyond
+    its ends). Measure the residual at the table's own targets (the calibration plan run
+    with compensation on); residuals measured between table points would fold the table's
+    interpolation error into its points. A unidirectional residual corrects both directions;
+    a bidirectional residual on a unidirectional table is folded as its mean (fold its
+    reversal into the backlash with :func:`fold_backlash`).
+    """
+    pos = table.position_mm
+    r_fwd = residual.forward_mm
+    r_rev = residual.reverse_mm if residual.reverse_mm is not None else r_fwd
+    if not table.bidirectional and residual.bidirectional:
+        r_fwd = r_rev = 0.5 * (residual.forward_mm + residual.reverse_mm)
+
+    def fold(e_t: NDArray[np.float64], r: NDArray[np.float64]) -> NDArray[np.float64]:
+        return e_t + np.interp(pos + e_t, residual.position_mm, r)
+
+    reverse = None if table.reverse_mm is None else fold(table.reverse_mm, r_rev)
+    return PitchTable(
+        pos.copy(), fold(table.forward_mm, r_fwd), reverse, table.rotary, table.source,
+        table.lines,
+    )  # fmt: skip
+
+
+def fold_backlash(backlash_mm: float, residual_reversal_mean_mm: float) -> float:
+    """Backlash corrected by the ISO B̄ measured with it applied (mean convention), ≥ 0.
+
+    Lost motion L, applied B: the axis lands +(B − L)/2 moving +, −(B − L)/2 moving −, so
+    the residual B̄ = B − L and the new backlash is B − B̄.
+    """
+    return max(0.0, backlash_mm - residual_reversal_mean_mm)
