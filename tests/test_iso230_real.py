@@ -350,3 +350,32 @@ def _check_invariants(res: Iso230Result) -> None:
 def test_invariants_on_every_real_file(path: str) -> None:
     """A ≥ E ≥ M and R ≥ R↑, R↓ hold on all real data (ISO 230-2 consequences)."""
     _check_invariants(iso230_2(*load_csv(BIF / path)))
+
+
+def test_real_run_through_raw_file_report_and_fit(tmp_path) -> None:
+    """run_b written as a compgw raw CSV (append writer), read back: report_json gives the
+    same figures (E = 74.77 µm), and the bidirectional table holds the per-target means."""
+    from gateway.calibration.fit import bidirectional_table, unidirectional_table
+    from gateway.calibration.iso230 import report_json
+    from gateway.calibration.rawdata import RawWriter, axis_deviations, read_raw_csv
+
+    src = MCU / "mcu1025_axis1_run_2021-11-10b_isodat.csv"
+    path = tmp_path / "raw.csv"
+    with RawWriter(path, ["pos_index_i"]) as w:
+        for r in csv.DictReader(src.open()):
+            sign = "+" if r["direction_as_labelled_in_source"] == "forward" else "-"
+            w.append("X", int(r["cycle_j"]), sign, float(r["target_mm"]),
+                     float(r["reference_mm"]), pos_index_i=r["pos_index_i"])  # fmt: skip
+    raw = read_raw_csv(path)
+    got = report_json(raw)["X"]
+    ref = iso230_2(*load_csv(src)).to_json_dict()
+    for key, value in ref.items():
+        assert got[key] == pytest.approx(value, abs=1e-9), key
+    assert got["E_um"] == pytest.approx(74.77, abs=0.01)
+    dev = axis_deviations(raw, "X")
+    table = bidirectional_table(dev)
+    res = iso230_2(*load_csv(src))
+    np.testing.assert_allclose(table.forward_mm * 1000, res.up.mean_um, atol=1e-9)
+    np.testing.assert_allclose(table.reverse_mm * 1000, res.down.mean_um, atol=1e-9)
+    uni = unidirectional_table(dev)
+    assert uni.backlash_mm == pytest.approx(-res.Bmean_um / 1000)  # B̄ = −7.19 µm → 7.19 µm

@@ -19,7 +19,12 @@ from gateway.calibration.fit import (
     unidirectional_table,
 )
 from gateway.calibration.iso230 import iso230_axis
-from gateway.calibration.plans import iso230_linear_plan, xy_grid_plan, xy_verification_plan
+from gateway.calibration.plans import (
+    iso230_linear_plan,
+    resume_index,
+    xy_grid_plan,
+    xy_verification_plan,
+)
 from gateway.calibration.rawdata import RawData, RawWriter, axis_deviations, read_raw_csv
 from gateway.compensation import BacklashStage, GridModel, PitchStage, PitchTable
 from gateway.compensation.errors import TableError
@@ -189,3 +194,33 @@ def test_planar_measurement_refuses_unpaired_rows(tmp_path) -> None:
         w.append("Y", 1, 1, 5.0, 0.001, x_mm=0.0, y_mm=0.0)
     with pytest.raises(TableError, match="line 3: target_mm differs from y_mm"):
         planar_measurement(read_raw_csv(path))
+
+
+def test_interrupted_run_resumes_to_the_same_table(tmp_path) -> None:
+    """Kill after 37 measurements, resume at resume_index: same raw rows, same table."""
+    plan = iso230_linear_plan("X", TRAVEL, step_mm=50, seed=3)
+    whole = run_plan(tmp_path / "whole.csv", plan, noise_um=0.0)
+    measured = [k for k, m in enumerate(plan.moves) if m.measured]
+    path = tmp_path / "part.csv"
+    with RawWriter(path, ["time_s"]) as w:
+        for k in measured[:37]:
+            m = plan.moves[k]
+            p = m.target_mm[0]
+            w.append("X", m.run, m.direction, p, float(land(p, m.direction)), time_s=float(k))
+    start = resume_index(plan, read_raw_csv(path))
+    assert start == measured[37]
+    assert plan.moves[start - 1].target_mm != plan.moves[start].target_mm  # re-approach
+    with RawWriter(path, ["time_s"]) as w:
+        for k in measured[measured.index(start):]:
+            m = plan.moves[k]
+            p = m.target_mm[0]
+            w.append("X", m.run, m.direction, p, float(land(p, m.direction)), time_s=float(k))
+    resumed = read_raw_csv(path)
+    assert resume_index(plan, resumed) == len(plan.moves)
+    a = bidirectional_table(axis_deviations(whole, "X"))
+    b = bidirectional_table(axis_deviations(resumed, "X"))
+    np.testing.assert_array_equal(a.forward_mm, b.forward_mm)
+    np.testing.assert_array_equal(a.reverse_mm, b.reverse_mm)
+    other = iso230_linear_plan("X", TRAVEL, step_mm=50, seed=4)
+    with pytest.raises(TableError, match="line 3: row does not match plan move 3"):
+        resume_index(other, resumed)

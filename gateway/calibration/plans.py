@@ -425,6 +425,42 @@ def warmup_plan(
     return Plan("warmup", (axis,), tuple(moves), meta)
 
 
+# -- resuming an interrupted run ----------------------------------------------------------
+def resume_index(plan: Plan, raw: RawData) -> int:
+    """Index of the first move of ``plan`` whose measurement is not in ``raw`` yet.
+
+    The raw rows must be the plan's measured moves in order (one row per plan axis and
+    move; axis, run, target and, on one-axis plans, direction checked), else TableError:
+    the file belongs to another plan. A runner resuming at index k should first go to move
+    k − 1's target without measuring, so move k is approached from the planned side.
+    ``len(plan.moves)`` means the run is complete.
+    """
+    rows, single = 0, len(plan.axes) == 1
+    for k, move in enumerate(plan.moves):
+        if not move.measured:
+            continue
+        if rows == len(raw):
+            return k
+        for a, target in zip(plan.axes, move.target_mm):
+            if rows == len(raw):
+                raise TableError(f"{raw.source}: ends half-way through a point of the plan")
+            ok = (
+                raw.axis[rows] == a
+                and raw.run[rows] == move.run
+                and abs(raw.target_mm[rows] - target) <= 1e-6
+                and (single or move.direction == 0 or raw.direction[rows] == move.direction)
+            )
+            if not ok:
+                raise TableError(
+                    f"{raw.where(rows)}: row does not match plan move {k + 1} "
+                    f"(axis {a}, run {move.run}, target {target:g} mm)"
+                )
+            rows += 1
+    if rows != len(raw):
+        raise TableError(f"{raw.where(rows)}: more rows than the plan measures")
+    return len(plan.moves)
+
+
 # -- file format ----------------------------------------------------------------------------
 def format_plan(plan: Plan) -> str:
     """The CSV text of ``plan`` (see the module docstring)."""
