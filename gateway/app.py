@@ -18,6 +18,7 @@ from .config import Bus as BusConfig
 from .config import ConfigError, GatewayConfig, load_config
 from .downstream import Bus, RtuBus, TcpBus
 from .router import Gateway
+from .sensors import SensorSet
 from .tables import build_chain
 from .upstream import RtuServer, TcpServer
 
@@ -58,9 +59,14 @@ class GatewayApp:
         self.config = config
         self.source = source
         self.buses = {name: make_bus(name, cfg) for name, cfg in config.buses.items()}
-        self.gateway = Gateway(config, chain, self.buses)
+        self.sensors = SensorSet.from_config(config.thermal_sources, self.buses, axes=config.axes)
+        self.gateway = Gateway(
+            config, chain, self.buses, delta_a_mm=self.sensors.axis_delta_a_mm
+        )
         self.tcp: TcpServer | None = None
         self.rtu: RtuServer | None = None
+        self._stop_sensors = asyncio.Event()
+        self._sensor_task: asyncio.Task[None] | None = None
 
     @property
     def tcp_port(self) -> int:
@@ -78,6 +84,8 @@ class GatewayApp:
         for name, bus in self.buses.items():
             if not await bus.connect():
                 log.warning("bus %s is down at start; requests get 0x0A until it is back", name)
+        if len(self.sensors):
+            self._sensor_task = asyncio.create_task(self.sensors.run(self._stop_sensors))
         up = self.config.upstream
         try:
             if up.tcp is not None:
@@ -110,17 +118,24 @@ class GatewayApp:
         for listener in (self.tcp, self.rtu):
             if listener is not None:
                 await listener.close()
+        self._stop_sensors.set()
+        if self._sensor_task is not None:
+            await self._sensor_task
+            self._sensor_task = None
         for bus in self.buses.values():
             await bus.close()
 
     def reload(self, config: GatewayConfig, chain: Chain) -> None:
         """Swap tables and per-axis settings between transactions.
 
-        Listeners and buses stay as they are: a changed upstream or bus section needs a
-        restart, and is refused here with a log line.
+        Listeners, buses and thermal sources stay as they are: changing those sections
+        needs a restart, and is refused here with a log line.
         """
-        if config.upstream != self.config.upstream or config.buses != self.config.buses:
-            raise ConfigError("upstream and buses cannot change on reload; restart instead")
+        fixed = ("upstream", "buses", "thermal_sources")
+        changed = [key for key in fixed if getattr(config, key) != getattr(self.config, key)]
+        if changed:
+            raise ConfigError(f"{', '.join(changed)} cannot change on reload; restart instead")
+        self.sensors.set_axes(config.axes)
         self.gateway.reload(config, chain)
         self.config = config
 

@@ -46,6 +46,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return asyncio.run(serve(args.config))
 
 
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import main as demo_main
+
+    return demo_main(as_json=args.json, identify_dir=args.identify)
+
+
 def _cmd_sim(args: argparse.Namespace) -> int:
     from sim.server import main as sim_main
 
@@ -76,7 +82,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="sim + gateway + scripted upper computer, before/after")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=lambda a: _not_yet("demo", 4))
+    p.add_argument(
+        "--identify", metavar="DIR", help="measure the example machine, write its tables to DIR"
+    )
+    p.set_defaults(func=_cmd_demo)
 
     for name in ("calibrate", "fit", "report", "export"):
         p = sub.add_parser(name, help=f"calibration: {name}")

@@ -219,7 +219,12 @@ class SourceRegister(Model):
 
 
 class ThermalSource(Model):
-    """A Δa source: a displacement sensor (scale_mm per count) or a temperature sensor."""
+    """A Δa source: a displacement sensor (scale_mm per count) or a temperature sensor.
+
+    Readings are checked for plausibility (``range_mm``; a change faster than
+    ``max_rate_mm_s`` plus ``noise_mm``, default two register counts, is rejected),
+    smoothed, held for ``hold_s`` when lost, then ``fallback`` applies and the alarm is set.
+    """
 
     bus: str
     unit: UnitId
@@ -233,8 +238,24 @@ class ThermalSource(Model):
     smoothing: float = Field(default=0.3, gt=0.0, le=1.0)
     range_mm: tuple[float, float] = (-0.5, 0.5)
     max_rate_mm_s: float = Field(default=0.01, gt=0.0)
+    noise_mm: float | None = Field(default=None, ge=0.0)
     hold_s: float = Field(default=30.0, ge=0.0)
     fallback: Literal["hold", "zero", "disable"] = "hold"
+
+    @field_validator("range_mm")
+    @classmethod
+    def _range_ordered(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not value[0] < value[1]:
+            raise ValueError(f"[{value[0]:g}, {value[1]:g}] must be [low, high] with low < high")
+        return value
+
+    @model_validator(mode="after")
+    def _scales(self) -> ThermalSource:
+        if self.kind == "temperature" and not (self.alpha_per_k > 0 and self.scale_c != 0):
+            raise ValueError("a temperature source needs alpha_per_k > 0 and scale_c != 0")
+        if self.kind == "displacement" and self.scale_mm == 0:
+            raise ValueError("scale_mm must not be 0")
+        return self
 
 
 class Status(Model):

@@ -488,7 +488,8 @@ class SensorSet:
             if src.bus not in buses:
                 raise ValueError(f"thermal_sources.{name}.bus: {src.bus!r} has no Bus")
             sensors[name] = ThermalSensor(name, src, buses[src.bus], clock=clock,
-                                          reference_length_mm=max(lengths[name], default=None))
+                                          reference_length_mm=max(lengths[name], default=None),
+                                          noise_mm=src.noise_mm)
         out = cls(sensors)
         out.set_axes(axes or {})
         return out

@@ -131,3 +131,19 @@ def test_bad_yaml_and_missing_file(tmp_path: Path):
         load_config(path)
     path.write_text(yaml.safe_dump(BASE))
     assert load_config(path).buses["line1"].timeout_s == 0.1
+
+
+@pytest.mark.parametrize(
+    ("source", "message"),
+    [
+        ({"range_mm": [0.5, -0.5]}, r"thermal_sources\.x_ref\.range_mm: .*low < high"),
+        ({"kind": "temperature", "alpha_per_k": 0}, r"thermal_sources\.x_ref: .*alpha_per_k > 0"),
+        ({"scale_mm": 0}, r"thermal_sources\.x_ref: .*scale_mm must not be 0"),
+        ({"noise_mm": -1}, r"thermal_sources\.x_ref\.noise_mm: -1"),
+    ],
+)
+def test_bad_thermal_source(source, message):
+    data = copy.deepcopy(BASE)
+    data["thermal_sources"]["x_ref"].update(source)
+    with pytest.raises(ConfigError, match=message):
+        parse_config(data)
