@@ -13,11 +13,13 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 
 from gateway.app import GatewayApp, load
+from sim.config import RtuConfig
 from sim.config import load_config as load_sim_config
 from sim.server import SimServer
+from tests.conftest import PtyPair
 
 ROOT = Path(__file__).resolve().parent.parent
 SIM_EXAMPLE = ROOT / "config" / "example-sim.yaml"
@@ -58,29 +60,74 @@ def base_config(sim_port: int) -> dict[str, Any]:
     }
 
 
+def serial(port: str) -> dict[str, Any]:
+    """Serial settings for a pty end (parity N: on this kernel a pty accepts parity
+    settings only once, and pymodbus sets them twice; a pty ignores them anyway)."""
+    return {"port": port, "baudrate": 115200, "parity": "N", "stopbits": 1}
+
+
 @contextlib.asynccontextmanager
 async def rig(
-    tmp_path: Path, edit=None, files: dict[str, str] | None = None
+    tmp_path: Path,
+    edit=None,
+    files: dict[str, str] | None = None,
+    *,
+    drives: str = "tcp",
+    upstream: str = "tcp",
 ) -> AsyncIterator[dict[str, Any]]:
-    """Start sim + gateway; ``edit(config_dict)`` customises the gateway config."""
+    """Start sim + gateway; ``edit(config_dict)`` customises the gateway config.
+
+    ``drives="rtu"`` puts the gateway's bus on a pty to the sim's RTU server;
+    ``upstream="rtu"`` makes ``master`` an RTU client on a pty to the gateway.
+    ``direct`` is always TCP to the sim (the drive's truth, the instruments).
+    """
     sim_cfg = load_sim_config(SIM_EXAMPLE)
-    async with SimServer(sim_cfg, tcp_port=0, time_scale=0) as sim:
-        data = base_config(sim.tcp_port)
-        if edit is not None:
-            edit(data)
-        for name, text in (files or {}).items():
-            (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
-            (tmp_path / name).write_text(text)
-        path = tmp_path / "gw.yaml"
-        path.write_text(yaml.safe_dump(copy.deepcopy(data)))
-        config, chain = load(path)
-        async with GatewayApp(config, chain) as app:
-            master = AsyncModbusTcpClient("127.0.0.1", port=app.tcp_port, timeout=2, retries=0)
-            direct = AsyncModbusTcpClient("127.0.0.1", port=sim.tcp_port, timeout=2, retries=0)
-            assert await master.connect() and await direct.connect()
-            try:
-                yield {"sim": sim, "app": app, "master": master, "direct": direct,
-                       "chain": chain, "config_path": path}
-            finally:
-                master.close()
-                direct.close()
+    ptys: list[PtyPair] = []
+    drive_line = upstream_line = None
+    if drives == "rtu":
+        drive_line = PtyPair()
+        ptys.append(drive_line)
+        rtu = RtuConfig(**serial(drive_line.a))
+        sim_cfg = sim_cfg.model_copy(
+            update={"sim": sim_cfg.sim.model_copy(update={"rtu": rtu})}
+        )
+    if upstream == "rtu":
+        upstream_line = PtyPair()
+        ptys.append(upstream_line)
+    try:
+        async with SimServer(sim_cfg, tcp_port=0, time_scale=0) as sim:
+            data = base_config(sim.tcp_port)
+            if drive_line is not None:
+                data["buses"]["line1"] = {"rtu": serial(drive_line.b), "timeout_s": 0.2,
+                                          "retries": 0}
+            if upstream_line is not None:
+                data["upstream"] = {"rtu": serial(upstream_line.a)}
+            if edit is not None:
+                edit(data)
+            for name, text in (files or {}).items():
+                (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+                (tmp_path / name).write_text(text)
+            path = tmp_path / "gw.yaml"
+            path.write_text(yaml.safe_dump(copy.deepcopy(data)))
+            config, chain = load(path)
+            async with GatewayApp(config, chain) as app:
+                if upstream_line is not None:
+                    master = AsyncModbusSerialClient(
+                        upstream_line.b, baudrate=115200, parity="N", stopbits=1, timeout=2,
+                        retries=0,
+                    )
+                else:
+                    master = AsyncModbusTcpClient(
+                        "127.0.0.1", port=app.tcp_port, timeout=2, retries=0
+                    )
+                direct = AsyncModbusTcpClient("127.0.0.1", port=sim.tcp_port, timeout=2, retries=0)
+                assert await master.connect() and await direct.connect()
+                try:
+                    yield {"sim": sim, "app": app, "master": master, "direct": direct,
+                           "chain": chain, "config_path": path}
+                finally:
+                    master.close()
+                    direct.close()
+    finally:
+        for pair in ptys:
+            pair.close()

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import asyncio
+import re
+import shutil
+import socket
+import struct
 from pathlib import Path
 
 import pytest
@@ -206,5 +210,144 @@ def test_immediate_uses_the_partners_latest_target(tmp_path: Path):
             await write_target(master, 1, 200_000)
             inputs = {"X": AxisInput(200_000, 1), "Y": AxisInput(300_000, 1)}
             assert await read32(direct, 1, TARGET) == chain.command_pulses("X", inputs)
+
+    run(body())
+
+
+@pytest.mark.parametrize(("upstream", "drives"), [("tcp", "rtu"), ("rtu", "rtu"), ("rtu", "tcp")])
+def test_same_results_over_rtu(tmp_path: Path, upstream: str, drives: str):
+    """TCP→RTU(pty), RTU(pty)→RTU(pty), RTU→TCP: corrected out, nominal back, split writes."""
+
+    async def body():
+        async with rig(tmp_path, with_pitch, {"x.csv": PITCH_X}, upstream=upstream,
+                       drives=drives) as r:
+            master, direct, chain = r["master"], r["direct"], r["chain"]
+            await move(master, 1, 300_000)
+            expected = chain.command_pulses("X", {"X": AxisInput(300_000, 1)})
+            assert await read32(direct, 1, TARGET) == expected
+            assert await read32(master, 1, FEEDBACK) == 300_000
+            words = pack_int32(700_000)
+            assert not (await master.write_register(TARGET + 1, words[1], device_id=1)).isError()
+            assert await read32(direct, 1, TARGET) == expected  # half held back
+            assert not (await master.write_register(TARGET, words[0], device_id=1)).isError()
+            assert await read32(direct, 1, TARGET) == chain.command_pulses(
+                "X", {"X": AxisInput(700_000, 1)}
+            )
+            rr = await master.write_registers(TARGET, list(pack_int32(900_000)), device_id=1)
+            assert rr.isError() and rr.exception_code == 0x03
+
+    run(body())
+
+
+def test_third_party_master_mbpoll(tmp_path: Path):
+    """mbpoll (Debian's Modbus master) writes a target and reads feedback through the gateway."""
+    mbpoll = shutil.which("mbpoll")
+    if mbpoll is None:
+        pytest.skip("mbpoll is not installed (make test installs it with apt-get)")
+
+    async def call(port: int, *args: str) -> str:
+        proc = await asyncio.create_subprocess_exec(
+            mbpoll, "-m", "tcp", "-p", str(port), "-a", "1", "-0", "-1", "-o", "2", *args,
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+        )
+        out, _ = await proc.communicate()
+        assert proc.returncode == 0, out.decode()
+        return out.decode()
+
+    async def body():
+        async with rig(tmp_path, with_pitch, {"x.csv": PITCH_X}) as r:
+            port, direct, chain = r["app"].tcp_port, r["direct"], r["chain"]
+            # 32-bit integer, big-endian word order (-B): the drive's hi_lo
+            await call(port, "-r", str(TARGET), "-t", "4:int", "-B", "127.0.0.1", "--", "300000")
+            await call(port, "-r", str(TRIGGER), "-t", "4", "127.0.0.1", "16")
+            expected = chain.command_pulses("X", {"X": AxisInput(300_000, 1)})
+            assert await read32(direct, 1, TARGET) == expected != 300_000
+            out = await call(port, "-r", str(FEEDBACK), "-t", "4:int", "-B", "127.0.0.1")
+            assert re.search(rf"\[{FEEDBACK}\]:\s+300000\b", out), out
+
+    run(body())
+
+
+def test_pipelined_requests_each_get_their_reply(tmp_path: Path):
+    """Several requests in one TCP segment, then back to back: every reply, in order,
+    with its own transaction id, through the interception layer."""
+
+    def mbap(tid: int, unit: int, pdu: bytes) -> bytes:
+        return struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu
+
+    async def body():
+        async with rig(tmp_path, with_pitch, {"x.csv": PITCH_X}) as r:
+            reader, writer = await asyncio.open_connection("127.0.0.1", r["app"].tcp_port)
+            requests = [
+                (1, struct.pack(">BHHBHH", 0x10, TARGET, 2, 4, *pack_int32(250_000))),
+                (1, struct.pack(">BHH", 0x06, TRIGGER, 0x10)),
+                (1, struct.pack(">BHH", 0x03, FEEDBACK, 2)),
+                (1, struct.pack(">BHH", 0x03, TARGET, 2)),
+                (2, struct.pack(">BHH", 0x03, 0x1003, 1)),
+                (99, struct.pack(">BHH", 0x03, 0, 1)),
+            ]
+            segment = b"".join(mbap(100 + i, u, p) for i, (u, p) in enumerate(requests))
+            writer.write(segment)  # one segment
+            for i in range(10):  # then back to back without waiting
+                writer.write(mbap(200 + i, 1, struct.pack(">BHH", 0x03, FEEDBACK, 2)))
+            await writer.drain()
+            replies = []
+            for _ in range(len(requests) + 10):
+                head = await reader.readexactly(7)
+                tid, _, length, unit = struct.unpack(">HHHB", head)
+                replies.append((tid, unit, await reader.readexactly(length - 1)))
+            writer.close()
+            tids = [t for t, _, _ in replies]
+            assert tids == [100 + i for i in range(len(requests))] + [200 + i for i in range(10)]
+            assert replies[0][2] == struct.pack(">BHH", 0x10, TARGET, 2)
+            assert replies[1][2] == struct.pack(">BHH", 0x06, TRIGGER, 0x10)
+            feedback = struct.unpack(">BBHH", replies[2][2])
+            assert unpack_int32(feedback[2:], "hi_lo") == 250_000
+            assert unpack_int32(struct.unpack(">HH", replies[3][2][2:]), "hi_lo") == 250_000
+            assert replies[5][2] == bytes([0x83, 0x0A])  # unit 99: not routed
+            for _, _, pdu in replies[6:]:
+                assert unpack_int32(struct.unpack(">HH", pdu[2:]), "hi_lo") == 250_000
+
+    run(body())
+
+
+def test_correction_above_the_cap_is_refused_and_nothing_sent(tmp_path: Path):
+    def thermal(data):
+        with_pitch(data)
+        data["thermal_sources"] = {
+            "x_ref": {"bus": "line1", "unit": 10, "register": {"address": 1, "words": 2},
+                      "scale_mm": 1e-6}
+        }
+        data["axes"]["X"]["compensation"]["thermal"] = {"source": "x_ref", "length_mm": 800}
+
+    async def body():
+        async with rig(tmp_path, thermal, {"x.csv": PITCH_X}) as r:
+            master, direct, app = r["master"], r["direct"], r["app"]
+            await move(master, 1, 700_000)
+            before = await read32(direct, 1, TARGET)
+            app.gateway.delta_a_mm = lambda axis: 0.4  # an implausible 0.4 mm of growth
+            rr = await master.write_registers(TARGET, list(pack_int32(750_000)), device_id=1)
+            assert rr.isError() and rr.exception_code == 0x04
+            assert await read32(direct, 1, TARGET) == before
+            assert app.gateway.counters.refused_correction == 1
+
+    run(body())
+
+
+def test_bus_unavailable_is_0x0a(tmp_path: Path):
+    def dead_bus(data):
+        with socket.socket() as probe:  # a loopback port nobody listens on
+            probe.bind(("127.0.0.1", 0))
+            port = probe.getsockname()[1]
+        data["buses"]["dead"] = {"tcp": {"host": "127.0.0.1", "port": port}}
+        data["passthrough"][30] = {"bus": "dead", "unit": 1}
+
+    async def body():
+        async with rig(tmp_path, dead_bus, {}) as r:
+            rr = await r["master"].read_holding_registers(0, count=1, device_id=30)
+            assert rr.isError() and rr.exception_code == 0x0A
+            # the rest of the gateway keeps serving
+            rr = await r["master"].read_holding_registers(FEEDBACK, count=2, device_id=1)
+            assert not rr.isError()
 
     run(body())
