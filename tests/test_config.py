@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import copy
+import re
 from pathlib import Path
 
 import pytest
@@ -147,3 +148,16 @@ def test_bad_thermal_source(source, message):
     data["thermal_sources"]["x_ref"].update(source)
     with pytest.raises(ConfigError, match=message):
         parse_config(data)
+
+
+@pytest.mark.parametrize(("path", "value", "message"), BAD, ids=[b[0] + "=" + repr(b[1])[:20] for b in BAD])
+def test_check_exits_1_naming_the_field(tmp_path: Path, capsys, path, value, message):
+    """The same table through `compgw check`: exit code 1 and one line on stderr."""
+    from gateway.cli import main
+
+    config = tmp_path / "gw.yaml"
+    config.write_text(yaml.safe_dump(with_change(path, value)))
+    assert main(["check", "-c", str(config)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert re.search(message, err), err
