@@ -19,6 +19,7 @@ from .config import ConfigError, GatewayConfig, load_config
 from .downstream import Bus, RtuBus, TcpBus
 from .router import Gateway
 from .sensors import SensorSet
+from .status import StatusUnit
 from .tables import build_chain
 from .upstream import RtuServer, TcpServer
 
@@ -63,6 +64,12 @@ class GatewayApp:
         self.gateway = Gateway(
             config, chain, self.buses, delta_a_mm=self.sensors.axis_delta_a_mm
         )
+        self.status = StatusUnit(
+            self.gateway,
+            self.sensors,
+            lambda: any(not bus.connected for bus in self.buses.values()),
+        )
+        self.gateway.status_handler = self.status.handle
         self.tcp: TcpServer | None = None
         self.rtu: RtuServer | None = None
         self._stop_sensors = asyncio.Event()

@@ -52,6 +52,39 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return demo_main(as_json=args.json, identify_dir=args.identify)
 
 
+def _cmd_status(args: argparse.Namespace) -> int:
+    from pymodbus.client import ModbusTcpClient
+
+    from .config import ConfigError, load_config
+    from .status import INPUT_SIZE, format_status
+
+    try:
+        config = load_config(args.config)
+    except ConfigError as exc:
+        print(f"compgw status: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if config.upstream.tcp is None:
+        print("compgw status: needs upstream.tcp to reach the gateway", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    host = config.upstream.tcp.host
+    port = args.port or config.upstream.tcp.port
+    client = ModbusTcpClient(host, port=port, timeout=2, retries=0)
+    try:
+        if not client.connect():
+            print(f"compgw status: no gateway at {host}:{port}", file=sys.stderr)
+            return EXIT_RUNTIME
+        reply = client.read_input_registers(
+            0, count=INPUT_SIZE, device_id=config.status.upstream_unit
+        )
+    finally:
+        client.close()
+    if reply.isError():
+        print(f"compgw status: the gateway answered {reply}", file=sys.stderr)
+        return EXIT_RUNTIME
+    print(format_status(list(config.axes), list(config.thermal_sources), reply.registers))
+    return EXIT_OK
+
+
 def _cmd_sim(args: argparse.Namespace) -> int:
     from sim.server import main as sim_main
 
@@ -93,7 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("status", help="read the live gateway's status registers")
     p.add_argument("-c", "--config", required=True, help="gateway YAML config")
-    p.set_defaults(func=lambda a: _not_yet("status", 4))
+    p.add_argument("--port", type=int, help="gateway TCP port (default: from the config)")
+    p.set_defaults(func=_cmd_status)
     return parser
 
 

@@ -108,6 +108,10 @@ def test_example_configs_run_as_processes(tmp_path: Path):
             assert unpack_int32(rr.registers, "hi_lo") == 250_000
         finally:
             master.close()
+        status = compgw("status", "-c", str(tmp_path / "gw.yaml"), "--port", str(port))
+        assert status.returncode == 0, status.stderr
+        assert "axis X: compensation on, last target corrected" in status.stdout
+        assert "targets committed 1" in status.stdout
         gw.send_signal(signal.SIGTERM)
         assert gw.wait(timeout=20) == 0
     finally:

@@ -1,0 +1,199 @@
+"""The gateway's own Modbus unit (``status.upstream_unit``): state, counters, control.
+
+Input registers (FC04), all read-only; 32-bit values are two registers, high word first,
+signed unless noted:
+
+=========  ==========================================================================
+address    meaning
+=========  ==========================================================================
+0          register map version (1)
+1          number of axes N (config order)
+2          gateway flags: bit 0 a thermal source is in alarm, bit 1 a bus is down
+3-4        targets committed (uint32)
+5-6        targets refused: outside travel (uint32)
+7-8        targets refused: correction above max_correction_mm (uint32)
+9-10       feedback reads corrected (uint32)
+16 + 8k    axis k: bit 0 compensation enabled, bit 1 last target corrected (homed and
+           enabled when it was sent), bit 2 direction of the last move is −,
+           bit 3 thermal correction active on this axis
+17 + 8k    axis k: last correction (command − nominal), int32 in 0.1 µm (17-18)
+19 + 8k    axis k: Δa used, int32 in 0.1 µm (19-20)
+21 + 8k    axis k: C1/C − 1 (thermal pulse-equivalent change), int32 in 0.01 ppm (21-22)
+80 + 4s    thermal source s (config order): state 0 starting, 1 ok, 2 holding, 3 alarm
+81 + 4s    source s: Δa (reference length), int32 in 0.1 µm (81-82)
+83 + 4s    source s: failed reads (uint16, saturating)
+=========  ==========================================================================
+
+Holding registers (FC03 read, FC06/FC16 write): address k = 1 to switch compensation of
+axis k on, 0 off. Writes are refused with exception 0x01 unless ``status.remote_control``
+is true: by default nobody on the network can switch correction off.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+from .frames import (
+    ILLEGAL_DATA_ADDRESS,
+    ILLEGAL_DATA_VALUE,
+    ILLEGAL_FUNCTION,
+    READ_HOLDING_REGISTERS,
+    READ_INPUT_REGISTERS,
+    WRITE_MULTIPLE_REGISTERS,
+    WRITE_SINGLE_REGISTER,
+    FrameError,
+    ModbusError,
+    build_read_registers_response,
+    pack_int32,
+    parse_request,
+    response_for_write,
+)
+from .router import Gateway
+from .sensors import SensorSet
+
+log = logging.getLogger(__name__)
+
+MAP_VERSION = 1
+AXIS_BASE, AXIS_STRIDE = 16, 8
+SOURCE_BASE, SOURCE_STRIDE = 80, 4
+INPUT_SIZE = 120  # one FC04 reads it all (at most 125 registers)
+
+
+def _u32(value: int) -> list[int]:
+    return list(pack_int32(max(0, min(value, 0xFFFFFFFF)), signed=False))
+
+
+def _s32(value: float) -> list[int]:
+    return list(pack_int32(max(-(1 << 31), min((1 << 31) - 1, round(value)))))
+
+
+class StatusUnit:
+    """Answers requests addressed to the gateway itself."""
+
+    def __init__(
+        self, gateway: Gateway, sensors: SensorSet, buses_down: Callable[[], bool] = lambda: False
+    ) -> None:
+        self.gateway = gateway
+        self.sensors = sensors
+        self.buses_down = buses_down
+
+    def input_registers(self) -> list[int]:
+        """The whole input-register image, computed from the live state."""
+        gw = self.gateway
+        config = gw.setup.config
+        regs = [0] * INPUT_SIZE
+        regs[0] = MAP_VERSION
+        regs[1] = len(config.axes)
+        regs[2] = int(self.sensors.alarm) | int(self.buses_down()) << 1
+        c = gw.counters
+        regs[3:5] = _u32(c.commits)
+        regs[5:7] = _u32(c.refused_travel)
+        regs[7:9] = _u32(c.refused_correction)
+        regs[9:11] = _u32(c.feedback_reads)
+        for k, (name, axis) in enumerate(config.axes.items()):
+            base = AXIS_BASE + AXIS_STRIDE * k
+            if base + AXIS_STRIDE > SOURCE_BASE:
+                break
+            state = gw.axis_state(name)
+            thermal = axis.compensation.thermal
+            delta_a = self.sensors.axis_delta_a_mm(name) if thermal is not None else None
+            regs[base] = (
+                int(state.enabled)
+                | int(state.applied) << 1
+                | int(state.motion.direction < 0) << 2
+                | int(delta_a is not None) << 3
+            )
+            regs[base + 1 : base + 3] = _s32(gw.last_correction_mm(name) * 1e4)
+            regs[base + 3 : base + 5] = _s32((delta_a or 0.0) * 1e4)
+            ratio_ppm = (delta_a or 0.0) / thermal.length_mm * 1e6 if thermal else 0.0
+            regs[base + 5 : base + 7] = _s32(ratio_ppm * 100)
+        for s, name in enumerate(self.sensors):
+            base = SOURCE_BASE + SOURCE_STRIDE * s
+            if base + SOURCE_STRIDE > INPUT_SIZE:
+                break
+            sensor = self.sensors[name]
+            regs[base] = int(sensor.state)
+            regs[base + 1 : base + 3] = _s32((sensor.delta_a_mm or 0.0) * 1e4)
+            regs[base + 3] = min(sensor.counters.failures, 0xFFFF)
+        return regs
+
+    def holding_registers(self) -> list[int]:
+        gw = self.gateway
+        return [int(gw.axis_state(name).enabled) for name in gw.setup.config.axes]
+
+    def handle(self, pdu: bytes) -> bytes:
+        try:
+            req = parse_request(pdu)
+        except FrameError as exc:
+            raise ModbusError(str(exc), ILLEGAL_DATA_VALUE) from None
+        if req.function in (READ_INPUT_REGISTERS, READ_HOLDING_REGISTERS):
+            image = (
+                self.input_registers()
+                if req.function == READ_INPUT_REGISTERS
+                else self.holding_registers()
+            )
+            start, count = req.read_address or 0, req.read_count
+            if start + count > len(image):
+                raise ModbusError("beyond the status map", ILLEGAL_DATA_ADDRESS)
+            return build_read_registers_response(req.function, image[start : start + count])
+        if req.function in (WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_REGISTERS):
+            return self._control(req)
+        raise ModbusError(f"FC{req.function:02d} not served by the status unit", ILLEGAL_FUNCTION)
+
+    def _control(self, req) -> bytes:  # type: ignore[no-untyped-def]
+        config = self.gateway.setup.config
+        if not config.status.remote_control:
+            log.warning("status unit: control write refused (status.remote_control is false)")
+            raise ModbusError("remote control is off", ILLEGAL_FUNCTION)
+        names = list(config.axes)
+        start = req.write_address or 0
+        if start + req.write_count > len(names):
+            raise ModbusError("no such axis", ILLEGAL_DATA_ADDRESS)
+        if any(v not in (0, 1) for v in req.values):
+            raise ModbusError("write 1 (on) or 0 (off)", ILLEGAL_DATA_VALUE)
+        for offset, value in enumerate(req.values):
+            name = names[start + offset]
+            state = self.gateway.axis_state(name)
+            if state.enabled != bool(value):
+                log.warning("axis %s: compensation switched %s remotely", name,
+                            "on" if value else "off")
+            state.enabled = bool(value)
+        return response_for_write(req)
+
+
+def format_status(names: list[str], sources: list[str], regs: list[int]) -> str:
+    """Human-readable lines from an input-register image (for `compgw status`)."""
+    from .frames import unpack_int32
+
+    def s32(at: int) -> int:
+        return unpack_int32(regs[at : at + 2], "hi_lo")
+
+    def u32(at: int) -> int:
+        return unpack_int32(regs[at : at + 2], "hi_lo", signed=False)
+
+    flags = regs[2]
+    lines = [
+        f"status map v{regs[0]}, {regs[1]} axes; thermal alarm: {'YES' if flags & 1 else 'no'}; "
+        f"bus down: {'YES' if flags & 2 else 'no'}",
+        f"targets committed {u32(3)}, refused (travel) {u32(5)}, refused (cap) {u32(7)}, "
+        f"feedback reads {u32(9)}",
+    ]
+    for k, name in enumerate(names):
+        base = AXIS_BASE + AXIS_STRIDE * k
+        bits = regs[base]
+        lines.append(
+            f"axis {name}: compensation {'on' if bits & 1 else 'OFF'}, last target "
+            f"{'corrected' if bits & 2 else 'sent as written'}, direction "
+            f"{'-' if bits & 4 else '+'}, last correction {s32(base + 1) / 10:.1f} µm, "
+            f"Δa {s32(base + 3) / 10:.1f} µm, C1/C-1 {s32(base + 5) / 100:.2f} ppm"
+        )
+    states = ["starting", "ok", "holding", "ALARM"]
+    for s, name in enumerate(sources):
+        base = SOURCE_BASE + SOURCE_STRIDE * s
+        state = states[regs[base]] if regs[base] < len(states) else str(regs[base])
+        lines.append(
+            f"thermal source {name}: {state}, Δa {s32(base + 1) / 10:.1f} µm, "
+            f"failed reads {regs[base + 3]}"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,75 @@
+"""The gateway's status unit: live state and counters; control only when allowed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from gateway.compensation import AxisInput
+from gateway.frames import unpack_int32
+from gateway.status import format_status
+from tests.gateway_rig import TARGET, rig
+from tests.test_gateway_e2e import PITCH_X, move, read32, run, with_pitch
+
+STATUS_UNIT = 247
+
+
+def with_thermal(data):
+    with_pitch(data)
+    data["thermal_sources"] = {
+        "x_ref": {"bus": "line1", "unit": 10, "register": {"address": 1, "words": 2},
+                  "scale_mm": 1e-6, "poll_s": 0.05, "noise_mm": 0.0015}
+    }
+    data["axes"]["X"]["compensation"]["thermal"] = {"source": "x_ref", "length_mm": 800}
+
+
+def test_status_reports_state_counters_and_sources(tmp_path: Path):
+    async def body():
+        async with rig(tmp_path, with_thermal, {"x.csv": PITCH_X}) as r:
+            master, chain = r["master"], r["chain"]
+            await move(master, 1, 300_000)
+            await move(master, 2, 100_000)
+            await move(master, 2, 50_000)
+            rr = await master.read_input_registers(0, count=120, device_id=STATUS_UNIT)
+            assert not rr.isError()
+            regs = rr.registers
+            assert regs[0] == 1 and regs[1] == 2
+            assert unpack_int32(regs[3:5], "hi_lo", signed=False) == 3  # commits
+            x = regs[16:24]
+            assert x[0] & 0b1011 == 0b1011  # enabled, corrected, thermal active
+            expected = chain.command_pulses("X", {"X": AxisInput(300_000, 1)}) - 300_000
+            assert unpack_int32(x[1:3], "hi_lo") == expected * 10  # 0.1 µm units
+            y = regs[24:32]
+            assert y[0] & 0b111 == 0b111  # enabled, corrected, last move was −
+            assert unpack_int32(y[1:3], "hi_lo") == -50  # −B/2 = −5 µm
+            assert regs[80] in (0, 1)  # the source is starting or ok
+            text = format_status(["X", "Y"], ["x_ref"], regs)
+            assert "axis Y: compensation on" in text and "direction -" in text
+            # holding registers: the switches; writing them is refused by default
+            rr = await master.read_holding_registers(0, count=2, device_id=STATUS_UNIT)
+            assert rr.registers == [1, 1]
+            rr = await master.write_register(0, 0, device_id=STATUS_UNIT)
+            assert rr.isError() and rr.exception_code == 0x01
+            rr = await master.read_input_registers(120, count=20, device_id=STATUS_UNIT)
+            assert rr.isError() and rr.exception_code == 0x02
+
+    run(body())
+
+
+def test_remote_control_switches_compensation_when_allowed(tmp_path: Path):
+    def allow(data):
+        with_pitch(data)
+        data["status"] = {"upstream_unit": STATUS_UNIT, "remote_control": True}
+
+    async def body():
+        async with rig(tmp_path, allow, {"x.csv": PITCH_X}) as r:
+            master, direct = r["master"], r["direct"]
+            assert not (await master.write_register(0, 0, device_id=STATUS_UNIT)).isError()
+            await move(master, 1, 300_000)
+            assert await read32(direct, 1, TARGET) == 300_000  # sent as written
+            assert not (await master.write_register(0, 1, device_id=STATUS_UNIT)).isError()
+            await move(master, 1, 310_000)
+            assert await read32(direct, 1, TARGET) != 310_000
+            rr = await master.write_register(0, 2, device_id=STATUS_UNIT)
+            assert rr.isError() and rr.exception_code == 0x03
+
+    run(body())
