@@ -263,6 +263,22 @@ class Status(Model):
     remote_control: bool = False
 
 
+class Metrics(Model):
+    """Prometheus endpoint: off unless ``port`` is set; loopback unless ``host`` says else."""
+
+    host: str = "127.0.0.1"
+    port: Port | None = None
+
+
+class WriteProtect(Model):
+    """Registers no master may write on an upstream unit: writes get exception 0x02."""
+
+    unit: UnitId
+    address: Address = 0
+    count: Annotated[int, in_range(1, 65536)] = 65536
+    table: Literal["holding", "coils"] = "holding"
+
+
 class Passthrough(Model):
     """An upstream unit forwarded untouched to a unit on a bus."""
 
@@ -278,6 +294,8 @@ class GatewayConfig(Model):
     thermal_sources: dict[str, ThermalSource] = Field(default_factory=dict)
     status: Status = Field(default_factory=Status)
     passthrough: dict[UnitId, Passthrough] = Field(default_factory=dict)
+    metrics: Metrics = Field(default_factory=Metrics)
+    write_protect: list[WriteProtect] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def _references(self) -> GatewayConfig:
