@@ -1,0 +1,693 @@
+"""Gateway benchmark: latency (p50/p99) and transactions/s through `compgw run` vs direct
+to `compgw sim`, in the same run, every party its own process.
+
+Processes (all on 127.0.0.1, every TCP port bound as 0 and read back from the logs):
+
+- sim A: ``compgw sim``: 8 drives (units 1..8) on Modbus TCP, and on RTU on pty pair P1;
+- sim B: ``compgw sim``: the same 8 drives, RTU only on pty pair P2 (the direct RTU line);
+- gateway: ``compgw run``: upstream TCP; axes T1..T8 (upstream units 1..8) each on its own
+  TCP bus (8 connections to sim A: 8 buses in parallel), axes R1..R8 (upstream 11..18) on
+  one RTU bus on P1 (a single RS-485 line: transactions are serialised);
+- load generators: one short-lived process per measurement (this file, ``--load``),
+  1 or 8 masters as asyncio tasks, each master on its own TCP connection and its own
+  unit (drive); on RTU-direct the masters share the one line (an asyncio lock = ideal
+  arbitration on a single-master line).
+- the pty bridges (two ``os.openpty`` joined by a thread, as tests/conftest.py) run in the
+  orchestrating process, which otherwise only waits.
+
+The load is raw Modbus (MBAP over asyncio streams; RTU frames on the pty fd with
+``loop.add_reader``), not pymodbus clients: a pymodbus client spends ~100-200 µs of its
+own per request, which would be counted on both sides and hide the gateway's cost. Every
+reply is checked (transaction id, function code, not an exception); errors are counted.
+
+Cases (registers of the example drive profile; the gateway config intercepts them):
+
+- ``FC03x10@6200``: read 10 holding registers 0x6200..0x6209; covers the target pair
+  0x6201/02, so the gateway rewrites those words with the shadow of what was written;
+- ``FC16x2@6204``: write 2 plain parameter registers 0x6204/05 (pass-through, byte-exact);
+- ``FC03x2@602A`` (extra): the feedback pair, answered through the inverse chain (pitch
+  table of config/tables/x_pitch.csv, after a compensated move: ``applied`` is set);
+- ``FC16x2@6201`` (extra): a target write, corrected through the chain; the gateway reads
+  the drive's status (homed bit) first, so this is 2 drive transactions for 1 request.
+
+Timing: each master measures request-sent → reply-complete with ``perf_counter``; direct
+and gateway runs alternate (direct, gateway, gateway, direct; half the requests each) so
+slow drift of the shared machine hits both. tx/s = requests / wall time of the slowest
+master. CPU per transaction of the gateway and sim processes comes from
+/proc/PID/schedstat. RTU: a compliant master keeps t3.5 (1.75 ms above 19200 baud) of
+silence after a reply before it sends; the direct master does this as think time (not in
+its latency); the gateway does it inside the transaction, as a gateway must. A pty has no
+baud rate, so no wire time is included anywhere (FC03x10 at 115200 is ~2.9 ms of wire).
+
+Run:  .venv/bin/python bench/gateway.py            (full: 2000 requests per master, ~6 min)
+      .venv/bin/python bench/gateway.py --quick    (300 per master, ~1 min)
+      options: --only tcp|rtu, --requests N, --time-cap S, --profile DIR (py-spy on the
+      gateway during the 8-master TCP FC03x10 run), --what-if (gateway RTU line with the
+      exact t3.5 at 115200 instead of the fixed 1.75 ms, patched at start-up, diagnostic).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import os
+import re
+import select
+import shutil
+import signal
+import statistics
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import tty
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+TABLES = ROOT / "config" / "tables"
+UNITS = tuple(range(1, 9))
+RTU_UPSTREAM_OFFSET = 10  # gateway upstream unit of RTU axis k = 10 + k
+BAUD = 115200
+T35_S = 0.00175  # Modbus: fixed 1.75 ms above 19200 baud
+TARGET = 250_000  # pulses (250 mm) written in the warm-up: the axes then have applied=True
+
+# -- Modbus helpers (no project imports: the load generator stays lean) ---------------------
+
+
+def _crc16(data: bytes) -> bytes:
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return struct.pack("<H", crc)
+
+
+def rtu_frame(unit: int, pdu: bytes) -> bytes:
+    body = bytes([unit]) + pdu
+    return body + _crc16(body)
+
+
+def read_pdu(address: int, count: int) -> bytes:
+    return struct.pack(">BHH", 3, address, count)
+
+
+def write_pdu(address: int, values: list[int]) -> bytes:
+    return struct.pack(f">BHHB{len(values)}H", 16, address, len(values), 2 * len(values),
+                       *values)
+
+
+def reply_length(pdu: bytes) -> int:
+    """Length of the normal RTU reply frame to ``pdu`` (unit + PDU + CRC)."""
+    if pdu[0] in (3, 4):
+        return 5 + 2 * struct.unpack(">H", pdu[3:5])[0]
+    return 8  # FC06/FC16 echo
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    pdu: bytes
+    what: str
+    extra: bool = False  # not one of the issue's two cases: full run only
+
+
+CASES = (
+    Case("FC03x10@6200", read_pdu(0x6200, 10), "read 0x6200..09, target pair shadowed"),
+    Case("FC16x2@6204", write_pdu(0x6204, [0x1234, 0x5678]), "write 0x6204/05, pass-through"),
+    Case("FC03x2@602A", read_pdu(0x602A, 2), "feedback pair, inverse chain", extra=True),
+    Case("FC16x2@6201", write_pdu(0x6201, [TARGET >> 16, TARGET & 0xFFFF]),
+         "target write: status read + corrected FC16", extra=True),
+)
+
+# -- the load generator (runs in its own process: --load JSON) ------------------------------
+
+
+async def _tcp_masters(spec: dict) -> dict:
+    pdu = bytes.fromhex(spec["pdu"])
+    n, warm = spec["requests"], spec["warmup"]
+    units = spec["units"]
+    conns = [await asyncio.open_connection(spec["host"], spec["port"]) for _ in units]
+    for _, w in conns:
+        w.get_extra_info("socket").setsockopt(6, 1, 1)  # TCP_NODELAY
+    lat: list[float] = []
+    errors = [0]
+    start = asyncio.Event()
+    deadline = [0.0]
+
+    async def master(unit: int, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
+                     ready: asyncio.Future) -> None:
+        tid = 0
+        perf = time.perf_counter
+        for i in range(warm + n):
+            if i == warm:
+                ready.set_result(None)
+                await start.wait()
+            elif i > warm and time.monotonic() > deadline[0]:
+                break
+            tid = tid % 0xFFFF + 1
+            t0 = perf()
+            writer.write(struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu)
+            head = await reader.readexactly(7)
+            r_tid, _, length, _ = struct.unpack(">HHHB", head)
+            body = await reader.readexactly(length - 1)
+            if i >= warm:
+                lat.append(perf() - t0)
+            if r_tid != tid or body[0] != pdu[0]:
+                errors[0] += 1
+
+    loop = asyncio.get_running_loop()
+    readies = [loop.create_future() for _ in units]
+    tasks = [asyncio.create_task(master(u, r, w, f))
+             for u, (r, w), f in zip(units, conns, readies)]
+    await asyncio.gather(*readies)
+    deadline[0] = time.monotonic() + spec["time_cap"]
+    cpu0, t0 = time.process_time(), time.perf_counter()
+    start.set()
+    await asyncio.gather(*tasks)
+    wall = time.perf_counter() - t0
+    for _, w in conns:
+        w.close()
+    return {"lat": lat, "wall": wall, "errors": errors[0], "cpu": time.process_time() - cpu0}
+
+
+class _RtuPort:
+    """The master end of a pty, raw, read with loop.add_reader."""
+
+    def __init__(self, path: str) -> None:
+        self.fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        tty.setraw(self.fd)
+        self.buf = bytearray()
+        self.event = asyncio.Event()
+        self.last_rx = 0.0
+        asyncio.get_running_loop().add_reader(self.fd, self._readable)
+
+    def _readable(self) -> None:
+        with contextlib.suppress(BlockingIOError):
+            self.buf += os.read(self.fd, 4096)
+            self.last_rx = time.perf_counter()
+            self.event.set()
+
+    async def transact(self, frame: bytes, want: int, timeout_s: float = 1.0) -> bytes:
+        self.buf.clear()
+        os.write(self.fd, frame)
+        end = time.perf_counter() + timeout_s
+        while True:
+            n = len(self.buf)
+            if n >= 2 and self.buf[1] & 0x80 and n >= 5:
+                return bytes(self.buf[:5])
+            if n >= want:
+                return bytes(self.buf[:want])
+            self.event.clear()
+            left = end - time.perf_counter()
+            if left <= 0:
+                return b""
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(self.event.wait(), left)
+
+    def close(self) -> None:
+        asyncio.get_running_loop().remove_reader(self.fd)
+        os.close(self.fd)
+
+
+async def _rtu_masters(spec: dict) -> dict:
+    """Masters sharing one RTU line: each waits t3.5 after its own reply (think time),
+    then queues for the line (lock), waits for t3.5 of line silence, sends, receives."""
+    pdu = bytes.fromhex(spec["pdu"])
+    n, warm, gap = spec["requests"], spec["warmup"], spec["gap_s"]
+    want = reply_length(pdu)
+    port = _RtuPort(spec["device"])
+    line = asyncio.Lock()
+    lat: list[float] = []
+    errors = [0]
+    start = asyncio.Event()
+    deadline = [0.0]
+
+    async def quiet() -> None:
+        # time.sleep, not asyncio.sleep: the loop's epoll timeout has 1 ms granularity and
+        # would stretch 1.75 ms to 2+ ms. Blocking is harmless here: the line is held.
+        wait = gap - (time.perf_counter() - port.last_rx)
+        if wait > 0:
+            time.sleep(wait)
+
+    async def master(unit: int, ready: asyncio.Future) -> None:
+        frame = rtu_frame(unit, pdu)
+        perf = time.perf_counter
+        for i in range(warm + n):
+            if i == warm:
+                ready.set_result(None)
+                await start.wait()
+            elif i > warm and time.monotonic() > deadline[0]:
+                break
+            if len(spec["units"]) == 1:
+                await quiet()  # think time of a lone master: not in its latency
+            t0 = perf()
+            async with line:
+                await quiet()
+                reply = await port.transact(frame, want)
+            if i >= warm:
+                lat.append(perf() - t0)
+            if len(reply) != want or reply[0] != unit or reply[1] != pdu[0] \
+                    or _crc16(reply[:-2]) != reply[-2:]:
+                errors[0] += 1
+            await asyncio.sleep(0)  # let the other masters queue
+
+    loop = asyncio.get_running_loop()
+    readies = [loop.create_future() for _ in spec["units"]]
+    tasks = [asyncio.create_task(master(u, f)) for u, f in zip(spec["units"], readies)]
+    await asyncio.gather(*readies)
+    deadline[0] = time.monotonic() + spec["time_cap"]
+    cpu0, t0 = time.process_time(), time.perf_counter()
+    start.set()
+    await asyncio.gather(*tasks)
+    wall = time.perf_counter() - t0
+    port.close()
+    return {"lat": lat, "wall": wall, "errors": errors[0], "cpu": time.process_time() - cpu0}
+
+
+def load_main(spec_json: str) -> int:
+    spec = json.loads(spec_json)
+    run = _rtu_masters if spec["kind"] == "rtu" else _tcp_masters
+    result = asyncio.run(asyncio.wait_for(run(spec), spec["time_cap"] + 30))
+    sys.stdout.write(json.dumps(result))
+    return 0
+
+
+# -- the orchestrator ------------------------------------------------------------------------
+
+
+class PtyPair:
+    """Two pseudo-terminals joined back to back by a thread (as tests/conftest.py)."""
+
+    def __init__(self) -> None:
+        self._m1, self._s1 = os.openpty()
+        self._m2, self._s2 = os.openpty()
+        for fd in (self._s1, self._s2):
+            tty.setraw(fd)
+        for fd in (self._m1, self._m2):
+            tty.setraw(fd)
+        self.a, self.b = os.ttyname(self._s1), os.ttyname(self._s2)
+        self._stop_r, self._stop_w = os.pipe()
+        self._thread = threading.Thread(target=self._copy, daemon=True)
+        self._thread.start()
+
+    def _copy(self) -> None:
+        peer = {self._m1: self._m2, self._m2: self._m1}
+        while True:
+            ready, _, _ = select.select([self._m1, self._m2, self._stop_r], [], [])
+            if self._stop_r in ready:
+                return
+            for fd in ready:
+                try:
+                    data = os.read(fd, 4096)
+                except OSError:
+                    continue
+                view = memoryview(data)
+                while view:
+                    view = view[os.write(peer[fd], view):]
+
+    def close(self) -> None:
+        os.write(self._stop_w, b"x")
+        self._thread.join(timeout=5)
+        for fd in (self._m1, self._s1, self._m2, self._s2, self._stop_r, self._stop_w):
+            os.close(fd)
+
+
+class Proc:
+    """A child process whose combined output is drained by a thread (and kept)."""
+
+    def __init__(self, name: str, argv: list[str]) -> None:
+        self.name = name
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        self.p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                  text=True, cwd=ROOT, env=env, start_new_session=True)
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+        threading.Thread(target=self._drain, daemon=True).start()
+
+    def _drain(self) -> None:
+        assert self.p.stdout is not None
+        for line in self.p.stdout:
+            with self._cond:
+                self.lines.append(line.rstrip("\n"))
+                self._cond.notify_all()
+        with self._cond:
+            self._cond.notify_all()
+
+    def wait_for(self, pattern: str, timeout_s: float = 30.0) -> re.Match[str]:
+        deadline = time.monotonic() + timeout_s
+        seen = 0
+        with self._cond:
+            while True:
+                for line in self.lines[seen:]:
+                    if m := re.search(pattern, line):
+                        return m
+                seen = len(self.lines)
+                if self.p.poll() is not None and seen == len(self.lines):
+                    raise RuntimeError(f"{self.name} exited {self.p.returncode}:\n"
+                                       + "\n".join(self.lines[-20:]))
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise RuntimeError(f"{self.name}: no line matching {pattern!r}:\n"
+                                       + "\n".join(self.lines[-20:]))
+                self._cond.wait(min(left, 0.2))
+
+    def cpu_s(self) -> float:
+        """CPU time of the process (all threads), from /proc/PID/schedstat."""
+        try:
+            return int(Path(f"/proc/{self.p.pid}/schedstat").read_text().split()[0]) / 1e9
+        except (OSError, ValueError, IndexError):
+            return float("nan")
+
+    def stop(self) -> None:
+        if self.p.poll() is None:
+            self.p.send_signal(signal.SIGTERM)
+            try:
+                self.p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                self.p.kill()
+                self.p.wait()
+
+
+def compgw(*args: str) -> list[str]:
+    return [sys.executable, "-m", "gateway.cli", *args]
+
+
+def sim_config(tcp: bool, rtu_port: str | None) -> dict:
+    regs = {"memory": [{"address": 0x6200, "count": 16}]}
+    sim: dict = {
+        "seed": 1,
+        "time_scale": 0,
+        "axes": {f"A{u}": {"unit": u, "travel_mm": [0, 800], "registers": regs}
+                 for u in UNITS},
+    }
+    if tcp:
+        sim["tcp"] = {"host": "127.0.0.1", "port": 0}
+    if rtu_port:
+        sim["rtu"] = {"port": rtu_port, "baudrate": BAUD, "parity": "N", "stopbits": 1}
+    return {"sim": sim}
+
+
+def gateway_config(sim_port: int, rtu_port: str) -> dict:
+    def axis(bus: str, unit: int, upstream: int) -> dict:
+        return {
+            "bus": bus, "unit": unit, "upstream_unit": upstream, "pulse_mm": 0.001,
+            "travel_mm": [0, 800], "home_direction": 1,
+            "registers": {
+                "target": {"address": 0x6201, "words": 2, "order": "hi_lo"},
+                "feedback": {"address": 0x602A, "table": "holding", "order": "hi_lo"},
+                "status": {"address": 0x1003, "homed_bit": 6},
+                "trigger": {"address": 0x6002, "value": 0x10},
+            },
+            "compensation": {
+                "pitch": {"file": str(TABLES / "x_pitch.csv"), "interpolation": "smooth"},
+                "max_correction_mm": 0.2,
+            },
+        }
+
+    buses: dict = {f"t{u}": {"tcp": {"host": "127.0.0.1", "port": sim_port},
+                             "timeout_s": 0.2, "retries": 1} for u in UNITS}
+    buses["line"] = {"rtu": {"port": rtu_port, "baudrate": BAUD, "parity": "N", "stopbits": 1},
+                     "timeout_s": 0.2, "retries": 1}
+    axes = {f"T{u}": axis(f"t{u}", u, u) for u in UNITS}
+    axes |= {f"R{u}": axis("line", u, RTU_UPSTREAM_OFFSET + u) for u in UNITS}
+    return {
+        "upstream": {"tcp": {"host": "127.0.0.1", "port": 0, "max_connections": 64}},
+        "buses": buses,
+        "axes": axes,
+        "status": {"upstream_unit": 247},
+    }
+
+
+def _write_yaml(path: Path, data: dict) -> Path:
+    import yaml
+
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def run_load(spec: dict) -> dict:
+    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--load",
+                          json.dumps(spec)], capture_output=True, text=True, cwd=ROOT,
+                         timeout=spec["time_cap"] + 60)
+    if out.returncode != 0:
+        raise RuntimeError(f"load generator failed:\n{out.stderr[-2000:]}")
+    return json.loads(out.stdout)
+
+
+@dataclass
+class Side:
+    lat: list[float] = field(default_factory=list)
+    wall: float = 0.0
+    errors: int = 0
+    cpu: dict[str, float] = field(default_factory=dict)  # process name -> CPU s
+
+    def add(self, r: dict, cpu: dict[str, float]) -> None:
+        self.lat += r["lat"]
+        self.wall += r["wall"]
+        self.errors += r["errors"]
+        self.cpu["load"] = self.cpu.get("load", 0.0) + r["cpu"]
+        for k, v in cpu.items():
+            self.cpu[k] = self.cpu.get(k, 0.0) + v
+
+    def p(self, q: float) -> float:
+        s = sorted(self.lat)
+        return s[min(len(s) - 1, int(q / 100 * len(s)))] * 1000 if s else float("nan")
+
+    @property
+    def tps(self) -> float:
+        return len(self.lat) / self.wall if self.wall else float("nan")
+
+    def cpu_us(self, name: str) -> float:
+        return self.cpu.get(name, float("nan")) / max(len(self.lat), 1) * 1e6
+
+
+@dataclass
+class Row:
+    transport: str
+    case: Case
+    masters: int
+    direct: Side
+    gateway: Side
+    note: str = ""
+
+
+class Bench:
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.tmp = Path(tempfile.mkdtemp(prefix="compgw-bench-"))
+        self.procs: dict[str, Proc] = {}
+        self.ptys: list[PtyPair] = []
+
+    # ---------------------------------------------------------------- set-up
+    def start(self) -> None:
+        p1, p2 = PtyPair(), PtyPair()
+        self.ptys += [p1, p2]
+        self.gw_line, self.direct_line = p1.b, p2.b
+        sim_a = Proc("sim A", compgw("sim", "-c", str(_write_yaml(
+            self.tmp / "sim-a.yaml", sim_config(tcp=True, rtu_port=p1.a)))))
+        self.procs["sim"] = sim_a
+        sim_b = Proc("sim B", compgw("sim", "-c", str(_write_yaml(
+            self.tmp / "sim-b.yaml", sim_config(tcp=False, rtu_port=p2.a)))))
+        self.procs["simB"] = sim_b
+        self.sim_port = int(sim_a.wait_for(r"modbus tcp on 127\.0\.0\.1:(\d+)").group(1))
+        sim_b.wait_for(r"modbus rtu on")
+        self.gw_cfg = _write_yaml(self.tmp / "gw.yaml", gateway_config(self.sim_port, p1.b))
+        self.gw_port = self.start_gateway("gw", self.gw_cfg)
+
+    def start_gateway(self, name: str, cfg: Path, t35_s: float | None = None) -> int:
+        argv = compgw("run", "-c", str(cfg), "--log-level", "info")
+        if t35_s is not None:  # diagnostic: the RTU line's t3.5 replaced at start-up
+            argv = [sys.executable, "-c",
+                    "import sys, gateway.serialline as s; "
+                    f"s.t35_s = lambda *a, **k: {t35_s!r}; "
+                    "from gateway.cli import main; sys.argv[0] = 'compgw'; sys.exit(main())",
+                    *argv[3:]]
+        if self.args.profile and name == "gw" and shutil.which("py-spy", path=_venv_bin()):
+            out = Path(self.args.profile)
+            out.mkdir(parents=True, exist_ok=True)
+            argv = [shutil.which("py-spy", path=_venv_bin()) or "py-spy", "record",
+                    "--format", "raw", "-o", str(out / "gateway.folded"), "--rate", "500",
+                    "--", *argv]
+        proc = Proc(name, argv)
+        self.procs[name] = proc
+        port = int(proc.wait_for(r"listening on 127\.0\.0\.1:(\d+)").group(1))
+        self.warm_up(port)
+        return port
+
+    def warm_up(self, port: int) -> None:
+        """A compensated move on every axis (target + trigger), so feedback reads go
+        through the inverse chain; check that the gateway answers every route."""
+
+        async def go() -> None:
+            r, w = await asyncio.open_connection("127.0.0.1", port)
+            tid = 0
+            upstream = [*UNITS, *(RTU_UPSTREAM_OFFSET + u for u in UNITS)]
+            for unit in upstream:
+                for pdu in (CASES[3].pdu, struct.pack(">BHH", 6, 0x6002, 0x10),
+                            CASES[0].pdu, CASES[2].pdu):
+                    tid += 1
+                    w.write(struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu)
+                    head = await r.readexactly(7)
+                    body = await r.readexactly(struct.unpack(">H", head[4:6])[0] - 1)
+                    if body[0] & 0x80:
+                        raise RuntimeError(f"warm-up: unit {unit} PDU {pdu.hex()} answered "
+                                           f"exception {body.hex()}")
+            w.close()
+
+        asyncio.run(asyncio.wait_for(go(), 30))
+
+    def stop(self) -> None:
+        for name in reversed(list(self.procs)):
+            self.procs[name].stop()
+        for pty in self.ptys:
+            pty.close()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    # ---------------------------------------------------------------- measuring
+    def measure(self, spec: dict, watch: tuple[str, ...]) -> tuple[dict, dict[str, float]]:
+        before = {k: self.procs[k].cpu_s() for k in watch}
+        result = run_load(spec)
+        return result, {k: self.procs[k].cpu_s() - before[k] for k in watch}
+
+    def pair(self, transport: str, case: Case, masters: int, requests: int,
+             gw_port: int | None = None, gw_name: str = "gw") -> Row:
+        a = self.args
+        units = list(UNITS[:masters])
+        common = {"pdu": case.pdu.hex(), "warmup": a.warmup, "time_cap": a.time_cap / 2}
+        if transport == "tcp":
+            direct = {**common, "kind": "tcp", "host": "127.0.0.1", "port": self.sim_port,
+                      "units": units}
+            through = {**common, "kind": "tcp", "host": "127.0.0.1", "units": units,
+                       "port": gw_port or self.gw_port}
+            d_watch, g_watch = ("sim",), ("sim", gw_name)
+        else:
+            direct = {**common, "kind": "rtu", "device": self.direct_line, "units": units,
+                      "gap_s": T35_S}
+            through = {**common, "kind": "tcp", "host": "127.0.0.1",
+                       "port": gw_port or self.gw_port,
+                       "units": [RTU_UPSTREAM_OFFSET + u for u in units]}
+            d_watch, g_watch = ("simB",), ("sim", gw_name)
+        d, g = Side(), Side()
+        half = max(requests // 2, 1)
+        for side, spec, watch in ((d, direct, d_watch), (g, through, g_watch),
+                                  (g, through, g_watch), (d, direct, d_watch)):
+            side.add(*self.measure({**spec, "requests": half}, watch))
+        return Row(transport, case, masters, d, g)
+
+
+def _venv_bin() -> str:
+    return os.pathsep.join([str(ROOT / ".venv" / "bin"), os.environ.get("PATH", "")])
+
+
+# -- report ----------------------------------------------------------------------------------
+
+HEADER = (f"{'transport':<9} {'case':<13} {'m':>2} | {'direct p50':>10} {'p99':>6} "
+          f"{'tx/s':>6} | {'gw p50':>6} {'p99':>6} {'tx/s':>6} | {'p50x':>5} {'p99x':>5} "
+          f"{'tx/sx':>5} | {'+p50':>5} | {'gw cpu':>6} {'sim cpu':>7} | {'err':>3}")
+
+
+def format_row(r: Row) -> str:
+    d, g = r.direct, r.gateway
+    d50, d99, g50, g99 = d.p(50), d.p(99), g.p(50), g.p(99)
+    gw_cpu = next((g.cpu_us(k) for k in g.cpu if k.startswith("gw")), float("nan"))
+    sim_key = "simB" if r.transport == "rtu" else "sim"
+    return (f"{r.transport:<9} {r.case.name:<13} {r.masters:>2} | {d50:>8.3f}ms {d99:>6.3f} "
+            f"{d.tps:>6.0f} | {g50:>6.3f} {g99:>6.3f} {g.tps:>6.0f} | {g50 / d50:>5.2f} "
+            f"{g99 / d99:>5.2f} {g.tps / d.tps:>5.2f} | {g50 - d50:>5.2f} | "
+            f"{gw_cpu:>4.0f}µs {d.cpu_us(sim_key):>5.0f}µs | {d.errors + g.errors:>3}"
+            + (f"  {r.note}" if r.note else ""))
+
+
+def verdicts(rows: list[Row]) -> list[str]:
+    out = []
+    for r in rows:
+        if r.case.extra or r.note:
+            continue
+        d, g = r.direct, r.gateway
+        tag = f"{r.transport} {r.case.name} x{r.masters}"
+        if r.transport == "tcp":
+            checks = [("p50 <= 1.5x", g.p(50) / d.p(50), 1.5, False),
+                      ("p99 <= 2x", g.p(99) / d.p(99), 2.0, False)]
+            if r.masters == 8:
+                checks.append(("tx/s >= 0.6x", g.tps / d.tps, 0.6, True))
+        else:
+            checks = [("RTU added p50 <= 0.3 ms", g.p(50) - d.p(50), 0.3, False)] \
+                if r.masters == 1 else []
+        for label, value, limit, at_least in checks:
+            ok = value >= limit if at_least else value <= limit
+            out.append(f"  {'PASS' if ok else 'MISS'}  {tag:<24} {label:<24} {value:6.2f}")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="300 requests per master, issue cases")
+    ap.add_argument("--requests", type=int, help="requests per master (default 2000)")
+    ap.add_argument("--rtu8-requests", type=int,
+                    help="requests per master on the shared RTU line with 8 masters "
+                         "(default requests/4: the line serialises them)")
+    ap.add_argument("--time-cap", type=float, default=60.0, help="seconds per measurement")
+    ap.add_argument("--warmup", type=int, default=20, help="untimed requests per master")
+    ap.add_argument("--only", choices=("tcp", "rtu"))
+    ap.add_argument("--extra", action=argparse.BooleanOptionalAction, default=None,
+                    help="also the feedback-read and target-write cases (default: full run)")
+    ap.add_argument("--what-if", action="store_true",
+                    help="also: a second gateway whose RTU line uses the exact t3.5 at "
+                         f"{BAUD} baud (diagnostic, not the product)")
+    ap.add_argument("--profile", metavar="DIR",
+                    help="run the gateway under py-spy (raw folded stacks to DIR)")
+    ap.add_argument("--load", help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    if a.load:
+        return load_main(a.load)
+    requests = a.requests or (300 if a.quick else 2000)
+    rtu8 = a.rtu8_requests or max(requests // 4, 50)
+    extra = (not a.quick) if a.extra is None else a.extra
+    cases = [c for c in CASES if extra or not c.extra]
+    transports = [a.only] if a.only else ["tcp", "rtu"]
+    bench = Bench(a)
+    rows: list[Row] = []
+    t_start = time.monotonic()
+    try:
+        bench.start()
+        print(f"sim tcp :{bench.sim_port}, gateway tcp :{bench.gw_port}, gateway RTU line "
+              f"{bench.gw_line}, direct RTU line {bench.direct_line}; {os.cpu_count()} CPUs; "
+              f"{requests} requests/master ({rtu8} on RTU x8)", flush=True)
+        print(HEADER, flush=True)
+        for transport in transports:
+            for case in cases:
+                for masters in (1, 8):
+                    n = rtu8 if transport == "rtu" and masters == 8 else requests
+                    row = bench.pair(transport, case, masters, n)
+                    rows.append(row)
+                    print(format_row(row), flush=True)
+        if a.what_if and "rtu" in transports:
+            exact = 3.5 * 10 / BAUD
+            port = bench.start_gateway("gw-t35", bench.gw_cfg, t35_s=exact)
+            for case in cases[:2]:
+                row = bench.pair("rtu", case, 1, requests, gw_port=port, gw_name="gw-t35")
+                row.note = f"what-if: t3.5 = {exact * 1e3:.2f} ms"
+                rows.append(row)
+                print(format_row(row), flush=True)
+            bench.procs.pop("gw-t35").stop()
+    finally:
+        bench.stop()
+    print("\ntargets (issue 4):")
+    print("\n".join(verdicts(rows)))
+    print(f"\ncolumns: latencies in ms; 'x' = gateway/direct; '+p50' = gateway p50 - direct p50"
+          f" (ms; 'RTU added p50' on rtu rows); gw/sim cpu = CPU per transaction of the gateway"
+          f" process / of the sim serving the direct run; m = concurrent masters. "
+          f"Took {time.monotonic() - t_start:.0f} s.")
+    if a.profile:
+        print(f"profile: {a.profile}/gateway.folded (py-spy raw/folded stacks)")
+    return 1 if any(r.direct.errors or r.gateway.errors for r in rows) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
