@@ -15,7 +15,7 @@ from pathlib import Path
 
 from .compensation import Chain
 from .config import Bus as BusConfig
-from .config import ConfigError, GatewayConfig, load_config
+from .config import ConfigError, GatewayConfig, bus_silence_s, load_config
 from .downstream import Bus, RtuBus, TcpBus
 from .router import Gateway
 from .sensors import SensorSet
@@ -26,13 +26,14 @@ from .upstream import RtuServer, TcpServer
 log = logging.getLogger(__name__)
 
 
-def make_bus(name: str, cfg: BusConfig) -> Bus:
-    """The downstream bus a config section describes."""
+def make_bus(name: str, cfg: BusConfig, min_silence_s: float | None = None) -> Bus:
+    """The downstream bus a config section describes (``min_silence_s``: what its drives
+    need, when longer than the bus's own setting)."""
     common = {
         "name": name,
         "timeout_s": cfg.timeout_s,
         "retries": cfg.retries,
-        "min_silence_s": cfg.min_silence_s,
+        "min_silence_s": cfg.min_silence_s if min_silence_s is None else min_silence_s,
     }
     if cfg.tcp is not None:
         return TcpBus(cfg.tcp.host, cfg.tcp.port, **common)
@@ -59,7 +60,10 @@ class GatewayApp:
     def __init__(self, config: GatewayConfig, chain: Chain, *, source: str | None = None) -> None:
         self.config = config
         self.source = source
-        self.buses = {name: make_bus(name, cfg) for name, cfg in config.buses.items()}
+        self.buses = {
+            name: make_bus(name, cfg, bus_silence_s(config, name))
+            for name, cfg in config.buses.items()
+        }
         self.sensors = SensorSet.from_config(config.thermal_sources, self.buses, axes=config.axes)
         self.gateway = Gateway(
             config, chain, self.buses, delta_a_mm=self.sensors.axis_delta_a_mm

@@ -19,7 +19,7 @@ def _not_yet(name: str, issue: int) -> int:
 def _cmd_check(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .config import ConfigError, load_config
+    from .config import ConfigError, load_config, warnings
     from .setup_report import describe
     from .tables import build_chain
 
@@ -30,6 +30,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
         print(f"compgw check: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     print(describe(config, chain))
+    for line in warnings(config):
+        print(f"compgw check: warning: {line}", file=sys.stderr)
     return EXIT_OK
 
 

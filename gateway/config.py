@@ -25,6 +25,7 @@ from .config_types import (
     read_yaml,
 )
 from .config_types import StrictModel as Model
+from .profiles import PROFILES, merge_defaults, profile_names
 
 
 class ConfigError(ValueError):
@@ -182,15 +183,38 @@ class Compensation(Model):
 
 
 class Axis(Model):
+    """One servo axis: its drive on a bus, its registers, its compensation.
+
+    ``profile`` names a real drive's register defaults (``gateway.profiles``) that the other
+    keys override one by one. ``fc16_max_words`` caps register blocks sent to the drive
+    (longer ones are split, never inside the target pair); ``min_silence_s`` is extra line
+    silence the drive needs around frames (applied to its whole bus);
+    ``ram_setting_applied`` declares that the drive's keep-writes-in-RAM parameter is set.
+    """
+
     bus: str
     unit: UnitId
     upstream_unit: UnitId | None = None
+    profile: str | None = None
     pulse_mm: Positive
     rotary: bool = False
     travel_mm: tuple[float, float]
     home_direction: Literal[1, -1] = 1
     registers: Registers
+    fc16_max_words: Annotated[int, in_range(2, 123)] = 123
+    min_silence_s: float = Field(default=0.0, ge=0.0, le=1.0)
+    ram_setting_applied: bool = False
     compensation: Compensation = Field(default_factory=Compensation)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _profile_defaults(cls, data: Any) -> Any:
+        if not isinstance(data, dict) or data.get("profile") is None:
+            return data
+        name = data["profile"]
+        if name not in PROFILES:
+            raise ValueError(f"profile: {name!r} is not one of {profile_names()}")
+        return merge_defaults(PROFILES[name].defaults(), data)
 
     @field_validator("travel_mm")
     @classmethod
@@ -341,6 +365,30 @@ def _path_error(path: tuple[Any, ...], value: Any, rule: str) -> ValueError:
 
 
 _UNION_TAGS = frozenset({"str", "PitchFile"})
+
+
+def bus_silence_s(config: GatewayConfig, bus: str) -> float:
+    """Line silence a bus needs: its own, or the longest any of its drives needs."""
+    needs = [a.min_silence_s for a in config.axes.values() if a.bus == bus]
+    return max([config.buses[bus].min_silence_s, *needs])
+
+
+def warnings(config: GatewayConfig) -> list[str]:
+    """Things that load but a user should act on (EEPROM wear, unverified profiles)."""
+    out = []
+    for name, axis in config.axes.items():
+        if axis.profile is None:
+            continue
+        profile = PROFILES[axis.profile]
+        if profile.eeprom.writes_eeprom_by_default and not axis.ram_setting_applied:
+            out.append(
+                f"axes.{name}: a {axis.profile} drive writes every bus write to EEPROM by "
+                f"default and compgw writes a target on every move: set "
+                f"{profile.eeprom.ram_setting}, then ram_setting_applied: true"
+            )
+        if not profile.verified:
+            out.append(f"axes.{name}: profile {axis.profile} is unverified: check {profile.check}")
+    return out
 
 
 def parse_config(data: Any, source: str = "<config>") -> GatewayConfig:

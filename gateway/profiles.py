@@ -1,0 +1,141 @@
+"""Register profiles of real servo drives in position mode (see ../shared/DRIVES.md).
+
+A profile is a set of axis defaults (``registers``, ``fc16_max_words``, ``min_silence_s``)
+that an axis starts from with ``profile: NAME`` and overrides key by key. Each profile
+says whether its map is verified (two agreeing public sources) and which manual section a
+user must check, and how the drive keeps bus writes in RAM instead of EEPROM.
+
+Every profile is an example to check against the drive's own manual, never gospel.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Eeprom:
+    """How a drive stores parameters written over the bus."""
+
+    writes_eeprom_by_default: bool
+    ram_setting: str  # what to set on the drive so that bus writes stay in RAM
+    verified: bool = True
+
+
+@dataclass(frozen=True)
+class DriveProfile:
+    name: str
+    title: str
+    verified: bool
+    check: str  # the manual sections a user must check
+    serial: str  # the drive's serial defaults (the user sets both ends)
+    axis: dict[str, Any] = field(default_factory=dict)
+    eeprom: Eeprom = field(default_factory=lambda: Eeprom(False, ""))
+    notes: str = ""
+
+    def defaults(self) -> dict[str, Any]:
+        """A fresh copy of the axis defaults (to be overridden by the user's keys)."""
+        return copy.deepcopy(self.axis)
+
+
+PROFILES: dict[str, DriveProfile] = {
+    p.name: p
+    for p in (
+        DriveProfile(
+            name="leadshine-rs-pr0",
+            title="Leadshine RS/PR family (EL7-RS, ELD2-RS, CS2RS, iCL-RS), PR path 0",
+            verified=True,
+            check="Modbus chapter: Pr9.xx PR0 block (0x6200..0x6207), Pr8.02 trigger "
+            "(0x6002), command position 0x602A; status word 0x1003 bits (stepper manuals)",
+            serial="model-dependent (38400 8N2, 38400 8N1 or 19200 8E1): set both ends",
+            axis={
+                "registers": {
+                    "target": {"address": 0x6201, "words": 2, "order": "hi_lo"},
+                    "feedback": {"address": 0x602A, "table": "holding", "order": "hi_lo",
+                                 "counts_per_pulse": 1},
+                    "status": {"address": 0x1003, "table": "holding", "homed_bit": 6},
+                    "trigger": {"address": 0x6002, "value": 0x10},
+                },
+                "fc16_max_words": 123,
+                "min_silence_s": 0.0,
+            },
+            eeprom=Eeprom(
+                writes_eeprom_by_default=False,
+                ram_setting="none needed: writes stay in RAM unless saved (0x1801 = 0x2211)",
+            ),
+            notes="An 8-word FC16 at 0x6200 whose last word is 0x10 sets and starts a move "
+            "(configure trigger address 0x6207 for that style). Reading 0x6002 back after a "
+            "move is unreliable: completion comes from the status word or the position.",
+        ),
+        DriveProfile(
+            name="inovance-sv660p",
+            title="Inovance SV630P/SV660P (also IS620P), multi-segment position, segment 1",
+            verified=False,
+            check="H0C.09 virtual inputs on, H17 mapping of the position-start function to a "
+            "virtual input bit, H11-12 segment 1 target (0x110C low word first), H0B.07 "
+            "command position, H30.01 status (bit 15 homing done)",
+            serial="unit 1, 57600 8N2",
+            axis={
+                "registers": {
+                    "target": {"address": 0x110C, "words": 2, "order": "lo_hi"},
+                    "feedback": {"address": 0x0B07, "table": "holding", "order": "lo_hi",
+                                 "counts_per_pulse": 1},
+                    "status": {"address": 0x3001, "table": "holding", "homed_bit": 15},
+                    "trigger": {"address": 0x3100, "rising_bit": 4},
+                },
+                "fc16_max_words": 123,
+                "min_silence_s": 0.0,
+            },
+            eeprom=Eeprom(
+                writes_eeprom_by_default=True,
+                ram_setting="H0C.13 = 0 (address 0x0C0D): bus writes to RAM only",
+            ),
+            notes="No trigger register: writing H31.00 (0x3100) with bit 4 going 0→1 (e.g. 1 "
+            "= servo on, then 17) starts segment 1 once H17 maps it. For encoder feedback "
+            "use H0B.17 (0x0B11) with counts_per_pulse = encoder counts per command pulse.",
+        ),
+        DriveProfile(
+            name="delta-asda-pr",
+            title="Delta ASDA-B2/A2/B3 (also SureServo2), PR mode, PR#1 (beta)",
+            verified=False,
+            check="P6-02/P6-03 PR#1 definition and target (0x0604..0x0607), P5-07 PR trigger "
+            "(0x050E), P5-16 feedback units, P0-46 status bits, P2-30 (EEPROM)",
+            serial="RTU 8N2; at most 10 words per FC10; ≥ 10 ms line silence",
+            axis={
+                "registers": {
+                    "target": {"address": 0x0606, "words": 2, "order": "lo_hi"},
+                    "feedback": {"address": 0x0520, "table": "holding", "order": "lo_hi",
+                                 "counts_per_pulse": 1},
+                    "trigger": {"address": 0x050E, "value": 1},
+                },
+                "fc16_max_words": 10,
+                "min_silence_s": 0.010,
+            },
+            eeprom=Eeprom(
+                writes_eeprom_by_default=True,
+                ram_setting="P2-30 = 5 (address 0x023C): parameters written over the bus are "
+                "not saved to EEPROM",
+                verified=False,
+            ),
+            notes="P5-07 reads 20000+PR# when the path is done. No homed bit is known: "
+            "compensation is applied whenever enabled.",
+        ),
+    )
+}
+
+
+def profile_names() -> str:
+    return ", ".join(PROFILES)
+
+
+def merge_defaults(defaults: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """``overrides`` on top of ``defaults``, key by key, recursively (new dicts)."""
+    out = copy.deepcopy(defaults)
+    for key, value in overrides.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = merge_defaults(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
