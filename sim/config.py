@@ -25,6 +25,8 @@ from pydantic import (
     model_validator,
 )
 
+from sim.profiles import DRIVE_PROFILES, profile_registers
+
 
 class SimConfigError(ValueError):
     """A bad simulator config; ``str(err)`` is one line naming the YAML path."""
@@ -165,6 +167,9 @@ class DriveRegisters(_Model):
     memory: tuple[MemoryBlock, ...] = (MemoryBlock(address=0x6200, count=8),)
     eeprom: EepromConfig = EepromConfig(counter=MemoryBlock(address=0x7F00, count=2))
     fc16_max_words: Annotated[int, Field(ge=1, le=123)] | None = None
+    #: RTU: a request arriving less than this after the previous frame on the line is not
+    #: seen (counted in the control block), as a drive that needs long silence behaves
+    min_silence_s: NonNegFloat = 0.0
 
     @model_validator(mode="after")
     def _no_overlap(self) -> DriveRegisters:
@@ -198,7 +203,15 @@ class AxisConfig(_Model):
     overtravel_mm: NonNegFloat = 1.0
     speed_mm_s: PositiveFloat = 100.0
     homed_at_start: bool = True
+    profile: Literal["leadshine-rs-pr0", "inovance-sv660p", "delta-asda-pr"] | None = None
     registers: DriveRegisters = DriveRegisters()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _profile_layout(cls, data: object) -> object:
+        if isinstance(data, dict) and data.get("profile") in DRIVE_PROFILES:
+            data = {**data, "registers": profile_registers(data["profile"], data.get("registers"))}
+        return data
 
     @model_validator(mode="after")
     def _travel_order(self) -> AxisConfig:

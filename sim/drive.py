@@ -29,6 +29,8 @@ class Drive:
         self.limit_alarm = False
         self.forced_alarm = False
         self.eeprom_writes = 0
+        self.oversize_fc16 = 0  # FC16 requests longer than the drive accepts (refused)
+        self.silence_violations = 0  # RTU requests ignored for too short a line silence
         self.ram_only = cfg.registers.eeprom.ram_only
         self.moves_started = 0
         # plain storage for every writable register; computed registers are not stored
@@ -136,6 +138,7 @@ class Drive:
         """Write holding registers, then act: EEPROM count, RAM flag, move start."""
         r = self.regs_cfg
         if function_code == 0x10 and r.fc16_max_words and len(values) > r.fc16_max_words:
+            self.oversize_fc16 += 1
             raise ModbusError(ILLEGAL_VALUE, f"FC16 of {len(values)} > {r.fc16_max_words}")
         span = range(address, address + len(values))
         for a in span:

@@ -12,7 +12,11 @@ u*8 + 0            fault mode of unit u (1..247): 0 normal, 1 silent (no reply a
 u*8 + 1            delay_ms: every reply of unit u (or exception/garbage) waits this long
 u*8 + 2            exception code for mode 2 (0 means 0x04 device failure)
 u*8 + 3            drives only: 1 forces the alarm status bit (moves refused), 0 clears
-u*8 + 4 .. +7      reserved (stored, no effect)
+u*8 + 4            drives only, read-only: RTU requests ignored for too short a line
+                   silence (``min_silence_s``)
+u*8 + 5            drives only, read-only: FC16 requests refused as longer than
+                   ``fc16_max_words``
+u*8 + 6 .. +7      reserved (stored, no effect)
 0x0800             write N: advance the machine clock by N seconds (reads 0)
 0x0801             write N: advance the machine clock by N milliseconds (reads 0)
 0x0802, 0x0803     machine clock in ms, uint32 high word first (read-only)
@@ -92,13 +96,19 @@ class FaultControl:
         clock = int32_to_words(round(self.clock.now_s() * 1000.0) & 0xFFFFFFFF, "hi_lo")
         tail = [0, 0, *clock, 0]  # 0x0800..0x0804
         regs = self._regs + [0] * (ADDR_ADVANCE_S - len(self._regs)) + tail
+        for unit, drive in self.drives.items():
+            base = unit * UNIT_STRIDE
+            regs[base + 4] = min(drive.silence_violations, 0xFFFF)
+            regs[base + 5] = min(drive.oversize_fc16, 0xFFFF)
         return regs[address : address + count]
 
     def write(self, address: int, values: list[int], function_code: int) -> None:
         """Write the control block; side effects apply at once."""
         span = range(address, address + len(values))
         for a in span:
-            read_only = a in (ADDR_CLOCK_MS, ADDR_CLOCK_MS + 1)
+            read_only = a in (ADDR_CLOCK_MS, ADDR_CLOCK_MS + 1) or (
+                a < len(self._regs) and a % UNIT_STRIDE in (4, 5)
+            )
             if a >= _END or len(self._regs) <= a < ADDR_ADVANCE_S or read_only:
                 raise ModbusError(ILLEGAL_ADDRESS, f"{a:#06x}")
             if a < len(self._regs) and a % UNIT_STRIDE == 0 and values[a - address] > 3:

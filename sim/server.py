@@ -174,7 +174,9 @@ class _RtuLine:
         self._port: serial.Serial | None = None
         self._buffer = b""
         self._gap: asyncio.TimerHandle | None = None
-        self._queue: asyncio.Queue[tuple[int, bytes]] = asyncio.Queue()
+        self._queue: asyncio.Queue[tuple[int, bytes, float]] = asyncio.Queue()
+        self._line_idle_since_s = 0.0  # when the last frame on the line ended (monotonic)
+        self._frame_start_s = 0.0  # when the frame being received began
         self._worker: asyncio.Task | None = None
 
     def open(self) -> None:
@@ -215,12 +217,17 @@ class _RtuLine:
             return
         if not chunk:
             return
+        now = time.monotonic()
+        if not self._buffer:
+            self._frame_start_s = now
         self._buffer += chunk
         used, unit, _tid, pdu = self.framer.decode(self._buffer)
         if used:
             self._buffer = b""  # a frame, or a bad CRC: either way the buffer is spent
+            silence_s = self._frame_start_s - self._line_idle_since_s
+            self._line_idle_since_s = now
             if pdu and unit != 0:
-                self._queue.put_nowait((unit, pdu))
+                self._queue.put_nowait((unit, pdu, silence_s))
         if self._gap is not None:
             self._gap.cancel()
             self._gap = None
@@ -233,7 +240,11 @@ class _RtuLine:
 
     async def _work(self) -> None:
         while True:
-            unit, pdu = await self._queue.get()
+            unit, pdu, silence_s = await self._queue.get()
+            drive = self.sim.drives_by_unit.get(unit)
+            if drive is not None and silence_s < drive.regs_cfg.min_silence_s:
+                drive.silence_violations += 1  # the drive does not see a frame this close
+                continue
             reply = self.sim.respond(unit, pdu)
             if reply.pdu is None:
                 continue
@@ -246,6 +257,7 @@ class _RtuLine:
                     frame = frame[:-1] + bytes([frame[-1] ^ 0xFF])
             if self._port is not None:
                 self._port.write(frame)
+                self._line_idle_since_s = time.monotonic()
 
 
 # ---------------------------------------------------------------- command line

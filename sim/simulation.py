@@ -52,8 +52,8 @@ class Simulation:
         self.drives: dict[str, Drive] = {
             name: Drive(name, axis, self.machine, self.clock) for name, axis in cfg.axes.items()
         }
-        by_unit: dict[int, Drive] = {d.cfg.unit: d for d in self.drives.values()}
-        self.faults = FaultControl(self.clock, by_unit, on_clock=self._clock_moved)
+        self.drives_by_unit: dict[int, Drive] = {d.cfg.unit: d for d in self.drives.values()}
+        self.faults = FaultControl(self.clock, self.drives_by_unit, on_clock=self._clock_moved)
         self.instruments: dict[str, Instrument] = {}
         axes = list(cfg.axes)
 
@@ -74,7 +74,7 @@ class Simulation:
             self.instruments["temperature"] = TemperatureSensors(
                 ins.temperature, axes, *base, rng("temperature")
             )
-        self.units: dict[int, RegisterUnit] = dict(by_unit)
+        self.units: dict[int, RegisterUnit] = dict(self.drives_by_unit)
         for key, inst in self.instruments.items():
             self.units[getattr(ins, key).unit] = inst
         self.units[cfg.faults.unit] = self.faults
