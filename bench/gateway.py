@@ -42,8 +42,12 @@ baud rate, so no wire time is included anywhere (FC03x10 at 115200 is ~2.9 ms of
 Run:  .venv/bin/python bench/gateway.py            (full: 2000 requests per master, ~6 min)
       .venv/bin/python bench/gateway.py --quick    (300 per master, ~1 min)
       options: --only tcp|rtu, --requests N, --time-cap S, --profile DIR (py-spy on the
-      gateway during the 8-master TCP FC03x10 run), --what-if (gateway RTU line with the
-      exact t3.5 at 115200 instead of the fixed 1.75 ms, patched at start-up, diagnostic).
+      gateway, separate runs after the table), --what-if (a second gateway process whose RTU
+      line's t3.5 is patched at start-up to the exact 0.30 ms at 115200, then to 0: how
+      much of "RTU added" is the silence rule; diagnostic, not the product),
+      --reference/--no-reference (a minimal asyncio.Protocol forwarder, no interception,
+      measured the same way: the floor for CPython on this machine; on by default in the
+      full run).
 """
 
 from __future__ import annotations
@@ -57,7 +61,6 @@ import re
 import select
 import shutil
 import signal
-import statistics
 import struct
 import subprocess
 import sys
@@ -65,6 +68,7 @@ import tempfile
 import threading
 import time
 import tty
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -278,6 +282,96 @@ def load_main(spec_json: str) -> int:
     return 0
 
 
+# -- a reference forwarder (a floor for what CPython asyncio costs; not the product) ----------
+
+
+class _RefBus(asyncio.Protocol):
+    """One downstream connection, one transaction in flight, FIFO; a timeout per request."""
+
+    def __init__(self) -> None:
+        self.transport: asyncio.Transport | None = None
+        self.buf = bytearray()
+        self.queue: deque = deque()  # (frame, upstream transport, upstream tid bytes)
+        self.current: tuple | None = None
+        self.timer: asyncio.TimerHandle | None = None
+        self.tid = 0
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+        transport.get_extra_info("socket").setsockopt(6, 1, 1)
+
+    def submit(self, item: tuple) -> None:
+        self.queue.append(item)
+        if self.current is None:
+            self._next()
+
+    def _next(self) -> None:
+        if not self.queue:
+            self.current = None
+            return
+        self.current = self.queue.popleft()
+        self.tid = self.tid % 0xFFFF + 1
+        assert self.transport is not None
+        self.transport.write(self.tid.to_bytes(2, "big") + self.current[0][2:])
+        self.timer = asyncio.get_running_loop().call_later(0.2, self._timeout)
+
+    def _timeout(self) -> None:
+        if self.current is not None:  # 0x0B
+            frame, up, up_tid = self.current
+            up.write(up_tid + b"\x00\x00\x00\x03" + frame[6:8] + bytes([frame[7] | 0x80, 11]))
+        self._next()
+
+    def data_received(self, data: bytes) -> None:
+        self.buf += data
+        while len(self.buf) >= 6:
+            size = 6 + int.from_bytes(self.buf[4:6], "big")
+            if len(self.buf) < size:
+                return
+            frame = bytes(self.buf[:size])
+            del self.buf[:size]
+            if self.current is None or int.from_bytes(frame[:2], "big") != self.tid:
+                continue  # late reply: dropped
+            assert self.timer is not None
+            self.timer.cancel()
+            _, up, up_tid = self.current
+            up.write(up_tid + frame[2:])
+            self._next()
+
+
+class _RefUpstream(asyncio.Protocol):
+    def __init__(self, buses: dict[int, _RefBus]) -> None:
+        self.buses = buses
+        self.buf = bytearray()
+        self.transport: asyncio.Transport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+        transport.get_extra_info("socket").setsockopt(6, 1, 1)
+
+    def data_received(self, data: bytes) -> None:
+        self.buf += data
+        while len(self.buf) >= 6:
+            size = 6 + int.from_bytes(self.buf[4:6], "big")
+            if len(self.buf) < size:
+                return
+            frame = bytes(self.buf[:size])
+            del self.buf[:size]
+            self.buses[frame[6]].submit((frame, self.transport, frame[:2]))
+
+
+async def _reference_proxy(sim_port: int) -> None:
+    loop = asyncio.get_running_loop()
+    buses: dict[int, _RefBus] = {}
+    for unit in UNITS:
+        _, buses[unit] = await loop.create_connection(_RefBus, "127.0.0.1", sim_port)
+    server = await loop.create_server(lambda: _RefUpstream(buses), "127.0.0.1", 0)
+    print(f"reference proxy listening on 127.0.0.1:{server.sockets[0].getsockname()[1]}",
+          flush=True)
+    stop = asyncio.Event()
+    loop.add_signal_handler(signal.SIGTERM, stop.set)
+    await stop.wait()
+
+
 # -- the orchestrator ------------------------------------------------------------------------
 
 
@@ -374,8 +468,17 @@ class Proc:
                 self.p.wait()
 
 
-def compgw(*args: str) -> list[str]:
-    return [sys.executable, "-m", "gateway.cli", *args]
+# `compgw sim -c F` and `compgw run -c F` are thin wrappers over these two calls; calling
+# them directly keeps the bench independent of the other subcommands' imports.
+_SIM = "import sys; from sim.server import main; sys.exit(main(sys.argv[1]))"
+_RUN = ("import asyncio, logging, sys; {patch}"
+        "logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s'); "
+        "from gateway.app import serve; sys.exit(asyncio.run(serve(sys.argv[1])))")
+
+
+def compgw(command: str, config: Path, patch: str = "") -> list[str]:
+    code = _SIM if command == "sim" else _RUN.format(patch=patch)
+    return [sys.executable, "-c", code, str(config)]
 
 
 def sim_config(tcp: bool, rtu_port: str | None) -> dict:
@@ -489,11 +592,11 @@ class Bench:
         p1, p2 = PtyPair(), PtyPair()
         self.ptys += [p1, p2]
         self.gw_line, self.direct_line = p1.b, p2.b
-        sim_a = Proc("sim A", compgw("sim", "-c", str(_write_yaml(
-            self.tmp / "sim-a.yaml", sim_config(tcp=True, rtu_port=p1.a)))))
+        sim_a = Proc("sim A", compgw("sim", _write_yaml(
+            self.tmp / "sim-a.yaml", sim_config(tcp=True, rtu_port=p1.a))))
         self.procs["sim"] = sim_a
-        sim_b = Proc("sim B", compgw("sim", "-c", str(_write_yaml(
-            self.tmp / "sim-b.yaml", sim_config(tcp=False, rtu_port=p2.a)))))
+        sim_b = Proc("sim B", compgw("sim", _write_yaml(
+            self.tmp / "sim-b.yaml", sim_config(tcp=False, rtu_port=p2.a))))
         self.procs["simB"] = sim_b
         self.sim_port = int(sim_a.wait_for(r"modbus tcp on 127\.0\.0\.1:(\d+)").group(1))
         sim_b.wait_for(r"modbus rtu on")
@@ -501,19 +604,9 @@ class Bench:
         self.gw_port = self.start_gateway("gw", self.gw_cfg)
 
     def start_gateway(self, name: str, cfg: Path, t35_s: float | None = None) -> int:
-        argv = compgw("run", "-c", str(cfg), "--log-level", "info")
-        if t35_s is not None:  # diagnostic: the RTU line's t3.5 replaced at start-up
-            argv = [sys.executable, "-c",
-                    "import sys, gateway.serialline as s; "
-                    f"s.t35_s = lambda *a, **k: {t35_s!r}; "
-                    "from gateway.cli import main; sys.argv[0] = 'compgw'; sys.exit(main())",
-                    *argv[3:]]
-        if self.args.profile and name == "gw" and shutil.which("py-spy", path=_venv_bin()):
-            out = Path(self.args.profile)
-            out.mkdir(parents=True, exist_ok=True)
-            argv = [shutil.which("py-spy", path=_venv_bin()) or "py-spy", "record",
-                    "--format", "raw", "-o", str(out / "gateway.folded"), "--rate", "500",
-                    "--", *argv]
+        patch = "" if t35_s is None else (  # diagnostic: the RTU line's t3.5 replaced
+            f"import gateway.serialline as s; s.t35_s = lambda *a, **k: {t35_s!r}; ")
+        argv = compgw("run", cfg, patch)
         proc = Proc(name, argv)
         self.procs[name] = proc
         port = int(proc.wait_for(r"listening on 127\.0\.0\.1:(\d+)").group(1))
@@ -581,6 +674,72 @@ class Bench:
         return Row(transport, case, masters, d, g)
 
 
+    def profile(self, out: Path, transport: str, case: Case, masters: int,
+                requests: int) -> Path | None:
+        """Gateway side of one case again, with py-spy attached to the gateway process
+        (non-blocking sampling, idle samples dropped: where its CPU goes). Not in the table:
+        the sampler competes for the same cores."""
+        spy = shutil.which("py-spy", path=_venv_bin())
+        if spy is None:
+            print("profile: py-spy not found (.venv/bin/pip install py-spy)")
+            return None
+        out.mkdir(parents=True, exist_ok=True)
+        dest = out / f"gateway-{transport}-{case.name.replace('@', '-')}-x{masters}.folded"
+        units = list(UNITS[:masters]) if transport == "tcp" \
+            else [RTU_UPSTREAM_OFFSET + u for u in UNITS[:masters]]
+        spec = {"pdu": case.pdu.hex(), "warmup": self.args.warmup, "requests": requests,
+                "time_cap": self.args.time_cap, "kind": "tcp", "host": "127.0.0.1",
+                "port": self.gw_port, "units": units}
+        rec = subprocess.Popen([spy, "record", "--pid", str(self.procs["gw"].p.pid),
+                                "--nonblocking", "--rate", "1000", "--format", "raw",
+                                "-o", str(dest)], stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE, text=True)
+        time.sleep(1.0)  # attached
+        try:
+            run_load(spec)
+        finally:
+            rec.send_signal(signal.SIGINT)
+            _, err = rec.communicate(timeout=30)
+        if not dest.exists():
+            print(f"profile: py-spy wrote nothing: {err[-500:]}")
+            return None
+        return dest
+
+
+def summarize_folded(path: Path, top: int = 22) -> str:
+    """Self and inclusive share of samples per function (file:function, lines merged)."""
+    self_n: dict[str, int] = {}
+    incl_n: dict[str, int] = {}
+    total = 0
+    for line in path.read_text().splitlines():
+        stack, _, count = line.rpartition(" ")
+        if not stack or not count.isdigit():
+            continue
+        n = int(count)
+        total += n
+        funcs = []
+        for frame in stack.split(";"):
+            m = re.match(r"(.*?) \((.*?)(?::\d+)?\)$", frame)
+            name = f"{Path(m.group(2)).name}:{m.group(1)}" if m else frame
+            funcs.append(name)
+        self_n[funcs[-1]] = self_n.get(funcs[-1], 0) + n
+        for name in set(funcs):
+            incl_n[name] = incl_n.get(name, 0) + n
+    if not total:
+        return f"{path.name}: no samples"
+    lines = [f"{path.name}: {total} active samples",
+             f"  {'self%':>6}  {'incl%':>6}  function"]
+    for name, n in sorted(self_n.items(), key=lambda kv: -kv[1])[:top]:
+        lines.append(f"  {100 * n / total:6.1f}  {100 * incl_n[name] / total:6.1f}  {name}")
+    lines.append("  inclusive, project code (gateway/*):")
+    ours = [(k, v) for k, v in incl_n.items() if "/gateway/" in k or k.split(":")[0] in
+            {"upstream.py", "downstream.py", "router.py", "frames.py", "serialline.py",
+             "axis.py", "app.py", "compensation.py", "tables.py"}]
+    for name, n in sorted(ours, key=lambda kv: -kv[1])[:top]:
+        lines.append(f"  {'':6}  {100 * n / total:6.1f}  {name}")
+    return "\n".join(lines)
+
+
 def _venv_bin() -> str:
     return os.pathsep.join([str(ROOT / ".venv" / "bin"), os.environ.get("PATH", "")])
 
@@ -589,19 +748,20 @@ def _venv_bin() -> str:
 
 HEADER = (f"{'transport':<9} {'case':<13} {'m':>2} | {'direct p50':>10} {'p99':>6} "
           f"{'tx/s':>6} | {'gw p50':>6} {'p99':>6} {'tx/s':>6} | {'p50x':>5} {'p99x':>5} "
-          f"{'tx/sx':>5} | {'+p50':>5} | {'gw cpu':>6} {'sim cpu':>7} | {'err':>3}")
+          f"{'tx/sx':>5} | {'+p50':>5} | {'cpu/tx d':>8} {'g':>4} {'gw':>4} | {'err':>3}")
 
 
 def format_row(r: Row) -> str:
     d, g = r.direct, r.gateway
     d50, d99, g50, g99 = d.p(50), d.p(99), g.p(50), g.p(99)
-    gw_cpu = next((g.cpu_us(k) for k in g.cpu if k.startswith("gw")), float("nan"))
-    sim_key = "simB" if r.transport == "rtu" else "sim"
+    gw_key = next((k for k in g.cpu if k not in ("load", "sim", "simB")), "gw")
+    d_cpu = sum(d.cpu_us(k) for k in d.cpu)  # load generator + sim
+    g_cpu = sum(g.cpu_us(k) for k in g.cpu)  # load generator + sim + gateway
     return (f"{r.transport:<9} {r.case.name:<13} {r.masters:>2} | {d50:>8.3f}ms {d99:>6.3f} "
             f"{d.tps:>6.0f} | {g50:>6.3f} {g99:>6.3f} {g.tps:>6.0f} | {g50 / d50:>5.2f} "
             f"{g99 / d99:>5.2f} {g.tps / d.tps:>5.2f} | {g50 - d50:>5.2f} | "
-            f"{gw_cpu:>4.0f}µs {d.cpu_us(sim_key):>5.0f}µs | {d.errors + g.errors:>3}"
-            + (f"  {r.note}" if r.note else ""))
+            f"{d_cpu:>6.0f}µs {g_cpu:>4.0f} {g.cpu_us(gw_key):>4.0f} | "
+            f"{d.errors + g.errors:>3}" + (f"  {r.note}" if r.note else ""))
 
 
 def verdicts(rows: list[Row]) -> list[str]:
@@ -642,10 +802,17 @@ def main(argv: list[str] | None = None) -> int:
                          f"{BAUD} baud (diagnostic, not the product)")
     ap.add_argument("--profile", metavar="DIR",
                     help="run the gateway under py-spy (raw folded stacks to DIR)")
+    ap.add_argument("--reference", action=argparse.BooleanOptionalAction, default=None,
+                    help="also a minimal asyncio.Protocol forwarder (no interception) as a "
+                         "floor for CPython on this machine (default: full run)")
     ap.add_argument("--load", help=argparse.SUPPRESS)
+    ap.add_argument("--proxy", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.load:
         return load_main(a.load)
+    if a.proxy:
+        asyncio.run(_reference_proxy(a.proxy))
+        return 0
     requests = a.requests or (300 if a.quick else 2000)
     rtu8 = a.rtu8_requests or max(requests // 4, 50)
     extra = (not a.quick) if a.extra is None else a.extra
@@ -667,25 +834,51 @@ def main(argv: list[str] | None = None) -> int:
                     row = bench.pair(transport, case, masters, n)
                     rows.append(row)
                     print(format_row(row), flush=True)
-        if a.what_if and "rtu" in transports:
-            exact = 3.5 * 10 / BAUD
-            port = bench.start_gateway("gw-t35", bench.gw_cfg, t35_s=exact)
+        reference = (not a.quick) if a.reference is None else a.reference
+        if reference and "tcp" in transports:
+            ref = Proc("ref", [sys.executable, str(Path(__file__).resolve()), "--proxy",
+                               str(bench.sim_port)])
+            bench.procs["ref"] = ref
+            port = int(ref.wait_for(r"reference proxy listening on 127\.0\.0\.1:(\d+)")
+                       .group(1))
             for case in cases[:2]:
-                row = bench.pair("rtu", case, 1, requests, gw_port=port, gw_name="gw-t35")
-                row.note = f"what-if: t3.5 = {exact * 1e3:.2f} ms"
-                rows.append(row)
-                print(format_row(row), flush=True)
-            bench.procs.pop("gw-t35").stop()
+                for masters in (1, 8):
+                    row = bench.pair("tcp", case, masters, requests, gw_port=port,
+                                     gw_name="ref")
+                    row.note = "reference forwarder, not the gateway"
+                    rows.append(row)
+                    print(format_row(row), flush=True)
+            bench.procs.pop("ref").stop()
+        if a.what_if and "rtu" in transports:
+            for t35, label in ((3.5 * 10 / BAUD, "exact at 115200 8N1"), (0.0, "none")):
+                port = bench.start_gateway("gw-t35", bench.gw_cfg, t35_s=t35)
+                for case in cases[:2]:
+                    row = bench.pair("rtu", case, 1, requests, gw_port=port, gw_name="gw-t35")
+                    row.note = f"what-if: gateway t3.5 = {t35 * 1e3:.2f} ms ({label})"
+                    rows.append(row)
+                    print(format_row(row), flush=True)
+                bench.procs.pop("gw-t35").stop()
+        if a.profile:
+            targets = [("tcp", CASES[0], 8), ("tcp", CASES[0], 1), ("rtu", CASES[0], 1)]
+            for transport, case, masters in targets:
+                if transport in transports:
+                    n = requests if masters == 1 else max(requests // 2, 100)
+                    folded = bench.profile(Path(a.profile), transport, case, masters, n)
+                    if folded is not None:
+                        summary = summarize_folded(folded)
+                        folded.with_suffix(".txt").write_text(summary + "\n")
+                        print("\n" + summary, flush=True)
     finally:
         bench.stop()
     print("\ntargets (issue 4):")
     print("\n".join(verdicts(rows)))
-    print(f"\ncolumns: latencies in ms; 'x' = gateway/direct; '+p50' = gateway p50 - direct p50"
-          f" (ms; 'RTU added p50' on rtu rows); gw/sim cpu = CPU per transaction of the gateway"
-          f" process / of the sim serving the direct run; m = concurrent masters. "
-          f"Took {time.monotonic() - t_start:.0f} s.")
+    print(f"\ncolumns: m = concurrent masters; latencies in ms; 'x' = gateway/direct; "
+          f"'+p50' = gateway p50 - direct p50 in ms ('RTU added p50' on rtu rows); cpu/tx = "
+          f"CPU µs per transaction (schedstat) of all processes of the direct run (d: load "
+          f"generator + sim), of the gateway run (g: load + sim + gateway), and of the "
+          f"gateway alone (gw). {os.cpu_count()} CPUs. Took {time.monotonic() - t_start:.0f} s.")
     if a.profile:
-        print(f"profile: {a.profile}/gateway.folded (py-spy raw/folded stacks)")
+        print(f"profile: folded stacks and summaries in {a.profile}/")
     return 1 if any(r.direct.errors or r.gateway.errors for r in rows) else 0
 
 
