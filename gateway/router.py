@@ -295,7 +295,7 @@ class Gateway:
         trigger = regs.trigger
         trigger_hit = trigger is not None and bool(overlap(start, count, trigger.address, 1))
         if not target_offsets and not trigger_hit:
-            return await self.buses[axis.bus].transact(axis.unit, pdu)
+            return await self._forward_write(name, axis, req, pdu)
         if target_offsets and count > 1 and len(target_offsets) == 1:
             raise ModbusError(
                 f"axis {name}: a register block must hold both words of the target",
@@ -315,7 +315,31 @@ class Gateway:
                 return await self._trigger_write(setup, name, axis, req)
             if target_offsets:
                 return await self._target_write(setup, name, axis, req)
-            return await self.buses[axis.bus].transact(axis.unit, pdu)
+            return await self._forward_write(name, axis, req, pdu)
+
+    async def _forward_write(self, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
+        """A write the gateway does not rewrite: byte for byte, unless the block is longer
+        than the drive accepts (``fc16_max_words``): then in pieces, answered as one."""
+        if req.function == WRITE_MULTIPLE_REGISTERS and req.write_count > axis.fc16_max_words:
+            await self._send_block(name, axis, req.write_address or 0, list(req.values))
+            return response_for_write(req)
+        return await self.buses[axis.bus].transact(axis.unit, pdu)
+
+    async def _send_block(self, name: str, axis: Axis, address: int, values: list[int]) -> None:
+        """Write ``values`` at ``address`` in FC16 pieces of at most ``fc16_max_words``,
+        never splitting the target pair; an exception from the drive is raised."""
+        limit = axis.fc16_max_words
+        target = axis.registers.target.address
+        start = 0
+        while start < len(values):
+            end = min(start + limit, len(values))
+            if end < len(values) and address + end - 1 == target:
+                end -= 1  # the cut would fall between the two target words
+            pdu = build_write_multiple_registers(address + start, values[start:end])
+            reply = await self.buses[axis.bus].transact(axis.unit, pdu)
+            if is_exception(reply):
+                raise ModbusError(f"axis {name}: drive refused a register block", reply[1])
+            start = end
 
     def _trigger_fires(self, runtime: _AxisRuntime, axis: Axis, req: Request, start: int) -> bool:
         rule = axis.registers.trigger
@@ -351,7 +375,7 @@ class Gateway:
         await self._commit(setup, name, partners, block)
         if block is not None:
             return response_for_write(req)
-        return await self.buses[axis.bus].transact(axis.unit, _build_write(req))
+        return await self._forward_write(name, axis, req, _build_write(req))
 
     async def _forward_around_target(self, name: str, axis: Axis, req: Request) -> None:
         """Forward the words of a held block that are not the target, as sub-blocks."""
@@ -361,11 +385,7 @@ class Gateway:
         after = req.values[target + 2 - start :]
         for address, values in ((start, before), (target + 2, after)):
             if values:
-                reply = await self.buses[axis.bus].transact(
-                    axis.unit, build_write_multiple_registers(address, list(values))
-                )
-                if is_exception(reply):
-                    raise ModbusError(f"axis {name}: drive refused a held block", reply[1])
+                await self._send_block(name, axis, address, list(values))
 
     async def _commit(
         self, setup: Setup, owner: str, partners: list[str], block: Request | None
@@ -391,16 +411,12 @@ class Gateway:
         for name, nominal, command, applied in plans:
             axis = setup.config.axes[name]
             words = list(pack_int32(command, axis.registers.target.order))
+            address, values = axis.registers.target.address, words
             if block is not None and name == owner:
-                values = list(block.values)
-                offset = axis.registers.target.address - (block.write_address or 0)
+                address, values = block.write_address or 0, list(block.values)
+                offset = axis.registers.target.address - address
                 values[offset : offset + 2] = words
-                pdu = build_write_multiple_registers(block.write_address or 0, values)
-            else:
-                pdu = build_write_multiple_registers(axis.registers.target.address, words)
-            reply = await self.buses[axis.bus].transact(axis.unit, pdu)
-            if is_exception(reply):
-                raise ModbusError(f"axis {name}: drive refused the target", reply[1])
+            await self._send_block(name, axis, address, values)
             runtime = self._axes[name]
             runtime.state.committed(nominal, command)
             runtime.state.applied = applied

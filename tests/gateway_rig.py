@@ -18,6 +18,7 @@ from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from gateway.app import GatewayApp, load
 from sim.config import RtuConfig
 from sim.config import load_config as load_sim_config
+from sim.config import parse_config as parse_sim_config
 from sim.server import SimServer
 from tests.conftest import PtyPair
 
@@ -74,14 +75,21 @@ async def rig(
     *,
     drives: str = "tcp",
     upstream: str = "tcp",
+    sim_edit=None,
 ) -> AsyncIterator[dict[str, Any]]:
-    """Start sim + gateway; ``edit(config_dict)`` customises the gateway config.
+    """Start sim + gateway; ``edit(config_dict)`` customises the gateway config and
+    ``sim_edit(sim_dict)`` the simulated machine.
 
     ``drives="rtu"`` puts the gateway's bus on a pty to the sim's RTU server;
     ``upstream="rtu"`` makes ``master`` an RTU client on a pty to the gateway.
     ``direct`` is always TCP to the sim (the drive's truth, the instruments).
     """
-    sim_cfg = load_sim_config(SIM_EXAMPLE)
+    if sim_edit is None:
+        sim_cfg = load_sim_config(SIM_EXAMPLE)
+    else:
+        sim_data = yaml.safe_load(SIM_EXAMPLE.read_text())
+        sim_edit(sim_data)
+        sim_cfg = parse_sim_config(sim_data, SIM_EXAMPLE.parent)
     ptys: list[PtyPair] = []
     drive_line = upstream_line = None
     if drives == "rtu":
