@@ -1,8 +1,13 @@
 """The daemon: buses, listeners and the request handler assembled from a config.
 
-`compgw run -c FILE` runs :func:`run` in the foreground: SIGTERM/SIGINT stop it (the
-transaction in flight finishes), SIGHUP reloads the config and tables — validated
-completely first; an invalid one is logged and the old one stays.
+`compgw run -c FILE` runs :func:`serve` in the foreground: SIGTERM/SIGINT stop it (the
+transaction in flight finishes, queued and new requests are refused, connections close),
+SIGHUP reloads the config and tables — validated completely first; an invalid one is
+logged and the old one stays. Under systemd it speaks the notify protocol
+(:mod:`gateway.service`): READY=1 once listening, watchdog pings from the event loop.
+
+The upstream handler is the router's, wrapped: write protection (:mod:`gateway.security`)
+inside, metrics (:mod:`gateway.metrics`, only when ``metrics.port`` is set) outside.
 """
 
 from __future__ import annotations
@@ -11,14 +16,19 @@ import asyncio
 import contextlib
 import logging
 import signal
+from collections.abc import Callable
 from pathlib import Path
 
 from .compensation import Chain
 from .config import Bus as BusConfig
 from .config import ConfigError, GatewayConfig, bus_silence_s, load_config
 from .downstream import Bus, RtuBus, TcpBus
+from .metrics import MetricsServer
+from .metrics import build as build_metrics
 from .router import Gateway
+from .security import WriteGuard
 from .sensors import SensorSet
+from .service import Notifier
 from .status import StatusUnit
 from .tables import build_chain
 from .upstream import RtuServer, TcpServer
@@ -74,6 +84,13 @@ class GatewayApp:
             lambda: any(not bus.connected for bus in self.buses.values()),
         )
         self.gateway.status_handler = self.status.handle
+        self.write_guard = WriteGuard(lambda: self.config.write_protect)
+        self.handler = self.write_guard.wrap(self.gateway.handle)
+        self.metrics: MetricsServer | None = None
+        if config.metrics.port is not None:
+            registry, request_metrics = build_metrics(self)
+            self.handler = request_metrics.wrap(self.handler)
+            self.metrics = MetricsServer(registry, config.metrics.host, config.metrics.port)
         self.tcp: TcpServer | None = None
         self.rtu: RtuServer | None = None
         self._stop_sensors = asyncio.Event()
@@ -101,7 +118,7 @@ class GatewayApp:
         try:
             if up.tcp is not None:
                 self.tcp = TcpServer(
-                    self.gateway.handle,
+                    self.handler,
                     up.tcp.host,
                     up.tcp.port,
                     allow=up.tcp.allow,
@@ -111,7 +128,7 @@ class GatewayApp:
                 await self.tcp.start()
             if up.rtu is not None:
                 self.rtu = RtuServer(
-                    self.gateway.handle,
+                    self.handler,
                     up.rtu.port,
                     unit_ids=self.upstream_units(),
                     baudrate=up.rtu.baudrate,
@@ -120,13 +137,15 @@ class GatewayApp:
                     stopbits=up.rtu.stopbits,
                 )
                 await self.rtu.start()
+            if self.metrics is not None:
+                await self.metrics.start()
         except BaseException:
             await self.stop()
             raise
 
     async def stop(self) -> None:
         """Stop listening (in-flight transactions finish), then close the buses."""
-        for listener in (self.tcp, self.rtu):
+        for listener in (self.tcp, self.rtu, self.metrics):
             if listener is not None:
                 await listener.close()
         self._stop_sensors.set()
@@ -139,10 +158,10 @@ class GatewayApp:
     def reload(self, config: GatewayConfig, chain: Chain) -> None:
         """Swap tables and per-axis settings between transactions.
 
-        Listeners, buses and thermal sources stay as they are: changing those sections
-        needs a restart, and is refused here with a log line.
+        Listeners, buses, thermal sources and the metrics endpoint stay as they are:
+        changing those sections needs a restart, and is refused here with a log line.
         """
-        fixed = ("upstream", "buses", "thermal_sources")
+        fixed = ("upstream", "buses", "thermal_sources", "metrics")
         changed = [key for key in fixed if getattr(config, key) != getattr(self.config, key)]
         if changed:
             raise ConfigError(f"{', '.join(changed)} cannot change on reload; restart instead")
@@ -158,42 +177,78 @@ class GatewayApp:
         await self.stop()
 
 
-async def serve(path: str | Path) -> int:
-    """Run until SIGTERM/SIGINT; SIGHUP reloads. Returns an exit code."""
+    def describe(self) -> str:
+        """One line for logs and ``systemctl status``."""
+        parts = []
+        if self.tcp is not None:
+            parts.append(f"Modbus TCP {self.tcp.host}:{self.tcp.port}")
+        if self.rtu is not None:
+            parts.append(f"Modbus RTU {self.rtu.line.port}")
+        buses = ", ".join(f"{name} {'up' if bus.connected else 'DOWN'}"
+                          for name, bus in self.buses.items())
+        parts.append(f"buses: {buses}")
+        if self.metrics is not None:
+            parts.append(f"metrics {self.metrics.host}:{self.metrics.port}")
+        return "; ".join(parts)
+
+
+async def serve(path: str | Path, *, stop: asyncio.Event | None = None,
+                notifier: Notifier | None = None,
+                on_ready: Callable[[GatewayApp], None] | None = None) -> int:
+    """Run until SIGTERM/SIGINT (or ``stop`` is set); SIGHUP reloads. Returns an exit code.
+
+    READY=1 goes to systemd once every listener is bound and every bus has been connected
+    or found down (:meth:`GatewayApp.start`); ``on_ready(app)`` is called then too.
+    """
+    notifier = notifier if notifier is not None else Notifier()
     try:
         config, chain = load(path)
     except ConfigError as exc:
         log.error("%s", exc)
+        notifier.status(f"config error: {exc}")
         return 1
     app = GatewayApp(config, chain, source=str(path))
     try:
         await app.start()
     except OSError as exc:
         log.error("cannot listen: %s", exc)
+        notifier.status(f"cannot listen: {exc}")
         return 3
-    stop = asyncio.Event()
+    stop = stop if stop is not None else asyncio.Event()
     loop = asyncio.get_running_loop()
 
     def do_reload() -> None:
+        notifier.reloading()
         try:
             new_config, new_chain = load(path)
             app.reload(new_config, new_chain)
         except ConfigError as exc:
             log.error("reload refused, old config kept: %s", exc)
+            notifier.ready(f"reload refused, old config kept; {app.describe()}")
             return
         log.info("reloaded %s", path)
+        notifier.ready(app.describe())
 
     loop.add_signal_handler(signal.SIGTERM, stop.set)
     loop.add_signal_handler(signal.SIGINT, stop.set)
     loop.add_signal_handler(signal.SIGHUP, do_reload)
-    where = f"{config.upstream.tcp.host}:{app.tcp_port}" if app.tcp is not None else ""
-    log.info("compgw running: upstream %s", where or config.upstream.rtu.port)  # type: ignore[union-attr]
+    log.info("compgw running: %s", app.describe())
+    notifier.ready(app.describe())
+    watchdog = notifier.start_watchdog()
+    if on_ready is not None:
+        on_ready(app)
     try:
         await stop.wait()
+        log.info("stopping: finishing transactions in flight")
+        notifier.stopping()
     finally:
         for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
             with contextlib.suppress(Exception):
                 loop.remove_signal_handler(sig)
         await app.stop()
+        if watchdog is not None:
+            watchdog.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await watchdog
     log.info("compgw stopped")
     return 0

@@ -292,6 +292,10 @@ class TcpServer(Listener):
             server.close()
         for conn in list(self._connections):
             conn.stopping = True
+            # no more data_received (it would assert "feed_data after feed_eof" and kill
+            # the transport before the reply in flight is written)
+            with contextlib.suppress(Exception):
+                conn.writer.transport.pause_reading()
             conn.reader.feed_eof()
         tasks = list(self._connections.values())
         if tasks:
