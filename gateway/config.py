@@ -174,6 +174,7 @@ class Compensation(Model):
     backlash_table_direction: Literal["mean", "forward", "reverse"] = "mean"
     allow_backlash_with_bidirectional: bool = False
     thermal: AxisThermal | None = None
+    cyclic: str | None = None  # the cyclic-error file (lead, harmonics at stations)
     max_correction_mm: float = Field(default=0.2, gt=0.0, le=5.0)
     enabled: bool = True
 

@@ -14,13 +14,14 @@ from .compensation import (
     BacklashStage,
     Chain,
     CompensationError,
+    CyclicStage,
     PitchStage,
     PitchTable,
     PlanarStage,
     ThermalStage,
 )
 from .config import Axis, ConfigError, GatewayConfig
-from .formats import load_planar_model, read_linuxcnc, read_pitch_csv
+from .formats import load_planar_model, read_cyclic, read_linuxcnc, read_pitch_csv
 
 
 def _read_pitch(axis_name: str, axis: Axis, base_dir: Path) -> PitchStage | None:
@@ -52,9 +53,13 @@ def build_axis(name: str, axis: Axis, base_dir: Path) -> AxisChain:
     thermal = None
     if comp.thermal is not None:
         thermal = ThermalStage(comp.thermal.length_mm, comp.thermal.origin_mm)
+    cyclic = None
+    if comp.cyclic is not None:
+        cyclic = CyclicStage(read_cyclic(base_dir / comp.cyclic), axis.travel_mm)
     return AxisChain(
         name,
         axis.pulse_mm,
+        cyclic=cyclic,
         pitch=_read_pitch(name, axis, base_dir),
         backlash=backlash,
         thermal=thermal,

@@ -7,6 +7,7 @@ No I/O here: the Modbus layers move bytes and call these functions; file formats
 
 from .backlash import BacklashStage
 from .chain import AxisChain, AxisInput, Chain, round_pulses, round_pulses_array
+from .cyclic import CyclicModel, CyclicStage
 from .direction import MotionState
 from .errors import (
     CompensationError,
@@ -35,6 +36,8 @@ __all__ = [
     "CompensationError",
     "ConvergenceError",
     "CorrectionLimitError",
+    "CyclicModel",
+    "CyclicStage",
     "GridModel",
     "MonotoneMap",
     "MotionState",

@@ -2,7 +2,8 @@
 
 Stages, from the upper computer's nominal side to the drive:
 
-``planar`` (XY pair) → ``backlash`` → ``pitch`` → ``thermal`` → round to whole pulses.
+``planar`` (XY pair) → ``backlash`` → ``pitch`` → ``cyclic`` → ``thermal`` → round to whole
+pulses.
 
 Each stage has a ``forward`` (target → command) and an exact ``inverse`` (command → where the
 axis actually is), like Klipper's move transforms; the chain composes them and rounds once,
@@ -21,6 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .backlash import BacklashStage
+from .cyclic import CyclicStage
 from .errors import CompensationError, CorrectionLimitError, TableError, TravelError
 from .pitch import PitchStage
 from .planar import PlanarStage
@@ -62,6 +64,7 @@ class AxisChain:
     backlash: BacklashStage | None = None
     thermal: ThermalStage | None = None
     rotary: bool = False
+    cyclic: CyclicStage | None = None
     travel_mm: tuple[float, float] | None = None
     max_correction_mm: float = math.inf
     allow_backlash_with_bidirectional: bool = False
@@ -98,6 +101,8 @@ class AxisChain:
             x = self.backlash.forward(x, direction)
         if self.pitch is not None:
             x = self.pitch.forward(x, direction)
+        if self.cyclic is not None:
+            x = self.cyclic.forward(x)
         if self.thermal is not None:
             x = self.thermal.forward(x, delta_a_mm)
         return x
@@ -109,6 +114,8 @@ class AxisChain:
         x = np.asarray(command_mm, dtype=np.float64)
         if self.thermal is not None:
             x = self.thermal.inverse(x, delta_a_mm)
+        if self.cyclic is not None:
+            x = self.cyclic.inverse(x)
         if self.pitch is not None:
             x = self.pitch.inverse(x, direction)
         if self.backlash is not None:
@@ -122,6 +129,8 @@ class AxisChain:
             x = self.backlash.forward_scalar(x, direction)
         if self.pitch is not None:
             x = self.pitch.forward_scalar(x, direction)
+        if self.cyclic is not None:
+            x = self.cyclic.forward_scalar(x)
         if self.thermal is not None:
             x = self.thermal.forward_scalar(x, delta_a_mm)
         return x
@@ -130,6 +139,8 @@ class AxisChain:
         x = command_mm
         if self.thermal is not None:
             x = self.thermal.inverse_scalar(x, delta_a_mm)
+        if self.cyclic is not None:
+            x = self.cyclic.inverse_scalar(x)
         if self.pitch is not None:
             x = self.pitch.inverse_scalar(x, direction)
         if self.backlash is not None:
