@@ -37,14 +37,11 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     import asyncio
-    import logging
 
     from .app import serve
+    from .service import configure_logging
 
-    logging.basicConfig(
-        level=getattr(logging, args.log_level.upper()),
-        format="%(levelname)s %(name)s: %(message)s",
-    )
+    configure_logging(args.log_level)
     return asyncio.run(serve(args.config))
 
 
@@ -100,10 +97,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("run", help="run the gateway daemon (foreground)")
+    p = sub.add_parser(
+        "run", help="run the gateway daemon (foreground; systemd Type=notify)",
+        description="Run the gateway in the foreground. SIGTERM/SIGINT: finish the "
+        "transactions in flight and stop; SIGHUP: reload config and tables (validated "
+        "first, the old ones stay if invalid). Under systemd: READY=1, STATUS=, watchdog "
+        "pings (WatchdogSec=), journald priorities on the log lines.")
     p.add_argument("-c", "--config", required=True, help="gateway YAML config")
     p.add_argument(
-        "--log-level", default="info", choices=["debug", "info", "warning", "error"]
+        "--log-level", default="info", choices=["debug", "info", "warning", "error"],
+        help="info: one line per event (start, stop, reload, bus up/down, refusals); "
+        "debug adds per-connection and per-exception lines",
     )
     p.set_defaults(func=_cmd_run)
 

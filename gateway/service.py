@@ -81,3 +81,40 @@ class Notifier:
         if self.watchdog_s is None or not self.enabled:
             return None
         return asyncio.create_task(self.watchdog_loop(), name="compgw-watchdog")
+
+
+_SYSLOG_PRIORITY = {logging.CRITICAL: 2, logging.ERROR: 3, logging.WARNING: 4,
+                    logging.INFO: 6, logging.DEBUG: 7}
+
+
+class OneLineFormatter(logging.Formatter):
+    """One line per event: a traceback is folded into the same line (`` | `` between
+    lines), so journald and grep see one record. ``journal=True`` prefixes the syslog
+    priority (``<4>``) that journald reads from stdout/stderr, and drops the level name
+    and time (journald shows both)."""
+
+    def __init__(self, journal: bool) -> None:
+        fmt = "%(name)s: %(message)s" if journal else \
+            "%(asctime)s %(levelname)s %(name)s: %(message)s"
+        super().__init__(fmt)
+        self.journal = journal
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = super().format(record).replace("\n", " | ")
+        if self.journal:
+            prio = _SYSLOG_PRIORITY.get(record.levelno, 6 if record.levelno < 30 else 3)
+            return f"<{prio}>{text}"
+        return text
+
+
+def configure_logging(level: str, environ: Mapping[str, str] | None = None) -> None:
+    """Log to stderr, one line per event; journald format when started by systemd
+    (``JOURNAL_STREAM`` set)."""
+    env = os.environ if environ is None else environ
+    handler = logging.StreamHandler()
+    handler.setFormatter(OneLineFormatter(journal=bool(env.get("JOURNAL_STREAM"))))
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(getattr(logging, level.upper()))
+    # pymodbus logs per frame at INFO/DEBUG in places: keep it to warnings
+    logging.getLogger("pymodbus").setLevel(max(root.level, logging.WARNING))
