@@ -1,22 +1,467 @@
 """The calibration subcommands of `compgw`: calibrate, fit, report, export.
 
 `gateway.cli` calls :func:`add_parsers`; each command returns an exit code
-(0 ok, 1 bad input, 2 usage, 3 runtime fault).
+(0 ok, 1 bad input, 2 usage, 3 runtime fault). The work is done by the modules beside this
+one; here are only argument handling and printing.
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
+import json
+import os
+import shlex
+import signal
+import subprocess
 import sys
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+from ..compensation.errors import CompensationError, TableError
+from ..config import ConfigError, GatewayConfig, load_config
+
+EXIT_OK, EXIT_BAD_INPUT, EXIT_USAGE, EXIT_RUNTIME = 0, 1, 2, 3
+
+CALIBRATE_HELP = """\
+Run a calibration plan through a running gateway and append the readings to a raw CSV.
+
+Compensation off (identification) means the gateway runs an identification config:
+write one with --identify-config OUT.yaml (the config without pitch, backlash and planar;
+thermal kept) and start `compgw run -c OUT.yaml`; or point --gateway at the drives
+themselves. Compensation on means the gateway runs the config whose tables you verify.
+--verify --iterate N re-runs the plan with compensation on, folds the residual into the
+tables the config references, has the gateway reload them (--reload-pid PID sends
+SIGHUP, --reload-cmd runs a command), up to N times or until within --tolerance-um, then
+measures the verification plan (targets between the calibration targets).
+Interrupted runs resume when the same command is run again; Ctrl-C loses nothing measured.
+Instrument register maps: see gateway/calibration/machine.py (as the sim's laser, XY device
+and Δa sensor)."""
 
 
-def _not_yet(name: str) -> int:
-    print(f"compgw {name}: not implemented yet (tracked in issue 5)", file=sys.stderr)
-    return 3
+def _err(cmd: str, message: object) -> None:
+    print(f"compgw {cmd}: {message}", file=sys.stderr)
+
+
+def _load(cmd: str, path: str) -> tuple[GatewayConfig, Path]:
+    return load_config(path), Path(path).resolve().parent
+
+
+# -- calibrate ----------------------------------------------------------------------------------
+def _range(text: str) -> tuple[float, float]:
+    lo, _, hi = text.partition(",")
+    return float(lo), float(hi)
+
+
+def make_plan(args: argparse.Namespace, config: GatewayConfig, verification: bool = False):  # type: ignore[no-untyped-def]
+    """The plan the options describe (``verification``: its verification variant)."""
+    from .plans import (
+        backlash_plan,
+        iso230_linear_plan,
+        read_plan,
+        warmup_plan,
+        xy_grid_plan,
+        xy_verification_plan,
+    )
+
+    def travel(axis: str) -> tuple[float, float]:
+        if axis not in config.axes:
+            raise TableError(f"axis {axis!r} is not in the gateway config")
+        return config.axes[axis].travel_mm
+
+    if args.plan:
+        return read_plan(args.plan) if not verification else (
+            read_plan(args.verify_plan) if args.verify_plan else None
+        )
+    if args.iso:
+        return iso230_linear_plan(
+            args.iso, travel(args.iso), step_mm=args.step_mm, runs=args.runs, seed=args.seed,
+            lead_mm=args.lead_mm, overrun_mm=args.overrun_mm, verification=verification,
+        )  # fmt: skip
+    if args.backlash:
+        return None if verification else backlash_plan(args.backlash, travel(args.backlash))
+    if args.xy:
+        if config.planar is None:
+            raise TableError("--xy needs a planar section in the gateway config")
+        ax, ay = config.planar.axes
+        xr = args.x_range or _inset(travel(ax), args.overrun_mm)
+        yr = args.y_range or _inset(travel(ay), args.overrun_mm)
+        nx, ny = args.grid
+        low = (travel(ax)[0], travel(ay)[0])
+        approach = args.approach_mm or None
+        if verification:
+            return xy_verification_plan(xr, yr, nx, ny, (ax, ay), approach_mm=approach,
+                                        lower_mm=low)  # fmt: skip
+        return xy_grid_plan(xr, yr, nx, ny, (ax, ay), runs=args.grid_runs,
+                            approach_mm=approach, lower_mm=low)  # fmt: skip
+    if args.warmup:
+        if verification:
+            return None
+        lo, hi = travel(args.warmup)
+        ref = args.reference_mm if args.reference_mm is not None else hi - args.overrun_mm
+        return warmup_plan(args.warmup, (lo, hi), args.speed_mm_s, args.duration_s, ref,
+                           args.measure_every, dwell_s=args.dwell_s)  # fmt: skip
+    raise TableError("give a plan: --plan FILE, --iso AXIS, --backlash AXIS, --xy or --warmup AXIS")
+
+
+def _inset(travel: tuple[float, float], margin: float) -> tuple[float, float]:
+    return travel[0] + margin, travel[1] - margin
+
+
+def _progress_bar(enabled: bool):  # type: ignore[no-untyped-def]
+    """A rich progress bar (moves, ETA) as a ``progress(done, total)`` callable + context."""
+    import contextlib
+
+    if not enabled:
+        return contextlib.nullcontext(None)
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                        TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
+                        transient=False)  # fmt: skip
+    return progress
+
+
+def _reload_fn(args: argparse.Namespace) -> Callable[[], Awaitable[None]]:
+    async def reload() -> None:
+        if args.reload_pid:
+            os.kill(args.reload_pid, signal.SIGHUP)
+        elif args.reload_cmd:
+            subprocess.run(shlex.split(args.reload_cmd), check=True)
+        else:
+            raise TableError("--iterate needs --reload-pid PID or --reload-cmd CMD "
+                             "so the gateway loads the folded tables")  # fmt: skip
+        if args.reload_wait_s:
+            await asyncio.sleep(args.reload_wait_s)
+
+    return reload
+
+
+def calibrate(
+    args: argparse.Namespace, reload: Callable[[], Awaitable[None]] | None = None
+) -> int:
+    """``compgw calibrate``; ``reload`` overrides --reload-pid/--reload-cmd (tests)."""
+    from .machine import Endpoint, MachineError, MotionSettings
+    from .plans import write_plan
+    from .runner import join_readings
+    from .session import Instruments, Session, format_figures, identify_config_text, round_figures
+    from .session import iterate as iterate_rounds
+
+    try:
+        config, config_dir = _load("calibrate", args.config)
+        if args.identify_config:
+            from ..formats import atomic_write_text
+
+            atomic_write_text(args.identify_config, identify_config_text(Path(args.config)))
+            print(f"identification config written to {args.identify_config}")
+            if not (args.plan or args.iso or args.backlash or args.xy or args.warmup):
+                return EXIT_OK
+        plan = make_plan(args, config)
+        if args.save_plan:
+            write_plan(args.save_plan, plan)
+        if args.raw is None:
+            raise TableError("--raw FILE is required (where the readings go)")
+        raw = Path(args.raw)
+        if args.join:
+            summary = join_readings(plan, args.join, raw, {"compensation": args.compensation})
+            print(f"joined {args.join}: {raw} ({summary.measured_now} new points)")
+            return EXIT_OK
+        if args.gateway is None:
+            raise TableError("--gateway HOST:PORT is required (or --join FILE offline)")
+        park = {}
+        for item in args.park or []:
+            name, _, value = item.partition("=")
+            park[name] = float(value)
+        session = Session(
+            config, config_dir, Endpoint.parse(args.gateway),
+            Instruments(
+                laser=Endpoint.parse(args.laser) if args.laser else None,
+                laser_axes=args.laser_axes.split(",") if args.laser_axes else None,
+                xy=Endpoint.parse(args.xy_device) if args.xy_device else None,
+                delta_a=Endpoint.parse(args.delta_a) if args.delta_a else None,
+            ),
+            MotionSettings(args.in_position_bit, args.moving_bit, args.alarm_bit,
+                           args.in_position_pulses, args.timeout_s),
+            park,
+        )  # fmt: skip
+    except (ConfigError, TableError, CompensationError, ValueError, OSError) as exc:
+        _err("calibrate", exc)
+        return EXIT_BAD_INPUT
+
+    async def body() -> int:
+        bar = _progress_bar((not args.no_progress and sys.stderr.isatty()) or args.progress)
+        with bar as progress:
+            task = None
+            if progress is not None:
+                task = progress.add_task(plan.kind, total=len(plan.moves))
+
+                def update(done: int, total: int) -> None:
+                    progress.update(task, completed=done, total=total)
+
+                session.progress = update
+            if not args.verify:
+                summary = await session.run(plan, raw, args.compensation)
+                if progress is not None:
+                    progress.stop()
+                print(f"{raw}: {summary.total_moves} moves, resumed at move "
+                      f"{summary.resumed_at}, {summary.measured_now} points measured now")
+                return EXIT_OK
+            rounds = await iterate_rounds(
+                session, plan, raw, args.iterate, args.tolerance_um,
+                reload or _reload_fn(args), print,
+            )  # fmt: skip
+            vplan = make_plan(args, config, verification=True)
+            if vplan is not None:
+                vraw = raw.with_name(f"{raw.stem}.verify.csv")
+                await session.run(vplan, vraw, "on")
+                print(f"verification ({vraw.name}): {format_figures(round_figures(vplan, vraw))}")
+            print(f"{len(rounds)} round(s)")
+            return EXIT_OK
+
+    try:
+        return asyncio.run(body())
+    except KeyboardInterrupt:
+        _err("calibrate", f"interrupted; every reading so far is in {args.raw}: run the same "
+             "command again to resume")  # fmt: skip
+        return EXIT_RUNTIME
+    except (TableError, CompensationError, ConfigError) as exc:
+        _err("calibrate", exc)
+        return EXIT_BAD_INPUT
+    except (MachineError, OSError, subprocess.CalledProcessError) as exc:
+        _err("calibrate", exc)
+        return EXIT_RUNTIME
+
+
+def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser("calibrate", help="calibration: run a plan, measure, iterate",
+                       description=CALIBRATE_HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    p.add_argument("-c", "--config", required=True, help="gateway YAML config")
+    p.add_argument("--gateway", metavar="HOST:PORT", help="the running gateway (or the drives)")
+    p.add_argument("--raw", metavar="FILE", help="raw CSV to append to (resumed if present)")
+    g = p.add_argument_group("plan (one of)")
+    g.add_argument("--plan", metavar="FILE", help="a plan CSV (see gateway/calibration/plans.py)")
+    g.add_argument("--iso", metavar="AXIS", help="ISO 230-2 linear test of AXIS")
+    g.add_argument("--backlash", metavar="AXIS", help="seed 000 backlash procedure on AXIS")
+    g.add_argument("--xy", action="store_true", help="XY grid of the config's planar axes")
+    g.add_argument("--warmup", metavar="AXIS", help="warm-up run of AXIS (thermal)")
+    g.add_argument("--save-plan", metavar="FILE", help="also write the plan used")
+    g.add_argument("--verify-plan", metavar="FILE", help="verification plan for --plan --verify")
+    o = p.add_argument_group("plan parameters")
+    o.add_argument("--step-mm", type=float, default=25.0, help="ISO target spacing (25)")
+    o.add_argument("--runs", type=int, default=5, help="ISO bidirectional runs (5)")
+    o.add_argument("--seed", type=int, default=0, help="seed of the uneven target offsets")
+    o.add_argument("--lead-mm", type=float, help="screw lead: keep spacings off its multiples")
+    o.add_argument("--overrun-mm", type=float, default=3.0, help="overrun / margin (3)")
+    o.add_argument("--grid", type=int, nargs=2, default=(9, 7), metavar=("NX", "NY"))
+    o.add_argument("--grid-runs", type=int, default=1, help="passes over the XY grid (1)")
+    o.add_argument("--approach-mm", type=float, default=1.0,
+                   help="XY: approach each point in + from this far below (0: serpentine)")
+    o.add_argument("--x-range", type=_range, metavar="LO,HI")
+    o.add_argument("--y-range", type=_range, metavar="LO,HI")
+    o.add_argument("--speed-mm-s", type=float, default=100.0, help="warm-up speed (plan info)")
+    o.add_argument("--duration-s", type=float, default=1800.0, help="warm-up duration (1800)")
+    o.add_argument("--reference-mm", type=float, help="warm-up measuring position")
+    o.add_argument("--measure-every", type=int, default=5, help="warm-up cycles per reading")
+    o.add_argument("--dwell-s", type=float, default=0.0, help="warm-up dwell before reading")
+    i = p.add_argument_group("instruments")
+    i.add_argument("--laser", metavar="HOST:PORT:UNIT", help="laser: int32 nm at 2k (axis k)")
+    i.add_argument("--laser-axes", metavar="X,Y", help="laser channel order (config order)")
+    i.add_argument("--xy-device", metavar="HOST:PORT:UNIT", help="XY device: X at 0, Y at 2")
+    i.add_argument("--delta-a", metavar="HOST:PORT:UNIT[:ADDR]", help="Δa sensor (int32 nm)")
+    i.add_argument("--join", metavar="FILE", help="offline: join a laser system's CSV export")
+    m = p.add_argument_group("motion")
+    m.add_argument("--compensation", choices=["off", "on"], default="off",
+                   help="what the gateway applies (recorded in the raw file; see above)")
+    m.add_argument("--identify-config", metavar="OUT", help="write the identification config")
+    m.add_argument("--park", action="append", metavar="AXIS=MM", help="move there first")
+    m.add_argument("--in-position-bit", type=int, default=4)
+    m.add_argument("--moving-bit", type=int, default=2)
+    m.add_argument("--alarm-bit", type=int, default=0)
+    m.add_argument("--in-position-pulses", type=float, default=2.0)
+    m.add_argument("--timeout-s", type=float, default=120.0, help="per move")
+    m.add_argument("--no-progress", action="store_true")
+    m.add_argument("--progress", action="store_true", help="progress bar even without a tty")
+    v = p.add_argument_group("verify and iterate (seed 001)")
+    v.add_argument("--verify", action="store_true", help="compensation on: iterate, verify")
+    v.add_argument("--iterate", type=int, default=0, metavar="N", help="fold at most N times")
+    v.add_argument("--tolerance-um", type=float, default=2.0, metavar="T")
+    v.add_argument("--reload-pid", type=int, help="gateway pid: SIGHUP after writing tables")
+    v.add_argument("--reload-cmd", help="command that makes the gateway reload")
+    v.add_argument("--reload-wait-s", type=float, default=0.0, help="pause after reloading")
+    p.set_defaults(func=calibrate)
+
+
+# -- fit ----------------------------------------------------------------------------------------
+def raw_kind(path: str) -> str:
+    """pitch, backlash, planar or thermal: from the raw file's meta, else its columns."""
+    from .rawdata import read_raw_csv
+    from .runner import read_raw_meta
+
+    kind = read_raw_meta(path).get("kind", "")
+    if kind == "backlash":
+        return "backlash"
+    if kind.startswith("xy"):
+        return "planar"
+    if kind == "warmup":
+        return "thermal"
+    raw = read_raw_csv(path)
+    if "x_mm" in raw.extra and "y_mm" in raw.extra:
+        return "planar"
+    if "delta_a_mm" in raw.extra:
+        return "thermal"
+    return "pitch"
+
+
+def fit(args: argparse.Namespace) -> int:
+    """``compgw fit``: raw files → the tables and values the config references."""
+    from .fit import planar_measurement
+    from .models import thermal_fit
+    from .outputs import fit_pitch, fit_planar, save_pitch, save_planar
+    from .plans import backlash_from_raw
+    from .rawdata import read_raw_csv
+    from .runner import read_raw_meta
+
+    report: dict[str, Any] = {}
+    try:
+        config, config_dir = _load("fit", args.config)
+        kinds = {path: raw_kind(path) for path in args.raw}
+        backlash: dict[str, float] = {}
+        for path, kind in kinds.items():
+            if kind == "backlash":
+                raw = read_raw_csv(path)
+                for a in raw.axes:
+                    res = backlash_from_raw(raw, a)
+                    backlash[a] = res.backlash_mm
+                    report.setdefault(a, {})["backlash_um"] = res.backlash_mm * 1e3
+                    report[a]["backlash_places"] = {
+                        f"{p:g}": m * 1e3 for p, m in zip(res.place_mm, res.mean_mm)
+                    }
+        pending: list[Callable[[], None]] = []
+        for path, kind in kinds.items():
+            residual = args.residual or read_raw_meta(path).get("compensation") == "on"
+            comment = f"fitted by compgw fit from {Path(path).name}"
+            if kind == "pitch":
+                raw = read_raw_csv(path)
+                for a in raw.axes:
+                    r = fit_pitch(raw, config, config_dir, a, mode=args.mode, residual=residual,
+                                  backlash_mm=backlash.get(a))  # fmt: skip
+                    pending.append(lambda r=r, c=comment: save_pitch(r, c))
+                    entry = report.setdefault(a, {})
+                    entry.update(table=str(r.path), mode=r.mode, folded=r.folded,
+                                 points=int(r.table.position_mm.size))  # fmt: skip
+                    if r.backlash_mm is not None:
+                        entry["backlash_mm"] = r.backlash_mm
+            elif kind == "planar":
+                if config.planar is None:
+                    raise TableError(f"{path}: an XY run, but the config has no planar section")
+                meas = planar_measurement(read_raw_csv(path), tuple(config.planar.axes))  # type: ignore[arg-type]
+                pr = fit_planar(meas, config, config_dir, args.planar_model, residual)
+                pending.append(lambda pr=pr, c=comment: save_planar(pr, c))
+                ch = pr.choice
+                report["planar"] = {
+                    "model": str(pr.model_path), "points": str(pr.points_path), "kind": ch.kind,
+                    "degree": ch.degree, "loo_rms_um": ch.loo_rms_um,
+                    "residual_rms_um": ch.residual_rms_um, "residual_max_um": ch.residual_max_um,
+                    "folded": pr.folded,
+                }  # fmt: skip
+            elif kind == "thermal":
+                raw = read_raw_csv(path)
+                for a in raw.axes:
+                    th = config.axes[a].compensation.thermal if a in config.axes else None
+                    tf = thermal_fit(raw, a, th.origin_mm if th else 0.0,
+                                     th.length_mm if th else None)  # fmt: skip
+                    report.setdefault(a, {})["thermal"] = {
+                        "length_mm": tf.length_mm, "gain": tf.gain, "origin_mm": tf.origin_mm,
+                        "reference_mm": tf.reference_mm, "growth_max_um": tf.growth_max_um,
+                        "residual_rms_um": tf.residual_rms_um,
+                        "residual_max_um": tf.residual_max_um, "readings": tf.points,
+                    }  # fmt: skip
+        if not args.dry_run:
+            for save in pending:
+                save()
+    except (ConfigError, TableError, CompensationError, ValueError) as exc:
+        _err("fit", exc)
+        return EXIT_BAD_INPUT
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(format_fit(report, args.dry_run))
+    return EXIT_OK
+
+
+def format_fit(report: dict[str, Any], dry_run: bool = False) -> str:
+    lines = []
+    verb = "would write" if dry_run else "wrote"
+    for name, entry in report.items():
+        if name == "planar":
+            loo = ", ".join(f"{k} {v:.2f}" for k, v in entry["loo_rms_um"].items())
+            lines.append(f"planar: {verb} {entry['model']} ({entry['kind']}"
+                         f"{'' if entry['degree'] is None else ' degree ' + str(entry['degree'])}"
+                         f"); LOO RMS µm: {loo}; residual RMS {entry['residual_rms_um']:.2f} "
+                         f"max {entry['residual_max_um']:.2f} µm")  # fmt: skip
+            continue
+        if "table" in entry:
+            lines.append(f"{name}: {verb} {entry['table']} ({entry['mode']}, "
+                         f"{entry['points']} points{', folded' if entry['folded'] else ''})")
+        if "backlash_mm" in entry:
+            lines.append(f"{name}: set axes.{name}.compensation.backlash_mm: "
+                         f"{entry['backlash_mm']:.6g}")  # fmt: skip
+        if "backlash_um" in entry:
+            lines.append(f"{name}: backlash (seed 000) {entry['backlash_um']:.2f} µm")
+        if "thermal" in entry:
+            t = entry["thermal"]
+            lines.append(f"{name}: thermal length_mm {t['length_mm']:.1f} (set axes.{name}."
+                         f"compensation.thermal.length_mm), growth {t['growth_max_um']:.1f} µm, "
+                         f"residual RMS {t['residual_rms_um']:.2f} µm")  # fmt: skip
+    return "\n".join(lines)
+
+
+def _add_fit(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser("fit", help="calibration: raw data → tables the config references")
+    p.add_argument("raw", nargs="+", help="raw CSV files (kind from their '# kind:' line)")
+    p.add_argument("-c", "--config", required=True, help="gateway YAML config")
+    p.add_argument("--mode", choices=["auto", "bidirectional", "unidirectional"], default="auto",
+                   help="pitch tables (auto: unidirectional if the axis has backlash_mm)")
+    p.add_argument("--planar-model", choices=["auto", "grid", "poly"], default="auto")
+    p.add_argument("--residual", action="store_true",
+                   help="fold into the current tables (automatic for '# compensation: on')")
+    p.add_argument("--dry-run", action="store_true", help="fit and check, write nothing")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=fit)
+
+
+# -- report / export ----------------------------------------------------------------------------
+def _cmd_report(args: argparse.Namespace) -> int:
+    from .report import main as report_main
+
+    return report_main(args)
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from .export import main as export_main
+
+    return export_main(args)
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Register the calibration subcommands on the `compgw` parser."""
-    for name in ("calibrate", "fit", "report", "export"):
-        p = sub.add_parser(name, help=f"calibration: {name}")
-        p.set_defaults(func=lambda a, n=name: _not_yet(n))
+    _add_calibrate(sub)
+    _add_fit(sub)
+    from .export import add_arguments as export_args
+    from .report import add_arguments as report_args
+
+    p = sub.add_parser("report", help="calibration: ISO 230-2 report (HTML, PNG, JSON)")
+    report_args(p)
+    p.set_defaults(func=_cmd_report)
+    p = sub.add_parser("export", help="calibration: tables to/from LinuxCNC, CSV, FANUC")
+    export_args(p)
+    p.set_defaults(func=_cmd_export)

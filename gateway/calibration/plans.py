@@ -313,12 +313,23 @@ def _serpentine(xs: NDArray[np.float64], ys: NDArray[np.float64]) -> NDArray[np.
 def _xy_plan(
     kind: str, axes: Sequence[str], points: NDArray[np.float64], runs: int,
     meta: tuple[tuple[str, str], ...], speed_mm_s: float | None, dwell_s: float | None,
+    approach_mm: float | None = None, lower_mm: Sequence[float] = (-math.inf, -math.inf),
 ) -> Plan:  # fmt: skip
+    """Moves over ``points``; with ``approach_mm`` each point is approached in + on both axes
+    from a ``takeup`` point ``approach_mm`` below it (clipped at ``lower_mm``), so every
+    point is measured with the play taken up the same way (a small corrective move in −
+    would otherwise be lost in the backlash)."""
     moves: list[Move] = []
     for j in range(1, runs + 1):
         prev = None
         for p in points:
-            d = 0 if prev is None or p[0] == prev[0] else (1 if p[0] > prev[0] else -1)
+            if approach_mm:
+                below = np.maximum(p - approach_mm, np.asarray(lower_mm, dtype=np.float64))
+                moves.append(Move(j, 0, "takeup", tuple(float(v) for v in _round(below)),
+                                  speed_mm_s))  # fmt: skip
+                d = 1
+            else:
+                d = 0 if prev is None or p[0] == prev[0] else (1 if p[0] > prev[0] else -1)
             moves.append(Move(j, d, "measure", (float(p[0]), float(p[1])), speed_mm_s, dwell_s))
             prev = p
     return Plan(kind, tuple(axes), tuple(moves), meta)
@@ -333,12 +344,20 @@ def xy_grid_plan(
     runs: int = 1,
     speed_mm_s: float | None = None,
     dwell_s: float | None = None,
+    approach_mm: float | None = None,
+    lower_mm: Sequence[float] = (-math.inf, -math.inf),
 ) -> Plan:
-    """Planar identification grid, serpentine order (direction = X approach direction)."""
+    """Planar identification grid, serpentine order (direction = X approach direction).
+
+    ``approach_mm``: approach every point in + on both axes from that far below (a
+    ``takeup`` move, clipped at ``lower_mm``, the travel's lower ends).
+    """
     points = xy_grid_points_mm(x_range_mm, y_range_mm, nx, ny)
     meta = _meta(kind="xy-grid", axes=tuple(axes), x_range_mm=tuple(x_range_mm),
-                 y_range_mm=tuple(y_range_mm), nx=nx, ny=ny, runs=runs)  # fmt: skip
-    return _xy_plan("xy-grid", axes, points, runs, meta, speed_mm_s, dwell_s)
+                 y_range_mm=tuple(y_range_mm), nx=nx, ny=ny, runs=runs,
+                 approach_mm=approach_mm)  # fmt: skip
+    return _xy_plan("xy-grid", axes, points, runs, meta, speed_mm_s, dwell_s, approach_mm,
+                    lower_mm)  # fmt: skip
 
 
 def xy_verification_points_mm(
@@ -383,13 +402,17 @@ def xy_verification_plan(
     seed: int = 0,
     speed_mm_s: float | None = None,
     dwell_s: float | None = None,
+    approach_mm: float | None = None,
+    lower_mm: Sequence[float] = (-math.inf, -math.inf),
 ) -> Plan:
     """Verification points of the grid plan with the same parameters (never on a node)."""
     points = xy_verification_points_mm(x_range_mm, y_range_mm, nx, ny, mode, count, seed)
     meta = _meta(kind="xy-verification", axes=tuple(axes), x_range_mm=tuple(x_range_mm),
                  y_range_mm=tuple(y_range_mm), nx=nx, ny=ny, mode=mode,
-                 count=count if mode == "random" else None, seed=seed)  # fmt: skip
-    return _xy_plan("xy-verification", axes, points, 1, meta, speed_mm_s, dwell_s)
+                 count=count if mode == "random" else None, seed=seed,
+                 approach_mm=approach_mm)  # fmt: skip
+    return _xy_plan("xy-verification", axes, points, 1, meta, speed_mm_s, dwell_s,
+                    approach_mm, lower_mm)  # fmt: skip
 
 
 # -- warm-up (seed 002) ---------------------------------------------------------------------

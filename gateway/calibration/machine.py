@@ -1,0 +1,271 @@
+"""The machine driver of a calibration run: moves through the gateway, reads instruments.
+
+This is the I/O side of calibration (the math lives in :mod:`.fit`, :mod:`.iso230`,
+:mod:`.models`). It acts as an upper computer: it writes nominal targets to the gateway the
+way any master would, triggers the move, and waits for in-position. Instruments are Modbus
+devices with the register map of the simulator's (``sim/README.md``):
+
+- laser (``--laser HOST:PORT:UNIT``): axis k at input registers 2k, 2k+1, signed int32, nm,
+  high word first; axis k is the k-th axis of the gateway config unless ``--laser-axes``
+  gives the order;
+- XY device (``--xy HOST:PORT:UNIT``): input registers 0-1 true X, 2-3 true Y, int32 nm;
+- Δa sensor (``--delta-a HOST:PORT:UNIT[:ADDRESS]``): input registers ADDRESS (default 1),
+  ADDRESS+1, int32 nm (the sim's displacement sensor at reference point A).
+
+Any instrument behind the gateway's ``passthrough`` can be reached through the gateway's
+own address, e.g. ``--laser 127.0.0.1:5020:20``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+from pymodbus.client import AsyncModbusTcpClient
+
+from ..config import Axis, GatewayConfig
+from ..frames import pack_int32, unpack_int32
+
+#: Status bits of the sim's default (Leadshine-like) profile; override per run.
+DEFAULT_IN_POSITION_BIT = 4
+DEFAULT_MOVING_BIT = 2
+DEFAULT_ALARM_BIT = 0
+NM_PER_MM = 1e6
+
+
+class MachineError(RuntimeError):
+    """The machine or an instrument did not do what was asked (Modbus error, alarm, timeout)."""
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """A Modbus TCP device: host, port, unit id and (optional) first register address."""
+
+    host: str
+    port: int
+    unit: int
+    address: int | None = None
+
+    @classmethod
+    def parse(cls, text: str) -> Endpoint:
+        """``HOST:PORT[:UNIT[:ADDRESS]]``; ValueError with the rule if malformed."""
+        parts = text.split(":")
+        if not 2 <= len(parts) <= 4 or not parts[0]:
+            raise ValueError(f"{text!r} is not HOST:PORT[:UNIT[:ADDRESS]]")
+        try:
+            numbers = [int(p, 0) for p in parts[1:]]
+        except ValueError:
+            raise ValueError(f"{text!r}: port, unit and address must be integers") from None
+        port = numbers[0]
+        unit = numbers[1] if len(numbers) > 1 else 1
+        address = numbers[2] if len(numbers) > 2 else None
+        if not (0 < port < 65536 and 0 <= unit <= 247):
+            raise ValueError(f"{text!r}: port must be 1..65535 and unit 0..247")
+        return cls(parts[0], port, unit, address)
+
+    @property
+    def key(self) -> tuple[str, int]:
+        return self.host, self.port
+
+
+class Link:
+    """One Modbus TCP connection, shared by every device at that host and port."""
+
+    def __init__(self, host: str, port: int, timeout_s: float = 2.0) -> None:
+        self.host, self.port = host, port
+        self.client = AsyncModbusTcpClient(host, port=port, timeout=timeout_s, retries=1)
+
+    async def connect(self) -> None:
+        if not await self.client.connect():
+            raise MachineError(f"cannot connect to {self.host}:{self.port}")
+
+    def close(self) -> None:
+        self.client.close()
+
+    async def _ok(self, call, what: str):  # type: ignore[no-untyped-def]
+        try:
+            reply = await call
+        except Exception as exc:  # pymodbus raises ModbusIOException and friends
+            raise MachineError(f"{self.host}:{self.port}: {what}: {exc}") from exc
+        if reply.isError():
+            raise MachineError(f"{self.host}:{self.port}: {what}: {reply}")
+        return reply
+
+    async def read(self, unit: int, address: int, count: int, table: str) -> list[int]:
+        fn = self.client.read_input_registers if table == "input" else (
+            self.client.read_holding_registers
+        )
+        what = f"unit {unit} read {table} {address:#06x}+{count}"
+        return list((await self._ok(fn(address, count=count, device_id=unit), what)).registers)
+
+    async def write(self, unit: int, address: int, values: Sequence[int]) -> None:
+        what = f"unit {unit} write {address:#06x}"
+        if len(values) == 1:
+            await self._ok(self.client.write_register(address, values[0], device_id=unit), what)
+        else:
+            await self._ok(self.client.write_registers(address, list(values), device_id=unit), what)
+
+
+class Links:
+    """Connections by (host, port), opened on first use, closed together."""
+
+    def __init__(self) -> None:
+        self._links: dict[tuple[str, int], Link] = {}
+
+    async def get(self, host: str, port: int) -> Link:
+        link = self._links.get((host, port))
+        if link is None:
+            link = Link(host, port)
+            await link.connect()
+            self._links[(host, port)] = link
+        return link
+
+    def close(self) -> None:
+        for link in self._links.values():
+            link.close()
+        self._links.clear()
+
+
+@dataclass(frozen=True)
+class MotionSettings:
+    """How in-position is recognised: status bits of the drive, feedback tolerance, timeout."""
+
+    in_position_bit: int | None = DEFAULT_IN_POSITION_BIT
+    moving_bit: int | None = DEFAULT_MOVING_BIT
+    alarm_bit: int | None = DEFAULT_ALARM_BIT
+    in_position_pulses: float = 2.0
+    timeout_s: float = 120.0
+    poll_s: float = 0.005
+
+
+class MachineDriver:
+    """Moves the axes of a gateway config through the gateway, as an upper computer does."""
+
+    def __init__(
+        self, link: Link, config: GatewayConfig, settings: MotionSettings | None = None
+    ) -> None:
+        self.link = link
+        self.config = config
+        self.settings = settings or MotionSettings()
+
+    def axis(self, name: str) -> Axis:
+        if name not in self.config.axes:
+            raise MachineError(f"axis {name!r} is not in the gateway config")
+        return self.config.axes[name]
+
+    def pulses(self, name: str, position_mm: float) -> int:
+        return round(position_mm / self.axis(name).pulse_mm)
+
+    async def write_target(self, name: str, position_mm: float) -> None:
+        axis = self.axis(name)
+        lo, hi = axis.travel_mm
+        if not lo <= position_mm <= hi:
+            raise MachineError(
+                f"axis {name}: target {position_mm:g} mm outside travel {lo:g}..{hi:g}"
+            )
+        reg = axis.registers.target
+        words = pack_int32(self.pulses(name, position_mm), reg.order)
+        await self.link.write(axis.upstream, reg.address, list(words))
+
+    async def trigger(self, name: str) -> None:
+        axis = self.axis(name)
+        trig = axis.registers.trigger
+        if trig is None:
+            return  # the target write itself starts the move
+        if trig.rising_bit is not None:
+            await self.link.write(axis.upstream, trig.address, [0])
+            await self.link.write(axis.upstream, trig.address, [1 << trig.rising_bit])
+        else:
+            await self.link.write(axis.upstream, trig.address, [trig.value or 0])
+
+    async def feedback_pulses(self, name: str) -> float:
+        axis = self.axis(name)
+        reg = axis.registers.feedback
+        words = await self.link.read(axis.upstream, reg.address, 2, reg.table)
+        return unpack_int32(words, reg.order) / reg.counts_per_pulse
+
+    async def wait_in_position(self, name: str, position_mm: float) -> None:
+        """Until the status says in position (not moving) and feedback is at the target."""
+        axis, s = self.axis(name), self.settings
+        want = self.pulses(name, position_mm)
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + s.timeout_s
+        while True:
+            done = True
+            status = axis.registers.status
+            if status is not None:
+                word = (await self.link.read(axis.upstream, status.address, 1, status.table))[0]
+                if s.alarm_bit is not None and word >> s.alarm_bit & 1:
+                    raise MachineError(f"axis {name}: drive alarm (status {word:#06x})")
+                if s.in_position_bit is not None and not word >> s.in_position_bit & 1:
+                    done = False
+                if s.moving_bit is not None and word >> s.moving_bit & 1:
+                    done = False
+            if done and abs(await self.feedback_pulses(name) - want) <= s.in_position_pulses:
+                return
+            if loop.time() > deadline:
+                raise MachineError(
+                    f"axis {name}: not in position at {position_mm:g} mm after {s.timeout_s:g} s"
+                )
+            await asyncio.sleep(s.poll_s)
+
+    async def move(self, targets_mm: Mapping[str, float]) -> None:
+        """All targets first, then each trigger (``on_trigger`` planar commit sees both)."""
+        for name, position in targets_mm.items():
+            await self.write_target(name, position)
+        for name, position in targets_mm.items():
+            await self.trigger(name)
+            await self.wait_in_position(name, position)
+
+
+# -- instruments ----------------------------------------------------------------------------
+async def read_int32_mm(link: Link, unit: int, address: int, table: str = "input") -> float:
+    return unpack_int32(await link.read(unit, address, 2, table), "hi_lo") / NM_PER_MM
+
+
+@dataclass
+class Laser:
+    """Laser interferometer: one int32 nm reading per axis (axis k at registers 2k, 2k+1)."""
+
+    link: Link
+    unit: int
+    index: Mapping[str, int]
+
+    async def read_mm(self, axes: Sequence[str]) -> dict[str, float]:
+        out = {}
+        for name in axes:
+            if name not in self.index:
+                raise MachineError(f"laser: no channel for axis {name} ({', '.join(self.index)})")
+            out[name] = await read_int32_mm(self.link, self.unit, 2 * self.index[name])
+        return out
+
+
+@dataclass
+class XYDevice:
+    """2-D measuring device: true positions of the plane's two axes (registers 0-3)."""
+
+    link: Link
+    unit: int
+    axes: tuple[str, str]
+
+    async def read_mm(self, axes: Sequence[str]) -> dict[str, float]:
+        words = await self.link.read(self.unit, 0, 4, "input")
+        values = dict(zip(self.axes, (unpack_int32(words[:2], "hi_lo") / NM_PER_MM,
+                                      unpack_int32(words[2:], "hi_lo") / NM_PER_MM)))  # fmt: skip
+        missing = [a for a in axes if a not in values]
+        if missing:
+            raise MachineError(f"XY device measures {', '.join(self.axes)}, not {missing[0]}")
+        return {a: values[a] for a in axes}
+
+
+@dataclass
+class DeltaASensor:
+    """Displacement sensor at the screw's reference point A: Δa in mm (int32 nm)."""
+
+    link: Link
+    unit: int
+    address: int = 1
+
+    async def read_mm(self) -> float:
+        return await read_int32_mm(self.link, self.unit, self.address)

@@ -1,0 +1,169 @@
+"""Planar model choice by cross-validation, and the thermal coefficient of a warm-up run.
+
+Pure functions on arrays (no files): :mod:`.outputs` writes what they return.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.interpolate import CloughTocher2DInterpolator
+
+from ..compensation import GridModel, PlanarMeasurement, PolyModel
+from ..compensation.errors import TableError
+from ..compensation.planar import PlanarModel
+from .rawdata import RawData
+
+UM_PER_MM = 1000.0
+
+
+# -- planar -----------------------------------------------------------------------------------
+def average_repeats(meas: PlanarMeasurement) -> PlanarMeasurement:
+    """One point per commanded position: the mean of its repeats (grid passes)."""
+    key = np.round(meas.command_mm * 1e6).astype(np.int64)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    count = np.bincount(inverse).astype(np.float64)
+    actual = np.column_stack(
+        [np.bincount(inverse, weights=meas.actual_mm[:, k]) / count for k in range(2)]
+    )
+    order = np.argsort(first)
+    return PlanarMeasurement(meas.command_mm[first][order], actual[order], meas.source)
+
+
+def _grid_loo_mm(meas: PlanarMeasurement) -> NDArray[np.float64]:
+    """Leave-one-out prediction errors of the grid model (vector length per point, mm).
+
+    Without node i, a grid model is filled there by the C1 interpolation of the remaining
+    points (the nearest point outside their hull), and the grid passes through its nodes:
+    the prediction at i is that interpolation.
+    """
+    cmd, err = meas.command_mm, meas.error_mm
+    out = np.empty(cmd.shape[0])
+    for i in range(cmd.shape[0]):
+        keep = np.arange(cmd.shape[0]) != i
+        guess = CloughTocher2DInterpolator(cmd[keep], err[keep])(cmd[i : i + 1])[0]
+        if not np.all(np.isfinite(guess)):
+            near = np.argmin(np.hypot(*(cmd[keep] - cmd[i]).T))
+            guess = err[keep][near]
+        out[i] = float(np.hypot(*(guess - err[i])))
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class PlanarChoice:
+    """The chosen planar model, every candidate's LOO RMS (µm) and the fit residuals (µm)."""
+
+    model: PlanarModel
+    kind: str  # "grid" or "poly"
+    degree: int | None
+    loo_rms_um: dict[str, float]
+    residual_rms_um: float
+    residual_max_um: float
+    points: PlanarMeasurement = field(repr=False)
+
+
+def choose_planar_model(meas: PlanarMeasurement, kind: str = "auto") -> PlanarChoice:
+    """Grid (bicubic) or polynomial (degree by LOO), whichever predicts left-out points best.
+
+    ``kind`` ``grid`` or ``poly`` forces the family. Scores are the RMS of the vector error
+    of leave-one-out predictions; residuals are those of the chosen model at the points.
+    """
+    if kind not in ("auto", "grid", "poly"):
+        raise TableError(f"planar model {kind!r} is not auto, grid or poly")
+    pts = average_repeats(meas)
+    scores: dict[str, float] = {}
+    models: dict[str, PlanarModel] = {}
+    if kind in ("auto", "poly"):
+        poly = PolyModel.fit(pts)
+        for d, s in sorted(poly.loo_rms_mm.items()):
+            scores[f"poly{d}"] = s * UM_PER_MM
+        models["poly"] = poly
+    if kind in ("auto", "grid"):
+        try:
+            grid = GridModel.from_measurement(pts)
+            scores["grid"] = float(np.sqrt(np.mean(_grid_loo_mm(pts) ** 2))) * UM_PER_MM
+            models["grid"] = grid
+        except (TableError, ValueError) as exc:
+            if kind == "grid":
+                raise TableError(f"{meas.source}: grid model: {exc}") from None
+    poly_score = scores.get(f"poly{models['poly'].degree}", np.inf) if "poly" in models else np.inf
+    best = "grid" if scores.get("grid", np.inf) <= poly_score else "poly"
+    if best not in models:
+        best = next(iter(models))
+    model = models[best]
+    resid = np.hypot(*(model.error_mm(pts.command_mm) - pts.error_mm).T) * UM_PER_MM
+    degree = getattr(model, "degree", None)
+    return PlanarChoice(model, best, degree, scores, float(np.sqrt(np.mean(resid**2))),
+                        float(resid.max()), pts)  # fmt: skip
+
+
+# -- thermal ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ThermalFit:
+    """Screw growth at the reference position against the Δa sensor.
+
+    Growth is proportional along the screw from ``origin_mm`` (seed 002), so the growth at x
+    is ``Δa · (x − origin) / a``: ``length_mm`` is the ``a`` that fits best (the config's
+    ``thermal.length_mm``); ``gain`` = measured growth / growth predicted with the config's
+    length (1 = the config is right). Residuals in µm.
+    """
+
+    axis: str
+    reference_mm: float
+    origin_mm: float
+    length_mm: float
+    gain: float | None
+    growth_max_um: float
+    residual_rms_um: float
+    residual_max_um: float
+    points: int
+
+
+def thermal_fit(
+    raw: RawData, axis: str, origin_mm: float = 0.0, config_length_mm: float | None = None
+) -> ThermalFit:
+    """Fit ``a`` from a warm-up run's readings at its reference (``delta_a_mm`` column).
+
+    Growth = reading − cold reading (the first row), Δa likewise from its cold value, so
+    pitch error and sensor offset cancel; a fitted offset takes the cold reading's noise.
+    """
+    if "delta_a_mm" not in raw.extra:
+        raise TableError(f"{raw.source}: a warm-up run needs the column 'delta_a_mm'")
+    rows = np.flatnonzero(np.array(raw.axis) == axis)
+    if rows.size < 3:
+        raise TableError(f"{raw.source}: axis {axis}: a warm-up run needs at least 3 readings")
+    delta_a = raw.column_mm("delta_a_mm")[rows]
+    target = raw.target_mm[rows]
+    if np.ptp(target) > 1e-6:
+        raise TableError(f"{raw.source}: axis {axis}: warm-up readings at more than one position")
+    ref = float(target[0])
+    growth = raw.actual_mm[rows] - raw.actual_mm[rows[0]]
+    d_a = delta_a - delta_a[0]
+    lever = ref - origin_mm
+    if abs(lever) < 1e-9 or not np.any(d_a != 0):
+        raise TableError(f"{raw.source}: axis {axis}: no Δa change or reference at the origin")
+    # growth = offset + d_a · lever / a: least squares in (offset, 1/a); the offset absorbs
+    # the noise of the single cold reading every growth is counted from
+    design = np.column_stack([np.ones_like(d_a), d_a * lever])
+    (offset, inv_a), *_ = np.linalg.lstsq(design, growth, rcond=None)
+    if inv_a <= 0:
+        raise TableError(f"{raw.source}: axis {axis}: growth does not follow Δa (check signs)")
+    length = float(1.0 / inv_a)
+    resid = growth - offset - d_a * lever / length
+    gain = None if config_length_mm is None else config_length_mm / length
+    return ThermalFit(axis, ref, origin_mm, float(length), gain,
+                      float(np.abs(growth).max() * UM_PER_MM),
+                      float(np.sqrt(np.mean(resid**2)) * UM_PER_MM),
+                      float(np.abs(resid).max() * UM_PER_MM), int(rows.size))  # fmt: skip
+
+
+def drift_um(raw: RawData, axis: str) -> NDArray[np.float64]:
+    """Deviation at the reference of a warm-up run relative to the cold reading (µm)."""
+    rows = np.flatnonzero(np.array(raw.axis) == axis)
+    if rows.size == 0:
+        raise TableError(f"{raw.source}: no rows for axis {axis!r}")
+    dev = raw.deviation_mm[rows]
+    return (dev - dev[0]) * UM_PER_MM

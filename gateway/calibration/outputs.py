@@ -1,0 +1,218 @@
+"""Fitted tables → the files a gateway config references, checked before anything is written.
+
+A pitch table goes to ``axes.<A>.compensation.pitch`` (its ``format``: compgw CSV or
+LinuxCNC 0/1); the planar model to ``planar.model`` (YAML) and the points CSV it names
+(``xy_points.csv`` beside it when new). Every file is written atomically, and only after
+the table passed the checks the gateway applies when it loads it (monotone map, every
+correction within ``max_correction_mm``, the planar field's slope): a table that fails is
+not written, and the error names the file and the point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..compensation import PitchStage, PitchTable, PlanarMeasurement, PlanarStage
+from ..compensation.errors import CompensationError, TableError
+from ..config import GatewayConfig, PitchFile
+from ..config_types import read_yaml
+from ..formats import (
+    atomic_write_text,
+    read_linuxcnc,
+    read_pitch_csv,
+    write_linuxcnc,
+    write_pitch_csv,
+    write_planar_csv,
+)
+from ..formats.planar_file import load_planar_model
+from .fit import bidirectional_table, fold_backlash, fold_residual, unidirectional_table
+from .iso230 import iso230_axis
+from .models import PlanarChoice, choose_planar_model
+from .rawdata import RawData, axis_deviations
+
+
+@dataclass(frozen=True, eq=False)
+class PitchResult:
+    """A fitted (or folded) table of one axis, where it goes, and the backlash to use."""
+
+    axis: str
+    path: Path
+    table: PitchTable
+    backlash_mm: float | None  # unidirectional mode: the backlash_mm to configure
+    mode: str  # "bidirectional" or "unidirectional"
+    folded: bool
+    fmt: str = "csv"  # file format: csv, linuxcnc0, linuxcnc1
+
+
+def pitch_spec(config: GatewayConfig, axis: str) -> PitchFile | None:
+    if axis not in config.axes:
+        raise TableError(f"axis {axis!r} is not in the gateway config")
+    return config.axes[axis].compensation.pitch_file
+
+
+def pitch_path(config: GatewayConfig, config_dir: Path, axis: str) -> tuple[Path, str]:
+    """Where the axis's table goes and its format (default ``<axis>_pitch.csv``, csv)."""
+    spec = pitch_spec(config, axis)
+    if spec is None:
+        return config_dir / f"{axis.lower()}_pitch.csv", "csv"
+    return config_dir / spec.file, spec.format
+
+
+def read_table(path: Path, fmt: str) -> PitchTable:
+    return read_pitch_csv(path) if fmt == "csv" else read_linuxcnc(path, int(fmt[-1]))
+
+
+def check_pitch(table: PitchTable, config: GatewayConfig, axis: str) -> None:
+    """The gateway's load checks: monotone map with its interpolation, and the cap."""
+    spec = pitch_spec(config, axis) or PitchFile(file=table.source)
+    comp = config.axes[axis].compensation
+    stage = PitchStage(table, spec.interpolation, spec.outside, spec.taper_mm)
+    stage.check_cap(comp.max_correction_mm)
+
+
+def write_table(path: Path, fmt: str, table: PitchTable, comment: str = "") -> None:
+    if fmt == "csv":
+        write_pitch_csv(path, table, comment)
+    else:
+        write_linuxcnc(path, table, int(fmt[-1]))
+
+
+def fit_pitch(
+    raw: RawData,
+    config: GatewayConfig,
+    config_dir: Path,
+    axis: str,
+    *,
+    mode: str = "auto",
+    residual: bool = False,
+    backlash_mm: float | None = None,
+) -> PitchResult:
+    """Table of ``axis`` from an identification run, or folded with a residual run.
+
+    ``mode``: ``bidirectional``, ``unidirectional`` (mean table + backlash), or ``auto``
+    (unidirectional when the config gives the axis a backlash_mm, else bidirectional).
+    ``residual``: ``raw`` was measured with the current table applied (the calibration plan
+    re-run with compensation on): the table is folded (seed 001). ``backlash_mm``: a value
+    measured by the backlash plan, used instead of the ISO reversal B̄.
+    """
+    path, fmt = pitch_path(config, config_dir, axis)
+    comp = config.axes[axis].compensation
+    if mode == "auto":
+        mode = "unidirectional" if comp.backlash_mm > 0 else "bidirectional"
+    if mode not in ("bidirectional", "unidirectional"):
+        raise TableError(f"mode {mode!r} is not auto, bidirectional or unidirectional")
+    dev = axis_deviations(raw, axis)
+    if residual:
+        current = read_table(path, fmt)
+        resid = bidirectional_table(dev) if dev.up_mm is not None and dev.down_mm is not None \
+            else unidirectional_table(dev).table  # fmt: skip
+        table = fold_residual(current, resid)
+        lash = None
+        if not table.bidirectional and resid.bidirectional:
+            b_mean = float(np.mean(resid.forward_mm - resid.reverse_mm))
+            lash = fold_backlash(comp.backlash_mm, b_mean)
+        table = PitchTable(table.position_mm, table.forward_mm, table.reverse_mm,
+                           table.rotary, str(path))  # fmt: skip
+        kind = "bidirectional" if current.bidirectional else "unidirectional"
+        result = PitchResult(axis, path, table, lash, kind, True, fmt)
+    elif mode == "bidirectional":
+        table = bidirectional_table(dev, str(path))
+        result = PitchResult(axis, path, table, None, mode, False, fmt)
+    else:
+        uni = unidirectional_table(dev, str(path))
+        lash = backlash_mm if backlash_mm is not None else uni.backlash_mm
+        result = PitchResult(axis, path, uni.table, lash, mode, False, fmt)
+    check_pitch(result.table, config, axis)
+    return result
+
+
+def save_pitch(result: PitchResult, comment: str = "") -> None:
+    """Write the table (already checked by :func:`fit_pitch`) to its file, atomically."""
+    write_table(result.path, result.fmt, result.table, comment)
+
+
+def residual_figures(raw: RawData, axis: str) -> dict[str, float | None]:
+    """ISO 230-2 figures (µm) of a run, for the per-round lines of an iteration."""
+    iso = iso230_axis(axis_deviations(raw, axis))
+    return {"E_um": iso.E_um, "A_um": iso.A_um, "B_um": iso.B_um, "R_um": iso.R_um,
+            "M_um": iso.M_um}  # fmt: skip
+
+
+# -- planar -------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class PlanarResult:
+    model_path: Path
+    points_path: Path
+    choice: PlanarChoice
+    folded: bool
+
+
+def planar_paths(config: GatewayConfig, config_dir: Path) -> tuple[Path, Path]:
+    """The model YAML and the points CSV it names (``xy_points.csv`` beside it if new)."""
+    if config.planar is None:
+        raise TableError("the gateway config has no planar section (planar: {axes, model})")
+    model = config_dir / config.planar.model
+    points = model.parent / "xy_points.csv"
+    if model.exists():
+        spec = read_yaml(model, TableError)
+        if isinstance(spec, dict) and "points" in spec:
+            points = model.parent / str(spec["points"])
+    return model, points
+
+
+def fit_planar(
+    meas: PlanarMeasurement,
+    config: GatewayConfig,
+    config_dir: Path,
+    kind: str = "auto",
+    residual: bool = False,
+) -> PlanarResult:
+    """Choose and check the planar model; ``residual``: ``meas`` was taken with the current
+    model on, and its errors are added to the current model's at the commanded points."""
+    model_path, points_path = planar_paths(config, config_dir)
+    if residual:
+        current = load_planar_model(model_path)
+        err = current.error_mm(meas.command_mm) + meas.error_mm
+        meas = PlanarMeasurement(meas.command_mm, meas.command_mm + err, meas.source)
+    choice = choose_planar_model(meas, kind)
+    assert config.planar is not None
+    axes = tuple(config.planar.axes)
+    try:
+        stage = PlanarStage(choice.model, axes, source=str(model_path))  # type: ignore[arg-type]
+    except CompensationError as exc:
+        raise TableError(str(exc)) from None
+    field = np.abs(stage.field_.values)
+    for k, name in enumerate(axes):
+        cap = config.axes[name].compensation.max_correction_mm
+        worst = float(field[..., k].max())
+        if worst > cap:
+            j, i = np.unravel_index(int(np.argmax(field[..., k])), field.shape[:2])
+            x, y = stage.field_.gx[i], stage.field_.gy[j]
+            raise TableError(
+                f"{model_path}: point ({x:g}, {y:g}) mm: {name} correction {worst:.6g} mm "
+                f"exceeds max_correction_mm {cap:g}"
+            )
+    return PlanarResult(model_path, points_path, choice, residual)
+
+
+def save_planar(result: PlanarResult, comment: str = "") -> None:
+    """Write the points CSV, then the model YAML that references it."""
+    choice = result.choice
+    write_planar_csv(result.points_path, choice.points)
+    same_dir = result.points_path.parent == result.model_path.parent
+    rel = result.points_path.name if same_dir else str(result.points_path)
+    spec: dict[str, object] = {"points": str(rel), "model": choice.kind}
+    if choice.kind == "grid":
+        spec["method"] = "cubic"
+    else:
+        spec["degree"] = int(choice.degree or 0)
+    scores = ", ".join(f"{k} {v:.3f}" for k, v in choice.loo_rms_um.items())
+    head = [f"# {line}" for line in comment.splitlines()]
+    head.append(f"# chosen by leave-one-out cross-validation (RMS µm: {scores})")
+    head.append(f"# residual at the points: RMS {choice.residual_rms_um:.3f} µm, "
+                f"max {choice.residual_max_um:.3f} µm")  # fmt: skip
+    atomic_write_text(result.model_path, "\n".join(head) + "\n" + yaml.safe_dump(spec))

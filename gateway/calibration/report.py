@@ -1,0 +1,251 @@
+"""`compgw report`: ISO 230-2 figures, plots and one self-contained HTML file.
+
+``compgw report RAW.csv [--before RAW0.csv] [--out DIR] [--json]``
+
+- axis runs (ISO 230-2 plans): per axis the figures A, B, B̄, E↑, E↓, E, M, R↑, R↓, R (µm),
+  before and after when ``--before`` is given, the per-target table (x̄↑, x̄↓, s↑, s↓, Bi,
+  Ri), and a plot of the deviation against position for both directions with ±2s bands;
+- XY runs (``x_mm``, ``y_mm`` columns): max and RMS vector error and the error field as
+  arrows (before and after);
+- ``DIR/report.html`` (PNGs embedded as base64: one file to mail) and ``DIR/*.png``.
+
+``--json`` prints ``{"X": {"A_um": …, "B_um": …, …}}`` (:func:`.iso230.report_json`) of
+RAW.csv and writes nothing unless ``--out`` is given too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import html
+import io
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..compensation.errors import TableError
+from .fit import planar_measurement
+from .iso230 import JSON_KEYS, Iso230Result, iso230_raw, report_json
+from .rawdata import RawData, axis_deviations, read_raw_csv
+
+LABELS = {
+    "A_um": "A accuracy", "B_um": "B reversal", "Bmean_um": "B̄ mean reversal",
+    "E_up_um": "E↑ systematic", "E_down_um": "E↓ systematic", "E_um": "E systematic",
+    "M_um": "M mean bidirectional", "R_up_um": "R↑ repeatability",
+    "R_down_um": "R↓ repeatability", "R_um": "R repeatability",
+}  # fmt: skip
+
+
+def is_planar(raw: RawData) -> bool:
+    return "x_mm" in raw.extra and "y_mm" in raw.extra
+
+
+@dataclass
+class Figure:
+    name: str
+    png: bytes
+    caption: str
+
+
+# -- plots (matplotlib, Agg) -----------------------------------------------------------------
+def _pyplot():  # type: ignore[no-untyped-def]
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _png(fig) -> bytes:  # type: ignore[no-untyped-def]
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    _pyplot().close(fig)
+    return buf.getvalue()
+
+
+def plot_axis(axis: str, results: dict[str, tuple[RawData, Iso230Result]]) -> bytes:
+    """Deviation vs position, both directions, ±2s bands; one panel per phase."""
+    plt = _pyplot()
+    fig, panels = plt.subplots(len(results), 1, figsize=(8, 3.2 * len(results)), squeeze=False)
+    for ax, (phase, (raw, iso)) in zip(panels[:, 0], results.items()):
+        dev = axis_deviations(raw, axis)
+        t = iso.target_mm
+        for stats, runs, colour, label in ((iso.up, dev.up_mm, "tab:blue", "↑ (+)"),
+                                           (iso.down, dev.down_mm, "tab:red", "↓ (−)")):
+            if stats is None or runs is None:
+                continue
+            for j in range(runs.shape[1]):
+                ax.plot(t, runs[:, j] * 1e3, ".", color=colour, alpha=0.3, ms=3)
+            ax.plot(t, stats.mean_um, "-", color=colour, label=f"x̄ {label}")
+            ax.fill_between(t, stats.mean_um - 2 * stats.s_um, stats.mean_um + 2 * stats.s_um,
+                            color=colour, alpha=0.2, label=f"±2s {label}")  # fmt: skip
+        ax.axhline(0, color="0.5", lw=0.5)
+        ax.set_title(f"axis {axis}, {phase}: E {_f(iso.E_um)} µm, A {_f(iso.A_um)} µm")
+        ax.set_xlabel("target position (mm)")
+        ax.set_ylabel("deviation actual − target (µm)")
+        ax.legend(fontsize=7, ncol=2)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def plot_xy(results: dict[str, RawData], axes: tuple[str, str]) -> tuple[bytes, dict[str, Any]]:
+    """XY error field as arrows (one panel per phase) and the vector figures per phase."""
+    plt = _pyplot()
+    fig, panels = plt.subplots(1, len(results), figsize=(6.5 * len(results), 5), squeeze=False)
+    figures: dict[str, Any] = {}
+    for ax, (phase, raw) in zip(panels[0], results.items()):
+        meas = planar_measurement(raw, axes)
+        err_um = meas.error_mm * 1e3
+        norm = np.hypot(*err_um.T)
+        figures[phase] = {"max_um": float(norm.max()), "rms_um": float(np.sqrt(np.mean(norm**2))),
+                          "points": int(norm.size)}  # fmt: skip
+        q = ax.quiver(meas.command_mm[:, 0], meas.command_mm[:, 1], err_um[:, 0], err_um[:, 1],
+                      norm, cmap="viridis", angles="xy")  # fmt: skip
+        fig.colorbar(q, ax=ax, label="vector error (µm)")
+        ax.set_title(f"XY {phase}: max {norm.max():.2f} µm, RMS {figures[phase]['rms_um']:.2f} µm")
+        ax.set_xlabel(f"{axes[0]} (mm)")
+        ax.set_ylabel(f"{axes[1]} (mm)")
+        ax.set_aspect("equal", adjustable="datalim")
+    fig.tight_layout()
+    return _png(fig), figures
+
+
+def _f(value: float | None, digits: int = 2) -> str:
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+# -- HTML ---------------------------------------------------------------------------------------
+def _figures_table(axis: str, results: dict[str, Iso230Result]) -> str:
+    phases = list(results)
+    head = "".join(f"<th>{html.escape(p)}</th>" for p in phases)
+    if len(phases) == 2:
+        head += "<th>change</th>"
+    rows = []
+    for key in JSON_KEYS:
+        vals = [getattr(r, key) for r in results.values()]
+        cells = "".join(f"<td>{_f(v)}</td>" for v in vals)
+        if len(vals) == 2:
+            a, b = vals
+            cut = "–" if not a or b is None else f"{100 * (1 - abs(b) / abs(a)):.0f} % less"
+            cells += f"<td>{cut}</td>"
+        rows.append(f"<tr><th>{html.escape(LABELS[key])}</th>{cells}</tr>")
+    return (f"<table class='fig' id='figures-{axis}'><tr><th>axis {axis} (µm)</th>{head}</tr>"
+            + "".join(rows) + "</table>")  # fmt: skip
+
+
+def _target_table(axis: str, phase: str, iso: Iso230Result) -> str:
+    cols = ("target_mm", "mean_up_um", "mean_down_um", "s_up_um", "s_down_um", "B_i_um",
+            "R_up_i_um", "R_down_i_um", "R_i_um")  # fmt: skip
+    names = ("target mm", "x̄↑ µm", "x̄↓ µm", "s↑ µm", "s↓ µm", "Bi µm", "Ri↑ µm", "Ri↓ µm",
+             "Ri µm")  # fmt: skip
+    head = "".join(f"<th>{n}</th>" for n in names)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{_f(row[c], 3)}</td>" for c in cols) + "</tr>"
+        for row in iso.per_target_rows()
+    )
+    return (f"<details><summary>axis {axis}, {html.escape(phase)}: per target</summary>"
+            f"<table class='targets'><tr>{head}</tr>{body}</table></details>")  # fmt: skip
+
+
+def _img(fig: Figure) -> str:
+    data = base64.b64encode(fig.png).decode("ascii")
+    return (f"<figure id='{fig.name}'><img alt='{html.escape(fig.caption)}' "
+            f"src='data:image/png;base64,{data}'><figcaption>{html.escape(fig.caption)}"
+            "</figcaption></figure>")  # fmt: skip
+
+
+STYLE = """body{font-family:sans-serif;max-width:60em;margin:2em auto;color:#222}
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:2px 8px;
+text-align:right}th{background:#eee}img{max-width:100%}figcaption{font-size:90%;color:#555}"""
+
+
+def build_report(
+    raw: RawData, before: RawData | None = None, title: str = "compgw calibration report"
+) -> tuple[str, list[Figure], dict[str, Any]]:
+    """HTML text, the figures, and the figures as data (µm), from raw data (pure)."""
+    phases = {"before": before, "after": raw} if before is not None else {"run": raw}
+    parts = [f"<h1>{html.escape(title)}</h1>",
+             "<p>ISO 230-2 figures in µm; deviations are actual − target. Sources: "
+             + ", ".join(html.escape(f"{k}: {v.source}") for k, v in phases.items() if v)
+             + "</p>"]  # fmt: skip
+    figures: list[Figure] = []
+    data: dict[str, Any] = {}
+    if is_planar(raw):
+        axes = tuple(a for a in raw.axes)[:2]
+        if len(axes) != 2:
+            raise TableError(f"{raw.source}: an XY run needs two axes")
+        png, xy = plot_xy({k: v for k, v in phases.items() if v is not None}, axes)  # type: ignore[arg-type]
+        figures.append(Figure("xy-field", png, "XY error field (arrows: actual − commanded)"))
+        data["XY"] = xy
+        rows = "".join(f"<tr><th>{k}</th><td>{_f(v['max_um'])}</td><td>{_f(v['rms_um'])}</td>"
+                       f"<td>{v['points']}</td></tr>" for k, v in xy.items())  # fmt: skip
+        parts.append("<h2>XY plane</h2><table id='figures-XY'><tr><th></th><th>max µm</th>"
+                     f"<th>RMS µm</th><th>points</th></tr>{rows}</table>")  # fmt: skip
+        parts.append(_img(figures[-1]))
+    else:
+        iso = {k: iso230_raw(v) for k, v in phases.items() if v is not None}
+        for axis in raw.axes:
+            per = {k: r[axis] for k, r in iso.items() if axis in r}
+            data[axis] = {k: r.to_json_dict() for k, r in per.items()}
+            parts.append(f"<h2>Axis {html.escape(axis)}</h2>")
+            parts.append(_figures_table(axis, per))
+            png = plot_axis(axis, {k: (phases[k], r) for k, r in per.items()})  # type: ignore[misc]
+            figures.append(Figure(f"axis-{axis}", png,
+                                  f"axis {axis}: deviation vs position, both directions, ±2s"))
+            parts.append(_img(figures[-1]))
+            for k, r in per.items():
+                parts.append(_target_table(axis, k, r))
+    body = "\n".join(parts)
+    text = (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>"
+            f"{html.escape(title)}</title><style>{STYLE}</style></head><body>{body}</body>"
+            "</html>\n")  # fmt: skip
+    return text, figures, data
+
+
+def write_report(out_dir: Path, text: str, figures: list[Figure]) -> Path:
+    from ..formats import atomic_write_text
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for fig in figures:
+        tmp = out_dir / f".{fig.name}.png.tmp"
+        tmp.write_bytes(fig.png)
+        tmp.replace(out_dir / f"{fig.name}.png")
+    path = out_dir / "report.html"
+    atomic_write_text(path, text)
+    return path
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("raw", help="raw CSV (after, or the only run)")
+    p.add_argument("--before", metavar="RAW0", help="raw CSV of the same test before")
+    p.add_argument("--out", metavar="DIR", help="where report.html and the PNGs go (report/)")
+    p.add_argument("--json", action="store_true", help="print the ISO 230-2 figures as JSON")
+    p.add_argument("--title", default="compgw calibration report")
+
+
+def main(args: argparse.Namespace) -> int:
+    try:
+        raw = read_raw_csv(args.raw)
+        before = read_raw_csv(args.before) if args.before else None
+        if args.json:
+            if is_planar(raw):
+                _, _, data = build_report(raw, before, args.title)
+                print(json.dumps(data))
+            else:
+                print(json.dumps(report_json(raw)))
+            if not args.out:
+                return 0
+        text, figures, _ = build_report(raw, before, args.title)
+        path = write_report(Path(args.out or "report"), text, figures)
+    except TableError as exc:
+        print(f"compgw report: {exc}", file=sys.stderr)
+        return 1
+    if not args.json:
+        print(f"report written to {path}")
+    return 0

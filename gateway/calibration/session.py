@@ -1,0 +1,232 @@
+"""A calibration session against a running gateway: plan run, and the seed-001 iteration.
+
+Compensation off / on (decided here, documented in ``compgw calibrate --help``): the
+runner does not switch the gateway. *Off* means the gateway it talks to runs an
+identification config: the same config with the pitch tables, backlash and planar model
+removed (``compgw calibrate --identify-config OUT.yaml -c CFG`` writes it; thermal stays
+on when configured, so a long run's heating does not enter the tables). *On* means the
+gateway runs the config whose tables are being verified. Iterating rewrites those tables;
+the gateway must then reload them (SIGHUP: ``--reload-pid``, or ``--reload-cmd``, e.g.
+``systemctl reload compgw``) before the next round. Talking straight to the drives (no
+gateway) is also compensation off. The raw file records ``# compensation: off|on``.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Awaitable, Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ..config import GatewayConfig
+from ..config_types import read_yaml
+from .fit import planar_measurement
+from .machine import (
+    DeltaASensor,
+    Endpoint,
+    Laser,
+    Links,
+    MachineDriver,
+    MachineError,
+    MotionSettings,
+    XYDevice,
+)
+from .outputs import fit_pitch, fit_planar, residual_figures, save_pitch, save_planar
+from .plans import Move, Plan
+from .rawdata import read_raw_csv
+from .runner import ProgressFn, RunSummary, run_plan
+
+ReloadFn = Callable[[], Awaitable[None]]
+
+
+@dataclass
+class Instruments:
+    """Endpoints of the measuring devices (any may be None)."""
+
+    laser: Endpoint | None = None
+    laser_axes: Sequence[str] | None = None
+    xy: Endpoint | None = None
+    delta_a: Endpoint | None = None
+
+
+@dataclass
+class Session:
+    """Gateway connection, motion settings and instruments of one calibration session."""
+
+    config: GatewayConfig
+    config_dir: Path
+    gateway: Endpoint
+    instruments: Instruments
+    motion: MotionSettings = field(default_factory=MotionSettings)
+    park: Mapping[str, float] = field(default_factory=dict)
+    progress: ProgressFn | None = None
+    dwell: Callable[[float], Awaitable[None]] | None = None
+
+    async def run(self, plan: Plan, raw_path: Path, compensation: str) -> RunSummary:
+        """Run ``plan`` into ``raw_path`` (resuming), measuring with the right instrument."""
+        links = Links()
+        try:
+            link = await links.get(self.gateway.host, self.gateway.port)
+            driver = MachineDriver(link, self.config, self.motion)
+            measure = await self._measure_fn(plan, links)
+            extra, names = None, ()
+            if plan.kind == "warmup" or self.instruments.delta_a is not None:
+                extra, names = await self._delta_a_fn(links)
+            if self.park:
+                await driver.move(dict(self.park))
+            return await run_plan(
+                plan, raw_path, driver.move, measure, extra=extra, extra_names=names,
+                meta={"compensation": compensation}, progress=self.progress, dwell=self.dwell,
+            )  # fmt: skip
+        finally:
+            links.close()
+
+    async def _measure_fn(self, plan: Plan, links: Links):  # type: ignore[no-untyped-def]
+        ins = self.instruments
+        if len(plan.axes) == 2 and ins.xy is not None:
+            dev = XYDevice(await links.get(*ins.xy.key), ins.xy.unit, tuple(plan.axes))  # type: ignore[arg-type]
+        elif ins.laser is not None:
+            order = list(ins.laser_axes or self.config.axes)
+            dev = Laser(await links.get(*ins.laser.key), ins.laser.unit,
+                        {a: k for k, a in enumerate(order)})  # type: ignore[assignment]  # fmt: skip
+        elif ins.xy is not None:
+            dev = XYDevice(await links.get(*ins.xy.key), ins.xy.unit, tuple(self.config.planar.axes)  # type: ignore[union-attr]
+                           if self.config.planar else ("X", "Y"))  # type: ignore[assignment]  # fmt: skip
+        else:
+            raise MachineError("no instrument: give --laser or --xy-device (or --join FILE)")
+
+        async def measure(_: Move) -> Mapping[str, float]:
+            return await dev.read_mm(plan.axes)
+
+        return measure
+
+    async def _delta_a_fn(self, links: Links):  # type: ignore[no-untyped-def]
+        ep = self.instruments.delta_a
+        if ep is None:
+            raise MachineError("a warm-up run needs the Δa sensor: --delta-a HOST:PORT:UNIT")
+        sensor = DeltaASensor(await links.get(*ep.key), ep.unit, ep.address or 1)
+
+        async def extra(_: Move) -> Mapping[str, float]:
+            return {"delta_a_mm": await sensor.read_mm()}
+
+        return extra, ("delta_a_mm",)
+
+
+# -- identification config ----------------------------------------------------------------------
+def identify_config(path: Path) -> dict[str, Any]:
+    """The config at ``path`` without pitch tables, backlash and planar model (thermal kept).
+
+    Table paths are not needed by it; other relative paths stay valid when the result is
+    written next to the original.
+    """
+    data = copy.deepcopy(read_yaml(path, ValueError))
+    for axis in (data.get("axes") or {}).values():
+        comp = axis.get("compensation") or {}
+        comp.pop("pitch", None)
+        comp.pop("backlash_mm", None)
+        axis["compensation"] = comp
+    data.pop("planar", None)
+    return data
+
+
+def identify_config_text(path: Path) -> str:
+    head = f"# identification config made from {path.name} by compgw calibrate: no pitch,\n"
+    head += "# backlash or planar compensation (thermal kept)\n"
+    return head + yaml.safe_dump(identify_config(path), sort_keys=False)
+
+
+# -- iteration (seed 001) -------------------------------------------------------------------------
+@dataclass
+class Round:
+    number: int
+    raw_path: Path
+    figures: dict[str, dict[str, float | None]]  # axis → ISO figures; "XY" → max/rms vector
+
+
+def planar_figures(raw_path: Path, axes: Sequence[str]) -> dict[str, float]:
+    """Max and RMS vector error (µm) of an XY run."""
+    import numpy as np
+
+    meas = planar_measurement(read_raw_csv(raw_path), tuple(axes))  # type: ignore[arg-type]
+    norm = np.hypot(*meas.error_mm.T) * 1e3
+    return {"max_um": float(norm.max()), "rms_um": float(np.sqrt(np.mean(norm**2)))}
+
+
+def round_figures(plan: Plan, raw_path: Path) -> dict[str, dict[str, float | None]]:
+    if len(plan.axes) == 2:
+        return {"XY": dict(planar_figures(raw_path, plan.axes))}
+    raw = read_raw_csv(raw_path)
+    return {a: residual_figures(raw, a) for a in plan.axes}
+
+
+def within(figures: dict[str, dict[str, float | None]], tolerance_um: float) -> bool:
+    """Systematic error within tolerance: E of every axis (max vector error for XY)."""
+    for name, f in figures.items():
+        value = f.get("max_um") if name == "XY" else f.get("E_um")
+        if value is None or value > tolerance_um:
+            return False
+    return True
+
+
+def fold_round(session: Session, plan: Plan, raw_path: Path, comment: str) -> list[str]:
+    """Fold a compensation-on run of the calibration plan into the tables; lines to print."""
+    raw = read_raw_csv(raw_path)
+    out: list[str] = []
+    if len(plan.axes) == 2:
+        meas = planar_measurement(raw, tuple(plan.axes))  # type: ignore[arg-type]
+        res = fit_planar(meas, session.config, session.config_dir, residual=True)
+        save_planar(res, comment)
+        out.append(f"planar model {res.choice.kind} written to {res.model_path}")
+        return out
+    for a in plan.axes:
+        res = fit_pitch(raw, session.config, session.config_dir, a, residual=True)
+        save_pitch(res, comment)
+        line = f"{a}: table folded into {res.path}"
+        if res.backlash_mm is not None:
+            line += f"; set axes.{a}.compensation.backlash_mm: {res.backlash_mm:.6g}"
+        out.append(line)
+    return out
+
+
+async def iterate(
+    session: Session,
+    plan: Plan,
+    raw_stem: Path,
+    rounds: int,
+    tolerance_um: float,
+    reload: ReloadFn,
+    say: Callable[[str], None] = print,
+) -> list[Round]:
+    """Seed 001: re-run ``plan`` with compensation on, fold, reload, until within tolerance.
+
+    Round r's raw data goes to ``<stem>.round<r>.csv`` (resumable like any run). At most
+    ``rounds`` folds; the last round is a measurement only.
+    """
+    done: list[Round] = []
+    for r in range(rounds + 1):
+        path = raw_stem.with_name(f"{raw_stem.stem}.round{r}.csv")
+        await session.run(plan, path, "on")
+        figures = round_figures(plan, path)
+        done.append(Round(r, path, figures))
+        say(f"round {r}: " + format_figures(figures))
+        if within(figures, tolerance_um):
+            say(f"round {r}: within {tolerance_um:g} µm: done")
+            break
+        if r == rounds:
+            say(f"round {r}: not within {tolerance_um:g} µm after {rounds} folds")
+            break
+        for line in fold_round(session, plan, path, f"folded with {path.name} (seed 001)"):
+            say(f"round {r}: {line}")
+        await reload()
+    return done
+
+
+def format_figures(figures: dict[str, dict[str, float | None]]) -> str:
+    parts = []
+    for name, f in figures.items():
+        text = "  ".join(f"{k[:-3]} {v:.2f}" for k, v in f.items() if v is not None)
+        parts.append(f"{name}: {text} µm")
+    return "; ".join(parts)
