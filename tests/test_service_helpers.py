@@ -315,3 +315,40 @@ class SimThread:
     def close(self) -> None:
         self._loop.call_soon_threadsafe(self._stop.set)
         self._thread.join(timeout=10)
+
+
+def rtu_read_reply(fd: int, timeout_s: float = 2.0) -> bytes | None:
+    """Collect bytes from a pty master until one whole RTU response frame (or None)."""
+    import select
+
+    from gateway.frames import find_rtu_frame, rtu_response_length
+
+    buf = b""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            return None
+        ready, _, _ = select.select([fd], [], [], remaining)
+        if not ready:
+            return None
+        with contextlib.suppress(BlockingIOError):
+            buf += os.read(fd, 4096)
+        scan = find_rtu_frame(buf, rtu_response_length)
+        if scan.frame is not None:
+            return scan.frame
+
+
+def rtu_drain(fd: int, quiet_s: float = 0.05) -> bytes:
+    """Read until the line has been quiet for ``quiet_s`` (a silence condition)."""
+    import select
+
+    got = b""
+    while select.select([fd], [], [], quiet_s)[0]:
+        try:
+            got += os.read(fd, 4096)
+        except BlockingIOError:
+            continue
+        except OSError:
+            break
+    return got
