@@ -55,6 +55,13 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
                 f"{stages.pitch.interpolation}, "
                 f"max {stages.pitch.max_abs_correction_mm() * 1e3:.1f} µm)"
             )
+        if stages.cyclic is not None:
+            model = stages.cyclic.model
+            parts.append(
+                f"cyclic {model.source} (lead {model.lead_mm:g} mm, {model.harmonics} "
+                f"harmonic(s), {model.station_mm.size} station(s), "
+                f"peak {model.peak_mm() * 1e3:.1f} µm)"
+            )
         if stages.backlash is not None:
             parts.append(
                 f"backlash {stages.backlash.backlash_mm * 1e3:.1f} µm "
