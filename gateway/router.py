@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -64,6 +65,9 @@ from .frames import (
 log = logging.getLogger(__name__)
 
 DeltaA = Callable[[str], float | None]
+
+#: a status word read by the master this recently decides "homed" without a new read (s)
+STATUS_FRESH_S = 0.5
 
 
 def _no_thermal(_axis: str) -> float | None:
@@ -110,6 +114,8 @@ class _AxisRuntime:
     state: AxisState
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
     trigger: _Trigger = field(default_factory=_Trigger)
+    status_word: int | None = None  # the drive's status word, as last read
+    status_at_s: float = -1e9  # when (monotonic)
     last_correction_mm: float = 0.0
 
 
@@ -203,7 +209,16 @@ class Gateway:
         start, count = req.read_address or 0, req.read_count
         bases = [b for b in self._pairs_read_by(axis, table) if overlap(start, count, b)]
         if not bases:
-            return await self.buses[axis.bus].transact(axis.unit, pdu)
+            reply = await self.buses[axis.bus].transact(axis.unit, pdu)
+            status = axis.registers.status
+            if (
+                status is not None
+                and status.table == table
+                and start <= status.address < start + count
+                and not is_exception(reply)
+            ):
+                self._saw_status(name, parse_read_registers_response(reply)[status.address - start])
+            return reply
         lo = min([start, *bases])
         hi = max([start + count, *(b + 2 for b in bases)])
         if hi - lo > MAX_READ_REGISTERS:
@@ -406,7 +421,7 @@ class Gateway:
             pending = bool(state.halves_written) or state.last_nominal_pulses != nominal
             if not pending and not (block is not None and name == owner):
                 continue
-            homed = await self._homed(setup.config.axes[name])
+            homed = await self._homed(name, setup.config.axes[name])
             plans.append((name, nominal, *self._correct(setup, name, nominal, homed)))
         for name, nominal, command, applied in plans:
             axis = setup.config.axes[name]
@@ -423,17 +438,32 @@ class Gateway:
             runtime.last_correction_mm = (command - nominal) * axis.pulse_mm
             self.counters.commits += 1
 
-    async def _homed(self, axis: Axis) -> bool:
-        """Whether the drive reports homed (True when no homed bit is configured)."""
+    async def _homed(self, name: str, axis: Axis) -> bool:
+        """Whether the drive reports homed (True when no homed bit is configured).
+
+        The status word is taken from the master's own status reads when one passed
+        through in the last :data:`STATUS_FRESH_S` (a master polls it to see a move end),
+        otherwise read from the drive now: no extra transaction on a busy line, and never
+        a stale answer.
+        """
         status = axis.registers.status
         if status is None or status.homed_bit is None:
             return True
-        fc = READ_HOLDING_REGISTERS if status.table == "holding" else READ_INPUT_REGISTERS
-        request = build_read_request(fc, status.address, 1)
-        reply = await self.buses[axis.bus].transact(axis.unit, request)
-        if is_exception(reply):
-            raise ModbusError("drive refused the status read", reply[1])
-        return bool(parse_read_registers_response(reply)[0] >> status.homed_bit & 1)
+        runtime = self._axes[name]
+        if time.monotonic() - runtime.status_at_s > STATUS_FRESH_S or runtime.status_word is None:
+            fc = READ_HOLDING_REGISTERS if status.table == "holding" else READ_INPUT_REGISTERS
+            request = build_read_request(fc, status.address, 1)
+            reply = await self.buses[axis.bus].transact(axis.unit, request)
+            if is_exception(reply):
+                raise ModbusError("drive refused the status read", reply[1])
+            self._saw_status(name, parse_read_registers_response(reply)[0])
+        assert runtime.status_word is not None
+        return bool(runtime.status_word >> status.homed_bit & 1)
+
+    def _saw_status(self, name: str, word: int) -> None:
+        runtime = self._axes[name]
+        runtime.status_word = word
+        runtime.status_at_s = time.monotonic()
 
     def _correct(self, setup: Setup, name: str, nominal: int, homed: bool) -> tuple[int, bool]:
         """Corrected command for ``name`` and whether compensation was applied."""

@@ -351,3 +351,24 @@ def test_bus_unavailable_is_0x0a(tmp_path: Path):
             assert not rr.isError()
 
     run(body())
+
+
+def test_compensation_starts_when_the_drive_reports_homed(tmp_path: Path):
+    def not_homed(data):
+        data["sim"]["axes"]["X"]["homed_at_start"] = False
+
+    async def body():
+        async with rig(tmp_path, with_pitch, {"x.csv": PITCH_X}, sim_edit=not_homed) as r:
+            master, direct, chain = r["master"], r["direct"], r["chain"]
+            await move(master, 1, 300_000)
+            assert await read32(direct, 1, TARGET) == 300_000  # not homed: as written
+            assert await read32(master, 1, FEEDBACK) == 300_000
+            assert not (await master.write_register(TRIGGER, 0x20, device_id=1)).isError()
+            rr = await master.read_holding_registers(0x1003, count=1, device_id=1)
+            assert rr.registers[0] >> 6 & 1  # the master sees homing done
+            await move(master, 1, 400_000)
+            expected = chain.command_pulses("X", {"X": AxisInput(400_000, 1)})
+            assert await read32(direct, 1, TARGET) == expected != 400_000
+            assert await read32(master, 1, FEEDBACK) == 400_000
+
+    run(body())
