@@ -364,14 +364,15 @@ def fit(args: argparse.Namespace) -> int:
                 if config.planar is None:
                     raise TableError(f"{path}: an XY run, but the config has no planar section")
                 meas = planar_measurement(read_raw_csv(path), tuple(config.planar.axes))  # type: ignore[arg-type]
-                pr = fit_planar(meas, config, config_dir, args.planar_model, residual)
+                pr = fit_planar(meas, config, config_dir, args.planar_model, residual,
+                                _pitch_lines(args.pitch_lines))  # fmt: skip
                 pending.append(lambda pr=pr, c=comment: save_planar(pr, c))
                 ch = pr.choice
                 report["planar"] = {
                     "model": str(pr.model_path), "points": str(pr.points_path), "kind": ch.kind,
                     "degree": ch.degree, "loo_rms_um": ch.loo_rms_um,
                     "residual_rms_um": ch.residual_rms_um, "residual_max_um": ch.residual_max_um,
-                    "folded": pr.folded,
+                    "folded": pr.folded, "pinned": ch.pinned,
                 }  # fmt: skip
             elif kind == "thermal":
                 raw = read_raw_csv(path)
@@ -398,13 +399,28 @@ def fit(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _pitch_lines(items: list[str] | None) -> dict[str, float] | None:
+    """``X@Y=0`` → {"X": 0.0}: X's table was measured with Y at 0."""
+    if not items:
+        return None
+    out = {}
+    for item in items:
+        axis, at, rest = item.partition("@")
+        _, eq, value = rest.partition("=")
+        if not (axis and at and eq):
+            raise ValueError(f"--pitch-line {item!r} is not AXIS@OTHER=MM (e.g. X@Y=0)")
+        out[axis] = float(value)
+    return out
+
+
 def format_fit(report: dict[str, Any], dry_run: bool = False) -> str:
     lines = []
     verb = "would write" if dry_run else "wrote"
     for name, entry in report.items():
         if name == "planar":
             loo = ", ".join(f"{k} {v:.2f}" for k, v in entry["loo_rms_um"].items())
-            lines.append(f"planar: {verb} {entry['model']} ({entry['kind']}"
+            pin = f", {entry['pinned']} pinned to the pitch lines" if entry.get("pinned") else ""
+            lines.append(f"planar: {verb} {entry['model']} ({entry['kind']}{pin}"
                          f"{'' if entry['degree'] is None else ' degree ' + str(entry['degree'])}"
                          f"); LOO RMS µm: {loo}; residual RMS {entry['residual_rms_um']:.2f} "
                          f"max {entry['residual_max_um']:.2f} µm")  # fmt: skip
@@ -432,6 +448,9 @@ def _add_fit(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--mode", choices=["auto", "bidirectional", "unidirectional"], default="auto",
                    help="pitch tables (auto: unidirectional if the axis has backlash_mm)")
     p.add_argument("--planar-model", choices=["auto", "grid", "poly"], default="auto")
+    p.add_argument("--pitch-line", dest="pitch_lines", action="append", metavar="A@B=MM",
+                   help="X@Y=0: X's table was measured with Y at 0; the planar model is "
+                        "pinned to zero there (repeat per axis)")
     p.add_argument("--residual", action="store_true",
                    help="fold into the current tables (automatic for '# compensation: on')")
     p.add_argument("--dry-run", action="store_true", help="fit and check, write nothing")

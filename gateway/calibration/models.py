@@ -63,6 +63,7 @@ class PlanarChoice:
     residual_rms_um: float
     residual_max_um: float
     points: PlanarMeasurement = field(repr=False)
+    pinned: str | None = None  # the family pinned to the pitch lines (then kind is grid)
 
 
 def choose_planar_model(meas: PlanarMeasurement, kind: str = "auto") -> PlanarChoice:
@@ -98,6 +99,42 @@ def choose_planar_model(meas: PlanarMeasurement, kind: str = "auto") -> PlanarCh
     degree = getattr(model, "degree", None)
     return PlanarChoice(model, best, degree, scores, float(np.sqrt(np.mean(resid**2))),
                         float(resid.max()), pts)  # fmt: skip
+
+
+def _subdivided(lines: NDArray[np.float64], parts: int) -> NDArray[np.float64]:
+    t = np.linspace(0.0, 1.0, parts + 1)[:-1]
+    inner = (lines[:-1, None] + np.diff(lines)[:, None] * t[None, :]).reshape(-1)
+    return np.concatenate([inner, lines[-1:]])
+
+
+def pinned_measurement(
+    model: PlanarModel,
+    axes: tuple[str, str],
+    lines: dict[str, float],
+    subdivide: int = 4,
+    nodes: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+) -> PlanarMeasurement:
+    """The model on a grid, made zero along the lines where the pitch tables were measured.
+
+    ``lines``: axis → where the *other* axis stood while that axis's table was measured
+    (``{"X": 0.0}``: X's table at Y = 0). Along that line the pitch table already holds the
+    axis's error and the planar model should add nothing there; a least-squares fit adds
+    its edge wiggle instead, so that axis's component is replaced by
+    ``E(x, y) − E(x, y0)`` (for Y: ``E(x, y) − E(x0, y)``). Returned as grid points (the
+    measured grid lines subdivided ``subdivide`` times) for a cubic grid model.
+    """
+    if nodes is None:
+        nodes = model.nodes_hint_mm()
+    gx, gy = (_subdivided(n, subdivide) for n in nodes)
+    mesh = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
+    err = model.error_mm(mesh)
+    for k, name in enumerate(axes):
+        if name not in lines:
+            continue
+        line = mesh.copy()
+        line[:, 1 - k] = lines[name]
+        err[:, k] -= model.error_mm(line)[:, k]
+    return PlanarMeasurement(mesh, mesh + err, source=f"{model.kind} model pinned to pitch lines")
 
 
 # -- thermal ----------------------------------------------------------------------------------

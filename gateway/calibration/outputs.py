@@ -10,13 +10,13 @@ not written, and the error names the file and the point.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from ..compensation import PitchStage, PitchTable, PlanarMeasurement, PlanarStage
+from ..compensation import GridModel, PitchStage, PitchTable, PlanarMeasurement, PlanarStage
 from ..compensation.errors import CompensationError, TableError
 from ..config import GatewayConfig, PitchFile
 from ..config_types import read_yaml
@@ -31,7 +31,7 @@ from ..formats import (
 from ..formats.planar_file import load_planar_model
 from .fit import bidirectional_table, fold_backlash, fold_residual, unidirectional_table
 from .iso230 import iso230_axis
-from .models import PlanarChoice, choose_planar_model
+from .models import PlanarChoice, choose_planar_model, pinned_measurement
 from .rawdata import RawData, axis_deviations
 
 
@@ -170,9 +170,13 @@ def fit_planar(
     config_dir: Path,
     kind: str = "auto",
     residual: bool = False,
+    pitch_lines: dict[str, float] | None = None,
 ) -> PlanarResult:
     """Choose and check the planar model; ``residual``: ``meas`` was taken with the current
-    model on, and its errors are added to the current model's at the commanded points."""
+    model on, and its errors are added to the current model's at the commanded points.
+    ``pitch_lines`` (axis → where the other axis stood for that axis's table): the chosen
+    model is pinned to zero there (:func:`.models.pinned_measurement`) and written as a
+    cubic grid of its values."""
     model_path, points_path = planar_paths(config, config_dir)
     if residual:
         current = load_planar_model(model_path)
@@ -181,6 +185,13 @@ def fit_planar(
     choice = choose_planar_model(meas, kind)
     assert config.planar is not None
     axes = tuple(config.planar.axes)
+    if pitch_lines:
+        xs, ys = (np.unique(choice.points.command_mm[:, k]) for k in range(2))
+        pinned = pinned_measurement(choice.model, axes, pitch_lines, nodes=(xs, ys))  # type: ignore[arg-type]
+        grid = GridModel.from_measurement(pinned)
+        choice = replace(choice, model=grid, pinned=f"{choice.kind}"
+                         f"{'' if choice.degree is None else f' degree {choice.degree}'}",
+                         kind="grid", degree=None, points=pinned)  # fmt: skip
     try:
         stage = PlanarStage(choice.model, axes, source=str(model_path))  # type: ignore[arg-type]
     except CompensationError as exc:
@@ -213,6 +224,9 @@ def save_planar(result: PlanarResult, comment: str = "") -> None:
     scores = ", ".join(f"{k} {v:.3f}" for k, v in choice.loo_rms_um.items())
     head = [f"# {line}" for line in comment.splitlines()]
     head.append(f"# chosen by leave-one-out cross-validation (RMS µm: {scores})")
+    if choice.pinned:
+        head.append(f"# the {choice.pinned} model pinned to zero along the pitch tables' "
+                    "lines, as a cubic grid of its values")  # fmt: skip
     head.append(f"# residual at the points: RMS {choice.residual_rms_um:.3f} µm, "
                 f"max {choice.residual_max_um:.3f} µm")  # fmt: skip
     atomic_write_text(result.model_path, "\n".join(head) + "\n" + yaml.safe_dump(spec))

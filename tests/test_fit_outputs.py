@@ -1,0 +1,204 @@
+"""`compgw fit` and the pure fits behind it, on data made here (numbers known in advance)."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+import yaml
+
+from gateway.calibration.models import choose_planar_model, pinned_measurement, thermal_fit
+from gateway.calibration.plans import iso230_linear_plan, warmup_plan, write_plan
+from gateway.calibration.rawdata import RawWriter, read_raw_csv
+from gateway.calibration.runner import join_readings, read_raw_meta, run_plan
+from gateway.cli import main
+from gateway.compensation import PlanarMeasurement
+from gateway.formats import read_pitch_csv
+
+CONFIG = {
+    "upstream": {"tcp": {"port": 0}},
+    "buses": {"line1": {"tcp": {"host": "127.0.0.1", "port": 1}}},
+    "axes": {
+        "X": {"bus": "line1", "unit": 1, "pulse_mm": 0.001, "travel_mm": [0, 600],
+              "registers": {"target": {"address": 0x6201}, "feedback": {"address": 0x602A}},
+              "compensation": {"pitch": "tables/x.csv", "max_correction_mm": 0.05}},
+    },
+}  # fmt: skip
+
+
+def e_true(x):
+    return 0.02 * np.sin(np.asarray(x) / 90.0) + 3e-5 * np.asarray(x)
+
+
+def land(target, direction, lost_mm=0.01):
+    return target + e_true(target) - direction * lost_mm / 2
+
+
+def machine(noise_um=0.3, seed=0, fail_at=None):
+    """move/measure coroutines of a numpy machine; ``fail_at``: measurement that raises."""
+    rng = np.random.default_rng(seed)
+    state = {"n": 0}
+
+    async def move(_targets):
+        return None
+
+    async def measure(m):
+        state["n"] += 1
+        if state["n"] == fail_at:
+            raise KeyboardInterrupt
+        return {"X": float(land(m.target_mm[0], m.direction) + rng.normal(0, noise_um * 1e-3))}
+
+    return move, measure
+
+
+def test_thermal_fit_recovers_the_length_and_a_wrong_sign_is_refused(tmp_path):
+    rng = np.random.default_rng(1)
+    path = tmp_path / "warm.csv"
+    delta_a = np.concatenate([[0.0], np.cumsum(rng.uniform(0.5, 1.5, 30))]) * 1e-3
+    with RawWriter(path, ["delta_a_mm"]) as w:
+        for k, d in enumerate(delta_a):
+            growth = d * 600.0 / 750.0  # a = 750 mm, reference 600 mm from the origin
+            w.append("X", k + 1, "+", 600.0, 600.003 + growth + rng.normal(0, 2e-4),
+                     delta_a_mm=float(d))  # fmt: skip
+    fit = thermal_fit(read_raw_csv(path), "X", origin_mm=0.0, config_length_mm=800.0)
+    assert fit.length_mm == pytest.approx(750.0, rel=0.01)
+    assert fit.gain == pytest.approx(800.0 / 750.0, rel=0.01)
+    assert fit.residual_rms_um < 0.4
+
+
+def test_planar_choice_by_cross_validation_and_pinning():
+    xs, ys = np.meshgrid(np.linspace(0, 800, 9), np.linspace(0, 600, 7))
+    cmd = np.column_stack([xs.ravel(), ys.ravel()])
+    rng = np.random.default_rng(2)
+    err = np.column_stack([1.45e-4 * cmd[:, 1] + 3e-9 * cmd[:, 0] * cmd[:, 1],
+                           4e-3 * (cmd[:, 0] / 800) * (1 - cmd[:, 0] / 800)])  # fmt: skip
+    meas = PlanarMeasurement(cmd, cmd + err + rng.normal(0, 3e-4, err.shape))
+    choice = choose_planar_model(meas)
+    assert choice.kind == "poly" and choice.degree == 2  # the field is quadratic
+    assert set(choice.loo_rms_um) >= {"poly1", "poly2", "grid"}
+    assert choice.residual_rms_um < 0.6
+    pinned = pinned_measurement(choice.model, ("X", "Y"), {"X": 0.0, "Y": 0.0})
+    on_x_line = pinned.command_mm[:, 1] == 0.0
+    on_y_line = pinned.command_mm[:, 0] == 0.0
+    assert np.abs(pinned.error_mm[on_x_line, 0]).max() < 1e-12
+    assert np.abs(pinned.error_mm[on_y_line, 1]).max() < 1e-12
+    # squareness stays: X error grows with Y along the Y line
+    assert pinned.error_mm[on_y_line, 0].max() > 0.08
+
+
+def write_config(tmp_path, cap_mm=0.05):
+    data = yaml.safe_load(yaml.safe_dump(CONFIG))
+    data["axes"]["X"]["compensation"]["max_correction_mm"] = cap_mm
+    (tmp_path / "tables").mkdir(exist_ok=True)
+    path = tmp_path / "gw.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def identification(tmp_path):
+    plan = iso230_linear_plan("X", (0, 600), step_mm=50, runs=3)
+    raw = tmp_path / "x_id.csv"
+    asyncio.run(run_plan(plan, raw, *machine(), meta={"compensation": "off"}))
+    return plan, raw
+
+
+def test_fit_writes_the_table_the_config_references(tmp_path, capsys):
+    config = write_config(tmp_path)
+    _, raw = identification(tmp_path)
+    assert read_raw_meta(raw)["kind"] == "iso230-linear"
+    assert main(["fit", str(raw), "-c", str(config)]) == 0
+    table = read_pitch_csv(tmp_path / "tables" / "x.csv")
+    assert table.bidirectional
+    i = np.argmin(abs(table.position_mm - 300))
+    assert table.forward_mm[i] == pytest.approx(float(land(table.position_mm[i], 1)
+                                                      - table.position_mm[i]), abs=1e-3)  # fmt: skip
+    assert "bidirectional" in capsys.readouterr().out
+
+
+def test_a_table_over_the_cap_is_not_written_and_the_error_names_file_and_point(tmp_path, capsys):
+    config = write_config(tmp_path, cap_mm=0.02)
+    _, raw = identification(tmp_path)
+    assert main(["fit", str(raw), "-c", str(config)]) == 1
+    err = capsys.readouterr().err
+    assert "tables/x.csv" in err and "exceeds max_correction_mm 0.02" in err and " mm" in err
+    assert not (tmp_path / "tables" / "x.csv").exists()
+
+
+def test_unidirectional_mode_prints_the_backlash(tmp_path, capsys):
+    config = write_config(tmp_path)
+    _, raw = identification(tmp_path)
+    assert main(["fit", str(raw), "-c", str(config), "--mode", "unidirectional", "--json"]) == 0
+    import json
+
+    entry = json.loads(capsys.readouterr().out)["X"]
+    assert entry["backlash_mm"] == pytest.approx(0.01, abs=1e-3)
+    assert not read_pitch_csv(tmp_path / "tables" / "x.csv").bidirectional
+
+
+def test_interrupted_run_resumed_gives_the_same_table(tmp_path):
+    """Killed half-way (Ctrl-C while measuring), resumed: the same rows, the same table."""
+    config = write_config(tmp_path)
+    plan = iso230_linear_plan("X", (0, 600), step_mm=50, runs=3)
+    whole, part = tmp_path / "whole.csv", tmp_path / "part.csv"
+    asyncio.run(run_plan(plan, whole, *machine()))
+    move, measure = machine(fail_at=40)
+    with pytest.raises(KeyboardInterrupt):
+        asyncio.run(run_plan(plan, part, move, measure))
+    assert len(read_raw_csv(part)) == 39  # every reading taken before the interruption
+    rng_state = machine()  # the same noise sequence from where it stopped
+    move, measure = rng_state
+    for m in [m for m in plan.moves if m.measured][:39]:
+        asyncio.run(measure(m))  # skip the draws already used
+    summary = asyncio.run(run_plan(plan, part, move, measure))
+    assert summary.resumed_at > 0 and summary.complete
+    a, b = read_raw_csv(whole), read_raw_csv(part)
+    np.testing.assert_array_equal(a.actual_mm, b.actual_mm)
+    tables = []
+    for raw in (whole, part):
+        assert main(["fit", str(raw), "-c", str(config)]) == 0
+        tables.append((tmp_path / "tables" / "x.csv").read_text().split("\n", 3)[3])
+    assert tables[0] == tables[1]
+
+
+def test_join_a_laser_export_offline(tmp_path):
+    plan = iso230_linear_plan("X", (0, 600), step_mm=100, runs=2)
+    write_plan(tmp_path / "p.csv", plan)
+    measured = [m for m in plan.moves if m.measured]
+    lines = ["# laser system export", "target_mm,deviation_um"]
+    lines += [f"{m.target_mm[0]},{(land(m.target_mm[0], m.direction) - m.target_mm[0]) * 1e3}"
+              for m in measured]  # fmt: skip
+    (tmp_path / "laser.csv").write_text("\n".join(lines[:12]) + "\n")
+    config = write_config(tmp_path)
+    raw = tmp_path / "raw.csv"
+    args = ["calibrate", "-c", str(config), "--plan", str(tmp_path / "p.csv"),
+            "--join", str(tmp_path / "laser.csv"), "--raw", str(raw)]  # fmt: skip
+    assert main(args) == 0
+    assert len(read_raw_csv(raw)) == 10  # partial export: resumable
+    (tmp_path / "laser.csv").write_text("\n".join(lines) + "\n")
+    assert main(args) == 0
+    data = read_raw_csv(raw)
+    assert len(data) == len(measured)
+    np.testing.assert_allclose(data.actual_mm, [land(m.target_mm[0], m.direction)
+                                                for m in measured], atol=1e-9)  # fmt: skip
+    lines[3] = "999," + lines[3].split(",")[1]
+    (tmp_path / "laser.csv").write_text("\n".join(lines) + "\n")
+    assert main(args[:-1] + [str(tmp_path / "other.csv")]) == 1  # not this plan's targets
+
+
+def test_warmup_raw_numbers_runs_from_one(tmp_path):
+    plan = warmup_plan("X", (0, 600), 100, 600, 590, measure_every=5)
+
+    async def move(_):
+        return None
+
+    async def measure(_):
+        return {"X": 590.0}
+
+    async def extra(_):
+        return {"delta_a_mm": 0.0}
+
+    raw = tmp_path / "w.csv"
+    asyncio.run(run_plan(plan, raw, move, measure, extra=extra, extra_names=("delta_a_mm",)))
+    data = read_raw_csv(raw)
+    assert data.run[0] == 1 and "run_offset" in read_raw_meta(raw)
