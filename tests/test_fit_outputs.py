@@ -11,7 +11,7 @@ import yaml
 from gateway.calibration.models import choose_planar_model, pinned_measurement, thermal_fit
 from gateway.calibration.plans import iso230_linear_plan, warmup_plan, write_plan
 from gateway.calibration.rawdata import RawWriter, read_raw_csv
-from gateway.calibration.runner import join_readings, read_raw_meta, run_plan
+from gateway.calibration.runner import read_raw_meta, run_plan
 from gateway.cli import main
 from gateway.compensation import PlanarMeasurement
 from gateway.formats import read_pitch_csv
@@ -116,7 +116,7 @@ def test_fit_writes_the_table_the_config_references(tmp_path, capsys):
     assert "bidirectional" in capsys.readouterr().out
 
 
-def test_a_table_over_the_cap_is_not_written_and_the_error_names_file_and_point(tmp_path, capsys):
+def test_a_table_over_the_cap_is_not_written_and_names_file_and_point(tmp_path, capsys):
     config = write_config(tmp_path, cap_mm=0.02)
     _, raw = identification(tmp_path)
     assert main(["fit", str(raw), "-c", str(config)]) == 1
@@ -183,7 +183,7 @@ def test_join_a_laser_export_offline(tmp_path):
                                                 for m in measured], atol=1e-9)  # fmt: skip
     lines[3] = "999," + lines[3].split(",")[1]
     (tmp_path / "laser.csv").write_text("\n".join(lines) + "\n")
-    assert main(args[:-1] + [str(tmp_path / "other.csv")]) == 1  # not this plan's targets
+    assert main([*args[:-1], str(tmp_path / "other.csv")]) == 1  # not this plan's targets
 
 
 def test_warmup_raw_numbers_runs_from_one(tmp_path):
