@@ -111,8 +111,8 @@ def test_fit_writes_the_table_the_config_references(tmp_path, capsys):
     table = read_pitch_csv(tmp_path / "tables" / "x.csv")
     assert table.bidirectional
     i = np.argmin(abs(table.position_mm - 300))
-    assert table.forward_mm[i] == pytest.approx(float(land(table.position_mm[i], 1)
-                                                      - table.position_mm[i]), abs=1e-3)  # fmt: skip
+    want = float(land(table.position_mm[i], 1) - table.position_mm[i])
+    assert table.forward_mm[i] == pytest.approx(want, abs=1e-3)
     assert "bidirectional" in capsys.readouterr().out
 
 
