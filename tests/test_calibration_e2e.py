@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from gateway.calibration.commands import calibrate
 from gateway.calibration.iso230 import iso230_raw
 from gateway.calibration.models import drift_um
 from gateway.calibration.plans import (
@@ -36,7 +38,9 @@ from gateway.calibration.plans import (
 )
 from gateway.calibration.rawdata import read_raw_csv
 from gateway.calibration.session import planar_figures
-from gateway.cli import main
+from gateway.cli import build_parser, main
+from gateway.compensation import PitchTable
+from gateway.formats import read_pitch_csv, write_pitch_csv
 from tests.test_calibration_rig import Bench, example_config, without
 
 #: dense (a quarter of the 10 mm lead: the sim's once-per-lead error is followed), uneven
@@ -156,6 +160,36 @@ def flow(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
             machine.Laser.read_mm = real  # type: ignore[method-assign]
         out["rows_after_interrupt"] = len(read_raw_csv(d / "X_resumed.csv"))
         out["resume_output"] = ok(*args)
+
+        # seed 001: a table 30 % off (as if identified warm), iterated with compensation on
+        plan = iso230_linear_plan("X", (0, 100), step_mm=5, runs=2, overrun_mm=1)
+        write_plan(d / "X_iter.plan", plan)
+        write_plan(d / "X_iter_verify.plan", iso230_linear_plan(
+            "X", (0, 100), step_mm=5, runs=2, overrun_mm=1, verification=True))  # fmt: skip
+        fitted = read_pitch_csv(d / "tables" / "x_pitch.csv")
+        t = plan.targets_mm()[: len(plan.targets_mm()) // 4]  # the targets of run 1, going up
+        off = PitchTable(t, 0.7 * np.interp(t, fitted.position_mm, fitted.forward_mm),
+                         0.7 * np.interp(t, fitted.position_mm, fitted.reverse_mm))  # fmt: skip
+        write_pitch_csv(d / "tables" / "x_iter.csv", off)
+        it = without(full, "planar")
+        it["axes"]["X"]["compensation"]["pitch"]["file"] = "tables/x_iter.csv"
+        it_path = b.write_config("iter.yaml", it)
+        b.use(it_path)
+        b.cool_down()
+
+        async def reload() -> None:
+            b.use(it_path)
+
+        args = build_parser().parse_args([str(a) for a in (
+            "calibrate", "-c", it_path, "--gateway", b.gateway, "--plan", d / "X_iter.plan",
+            "--verify-plan", d / "X_iter_verify.plan", "--verify", "--iterate", "2",
+            "--tolerance-um", "3.5", "--laser", laser, "--park", "Y=0", "--compensation", "on",
+            "--raw", d / "X_iter.csv")])  # fmt: skip
+        text = io.StringIO()
+        with contextlib.redirect_stdout(text):
+            out["iterate_rc"] = calibrate(args, reload=reload)
+        out["iterate_output"] = text.getvalue()
+        print(out["iterate_output"])
     out["seconds"] = time.monotonic() - t0
 
     for phase in ("before", "after"):
@@ -251,3 +285,16 @@ def test_report_of_before_and_after(flow, tmp_path):
     assert text.count("data:image/png;base64,") == 1 and "figures-X" in text
     ok("report", d / "xy_after.csv", "--before", d / "xy_before.csv", "--out", tmp_path / "xy")
     assert (tmp_path / "xy" / "xy-field.png").stat().st_size > 1000
+
+
+def test_iteration_folds_the_residual_until_within_tolerance(flow):
+    """Seed 001 with `compgw calibrate --verify --iterate`: each round's figures printed,
+    the residual folded into the table and the gateway reloaded, stopping at tolerance."""
+    d, text = flow["dir"], flow["iterate_output"]
+    assert flow["iterate_rc"] == 0, text
+    rounds = [float(m) for m in re.findall(r"round \d+: X: E ([\d.]+)", text)]
+    assert len(rounds) >= 2 and rounds[0] > 3.0, text  # a 30 % table error shows
+    assert rounds[-1] <= 3.5 and rounds[-1] < 0.6 * rounds[0], text
+    assert "folded into" in text and "within 3.5 µm: done" in text
+    assert (d / "X_iter.round0.csv").exists() and (d / "X_iter.verify.csv").exists()
+    assert "verification (X_iter.verify.csv)" in text

@@ -165,6 +165,13 @@ table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:
 text-align:right}th{background:#eee}img{max-width:100%}figcaption{font-size:90%;color:#555}"""
 
 
+#: Marks the body with how many figures decoded (a headless browser's DOM dump shows it).
+LOADED_SCRIPT = ("window.addEventListener('load',function(){var n=0;"
+                 "document.querySelectorAll('img').forEach(function(i){"
+                 "if(i.complete&&i.naturalWidth>0){n++;}});"
+                 "document.body.setAttribute('data-images-loaded',String(n));});")
+
+
 def build_report(
     raw: RawData, before: RawData | None = None, title: str = "compgw calibration report"
 ) -> tuple[str, list[Figure], dict[str, Any]]:
@@ -203,8 +210,8 @@ def build_report(
                 parts.append(_target_table(axis, k, r))
     body = "\n".join(parts)
     text = (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>"
-            f"{html.escape(title)}</title><style>{STYLE}</style></head><body>{body}</body>"
-            "</html>\n")  # fmt: skip
+            f"{html.escape(title)}</title><style>{STYLE}</style></head><body>{body}"
+            f"<script>{LOADED_SCRIPT}</script></body></html>\n")  # fmt: skip
     return text, figures, data
 
 

@@ -1,0 +1,98 @@
+"""`compgw report`: JSON figures, the self-contained HTML with its PNGs, and that it renders."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gateway.calibration.iso230 import JSON_KEYS
+from gateway.calibration.plans import iso230_linear_plan, xy_grid_plan
+from gateway.calibration.rawdata import RawWriter
+from gateway.cli import main
+
+CHROMIUM = Path("/usr/bin/chromium")
+
+
+def axis_run(path: Path, scale: float, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    plan = iso230_linear_plan("X", (0, 500), step_mm=50, runs=5)
+    with RawWriter(path) as w:
+        for m in plan.moves:
+            if m.measured:
+                t = m.target_mm[0]
+                dev = scale * (0.02 * np.sin(t / 80) - m.direction * 0.005) + rng.normal(0, 5e-4)
+                w.append("X", m.run, m.direction, t, t + dev)
+
+
+def xy_run(path: Path, scale: float) -> None:
+    plan = xy_grid_plan((0, 400), (0, 300), 5, 4)
+    with RawWriter(path, ["x_mm", "y_mm"]) as w:
+        for m in plan.moves:
+            x, y = m.target_mm
+            w.append("X", 1, "+", x, x + scale * 1.45e-4 * y, x_mm=x, y_mm=y)
+            w.append("Y", 1, "+", y, y + scale * 2e-6 * x, x_mm=x, y_mm=y)
+
+
+@pytest.fixture
+def runs(tmp_path):
+    axis_run(tmp_path / "before.csv", 1.0, 1)
+    axis_run(tmp_path / "after.csv", 0.05, 2)
+    xy_run(tmp_path / "xy_before.csv", 1.0)
+    xy_run(tmp_path / "xy_after.csv", 0.02)
+    return tmp_path
+
+
+def test_json_prints_the_iso_figures_per_axis(runs, capsys):
+    assert main(["report", str(runs / "before.csv"), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert list(data) == ["X"]
+    assert set(JSON_KEYS) <= set(data["X"])
+    assert data["X"]["B_um"] == pytest.approx(10.0, abs=1.0)  # the ±5 µm reversal
+    assert data["X"]["E_um"] > data["X"]["E_up_um"] > 0
+    assert not (runs / "report").exists()  # --json alone writes nothing
+
+
+def test_html_is_self_contained_with_before_after_and_pngs(runs, capsys):
+    out = runs / "rep"
+    assert main(["report", str(runs / "after.csv"), "--before", str(runs / "before.csv"),
+                 "--out", str(out)]) == 0  # fmt: skip
+    text = (out / "report.html").read_text()
+    assert (out / "axis-X.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert text.count("data:image/png;base64,") == 1
+    assert "src='http" not in text and "<link" not in text  # nothing fetched from elsewhere
+    assert "E systematic" in text and "% less" in text and "per target" in text
+    assert main(["report", str(runs / "xy_after.csv"), "--before", str(runs / "xy_before.csv"),
+                 "--out", str(out / "xy")]) == 0  # fmt: skip
+    assert "figures-XY" in (out / "xy" / "report.html").read_text()
+    assert (out / "xy" / "xy-field.png").stat().st_size > 1000
+
+
+@pytest.mark.skipif(not CHROMIUM.exists(),
+                    reason="needs Debian's chromium (apt-get install chromium) at /usr/bin")
+def test_report_renders_in_headless_chromium(runs, tmp_path):
+    out = runs / "rep"
+    assert main(["report", str(runs / "after.csv"), "--before", str(runs / "before.csv"),
+                 "--out", str(out)]) == 0  # fmt: skip
+    profile = tmp_path / "profile"
+    result = subprocess.run(
+        [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", f"--user-data-dir={profile}",
+         "--virtual-time-budget=5000", "--dump-dom", (out / "report.html").as_uri()],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    dom = result.stdout
+    assert "figures-X" in dom and "<img" in dom
+    loaded = re.search(r'data-images-loaded="(\d+)"', dom)
+    assert loaded and int(loaded.group(1)) == 1, dom[-500:]
+    shot = tmp_path / "shot.png"
+    subprocess.run([str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu",
+                    f"--user-data-dir={profile}", f"--screenshot={shot}",
+                    "--window-size=1200,2000", (out / "report.html").as_uri()],
+                   capture_output=True, timeout=60, check=True)  # fmt: skip
+    assert shot.stat().st_size > 10_000
+
