@@ -202,3 +202,20 @@ def test_warmup_raw_numbers_runs_from_one(tmp_path):
     asyncio.run(run_plan(plan, raw, move, measure, extra=extra, extra_names=("delta_a_mm",)))
     data = read_raw_csv(raw)
     assert data.run[0] == 1 and "run_offset" in read_raw_meta(raw)
+
+
+def test_backlash_plan_and_unidirectional_table_use_seed_000s_value(tmp_path, capsys):
+    import json
+
+    from gateway.calibration.plans import backlash_plan
+
+    config = write_config(tmp_path)
+    lash = tmp_path / "lash.csv"
+    asyncio.run(run_plan(backlash_plan("X", (0, 600)), lash, *machine(noise_um=0.1)))
+    _, raw = identification(tmp_path)
+    assert main(["fit", str(lash), str(raw), "-c", str(config), "--mode", "unidirectional",
+                 "--json"]) == 0  # fmt: skip
+    entry = json.loads(capsys.readouterr().out)["X"]
+    assert entry["backlash_um"] == pytest.approx(10.0, abs=0.3)  # largest place mean
+    assert entry["backlash_mm"] == pytest.approx(entry["backlash_um"] / 1000)
+    assert len(entry["backlash_places"]) == 3

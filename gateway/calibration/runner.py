@@ -122,6 +122,8 @@ async def run_plan(
     start = 0 if existing is None else resume_index(plan, existing)
     total = len(plan.moves)
     if start >= total:
+        if progress is not None:
+            progress(total, total)
         return RunSummary(path, total, start, 0, True)
     _start_file(path, plan, meta or {})
     t0 = time.time()
