@@ -195,6 +195,8 @@ def _refused_soon(port: int, timeout_s: float = 5.0) -> bool:
             socket.create_connection(("127.0.0.1", port), timeout=2).close()
         except ConnectionRefusedError:
             return True
+        except ConnectionResetError:  # accepted into the backlog as the listener closed
+            continue
     return False
 
 
