@@ -352,8 +352,9 @@ def fit(args: argparse.Namespace) -> int:
             if kind == "pitch":
                 raw = read_raw_csv(path)
                 for a in raw.axes:
+                    degree = None if args.reversal == "per-point" else args.reversal_degree
                     r = fit_pitch(raw, config, config_dir, a, mode=args.mode, residual=residual,
-                                  backlash_mm=backlash.get(a))  # fmt: skip
+                                  backlash_mm=backlash.get(a), reversal_degree=degree)  # fmt: skip
                     pending.append(lambda r=r, c=comment: save_pitch(r, c))
                     entry = report.setdefault(a, {})
                     entry.update(table=str(r.path), mode=r.mode, folded=r.folded,
@@ -447,6 +448,10 @@ def _add_fit(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("-c", "--config", required=True, help="gateway YAML config")
     p.add_argument("--mode", choices=["auto", "bidirectional", "unidirectional"], default="auto",
                    help="pitch tables (auto: unidirectional if the axis has backlash_mm)")
+    p.add_argument("--reversal", choices=["smooth", "per-point"], default="smooth",
+                   help="bidirectional tables: reversal as a polynomial in position (both "
+                        "directions' readings serve every point) or per point")
+    p.add_argument("--reversal-degree", type=int, default=2)
     p.add_argument("--planar-model", choices=["auto", "grid", "poly"], default="auto")
     p.add_argument("--pitch-line", dest="pitch_lines", action="append", metavar="A@B=MM",
                    help="X@Y=0: X's table was measured with Y at 0; the planar model is "

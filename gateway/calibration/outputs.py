@@ -29,7 +29,13 @@ from ..formats import (
     write_planar_csv,
 )
 from ..formats.planar_file import load_planar_model
-from .fit import bidirectional_table, fold_backlash, fold_residual, unidirectional_table
+from .fit import (
+    bidirectional_table,
+    bidirectional_table_smooth_reversal,
+    fold_backlash,
+    fold_residual,
+    unidirectional_table,
+)
 from .iso230 import iso230_axis
 from .models import PlanarChoice, choose_planar_model, pinned_measurement
 from .rawdata import RawData, axis_deviations
@@ -90,6 +96,7 @@ def fit_pitch(
     mode: str = "auto",
     residual: bool = False,
     backlash_mm: float | None = None,
+    reversal_degree: int | None = 2,
 ) -> PitchResult:
     """Table of ``axis`` from an identification run, or folded with a residual run.
 
@@ -98,6 +105,8 @@ def fit_pitch(
     ``residual``: ``raw`` was measured with the current table applied (the calibration plan
     re-run with compensation on): the table is folded (seed 001). ``backlash_mm``: a value
     measured by the backlash plan, used instead of the ISO reversal B̄.
+    ``reversal_degree``: bidirectional tables take the reversal as a polynomial of this
+    degree in position (:func:`.fit.bidirectional_table_smooth_reversal`); ``None``: per point.
     """
     path, fmt = pitch_path(config, config_dir, axis)
     comp = config.axes[axis].compensation
@@ -120,7 +129,10 @@ def fit_pitch(
         kind = "bidirectional" if current.bidirectional else "unidirectional"
         result = PitchResult(axis, path, table, lash, kind, True, fmt)
     elif mode == "bidirectional":
-        table = bidirectional_table(dev, str(path))
+        if reversal_degree is None:
+            table = bidirectional_table(dev, str(path))
+        else:
+            table = bidirectional_table_smooth_reversal(dev, reversal_degree, str(path))
         result = PitchResult(axis, path, table, None, mode, False, fmt)
     else:
         uni = unidirectional_table(dev, str(path))
