@@ -23,9 +23,6 @@ from collections import OrderedDict, deque
 from collections.abc import Hashable
 from dataclasses import dataclass
 
-from pymodbus.framer import FramerSocket
-from pymodbus.pdu import DecodePDU
-
 from .frames import (
     GATEWAY_PATH_UNAVAILABLE,
     GATEWAY_TARGET_NO_RESPONSE,
@@ -401,6 +398,85 @@ class RtuBus(Bus):
         return unit_id == 0
 
 
+class _MbapClient(asyncio.Protocol):
+    """The TCP connection of one :class:`TcpBus`: cuts MBAP frames in ``data_received``
+    and hands each to the bus, which resolves the waiting transaction's future (no reader
+    task, no queue: a reply wakes the transaction directly)."""
+
+    def __init__(self, bus: TcpBus) -> None:
+        self.bus = bus
+        self.transport: asyncio.Transport | None = None
+        self.buf = bytearray()
+        self.lost = False
+        self.paused = False
+        self._drain: asyncio.Future[None] | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+
+    def data_received(self, data: bytes) -> None:
+        buf = self.buf
+        buf += data
+        while len(buf) >= 8:
+            length = (buf[4] << 8) | buf[5]
+            if buf[2] or buf[3] or not 2 <= length <= MAX_PDU_BYTES + 1:
+                log.warning("%s: bad MBAP header %s: closing", self.bus.name, bytes(buf[:8]).hex())
+                buf.clear()
+                self.close()
+                return
+            size = 6 + length
+            if len(buf) < size:
+                return
+            tid = (buf[0] << 8) | buf[1]
+            unit = buf[6]
+            pdu = bytes(buf[7:size])
+            del buf[:size]
+            self.bus._on_frame(self, unit, tid, pdu)
+
+    def eof_received(self) -> bool:
+        return False  # the drive closed: close our side too (connection_lost follows)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.close()
+
+    def pause_writing(self) -> None:
+        self.paused = True
+
+    def resume_writing(self) -> None:
+        self.paused = False
+        if self._drain is not None and not self._drain.done():
+            self._drain.set_result(None)
+        self._drain = None
+
+    async def drain(self) -> None:
+        """Wait until the write buffer is below the low-water mark (only when paused)."""
+        if self.lost:
+            raise ConnectionError("connection closed")
+        if self._drain is None or self._drain.done():
+            self._drain = asyncio.get_running_loop().create_future()
+        await self._drain
+
+    def close(self) -> None:
+        """Close (idempotent); a transaction waiting on this connection fails at once."""
+        if not self.lost:
+            self.lost = True
+            if self.transport is not None:
+                self.transport.close()
+            if self._drain is not None and not self._drain.done():
+                self._drain.set_exception(ConnectionError("connection closed"))
+            self.bus._on_lost(self)
+
+
+def _expire(fut: asyncio.Future[bytes | None]) -> None:
+    if not fut.done():
+        fut.set_result(None)
+
+
 class TcpBus(Bus):
     """A Modbus TCP drive (or TCP-to-RTU converter): one persistent connection.
 
@@ -408,6 +484,11 @@ class TcpBus(Bus):
     recognised and dropped. The connection is opened on first use and reopened after a
     failure with exponential backoff; a peer that closes an idle connection is reconnected
     transparently on the next request.
+
+    The connection is an :class:`asyncio.Protocol`: ``data_received`` cuts frames and
+    resolves the future of the transaction waiting for that transaction id (its timeout
+    is one ``loop.call_later``); anything else is a late or foreign reply, dropped and
+    counted. Writes wait only when the transport's buffer is above its high-water mark.
     """
 
     def __init__(self, host: str, port: int = 502, *, connect_timeout_s: float | None = None,
@@ -418,88 +499,79 @@ class TcpBus(Bus):
         self.port = port
         self.connect_timeout_s = connect_timeout_s or max(self.timeout_s, 1.0)
         self.check_unit = check_unit
-        self._framer = FramerSocket(DecodePDU(is_server=False))
-        self._reader: asyncio.StreamReader | None = None
-        self._writer: asyncio.StreamWriter | None = None
-        self._rx: asyncio.Queue[tuple[int, int | None, bytes] | None] = asyncio.Queue(64)
-        self._rx_task: asyncio.Task[None] | None = None
+        self._proto: _MbapClient | None = None
+        # the transaction waiting for a reply: (connection, tid, unit or None, request, future)
+        self._waiter: tuple[_MbapClient, int, int | None, bytes,
+                            asyncio.Future[bytes | None]] | None = None
         self._tid = 0
 
     @property
     def connected(self) -> bool:
-        return self._writer is not None and self._rx_task is not None \
-            and not self._rx_task.done()
+        return self._proto is not None and not self._proto.lost
+
+    @property
+    def _transport(self) -> asyncio.Transport | None:
+        """The open connection's transport (tests close it to simulate a drive's close)."""
+        return self._proto.transport if self._proto is not None else None
 
     async def _open(self) -> None:
         await self._close()
-        reader, writer = await asyncio.wait_for(
-            asyncio.open_connection(self.host, self.port), self.connect_timeout_s)
-        sock = writer.get_extra_info("socket")
-        if sock is not None:
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
-        self._reader, self._writer = reader, writer
-        self._rx = asyncio.Queue(64)
-        self._rx_task = asyncio.create_task(self._read_loop(reader, self._rx),
-                                            name=f"compgw-rx-{self.name}")
+        loop = asyncio.get_running_loop()
+        _, proto = await asyncio.wait_for(
+            loop.create_connection(lambda: _MbapClient(self), self.host, self.port),
+            self.connect_timeout_s)
+        self._proto = proto
 
     async def _close(self) -> None:
-        task, writer = self._rx_task, self._writer
-        self._rx_task = self._writer = self._reader = None
-        if task is not None:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await task
-        if writer is not None:
-            writer.close()
-            with contextlib.suppress(Exception):
-                await asyncio.wait_for(writer.wait_closed(), 1.0)
+        proto, self._proto = self._proto, None
+        if proto is not None:
+            proto.close()
 
-    async def _read_loop(self, reader: asyncio.StreamReader,
-                         rx: asyncio.Queue[tuple[int, int | None, bytes] | None]) -> None:
-        """Cut the byte stream into MBAP frames; None on the queue = connection gone."""
-        try:
-            while True:
-                header = await reader.readexactly(6)
-                length = int.from_bytes(header[4:6], "big")
-                if header[2:4] != b"\x00\x00" or not 2 <= length <= MAX_PDU_BYTES + 1:
-                    log.warning("%s: bad MBAP header %s: closing", self.name, header.hex())
-                    break
-                frame = header + await reader.readexactly(length)
-                _, unit, tid, pdu = self._framer.decode(frame)
-                if rx.full():
-                    self.counters.dropped += 1
-                    continue
-                rx.put_nowait((unit, tid, pdu))
-        except (asyncio.IncompleteReadError, OSError):
-            pass
-        finally:
-            with contextlib.suppress(asyncio.QueueFull):
-                rx.put_nowait(None)
+    def _on_frame(self, proto: _MbapClient, unit: int, tid: int, pdu: bytes) -> None:
+        waiter = self._waiter
+        if waiter is not None:
+            w_proto, w_tid, w_unit, w_pdu, fut = waiter
+            if tid == w_tid and proto is w_proto and (w_unit is None or unit == w_unit) \
+                    and response_matches(w_pdu, pdu) and not fut.done():
+                fut.set_result(pdu)
+                return
+        self.counters.dropped += 1
+        log.debug("%s: dropped reply unit %d tid %d %s (waiting for %s)", self.name, unit, tid,
+                  pdu.hex(), None if waiter is None else f"unit {waiter[2]} tid {waiter[1]}")
+
+    def _on_lost(self, proto: _MbapClient) -> None:
+        waiter = self._waiter
+        if waiter is not None and waiter[0] is proto and not waiter[4].done():
+            waiter[4].set_exception(ConnectionError("connection closed by drive"))
 
     async def _prepare(self) -> None:
-        while not self._rx.empty():  # stale replies from timed-out requests
-            if self._rx.get_nowait() is None:
-                raise ConnectionError("connection closed by drive")
-            self.counters.dropped += 1
         if self.min_silence_s:
             await asyncio.sleep(self.min_silence_s)
 
     async def _send(self, unit_id: int, pdu: bytes) -> int | None:
-        assert self._writer is not None
-        self._tid = self._tid % 0xFFFF + 1
-        self._writer.write(self._framer.encode(pdu, unit_id, self._tid))
-        await self._writer.drain()
-        return self._tid
+        proto = self._proto
+        if proto is None or proto.lost or proto.transport is None:
+            raise ConnectionError("connection closed by drive")
+        self._tid = tid = self._tid % 0xFFFF + 1
+        proto.transport.write(
+            bytes((tid >> 8, tid & 0xFF, 0, 0, (len(pdu) + 1) >> 8, (len(pdu) + 1) & 0xFF,
+                   unit_id)) + pdu)
+        if proto.paused:
+            await proto.drain()
+        return tid
+
+    async def _await_reply(self, unit_id: int, tid: int | None, pdu: bytes) -> bytes | None:
+        assert tid is not None and self._proto is not None
+        loop = asyncio.get_running_loop()
+        fut: asyncio.Future[bytes | None] = loop.create_future()
+        self._waiter = (self._proto, tid, unit_id if self.check_unit else None, pdu, fut)
+        timer = loop.call_later(self.timeout_s, _expire, fut)
+        try:
+            return await fut
+        finally:
+            timer.cancel()
+            self._waiter = None
 
     async def _recv_internal(self, timeout_s: float
                              ) -> tuple[int | None, int | None, bytes] | None:
-        try:
-            got = await asyncio.wait_for(self._rx.get(), timeout_s)
-        except asyncio.TimeoutError:
-            return None
-        if got is None:
-            raise ConnectionError("connection closed by drive")
-        if not self.check_unit:
-            return None, got[1], got[2]
-        return got
+        raise NotImplementedError("TcpBus matches replies as they arrive (_await_reply)")

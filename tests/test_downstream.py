@@ -158,8 +158,8 @@ def test_tcp_idle_close_by_drive_is_transparent() -> None:
         async with tcp_drive() as port:
             bus = TcpBus("127.0.0.1", port, timeout_s=0.2, retries=1)
             await seed(bus)
-            assert bus._writer is not None
-            bus._writer.close()  # as if the drive dropped an idle connection
+            assert bus._transport is not None
+            bus._transport.close()  # as if the drive dropped an idle connection
             await wait_for_condition(lambda: not bus.connected)
             assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x6f"
             await bus.close()
