@@ -7,8 +7,9 @@ by the interception layer) is answered with that exception code; any other error
 0x04 and a log line, so the master is never left hanging.
 
 Pipelining (TCP): a master may send several requests without waiting, even in one
-segment. Each connection has a reader that cuts frames as they arrive and a worker that
-runs them one after the other and writes each reply with its own transaction id. Requests
+segment. Each connection is an :class:`asyncio.Protocol` that cuts frames as they arrive;
+a task started for the first of them runs them one after the other and writes each reply
+with its own transaction id (no reader task, no queue hop). Requests
 of one connection are processed in order, not concurrently: a master that pipelines
 "write target, write trigger" must have the trigger reach the drive after the target, and
 requests to one RS-485 bus are serialised anyway. Connections run concurrently.
@@ -22,11 +23,9 @@ import ipaddress
 import itertools
 import logging
 import socket
+from collections import deque
 from collections.abc import Awaitable, Callable, Collection, Iterable
 from dataclasses import dataclass
-
-from pymodbus.framer import FramerSocket
-from pymodbus.pdu import DecodePDU
 
 from .downstream import current_caller
 from .frames import (
@@ -106,108 +105,210 @@ def _allowed(host: str, networks: list[Network] | None) -> bool:
     return any(addr in net for net in networks)
 
 
-class _Connection:
-    """One master's TCP connection: a reader cutting MBAP frames, a worker answering.
+class _Connection(asyncio.Protocol):
+    """One master's TCP connection, callback-driven (an :class:`asyncio.Protocol`).
 
-    The reader reads ahead at most ``max_pipeline`` requests (then stops reading: TCP
-    backpressure); the worker answers them strictly in order.
+    ``data_received`` cuts MBAP frames into a FIFO; when the connection has nothing in
+    flight, a task is started at once to run the handler on them (no reader task, no
+    queue hop); it answers the FIFO strictly in order, each reply with its own transaction
+    id, and ends when the FIFO is empty. At most ``max_pipeline`` requests are read ahead
+    (in flight included): then reading pauses (TCP backpressure) until one is answered.
+    End of input (EOF, idle timeout, malformed frame): what was received is answered, then
+    the connection closes. Server stopping: the request in flight is answered, the rest
+    dropped, nothing more is read.
     """
 
-    def __init__(self, server: TcpServer, reader: asyncio.StreamReader,
-                 writer: asyncio.StreamWriter, peer: str) -> None:
+    def __init__(self, server: TcpServer) -> None:
         self.server = server
-        self.reader = reader
-        self.writer = writer
-        self.peer = peer
+        self.loop = asyncio.get_running_loop()
+        self.transport: asyncio.Transport | None = None
+        self.peer = "?"
         self.id = next(_conn_ids)
-        self.queue: asyncio.Queue[tuple[int, int, bytes] | None] = asyncio.Queue()
-        self.room = asyncio.Semaphore(server.max_pipeline)
-        self.busy = False
+        self.buf = bytearray()
+        self.pending: deque[tuple[int, int, bytes]] = deque()  # (tid, unit, PDU), not started
+        self.task: asyncio.Task[None] | None = None  # answering ``pending``; None: idle
+        self.accepted = False
+        self.eof = False  # no more input: answer what was received, then close
         self.stopping = False  # graceful close: finish the request in flight, no more
+        self.lost = False  # connection_lost seen
+        self.read_paused = False
+        self.write_paused = False
+        self._drain: asyncio.Future[None] | None = None
+        self.last_active = self.loop.time()
+        self._idle: asyncio.TimerHandle | None = None
+        self.done: asyncio.Future[None] = self.loop.create_future()  # closed and idle
 
-    async def run(self) -> None:
-        worker = asyncio.create_task(self._work(), name=f"compgw-up-work-{self.id}")
-        reader = asyncio.create_task(self._read(), name=f"compgw-up-read-{self.id}")
-        try:
-            done, _ = await asyncio.wait({reader, worker}, return_when=asyncio.FIRST_COMPLETED)
-            if reader in done:
-                # End of input (EOF, idle, malformed, close): answer what was received,
-                # unless the server is stopping.
-                if self.stopping:
-                    self._drop_queued()
-                self.queue.put_nowait(None)
-                await worker
-            else:  # the worker stopped (peer gone, or server stopping)
-                reader.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await reader
-        finally:
-            for task in (reader, worker):
-                task.cancel()
-            await asyncio.gather(reader, worker, return_exceptions=True)
-            self.writer.close()
-            with contextlib.suppress(Exception):
-                await asyncio.wait_for(self.writer.wait_closed(), 1.0)
+    # ------------------------------------------------------------------ protocol
 
-    def _drop_queued(self) -> None:
-        while not self.queue.empty():
-            self.queue.get_nowait()
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+        server = self.server
+        peername = transport.get_extra_info("peername") or ("?", 0)
+        self.peer = f"{peername[0]}:{peername[1]}"
+        reason = None
+        if not _allowed(str(peername[0]), server.allow):
+            reason = "not in the allowlist"
+        elif len(server._connections) >= server.max_connections:
+            reason = f"more than {server.max_connections} connections"
+        elif server._server is None:
+            reason = "server closing"
+        if reason:
+            server.counters.refused += 1
+            log.warning("refused Modbus TCP client %s: %s", self.peer, reason)
+            transport.close()
+            return
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.accepted = True
+        server.counters.connections += 1
+        server._connections[self] = None
+        if server.idle_timeout_s:
+            self._idle = self.loop.call_later(server.idle_timeout_s, self._idle_check)
+        log.debug("client %s connected", self.peer)
 
-    async def _read(self) -> None:
-        buf = bytearray()
-        framer = self.server.framer
-        idle_s = self.server.idle_timeout_s
-        while not self.stopping:
-            try:
-                data = await asyncio.wait_for(self.reader.read(4096), idle_s)
-            except asyncio.TimeoutError:
-                if self.busy or not self.queue.empty():
-                    continue
-                log.info("%s: idle for %.0f s: closing", self.peer, idle_s)
-                return
-            except (ConnectionError, OSError) as err:
-                log.debug("%s: %s", self.peer, err)
-                return
-            if not data:
-                return
-            buf += data
-            while len(buf) >= 8 and not self.stopping:
-                length = int.from_bytes(buf[4:6], "big")
-                if buf[2:4] != b"\x00\x00" or not 2 <= length <= MAX_PDU_BYTES + 1:
-                    self.server.counters.malformed += 1
-                    log.warning("%s: bad MBAP header %s: closing", self.peer, bytes(buf[:8]).hex())
-                    return
-                size = 6 + length
-                if len(buf) < size:
-                    break
-                # Exactly one frame is given to the framer (see FramerSocket.decode quirks).
-                _, unit, tid, pdu = framer.decode(bytes(buf[:size]))
-                del buf[:size]
-                await self.room.acquire()  # backpressure: stop reading when too far ahead
-                self.queue.put_nowait((tid, unit, pdu))
+    def data_received(self, data: bytes) -> None:
+        if self.eof or self.stopping or not self.accepted:
+            return
+        self.last_active = self.loop.time()
+        self.buf += data
+        self._cut()
+
+    def eof_received(self) -> bool:
+        self._end_input()
+        return True  # keep our side open to answer what was received; closed when done
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if exc is not None:
+            log.debug("%s: %s", self.peer, exc)
+        self.lost = True
+        self.eof = True
+        self.pending.clear()  # nobody to answer; the request in flight still finishes
+        if self._idle is not None:
+            self._idle.cancel()
+            self._idle = None
+        if self._drain is not None and not self._drain.done():
+            self._drain.set_result(None)
+        self._maybe_done()
+
+    def pause_writing(self) -> None:
+        self.write_paused = True
+
+    def resume_writing(self) -> None:
+        self.write_paused = False
+        if self._drain is not None and not self._drain.done():
+            self._drain.set_result(None)
+
+    # ------------------------------------------------------------------ requests
+
+    def _cut(self) -> None:
+        """Cut complete frames from the buffer into ``pending`` (up to max_pipeline) and
+        start the answering task if none is running."""
+        buf = self.buf
+        limit = self.server.max_pipeline
+        while len(buf) >= 8 and not self.eof and not self.stopping:
+            if len(self.pending) + (self.task is not None) >= limit:
+                if not self.read_paused and self.transport is not None:
+                    self.read_paused = True  # backpressure: stop reading when too far ahead
+                    self.transport.pause_reading()
+                break
+            length = (buf[4] << 8) | buf[5]
+            if buf[2] or buf[3] or not 2 <= length <= MAX_PDU_BYTES + 1:
+                self.server.counters.malformed += 1
+                log.warning("%s: bad MBAP header %s: closing", self.peer, bytes(buf[:8]).hex())
+                self._end_input()
+                break
+            size = 6 + length
+            if len(buf) < size:
+                break
+            self.pending.append(((buf[0] << 8) | buf[1], buf[6], bytes(buf[7:size])))
+            del buf[:size]
+        if self.pending and self.task is None:
+            self.task = self.loop.create_task(self._work(), name=f"compgw-up-{self.id}")
 
     async def _work(self) -> None:
         current_caller.set(("tcp", self.id))
-        framer = self.server.framer
-        while True:
-            item = await self.queue.get()
-            if item is None:
-                return
-            tid, unit, pdu = item
-            self.busy = True
-            try:
-                reply = await self.server._call(unit, pdu)
-                if reply is not None:
-                    self.writer.write(framer.encode(reply, unit, tid))
-                    await self.writer.drain()
-            except (ConnectionError, OSError) as err:
-                log.debug("%s: %s", self.peer, err)
-                return
-            finally:
-                self.busy = False
-                self.room.release()
-            if self.stopping:
-                return
+        server = self.server
+        pending = self.pending
+        try:
+            while pending and not self.stopping:
+                tid, unit, pdu = pending.popleft()
+                reply = await server._call(unit, pdu)
+                transport = self.transport
+                if reply is not None and not self.lost and transport is not None:
+                    n = len(reply) + 1
+                    transport.write(bytes((tid >> 8, tid & 0xFF, 0, 0, n >> 8, n & 0xFF, unit))
+                                    + reply)
+                    if self.write_paused and not self.lost:
+                        self._drain = self.loop.create_future()
+                        await self._drain
+                self.last_active = self.loop.time()
+                if self.read_paused and not (self.eof or self.stopping or self.lost):
+                    self._cut()  # frames already received, up to the limit again
+                    if len(pending) + 1 < server.max_pipeline and self.transport is not None:
+                        self.read_paused = False
+                        self.transport.resume_reading()
+        finally:
+            self.task = None
+            if self.eof or self.stopping:
+                pending.clear()
+                self._close_transport()
+            self._maybe_done()
+
+    def _end_input(self) -> None:
+        """No more requests on this connection (EOF, idle, malformed): answer what was
+        received, then close."""
+        if self.eof:
+            return
+        self.eof = True
+        self.buf.clear()
+        if not self.lost and self.transport is not None and not self.read_paused:
+            self.read_paused = True
+            with contextlib.suppress(Exception):
+                self.transport.pause_reading()
+        if self.task is None:
+            self._close_transport()
+
+    def stop(self) -> None:
+        """Graceful close: no more reading, the request in flight is answered, the rest
+        dropped, then the connection closes."""
+        self.stopping = True
+        self.pending.clear()
+        self.buf.clear()
+        if not self.lost and self.transport is not None and not self.read_paused:
+            self.read_paused = True
+            with contextlib.suppress(Exception):
+                self.transport.pause_reading()
+        if self.task is None:
+            self._close_transport()
+
+    def _close_transport(self) -> None:
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.close()
+
+    def _maybe_done(self) -> None:
+        if self.lost and self.task is None and not self.done.done():
+            if self.server._connections.pop(self, False) is None:
+                log.debug("client %s disconnected", self.peer)
+            self.done.set_result(None)
+
+    def _idle_check(self) -> None:
+        """One timer per connection: closes it when no request arrived for idle_timeout_s
+        (a request being answered counts as activity)."""
+        self._idle = None
+        idle_s = self.server.idle_timeout_s
+        if self.eof or self.stopping or self.lost or not idle_s:
+            return
+        now = self.loop.time()
+        if self.task is not None or self.pending:
+            self.last_active = now
+        due = self.last_active + idle_s
+        if now >= due:
+            log.info("%s: idle for %.0f s: closing", self.peer, idle_s)
+            self._end_input()
+            return
+        self._idle = self.loop.call_at(due, self._idle_check)
 
 
 class TcpServer(Listener):
@@ -223,15 +324,16 @@ class TcpServer(Listener):
                  allow: Iterable[str | Network] | None = None, max_connections: int = 16,
                  idle_timeout_s: float | None = None, max_pipeline: int = 16) -> None:
         super().__init__(handler)
+        if max_pipeline < 1:
+            raise ValueError("max_pipeline must be >= 1")
         self.host = host
         self._port = port
         self.allow = parse_networks(allow)
         self.max_connections = max_connections
         self.idle_timeout_s = idle_timeout_s
         self.max_pipeline = max_pipeline
-        self.framer = FramerSocket(DecodePDU(is_server=True))
         self._server: asyncio.Server | None = None
-        self._connections: dict[_Connection, asyncio.Task[None]] = {}
+        self._connections: dict[_Connection, None] = {}
 
     @property
     def port(self) -> int:
@@ -244,7 +346,9 @@ class TcpServer(Listener):
 
     async def start(self) -> None:
         """Bind and listen; raises OSError if the address cannot be bound."""
-        self._server = await asyncio.start_server(self._accept, self.host, self._port)
+        loop = asyncio.get_running_loop()
+        self._server = await loop.create_server(lambda: _Connection(self), self.host,
+                                                self._port)
         self._port = self._server.sockets[0].getsockname()[1]
         log.info("Modbus TCP server listening on %s:%d", self.host, self._port)
 
@@ -255,54 +359,23 @@ class TcpServer(Listener):
     async def __aexit__(self, *exc: object) -> None:
         await self.close()
 
-    async def _accept(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        peername = writer.get_extra_info("peername") or ("?", 0)
-        peer = f"{peername[0]}:{peername[1]}"
-        reason = None
-        if not _allowed(str(peername[0]), self.allow):
-            reason = "not in the allowlist"
-        elif len(self._connections) >= self.max_connections:
-            reason = f"more than {self.max_connections} connections"
-        elif self._server is None:
-            reason = "server closing"
-        if reason:
-            self.counters.refused += 1
-            log.warning("refused Modbus TCP client %s: %s", peer, reason)
-            writer.close()
-            return
-        sock = writer.get_extra_info("socket")
-        if sock is not None:
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self.counters.connections += 1
-        conn = _Connection(self, reader, writer, peer)
-        task = asyncio.current_task()
-        assert task is not None
-        self._connections[conn] = task
-        log.debug("client %s connected", peer)
-        try:
-            await conn.run()
-        finally:
-            self._connections.pop(conn, None)
-            log.debug("client %s disconnected", peer)
-
     async def close(self, timeout_s: float = 5.0) -> None:
         """Stop accepting, let each connection finish its request in flight, close all."""
         server, self._server = self._server, None
         if server is not None:
             server.close()
-        for conn in list(self._connections):
-            conn.stopping = True
-            # no more data_received (it would assert "feed_data after feed_eof" and kill
-            # the transport before the reply in flight is written)
-            with contextlib.suppress(Exception):
-                conn.writer.transport.pause_reading()
-            conn.reader.feed_eof()
-        tasks = list(self._connections.values())
-        if tasks:
-            _, pending = await asyncio.wait(tasks, timeout=timeout_s)
-            for task in pending:
-                task.cancel()
+        conns = list(self._connections)
+        for conn in conns:
+            conn.stop()  # no more reading (before any EOF), nothing new is started
+        if conns:
+            _, pending = await asyncio.wait([c.done for c in conns], timeout=timeout_s)
             if pending:
+                for conn in conns:
+                    if not conn.done.done():
+                        if conn.task is not None:
+                            conn.task.cancel()
+                        if conn.transport is not None:
+                            conn.transport.abort()
                 await asyncio.wait(pending, timeout=1.0)
         if server is not None:
             with contextlib.suppress(Exception):
