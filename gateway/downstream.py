@@ -32,7 +32,7 @@ from .frames import (
     rtu_encode,
     rtu_response_length,
 )
-from .serialline import SerialLine, SerialLineLost
+from .serialline import SerialLine, SerialLineLost, T35Mode
 
 log = logging.getLogger(__name__)
 
@@ -328,16 +328,22 @@ class RtuBus(Bus):
     RTU cannot tell, hence the guard. Retries of the same request are sent without the
     guard (a late answer to the first attempt is a correct answer to the retry). Unit 0 is
     broadcast: sent, no reply awaited, ``b""`` returned.
+
+    t3.5 is ``silence_s`` if given, else per ``t35`` (``"spec"``: 1.75 ms above 19200 baud;
+    ``"exact"``: 3.5 characters at the baud rate). Silences are timed exactly (no rounding
+    up to whole milliseconds, see :mod:`gateway.serialline`), and bytes arriving during
+    one restart it.
     """
 
     def __init__(self, port: str, *, baudrate: int = 19200, bytesize: int = 8,
                  parity: str = "E", stopbits: float = 1, silence_s: float | None = None,
-                 late_guard_s: float | None = None,
+                 late_guard_s: float | None = None, t35: T35Mode = "spec",
                  serial_kwargs: dict[str, object] | None = None, **bus_kwargs: object) -> None:
         bus_kwargs.setdefault("name", port)
         super().__init__(**bus_kwargs)  # type: ignore[arg-type]
         self.line = SerialLine(port, baudrate=baudrate, bytesize=bytesize, parity=parity,
-                               stopbits=stopbits, silence_s=silence_s, **(serial_kwargs or {}))
+                               stopbits=stopbits, silence_s=silence_s, t35=t35,
+                               **(serial_kwargs or {}))
         self.late_guard_s = self.timeout_s if late_guard_s is None else late_guard_s
         self._hold_until_s = 0.0  # no new request before this (monotonic)
         self._last_send_s = 0.0
@@ -366,11 +372,9 @@ class RtuBus(Bus):
                 dropped += self.line.discard()
                 hold_s = self._hold_until_s - time.monotonic()
             dropped += await self.line.wait_quiet(gap_s, max_wait_s=self.timeout_s)
-        else:
-            remaining = gap_s - self.line.quiet_for_s()
-            if remaining > 0:
-                await asyncio.sleep(remaining)
-                dropped += self.line.discard()
+        elif gap_s > self.line.quiet_for_s():  # exact wait; noise restarts the silence
+            dropped += await self.line.wait_quiet(gap_s, max_wait_s=max(self.timeout_s,
+                                                                        2 * gap_s))
         if dropped:
             self.counters.dropped += 1
             self.line.garbage_bytes += dropped

@@ -4,16 +4,26 @@ pyserial opens and configures the port (real UART, USB adapter or pty alike); re
 ``loop.add_reader`` on its non-blocking fd, so no thread and no polling. Frames are cut by
 length and CRC (:func:`gateway.frames.find_rtu_frame`), by line silence for function codes
 whose length is unknown, and stale fragments are discarded, so garbage never blocks the line.
+
+Timing: asyncio's epoll selector rounds every timeout up to a whole millisecond, so a
+0.3 ms silence would last 1 ms and the 1.75 ms t3.5 2 ms. Waits shorter than
+:data:`PRECISE_BELOW_S` use a Linux timerfd watched by the loop (it wakes the loop at the
+exact time, within the kernel's timer slack of ~50 µs, late never early); longer ones
+(reply timeouts) and other platforms use ``loop.call_at``. No thread, no busy wait.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import ctypes
+import ctypes.util
 import logging
 import os
+import sys
 import time
 from collections.abc import Callable
+from typing import Literal
 
 import serial
 
@@ -22,6 +32,9 @@ from .frames import find_rtu_frame
 log = logging.getLogger(__name__)
 
 MAX_BUFFER_BYTES = 1024  # beyond this the oldest bytes are garbage by construction
+PRECISE_BELOW_S = 0.02  # waits shorter than this use the exact timer (when available)
+
+T35Mode = Literal["spec", "exact"]
 
 
 class SerialLineLost(OSError):
@@ -34,9 +47,14 @@ def char_time_s(baudrate: int, bytesize: int = 8, parity: str = "E", stopbits: f
     return bits / baudrate
 
 
-def t35_s(baudrate: int, bytesize: int = 8, parity: str = "E", stopbits: float = 1) -> float:
-    """Inter-frame silence t3.5 (fixed 1.75 ms above 19200 baud, as the spec recommends)."""
-    if baudrate > 19200:
+def t35_s(baudrate: int, bytesize: int = 8, parity: str = "E", stopbits: float = 1,
+          mode: T35Mode = "spec") -> float:
+    """Inter-frame silence t3.5: 3.5 character times; with ``mode="spec"`` fixed at 1.75 ms
+    above 19200 baud, as the Modbus spec recommends (``"exact"``: 3.5 characters at any
+    rate, 0.30 ms at 115200 8N1, for drives that detect frames that fast)."""
+    if mode not in ("spec", "exact"):
+        raise ValueError(f"t3.5 mode must be 'spec' or 'exact', not {mode!r}")
+    if baudrate > 19200 and mode == "spec":
         return 0.00175
     return 3.5 * char_time_s(baudrate, bytesize, parity, stopbits)
 
@@ -46,10 +64,135 @@ def _wake(fut: asyncio.Future[None]) -> None:
         fut.set_result(None)
 
 
+# -- an exact timer: timerfd (Linux), watched by the loop ------------------------------------
+
+_CLOCK_MONOTONIC = 1
+_TFD_TIMER_ABSTIME = 1
+
+
+class _Timespec(ctypes.Structure):
+    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
+
+
+class _Itimerspec(ctypes.Structure):
+    _fields_ = [("it_interval", _Timespec), ("it_value", _Timespec)]
+
+
+def _load_timerfd() -> tuple[Callable[[], int], Callable[[int, float], None]] | None:
+    """(create, arm at absolute monotonic time; 0 disarms) or None where unavailable."""
+    if not sys.platform.startswith("linux"):
+        return None
+    if hasattr(os, "timerfd_create"):  # Python 3.13+
+        def create_os() -> int:
+            return os.timerfd_create(time.CLOCK_MONOTONIC,
+                                     flags=os.TFD_NONBLOCK | os.TFD_CLOEXEC)
+
+        def arm_os(fd: int, when: float) -> None:
+            os.timerfd_settime_ns(fd, flags=os.TFD_TIMER_ABSTIME,
+                                  initial=max(int(when * 1e9), 1) if when else 0)
+
+        return create_os, arm_os
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        timerfd_create, timerfd_settime = libc.timerfd_create, libc.timerfd_settime
+    except (OSError, AttributeError):
+        return None
+    timerfd_create.argtypes = [ctypes.c_int, ctypes.c_int]
+    timerfd_settime.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.POINTER(_Itimerspec),
+                                ctypes.c_void_p]
+
+    def create() -> int:
+        fd = timerfd_create(_CLOCK_MONOTONIC, os.O_NONBLOCK | os.O_CLOEXEC)
+        if fd < 0:
+            raise OSError(ctypes.get_errno(), "timerfd_create failed")
+        return fd
+
+    def arm(fd: int, when: float) -> None:
+        spec = _Itimerspec()
+        if when:
+            ns = max(int(when * 1e9), 1)
+            spec.it_value.tv_sec, spec.it_value.tv_nsec = divmod(ns, 1_000_000_000)
+        if timerfd_settime(fd, _TFD_TIMER_ABSTIME, ctypes.byref(spec), None) < 0:
+            raise OSError(ctypes.get_errno(), "timerfd_settime failed")
+
+    return create, arm
+
+
+_TIMERFD = _load_timerfd()
+
+
+class ExactTimer:
+    """Calls ``callback`` once at a monotonic time (``time.monotonic()``, = ``loop.time()``),
+    never early; within ~50 µs for waits under :data:`PRECISE_BELOW_S` where a timerfd is
+    available, else through ``loop.call_at`` (whole milliseconds on epoll). One pending
+    call at a time: arming again replaces it."""
+
+    def __init__(self, callback: Callable[[], None]) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._callback = callback
+        self._handle: asyncio.TimerHandle | None = None
+        self._when = 0.0  # armed timerfd deadline; 0: not armed
+        self._fd: int | None = None
+        if _TIMERFD is not None:
+            try:
+                self._fd = _TIMERFD[0]()
+                self._loop.add_reader(self._fd, self._fired)
+            except (OSError, RuntimeError, NotImplementedError) as err:
+                log.debug("timerfd unavailable, millisecond timers: %s", err)
+                self._close_fd()
+
+    def arm(self, when: float) -> None:
+        self.cancel()
+        if self._fd is not None and when - time.monotonic() < PRECISE_BELOW_S:
+            try:
+                _TIMERFD[1](self._fd, when)  # type: ignore[index]  (replaces any setting)
+                self._when = when
+                return
+            except OSError as err:
+                log.debug("timerfd: %s", err)
+        self._handle = self._loop.call_at(when, self._call)
+
+    def cancel(self) -> None:
+        """Nothing is called until armed again. (The timerfd is not disarmed, a syscall
+        per wait: an expiry of a cancelled deadline is read and ignored.)"""
+        if self._handle is not None:
+            self._handle.cancel()
+            self._handle = None
+        self._when = 0.0
+
+    def close(self) -> None:
+        self.cancel()
+        self._close_fd()
+
+    def _close_fd(self) -> None:
+        if self._fd is not None:
+            with contextlib.suppress(Exception):
+                self._loop.remove_reader(self._fd)
+            with contextlib.suppress(OSError):
+                os.close(self._fd)
+            self._fd = None
+
+    def _fired(self) -> None:
+        assert self._fd is not None
+        try:
+            os.read(self._fd, 8)
+        except OSError:  # BlockingIOError: disarmed or re-armed meanwhile
+            return
+        if not self._when or time.monotonic() < self._when:
+            return  # an expiry of a deadline that was cancelled or replaced
+        self._when = 0.0
+        self._callback()
+
+    def _call(self) -> None:
+        self._handle = None
+        self._callback()
+
+
 class SerialLine:
     """One serial port: open/close, async write, buffered async RTU frame reads.
 
-    ``silence_s`` is the end-of-frame silence (default t3.5 from the line settings; a pty
+    ``silence_s`` is the end-of-frame silence (default t3.5 from the line settings, per
+    ``t35``: ``"spec"``, 1.75 ms above 19200 baud, or ``"exact"``, 3.5 characters; a pty
     ignores baud rate, so tests may pass a smaller value). ``stale_s`` is how long an
     incomplete frame may wait for its remaining bytes (USB adapters deliver in chunks)
     before it is discarded as a fragment.
@@ -57,19 +200,24 @@ class SerialLine:
 
     def __init__(self, port: str, *, baudrate: int = 19200, bytesize: int = 8,
                  parity: str = "E", stopbits: float = 1, silence_s: float | None = None,
-                 stale_s: float = 0.1, **serial_kwargs: object) -> None:
+                 stale_s: float = 0.1, t35: T35Mode = "spec", **serial_kwargs: object) -> None:
         self.port = port
         self.baudrate = baudrate
         self._settings = dict(baudrate=baudrate, bytesize=bytesize, parity=parity,
                               stopbits=stopbits, **serial_kwargs)
         self.char_time_s = char_time_s(baudrate, bytesize, parity, stopbits)
-        self.silence_s = t35_s(baudrate, bytesize, parity, stopbits) if silence_s is None \
-            else silence_s
+        if t35 == "spec":  # positional call: a start-up patch of t35_s (bench what-if) holds
+            default_s = t35_s(baudrate, bytesize, parity, stopbits)
+        else:
+            default_s = t35_s(baudrate, bytesize, parity, stopbits, mode=t35)
+        self.t35 = t35
+        self.silence_s = default_s if silence_s is None else silence_s
         self.stale_s = max(stale_s, self.silence_s)
         self._serial: serial.Serial | None = None
         self._fd: int | None = None
         self._buf = bytearray()
-        self._event = asyncio.Event()
+        self._waiter: asyncio.Future[None] | None = None  # wait_data: bytes, loss or timer
+        self._timer: ExactTimer | None = None
         self.last_rx_s = 0.0  # time.monotonic() of the last byte received
         self.tx_end_s = 0.0  # estimated end of our last transmission on the wire
         self.garbage_bytes = 0
@@ -94,6 +242,8 @@ class SerialLine:
         self._buf.clear()
         self.lost = False
         asyncio.get_running_loop().add_reader(self._fd, self._on_readable)
+        if self._timer is None:
+            self._timer = ExactTimer(self._on_timer)
 
     def close(self) -> None:
         """Close the port (idempotent); waiters wake up and see the line lost."""
@@ -106,7 +256,18 @@ class SerialLine:
         self._serial = None
         self._fd = None
         self.lost = True
-        self._event.set()
+        if self._timer is not None:
+            self._timer.close()
+            self._timer = None
+        self._wake_waiter()
+
+    def _wake_waiter(self) -> None:
+        waiter, self._waiter = self._waiter, None
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
+    def _on_timer(self) -> None:
+        self._wake_waiter()
 
     def _on_readable(self) -> None:
         assert self._fd is not None
@@ -127,8 +288,14 @@ class SerialLine:
             drop = len(self._buf) - MAX_BUFFER_BYTES // 4
             self.garbage_bytes += drop
             del self._buf[:drop]
-        self.last_rx_s = time.monotonic()
-        self._event.set()
+        self.last_rx_s = now = time.monotonic()
+        if self.tx_end_s > now:
+            # Bytes received while our own frame was (by estimate) still on the wire: on a
+            # half-duplex line an answer starts only after it ended (an echo of our own
+            # frame keeps last_rx_s moving to its end). On a pty, which has no wire time,
+            # this drops the phantom wire time of our request from the silence count.
+            self.tx_end_s = now
+        self._wake_waiter()
 
     # ------------------------------------------------------------------ write
 
@@ -181,20 +348,31 @@ class SerialLine:
         return n
 
     async def wait_data(self, timeout_s: float) -> None:
-        """Return when bytes arrive, the line is lost, or after ``timeout_s``."""
-        if timeout_s <= 0:
+        """Return when bytes arrive, the line is lost, or after ``timeout_s`` (exactly, not
+        rounded up to a millisecond; see :class:`ExactTimer`)."""
+        if timeout_s <= 0 or not self.is_open or self._timer is None:
             return
-        self._event.clear()
-        with contextlib.suppress(asyncio.TimeoutError):
-            await asyncio.wait_for(self._event.wait(), timeout_s)
+        self._wake_waiter()  # one waiter at a time (the line serves one transaction)
+        fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._waiter = fut
+        timer = self._timer
+        timer.arm(time.monotonic() + timeout_s)
+        try:
+            await fut
+        finally:
+            if self._waiter is fut:
+                self._waiter = None
+            timer.cancel()
 
-    async def wait_quiet(self, quiet_s: float, max_wait_s: float) -> int:
-        """Discard input until the line has been quiet for ``quiet_s`` (at most ``max_wait_s``).
+    async def wait_quiet(self, quiet_s: float, max_wait_s: float, *,
+                         discard: bool = True) -> int:
+        """Wait until the line has been quiet (nothing received or sent) for ``quiet_s``, at
+        most ``max_wait_s``; with ``discard``, drop what arrives meanwhile.
 
         Returns the number of bytes discarded (late replies, noise).
         """
         deadline = time.monotonic() + max_wait_s
-        dropped = self.discard()
+        dropped = self.discard() if discard else 0
         while self.is_open:
             remaining = quiet_s - self.quiet_for_s()
             if remaining <= 0:
@@ -204,7 +382,8 @@ class SerialLine:
                 log.warning("serial %s: line not quiet after %.3f s", self.port, max_wait_s)
                 break
             await self.wait_data(min(remaining, left))
-            dropped += self.discard()
+            if discard:
+                dropped += self.discard()
         return dropped
 
     async def read_frame(self, length_fn: Callable[[bytes], int | None],

@@ -36,7 +36,7 @@ from .frames import (
     rtu_encode,
     rtu_request_length,
 )
-from .serialline import SerialLine, SerialLineLost
+from .serialline import SerialLine, SerialLineLost, T35Mode
 
 log = logging.getLogger(__name__)
 
@@ -388,20 +388,22 @@ class RtuServer(Listener):
     Requests for other units are dropped silently (a shared line); unit 0 (broadcast) is
     handled without a reply. Frames are cut by length and CRC, unknown function codes by
     line silence; garbage and fragments are skipped. The port is reopened with backoff if it
-    disappears.
+    disappears. A reply leaves after t3.5 of line silence (``silence_s``, else per ``t35``
+    as :class:`gateway.downstream.RtuBus`), timed exactly.
     """
 
     def __init__(self, handler: Handler, port: str, *, unit_ids: Collection[int],
                  baudrate: int = 19200, bytesize: int = 8, parity: str = "E",
                  stopbits: float = 1, silence_s: float | None = None,
-                 broadcast: bool = True, reopen_max_s: float = 5.0,
+                 broadcast: bool = True, reopen_max_s: float = 5.0, t35: T35Mode = "spec",
                  serial_kwargs: dict[str, object] | None = None) -> None:
         super().__init__(handler)
         self.unit_ids = frozenset(unit_ids)
         self.broadcast = broadcast
         self.reopen_max_s = reopen_max_s
         self.line = SerialLine(port, baudrate=baudrate, bytesize=bytesize, parity=parity,
-                               stopbits=stopbits, silence_s=silence_s, **(serial_kwargs or {}))
+                               stopbits=stopbits, silence_s=silence_s, t35=t35,
+                               **(serial_kwargs or {}))
         self._task: asyncio.Task[None] | None = None
         self._stopping = False
         self._busy = False
@@ -457,9 +459,8 @@ class RtuServer(Listener):
             try:
                 reply = await self._call(unit, pdu)
                 if reply is not None:
-                    gap = self.line.silence_s - self.line.quiet_for_s()
-                    if gap > 0:
-                        await asyncio.sleep(gap)
+                    if self.line.quiet_for_s() < self.line.silence_s:
+                        await self.line.wait_quiet(self.line.silence_s, 0.1, discard=False)
                     await self.line.write(rtu_encode(unit, reply))
             finally:
                 self._busy = False
