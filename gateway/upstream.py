@@ -127,6 +127,7 @@ class _Connection(asyncio.Protocol):
         self.buf = bytearray()
         self.pending: deque[tuple[int, int, bytes]] = deque()  # (tid, unit, PDU), not started
         self.task: asyncio.Task[None] | None = None  # answering ``pending``; None: idle
+        self.busy = False  # a request is in the handler
         self.accepted = False
         self.eof = False  # no more input: answer what was received, then close
         self.stopping = False  # graceful close: finish the request in flight, no more
@@ -208,7 +209,7 @@ class _Connection(asyncio.Protocol):
         buf = self.buf
         limit = self.server.max_pipeline
         while len(buf) >= 8 and not self.eof and not self.stopping:
-            if len(self.pending) + (self.task is not None) >= limit:
+            if len(self.pending) + self.busy >= limit:
                 if not self.read_paused and self.transport is not None:
                     self.read_paused = True  # backpressure: stop reading when too far ahead
                     self.transport.pause_reading()
@@ -234,7 +235,11 @@ class _Connection(asyncio.Protocol):
         try:
             while pending and not self.stopping:
                 tid, unit, pdu = pending.popleft()
-                reply = await server._call(unit, pdu)
+                self.busy = True
+                try:
+                    reply = await server._call(unit, pdu)
+                finally:
+                    self.busy = False
                 transport = self.transport
                 if reply is not None and not self.lost and transport is not None:
                     n = len(reply) + 1
@@ -246,7 +251,7 @@ class _Connection(asyncio.Protocol):
                 self.last_active = self.loop.time()
                 if self.read_paused and not (self.eof or self.stopping or self.lost):
                     self._cut()  # frames already received, up to the limit again
-                    if len(pending) + 1 < server.max_pipeline and self.transport is not None:
+                    if len(pending) < server.max_pipeline and self.transport is not None:
                         self.read_paused = False
                         self.transport.resume_reading()
         finally:

@@ -267,3 +267,64 @@ def test_port_zero_and_bind_error() -> None:
 def test_mbap_length_struct() -> None:
     frame = mbap(0x1234, 7, b"\x03\x00\x01\x00\x02")
     assert struct.unpack(">HHHB", frame[:7]) == (0x1234, 0, 6, 7)
+
+
+@pytest.mark.parametrize("max_pipeline", [1, 3])
+def test_pipeline_reads_ahead_at_most_max_pipeline(max_pipeline: int) -> None:
+    """200 requests in one segment: all answered in order, never more than max_pipeline
+    of them read and unanswered (then reading pauses: TCP backpressure)."""
+
+    async def main() -> None:
+        peak = 0
+
+        async def handler(unit_id: int, pdu: bytes) -> bytes | None:
+            nonlocal peak
+            conn = next(iter(server._connections))
+            peak = max(peak, len(conn.pending) + conn.busy)
+            await asyncio.sleep(0.0005)
+            return await address_echo(unit_id, pdu)
+
+        async with TcpServer(handler, "127.0.0.1", 0, max_pipeline=max_pipeline) as server:
+            m = await RawTcpMaster.connect(server.port)
+            m.writer.write(b"".join(mbap(i + 1, 1, f.build_read_request(3, i, 1))
+                                    for i in range(200)))
+            for i in range(200):
+                tid, unit, pdu = await read_mbap(m.reader)
+                assert (tid, unit) == (i + 1, 1)
+                assert f.parse_read_registers_response(pdu) == [i + 1]
+            assert 1 <= peak <= max_pipeline
+            await m.close()
+
+    run(main())
+
+
+def test_idle_timeout_spares_a_connection_whose_request_is_in_flight() -> None:
+    async def main() -> None:
+        async def slow(unit_id: int, pdu: bytes) -> bytes | None:
+            await asyncio.sleep(0.5)
+            return await address_echo(unit_id, pdu)
+
+        async with TcpServer(slow, "127.0.0.1", 0, idle_timeout_s=0.2) as server:
+            m = await RawTcpMaster.connect(server.port)
+            assert await m.request(1, f.build_read_request(3, 0, 1)) == b"\x03\x02\x00\x01"
+            t0 = time.monotonic()
+            await assert_closed_by_server(m.reader)  # idle from the reply on
+            assert 0.15 < time.monotonic() - t0 < 0.6
+            await m.close()
+
+    run(main())
+
+
+def test_eof_after_pipelined_requests_answers_them_then_closes() -> None:
+    async def main() -> None:
+        async with TcpServer(address_echo, "127.0.0.1", 0) as server:
+            m = await RawTcpMaster.connect(server.port)
+            m.writer.write(b"".join(mbap(t, 1, f.build_read_request(3, t, 1)) for t in (1, 2, 3)))
+            m.writer.write_eof()
+            for t in (1, 2, 3):
+                assert (await read_mbap(m.reader))[0] == t
+            await assert_closed_by_server(m.reader)
+            await wait_for_condition(lambda: server.connection_count == 0)
+            await m.close()
+
+    run(main())
