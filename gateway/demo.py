@@ -25,9 +25,10 @@ from pymodbus.client import AsyncModbusTcpClient
 
 from .app import GatewayApp
 from .calibration.iso230 import iso230_2
+from .calibration.outputs import fit_planar, save_planar
 from .compensation import PitchTable, PlanarMeasurement
 from .config import parse_config
-from .formats import write_pitch_csv, write_planar_csv
+from .formats import write_pitch_csv
 from .frames import pack_int32, unpack_int32
 from .sensors import ThermalState
 from .tables import build_chain
@@ -310,8 +311,17 @@ async def identify(out_dir: Path, step_mm: float = 2.5, runs: int = 5) -> None:
             grid[:, 1] = np.clip(grid[:, 1], OVERRUN_MM, 600.0)
             passes = [await xy_errors(pc, grid) for _ in range(GRID_PASSES)]
             errors = np.mean(passes, axis=0)
-    actual = grid + np.round(errors, 6)
-    write_planar_csv(out_dir / "xy_points.csv", PlanarMeasurement(grid, actual))
+    # the calibration's own planar fit: grid or polynomial by cross-validation, pinned to
+    # zero along the lines where the pitch tables were measured (X at Y = 0, Y at X = 0)
+    data = gateway_config(0)
+    data["planar"]["model"] = str((out_dir / "xy_model.yaml").resolve())
+    result = fit_planar(
+        PlanarMeasurement(grid, grid + np.round(errors, 6)),
+        parse_config(data, "example.yaml"),
+        CONFIG_DIR,
+        pitch_lines={"X": 0.0, "Y": 0.0},
+    )
+    save_planar(result, comment="example machine: 100 mm grid, 3 passes (compgw demo --identify)")
 
 
 def format_table(result: dict[str, Any]) -> str:

@@ -88,7 +88,7 @@ def test_round_trip_within_half_pulse(table, interpolation, outside, fraction, d
     assert abs(float(exact) - nominal_mm) < 1e-9
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=60, deadline=None)
 @given(
     table=linear_tables(rotary=True),
     turns=st.integers(-3, 3),
