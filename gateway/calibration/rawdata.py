@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..compensation.errors import TableError
-from ..formats.lines import csv_header, data_lines, fmt, parse_number
+from ..formats.lines import csv_cells, csv_header, data_lines, fmt, parse_number
 
 RAW_COLUMNS: tuple[str, ...] = ("axis", "run", "direction", "target_mm", "actual_mm")
 #: Targets closer than this (mm) are the same ISO 230-2 target position.
@@ -102,12 +102,7 @@ def read_raw_csv(path: str | os.PathLike[str]) -> RawData:
     extra: dict[str, list[str]] = {name: [] for name in extra_names}
     lines: list[int] = []
     for number, text in rows:
-        cells = [c.strip() for c in text.split(",")]
-        if len(cells) != len(header):
-            raise TableError(
-                f"{path}: line {number}: expected {len(header)} comma-separated fields "
-                f"({','.join(header)}), got {len(cells)}: {text!r}"
-            )
+        cells = csv_cells(path, number, text, header)
         name = cells[col["axis"]]
         if not name:
             raise TableError(f"{path}: line {number}: axis is empty")

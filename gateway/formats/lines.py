@@ -29,6 +29,19 @@ def csv_header(
     return number, tuple(cell.strip() for cell in text.split(","))
 
 
+def csv_cells(
+    path: str | os.PathLike[str], number: int, text: str, header: tuple[str, ...]
+) -> list[str]:
+    """The stripped fields of a CSV data line, exactly one per header column."""
+    cells = [c.strip() for c in text.split(",")]
+    if len(cells) != len(header):
+        raise TableError(
+            f"{path}: line {number}: expected {len(header)} comma-separated fields "
+            f"({','.join(header)}), got {len(cells)}: {text!r}"
+        )
+    return cells
+
+
 def parse_number(path: str | os.PathLike[str], number: int, field: str, text: str) -> float:
     """A finite float, or a TableError naming file, line and field."""
     try:

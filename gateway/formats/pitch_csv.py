@@ -24,7 +24,7 @@ import numpy as np
 from ..compensation.errors import TableError
 from ..compensation.pitch import PitchTable
 from .atomic import atomic_write_text
-from .lines import csv_header, data_lines, fmt, parse_number
+from .lines import csv_cells, csv_header, data_lines, fmt, parse_number
 
 _LINEAR_HEADERS = {
     ("position_mm", "error_um"): False,
@@ -59,12 +59,7 @@ def read_pitch_csv(path: str | os.PathLike[str]) -> PitchTable:
     forward: list[float] = []
     reverse: list[float | None] = []
     for number, text in rows:
-        cells = [c.strip() for c in text.split(",")]
-        if len(cells) != len(header):
-            raise TableError(
-                f"{path}: line {number}: expected {len(header)} comma-separated fields "
-                f"({','.join(header)}), got {len(cells)}: {text!r}"
-            )
+        cells = csv_cells(path, number, text, header)
         lines.append(number)
         positions.append(parse_number(path, number, header[0], cells[0]))
         forward.append(parse_number(path, number, header[1], cells[1]))
