@@ -415,11 +415,11 @@ class PtyPair:
 class Proc:
     """A child process whose combined output is drained by a thread (and kept)."""
 
-    def __init__(self, name: str, argv: list[str]) -> None:
+    def __init__(self, name: str, argv: list[str], cwd: Path = ROOT) -> None:
         self.name = name
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                  text=True, cwd=ROOT, env=env, start_new_session=True)
+                                  text=True, cwd=cwd, env=env, start_new_session=True)
         self.lines: list[str] = []
         self._cond = threading.Condition()
         threading.Thread(target=self._drain, daemon=True).start()
@@ -603,11 +603,12 @@ class Bench:
         self.gw_cfg = _write_yaml(self.tmp / "gw.yaml", gateway_config(self.sim_port, p1.b))
         self.gw_port = self.start_gateway("gw", self.gw_cfg)
 
-    def start_gateway(self, name: str, cfg: Path, t35_s: float | None = None) -> int:
+    def start_gateway(self, name: str, cfg: Path, t35_s: float | None = None,
+                      root: Path = ROOT) -> int:
         patch = "" if t35_s is None else (  # diagnostic: the RTU line's t3.5 replaced
             f"import gateway.serialline as s; s.t35_s = lambda *a, **k: {t35_s!r}; ")
         argv = compgw("run", cfg, patch)
-        proc = Proc(name, argv)
+        proc = Proc(name, argv, cwd=root)  # `import gateway` resolves in root first
         self.procs[name] = proc
         port = int(proc.wait_for(r"listening on 127\.0\.0\.1:(\d+)").group(1))
         self.warm_up(port)
@@ -805,6 +806,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reference", action=argparse.BooleanOptionalAction, default=None,
                     help="also a minimal asyncio.Protocol forwarder (no interception) as a "
                          "floor for CPython on this machine (default: full run)")
+    ap.add_argument("--baseline", metavar="DIR",
+                    help="also measure the gateway of another source tree (e.g. a `git "
+                         "archive` of an older commit), in the same run, for before/after")
     ap.add_argument("--load", help=argparse.SUPPRESS)
     ap.add_argument("--proxy", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
@@ -834,6 +838,23 @@ def main(argv: list[str] | None = None) -> int:
                     row = bench.pair(transport, case, masters, n)
                     rows.append(row)
                     print(format_row(row), flush=True)
+        if a.baseline:  # another gateway tree (e.g. `git archive` of an older commit)
+            # measured in the same run; it shares the RTU line: the main gateway is stopped
+            bench.procs["gw"].p.send_signal(signal.SIGSTOP)
+            try:
+                port = bench.start_gateway("gw-base", bench.gw_cfg, root=Path(a.baseline))
+                for transport in transports:
+                    for case in cases[:2]:
+                        for masters in (1, 8):
+                            n = rtu8 if transport == "rtu" and masters == 8 else requests
+                            row = bench.pair(transport, case, masters, n, gw_port=port,
+                                             gw_name="gw-base")
+                            row.note = f"baseline gateway from {a.baseline}"
+                            rows.append(row)
+                            print(format_row(row), flush=True)
+                bench.procs.pop("gw-base").stop()
+            finally:
+                bench.procs["gw"].p.send_signal(signal.SIGCONT)
         reference = (not a.quick) if a.reference is None else a.reference
         if reference and "tcp" in transports:
             ref = Proc("ref", [sys.executable, str(Path(__file__).resolve()), "--proxy",
@@ -851,13 +872,20 @@ def main(argv: list[str] | None = None) -> int:
             bench.procs.pop("ref").stop()
         if a.what_if and "rtu" in transports:
             for t35, label in ((3.5 * 10 / BAUD, "exact at 115200 8N1"), (0.0, "none")):
-                port = bench.start_gateway("gw-t35", bench.gw_cfg, t35_s=t35)
-                for case in cases[:2]:
-                    row = bench.pair("rtu", case, 1, requests, gw_port=port, gw_name="gw-t35")
-                    row.note = f"what-if: gateway t3.5 = {t35 * 1e3:.2f} ms ({label})"
-                    rows.append(row)
-                    print(format_row(row), flush=True)
-                bench.procs.pop("gw-t35").stop()
+                # The main gateway holds the same RTU line: stopped meanwhile, or both
+                # processes would read the drives' replies.
+                bench.procs["gw"].p.send_signal(signal.SIGSTOP)
+                try:
+                    port = bench.start_gateway("gw-t35", bench.gw_cfg, t35_s=t35)
+                    for case in cases[:2]:
+                        row = bench.pair("rtu", case, 1, requests, gw_port=port,
+                                         gw_name="gw-t35")
+                        row.note = f"what-if: gateway t3.5 = {t35 * 1e3:.2f} ms ({label})"
+                        rows.append(row)
+                        print(format_row(row), flush=True)
+                    bench.procs.pop("gw-t35").stop()
+                finally:
+                    bench.procs["gw"].p.send_signal(signal.SIGCONT)
         if a.profile:
             targets = [("tcp", CASES[0], 8), ("tcp", CASES[0], 1), ("rtu", CASES[0], 1)]
             for transport, case, masters in targets:

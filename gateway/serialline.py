@@ -78,8 +78,10 @@ class _Itimerspec(ctypes.Structure):
     _fields_ = [("it_interval", _Timespec), ("it_value", _Timespec)]
 
 
-def _load_timerfd() -> tuple[Callable[[], int], Callable[[int, float], None]] | None:
-    """(create, arm at absolute monotonic time; 0 disarms) or None where unavailable."""
+def _load_timerfd() -> tuple[Callable[[], int],
+                             Callable[[int, float, _Itimerspec], None]] | None:
+    """(create, arm at absolute monotonic time with a caller-owned scratch itimerspec;
+    0 disarms) or None where unavailable."""
     if not sys.platform.startswith("linux"):
         return None
     if hasattr(os, "timerfd_create"):  # Python 3.13+
@@ -87,7 +89,7 @@ def _load_timerfd() -> tuple[Callable[[], int], Callable[[int, float], None]] | 
             return os.timerfd_create(time.CLOCK_MONOTONIC,
                                      flags=os.TFD_NONBLOCK | os.TFD_CLOEXEC)
 
-        def arm_os(fd: int, when: float) -> None:
+        def arm_os(fd: int, when: float, _spec: _Itimerspec) -> None:
             os.timerfd_settime_ns(fd, flags=os.TFD_TIMER_ABSTIME,
                                   initial=max(int(when * 1e9), 1) if when else 0)
 
@@ -107,12 +109,11 @@ def _load_timerfd() -> tuple[Callable[[], int], Callable[[int, float], None]] | 
             raise OSError(ctypes.get_errno(), "timerfd_create failed")
         return fd
 
-    def arm(fd: int, when: float) -> None:
-        spec = _Itimerspec()
-        if when:
-            ns = max(int(when * 1e9), 1)
-            spec.it_value.tv_sec, spec.it_value.tv_nsec = divmod(ns, 1_000_000_000)
-        if timerfd_settime(fd, _TFD_TIMER_ABSTIME, ctypes.byref(spec), None) < 0:
+    def arm(fd: int, when: float, spec: _Itimerspec) -> None:
+        value = spec.it_value
+        value.tv_sec, value.tv_nsec = divmod(max(int(when * 1e9), 1), 1_000_000_000) \
+            if when else (0, 0)
+        if timerfd_settime(fd, _TFD_TIMER_ABSTIME, spec, None) < 0:
             raise OSError(ctypes.get_errno(), "timerfd_settime failed")
 
     return create, arm
@@ -133,6 +134,7 @@ class ExactTimer:
         self._handle: asyncio.TimerHandle | None = None
         self._when = 0.0  # armed timerfd deadline; 0: not armed
         self._fd: int | None = None
+        self._spec = _Itimerspec()  # scratch for the ctypes call, one per timer
         if _TIMERFD is not None:
             try:
                 self._fd = _TIMERFD[0]()
@@ -145,7 +147,7 @@ class ExactTimer:
         self.cancel()
         if self._fd is not None and when - time.monotonic() < PRECISE_BELOW_S:
             try:
-                _TIMERFD[1](self._fd, when)  # type: ignore[index]  (replaces any setting)
+                _TIMERFD[1](self._fd, when, self._spec)  # type: ignore[index]  (replaces)
                 self._when = when
                 return
             except OSError as err:
