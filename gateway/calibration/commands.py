@@ -49,6 +49,10 @@ def _load(cmd: str, path: str) -> tuple[GatewayConfig, Path]:
 
 
 # -- calibrate ----------------------------------------------------------------------------------
+def _floats(text: str) -> list[float]:
+    return [float(v) for v in text.replace(",", " ").split()]
+
+
 def _range(text: str) -> tuple[float, float]:
     lo, _, hi = text.partition(",")
     return float(lo), float(hi)
@@ -58,6 +62,7 @@ def make_plan(args: argparse.Namespace, config: GatewayConfig, verification: boo
     """The plan the options describe (``verification``: its verification variant)."""
     from .plans import (
         backlash_plan,
+        cyclic_plan,
         iso230_linear_plan,
         read_plan,
         warmup_plan,
@@ -81,6 +86,13 @@ def make_plan(args: argparse.Namespace, config: GatewayConfig, verification: boo
         )  # fmt: skip
     if args.backlash:
         return None if verification else backlash_plan(args.backlash, travel(args.backlash))
+    if args.cyclic:
+        if verification:
+            return None
+        if args.lead_mm is None:
+            raise TableError("--cyclic needs --lead-mm (the screw lead: the error's period)")
+        return cyclic_plan(args.cyclic, travel(args.cyclic), args.lead_mm, args.stations,
+                           args.per_lead, args.leads, args.takeup_mm)  # fmt: skip
     if args.xy:
         if config.planar is None:
             raise TableError("--xy needs a planar section in the gateway config")
@@ -102,7 +114,8 @@ def make_plan(args: argparse.Namespace, config: GatewayConfig, verification: boo
         ref = args.reference_mm if args.reference_mm is not None else hi - args.overrun_mm
         return warmup_plan(args.warmup, (lo, hi), args.speed_mm_s, args.duration_s, ref,
                            args.measure_every, dwell_s=args.dwell_s)  # fmt: skip
-    raise TableError("give a plan: --plan FILE, --iso AXIS, --backlash AXIS, --xy or --warmup AXIS")
+    raise TableError("give a plan: --plan FILE, --iso AXIS, --backlash AXIS, --cyclic AXIS, "
+                     "--xy or --warmup AXIS")
 
 
 def _inset(travel: tuple[float, float], margin: float) -> tuple[float, float]:
@@ -162,11 +175,20 @@ def calibrate(
 
             atomic_write_text(args.identify_config, identify_config_text(Path(args.config)))
             print(f"identification config written to {args.identify_config}")
-            if not (args.plan or args.iso or args.backlash or args.xy or args.warmup):
+            if not (args.plan or args.iso or args.backlash or args.cyclic or args.xy
+                    or args.warmup):
                 return EXIT_OK
         plan = make_plan(args, config)
         if args.save_plan:
             write_plan(args.save_plan, plan)
+        if plan.kind == "cyclic":
+            from .plans import plan_time_s
+
+            minutes = plan_time_s(plan, args.estimate_speed_mm_s, args.estimate_stop_s) / 60
+            print(f"cyclic plan: {sum(m.measured for m in plan.moves)} readings at stations "
+                  f"{dict(plan.meta)['stations_mm']} mm; about {minutes:.1f} min of machine "
+                  f"time at {args.estimate_speed_mm_s:g} mm/s and {args.estimate_stop_s:g} s "
+                  f"per reading")  # fmt: skip
         if args.raw is None:
             raise TableError("--raw FILE is required (where the readings go)")
         raw = Path(args.raw)
@@ -251,6 +273,9 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     g.add_argument("--plan", metavar="FILE", help="a plan CSV (see gateway/calibration/plans.py)")
     g.add_argument("--iso", metavar="AXIS", help="ISO 230-2 linear test of AXIS")
     g.add_argument("--backlash", metavar="AXIS", help="seed 000 backlash procedure on AXIS")
+    g.add_argument("--cyclic", metavar="AXIS",
+                   help="dense scans of AXIS for the once-per-lead screw error (needs "
+                        "--lead-mm; issue 7)")  # fmt: skip
     g.add_argument("--xy", action="store_true", help="XY grid of the config's planar axes")
     g.add_argument("--warmup", metavar="AXIS", help="warm-up run of AXIS (thermal)")
     g.add_argument("--save-plan", metavar="FILE", help="also write the plan used")
@@ -259,7 +284,18 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     o.add_argument("--step-mm", type=float, default=25.0, help="ISO target spacing (25)")
     o.add_argument("--runs", type=int, default=5, help="ISO bidirectional runs (5)")
     o.add_argument("--seed", type=int, default=0, help="seed of the uneven target offsets")
-    o.add_argument("--lead-mm", type=float, help="screw lead: keep spacings off its multiples")
+    o.add_argument("--lead-mm", type=float,
+                   help="screw lead: ISO spacings kept off its multiples; --cyclic's period")
+    o.add_argument("--stations", type=_floats, metavar="MM[,MM...]",
+                   help="--cyclic: scan centres (default 15 %%, 50 %%, 85 %% of the travel)")
+    o.add_argument("--per-lead", type=int, default=16, help="--cyclic: points per lead (16)")
+    o.add_argument("--leads", type=float, default=2.0, help="--cyclic: leads per scan (2)")
+    o.add_argument("--takeup-mm", type=float, default=1.0,
+                   help="--cyclic: take-up move before each scan direction (1; > backlash)")
+    o.add_argument("--estimate-speed-mm-s", type=float, default=100.0,
+                   help="--cyclic: speed for the machine-time estimate printed (100)")
+    o.add_argument("--estimate-stop-s", type=float, default=2.0,
+                   help="--cyclic: settling + reading per point for the estimate (2)")
     o.add_argument("--overrun-mm", type=float, default=3.0, help="overrun / margin (3)")
     o.add_argument("--grid", type=int, nargs=2, default=(9, 7), metavar=("NX", "NY"))
     o.add_argument("--grid-runs", type=int, default=1, help="passes over the XY grid (1)")
@@ -302,13 +338,13 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
 
 # -- fit ----------------------------------------------------------------------------------------
 def raw_kind(path: str) -> str:
-    """pitch, backlash, planar or thermal: from the raw file's meta, else its columns."""
+    """pitch, backlash, cyclic, planar or thermal: from the raw file's meta, else its columns."""
     from .rawdata import read_raw_csv
     from .runner import read_raw_meta
 
     kind = read_raw_meta(path).get("kind", "")
-    if kind == "backlash":
-        return "backlash"
+    if kind in ("backlash", "cyclic"):
+        return kind
     if kind.startswith("xy"):
         return "planar"
     if kind == "warmup":
@@ -322,10 +358,25 @@ def raw_kind(path: str) -> str:
 
 
 def fit(args: argparse.Namespace) -> int:
-    """``compgw fit``: raw files → the tables and values the config references."""
+    """``compgw fit``: raw files → the tables and values the config references.
+
+    Order (whatever the order of the files): backlash runs first (their B serves the
+    unidirectional tables), then cyclic runs, then the rest. An ISO table of an axis whose
+    cyclic run is in the same call is written net of the cyclic term at its targets (the
+    joint fit: the coarse points do not count the cyclic error a second time).
+    """
+    from .cyclic_fit import harmonics_table
     from .fit import planar_measurement
     from .models import thermal_fit
-    from .outputs import fit_pitch, fit_planar, save_pitch, save_planar
+    from .outputs import (
+        fit_cyclic_raw,
+        fit_pitch,
+        fit_planar,
+        net_pitch,
+        save_cyclic,
+        save_pitch,
+        save_planar,
+    )
     from .plans import backlash_from_raw
     from .rawdata import read_raw_csv
     from .runner import read_raw_meta
@@ -346,6 +397,29 @@ def fit(args: argparse.Namespace) -> int:
                         f"{p:g}": m * 1e3 for p, m in zip(res.place_mm, res.mean_mm)
                     }
         pending: list[Callable[[], None]] = []
+        cyclic: dict[str, Any] = {}  # axis → the cyclic model written (for the joint fit)
+        for path, kind in kinds.items():
+            if kind != "cyclic":
+                continue
+            meta = read_raw_meta(path)
+            residual = args.residual or meta.get("compensation") == "on"
+            raw = read_raw_csv(path)
+            for a in raw.axes:
+                if a in cyclic:
+                    raise TableError(f"{path}: a second cyclic run of axis {a} in one call")
+                cr = fit_cyclic_raw(raw, meta, config, config_dir, a,
+                                    harmonics=args.harmonics, residual=residual)  # fmt: skip
+                comment = f"compgw fit from {Path(path).name}"
+                pending.append(lambda cr=cr, c=comment: save_cyclic(cr, c))
+                cyclic[a] = cr.model
+                report.setdefault(a, {})["cyclic"] = {
+                    "file": str(cr.path), "lead_mm": cr.model.lead_mm,
+                    "harmonics": cr.fit.harmonics, "folded": cr.folded,
+                    "cv_rms_um": {str(k): v for k, v in cr.fit.cv_rms_um.items()},
+                    "residual_rms_um": cr.fit.residual_rms_um,
+                    "peak_um": cr.model.peak_mm() * 1e3,
+                    "stations": [h.to_json_dict() for h in harmonics_table(cr.fit)],
+                }  # fmt: skip
         for path, kind in kinds.items():
             residual = args.residual or read_raw_meta(path).get("compensation") == "on"
             comment = f"fitted by compgw fit from {Path(path).name}"
@@ -355,8 +429,13 @@ def fit(args: argparse.Namespace) -> int:
                     degree = None if args.reversal == "per-point" else args.reversal_degree
                     r = fit_pitch(raw, config, config_dir, a, mode=args.mode, residual=residual,
                                   backlash_mm=backlash.get(a), reversal_degree=degree)  # fmt: skip
+                    netted = a in cyclic and not residual
+                    if netted:
+                        r = net_pitch(r, cyclic[a], config)
+                        comment += " net of the cyclic term (joint fit)"
                     pending.append(lambda r=r, c=comment: save_pitch(r, c))
                     entry = report.setdefault(a, {})
+                    entry["net_of_cyclic"] = netted
                     entry.update(table=str(r.path), mode=r.mode, folded=r.folded,
                                  points=int(r.table.position_mm.size))  # fmt: skip
                     if r.backlash_mm is not None:
@@ -387,6 +466,13 @@ def fit(args: argparse.Namespace) -> int:
                         "residual_rms_um": tf.residual_rms_um,
                         "residual_max_um": tf.residual_max_um, "readings": tf.points,
                     }  # fmt: skip
+        for a, entry in report.items():
+            if "cyclic" in entry and "table" not in entry and a in config.axes \
+                    and config.axes[a].compensation.pitch is not None:  # fmt: skip
+                entry["cyclic"]["note"] = (
+                    f"the pitch table of {a} was not re-fitted: give its ISO raw file in the "
+                    "same call so the table is taken net of the cyclic term (else the cyclic "
+                    "error at the table's points is counted twice)")  # fmt: skip
         if not args.dry_run:
             for save in pending:
                 save()
@@ -426,9 +512,25 @@ def format_fit(report: dict[str, Any], dry_run: bool = False) -> str:
                          f"); LOO RMS µm: {loo}; residual RMS {entry['residual_rms_um']:.2f} "
                          f"max {entry['residual_max_um']:.2f} µm")  # fmt: skip
             continue
+        if "cyclic" in entry:
+            c = entry["cyclic"]
+            cv = ", ".join(f"K={k} {v:.3f}" for k, v in c["cv_rms_um"].items())
+            lines.append(f"{name}: {verb} {c['file']} (cyclic, lead {c['lead_mm']:g} mm, "
+                         f"{c['harmonics']} harmonic(s){', folded' if c['folded'] else ''}; "
+                         f"CV RMS µm: {cv}; residual RMS {c['residual_rms_um']:.3f} µm)")
+            for h in c["stations"]:
+                lines.append(f"{name}:   at {h['station_mm']:g} mm, k={h['k']}: "
+                             f"{h['amplitude_um']:.3f} ± {h['amplitude_sd_um']:.3f} µm, "
+                             f"phase {h['phase_deg']:.1f} ± {h['phase_sd_deg']:.1f}°")
+            if c["harmonics"] == 0:
+                lines.append(f"{name}:   no cyclic error found: the file adds nothing")
+            if "note" in c:
+                lines.append(f"{name}: note: {c['note']}")
         if "table" in entry:
+            net = ", net of the cyclic term" if entry.get("net_of_cyclic") else ""
             lines.append(f"{name}: {verb} {entry['table']} ({entry['mode']}, "
-                         f"{entry['points']} points{', folded' if entry['folded'] else ''})")
+                         f"{entry['points']} points{', folded' if entry['folded'] else ''}"
+                         f"{net})")
         if "backlash_mm" in entry:
             lines.append(f"{name}: set axes.{name}.compensation.backlash_mm: "
                          f"{entry['backlash_mm']:.6g}")  # fmt: skip
@@ -456,6 +558,8 @@ def _add_fit(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--pitch-line", dest="pitch_lines", action="append", metavar="A@B=MM",
                    help="X@Y=0: X's table was measured with Y at 0; the planar model is "
                         "pinned to zero there (repeat per axis)")
+    p.add_argument("--harmonics", type=int, metavar="K",
+                   help="cyclic runs: fit K harmonics (default: 0..3 by cross-validation)")
     p.add_argument("--residual", action="store_true",
                    help="fold into the current tables (automatic for '# compensation: on')")
     p.add_argument("--dry-run", action="store_true", help="fit and check, write nothing")

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from ..compensation.cyclic import CyclicModel
 from ..compensation.errors import TableError
 from ..compensation.pitch import PitchTable
+from .rawdata import RawData
 
 MAX_FIT_HARMONICS = 3
 FOLDS = 8
@@ -165,3 +166,112 @@ def net_of_cyclic(table: PitchTable, model: CyclicModel | None) -> PitchTable:
         source=table.source,
         lines=table.lines,
     )
+
+
+# -- from raw files, and what the report shows ----------------------------------------------
+def station_fit_curves(
+    scan: StationScan, lead_mm: float, origin_mm: float, harmonics: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The scan's deviations minus the fitted local trend (and backlash step), and the
+    fitted cyclic term at the same positions (mm), for the report's plot."""
+    a = _design(scan, lead_mm, origin_mm, harmonics)
+    coef, *_ = np.linalg.lstsq(a, scan.deviation_mm, rcond=None)
+    cut = a.shape[1] - 2 * harmonics
+    trend = a[:, :cut] @ coef[:cut]
+    return scan.deviation_mm - trend, a[:, cut:] @ coef[cut:]
+
+
+def scans_from_raw(
+    raw: RawData, axis: str, lead_mm: float, stations_mm: list[float] | None = None
+) -> tuple[list[float], list[StationScan]]:
+    """The dense scans of ``axis`` in a raw file, grouped by station.
+
+    With ``stations_mm`` (the plan's ``# stations_mm:`` line) each row goes to the nearest
+    station; without, rows are split where consecutive targets are more than a lead apart,
+    and each group's station is its centre.
+    """
+    rows = np.flatnonzero(np.array(raw.axis) == axis)
+    if rows.size == 0:
+        raise TableError(f"{raw.source}: no rows for axis {axis!r}")
+    x = raw.target_mm[rows]
+    if stations_mm:
+        centres = np.asarray(stations_mm, dtype=np.float64)
+        group = np.argmin(np.abs(x[:, None] - centres[None, :]), axis=1)
+    else:
+        order = np.sort(np.unique(x))
+        edges = order[np.flatnonzero(np.diff(order) > lead_mm)]
+        group = np.searchsorted(edges, x, side="left")
+        centres = np.array([0.5 * (x[group == g].min() + x[group == g].max())
+                            for g in range(edges.size + 1)])  # fmt: skip
+    stations, scans = [], []
+    for g, centre in enumerate(centres):
+        sel = rows[group == g]
+        if sel.size == 0:
+            continue
+        stations.append(float(centre))
+        scans.append(StationScan(raw.target_mm[sel], raw.deviation_mm[sel],
+                                 raw.direction[sel].astype(np.int64)))  # fmt: skip
+    return stations, scans
+
+
+@dataclass(frozen=True)
+class Harmonic:
+    """One harmonic at one station: sin/cos amplitudes, magnitude and phase, with their
+    standard uncertainties (µm, degrees)."""
+
+    station_mm: float
+    k: int
+    sin_um: float
+    cos_um: float
+    sin_sd_um: float
+    cos_sd_um: float
+
+    @property
+    def amplitude_um(self) -> float:
+        return float(np.hypot(self.sin_um, self.cos_um))
+
+    @property
+    def amplitude_sd_um(self) -> float:
+        """u(A) = √((a·u_a)² + (b·u_b)²)/A (first order; a, b nearly uncorrelated over whole
+        leads); √(u_a² + u_b²)/√2 when A = 0."""
+        amp = self.amplitude_um
+        if amp == 0:
+            return float(np.hypot(self.sin_sd_um, self.cos_sd_um) / np.sqrt(2))
+        return float(np.hypot(self.sin_um * self.sin_sd_um, self.cos_um * self.cos_sd_um) / amp)
+
+    @property
+    def phase_deg(self) -> float:
+        """φ = atan2(b, a): the term is A·sin(kθ + φ)."""
+        return float(np.degrees(np.arctan2(self.cos_um, self.sin_um)))
+
+    @property
+    def phase_sd_deg(self) -> float:
+        """u(φ) = √((a·u_b)² + (b·u_a)²)/A² (first order; 180° when A = 0)."""
+        amp2 = self.sin_um**2 + self.cos_um**2
+        if amp2 == 0:
+            return 180.0
+        rad = np.hypot(self.sin_um * self.cos_sd_um, self.cos_um * self.sin_sd_um) / amp2
+        return float(min(180.0, np.degrees(rad)))
+
+    def to_json_dict(self) -> dict[str, float]:
+        return {
+            "station_mm": self.station_mm, "k": self.k,
+            "amplitude_um": self.amplitude_um, "amplitude_sd_um": self.amplitude_sd_um,
+            "phase_deg": self.phase_deg, "phase_sd_deg": self.phase_sd_deg,
+            "sin_um": self.sin_um, "cos_um": self.cos_um,
+            "sin_sd_um": self.sin_sd_um, "cos_sd_um": self.cos_sd_um,
+        }  # fmt: skip
+
+
+def harmonics_table(fit: CyclicFit) -> list[Harmonic]:
+    """Every fitted harmonic at every station (empty when nothing was fitted)."""
+    if fit.model is None or fit.sd_mm is None:
+        return []
+    m, (sin_sd, cos_sd) = fit.model, fit.sd_mm
+    return [
+        Harmonic(float(m.station_mm[i]), k + 1, float(m.sin_mm[i, k] * 1e3),
+                 float(m.cos_mm[i, k] * 1e3), float(sin_sd[i, k] * 1e3),
+                 float(cos_sd[i, k] * 1e3))
+        for i in range(m.station_mm.size)
+        for k in range(m.harmonics)
+    ]

@@ -1,7 +1,8 @@
 """Fitted tables → the files a gateway config references, checked before anything is written.
 
 A pitch table goes to ``axes.<A>.compensation.pitch`` (its ``format``: compgw CSV or
-LinuxCNC 0/1); the planar model to ``planar.model`` (YAML) and the points CSV it names
+LinuxCNC 0/1); the cyclic term to ``axes.<A>.compensation.cyclic`` (YAML, with the standard
+uncertainties); the planar model to ``planar.model`` (YAML) and the points CSV it names
 (``xy_points.csv`` beside it when new). Every file is written atomically, and only after
 the table passed the checks the gateway applies when it loads it (monotone map, every
 correction within ``max_correction_mm``, the planar field's slope): a table that fails is
@@ -17,18 +18,22 @@ import numpy as np
 import yaml
 
 from ..compensation import GridModel, PitchStage, PitchTable, PlanarMeasurement, PlanarStage
+from ..compensation.cyclic import CyclicModel, CyclicStage
 from ..compensation.errors import CompensationError, TableError
 from ..config import GatewayConfig, PitchFile
 from ..config_types import read_yaml
 from ..formats import (
     atomic_write_text,
+    read_cyclic,
     read_linuxcnc,
     read_pitch_csv,
+    write_cyclic,
     write_linuxcnc,
     write_pitch_csv,
     write_planar_csv,
 )
 from ..formats.planar_file import load_planar_model
+from .cyclic_fit import CyclicFit, fit_cyclic, net_of_cyclic, scans_from_raw
 from .fit import (
     bidirectional_table,
     bidirectional_table_smooth_reversal,
@@ -242,3 +247,122 @@ def save_planar(result: PlanarResult, comment: str = "") -> None:
     head.append(f"# residual at the points: RMS {choice.residual_rms_um:.3f} µm, "
                 f"max {choice.residual_max_um:.3f} µm")  # fmt: skip
     atomic_write_text(result.model_path, "\n".join(head) + "\n" + yaml.safe_dump(spec))
+
+
+# -- cyclic screw error (issue 7) ----------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class CyclicResult:
+    """The fitted cyclic term of one axis, where it goes, and how it was chosen."""
+
+    axis: str
+    path: Path
+    fit: CyclicFit
+    model: CyclicModel  # what is written (all zero when nothing was found)
+    folded: bool
+
+
+def cyclic_path(config: GatewayConfig, config_dir: Path, axis: str) -> Path:
+    """``axes.<A>.compensation.cyclic``; refused when the config has none."""
+    if axis not in config.axes:
+        raise TableError(f"axis {axis!r} is not in the gateway config")
+    name = config.axes[axis].compensation.cyclic
+    if not name:
+        raise TableError(f"axes.{axis}.compensation.cyclic is not set: no file to write the "
+                         f"cyclic fit to (add e.g. cyclic: tables/{axis.lower()}_cyclic.yaml)")
+    return config_dir / name
+
+
+def fit_cyclic_raw(
+    raw: RawData,
+    meta: dict[str, str],
+    config: GatewayConfig,
+    config_dir: Path,
+    axis: str,
+    *,
+    harmonics: int | None = None,
+    residual: bool = False,
+) -> CyclicResult:
+    """The cyclic term of ``axis`` from a cyclic plan's raw file (lead and stations from its
+    ``# lead_mm:``/``# stations_mm:`` lines), checked as the gateway checks it.
+
+    ``residual``: the scans were measured with the current cyclic file applied; the fit is
+    added to it (amplitudes of the current file interpolated at the new stations).
+    """
+    path = cyclic_path(config, config_dir, axis)
+    lead, stations, origin = cyclic_meta(meta, raw.source, path)
+    where, scans = scans_from_raw(raw, axis, lead, stations)
+    fit = fit_cyclic(where, scans, lead, origin, harmonics)
+    k = max(fit.harmonics, 1)
+    st = np.asarray(where, dtype=np.float64)
+    order = np.argsort(st)
+    sin = np.zeros((st.size, k))
+    cos = np.zeros((st.size, k))
+    if fit.model is not None:
+        sin, cos = fit.model.sin_mm.copy(), fit.model.cos_mm.copy()
+    if residual:
+        current = read_cyclic(path)
+        a, b = current.amplitudes_mm(st[order])
+        kk = max(k, current.harmonics)
+        sin, cos = _pad(sin, kk), _pad(cos, kk)
+        sin[:, : current.harmonics] += a
+        cos[:, : current.harmonics] += b
+    model = CyclicModel(lead, st[order], sin, cos, origin, source=str(path))
+    comp = config.axes[axis].compensation
+    try:
+        CyclicStage(model, config.axes[axis].travel_mm)
+    except CompensationError as exc:
+        raise TableError(str(exc)) from None
+    if model.peak_mm() > comp.max_correction_mm:
+        raise TableError(f"{path}: cyclic peak {model.peak_mm():.6g} mm exceeds "
+                         f"max_correction_mm {comp.max_correction_mm:g}")  # fmt: skip
+    return CyclicResult(axis, path, fit, model, residual)
+
+
+def _pad(values: np.ndarray, k: int) -> np.ndarray:
+    return np.pad(values, ((0, 0), (0, k - values.shape[1])))
+
+
+def cyclic_meta(
+    meta: dict[str, str], source: str, existing: Path | None = None
+) -> tuple[float, list[float] | None, float]:
+    """(lead_mm, stations_mm or None, origin_mm) from a raw file's meta lines; the lead and
+    origin of an existing cyclic file when the raw file does not say."""
+    try:
+        stations = [float(v) for v in meta["stations_mm"].split()] if "stations_mm" in meta \
+            else None  # fmt: skip
+        if "lead_mm" in meta:
+            return float(meta["lead_mm"]), stations, float(meta.get("origin_mm", 0.0))
+    except ValueError:
+        raise TableError(f"{source}: lead_mm/stations_mm/origin_mm lines are not numbers") \
+            from None  # fmt: skip
+    if existing is not None and existing.exists():
+        current = read_cyclic(existing)
+        return current.lead_mm, stations, current.origin_mm
+    raise TableError(f"{source}: no '# lead_mm:' line (a cyclic plan's raw file has one)")
+
+
+def save_cyclic(result: CyclicResult, comment: str = "") -> None:
+    """Write the cyclic file atomically, with the standard uncertainties per station."""
+    fit = result.fit
+    extra: dict[str, object] = {
+        "harmonics": fit.harmonics,
+        "fitted": comment or "compgw fit",
+        "cv_rms_um": {int(k): round(v, 4) for k, v in fit.cv_rms_um.items()},
+        "residual_rms_um": round(fit.residual_rms_um, 4),
+    }
+    if result.folded:
+        extra["folded"] = True
+    sd = None
+    if fit.sd_mm is not None and not result.folded:
+        sd = fit.sd_mm
+    elif fit.sd_mm is not None:  # folded: the uncertainty is the residual fit's
+        k = result.model.harmonics
+        sd = (_pad(fit.sd_mm[0], k), _pad(fit.sd_mm[1], k))
+    write_cyclic(result.path, result.model, extra, sd)
+
+
+def net_pitch(result: PitchResult, model: CyclicModel, config: GatewayConfig) -> PitchResult:
+    """The joint fit: the pitch table net of the cyclic term at its targets, re-checked."""
+    table = net_of_cyclic(result.table, model)
+    check_pitch(table, config, result.axis)
+    return replace(result, table=table)

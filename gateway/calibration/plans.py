@@ -22,7 +22,8 @@ the runner measures what the file says.
 
 Generators: :func:`iso230_linear_plan` (and its ``verification`` variant),
 :func:`backlash_plan` (seed 000), :func:`xy_grid_plan` / :func:`xy_verification_plan`
-(seed 001), :func:`warmup_plan` (seed 002).
+(seed 001), :func:`warmup_plan` (seed 002), :func:`cyclic_plan` (issue 7: dense scans of
+the once-per-lead screw error).
 """
 
 from __future__ import annotations
@@ -446,6 +447,107 @@ def warmup_plan(
                  duration_s=duration_s, reference_mm=ref, measure_every=measure_every,
                  cycles=cycles)  # fmt: skip
     return Plan("warmup", (axis,), tuple(moves), meta)
+
+
+# -- cyclic screw error (issue 7) ---------------------------------------------------------
+#: Default stations of the dense scans, as fractions of the travel.
+CYCLIC_STATIONS = (0.15, 0.50, 0.85)
+
+
+def cyclic_stations_mm(
+    travel_mm: Sequence[float],
+    lead_mm: float,
+    stations_mm: Sequence[float] | None = None,
+    leads: float = 2.0,
+    takeup_mm: float = 1.0,
+) -> NDArray[np.float64]:
+    """Centres of the dense scans: given, or 15 %, 50 %, 85 % of the travel; each moved just
+    far enough inside the travel for its scan and take-up moves to fit."""
+    lo, hi = _travel(travel_mm)
+    if stations_mm is None:
+        stations_mm = [lo + f * (hi - lo) for f in CYCLIC_STATIONS]
+    half = 0.5 * leads * lead_mm + takeup_mm
+    if hi - lo < 2 * half:
+        raise ValueError(f"travel {lo:g}..{hi:g} mm is shorter than one dense scan "
+                         f"({2 * half:g} mm)")  # fmt: skip
+    out = _round(np.clip(np.asarray(stations_mm, dtype=np.float64), lo + half, hi - half))
+    if out.size < 1 or np.any(np.diff(out) <= 0):
+        raise ValueError(f"stations {list(stations_mm)}: need distinct, increasing positions")
+    return out
+
+
+def cyclic_plan(
+    axis: str,
+    travel_mm: Sequence[float],
+    lead_mm: float,
+    stations_mm: Sequence[float] | None = None,
+    per_lead: int = 16,
+    leads: float = 2.0,
+    takeup_mm: float = 1.0,
+    speed_mm_s: float | None = None,
+    dwell_s: float | None = None,
+) -> Plan:
+    """Dense scans for the cyclic (once-per-lead) screw error, issue 7.
+
+    At each station (default 15 %, 50 %, 85 % of the travel): a ``takeup`` move
+    ``takeup_mm`` below the scan, then ``per_lead`` (≥ 16) points per lead over ``leads``
+    (≥ 2) leads measured going up (+); a ``takeup`` move ``takeup_mm`` above, then the same
+    points measured going down (−). The take-up distance must exceed the backlash, so every
+    point of a direction is approached with the play taken up the same way. Run number =
+    station number (1, 2, …), so each scan is one run of the raw file.
+    """
+    from .cyclic_fit import dense_scan_targets
+
+    if not (math.isfinite(lead_mm) and lead_mm > 0):
+        raise ValueError(f"lead_mm {lead_mm!r} must be > 0")
+    if takeup_mm <= 0:
+        raise ValueError("takeup_mm must be > 0 (it takes up the backlash)")
+    lo, hi = _travel(travel_mm)
+    stations = cyclic_stations_mm((lo, hi), lead_mm, stations_mm, leads, takeup_mm)
+    moves: list[Move] = []
+    for j, station in enumerate(stations, start=1):
+        try:
+            targets = _round(dense_scan_targets(float(station), lead_mm, per_lead=per_lead,
+                                                leads=leads))  # fmt: skip
+        except TableError as exc:
+            raise ValueError(str(exc)) from None
+        below = float(_round(max(lo, targets[0] - takeup_mm)))
+        above = float(_round(min(hi, targets[-1] + takeup_mm)))
+        moves.append(Move(j, -1, "takeup", (below,), speed_mm_s))
+        moves += [Move(j, +1, "measure", (float(t),), speed_mm_s, dwell_s) for t in targets]
+        moves.append(Move(j, +1, "takeup", (above,), speed_mm_s))
+        moves += [
+            Move(j, -1, "measure", (float(t),), speed_mm_s, dwell_s) for t in targets[::-1]
+        ]
+    meta = _meta(
+        kind="cyclic", axis=axis, travel_mm=(lo, hi), lead_mm=float(lead_mm),
+        stations_mm=tuple(float(s) for s in stations), per_lead=per_lead,
+        leads=float(leads), takeup_mm=float(takeup_mm),
+    )  # fmt: skip
+    return Plan("cyclic", (axis,), tuple(moves), meta)
+
+
+def plan_time_s(
+    plan: Plan,
+    speed_mm_s: float = 100.0,
+    stop_s: float = 2.0,
+    start_mm: Sequence[float] | None = None,
+) -> float:
+    """Machine time of ``plan`` (s): every move at ``speed_mm_s`` (its own speed if given,
+    axes moving together), plus ``stop_s`` at each measured move (settling and the
+    instrument's averaging) and its ``dwell_s``. Starts at the first move's targets unless
+    ``start_mm`` is given."""
+    if not plan.moves:
+        return 0.0
+    here = np.asarray(start_mm if start_mm is not None else plan.moves[0].target_mm, float)
+    total = 0.0
+    for m in plan.moves:
+        to = np.asarray(m.target_mm, dtype=np.float64)
+        total += float(np.max(np.abs(to - here))) / (m.speed_mm_s or speed_mm_s)
+        if m.measured:
+            total += stop_s + (m.dwell_s or 0.0)
+        here = to
+    return total
 
 
 # -- resuming an interrupted run ----------------------------------------------------------

@@ -2,8 +2,8 @@
 
 Compensation off / on (decided here, documented in ``compgw calibrate --help``): the
 runner does not switch the gateway. *Off* means the gateway it talks to runs an
-identification config: the same config with the pitch tables, backlash and planar model
-removed (``compgw calibrate --identify-config OUT.yaml -c CFG`` writes it; thermal stays
+identification config: the same config with the pitch tables, backlash, cyclic term and planar
+model removed (``compgw calibrate --identify-config OUT.yaml -c CFG`` writes it; thermal stays
 on when configured, so a long run's heating does not enter the tables). *On* means the
 gateway runs the config whose tables are being verified. Iterating rewrites those tables;
 the gateway must then reload them (SIGHUP: ``--reload-pid``, or ``--reload-cmd``, e.g.
@@ -117,7 +117,8 @@ class Session:
 
 # -- identification config ----------------------------------------------------------------------
 def identify_config(path: Path) -> dict[str, Any]:
-    """The config at ``path`` without pitch tables, backlash and planar model (thermal kept).
+    """The config at ``path`` without pitch tables, backlash, cyclic term and planar model
+    (thermal kept).
 
     Table paths are not needed by it; other relative paths stay valid when the result is
     written next to the original.
@@ -127,6 +128,7 @@ def identify_config(path: Path) -> dict[str, Any]:
         comp = axis.get("compensation") or {}
         comp.pop("pitch", None)
         comp.pop("backlash_mm", None)
+        comp.pop("cyclic", None)
         axis["compensation"] = comp
     data.pop("planar", None)
     return data
@@ -134,7 +136,7 @@ def identify_config(path: Path) -> dict[str, Any]:
 
 def identify_config_text(path: Path) -> str:
     head = f"# identification config made from {path.name} by compgw calibrate: no pitch,\n"
-    head += "# backlash or planar compensation (thermal kept)\n"
+    head += "# backlash, cyclic or planar compensation (thermal kept)\n"
     return head + yaml.safe_dump(identify_config(path), sort_keys=False)
 
 
