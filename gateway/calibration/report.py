@@ -7,10 +7,18 @@
   Ri), and a plot of the deviation against position for both directions with ±2s bands;
 - XY runs (``x_mm``, ``y_mm`` columns): max and RMS vector error and the error field as
   arrows (before and after);
+- cyclic runs (``# kind: cyclic``, the dense scans of ``compgw calibrate --cyclic``): the
+  harmonics fitted as ``compgw fit`` fits them (K by cross-validation, or ``--harmonics``),
+  per station the amplitude A = √(a² + b²) and phase φ = atan2(b, a) (the term is
+  A·sin(kθ + φ)) with their standard uncertainties (propagated from those of a and b), and a
+  plot of the scans (deviation minus the fitted local trend and backlash step, both
+  directions) with the fitted curve;
 - ``DIR/report.html`` (PNGs embedded as base64: one file to mail) and ``DIR/*.png``.
 
 ``--json`` prints ``{"X": {"A_um": …, "B_um": …, …}}`` (:func:`.iso230.report_json`) of
-RAW.csv and writes nothing unless ``--out`` is given too.
+RAW.csv (cyclic runs: ``{"X": {"cyclic": {"harmonics": K, "stations": [{"station_mm", "k",
+"amplitude_um", "amplitude_sd_um", "phase_deg", "phase_sd_deg", …}]}}}``) and writes nothing
+unless ``--out`` is given too.
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ from ..compensation.errors import TableError
 from .fit import planar_measurement
 from .iso230 import JSON_KEYS, Iso230Result, iso230_raw, report_json
 from .rawdata import RawData, axis_deviations, read_raw_csv
+from .runner import read_raw_meta
 
 LABELS = {
     "A_um": "A accuracy", "B_um": "B reversal", "Bmean_um": "B̄ mean reversal",
@@ -215,6 +224,119 @@ def build_report(
     return text, figures, data
 
 
+# -- cyclic runs (issue 7) --------------------------------------------------------------------
+def cyclic_results(
+    raw: RawData, meta: dict[str, str], harmonics: int | None = None,
+    lead_mm: float | None = None,
+) -> dict[str, tuple[Any, list[Any], Any]]:  # fmt: skip
+    """Per axis: (the fit, the station scans, the data for JSON), fitted as `compgw fit` does."""
+    from .cyclic_fit import fit_cyclic, harmonics_table, scans_from_raw
+    from .outputs import cyclic_meta
+
+    if lead_mm is not None:
+        meta = {**meta, "lead_mm": f"{lead_mm:g}"}
+    lead, stations, origin = cyclic_meta(meta, raw.source)
+    out = {}
+    for axis in raw.axes:
+        where, scans = scans_from_raw(raw, axis, lead, stations)
+        fit = fit_cyclic(where, scans, lead, origin, harmonics)
+        data = {
+            "lead_mm": lead, "origin_mm": origin, "harmonics": fit.harmonics,
+            "cv_rms_um": {str(k): v for k, v in fit.cv_rms_um.items()},
+            "residual_rms_um": fit.residual_rms_um,
+            "readings": int(sum(s.deviation_mm.size for s in scans)),
+            "stations": [h.to_json_dict() for h in harmonics_table(fit)],
+        }  # fmt: skip
+        out[axis] = (fit, list(zip(where, scans)), data)
+    return out
+
+
+def plot_cyclic(axis: str, fit: Any, scans: list[Any], lead_mm: float, origin_mm: float) -> bytes:
+    """Per station: the scan minus the fitted local trend vs position, both directions,
+    with the fitted cyclic curve."""
+    from .cyclic_fit import station_fit_curves
+
+    plt = _pyplot()
+    fig, panels = plt.subplots(len(scans), 1, figsize=(8, 2.6 * len(scans)), squeeze=False)
+    k = fit.harmonics
+    for ax, (station, scan) in zip(panels[:, 0], scans):
+        detrended, _ = station_fit_curves(scan, lead_mm, origin_mm, k)
+        for sign, colour, label in ((1, "tab:blue", "↑ (+)"), (-1, "tab:red", "↓ (−)")):
+            sel = scan.direction == sign
+            ax.plot(scan.position_mm[sel], detrended[sel] * 1e3, ".", color=colour, ms=4,
+                    label=f"scan {label}")  # fmt: skip
+        title = f"axis {axis}, station {station:g} mm"
+        if fit.model is not None:
+            i = int(np.argmin(np.abs(fit.model.station_mm - station)))
+            x = np.linspace(scan.position_mm.min(), scan.position_mm.max(), 400)
+            theta = 2 * np.pi * (x - origin_mm) / lead_mm
+            h = np.arange(1, k + 1)
+            curve = (np.sin(theta[:, None] * h) @ fit.model.sin_mm[i]
+                     + np.cos(theta[:, None] * h) @ fit.model.cos_mm[i])  # fmt: skip
+            ax.plot(x, curve * 1e3, "-", color="k", lw=1.2, label=f"fit ({k} harmonic(s))")
+            amp = np.hypot(fit.model.sin_mm[i, 0], fit.model.cos_mm[i, 0]) * 1e3
+            title += f": first harmonic {amp:.2f} µm"
+        else:
+            title += ": no cyclic error found (nothing added)"
+        ax.axhline(0, color="0.5", lw=0.5)
+        ax.set_title(title)
+        ax.set_xlabel("target position (mm)")
+        ax.set_ylabel("deviation − local trend (µm)")
+        ax.legend(fontsize=7, ncol=3)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _cyclic_table(axis: str, data: dict[str, Any]) -> str:
+    names = ("station mm", "k", "amplitude µm", "phase °", "sin a µm", "cos b µm")
+    head = "".join(f"<th>{n}</th>" for n in names)
+    rows = "".join(
+        f"<tr><td>{h['station_mm']:g}</td><td>{h['k']}</td>"
+        f"<td>{h['amplitude_um']:.3f} ± {h['amplitude_sd_um']:.3f}</td>"
+        f"<td>{h['phase_deg']:.1f} ± {h['phase_sd_deg']:.1f}</td>"
+        f"<td>{h['sin_um']:.3f} ± {h['sin_sd_um']:.3f}</td>"
+        f"<td>{h['cos_um']:.3f} ± {h['cos_sd_um']:.3f}</td></tr>"
+        for h in data["stations"]
+    )
+    cv = ", ".join(f"K={k}: {v:.3f}" for k, v in data["cv_rms_um"].items())
+    summary = (f"<p>lead {data['lead_mm']:g} mm, {data['readings']} readings; harmonics chosen: "
+               f"{data['harmonics']} (cross-validated RMS µm {cv}); residual RMS "
+               f"{data['residual_rms_um']:.3f} µm. ± = one standard uncertainty; the term is "
+               "A·sin(kθ + φ), θ = 2π·(x − origin)/lead.</p>")  # fmt: skip
+    if not data["stations"]:
+        return summary + "<p>No cyclic error found: the fit adds nothing.</p>"
+    return (summary + f"<table class='fig' id='cyclic-{axis}-harmonics'><tr>{head}</tr>"
+            f"{rows}</table>")  # fmt: skip
+
+
+def build_cyclic_report(
+    raw: RawData, meta: dict[str, str], title: str = "compgw calibration report",
+    harmonics: int | None = None, lead_mm: float | None = None,
+) -> tuple[str, list[Figure], dict[str, Any]]:  # fmt: skip
+    """The report of a cyclic run: harmonics table and scan plot per axis (pure)."""
+    parts = [f"<h1>{html.escape(title)}</h1>",
+             f"<p>Cyclic (once-per-lead) screw error from dense scans. Source: "
+             f"{html.escape(raw.source)}</p>"]  # fmt: skip
+    figures: list[Figure] = []
+    data: dict[str, Any] = {}
+    for axis, (fit, scans, d) in cyclic_results(raw, meta, harmonics, lead_mm).items():
+        data[axis] = {"cyclic": d}
+        parts.append(f"<h2>Axis {html.escape(axis)}: cyclic error</h2>")
+        parts.append(_cyclic_table(axis, d))
+        png = plot_cyclic(axis, fit, scans, d["lead_mm"], d["origin_mm"])
+        figures.append(Figure(f"cyclic-{axis}", png, f"axis {axis}: dense scans minus the "
+                              "fitted local trend, both directions, with the fitted curve"))
+        parts.append(_img(figures[-1]))
+    return _page(title, "\n".join(parts)), figures, data
+
+
+def _page(title: str, body: str) -> str:
+    return (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>"
+            f"{html.escape(title)}</title><style>{STYLE}</style></head><body>{body}"
+            f"<script>{LOADED_SCRIPT}</script></body></html>\n")  # fmt: skip
+
+
 def write_report(out_dir: Path, text: str, figures: list[Figure]) -> Path:
     from ..formats import atomic_write_text
 
@@ -234,11 +356,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="DIR", help="where report.html and the PNGs go (report/)")
     p.add_argument("--json", action="store_true", help="print the ISO 230-2 figures as JSON")
     p.add_argument("--title", default="compgw calibration report")
+    p.add_argument("--harmonics", type=int, metavar="K",
+                   help="cyclic runs: K harmonics (default: by cross-validation, as fit)")
+    p.add_argument("--lead-mm", type=float, help="cyclic runs: the lead, if the file lacks it")
 
 
 def main(args: argparse.Namespace) -> int:
     try:
         raw = read_raw_csv(args.raw)
+        meta = read_raw_meta(args.raw)
+        if meta.get("kind") == "cyclic":
+            if args.before:
+                raise TableError("--before: a cyclic run is reported on its own")
+            text, figures, data = build_cyclic_report(raw, meta, args.title, args.harmonics,
+                                                      args.lead_mm)  # fmt: skip
+            if args.json:
+                print(json.dumps(data))
+                if not args.out:
+                    return 0
+            path = write_report(Path(args.out or "report"), text, figures)
+            if not args.json:
+                print(f"report written to {path}")
+            return 0
         before = read_raw_csv(args.before) if args.before else None
         if args.json:
             if is_planar(raw):
