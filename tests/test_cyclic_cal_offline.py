@@ -167,3 +167,14 @@ def test_amplitude_and_phase_uncertainty_propagation():
     a, b = rng.normal(1.0, 0.05, 200_000), rng.normal(0.5, 0.12, 200_000)
     assert h.amplitude_sd_um == pytest.approx(np.hypot(a, b).std(), rel=0.03)
     assert h.phase_sd_deg == pytest.approx(np.degrees(np.arctan2(b, a)).std(), rel=0.05)
+
+
+def test_scans_found_without_the_stations_line(raws, capsys):
+    """A raw file without `# stations_mm:` (e.g. a hand-made plan): scans are split where
+    the targets jump by more than a lead, each station at its scan's centre."""
+    text = (raws / "cyc.csv").read_text().replace("# stations_mm: 120 400 680\n", "")
+    (raws / "nostations.csv").write_text(text)
+    rc, out, _ = fit(raws / "nostations.csv", "-c", config(raws), "--json", capsys=capsys)
+    assert rc == 0
+    entry = json.loads(out)["X"]["cyclic"]
+    assert [h["station_mm"] for h in entry["stations"]] == [120, 400, 680]

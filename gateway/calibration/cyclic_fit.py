@@ -186,9 +186,10 @@ def scans_from_raw(
 ) -> tuple[list[float], list[StationScan]]:
     """The dense scans of ``axis`` in a raw file, grouped by station.
 
-    With ``stations_mm`` (the plan's ``# stations_mm:`` line) each row goes to the nearest
-    station; without, rows are split where consecutive targets are more than a lead apart,
-    and each group's station is its centre.
+    With ``stations_mm`` (the plan's ``# stations_mm:`` line) the rows of run j are station
+    j's (the cyclic plan numbers runs by station), or, if the runs do not say, each row goes
+    to the nearest station; without, rows are split where consecutive targets are more than a
+    lead apart, and each group's station is its centre.
     """
     rows = np.flatnonzero(np.array(raw.axis) == axis)
     if rows.size == 0:
@@ -196,7 +197,11 @@ def scans_from_raw(
     x = raw.target_mm[rows]
     if stations_mm:
         centres = np.asarray(stations_mm, dtype=np.float64)
-        group = np.argmin(np.abs(x[:, None] - centres[None, :]), axis=1)
+        runs = raw.run[rows]
+        if set(np.unique(runs).tolist()) <= set(range(1, centres.size + 1)):
+            group = runs - 1
+        else:
+            group = np.argmin(np.abs(x[:, None] - centres[None, :]), axis=1)
     else:
         order = np.sort(np.unique(x))
         edges = order[np.flatnonzero(np.diff(order) > lead_mm)]
