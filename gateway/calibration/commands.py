@@ -28,13 +28,15 @@ CALIBRATE_HELP = """\
 Run a calibration plan through a running gateway and append the readings to a raw CSV.
 
 Compensation off (identification) means the gateway runs an identification config:
-write one with --identify-config OUT.yaml (the config without pitch, backlash and planar;
-thermal kept) and start `compgw run -c OUT.yaml`; or point --gateway at the drives
+write one with --identify-config OUT.yaml (the config without pitch, backlash, cyclic and
+planar; thermal kept) and start `compgw run -c OUT.yaml`; or point --gateway at the drives
 themselves. Compensation on means the gateway runs the config whose tables you verify.
 --verify --iterate N re-runs the plan with compensation on, folds the residual into the
 tables the config references, has the gateway reload them (--reload-pid PID sends
 SIGHUP, --reload-cmd runs a command), up to N times or until within --tolerance-um, then
 measures the verification plan (targets between the calibration targets).
+--cyclic AXIS --lead-mm L: dense scans for the once-per-lead screw error (issue 7); fit the
+raw file together with the axis's ISO raw file (`compgw fit X_id.csv X_cyclic.csv`).
 Interrupted runs resume when the same command is run again; Ctrl-C loses nothing measured.
 Instrument register maps: see gateway/calibration/machine.py (as the sim's laser, XY device
 and Δa sensor)."""
