@@ -54,6 +54,7 @@ def make_bus(name: str, cfg: BusConfig, min_silence_s: float | None = None) -> B
         bytesize=cfg.rtu.bytesize,
         parity=cfg.rtu.parity,
         stopbits=cfg.rtu.stopbits,
+        t35=cfg.rtu.t35,
         **common,
     )
 
@@ -135,6 +136,7 @@ class GatewayApp:
                     bytesize=up.rtu.bytesize,
                     parity=up.rtu.parity,
                     stopbits=up.rtu.stopbits,
+                    t35=up.rtu.t35,
                 )
                 await self.rtu.start()
             if self.metrics is not None:

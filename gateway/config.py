@@ -61,6 +61,9 @@ class SerialLine(Model):
     parity: Literal["N", "E", "O"] = "E"
     stopbits: Literal[1, 2] = 1
     bytesize: Literal[7, 8] = 8
+    #: inter-frame silence: "spec" (Modbus: 3.5 characters, 1.75 ms above 19200 baud) or
+    #: "exact" (3.5 characters at the real baud rate: 0.30 ms at 115200, if the drives cope)
+    t35: Literal["spec", "exact"] = "spec"
 
 
 class Upstream(Model):
