@@ -468,12 +468,15 @@ class Proc:
                 self.p.wait()
 
 
-# `compgw sim -c F` and `compgw run -c F` are thin wrappers over these two calls; calling
+# `compgw sim -c F` and `compgw run -c F` are thin wrappers over these calls (`app.run`
+# picks uvloop when installed; older trees given with --baseline have only `serve`); calling
 # them directly keeps the bench independent of the other subcommands' imports.
 _SIM = "import sys; from sim.server import main; sys.exit(main(sys.argv[1]))"
 _RUN = ("import asyncio, logging, sys; {patch}"
         "logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s'); "
-        "from gateway.app import serve; sys.exit(asyncio.run(serve(sys.argv[1])))")
+        "from gateway import app; "
+        "sys.exit(app.run(sys.argv[1]) if hasattr(app, 'run') else "
+        "asyncio.run(app.serve(sys.argv[1])))")
 
 
 def compgw(command: str, config: Path, patch: str = "") -> list[str]:

@@ -36,13 +36,12 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    import asyncio
 
-    from .app import serve
+    from .app import run
     from .service import configure_logging
 
     configure_logging(args.log_level)
-    return asyncio.run(serve(args.config))
+    return run(args.config)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
