@@ -12,7 +12,7 @@ Processes (all on 127.0.0.1, every TCP port bound as 0 and read back from the lo
   1 or 8 masters as asyncio tasks, each master on its own TCP connection and its own
   unit (drive); on RTU-direct the masters share the one line (an asyncio lock = ideal
   arbitration on a single-master line).
-- the pty bridges (two ``os.openpty`` joined by a thread, as tests/conftest.py) run in the
+- the pty bridges (``sim.nullmodem.PtyPair``: two ``os.openpty`` joined by a thread) run in the
   orchestrating process, which otherwise only waits.
 
 The load is raw Modbus (MBAP over asyncio streams; RTU frames on the pty fd with
@@ -58,7 +58,6 @@ import contextlib
 import json
 import os
 import re
-import select
 import shutil
 import signal
 import struct
@@ -71,6 +70,8 @@ import tty
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from sim.nullmodem import PtyPair
 
 ROOT = Path(__file__).resolve().parent.parent
 TABLES = ROOT / "config" / "tables"
@@ -373,43 +374,6 @@ async def _reference_proxy(sim_port: int) -> None:
 
 
 # -- the orchestrator ------------------------------------------------------------------------
-
-
-class PtyPair:
-    """Two pseudo-terminals joined back to back by a thread (as tests/conftest.py)."""
-
-    def __init__(self) -> None:
-        self._m1, self._s1 = os.openpty()
-        self._m2, self._s2 = os.openpty()
-        for fd in (self._s1, self._s2):
-            tty.setraw(fd)
-        for fd in (self._m1, self._m2):
-            tty.setraw(fd)
-        self.a, self.b = os.ttyname(self._s1), os.ttyname(self._s2)
-        self._stop_r, self._stop_w = os.pipe()
-        self._thread = threading.Thread(target=self._copy, daemon=True)
-        self._thread.start()
-
-    def _copy(self) -> None:
-        peer = {self._m1: self._m2, self._m2: self._m1}
-        while True:
-            ready, _, _ = select.select([self._m1, self._m2, self._stop_r], [], [])
-            if self._stop_r in ready:
-                return
-            for fd in ready:
-                try:
-                    data = os.read(fd, 4096)
-                except OSError:
-                    continue
-                view = memoryview(data)
-                while view:
-                    view = view[os.write(peer[fd], view):]
-
-    def close(self) -> None:
-        os.write(self._stop_w, b"x")
-        self._thread.join(timeout=5)
-        for fd in (self._m1, self._s1, self._m2, self._s2, self._stop_r, self._stop_w):
-            os.close(fd)
 
 
 class Proc:
