@@ -11,11 +11,6 @@ EXIT_USAGE = 2
 EXIT_RUNTIME = 3
 
 
-def _not_yet(name: str, issue: int) -> int:
-    print(f"compgw {name}: not implemented yet (tracked in issue {issue})", file=sys.stderr)
-    return EXIT_RUNTIME
-
-
 def _cmd_check(args: argparse.Namespace) -> int:
     from pathlib import Path
 
