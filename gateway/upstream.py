@@ -267,19 +267,17 @@ class _Connection(asyncio.Protocol):
         if self.eof:
             return
         self.eof = True
-        self.buf.clear()
-        if not self.lost and self.transport is not None and not self.read_paused:
-            self.read_paused = True
-            with contextlib.suppress(Exception):
-                self.transport.pause_reading()
-        if self.task is None:
-            self._close_transport()
+        self._stop_reading()
 
     def stop(self) -> None:
         """Graceful close: no more reading, the request in flight is answered, the rest
         dropped, then the connection closes."""
         self.stopping = True
         self.pending.clear()
+        self._stop_reading()
+
+    def _stop_reading(self) -> None:
+        """Drop unparsed input, read no more, close now if nothing is in flight."""
         self.buf.clear()
         if not self.lost and self.transport is not None and not self.read_paused:
             self.read_paused = True
