@@ -21,15 +21,14 @@ from typing import Any
 
 import numpy as np
 import yaml
-from pymodbus.client import AsyncModbusTcpClient
 
 from .app import GatewayApp
 from .calibration.iso230 import iso230_2
+from .calibration.machine import Laser, Link, MachineDriver, XYDevice
 from .calibration.outputs import fit_planar, save_planar
 from .compensation import PitchTable, PlanarMeasurement
 from .config import parse_config
 from .formats import write_pitch_csv
-from .frames import pack_int32, unpack_int32
 from .sensors import ThermalState
 from .tables import build_chain
 
@@ -37,9 +36,6 @@ CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
 GATEWAY_EXAMPLE = CONFIG_DIR / "example.yaml"
 SIM_EXAMPLE = CONFIG_DIR / "example-sim.yaml"
 
-TARGET, TRIGGER, STATUS = 0x6201, 0x6002, 0x1003
-MOVE_VALUE = 0x10
-IN_POSITION_BIT, MOVING_BIT = 4, 2
 LASER_UNIT, XY_UNIT, CONTROL_UNIT = 20, 21, 250
 ADVANCE_CLOCK_S = 0x0800
 COOL_DOWN_S = 20_000  # ≫ the screws' thermal time constant: a cold machine
@@ -56,61 +52,30 @@ GRID_PASSES = 3  # the XY grid is measured this many times and averaged
 
 @dataclass
 class UpperComputer:
-    """The scripted master: moves through the gateway, reads the sim's instruments."""
+    """The scripted master: moves through the gateway (the calibration's machine driver)
+    and reads the sim's laser and XY device on the bench link."""
 
-    master: AsyncModbusTcpClient  # to the gateway
-    bench: AsyncModbusTcpClient  # to the sim's instruments and control block
-    units: dict[str, int]
-    pulse_mm: float
-    laser_index: dict[str, int]
-
-    async def _ok(self, call: Any) -> Any:
-        reply = await call
-        if reply.isError():
-            raise RuntimeError(f"Modbus error: {reply}")
-        return reply
-
-    async def write_target(self, axis: str, position_mm: float) -> None:
-        words = list(pack_int32(round(position_mm / self.pulse_mm)))
-        await self._ok(self.master.write_registers(TARGET, words, device_id=self.units[axis]))
-
-    async def trigger(self, axis: str) -> None:
-        unit = self.units[axis]
-        await self._ok(self.master.write_register(TRIGGER, MOVE_VALUE, device_id=unit))
-        for _ in range(100_000):
-            status = (await self._ok(self.master.read_holding_registers(STATUS, device_id=unit)))
-            word = status.registers[0]
-            if word >> IN_POSITION_BIT & 1 and not word >> MOVING_BIT & 1:
-                return
-            await asyncio.sleep(0.001)
-        raise RuntimeError(f"axis {axis} did not reach its target")
+    driver: MachineDriver
+    laser: Laser
+    xy: XYDevice
+    bench: Link  # the sim: its instruments and control block
 
     async def move(self, axis: str, position_mm: float) -> None:
-        await self.write_target(axis, position_mm)
-        await self.trigger(axis)
+        await self.driver.move({axis: position_mm})
 
     async def move_xy(self, x_mm: float, y_mm: float) -> None:
         """Both targets, then both triggers (with on_trigger the first commits both)."""
-        await self.write_target("X", x_mm)
-        await self.write_target("Y", y_mm)
-        await self.trigger("X")
-        await self.trigger("Y")
+        await self.driver.move({"X": x_mm, "Y": y_mm})
 
     async def laser_mm(self, axis: str) -> float:
-        k = self.laser_index[axis]
-        call = self.bench.read_input_registers(2 * k, count=2, device_id=LASER_UNIT)
-        reply = await self._ok(call)
-        return unpack_int32(reply.registers, "hi_lo") * 1e-6
+        return (await self.laser.read_mm([axis]))[axis]
 
     async def xy_mm(self) -> np.ndarray:
-        reply = await self._ok(self.bench.read_input_registers(0, count=4, device_id=XY_UNIT))
-        regs = reply.registers
-        return np.array([unpack_int32(regs[:2], "hi_lo"), unpack_int32(regs[2:], "hi_lo")]) * 1e-6
+        reading = await self.xy.read_mm(["X", "Y"])
+        return np.array([reading["X"], reading["Y"]])
 
     async def cool_down(self) -> None:
-        await self._ok(
-            self.bench.write_register(ADVANCE_CLOCK_S, COOL_DOWN_S, device_id=CONTROL_UNIT)
-        )
+        await self.bench.write(CONTROL_UNIT, ADVANCE_CLOCK_S, [COOL_DOWN_S])
 
 
 async def bidirectional_runs(
@@ -194,20 +159,18 @@ class _Session:
         self.chain = build_chain(self.config, base_dir)
 
     async def __aenter__(self) -> UpperComputer:
-
         self.app = GatewayApp(self.config, self.chain)
         await self.app.start()
-        self.master = AsyncModbusTcpClient("127.0.0.1", port=self.app.tcp_port, timeout=2)
-        self.bench = AsyncModbusTcpClient("127.0.0.1", port=self.sim.tcp_port, timeout=2)
+        self.master = Link("127.0.0.1", self.app.tcp_port)
+        self.bench = Link("127.0.0.1", self.sim.tcp_port)
         await self.master.connect()
         await self.bench.connect()
-        axes = self.config.axes
+        axes = list(self.config.axes)
         pc = UpperComputer(
-            self.master,
+            MachineDriver(self.master, self.config),
+            Laser(self.bench, LASER_UNIT, {name: k for k, name in enumerate(axes)}),
+            XYDevice(self.bench, XY_UNIT, ("X", "Y")),
             self.bench,
-            {name: axis.upstream for name, axis in axes.items()},
-            axes["X"].pulse_mm,
-            {name: k for k, name in enumerate(axes)},
         )
         await pc.cool_down()
         await self.settle()
