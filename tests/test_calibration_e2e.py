@@ -33,6 +33,7 @@ from gateway.calibration.plans import (
     iso230_linear_plan,
     read_plan,
     resume_index,
+    snap_to_pulses,
     write_plan,
     xy_verification_plan,
 )
@@ -266,7 +267,7 @@ def test_interrupted_run_resumes_and_loses_nothing(flow):
     d = flow["dir"]
     assert flow["interrupted_rc"] == 3
     assert flow["rows_after_interrupt"] == 99  # every reading before the interruption
-    plan = read_plan(d / "X_verify.plan")
+    plan = snap_to_pulses(read_plan(d / "X_verify.plan"), {"X": 0.001})  # as calibrate runs it
     raw = read_raw_csv(d / "X_resumed.csv")
     assert resume_index(plan, raw) == len(plan.moves)
     assert "resumed at move" in flow["resume_output"]

@@ -36,6 +36,8 @@ def example_config(sim_port: int) -> dict[str, Any]:
     for source in data["thermal_sources"].values():
         source["poll_s"] = POLL_S
         source["smoothing"] = 1.0
+        # the sim's clock runs thousands of times faster than the wall clock the rate check uses
+        source["max_rate_mm_s"] = 1.0
     return data
 
 

@@ -61,7 +61,17 @@ def _range(text: str) -> tuple[float, float]:
 
 
 def make_plan(args: argparse.Namespace, config: GatewayConfig, verification: bool = False):  # type: ignore[no-untyped-def]
-    """The plan the options describe (``verification``: its verification variant)."""
+    """The plan the options describe (``verification``: its verification variant), its
+    targets on each axis' pulse grid when the machine is driven (not for ``--join``)."""
+    from .plans import snap_to_pulses
+
+    plan = _described_plan(args, config, verification)
+    if plan is None or getattr(args, "join", None):
+        return plan
+    return snap_to_pulses(plan, {name: axis.pulse_mm for name, axis in config.axes.items()})
+
+
+def _described_plan(args: argparse.Namespace, config: GatewayConfig, verification: bool):  # type: ignore[no-untyped-def]
     from .plans import (
         backlash_plan,
         cyclic_plan,
