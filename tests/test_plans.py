@@ -14,6 +14,7 @@ from gateway.calibration.plans import (
     iso230_linear_plan,
     iso230_targets_mm,
     read_plan,
+    snap_to_pulses,
     warmup_plan,
     write_plan,
     xy_grid_plan,
@@ -192,3 +193,14 @@ def test_plan_file_user_edits_and_errors(tmp_path) -> None:
     path.write_text("run,role,X_mm\n")
     with pytest.raises(TableError, match="line 1: header"):
         read_plan(path)
+
+
+def test_snap_to_pulses_puts_every_target_on_its_axis_pulse_grid():
+    plan = xy_grid_plan((0.1234, 99.8766), (1.0004, 50.0006), 3, 2, ("X", "Y"), runs=1)
+    snapped = snap_to_pulses(plan, {"X": 0.001, "Y": 0.0005})
+    pts = np.array([m.target_mm for m in snapped.moves])
+    assert np.allclose(pts[:, 0] / 0.001, np.round(pts[:, 0] / 0.001), atol=1e-6)
+    assert np.allclose(pts[:, 1] / 0.0005, np.round(pts[:, 1] / 0.0005), atol=1e-6)
+    assert np.abs(pts - np.array([m.target_mm for m in plan.moves])).max() <= 0.0005 + 1e-12
+    assert [m.role for m in snapped.moves] == [m.role for m in plan.moves]
+    assert snap_to_pulses(plan, {}).moves == plan.moves  # unknown axes are left alone
