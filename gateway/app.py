@@ -7,7 +7,9 @@ logged and the old one stays. Under systemd it speaks the notify protocol
 (:mod:`gateway.service`): READY=1 once listening, watchdog pings from the event loop.
 
 The upstream handler is the router's, wrapped: write protection (:mod:`gateway.security`)
-inside, metrics (:mod:`gateway.metrics`, only when ``metrics.port`` is set) outside.
+inside, metrics (:mod:`gateway.metrics`, only when ``metrics.port`` is set) outside. The
+TCP listener also gets the router's fast handler (:meth:`Gateway.handle_fast`), wrapped
+the same way.
 """
 
 from __future__ import annotations
@@ -87,10 +89,12 @@ class GatewayApp:
         self.gateway.status_handler = self.status.handle
         self.write_guard = WriteGuard(lambda: self.config.write_protect)
         self.handler = self.write_guard.wrap(self.gateway.handle)
+        self.fast_handler = self.write_guard.wrap_fast(self.gateway.handle_fast)
         self.metrics: MetricsServer | None = None
         if config.metrics.port is not None:
             registry, request_metrics = build_metrics(self)
             self.handler = request_metrics.wrap(self.handler)
+            self.fast_handler = request_metrics.wrap_fast(self.fast_handler)
             self.metrics = MetricsServer(registry, config.metrics.host, config.metrics.port)
         self.tcp: TcpServer | None = None
         self.rtu: RtuServer | None = None
@@ -125,6 +129,7 @@ class GatewayApp:
                     allow=up.tcp.allow,
                     max_connections=up.tcp.max_connections,
                     idle_timeout_s=up.tcp.idle_timeout_s or None,
+                    fast=self.fast_handler,
                 )
                 await self.tcp.start()
             if up.rtu is not None:

@@ -20,7 +20,7 @@ import socket
 import time
 from abc import ABC, abstractmethod
 from collections import OrderedDict, deque
-from collections.abc import Hashable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 
 from .frames import (
@@ -35,6 +35,10 @@ from .frames import (
 from .serialline import SerialLine, SerialLineLost, T35Mode
 
 log = logging.getLogger(__name__)
+
+#: Completion callback of :meth:`Bus.submit`: ``done(reply, None)`` with the drive's reply
+#: PDU, or ``done(None, error)`` with the error :meth:`Bus.transact` would have raised.
+Done = Callable[[bytes | None, BaseException | None], None]
 
 #: Who is asking, for fair queuing: the upstream server sets it per master connection,
 #: so each master gets its turn on a busy bus whatever the others have queued.
@@ -178,6 +182,13 @@ class Bus(ABC):
         finally:
             self._queue.release()
 
+    def submit(self, unit_id: int, pdu: bytes, done: Done) -> bool:
+        """Start ``transact(unit_id, pdu)`` without a task when the bus can send at once
+        (free, connected, nothing queued): ``done`` gets the outcome later, exactly what
+        ``transact`` would have returned or raised. False: nothing was done (the bus is
+        busy or down, or this transport has no such path); call :meth:`transact`."""
+        return False
+
     async def connect(self) -> bool:
         """Open the port/connection now (e.g. at start-up); False if it is down."""
         try:
@@ -193,10 +204,13 @@ class Bus(ABC):
 
     # ------------------------------------------------------------------ the loop
 
-    async def _transact_locked(self, unit_id: int, pdu: bytes) -> bytes:
-        self.counters.transactions += 1
-        timed_out = False
-        for attempt in range(self.retries + 1):
+    async def _transact_locked(self, unit_id: int, pdu: bytes, first_attempt: int = 0,
+                               timed_out: bool = False) -> bytes:
+        """The attempts of one transaction (``first_attempt`` > 0: the rest of one that
+        :meth:`submit` started; ``timed_out``: an earlier attempt timed out)."""
+        if not first_attempt:
+            self.counters.transactions += 1
+        for attempt in range(first_attempt, self.retries + 1):
             final = attempt == self.retries
             if attempt:
                 self.counters.retries += 1
@@ -476,6 +490,15 @@ class _MbapClient(asyncio.Protocol):
             self.bus._on_lost(self)
 
 
+def _deliver(done: Done, reply: bytes | None, exc: BaseException | None) -> None:
+    """Call a :meth:`Bus.submit` completion callback; its errors are logged, never raised
+    into the connection's ``data_received`` or the timer."""
+    try:
+        done(reply, exc)
+    except Exception:
+        log.exception("completion callback failed")
+
+
 def _expire(fut: asyncio.Future[bytes | None]) -> None:
     if not fut.done():
         fut.set_result(None)
@@ -507,6 +530,11 @@ class TcpBus(Bus):
         # the transaction waiting for a reply: (connection, tid, unit or None, request, future)
         self._waiter: tuple[_MbapClient, int, int | None, bytes,
                             asyncio.Future[bytes | None]] | None = None
+        # the transaction started by submit(): (connection, tid, unit, request, done)
+        self._fast: tuple[_MbapClient, int, int, bytes, Done] | None = None
+        self._fast_timer: asyncio.TimerHandle | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._tasks: set[asyncio.Task[None]] = set()  # _remaining() tasks (kept referenced)
         self._tid = 0
 
     @property
@@ -520,7 +548,7 @@ class TcpBus(Bus):
 
     async def _open(self) -> None:
         await self._close()
-        loop = asyncio.get_running_loop()
+        self._loop = loop = asyncio.get_running_loop()
         _, proto = await asyncio.wait_for(
             loop.create_connection(lambda: _MbapClient(self), self.host, self.port),
             self.connect_timeout_s)
@@ -531,7 +559,94 @@ class TcpBus(Bus):
         if proto is not None:
             proto.close()
 
+    def submit(self, unit_id: int, pdu: bytes, done: Done) -> bool:
+        """Send now and return; ``done`` is called from ``data_received`` with the reply
+        (or from the timeout timer). No task, no future: the pass-through hot path. A
+        timeout or a lost connection continues in a task with the remaining attempts of
+        :meth:`Bus._transact_locked`, so retries and errors are the same as ``transact``'s.
+        """
+        queue = self._queue
+        proto = self._proto
+        if (queue._busy or queue._lanes or proto is None or proto.lost or proto.paused
+                or self.min_silence_s or self._closed or not 1 <= len(pdu) <= MAX_PDU_BYTES
+                or not 0 <= unit_id <= 255):
+            return False
+        transport = proto.transport
+        loop = self._loop
+        if transport is None or loop is None:
+            return False
+        queue._busy = True
+        self.counters.transactions += 1
+        self._tid = tid = self._tid % 0xFFFF + 1
+        n = len(pdu) + 1
+        self._fast = (proto, tid, unit_id, pdu, done)
+        self._fast_timer = loop.call_later(self.timeout_s, self._fast_expired)
+        transport.write(bytes((tid >> 8, tid & 0xFF, 0, 0, n >> 8, n & 0xFF, unit_id)) + pdu)
+        return True
+
+    def _fast_end(self) -> None:
+        self._fast = None
+        timer, self._fast_timer = self._fast_timer, None
+        if timer is not None:
+            timer.cancel()
+
+    def _fast_expired(self) -> None:
+        fast = self._fast
+        self._fast_timer = None
+        if fast is None:
+            return
+        self._fast_end()
+        _, _, unit_id, pdu, done = fast
+        self.counters.timeouts += 1
+        final = not self.retries
+        self._after_timeout(final)
+        log.debug("%s: unit %s FC%02d attempt 1 timed out", self.name, unit_id, pdu[0])
+        if final:
+            self._queue.release()
+            _deliver(done, None, DriveTimeout(
+                f"{self.name}: unit {unit_id} did not answer FC{pdu[0]:02d}"))
+        else:
+            self._continue(fast, None)
+
+    def _continue(self, fast: tuple[_MbapClient, int, int, bytes, Done],
+                  err: BaseException | None) -> None:
+        """The first attempt of a submitted transaction got no reply (``err``: the
+        connection was lost, else a timeout): the other attempts run in a task."""
+        loop = self._loop or asyncio.get_running_loop()
+        task = loop.create_task(self._remaining(fast[2], fast[3], fast[4], err))
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    async def _remaining(self, unit_id: int, pdu: bytes, done: Done,
+                         err: BaseException | None) -> None:
+        try:
+            try:
+                if err is not None:
+                    await self._lost(err)
+                    if not self.retries:
+                        self.counters.unavailable += 1
+                        raise BusUnavailable(f"{self.name}: {err}") from err
+                reply = await self._transact_locked(unit_id, pdu, 1, timed_out=err is None)
+            finally:
+                self._queue.release()
+        except BaseException as exc:
+            _deliver(done, None, exc)
+            if not isinstance(exc, Exception):
+                raise
+        else:
+            _deliver(done, reply, None)
+
     def _on_frame(self, proto: _MbapClient, unit: int, tid: int, pdu: bytes) -> None:
+        fast = self._fast
+        if fast is not None:
+            f_proto, f_tid, f_unit, f_pdu, done = fast
+            if tid == f_tid and proto is f_proto and (unit == f_unit or not self.check_unit) \
+                    and response_matches(f_pdu, pdu):
+                self._fast_end()
+                self.counters.replies += 1
+                self._queue.release()
+                _deliver(done, pdu, None)
+                return
         waiter = self._waiter
         if waiter is not None:
             w_proto, w_tid, w_unit, w_pdu, fut = waiter
@@ -544,6 +659,10 @@ class TcpBus(Bus):
                   pdu.hex(), None if waiter is None else f"unit {waiter[2]} tid {waiter[1]}")
 
     def _on_lost(self, proto: _MbapClient) -> None:
+        fast = self._fast
+        if fast is not None and fast[0] is proto:
+            self._fast_end()
+            self._continue(fast, ConnectionError("connection closed by drive"))
         waiter = self._waiter
         if waiter is not None and waiter[0] is proto and not waiter[4].done():
             waiter[4].set_exception(ConnectionError("connection closed by drive"))
@@ -566,7 +685,7 @@ class TcpBus(Bus):
 
     async def _await_reply(self, unit_id: int, tid: int | None, pdu: bytes) -> bytes | None:
         assert tid is not None and self._proto is not None
-        loop = asyncio.get_running_loop()
+        loop = self._loop or asyncio.get_running_loop()
         fut: asyncio.Future[bytes | None] = loop.create_future()
         self._waiter = (self._proto, tid, unit_id if self.check_unit else None, pdu, fut)
         timer = loop.call_later(self.timeout_s, _expire, fut)

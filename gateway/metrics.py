@@ -37,6 +37,8 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 Handler = Callable[[int, bytes], Awaitable[bytes | None]]
+Done = Callable[[bytes | None, BaseException | None], None]
+FastHandler = Callable[[int, bytes, Done], bool]
 
 LATENCY_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.5)
 
@@ -85,6 +87,31 @@ class RequestMetrics:
             if reply is not None and len(reply) >= 2 and reply[0] & 0x80:
                 self.exceptions.labels(str(fc), f"0x{reply[1]:02X}").inc()
             return reply
+
+        return counted
+
+    def wrap_fast(self, fast: FastHandler) -> FastHandler:
+        """A fast handler (see :mod:`gateway.upstream`) counted as :meth:`wrap` counts."""
+
+        def counted(unit_id: int, pdu: bytes, done: Done) -> bool:
+            fc = pdu[0] & 0x7F if pdu else 0
+            requests, latency = self._children(fc)
+            start = time.perf_counter()
+
+            def finished(reply: bytes | None, exc: BaseException | None) -> None:
+                latency.observe(time.perf_counter() - start)
+                if exc is not None:
+                    code = exc.code if isinstance(exc, ModbusError) else SERVER_DEVICE_FAILURE
+                    if code:
+                        self.exceptions.labels(str(fc), f"0x{code:02X}").inc()
+                elif reply is not None and len(reply) >= 2 and reply[0] & 0x80:
+                    self.exceptions.labels(str(fc), f"0x{reply[1]:02X}").inc()
+                done(reply, exc)
+
+            if not fast(unit_id, pdu, finished):
+                return False
+            requests.inc()
+            return True
 
         return counted
 

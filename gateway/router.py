@@ -15,6 +15,11 @@ anything else is refused with 0x0A. On an axis:
   inverse-corrected (nominal) position; reads touching half a pair are widened;
 - everything else is forwarded byte for byte and the drive's reply relayed as it is.
 
+:meth:`Gateway.handle_fast` is the same routing without a coroutine, for the requests that
+need one drive transaction and a synchronous look at the reply (pass-through, reads, writes
+of neither the target nor the trigger) when the bus can send at once; the read rewrite is
+the same code (:meth:`Gateway._read_plan`) on both paths.
+
 The math is the chain's (``gateway.compensation``); this module moves words.
 """
 
@@ -22,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -36,11 +42,12 @@ from .compensation import (
     TravelError,
 )
 from .config import Axis, GatewayConfig
-from .downstream import Bus
+from .downstream import Bus, Done
 from .frames import (
     GATEWAY_PATH_UNAVAILABLE,
     ILLEGAL_DATA_VALUE,
     MAX_READ_REGISTERS,
+    MAX_WRITE_REGISTERS,
     READ_HOLDING_REGISTERS,
     READ_INPUT_REGISTERS,
     READ_WRITE_MULTIPLE_REGISTERS,
@@ -65,6 +72,7 @@ from .frames import (
 log = logging.getLogger(__name__)
 
 DeltaA = Callable[[str], float | None]
+Finish = Callable[[bytes], bytes]  # the drive's reply -> the reply to the master
 
 #: a status word read by the master this recently decides "homed" without a new read (s)
 STATUS_FRESH_S = 0.5
@@ -171,6 +179,49 @@ class Gateway:
             return self.status_handler(pdu)
         raise ModbusError(f"unit {unit_id} is not routed", GATEWAY_PATH_UNAVAILABLE)
 
+    def handle_fast(self, unit_id: int, pdu: bytes, done: Done) -> bool:
+        """:meth:`handle` without a coroutine, when the request needs exactly one drive
+        transaction and a synchronous look at the reply, and its bus can send at once
+        (:meth:`Bus.submit`): then True, and ``done`` gets what :meth:`handle` would have
+        returned or raised. False (nothing done) for everything else: target and trigger
+        writes (locks, status reads, commits), FC23, split blocks, the status unit,
+        unrouted units, a busy or down bus."""
+        setup = self.setup
+        name = setup.axis_by_unit.get(unit_id)
+        if name is None:
+            route = setup.config.passthrough.get(unit_id)
+            if route is None:
+                return False
+            return self.buses[route.bus].submit(route.unit, pdu, done)
+        axis = setup.config.axes[name]
+        bus = self.buses[axis.bus]
+        fc = pdu[0]
+        if fc in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS):
+            if len(pdu) != 5:
+                return bus.submit(axis.unit, pdu, done)  # malformed: the drive answers it
+            start, count = struct.unpack_from(">HH", pdu, 1)
+            if not 1 <= count <= MAX_READ_REGISTERS or start + count > 0x10000:
+                return bus.submit(axis.unit, pdu, done)
+            request, finish = self._read_plan(setup, name, axis, fc, start, count, pdu)
+            if finish is None:
+                return bus.submit(axis.unit, request, done)
+            return bus.submit(axis.unit, request, _finishing(finish, done))
+        if fc in (WRITE_MULTIPLE_REGISTERS, WRITE_SINGLE_REGISTER):
+            span = _write_span(pdu)
+            if span is None:
+                return bus.submit(axis.unit, pdu, done)  # malformed: the drive answers it
+            start, count = span
+            regs = axis.registers
+            trigger = regs.trigger
+            if (overlap(start, count, regs.target.address)
+                    or (trigger is not None and overlap(start, count, trigger.address, 1))
+                    or (fc == WRITE_MULTIPLE_REGISTERS and count > axis.fc16_max_words)):
+                return False
+            return bus.submit(axis.unit, pdu, done)
+        if fc == READ_WRITE_MULTIPLE_REGISTERS:
+            return False
+        return bus.submit(axis.unit, pdu, done)
+
     async def _axis_request(self, setup: Setup, name: str, pdu: bytes) -> bytes:
         axis = setup.config.axes[name]
         bus = self.buses[axis.bus]
@@ -205,36 +256,51 @@ class Gateway:
         return bases
 
     async def _read(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
-        table = "holding" if req.function == READ_HOLDING_REGISTERS else "input"
-        start, count = req.read_address or 0, req.read_count
+        request, finish = self._read_plan(setup, name, axis, req.function,
+                                          req.read_address or 0, req.read_count, pdu)
+        reply = await self.buses[axis.bus].transact(axis.unit, request)
+        return reply if finish is None else finish(reply)
+
+    def _read_plan(self, setup: Setup, name: str, axis: Axis, fc: int, start: int, count: int,
+                   pdu: bytes) -> tuple[bytes, Finish | None]:
+        """What to send the drive for the read ``pdu`` (FC03/04 of ``count`` registers at
+        ``start``), and what turns its reply into the master's (None: relayed as it is).
+        Reads touching an intercepted pair are widened to cover it and rewritten; a read
+        covering the status word records it for the homed check."""
+        table = "holding" if fc == READ_HOLDING_REGISTERS else "input"
         bases = [b for b in self._pairs_read_by(axis, table) if overlap(start, count, b)]
         if not bases:
-            reply = await self.buses[axis.bus].transact(axis.unit, pdu)
             status = axis.registers.status
-            if (
-                status is not None
-                and status.table == table
-                and start <= status.address < start + count
-                and not is_exception(reply)
-            ):
-                self._saw_status(name, parse_read_registers_response(reply)[status.address - start])
-            return reply
+            if status is None or status.table != table \
+                    or not start <= status.address < start + count:
+                return pdu, None
+            index = status.address - start
+
+            def saw_status(reply: bytes) -> bytes:
+                if not is_exception(reply):
+                    self._saw_status(name, parse_read_registers_response(reply)[index])
+                return reply
+
+            return pdu, saw_status
         lo = min([start, *bases])
         hi = max([start + count, *(b + 2 for b in bases)])
         if hi - lo > MAX_READ_REGISTERS:
-            return await self.buses[axis.bus].transact(axis.unit, pdu)  # cannot widen: raw
-        reply = await self.buses[axis.bus].transact(
-            axis.unit, build_read_request(req.function, lo, hi - lo)
-        )
-        if is_exception(reply):
-            return reply
-        words = parse_read_registers_response(reply)
-        if len(words) != hi - lo:
-            raise ModbusError(
-                f"axis {name}: drive answered {len(words)} words", SERVER_DEVICE_FAILURE
-            )
-        self._rewrite_read(setup, name, axis, table, lo, words)
-        return build_read_registers_response(req.function, words[start - lo : start - lo + count])
+            return pdu, None  # cannot widen: raw
+        # the same 5 bytes as build_read_request when the read already covers the pairs
+        request = pdu if lo == start and hi - lo == count else build_read_request(fc, lo, hi - lo)
+
+        def rewrite(reply: bytes) -> bytes:
+            if is_exception(reply):
+                return reply
+            words = parse_read_registers_response(reply)
+            if len(words) != hi - lo:
+                raise ModbusError(
+                    f"axis {name}: drive answered {len(words)} words", SERVER_DEVICE_FAILURE
+                )
+            self._rewrite_read(setup, name, axis, table, lo, words)
+            return build_read_registers_response(fc, words[start - lo : start - lo + count])
+
+        return request, rewrite
 
     def _rewrite_read(
         self, setup: Setup, name: str, axis: Axis, table: str, lo: int, words: list[int]
@@ -504,6 +570,34 @@ class Gateway:
     def _delta_a(self, name: str) -> float:
         value = self.delta_a_mm(name)
         return 0.0 if value is None else value
+
+
+def _finishing(finish: Finish, done: Done) -> Done:
+    """``done`` called with ``finish(reply)``, or with the error ``finish`` raised."""
+
+    def finished(reply: bytes | None, exc: BaseException | None) -> None:
+        if exc is None and reply is not None:
+            try:
+                reply = finish(reply)
+            except Exception as err:
+                reply, exc = None, err
+        done(reply, exc)
+
+    return finished
+
+
+def _write_span(pdu: bytes) -> tuple[int, int] | None:
+    """(first register, count) of an FC06 or FC16 request; None when malformed (where
+    :func:`gateway.frames.parse_request` raises FrameError)."""
+    if pdu[0] == WRITE_SINGLE_REGISTER:
+        return (((pdu[1] << 8) | pdu[2]), 1) if len(pdu) == 5 else None
+    if len(pdu) < 6:
+        return None
+    address, count, byte_count = struct.unpack_from(">HHB", pdu, 1)
+    if (not 1 <= count <= MAX_WRITE_REGISTERS or byte_count != 2 * count
+            or len(pdu) != 6 + byte_count or address + count > 0x10000):
+        return None
+    return address, count
 
 
 def _build_write(req: Request) -> bytes:

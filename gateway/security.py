@@ -27,6 +27,8 @@ from .frames import (
 log = logging.getLogger(__name__)
 
 Handler = Callable[[int, bytes], Awaitable[bytes | None]]
+Done = Callable[[bytes | None, BaseException | None], None]
+FastHandler = Callable[[int, bytes, Done], bool]
 
 MASK_WRITE_REGISTER = 0x16
 _HOLDING_WRITES = {WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_REGISTERS, MASK_WRITE_REGISTER,
@@ -64,7 +66,10 @@ class WriteGuard:
 
     def check(self, unit_id: int, pdu: bytes) -> None:
         """Raise ModbusError(0x02) when ``pdu`` writes a protected register of ``unit_id``."""
-        rules = [r for r in self.rules() if r.unit == unit_id]
+        rules = self.rules()
+        if not rules:
+            return
+        rules = [r for r in rules if r.unit == unit_id]
         if not rules:
             return
         try:
@@ -88,5 +93,19 @@ class WriteGuard:
         async def guarded(unit_id: int, pdu: bytes) -> bytes | None:
             self.check(unit_id, pdu)
             return await handler(unit_id, pdu)
+
+        return guarded
+
+    def wrap_fast(self, fast: FastHandler) -> FastHandler:
+        """The same check in front of a fast handler (see :mod:`gateway.upstream`): a
+        refused write is answered at once, through ``done``."""
+
+        def guarded(unit_id: int, pdu: bytes, done: Done) -> bool:
+            try:
+                self.check(unit_id, pdu)
+            except ModbusError as err:
+                done(None, err)
+                return True
+            return fast(unit_id, pdu, done)
 
         return guarded

@@ -7,12 +7,20 @@ by the interception layer) is answered with that exception code; any other error
 0x04 and a log line, so the master is never left hanging.
 
 Pipelining (TCP): a master may send several requests without waiting, even in one
-segment. Each connection is an :class:`asyncio.Protocol` that cuts frames as they arrive;
-a task started for the first of them runs them one after the other and writes each reply
-with its own transaction id (no reader task, no queue hop). Requests
-of one connection are processed in order, not concurrently: a master that pipelines
-"write target, write trigger" must have the trigger reach the drive after the target, and
-requests to one RS-485 bus are serialised anyway. Connections run concurrently.
+segment. Each connection is an :class:`asyncio.Protocol` that cuts frames as they arrive
+and answers them one after the other, each reply with its own transaction id (no reader
+task, no queue hop). Requests of one connection are processed in order, not concurrently:
+a master that pipelines "write target, write trigger" must have the trigger reach the
+drive after the target, and requests to one RS-485 bus are serialised anyway. Connections
+run concurrently.
+
+Fast path (TCP): the server may also get a *fast handler*, ``fast(unit_id, pdu, done) ->
+bool``, tried first for each request: True means it took the request and will call
+``done(reply, error)`` exactly once (maybe before returning), with what the handler would
+have returned or raised; False means it did nothing. The gateway's fast handler takes the
+requests that need one drive transaction on a free TCP bus and a synchronous look at the
+reply (pass-through, reads, plain writes): no task, no coroutine, no future per request.
+Everything else runs the handler coroutine in a task, as before.
 """
 
 from __future__ import annotations
@@ -41,6 +49,8 @@ from .serialline import SerialLine, SerialLineLost, T35Mode
 log = logging.getLogger(__name__)
 
 Handler = Callable[[int, bytes], Awaitable[bytes | None]]
+Done = Callable[[bytes | None, BaseException | None], None]
+FastHandler = Callable[[int, bytes, Done], bool]
 Network = ipaddress.IPv4Network | ipaddress.IPv6Network
 
 _conn_ids = itertools.count(1)
@@ -61,8 +71,9 @@ class ServerCounters:
 class Listener:
     """What both servers share: the handler call and its error mapping."""
 
-    def __init__(self, handler: Handler) -> None:
+    def __init__(self, handler: Handler, fast: FastHandler | None = None) -> None:
         self.handler = handler
+        self.fast = fast
         self.counters = ServerCounters()
 
     async def _call(self, unit_id: int, pdu: bytes) -> bytes | None:
@@ -70,13 +81,23 @@ class Listener:
         self.counters.requests += 1
         try:
             reply = await self.handler(unit_id, pdu)
-        except ModbusError as err:
-            log.debug("unit %d FC%02d: exception 0x%02X: %s", unit_id, pdu[0], err.code, err)
-            reply = exception_pdu(pdu[0], err.code)
-        except Exception:
-            self.counters.handler_errors += 1
-            log.exception("handler failed on unit %d PDU %s", unit_id, pdu.hex())
-            reply = exception_pdu(pdu[0], SERVER_DEVICE_FAILURE)
+        except Exception as err:
+            return self._finish(unit_id, pdu, None, err)
+        return self._finish(unit_id, pdu, reply, None)
+
+    def _finish(self, unit_id: int, pdu: bytes, reply: bytes | None,
+                exc: BaseException | None) -> bytes | None:
+        """The reply to send for a handler outcome (its reply, or the error it raised)."""
+        if exc is not None:
+            if isinstance(exc, ModbusError):
+                log.debug("unit %d FC%02d: exception 0x%02X: %s", unit_id, pdu[0], exc.code,
+                          exc)
+                reply = exception_pdu(pdu[0], exc.code)
+            else:
+                self.counters.handler_errors += 1
+                log.error("handler failed on unit %d PDU %s", unit_id, pdu.hex(),
+                          exc_info=exc)
+                reply = exception_pdu(pdu[0], SERVER_DEVICE_FAILURE)
         if reply is not None and not 1 <= len(reply) <= MAX_PDU_BYTES:
             self.counters.handler_errors += 1
             log.error("handler returned a %d-byte PDU for unit %d: not sent", len(reply), unit_id)
@@ -108,14 +129,15 @@ def _allowed(host: str, networks: list[Network] | None) -> bool:
 class _Connection(asyncio.Protocol):
     """One master's TCP connection, callback-driven (an :class:`asyncio.Protocol`).
 
-    ``data_received`` cuts MBAP frames into a FIFO; when the connection has nothing in
-    flight, a task is started at once to run the handler on them (no reader task, no
-    queue hop); it answers the FIFO strictly in order, each reply with its own transaction
-    id, and ends when the FIFO is empty. At most ``max_pipeline`` requests are read ahead
-    (in flight included): then reading pauses (TCP backpressure) until one is answered.
-    End of input (EOF, idle timeout, malformed frame): what was received is answered, then
-    the connection closes. Server stopping: the request in flight is answered, the rest
-    dropped, nothing more is read.
+    ``data_received`` cuts MBAP frames into a FIFO and, when the connection has nothing in
+    flight, starts answering it at once: strictly in order, one request at a time, each
+    reply with its own transaction id. A request goes to the server's fast handler when it
+    takes it (its completion callback writes the reply and starts the next request), else
+    to a task running the handler coroutine. At most ``max_pipeline`` requests are read
+    ahead (in flight included): then reading pauses (TCP backpressure) until one is
+    answered. End of input (EOF, idle timeout, malformed frame): what was received is
+    answered, then the connection closes. Server stopping: the request in flight is
+    answered, the rest dropped, nothing more is read.
     """
 
     def __init__(self, server: TcpServer) -> None:
@@ -126,15 +148,19 @@ class _Connection(asyncio.Protocol):
         self.id = next(_conn_ids)
         self.buf = bytearray()
         self.pending: deque[tuple[int, int, bytes]] = deque()  # (tid, unit, PDU), not started
-        self.task: asyncio.Task[None] | None = None  # answering ``pending``; None: idle
+        self.task: asyncio.Task[None] | None = None  # a request in the handler coroutine
+        self.working = False  # answering ``pending`` (a request in flight or a reply draining)
         self.busy = False  # a request is in the handler
+        self.current: tuple[int, int, bytes] | None = None  # that request
         self.accepted = False
         self.eof = False  # no more input: answer what was received, then close
         self.stopping = False  # graceful close: finish the request in flight, no more
         self.lost = False  # connection_lost seen
         self.read_paused = False
         self.write_paused = False
-        self._drain: asyncio.Future[None] | None = None
+        self._draining = False  # a reply is written, waiting for resume_writing
+        self._advancing = False  # _advance() is on the stack
+        self._done_cb = self._fast_done  # one bound method for every fast request
         self.last_active = self.loop.time()
         self._idle: asyncio.TimerHandle | None = None
         self.done: asyncio.Future[None] = self.loop.create_future()  # closed and idle
@@ -172,7 +198,8 @@ class _Connection(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         if self.eof or self.stopping or not self.accepted:
             return
-        self.last_active = self.loop.time()
+        if self._idle is not None:
+            self.last_active = self.loop.time()
         self.buf += data
         self._cut()
 
@@ -189,8 +216,9 @@ class _Connection(asyncio.Protocol):
         if self._idle is not None:
             self._idle.cancel()
             self._idle = None
-        if self._drain is not None and not self._drain.done():
-            self._drain.set_result(None)
+        if self._draining:
+            self._draining = False
+            self._next()
         self._maybe_done()
 
     def pause_writing(self) -> None:
@@ -198,14 +226,15 @@ class _Connection(asyncio.Protocol):
 
     def resume_writing(self) -> None:
         self.write_paused = False
-        if self._drain is not None and not self._drain.done():
-            self._drain.set_result(None)
+        if self._draining:
+            self._draining = False
+            self._next()
 
     # ------------------------------------------------------------------ requests
 
     def _cut(self) -> None:
         """Cut complete frames from the buffer into ``pending`` (up to max_pipeline) and
-        start the answering task if none is running."""
+        start answering them if the connection is idle."""
         buf = self.buf
         limit = self.server.max_pipeline
         while len(buf) >= 8 and not self.eof and not self.stopping:
@@ -225,41 +254,99 @@ class _Connection(asyncio.Protocol):
                 break
             self.pending.append(((buf[0] << 8) | buf[1], buf[6], bytes(buf[7:size])))
             del buf[:size]
-        if self.pending and self.task is None:
-            self.task = self.loop.create_task(self._work(), name=f"compgw-up-{self.id}")
+        if self.pending and not self.working:
+            self._advance()
 
-    async def _work(self) -> None:
+    def _advance(self) -> None:
+        """Start the next requests of ``pending`` in order, as long as they are answered
+        at once (a fast request whose callback already ran); stop at one in flight. With
+        nothing left, the connection is idle (and closes if its input has ended)."""
+        if self._advancing:
+            return  # the loop below is on the stack: it goes on when the callback returns
+        self._advancing = True
+        pending = self.pending
+        server = self.server
+        try:
+            while not self.busy and not self._draining:
+                if not pending or self.stopping:
+                    self.working = False
+                    if self.eof or self.stopping:
+                        pending.clear()
+                        self._close_transport()
+                    self._maybe_done()
+                    return
+                self.working = True
+                self.busy = True
+                self.current = request = pending.popleft()
+                server.counters.requests += 1
+                fast = server.fast
+                if fast is not None:
+                    try:
+                        taken = fast(request[1], request[2], self._done_cb)
+                    except Exception as exc:  # a bug in the fast handler: answered 0x04
+                        self._fast_done(None, exc)
+                        continue
+                    if taken:
+                        continue
+                self.task = self.loop.create_task(self._work(request),
+                                                  name=f"compgw-up-{self.id}")
+        finally:
+            self._advancing = False
+
+    def _fast_done(self, reply: bytes | None, exc: BaseException | None) -> None:
+        request = self.current
+        if request is None or not self.busy:
+            log.error("%s: a reply without a request in flight: dropped", self.peer)
+            return
+        self._replied(request, self.server._finish(request[1], request[2], reply, exc))
+
+    async def _work(self, request: tuple[int, int, bytes]) -> None:
+        """One request through the handler coroutine (the fast handler did not take it)."""
         current_caller.set(("tcp", self.id))
         server = self.server
-        pending = self.pending
+        reply = None
         try:
-            while pending and not self.stopping:
-                tid, unit, pdu = pending.popleft()
-                self.busy = True
-                try:
-                    reply = await server._call(unit, pdu)
-                finally:
-                    self.busy = False
-                transport = self.transport
-                if reply is not None and not self.lost and transport is not None:
-                    n = len(reply) + 1
-                    transport.write(bytes((tid >> 8, tid & 0xFF, 0, 0, n >> 8, n & 0xFF, unit))
-                                    + reply)
-                    if self.write_paused and not self.lost:
-                        self._drain = self.loop.create_future()
-                        await self._drain
-                self.last_active = self.loop.time()
-                if self.read_paused and not (self.eof or self.stopping or self.lost):
-                    self._cut()  # frames already received, up to the limit again
-                    if len(pending) < server.max_pipeline and self.transport is not None:
-                        self.read_paused = False
-                        self.transport.resume_reading()
-        finally:
+            try:
+                reply = await server.handler(request[1], request[2])
+            except Exception as err:
+                reply = server._finish(request[1], request[2], None, err)
+            else:
+                reply = server._finish(request[1], request[2], reply, None)
+        except BaseException:  # cancelled (server closing timed out): nothing is sent
             self.task = None
-            if self.eof or self.stopping:
-                pending.clear()
-                self._close_transport()
+            self.busy = False
+            self.current = None
+            self.working = False
+            self.pending.clear()
+            self._close_transport()
             self._maybe_done()
+            raise
+        self.task = None
+        self._replied(request, reply)
+
+    def _replied(self, request: tuple[int, int, bytes], reply: bytes | None) -> None:
+        """Write the reply of the request in flight, then go on with the next one."""
+        self.busy = False
+        self.current = None
+        transport = self.transport
+        if reply is not None and not self.lost and transport is not None:
+            tid, unit = request[0], request[1]
+            n = len(reply) + 1
+            transport.write(bytes((tid >> 8, tid & 0xFF, 0, 0, n >> 8, n & 0xFF, unit)) + reply)
+            if self.write_paused and not self.lost:
+                self._draining = True  # resume_writing (or connection_lost) goes on
+                return
+        self._next()
+
+    def _next(self) -> None:
+        if self._idle is not None:
+            self.last_active = self.loop.time()
+        if self.read_paused and not (self.eof or self.stopping or self.lost):
+            self._cut()  # frames already received, up to the limit again
+            if len(self.pending) < self.server.max_pipeline and self.transport is not None:
+                self.read_paused = False
+                self.transport.resume_reading()
+        self._advance()
 
     def _end_input(self) -> None:
         """No more requests on this connection (EOF, idle, malformed): answer what was
@@ -283,7 +370,7 @@ class _Connection(asyncio.Protocol):
             self.read_paused = True
             with contextlib.suppress(Exception):
                 self.transport.pause_reading()
-        if self.task is None:
+        if not self.working:
             self._close_transport()
 
     def _close_transport(self) -> None:
@@ -291,7 +378,7 @@ class _Connection(asyncio.Protocol):
             self.transport.close()
 
     def _maybe_done(self) -> None:
-        if self.lost and self.task is None and not self.done.done():
+        if self.lost and not self.working and not self.done.done():
             if self.server._connections.pop(self, False) is None:
                 log.debug("client %s disconnected", self.peer)
             self.done.set_result(None)
@@ -304,7 +391,7 @@ class _Connection(asyncio.Protocol):
         if self.eof or self.stopping or self.lost or not idle_s:
             return
         now = self.loop.time()
-        if self.task is not None or self.pending:
+        if self.working or self.pending:
             self.last_active = now
         due = self.last_active + idle_s
         if now >= due:
@@ -321,12 +408,14 @@ class TcpServer(Listener):
     logged. ``max_connections``: further connections are closed at accept.
     ``idle_timeout_s``: a connection with no request for that long is closed (None: never).
     ``max_pipeline``: requests read ahead per connection before reading pauses.
+    ``fast``: the fast handler tried first for each request (see the module's docstring).
     """
 
     def __init__(self, handler: Handler, host: str = "127.0.0.1", port: int = 502, *,
                  allow: Iterable[str | Network] | None = None, max_connections: int = 16,
-                 idle_timeout_s: float | None = None, max_pipeline: int = 16) -> None:
-        super().__init__(handler)
+                 idle_timeout_s: float | None = None, max_pipeline: int = 16,
+                 fast: FastHandler | None = None) -> None:
+        super().__init__(handler, fast)
         if max_pipeline < 1:
             raise ValueError("max_pipeline must be >= 1")
         self.host = host
