@@ -81,6 +81,7 @@ def flow(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     out: dict[str, Any] = {"dir": d}
     with Bench(d) as b:
         full = example_config(b.sim_port)
+        out["config"] = full
         full["axes"]["X"]["compensation"]["pitch"]["file"] = "tables/x_pitch.csv"
         full["axes"]["Y"]["compensation"]["pitch"]["file"] = "tables/y_pitch.csv"
         full["planar"]["model"] = "tables/xy_model.yaml"
@@ -228,12 +229,13 @@ def test_verification_cuts_systematic_error_by_90_percent(flow, axis):
 
 
 @pytest.mark.parametrize("axis", ["X", "Y"])
-def test_accuracy_is_limited_by_the_sims_repeatability(flow, axis):
-    """A = E widened by 2s each side: with 0.5 µm repeatability per stop, R is ~4 µm after
-    compensation and A cannot fall by 90 % (about 80-87 % here). The honest bar: A falls by
-    more than three quarters and what is left is mostly repeatability (A − E ≈ 4s)."""
+def test_verification_cuts_accuracy_by_90_percent(flow, axis):
+    """A is E widened by the ±2s bands: what is left after compensation is mostly the
+    machine's repeatability (0.3 µm per stop here, measured 91.6-93.2 % cut over sim seeds
+    1-3 at 0.1 µm per pulse; at 1 µm per pulse the rounding alone keeps it near 89 %)."""
     before, after = flow[f"{axis}_before"], flow[f"{axis}_after"]
-    assert after["A_um"] <= 0.25 * before["A_um"], (before, after)
+    assert before["A_um"] > 25.0
+    assert after["A_um"] <= 0.1 * before["A_um"], (before, after)
     assert after["A_um"] - after["E_um"] <= after["R_um"] + 0.5
 
 
@@ -267,7 +269,8 @@ def test_interrupted_run_resumes_and_loses_nothing(flow):
     d = flow["dir"]
     assert flow["interrupted_rc"] == 3
     assert flow["rows_after_interrupt"] == 99  # every reading before the interruption
-    plan = snap_to_pulses(read_plan(d / "X_verify.plan"), {"X": 0.001})  # as calibrate runs it
+    pulse_mm = {"X": flow["config"]["axes"]["X"]["pulse_mm"]}
+    plan = snap_to_pulses(read_plan(d / "X_verify.plan"), pulse_mm)  # as calibrate runs it
     raw = read_raw_csv(d / "X_resumed.csv")
     assert resume_index(plan, raw) == len(plan.moves)
     assert "resumed at move" in flow["resume_output"]

@@ -27,11 +27,10 @@ from gateway.frames import (
     unpack_int32,
 )
 from gateway.sensors import SensorSet, ThermalSensor, ThermalState
-from sim.config import load_config
 from sim.server import SimServer
 from tests.helpers_modbus import run, wait_for_condition
+from tests.test_sim_support import config_from, example_dict
 
-SIM_CONFIG = "config/example-sim.yaml"
 DELTA_A_UNIT, TEMP_UNIT, FAULTS_UNIT = 10, 23, 250
 X_UNIT, X_TARGET, X_TRIGGER, TRIGGER_VALUE = 1, 0x6201, 0x6002, 0x10
 A_MM = 800.0  # the sim's delta_a sensor sits at a_mm = 800 on X
@@ -52,7 +51,7 @@ class FakeClock:
 
 @contextlib.asynccontextmanager
 async def sim_and_bus(timeout_s: float = 0.05) -> AsyncIterator[tuple[SimServer, TcpBus]]:
-    async with SimServer(load_config(SIM_CONFIG), tcp_port=0) as server:
+    async with SimServer(config_from(example_dict()), tcp_port=0) as server:  # 1 µm pulses
         assert server.tcp_port is not None
         bus = TcpBus("127.0.0.1", server.tcp_port, timeout_s=timeout_s, retries=0)
         try:

@@ -25,8 +25,12 @@ FAULTS_UNIT = 250
 
 
 def example_dict() -> dict[str, Any]:
-    """The example machine as plain YAML data (a fresh copy each call)."""
-    return copy.deepcopy(yaml.safe_load(EXAMPLE.read_text()))
+    """The example machine as plain YAML data (a fresh copy each call), at 1 µm per pulse:
+    the sim's tests command in pulses and read their numbers as µm."""
+    data = copy.deepcopy(yaml.safe_load(EXAMPLE.read_text()))
+    for axis in data["sim"]["axes"].values():
+        axis["pulse_mm"] = 0.001
+    return data
 
 
 def with_rtu(data: dict[str, Any]) -> dict[str, Any]:
