@@ -532,7 +532,8 @@ class TcpBus(Bus):
                             asyncio.Future[bytes | None]] | None = None
         # the transaction started by submit(): (connection, tid, unit, request, done)
         self._fast: tuple[_MbapClient, int, int, bytes, Done] | None = None
-        self._fast_timer: asyncio.TimerHandle | None = None
+        self._fast_timer: asyncio.TimerHandle | None = None  # armed at or before the deadline
+        self._fast_deadline = 0.0  # loop time
         self._loop: asyncio.AbstractEventLoop | None = None
         self._tasks: set[asyncio.Task[None]] = set()  # _remaining() tasks (kept referenced)
         self._tid = 0
@@ -580,20 +581,27 @@ class TcpBus(Bus):
         self._tid = tid = self._tid % 0xFFFF + 1
         n = len(pdu) + 1
         self._fast = (proto, tid, unit_id, pdu, done)
-        self._fast_timer = loop.call_later(self.timeout_s, self._fast_expired)
+        # One timer per bus, not per request: a timer armed for an earlier transaction
+        # fires no later than this one's deadline and is then re-armed for what is left.
+        self._fast_deadline = loop.time() + self.timeout_s
+        if self._fast_timer is None:
+            self._fast_timer = loop.call_at(self._fast_deadline, self._fast_expired)
         transport.write(bytes((tid >> 8, tid & 0xFF, 0, 0, n >> 8, n & 0xFF, unit_id)) + pdu)
         return True
 
     def _fast_end(self) -> None:
-        self._fast = None
-        timer, self._fast_timer = self._fast_timer, None
-        if timer is not None:
-            timer.cancel()
+        self._fast = None  # the timer stays armed: the next transaction may use it
 
     def _fast_expired(self) -> None:
-        fast = self._fast
         self._fast_timer = None
+        fast = self._fast
         if fast is None:
+            return
+        assert self._loop is not None
+        left = self._fast_deadline - self._loop.time()
+        if left > 0:  # armed for an earlier transaction (at least 1 ms: no busy loop
+            # on an event loop whose timers are rounded to milliseconds)
+            self._fast_timer = self._loop.call_later(max(left, 0.001), self._fast_expired)
             return
         self._fast_end()
         _, _, unit_id, pdu, done = fast

@@ -255,10 +255,17 @@ def build_request(req: Request) -> bytes:
 # --------------------------------------------------------------------------- responses
 
 
+# Compiled struct formats of register responses by word count (on the request hot path).
+_WORDS = [struct.Struct(f">{n}H") for n in range(128)]
+_RESPONSES = [struct.Struct(f">BB{n}H") for n in range(128)]
+
+
 def build_read_registers_response(function: int, values: Sequence[int]) -> bytes:
     """FC 3, 4 or 23 normal response PDU."""
     words = [v & 0xFFFF for v in values]
-    return struct.pack(f">BB{len(words)}H", function, 2 * len(words), *words)
+    n = len(words)
+    fmt = _RESPONSES[n] if n < 128 else struct.Struct(f">BB{n}H")
+    return fmt.pack(function, 2 * n, *words)
 
 
 def build_read_bits_response(function: int, bits: Sequence[int | bool]) -> bytes:
@@ -286,7 +293,7 @@ def parse_read_registers_response(pdu: bytes) -> list[int]:
     """Register words of an FC 3, 4 or 23 normal response."""
     if len(pdu) < 2 or pdu[1] % 2 or len(pdu) != 2 + pdu[1]:
         raise FrameError(f"register response malformed: {pdu.hex()}")
-    return list(struct.unpack(f">{pdu[1] // 2}H", pdu[2:]))
+    return list(_WORDS[pdu[1] // 2].unpack_from(pdu, 2))
 
 
 def parse_read_bits_response(pdu: bytes, count: int) -> list[int]:

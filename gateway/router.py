@@ -77,6 +77,10 @@ Finish = Callable[[bytes], bytes]  # the drive's reply -> the reply to the maste
 #: a status word read by the master this recently decides "homed" without a new read (s)
 STATUS_FRESH_S = 0.5
 
+#: read plans kept per setup (the cache is emptied when full: a master reading ever
+#: new ranges costs a recomputation, never memory)
+READ_PLANS_MAX = 1024
+
 
 def _no_thermal(_axis: str) -> float | None:
     return None
@@ -89,6 +93,9 @@ class Setup:
     config: GatewayConfig
     chain: Chain
     axis_by_unit: dict[int, str]
+    #: (axis, FC, start, count) -> what _read_plan gives for it (it depends on nothing else)
+    read_plans: dict[tuple[str, int, int, int], tuple[bytes, Finish | None]] = field(
+        default_factory=dict, compare=False, repr=False)
 
     @classmethod
     def build(cls, config: GatewayConfig, chain: Chain) -> Setup:
@@ -202,7 +209,14 @@ class Gateway:
             start, count = struct.unpack_from(">HH", pdu, 1)
             if not 1 <= count <= MAX_READ_REGISTERS or start + count > 0x10000:
                 return bus.submit(axis.unit, pdu, done)
-            request, finish = self._read_plan(setup, name, axis, fc, start, count, pdu)
+            key = (name, fc, start, count)
+            plan = setup.read_plans.get(key)
+            if plan is None:
+                plan = self._read_plan(setup, name, axis, fc, start, count, pdu)
+                if len(setup.read_plans) >= READ_PLANS_MAX:
+                    setup.read_plans.clear()
+                setup.read_plans[key] = plan
+            request, finish = plan
             if finish is None:
                 return bus.submit(axis.unit, request, done)
             return bus.submit(axis.unit, request, _finishing(finish, done))
@@ -266,7 +280,9 @@ class Gateway:
         """What to send the drive for the read ``pdu`` (FC03/04 of ``count`` registers at
         ``start``), and what turns its reply into the master's (None: relayed as it is).
         Reads touching an intercepted pair are widened to cover it and rewritten; a read
-        covering the status word records it for the homed check."""
+        covering the status word records it for the homed check. Depends on the setup and
+        the read only (the axis state is looked at in the reply's turn), so it is cached
+        per setup by :meth:`handle_fast`."""
         table = "holding" if fc == READ_HOLDING_REGISTERS else "input"
         bases = [b for b in self._pairs_read_by(axis, table) if overlap(start, count, b)]
         if not bases:
