@@ -650,10 +650,17 @@ class TcpBus(Bus):
             f_proto, f_tid, f_unit, f_pdu, done = fast
             if tid == f_tid and proto is f_proto and (unit == f_unit or not self.check_unit) \
                     and response_matches(f_pdu, pdu):
-                self._fast_end()
+                self._fast = None
                 self.counters.replies += 1
-                self._queue.release()
-                _deliver(done, pdu, None)
+                queue = self._queue
+                if queue._lanes:
+                    queue.release()  # the next transaction waiting in transact()
+                else:
+                    queue._busy = False
+                try:
+                    done(pdu, None)
+                except Exception:
+                    log.exception("completion callback failed")
                 return
         waiter = self._waiter
         if waiter is not None:

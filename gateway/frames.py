@@ -312,7 +312,7 @@ def expected_response_length(request_pdu: bytes) -> int | None:
     if len(request_pdu) < 5:
         return None
     fc = request_pdu[0]
-    count = struct.unpack(">H", request_pdu[3:5])[0]
+    count = (request_pdu[3] << 8) | request_pdu[4]
     if fc in (READ_COILS, READ_DISCRETE_INPUTS):
         return 2 + (count + 7) // 8
     if fc in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS, READ_WRITE_MULTIPLE_REGISTERS):

@@ -298,7 +298,11 @@ class _Connection(asyncio.Protocol):
         if request is None or not self.busy:
             log.error("%s: a reply without a request in flight: dropped", self.peer)
             return
-        self._replied(request, self.server._finish(request[1], request[2], reply, exc))
+        if exc is None and reply and len(reply) <= MAX_PDU_BYTES:
+            self.server.counters.replies += 1  # what _finish does with a good reply
+        else:
+            reply = self.server._finish(request[1], request[2], reply, exc)
+        self._replied(request, reply)
 
     async def _work(self, request: tuple[int, int, bytes]) -> None:
         """One request through the handler coroutine (the fast handler did not take it)."""
