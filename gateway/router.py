@@ -13,6 +13,8 @@ anything else is refused with 0x0A. On an axis:
   at once with the partner's latest target;
 - reads of the target pair return the shadow; reads of the feedback pair return the
   inverse-corrected (nominal) position; reads touching half a pair are widened;
+- a malformed FC03/04/06/16/23 PDU to an axis is answered 0x03 and never forwarded (a
+  lenient drive could act on a malformed target write: an uncorrected position);
 - everything else is forwarded byte for byte and the drive's reply relayed as it is.
 
 :meth:`Gateway.handle_fast` is the same routing without a coroutine, for the requests that
@@ -205,10 +207,10 @@ class Gateway:
         fc = pdu[0]
         if fc in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS):
             if len(pdu) != 5:
-                return bus.submit(axis.unit, pdu, done)  # malformed: the drive answers it
+                return False  # malformed: refused by the coroutine path
             start, count = struct.unpack_from(">HH", pdu, 1)
             if not 1 <= count <= MAX_READ_REGISTERS or start + count > 0x10000:
-                return bus.submit(axis.unit, pdu, done)
+                return False
             key = (name, fc, start, count)
             plan = setup.read_plans.get(key)
             if plan is None:
@@ -223,7 +225,7 @@ class Gateway:
         if fc in (WRITE_MULTIPLE_REGISTERS, WRITE_SINGLE_REGISTER):
             span = _write_span(pdu)
             if span is None:
-                return bus.submit(axis.unit, pdu, done)  # malformed: the drive answers it
+                return False  # malformed: refused by the coroutine path
             start, count = span
             regs = axis.registers
             trigger = regs.trigger
@@ -250,8 +252,11 @@ class Gateway:
             return await bus.transact(axis.unit, pdu)
         try:
             req = parse_request(pdu)
-        except FrameError:
-            return await bus.transact(axis.unit, pdu)  # the drive answers malformed PDUs
+        except FrameError as exc:
+            # never forwarded: a lenient drive might act on a malformed write of the target
+            # (an uncorrected position), or answer a malformed read with raw feedback
+            raise ModbusError(f"axis {name}: malformed request refused: {exc}",
+                              ILLEGAL_DATA_VALUE) from None
         if fc in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS):
             return await self._read(setup, name, axis, req, pdu)
         if fc == READ_WRITE_MULTIPLE_REGISTERS:

@@ -17,7 +17,6 @@ from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 
 from gateway.app import GatewayApp, load
 from sim.config import RtuConfig
-from sim.config import load_config as load_sim_config
 from sim.config import parse_config as parse_sim_config
 from sim.server import SimServer
 from tests.conftest import PtyPair
@@ -84,12 +83,12 @@ async def rig(
     ``upstream="rtu"`` makes ``master`` an RTU client on a pty to the gateway.
     ``direct`` is always TCP to the sim (the drive's truth, the instruments).
     """
-    if sim_edit is None:
-        sim_cfg = load_sim_config(SIM_EXAMPLE)
-    else:
-        sim_data = yaml.safe_load(SIM_EXAMPLE.read_text())
+    sim_data = yaml.safe_load(SIM_EXAMPLE.read_text())
+    for sim_axis in sim_data["sim"]["axes"].values():
+        sim_axis["pulse_mm"] = 0.001  # as the rig's gateway axes (axis_config)
+    if sim_edit is not None:
         sim_edit(sim_data)
-        sim_cfg = parse_sim_config(sim_data, SIM_EXAMPLE.parent)
+    sim_cfg = parse_sim_config(sim_data, SIM_EXAMPLE.parent)
     ptys: list[PtyPair] = []
     drive_line = upstream_line = None
     if drives == "rtu":

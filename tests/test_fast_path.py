@@ -234,8 +234,8 @@ def _script(passthrough_unit: int) -> list[tuple[int, bytes]]:
         (1, f.build_write_single_register(SPEED, 1234)),  # plain write
         (1, f.build_write_multiple_registers(SPEED, [5, 6])),
         (1, f.build_read_request(3, SPEED, 2)),
-        (1, b"\x03\x00\x01"),  # malformed read: the drive answers it
-        (1, f.build_read_request(3, 0, 0)),  # quantity 0: the drive answers it
+        (1, b"\x03\x00\x01"),  # malformed read: refused (0x03), never forwarded
+        (1, f.build_read_request(3, 0, 0)),  # quantity 0: refused (0x03)
         (2, f.build_read_request(3, TARGET, 2)),
         (passthrough_unit, f.build_read_request(3, 0x6200, 4)),  # pass-through
         (1, f.build_write_multiple_registers(TARGET, [0, 1000])),  # target: coroutine

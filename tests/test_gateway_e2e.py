@@ -150,6 +150,41 @@ def test_error_cases_return_their_codes(tmp_path: Path):
     run(body())
 
 
+@pytest.mark.parametrize(
+    "pdu",
+    [
+        # FC16 at the target: count 2 but 6 data bytes (a lenient drive could write them raw)
+        struct.pack(">BHHB", 16, TARGET, 2, 6) + struct.pack(">hhh", 4, -27680, 0),
+        struct.pack(">BHHB", 16, TARGET, 2, 4) + struct.pack(">hh", 4, -27680) + b"\x00",
+        struct.pack(">BHHB", 16, TARGET, 3, 4) + struct.pack(">hh", 4, -27680),
+        struct.pack(">BH", 6, TARGET),  # FC06 without its value
+        struct.pack(">BHHH", 3, FEEDBACK, 2, 0),  # a read with trailing bytes
+    ],
+    ids=["fc16-byte-count", "fc16-trailing", "fc16-count", "fc06-short", "fc03-trailing"],
+)
+def test_malformed_requests_to_an_axis_are_refused_never_forwarded(tmp_path: Path, pdu: bytes):
+    """A malformed PDU to an axis unit is answered 0x03 by the gateway: a drive that
+    parsed it leniently could write an uncorrected target."""
+
+    async def body():
+        async with rig(tmp_path, with_pitch, {"x.csv": PITCH_X}) as r:
+            master, direct = r["master"], r["direct"]
+            before = await read32(direct, 1, TARGET)
+            host, port = "127.0.0.1", r["app"].tcp_port
+            reader, writer = await asyncio.open_connection(host, port)
+            writer.write(struct.pack(">HHHB", 7, 0, len(pdu) + 1, 1) + pdu)
+            header = await reader.readexactly(7)
+            tid, _, length, unit = struct.unpack(">HHHB", header)
+            reply = await reader.readexactly(length - 1)
+            writer.close()
+            assert (tid, unit) == (7, 1)
+            assert reply == bytes([pdu[0] | 0x80, 0x03])
+            assert await read32(direct, 1, TARGET) == before  # nothing reached the drive
+            assert await read32(master, 1, FEEDBACK) is not None  # still serving
+
+    run(body())
+
+
 def test_not_homed_means_uncorrected(tmp_path: Path):
     """Compensation applies only while the drive reports homed."""
 
