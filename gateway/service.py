@@ -15,7 +15,7 @@ import asyncio
 import logging
 import os
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import sdnotify
 
@@ -107,12 +107,46 @@ class OneLineFormatter(logging.Formatter):
         return text
 
 
+class RepeatFilter(logging.Filter):
+    """At most ``burst`` records of one kind (logger, level, message template) per
+    ``window_s``; the next one let through says how many were held back.
+
+    A master that reconnects or retries a refused write 100 times a second must not fill
+    the journal: the first few lines say what happened, then one line a window.
+    """
+
+    def __init__(self, burst: int = 5, window_s: float = 60.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        super().__init__()
+        self.burst, self.window_s, self.clock = burst, window_s, clock
+        self._kinds: dict[tuple[str, int, str], list[float | int]] = {}  # start, seen, held
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno < logging.WARNING:
+            return True
+        now = self.clock()
+        key = (record.name, record.levelno, str(record.msg))
+        kind = self._kinds.get(key)
+        if kind is None or now - kind[0] >= self.window_s:
+            held = 0 if kind is None else int(kind[2])
+            self._kinds[key] = [now, 1, 0]
+            if held:
+                record.msg = f"{record.msg} ({held} more like this held back)"
+            return True
+        kind[1] = int(kind[1]) + 1
+        if kind[1] <= self.burst:
+            return True
+        kind[2] = int(kind[2]) + 1
+        return False
+
+
 def configure_logging(level: str, environ: Mapping[str, str] | None = None) -> None:
     """Log to stderr, one line per event; journald format when started by systemd
     (``JOURNAL_STREAM`` set)."""
     env = os.environ if environ is None else environ
     handler = logging.StreamHandler()
     handler.setFormatter(OneLineFormatter(journal=bool(env.get("JOURNAL_STREAM"))))
+    handler.addFilter(RepeatFilter())
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(getattr(logging, level.upper()))

@@ -1,0 +1,62 @@
+"""The log's repeat filter: a flood of one warning becomes a few lines and a count."""
+
+from __future__ import annotations
+
+import io
+import logging
+
+from gateway.service import RepeatFilter, configure_logging
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t_s = 100.0
+
+    def __call__(self) -> float:
+        return self.t_s
+
+
+def capture(clock: Clock) -> tuple[logging.Logger, io.StringIO]:
+    out = io.StringIO()
+    handler = logging.StreamHandler(out)
+    handler.setFormatter(logging.Formatter("%(levelname)s %(message)s"))
+    handler.addFilter(RepeatFilter(burst=3, window_s=60.0, clock=clock))
+    logger = logging.getLogger(f"test.repeats.{id(out)}")
+    logger.handlers[:] = [handler]
+    logger.propagate = False
+    logger.setLevel(logging.DEBUG)
+    return logger, out
+
+
+def test_a_flood_of_one_warning_is_held_back_and_counted() -> None:
+    clock = Clock()
+    log, out = capture(clock)
+    for i in range(50):
+        log.warning("refused Modbus TCP client %s: %s", f"10.0.0.{i}", "not allowed")
+        log.warning("write to unit %d refused", 1)  # another kind: its own budget
+        log.info("idle for %d s", i)  # below WARNING: never held back
+    lines = out.getvalue().splitlines()
+    assert sum("refused Modbus TCP client" in ln for ln in lines) == 3
+    assert sum("write to unit 1 refused" in ln for ln in lines) == 3
+    assert sum(ln.startswith("INFO") for ln in lines) == 50
+    clock.t_s += 59.9
+    log.warning("refused Modbus TCP client %s: %s", "10.0.0.99", "not allowed")
+    assert "10.0.0.99" not in out.getvalue()  # still the same window
+    clock.t_s += 0.2
+    log.warning("refused Modbus TCP client %s: %s", "10.0.0.98", "not allowed")
+    last = out.getvalue().splitlines()[-1]
+    assert last == ("WARNING refused Modbus TCP client 10.0.0.98: not allowed "
+                    "(48 more like this held back)")
+    log.warning("refused Modbus TCP client %s: %s", "10.0.0.97", "not allowed")
+    assert out.getvalue().splitlines()[-1].endswith("10.0.0.97: not allowed")  # count reset
+
+
+def test_the_daemons_log_handler_holds_repeats_back() -> None:
+    root = logging.getLogger()
+    saved = root.handlers[:], root.level
+    try:
+        configure_logging("info", environ={})
+        assert any(isinstance(f, RepeatFilter) for f in root.handlers[0].filters)
+    finally:
+        root.handlers[:], level = saved
+        root.setLevel(level)
