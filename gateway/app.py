@@ -172,6 +172,12 @@ class GatewayApp:
         changed = [key for key in fixed if getattr(config, key) != getattr(self.config, key)]
         if changed:
             raise ConfigError(f"{', '.join(changed)} cannot change on reload; restart instead")
+        rescaled = [name for name, axis in config.axes.items()
+                    if name in self.config.axes
+                    and axis.command_scale != self.config.axes[name].command_scale]
+        if rescaled:  # the positions the gateway remembers are in the old drive units
+            raise ConfigError(f"axes.{rescaled[0]}.command_scale cannot change on reload; "
+                              "restart instead")  # fmt: skip
         self.sensors.set_axes(config.axes)
         self.gateway.reload(config, chain)
         self.config = config

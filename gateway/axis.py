@@ -25,7 +25,7 @@ class AxisState:
     shadow_known: bool = False
     halves_written: set[int] = field(default_factory=set)
     last_nominal_pulses: int | None = None
-    last_command_pulses: int | None = None
+    last_command_units: int | None = None  # drive units (pulses × command_scale)
     enabled: bool = True
     #: whether the last committed target was corrected (False: sent as written, e.g.
     #: compensation off or drive not homed); feedback is inverted only when it was
@@ -44,22 +44,22 @@ class AxisState:
         """The nominal target (pulses) the shadow holds now."""
         return unpack_int32(self.shadow, order)
 
-    def committed(self, nominal_pulses: int, command_pulses: int) -> None:
-        """A corrected target reached the drive."""
+    def committed(self, nominal_pulses: int, command_units: int) -> None:
+        """A corrected target (``command_units``, the drive's units) reached the drive."""
         self.motion = self.motion.approach(nominal_pulses)
         self.last_nominal_pulses = nominal_pulses
-        self.last_command_pulses = command_pulses
+        self.last_command_units = command_units
         self.shadow_known = True
         self.halves_written.clear()
 
-    def reported_feedback(self, command_pulses: int, nominal_from_chain: float) -> int:
-        """Nominal feedback for the master.
+    def reported_feedback(self, command_units: int, nominal_from_chain: float) -> int:
+        """Nominal feedback (pulses) for the master, the drive being at ``command_units``.
 
         At rest on the last corrected target, report exactly the nominal target the master
         wrote, so "feedback == target" checks in the master hold despite whole-pulse
         rounding of the command; elsewhere (in motion), the chain's inverse, rounded.
         """
-        if command_pulses == self.last_command_pulses and self.last_nominal_pulses is not None:
+        if command_units == self.last_command_units and self.last_nominal_pulses is not None:
             return self.last_nominal_pulses
         return round(nominal_from_chain)
 

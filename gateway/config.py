@@ -109,13 +109,20 @@ class TargetRegister(Model):
 
 
 class FeedbackRegister(Model):
-    """The 32-bit signed position feedback; ``counts_per_pulse`` scales encoder counts."""
+    """The 32-bit signed position feedback.
+
+    ``counts_per_pulse``: counts per drive command unit (1 when the register counts command
+    units, else the encoder counts per unit). ``upstream_counts_per_pulse``: counts per
+    upper-computer pulse as the master expects to read them (default ``counts_per_pulse``;
+    required when the axis has ``command_scale`` > 1).
+    """
 
     address: Address
     table: Literal["holding", "input"] = "holding"
     words: Literal[2] = 2
     order: WordOrder = "hi_lo"
     counts_per_pulse: Positive = 1.0
+    upstream_counts_per_pulse: Positive | None = None
 
 
 class StatusRegister(Model):
@@ -194,6 +201,9 @@ class Axis(Model):
     (longer ones are split, never inside the target pair); ``min_silence_s`` is extra line
     silence the drive needs around frames (applied to its whole bus);
     ``ram_setting_applied`` declares that the drive's keep-writes-in-RAM parameter is set.
+    ``command_scale`` (k): the drive's electronic gear is set k times finer than the upper
+    computer's pulse, so targets go to the drive in units of ``pulse_mm``/k and corrections
+    land to a k-th of a pulse while the master keeps its own units.
     """
 
     bus: str
@@ -208,6 +218,7 @@ class Axis(Model):
     fc16_max_words: Annotated[int, in_range(2, 123)] = 123
     min_silence_s: float = Field(default=0.0, ge=0.0, le=1.0)
     ram_setting_applied: bool = False
+    command_scale: Annotated[int, in_range(1, 1000)] = 1
     compensation: Compensation = Field(default_factory=Compensation)
 
     @model_validator(mode="before")
@@ -227,9 +238,42 @@ class Axis(Model):
             raise ValueError(f"[{value[0]:g}, {value[1]:g}] must be [low, high] with low < high")
         return value
 
+    @model_validator(mode="after")
+    def _fits_int32(self) -> Axis:
+        farthest = max(abs(self.travel_mm[0]), abs(self.travel_mm[1]))
+        units = farthest / self.pulse_mm * self.command_scale
+        if units > 2**31 - 1 - 2**20:  # room for corrections on top
+            raise ValueError(
+                f"travel_mm {farthest:g} is {units:.3g} drive units at pulse_mm "
+                f"{self.pulse_mm:g} and command_scale {self.command_scale}: more than a "
+                "signed 32-bit target holds"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _feedback_scale_is_explicit(self) -> Axis:
+        # no default is right for both kinds of feedback register once the gear changes,
+        # and a wrong feedback scale would send the master after a position it is not at
+        if self.command_scale > 1 and self.registers.feedback.upstream_counts_per_pulse is None:
+            raise ValueError(
+                f"command_scale {self.command_scale} needs "
+                "registers.feedback.upstream_counts_per_pulse (the counts per pulse the upper "
+                "computer reads: 1 if the register counts command units, else the encoder "
+                "counts per upper-computer pulse)"
+            )
+        return self
+
     @property
     def upstream(self) -> int:
         return self.upstream_unit if self.upstream_unit is not None else self.unit
+
+    @property
+    def upstream_counts_per_pulse(self) -> float:
+        """Feedback counts per upper-computer pulse, as reported to the master."""
+        feedback = self.registers.feedback
+        if feedback.upstream_counts_per_pulse is not None:
+            return feedback.upstream_counts_per_pulse
+        return feedback.counts_per_pulse
 
 
 class Planar(Model):

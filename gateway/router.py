@@ -335,17 +335,17 @@ class Gateway:
             if state.shadow_known or state.halves_written:
                 words[i : i + 2] = state.shadow
             else:
-                command = unpack_int32(words[i : i + 2], regs.target.order)
-                nominal = self._nominal(setup, name, axis, command)
+                units = unpack_int32(words[i : i + 2], regs.target.order)
+                nominal = self._nominal(setup, name, axis, units / axis.command_scale)
                 words[i : i + 2] = pack_int32(round(nominal), regs.target.order)
         if regs.feedback.table == table and regs.feedback.address - lo in range(len(words) - 1):
             i = regs.feedback.address - lo
             counts = unpack_int32(words[i : i + 2], regs.feedback.order)
-            command = counts / regs.feedback.counts_per_pulse
+            units = counts / regs.feedback.counts_per_pulse  # where the drive is, its units
             self.counters.feedback_reads += 1
-            exact = self._nominal(setup, name, axis, command)
-            nominal = state.reported_feedback(round(command), exact)
-            nominal_counts = round(nominal * regs.feedback.counts_per_pulse)
+            exact = self._nominal(setup, name, axis, units / axis.command_scale)
+            nominal = state.reported_feedback(round(units), exact)
+            nominal_counts = round(nominal * axis.upstream_counts_per_pulse)
             words[i : i + 2] = pack_int32(_clamp_int32(nominal_counts), regs.feedback.order)
 
     def _nominal(self, setup: Setup, name: str, axis: Axis, command_pulses: float) -> float:
@@ -358,10 +358,12 @@ class Gateway:
         partner = setup.planar_partner(name)
         if partner is not None:
             other = self._axes[partner].state
-            if other.last_command_pulses is not None and other.applied:
+            if other.last_command_units is not None and other.applied:
+                scale = setup.config.axes[partner].command_scale
                 inputs[partner] = AxisInput(
-                    other.last_command_pulses, other.motion.direction, self._delta_a(partner)
-                )
+                    other.last_command_units / scale, other.motion.direction,
+                    self._delta_a(partner),
+                )  # fmt: skip
         try:
             return setup.chain.nominal_pulses(name, inputs)
         except CompensationError as exc:
@@ -522,7 +524,7 @@ class Gateway:
             runtime = self._axes[name]
             runtime.state.committed(nominal, command)
             runtime.state.applied = applied
-            runtime.last_correction_mm = (command - nominal) * axis.pulse_mm
+            runtime.last_correction_mm = (command / axis.command_scale - nominal) * axis.pulse_mm
             self.counters.commits += 1
 
     async def _homed(self, name: str, axis: Axis) -> bool:
@@ -553,7 +555,8 @@ class Gateway:
         runtime.status_at_s = time.monotonic()
 
     def _correct(self, setup: Setup, name: str, nominal: int, homed: bool) -> tuple[int, bool]:
-        """Corrected command for ``name`` and whether compensation was applied."""
+        """Command for ``name`` in drive units (``command_scale`` per pulse) and whether
+        compensation was applied."""
         axis_cfg = setup.config.axes[name]
         state = self._axes[name].state
         chain_axis = setup.chain.axes[name]
@@ -564,7 +567,7 @@ class Gateway:
             log.warning("%s", exc)
             raise ModbusError(str(exc), ILLEGAL_DATA_VALUE) from None
         if not (state.enabled and homed):
-            return nominal, False
+            return nominal * axis_cfg.command_scale, False
         direction = state.motion.approach(nominal).direction
         inputs = {name: AxisInput(nominal, direction, self._delta_a(name))}
         partner = setup.planar_partner(name)
@@ -579,7 +582,7 @@ class Gateway:
                     self._delta_a(partner),
                 )
         try:
-            return setup.chain.command_pulses(name, inputs), True
+            return setup.chain.command_pulses(name, inputs, axis_cfg.command_scale), True
         except CorrectionLimitError as exc:
             self.counters.refused_correction += 1
             log.error("%s: target refused", exc)

@@ -32,11 +32,21 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
             f"{axis.pulse_mm:g} {'deg' if axis.rotary else 'mm'}/pulse, "
             f"travel [{axis.travel_mm[0]:g}, {axis.travel_mm[1]:g}]"
         )
+        if axis.command_scale == 1:
+            counts = f"{regs.feedback.counts_per_pulse:g} counts/pulse"
+        else:
+            counts = (f"{regs.feedback.counts_per_pulse:g} counts/drive unit, "
+                      f"{axis.upstream_counts_per_pulse:g} counts/pulse upstream")  # fmt: skip
         lines.append(
             f"    target 0x{regs.target.address:04X} ({regs.target.order}), feedback "
             f"0x{regs.feedback.address:04X} {regs.feedback.table} ({regs.feedback.order}, "
-            f"{regs.feedback.counts_per_pulse:g} counts/pulse)"
+            f"{counts})"
         )
+        if axis.command_scale > 1:
+            lines.append(
+                f"    drive geared {axis.command_scale}x finer: targets in units of "
+                f"{axis.pulse_mm / axis.command_scale:g} {'deg' if axis.rotary else 'mm'}"
+            )
         if regs.trigger is not None:
             rule = (
                 f"value 0x{regs.trigger.value:X}"

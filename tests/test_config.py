@@ -102,6 +102,9 @@ BAD = [
     ("planar", {"axes": ["X", "Y"], "model": "xy.yaml", "commit": "later"}, r"planar\.commit: 'later'"),
     ("passthrough", {30: {"bus": "line7", "unit": 5}}, r"passthrough\.30\.bus: 'line7' is not one of buses"),
     ("colour", "blue", r"colour: unknown key"),
+    ("axes.X.command_scale", 10, r"axes\.X: .*command_scale 10 needs registers\.feedback\.upstream_counts_per_pulse"),
+    ("axes.X.command_scale", 0, r"axes\.X\.command_scale: 0 is not in 1\.\.1000"),
+    ("axes.X.pulse_mm", 0.0000001, r"axes\.X: .*travel_mm 800 is 8e\+09 drive units .*signed 32-bit"),
 ]
 
 

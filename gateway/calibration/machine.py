@@ -183,7 +183,7 @@ class MachineDriver:
         axis = self.axis(name)
         reg = axis.registers.feedback
         words = await self.link.read(axis.upstream, reg.address, 2, reg.table)
-        return unpack_int32(words, reg.order) / reg.counts_per_pulse
+        return unpack_int32(words, reg.order) / axis.upstream_counts_per_pulse  # as reported
 
     async def wait_in_position(self, name: str, position_mm: float) -> None:
         """Until the status says in position (not moving) and feedback is at the target."""

@@ -192,9 +192,13 @@ class Chain:
         return b if axis == a else a
 
     # -- scalar (per transaction) -------------------------------------------------------
-    def command_pulses(self, axis: str, inputs: Mapping[str, AxisInput]) -> int:
-        """Corrected command (whole pulses) for ``axis``; the planar partner is read from
-        ``inputs`` (its latest nominal target). Raises TravelError / CorrectionLimitError."""
+    def command_pulses(
+        self, axis: str, inputs: Mapping[str, AxisInput], units_per_pulse: int = 1
+    ) -> int:
+        """Corrected command for ``axis`` in whole drive units (``units_per_pulse`` per
+        pulse: a drive geared finer than the master's pulse); the planar partner is read
+        from ``inputs`` (its latest nominal target). Raises TravelError /
+        CorrectionLimitError."""
         chain = self.axes[axis]
         own = inputs[axis]
         nominal_mm = own.pulses * chain.pulse_mm
@@ -210,7 +214,7 @@ class Chain:
             target_mm = cxy[0] if first else cxy[1]
         command_mm = chain.command_mm_scalar(target_mm, own.direction, own.delta_a_mm)
         chain.check_correction(nominal_mm, command_mm)
-        return round_pulses(command_mm / chain.pulse_mm)
+        return round_pulses(command_mm / chain.pulse_mm * units_per_pulse)
 
     def nominal_pulses(self, axis: str, inputs: Mapping[str, AxisInput]) -> float:
         """Nominal position (pulses, unrounded) of ``axis`` whose drive is at
