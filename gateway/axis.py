@@ -52,6 +52,12 @@ class AxisState:
         self.shadow_known = True
         self.halves_written.clear()
 
+    def homing_started(self, home_direction: int) -> None:
+        """The drive is homing: the next target is approached as the first after homing,
+        and the drive is no longer at its last command."""
+        self.motion = MotionState(home_direction)
+        self.last_command_units = None
+
     def reported_feedback(self, command_units: int, nominal_from_chain: float) -> int:
         """Nominal feedback (pulses) for the master, the drive being at ``command_units``.
 

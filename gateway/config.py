@@ -132,16 +132,24 @@ class StatusRegister(Model):
 
 
 class TriggerRegister(Model):
-    """What starts a move: any write (no value), a write of ``value``, or ``rising_bit``."""
+    """What starts a move: any write (no value), a write of ``value``, or ``rising_bit``.
+
+    ``home_value``: a write of this value starts the drive's homing; the gateway forwards
+    it and then takes the next move as the first after homing (``home_direction``), since
+    the axis no longer stands at its last target.
+    """
 
     address: Address
     value: Annotated[int, in_range(0, 65535)] | None = None
     rising_bit: Bit | None = None
+    home_value: Annotated[int, in_range(0, 65535)] | None = None
 
     @model_validator(mode="after")
     def _one_rule(self) -> TriggerRegister:
         if self.value is not None and self.rising_bit is not None:
             raise ValueError("give value or rising_bit, not both")
+        if self.home_value is not None and self.home_value == self.value:
+            raise ValueError(f"home_value 0x{self.home_value:X} is also the move value")
         return self
 
 

@@ -56,7 +56,7 @@ PROFILES: dict[str, DriveProfile] = {
                     "feedback": {"address": 0x602A, "table": "holding", "order": "hi_lo",
                                  "counts_per_pulse": 1},
                     "status": {"address": 0x1003, "table": "holding", "homed_bit": 6},
-                    "trigger": {"address": 0x6002, "value": 0x10},
+                    "trigger": {"address": 0x6002, "value": 0x10, "home_value": 0x20},
                 },
                 "fc16_max_words": 123,
                 "min_silence_s": 0.0,

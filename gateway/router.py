@@ -419,7 +419,10 @@ class Gateway:
                 return await self._trigger_write(setup, name, axis, req)
             if target_offsets:
                 return await self._target_write(setup, name, axis, req)
-            return await self._forward_write(name, axis, req, pdu)
+            reply = await self._forward_write(name, axis, req, pdu)
+            if trigger_hit and self._homes(axis, req, start) and not is_exception(reply):
+                runtime.state.homing_started(axis.home_direction)
+            return reply
 
     async def _forward_write(self, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
         """A write the gateway does not rewrite: byte for byte, unless the block is longer
@@ -444,6 +447,13 @@ class Gateway:
             if is_exception(reply):
                 raise ModbusError(f"axis {name}: drive refused a register block", reply[1])
             start = end
+
+    @staticmethod
+    def _homes(axis: Axis, req: Request, start: int) -> bool:
+        """Whether this trigger write starts the drive's homing (``home_value``)."""
+        rule = axis.registers.trigger
+        return (rule is not None and rule.home_value is not None
+                and req.values[rule.address - start] == rule.home_value)  # fmt: skip
 
     def _trigger_fires(self, runtime: _AxisRuntime, axis: Axis, req: Request, start: int) -> bool:
         rule = axis.registers.trigger

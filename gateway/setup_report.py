@@ -55,7 +55,9 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
                 if regs.trigger.rising_bit is not None
                 else "any write"
             )
-            lines.append(f"    trigger 0x{regs.trigger.address:04X} on {rule}")
+            home = ("" if regs.trigger.home_value is None
+                    else f", homing on value 0x{regs.trigger.home_value:X}")  # fmt: skip
+            lines.append(f"    trigger 0x{regs.trigger.address:04X} on {rule}{home}")
         parts = []
         if stages.pitch is not None:
             table = stages.pitch.table

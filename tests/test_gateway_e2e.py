@@ -185,6 +185,29 @@ def test_malformed_requests_to_an_axis_are_refused_never_forwarded(tmp_path: Pat
     run(body())
 
 
+def test_homing_makes_the_next_move_the_first_after_homing(tmp_path: Path):
+    """After a homing trigger (0x20) the axis is at home, not at its last target: the next
+    move's approach is ``home_direction`` (+ from 0), not the sign from the last target."""
+
+    def edit(data):
+        with_pitch(data)
+        data["axes"]["Y"]["registers"]["trigger"]["home_value"] = 0x20
+
+    async def body():
+        async with rig(tmp_path, edit, {"x.csv": PITCH_X}) as r:
+            master, direct = r["master"], r["direct"]
+            await move(master, 2, 100_000)
+            await move(master, 2, 50_000)
+            assert await read32(direct, 2, TARGET) == 49_995  # −B/2 moving −
+            assert not (await master.write_register(TRIGGER, 0x20, device_id=2)).isError()
+            assert await read32(direct, 2, FEEDBACK) == 0  # the sim homed to 0
+            await move(master, 2, 30_000)  # from 0: approached going +
+            assert await read32(direct, 2, TARGET) == 30_005
+            assert await read32(master, 2, FEEDBACK) == 30_000
+
+    run(body())
+
+
 def test_not_homed_means_uncorrected(tmp_path: Path):
     """Compensation applies only while the drive reports homed."""
 
