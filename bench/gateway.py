@@ -275,8 +275,15 @@ async def _rtu_masters(spec: dict) -> dict:
     return {"lat": lat, "wall": wall, "errors": errors[0], "cpu": time.process_time() - cpu0}
 
 
+#: ``--pin``: the CPUs of the world (upper computer + drives: load generator and sims) and
+#: of the gateway, as in a deployment where the gateway has its own box
+PIN_WORLD, PIN_GATEWAY = {0}, {1}
+
+
 def load_main(spec_json: str) -> int:
     spec = json.loads(spec_json)
+    if spec.get("pin"):
+        os.sched_setaffinity(0, PIN_WORLD)
     run = _rtu_masters if spec["kind"] == "rtu" else _tcp_masters
     result = asyncio.run(asyncio.wait_for(run(spec), spec["time_cap"] + 30))
     sys.stdout.write(json.dumps(result))
@@ -379,11 +386,14 @@ async def _reference_proxy(sim_port: int) -> None:
 class Proc:
     """A child process whose combined output is drained by a thread (and kept)."""
 
-    def __init__(self, name: str, argv: list[str], cwd: Path = ROOT) -> None:
+    def __init__(self, name: str, argv: list[str], cwd: Path = ROOT,
+                 cpus: set[int] | None = None) -> None:
         self.name = name
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                   text=True, cwd=cwd, env=env, start_new_session=True)
+        if cpus is not None:
+            os.sched_setaffinity(self.p.pid, cpus)
         self.lines: list[str] = []
         self._cond = threading.Condition()
         threading.Thread(target=self._drain, daemon=True).start()
@@ -559,11 +569,12 @@ class Bench:
         p1, p2 = PtyPair(), PtyPair()
         self.ptys += [p1, p2]
         self.gw_line, self.direct_line = p1.b, p2.b
+        world = PIN_WORLD if self.args.pin else None
         sim_a = Proc("sim A", compgw("sim", _write_yaml(
-            self.tmp / "sim-a.yaml", sim_config(tcp=True, rtu_port=p1.a))))
+            self.tmp / "sim-a.yaml", sim_config(tcp=True, rtu_port=p1.a))), cpus=world)
         self.procs["sim"] = sim_a
         sim_b = Proc("sim B", compgw("sim", _write_yaml(
-            self.tmp / "sim-b.yaml", sim_config(tcp=False, rtu_port=p2.a))))
+            self.tmp / "sim-b.yaml", sim_config(tcp=False, rtu_port=p2.a))), cpus=world)
         self.procs["simB"] = sim_b
         self.sim_port = int(sim_a.wait_for(r"modbus tcp on 127\.0\.0\.1:(\d+)").group(1))
         sim_b.wait_for(r"modbus rtu on")
@@ -575,7 +586,8 @@ class Bench:
         patch = "" if t35_s is None else (  # diagnostic: the RTU line's t3.5 replaced
             f"import gateway.serialline as s; s.t35_s = lambda *a, **k: {t35_s!r}; ")
         argv = compgw("run", cfg, patch)
-        proc = Proc(name, argv, cwd=root)  # `import gateway` resolves in root first
+        cpus = PIN_GATEWAY if self.args.pin else None
+        proc = Proc(name, argv, cwd=root, cpus=cpus)  # `import gateway` resolves in root first
         self.procs[name] = proc
         port = int(proc.wait_for(r"listening on 127\.0\.0\.1:(\d+)").group(1))
         self.warm_up(port)
@@ -620,7 +632,8 @@ class Bench:
              gw_port: int | None = None, gw_name: str = "gw") -> Row:
         a = self.args
         units = list(UNITS[:masters])
-        common = {"pdu": case.pdu.hex(), "warmup": a.warmup, "time_cap": a.time_cap / 2}
+        common = {"pdu": case.pdu.hex(), "warmup": a.warmup, "time_cap": a.time_cap / 2,
+                  "pin": a.pin}
         if transport == "tcp":
             direct = {**common, "kind": "tcp", "host": "127.0.0.1", "port": self.sim_port,
                       "units": units}
@@ -776,6 +789,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--baseline", metavar="DIR",
                     help="also measure the gateway of another source tree (e.g. a `git "
                          "archive` of an older commit), in the same run, for before/after")
+    ap.add_argument("--pin", action="store_true",
+                    help="diagnostic: the load generator and the sims on CPU 0, the gateway "
+                         "on CPU 1 (a gateway on its own box), in both the direct and the "
+                         "gateway runs; not the issue's measurement")
     ap.add_argument("--load", help=argparse.SUPPRESS)
     ap.add_argument("--proxy", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
@@ -825,7 +842,7 @@ def main(argv: list[str] | None = None) -> int:
         reference = (not a.quick) if a.reference is None else a.reference
         if reference and "tcp" in transports:
             ref = Proc("ref", [sys.executable, str(Path(__file__).resolve()), "--proxy",
-                               str(bench.sim_port)])
+                               str(bench.sim_port)], cpus=PIN_GATEWAY if a.pin else None)
             bench.procs["ref"] = ref
             port = int(ref.wait_for(r"reference proxy listening on 127\.0\.0\.1:(\d+)")
                        .group(1))
@@ -865,7 +882,8 @@ def main(argv: list[str] | None = None) -> int:
                         print("\n" + summary, flush=True)
     finally:
         bench.stop()
-    print("\ntargets (issue 4):")
+    print("\ntargets (issue 4)" + (", PINNED (diagnostic: world on CPU 0, gateway on "
+                                   "CPU 1; not the issue's measurement):" if a.pin else ":"))
     print("\n".join(verdicts(rows)))
     print(f"\ncolumns: m = concurrent masters; latencies in ms; 'x' = gateway/direct; "
           f"'+p50' = gateway p50 - direct p50 in ms ('RTU added p50' on rtu rows); cpu/tx = "
