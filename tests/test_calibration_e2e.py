@@ -108,8 +108,9 @@ def flow(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
         b.use(ident)
         b.cool_down()
         for axis, other in (("X", "Y"), ("Y", "X")):
-            ok("calibrate", *common, "--iso", axis, *ISO_ID, "--runs", RUNS[axis], "--laser", laser,
-               "--park", f"{other}=0", "--raw", d / f"{axis}_id.csv")  # fmt: skip
+            out[f"{axis}_id_output"] = ok(
+                "calibrate", *common, "--iso", axis, *ISO_ID, "--runs", RUNS[axis], "--laser",
+                laser, "--park", f"{other}=0", "--raw", d / f"{axis}_id.csv")  # fmt: skip
         out["fit_pitch"] = ok("fit", d / "X_id.csv", d / "Y_id.csv", "-c", gw)
 
         # 3. the XY grid with the pitch tables on
@@ -255,6 +256,16 @@ def test_thermal_drift_within_2um_with_compensation_tens_without(flow):
     assert abs(np.mean(flow["drift_on_um"][-5:])) <= 2.0
     assert np.abs(flow["drift_on_um"]).max() <= 4.0
     assert flow["thermal_fit"]["length_mm"] == pytest.approx(800.0, rel=0.05)
+
+
+def test_calibrate_says_how_long_the_machine_will_be_busy(flow):
+    text = flow["X_id_output"]
+    found = re.search(r"iso230-linear plan: (\d+) readings in (\d+) moves; about ([\d.]+) min "
+                      r"of machine time at 100 mm/s and 2 s per reading", text)
+    assert found is not None, text
+    readings, minutes = int(found.group(1)), float(found.group(3))
+    assert readings == len(read_raw_csv(flow["dir"] / "X_id.csv").target_mm)  # all measured
+    assert minutes > readings * 2 / 60  # at least the 2 s per reading
 
 
 def test_tables_and_model_written_where_the_config_points(flow):

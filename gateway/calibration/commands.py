@@ -193,14 +193,16 @@ def calibrate(
         plan = make_plan(args, config)
         if args.save_plan:
             write_plan(args.save_plan, plan)
-        if plan.kind == "cyclic":
+        if not args.join:  # how long the machine will be busy, before it starts
             from .plans import plan_time_s
 
             minutes = plan_time_s(plan, args.estimate_speed_mm_s, args.estimate_stop_s) / 60
-            print(f"cyclic plan: {sum(m.measured for m in plan.moves)} readings at stations "
-                  f"{dict(plan.meta)['stations_mm']} mm; about {minutes:.1f} min of machine "
-                  f"time at {args.estimate_speed_mm_s:g} mm/s and {args.estimate_stop_s:g} s "
-                  f"per reading")  # fmt: skip
+            where = (f" at stations {dict(plan.meta)['stations_mm']} mm"
+                     if plan.kind == "cyclic" else "")  # fmt: skip
+            print(f"{plan.kind} plan: {sum(m.measured for m in plan.moves)} readings{where} "
+                  f"in {len(plan.moves)} moves; about {minutes:.1f} min of machine time at "
+                  f"{args.estimate_speed_mm_s:g} mm/s and {args.estimate_stop_s:g} s per "
+                  f"reading")  # fmt: skip
         if args.raw is None:
             raise TableError("--raw FILE is required (where the readings go)")
         raw = Path(args.raw)
@@ -305,9 +307,9 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     o.add_argument("--takeup-mm", type=float, default=1.0,
                    help="--cyclic: take-up move before each scan direction (1; > backlash)")
     o.add_argument("--estimate-speed-mm-s", type=float, default=100.0,
-                   help="--cyclic: speed for the machine-time estimate printed (100)")
+                   help="speed for the machine-time estimate printed before a run (100)")
     o.add_argument("--estimate-stop-s", type=float, default=2.0,
-                   help="--cyclic: settling + reading per point for the estimate (2)")
+                   help="settling + reading per point for the estimate (2)")
     o.add_argument("--overrun-mm", type=float, default=3.0, help="overrun / margin (3)")
     o.add_argument("--grid", type=int, nargs=2, default=(9, 7), metavar=("NX", "NY"))
     o.add_argument("--grid-runs", type=int, default=1, help="passes over the XY grid (1)")
