@@ -25,12 +25,21 @@ from .compensation import Chain
 from .config import Bus as BusConfig
 from .config import ConfigError, GatewayConfig, bus_silence_s, load_config
 from .downstream import Bus, RtuBus, TcpBus
+from .frames import (
+    READ_HOLDING_REGISTERS,
+    ModbusError,
+    build_read_request,
+    is_exception,
+    parse_read_registers_response,
+    unpack_int32,
+)
 from .metrics import MetricsServer
 from .metrics import build as build_metrics
 from .router import Gateway
 from .security import WriteGuard
 from .sensors import SensorSet
 from .service import Notifier
+from .state_store import StateStore
 from .status import StatusUnit
 from .tables import build_chain
 from .upstream import RtuServer, TcpServer
@@ -96,6 +105,12 @@ class GatewayApp:
             self.handler = request_metrics.wrap(self.handler)
             self.fast_handler = request_metrics.wrap_fast(self.fast_handler)
             self.metrics = MetricsServer(registry, config.metrics.host, config.metrics.port)
+        self.state_store: StateStore | None = None
+        if config.state_file is not None:
+            path = Path(config.state_file)
+            if source is not None and not path.is_absolute():
+                path = Path(source).resolve().parent / path
+            self.state_store = StateStore(path, self.gateway.saved_axes)
         self.tcp: TcpServer | None = None
         self.rtu: RtuServer | None = None
         self._stop_sensors = asyncio.Event()
@@ -117,6 +132,9 @@ class GatewayApp:
         for name, bus in self.buses.items():
             if not await bus.connect():
                 log.warning("bus %s is down at start; requests get 0x0A until it is back", name)
+        if self.state_store is not None:
+            await self.restore_state(self.state_store)
+            self.gateway.on_state_change = self.state_store.changed
         if len(self.sensors):
             self._sensor_task = asyncio.create_task(self.sensors.run(self._stop_sensors))
         up = self.config.upstream
@@ -161,6 +179,37 @@ class GatewayApp:
             self._sensor_task = None
         for bus in self.buses.values():
             await bus.close()
+        if self.state_store is not None:
+            self.state_store.flush()
+
+    async def restore_state(self, store: StateStore) -> None:
+        """Take back each saved axis whose drive still holds the saved command (else the
+        axis starts afresh: the drive was moved, or rewritten, while compgw was down)."""
+        for name, saved in store.load().items():
+            axis = self.config.axes.get(name)
+            if axis is None:
+                continue
+            try:
+                if int(saved["command_scale"]) != axis.command_scale:
+                    log.info("axis %s: saved state has another command_scale: starting afresh",
+                             name)  # fmt: skip
+                    continue
+                target = axis.registers.target
+                reply = await self.buses[axis.bus].transact(
+                    axis.unit, build_read_request(READ_HOLDING_REGISTERS, target.address, 2))
+                if is_exception(reply):
+                    raise ModbusError(f"drive answered exception 0x{reply[1]:02X}")
+                held = unpack_int32(parse_read_registers_response(reply), target.order)
+                if held != saved["last_command_units"]:
+                    log.info("axis %s: the drive holds target %d, not the saved %s: starting "
+                             "afresh", name, held, saved["last_command_units"])  # fmt: skip
+                    continue
+                self.gateway.restore_axis(name, saved)
+            except (ModbusError, KeyError, TypeError, ValueError) as exc:
+                log.warning("axis %s: saved state not used: %s", name, exc)
+                continue
+            log.info("axis %s: carried on from the state file: nominal %s, drive command %s",
+                     name, saved["last_nominal_pulses"], held)  # fmt: skip
 
     def reload(self, config: GatewayConfig, chain: Chain) -> None:
         """Swap tables and per-axis settings between transactions.
@@ -168,7 +217,7 @@ class GatewayApp:
         Listeners, buses, thermal sources and the metrics endpoint stay as they are:
         changing those sections needs a restart, and is refused here with a log line.
         """
-        fixed = ("upstream", "buses", "thermal_sources", "metrics")
+        fixed = ("upstream", "buses", "thermal_sources", "metrics", "state_file")
         changed = [key for key in fixed if getattr(config, key) != getattr(self.config, key)]
         if changed:
             raise ConfigError(f"{', '.join(changed)} cannot change on reload; restart instead")

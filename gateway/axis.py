@@ -11,6 +11,7 @@ No compensation math here: the router asks the chain.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from .compensation import MotionState
 from .frames import WordOrder, unpack_int32
@@ -30,6 +31,28 @@ class AxisState:
     #: whether the last committed target was corrected (False: sent as written, e.g.
     #: compensation off or drive not homed); feedback is inverted only when it was
     applied: bool = False
+
+    def saved(self) -> dict[str, Any]:
+        """What a restarted gateway needs to carry on (plain JSON values)."""
+        return {
+            "last_nominal_pulses": self.last_nominal_pulses,
+            "last_command_units": self.last_command_units,
+            "direction": self.motion.direction,
+            "last_target_pulses": self.motion.last_target_pulses,
+            "shadow": list(self.shadow),
+            "applied": self.applied,
+        }
+
+    def restore(self, saved: dict[str, Any]) -> None:
+        """Take back :meth:`saved` (the caller checked the drive still holds that command)."""
+        self.last_nominal_pulses = int(saved["last_nominal_pulses"])
+        self.last_command_units = int(saved["last_command_units"])
+        last = saved["last_target_pulses"]
+        self.motion = MotionState(int(saved["direction"]), None if last is None else int(last))
+        self.shadow = [int(w) & 0xFFFF for w in saved["shadow"]][:2]
+        self.shadow_known = True
+        self.halves_written.clear()
+        self.applied = bool(saved["applied"])
 
     def write_words(self, offset: int, words: list[int]) -> None:
         """Record master writes of target words (offset 0 or 1 within the pair)."""

@@ -376,6 +376,10 @@ class GatewayConfig(Model):
     passthrough: dict[UnitId, Passthrough] = Field(default_factory=dict)
     metrics: Metrics = Field(default_factory=Metrics)
     write_protect: list[WriteProtect] = Field(default_factory=list)
+    #: where each axis's last target, command and direction are kept, so a restarted
+    #: gateway (a crash, an update) carries on where the drives are; relative to the config
+    #: file; best on tmpfs (``/run/compgw/state.json``); none: a restart starts afresh
+    state_file: str | None = None
 
     @model_validator(mode="after")
     def _references(self) -> GatewayConfig:

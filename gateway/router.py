@@ -152,6 +152,8 @@ class Gateway:
         self.delta_a_mm = delta_a_mm
         self.status_handler = status_handler
         self.counters = GatewayCounters()
+        #: called after axis state changed (a commit, a homing): the state file's hook
+        self.on_state_change: Callable[[], None] = _nothing
         self._axes: dict[str, _AxisRuntime] = {}
         self.setup = Setup.build(config, chain)
         self._adopt_axes(config)
@@ -171,6 +173,21 @@ class Gateway:
 
     def axis_state(self, name: str) -> AxisState:
         return self._axes[name].state
+
+    def saved_axes(self) -> dict[str, dict[str, object]]:
+        """Per-axis state worth keeping across a restart: axes with a committed target."""
+        out: dict[str, dict[str, object]] = {}
+        for name, runtime in self._axes.items():
+            state = runtime.state
+            if state.last_command_units is None or state.last_nominal_pulses is None:
+                continue
+            scale = self.setup.config.axes[name].command_scale
+            out[name] = {**state.saved(), "command_scale": scale}
+        return out
+
+    def restore_axis(self, name: str, saved: dict[str, object]) -> None:
+        """Carry on from a saved state (the drive was checked to hold its command)."""
+        self._axes[name].state.restore(saved)
 
     def last_correction_mm(self, name: str) -> float:
         return self._axes[name].last_correction_mm
@@ -422,6 +439,7 @@ class Gateway:
             reply = await self._forward_write(name, axis, req, pdu)
             if trigger_hit and self._homes(axis, req, start) and not is_exception(reply):
                 runtime.state.homing_started(axis.home_direction)
+                self.on_state_change()
             return reply
 
     async def _forward_write(self, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
@@ -536,6 +554,8 @@ class Gateway:
             runtime.state.applied = applied
             runtime.last_correction_mm = (command / axis.command_scale - nominal) * axis.pulse_mm
             self.counters.commits += 1
+        if plans:
+            self.on_state_change()
 
     async def _homed(self, name: str, axis: Axis) -> bool:
         """Whether the drive reports homed (True when no homed bit is configured).
@@ -604,6 +624,10 @@ class Gateway:
     def _delta_a(self, name: str) -> float:
         value = self.delta_a_mm(name)
         return 0.0 if value is None else value
+
+
+def _nothing() -> None:
+    pass
 
 
 def _finishing(finish: Finish, done: Done) -> Done:

@@ -1,0 +1,111 @@
+"""``state_file``: a restarted gateway carries on where the drives are (the nominal the
+master wrote, the direction of approach), if the drive still holds the saved command; a
+drive moved meanwhile, or a damaged file, means starting afresh. Real sim, real sockets."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+import pytest
+import yaml
+from pymodbus.client import AsyncModbusTcpClient
+
+from gateway.app import GatewayApp, load
+from gateway.frames import pack_int32
+from sim.config import parse_config as parse_sim_config
+from sim.server import SimServer
+from tests.gateway_rig import FEEDBACK, SIM_EXAMPLE, TARGET, base_config
+from tests.helpers_modbus import wait_for_condition
+from tests.test_gateway_e2e import PITCH_X, move, read32, run
+
+B_PULSES = 5  # half of Y's 0.01 mm backlash, in 1 µm pulses
+
+
+def sim_config():
+    data = yaml.safe_load(SIM_EXAMPLE.read_text())
+    for axis in data["sim"]["axes"].values():
+        axis["pulse_mm"] = 0.001
+    return parse_sim_config(data, SIM_EXAMPLE.parent)
+
+
+@contextlib.asynccontextmanager
+async def gateway(
+    tmp_path: Path, sim_port: int
+) -> AsyncIterator[tuple[GatewayApp, AsyncModbusTcpClient]]:
+    data = base_config(sim_port)
+    data["axes"]["X"]["compensation"]["pitch"] = "x.csv"
+    data["axes"]["Y"]["compensation"]["backlash_mm"] = 0.01
+    data["state_file"] = "run/state.json"
+    (tmp_path / "x.csv").write_text(PITCH_X)
+    (tmp_path / "run").mkdir(exist_ok=True)
+    path = tmp_path / "gw.yaml"
+    path.write_text(yaml.safe_dump(data))
+    config, chain = load(path)
+    async with GatewayApp(config, chain, source=str(path)) as app:
+        master = AsyncModbusTcpClient("127.0.0.1", port=app.tcp_port, timeout=2, retries=0)
+        assert await master.connect()
+        try:
+            yield app, master
+        finally:
+            master.close()
+
+
+def test_a_restarted_gateway_carries_on(tmp_path: Path, caplog: pytest.LogCaptureFixture):
+    state = tmp_path / "run" / "state.json"
+
+    async def body():
+        async with SimServer(sim_config(), tcp_port=0, time_scale=0) as sim:
+            direct = AsyncModbusTcpClient("127.0.0.1", port=sim.tcp_port, timeout=2, retries=0)
+            assert await direct.connect()
+            async with gateway(tmp_path, sim.tcp_port) as (app, master):
+                await move(master, 1, 300_000)
+                x_command = await read32(direct, 1, TARGET)
+                assert x_command != 300_000  # corrected
+                await move(master, 2, 100_000)
+                await move(master, 2, 50_000)  # Y now approaches going −
+                assert await read32(direct, 2, TARGET) == 50_000 - B_PULSES
+                store = app.state_store
+                assert store is not None
+                await wait_for_condition(lambda: store.writes > 0)  # coalesced, soon
+            saved = json.loads(state.read_text())["axes"]
+            assert saved["X"]["last_command_units"] == x_command
+            assert saved["Y"]["direction"] == -1 and saved["Y"]["last_nominal_pulses"] == 50_000
+
+            # a new process: feedback is the nominal at once, Y keeps going −
+            with caplog.at_level(logging.INFO, logger="gateway.app"):
+                async with gateway(tmp_path, sim.tcp_port) as (app, master):
+                    assert "axis X: carried on from the state file" in caplog.text
+                    assert await read32(master, 1, FEEDBACK) == 300_000
+                    assert await read32(master, 1, TARGET) == 300_000
+                    assert await read32(master, 2, FEEDBACK) == 50_000
+                    await move(master, 2, 40_000)
+                    assert await read32(direct, 2, TARGET) == 40_000 - B_PULSES
+
+            # the drive moved while compgw was down: that axis starts afresh
+            assert not (await direct.write_registers(TARGET, list(pack_int32(123_000)),
+                                                     device_id=1)).isError()  # fmt: skip
+            assert not (await direct.write_register(0x6002, 0x10, device_id=1)).isError()
+            caplog.clear()
+            with caplog.at_level(logging.INFO, logger="gateway.app"):
+                async with gateway(tmp_path, sim.tcp_port) as (app, master):
+                    assert "axis X: the drive holds target 123000" in caplog.text
+                    assert await read32(master, 1, FEEDBACK) == 123_000  # raw: not applied
+                    assert await read32(master, 2, FEEDBACK) == 40_000  # Y carried on
+
+            # a damaged file: logged, fresh, serving
+            state.write_text("{not json")
+            caplog.clear()
+            with caplog.at_level(logging.WARNING, logger="gateway.state_store"):
+                async with gateway(tmp_path, sim.tcp_port) as (app, master):
+                    assert "unreadable, starting afresh" in caplog.text
+                    await move(master, 2, 60_000)  # the first move: home_direction (+)
+                    assert await read32(direct, 2, TARGET) == 60_000 + B_PULSES
+            assert json.loads(state.read_text())["axes"]["Y"]["last_nominal_pulses"] == 60_000
+            direct.close()
+
+    run(body())
+
