@@ -214,7 +214,7 @@ class GatewayApp:
     def reload(self, config: GatewayConfig, chain: Chain) -> None:
         """Swap tables and per-axis settings between transactions.
 
-        Listeners, buses, thermal sources and the metrics endpoint stay as they are:
+        Listeners, buses, thermal sources, the metrics endpoint and the state file stay:
         changing those sections needs a restart, and is refused here with a log line.
         """
         fixed = ("upstream", "buses", "thermal_sources", "metrics", "state_file")
