@@ -433,10 +433,24 @@ def bus_silence_s(config: GatewayConfig, bus: str) -> float:
     return max([config.buses[bus].min_silence_s, *needs])
 
 
+#: a drive unit above this (mm) leaves a rounding error worth a warning on a corrected axis
+COARSE_UNIT_MM = 0.0005
+
+
 def warnings(config: GatewayConfig) -> list[str]:
     """Things that load but a user should act on (EEPROM wear, unverified profiles)."""
     out = []
     for name, axis in config.axes.items():
+        unit_mm = axis.pulse_mm / axis.command_scale
+        comp = axis.compensation
+        corrects = comp.pitch is not None or comp.backlash_mm > 0 or comp.thermal is not None \
+            or comp.cyclic is not None or (config.planar is not None and name in config.planar.axes)
+        if corrects and not axis.rotary and unit_mm > COARSE_UNIT_MM:
+            out.append(
+                f"axes.{name}: corrections land to whole drive units of {unit_mm * 1000:g} µm "
+                f"(up to ±{unit_mm * 500:g} µm of rounding); gear the drive finer and set "
+                "command_scale (README, \"Resolution first\")"
+            )
         if axis.profile is None:
             continue
         profile = PROFILES[axis.profile]

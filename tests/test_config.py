@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from gateway.config import ConfigError, load_config, parse_config
+from gateway.config import ConfigError, load_config, parse_config, warnings
 
 BASE = {
     "upstream": {"tcp": {"host": "127.0.0.1", "port": 5020}},
@@ -164,3 +164,17 @@ def test_check_exits_1_naming_the_field(tmp_path: Path, capsys, path, value, mes
     err = capsys.readouterr().err
     assert err.count("\n") == 1
     assert re.search(message, err), err
+
+
+def test_check_warns_when_corrections_are_rounded_to_coarse_drive_units():
+    data = copy.deepcopy(BASE)  # 1 µm pulses, backlash compensation on X
+    found = [w for w in warnings(parse_config(copy.deepcopy(data))) if "drive units" in w]
+    assert found == ["axes.X: corrections land to whole drive units of 1 µm (up to ±0.5 µm of "
+                     'rounding); gear the drive finer and set command_scale (README, '
+                     '"Resolution first")']  # fmt: skip
+    data["axes"]["X"]["command_scale"] = 10
+    data["axes"]["X"]["registers"]["feedback"]["upstream_counts_per_pulse"] = 1
+    assert not [w for w in warnings(parse_config(copy.deepcopy(data))) if "drive units" in w]
+    data = copy.deepcopy(BASE)
+    data["axes"]["X"]["compensation"] = {}  # nothing corrected: nothing to round
+    assert not [w for w in warnings(parse_config(data)) if "drive units" in w]
