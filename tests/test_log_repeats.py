@@ -32,7 +32,7 @@ def test_a_flood_of_one_warning_is_held_back_and_counted() -> None:
     clock = Clock()
     log, out = capture(clock)
     for i in range(50):
-        log.warning("refused Modbus TCP client %s: %s", f"10.0.0.{i}", "not allowed")
+        log.warning("refused Modbus TCP client %s: %s", f"127.0.9.{i}", "not allowed")
         log.warning("write to unit %d refused", 1)  # another kind: its own budget
         log.info("idle for %d s", i)  # below WARNING: never held back
     lines = out.getvalue().splitlines()
@@ -40,15 +40,15 @@ def test_a_flood_of_one_warning_is_held_back_and_counted() -> None:
     assert sum("write to unit 1 refused" in ln for ln in lines) == 3
     assert sum(ln.startswith("INFO") for ln in lines) == 50
     clock.t_s += 59.9
-    log.warning("refused Modbus TCP client %s: %s", "10.0.0.99", "not allowed")
-    assert "10.0.0.99" not in out.getvalue()  # still the same window
+    log.warning("refused Modbus TCP client %s: %s", "127.0.9.99", "not allowed")
+    assert "127.0.9.99" not in out.getvalue()  # still the same window
     clock.t_s += 0.2
-    log.warning("refused Modbus TCP client %s: %s", "10.0.0.98", "not allowed")
+    log.warning("refused Modbus TCP client %s: %s", "127.0.9.98", "not allowed")
     last = out.getvalue().splitlines()[-1]
-    assert last == ("WARNING refused Modbus TCP client 10.0.0.98: not allowed "
+    assert last == ("WARNING refused Modbus TCP client 127.0.9.98: not allowed "
                     "(48 more like this held back)")
-    log.warning("refused Modbus TCP client %s: %s", "10.0.0.97", "not allowed")
-    assert out.getvalue().splitlines()[-1].endswith("10.0.0.97: not allowed")  # count reset
+    log.warning("refused Modbus TCP client %s: %s", "127.0.9.97", "not allowed")
+    assert out.getvalue().splitlines()[-1].endswith("127.0.9.97: not allowed")  # count reset
 
 
 def test_the_daemons_log_handler_holds_repeats_back() -> None:
