@@ -44,15 +44,25 @@ class AxisState:
         }
 
     def restore(self, saved: dict[str, Any]) -> None:
-        """Take back :meth:`saved` (the caller checked the drive still holds that command)."""
-        self.last_nominal_pulses = int(saved["last_nominal_pulses"])
-        self.last_command_units = int(saved["last_command_units"])
+        """Take back :meth:`saved` (the caller checked the drive still holds that command).
+        All or nothing: a bad entry raises (KeyError, TypeError, ValueError) and changes
+        nothing."""
+        nominal = int(saved["last_nominal_pulses"])
+        command = int(saved["last_command_units"])
         last = saved["last_target_pulses"]
-        self.motion = MotionState(int(saved["direction"]), None if last is None else int(last))
-        self.shadow = [int(w) & 0xFFFF for w in saved["shadow"]][:2]
+        if saved["direction"] not in (1, -1):
+            raise ValueError(f"direction {saved['direction']!r} is not 1 or -1")
+        motion = MotionState(int(saved["direction"]), None if last is None else int(last))
+        shadow = [int(w) & 0xFFFF for w in saved["shadow"]]
+        if len(shadow) != 2:
+            raise ValueError(f"shadow {saved['shadow']!r} is not two words")
+        applied = saved["applied"]
+        if not isinstance(applied, bool):
+            raise TypeError(f"applied {applied!r} is not true or false")
+        self.last_nominal_pulses, self.last_command_units = nominal, command
+        self.motion, self.shadow, self.applied = motion, shadow, applied
         self.shadow_known = True
         self.halves_written.clear()
-        self.applied = bool(saved["applied"])
 
     def write_words(self, offset: int, words: list[int]) -> None:
         """Record master writes of target words (offset 0 or 1 within the pair)."""

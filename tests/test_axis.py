@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import json
+
+import pytest
+
 from gateway.axis import AxisState, overlap
 from gateway.compensation import MotionState
 from gateway.frames import pack_int32
@@ -33,3 +37,21 @@ def test_overlap_of_a_read_with_the_pair():
     assert list(overlap(0x6202, 4, 0x6201)) == [1]
     assert list(overlap(0x6200, 2, 0x6201)) == [0]
     assert list(overlap(0x6203, 2, 0x6201)) == []
+
+
+def test_saved_state_round_trips_and_a_bad_entry_changes_nothing():
+    state = AxisState(MotionState(1))
+    state.write_words(0, [4, 0x93E0])
+    state.committed(300_000, 2_999_879)
+    state.applied = True
+    saved = json.loads(json.dumps(state.saved()))  # through the file's format
+    again = AxisState(MotionState(-1))
+    again.restore(saved)
+    assert again.saved() == state.saved() and again.shadow_known
+    for key, bad in (("direction", 0), ("shadow", [1]), ("applied", "yes"),
+                     ("last_command_units", None), ("last_nominal_pulses", "x")):
+        fresh = AxisState(MotionState(-1))
+        before = fresh.saved()
+        with pytest.raises((KeyError, TypeError, ValueError)):
+            fresh.restore({**saved, key: bad})
+        assert fresh.saved() == before and not fresh.shadow_known
