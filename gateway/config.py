@@ -126,9 +126,15 @@ class FeedbackRegister(Model):
 
 
 class StatusRegister(Model):
+    """The drive's status word. ``homed_bit``: compensation only while it is set.
+    ``max_age_s``: how old a status word (seen in the master's polls or read by compgw)
+    may be to decide "homed" at a target write; older, compgw reads it first (one more
+    drive transaction per move when the master does not poll the status)."""
+
     address: Address
     table: Literal["holding", "input"] = "holding"
     homed_bit: Bit | None = None
+    max_age_s: float = Field(default=0.5, ge=0.0, le=60.0)
 
 
 class TriggerRegister(Model):

@@ -76,9 +76,6 @@ log = logging.getLogger(__name__)
 DeltaA = Callable[[str], float | None]
 Finish = Callable[[bytes], bytes]  # the drive's reply -> the reply to the master
 
-#: a status word read by the master this recently decides "homed" without a new read (s)
-STATUS_FRESH_S = 0.5
-
 #: read plans kept per setup (the cache is emptied when full: a master reading ever
 #: new ranges costs a recomputation, never memory)
 READ_PLANS_MAX = 1024
@@ -560,16 +557,16 @@ class Gateway:
     async def _homed(self, name: str, axis: Axis) -> bool:
         """Whether the drive reports homed (True when no homed bit is configured).
 
-        The status word is taken from the master's own status reads when one passed
-        through in the last :data:`STATUS_FRESH_S` (a master polls it to see a move end),
-        otherwise read from the drive now: no extra transaction on a busy line, and never
-        a stale answer.
+        The status word is taken from the master's own status reads (a master polls it to
+        see a move end) or the gateway's last read when not older than the status
+        register's ``max_age_s`` (0.5 s), otherwise read from the drive now: no extra
+        transaction on a busy line, and never an answer older than that.
         """
         status = axis.registers.status
         if status is None or status.homed_bit is None:
             return True
         runtime = self._axes[name]
-        if time.monotonic() - runtime.status_at_s > STATUS_FRESH_S or runtime.status_word is None:
+        if time.monotonic() - runtime.status_at_s > status.max_age_s or runtime.status_word is None:
             fc = READ_HOLDING_REGISTERS if status.table == "holding" else READ_INPUT_REGISTERS
             request = build_read_request(fc, status.address, 1)
             reply = await self.buses[axis.bus].transact(axis.unit, request)

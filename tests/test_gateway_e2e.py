@@ -208,6 +208,30 @@ def test_homing_makes_the_next_move_the_first_after_homing(tmp_path: Path):
     run(body())
 
 
+@pytest.mark.parametrize(("max_age_s", "per_move"), [(0.0, 3), (30.0, 2)])
+def test_status_max_age_decides_when_the_homed_check_reads_the_drive(
+    tmp_path: Path, max_age_s: float, per_move: int
+):
+    """A target write needs "homed": a status word older than ``max_age_s`` costs one more
+    drive transaction per move (status read + target + trigger), a fresh one does not."""
+
+    def edit(data):
+        with_pitch(data)
+        data["axes"]["X"]["registers"]["status"]["max_age_s"] = max_age_s
+
+    async def body():
+        async with rig(tmp_path, edit, {"x.csv": PITCH_X}) as r:
+            master, bus = r["master"], r["app"].buses["line1"]
+            await move(master, 1, 100_000)  # the first move reads the status (none seen)
+            before = bus.counters.transactions
+            for target in (200_000, 300_000, 400_000):
+                await move(master, 1, target)
+            assert bus.counters.transactions - before == 3 * per_move
+            assert r["app"].gateway.axis_state("X").applied
+
+    run(body())
+
+
 def test_not_homed_means_uncorrected(tmp_path: Path):
     """Compensation applies only while the drive reports homed."""
 
