@@ -25,14 +25,6 @@ from .compensation import Chain
 from .config import Bus as BusConfig
 from .config import ConfigError, GatewayConfig, bus_silence_s, load_config
 from .downstream import Bus, RtuBus, TcpBus
-from .frames import (
-    READ_HOLDING_REGISTERS,
-    ModbusError,
-    build_read_request,
-    is_exception,
-    parse_read_registers_response,
-    unpack_int32,
-)
 from .metrics import MetricsServer
 from .metrics import build as build_metrics
 from .router import Gateway
@@ -133,7 +125,7 @@ class GatewayApp:
             if not await bus.connect():
                 log.warning("bus %s is down at start; requests get 0x0A until it is back", name)
         if self.state_store is not None:
-            await self.restore_state(self.state_store)
+            await self.gateway.carry_on(self.state_store.load())
             self.gateway.on_state_change = self.state_store.changed
         if len(self.sensors):
             self._sensor_task = asyncio.create_task(self.sensors.run(self._stop_sensors))
@@ -181,35 +173,6 @@ class GatewayApp:
             await bus.close()
         if self.state_store is not None:
             self.state_store.flush()
-
-    async def restore_state(self, store: StateStore) -> None:
-        """Take back each saved axis whose drive still holds the saved command (else the
-        axis starts afresh: the drive was moved, or rewritten, while compgw was down)."""
-        for name, saved in store.load().items():
-            axis = self.config.axes.get(name)
-            if axis is None:
-                continue
-            try:
-                if int(saved["command_scale"]) != axis.command_scale:
-                    log.info("axis %s: saved state has another command_scale: starting afresh",
-                             name)  # fmt: skip
-                    continue
-                target = axis.registers.target
-                reply = await self.buses[axis.bus].transact(
-                    axis.unit, build_read_request(READ_HOLDING_REGISTERS, target.address, 2))
-                if is_exception(reply):
-                    raise ModbusError(f"drive answered exception 0x{reply[1]:02X}")
-                held = unpack_int32(parse_read_registers_response(reply), target.order)
-                if held != saved["last_command_units"]:
-                    log.info("axis %s: the drive holds target %d, not the saved %s: starting "
-                             "afresh", name, held, saved["last_command_units"])  # fmt: skip
-                    continue
-                self.gateway.restore_axis(name, saved)
-            except (ModbusError, KeyError, TypeError, ValueError) as exc:
-                log.warning("axis %s: saved state not used: %s", name, exc)
-                continue
-            log.info("axis %s: carried on from the state file: nominal %s, drive command %s",
-                     name, saved["last_nominal_pulses"], held)  # fmt: skip
 
     def reload(self, config: GatewayConfig, chain: Chain) -> None:
         """Swap tables and per-axis settings between transactions.

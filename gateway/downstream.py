@@ -27,7 +27,12 @@ from .frames import (
     GATEWAY_PATH_UNAVAILABLE,
     GATEWAY_TARGET_NO_RESPONSE,
     MAX_PDU_BYTES,
+    READ_HOLDING_REGISTERS,
+    READ_INPUT_REGISTERS,
     ModbusError,
+    build_read_request,
+    is_exception,
+    parse_read_registers_response,
     response_matches,
     rtu_encode,
     rtu_response_length,
@@ -181,6 +186,22 @@ class Bus(ABC):
             return await self._transact_locked(unit_id, pdu)
         finally:
             self._queue.release()
+
+    async def read_registers(self, unit_id: int, table: str, address: int, count: int
+                             ) -> list[int]:
+        """``count`` holding or input registers of a drive (the gateway's own reads).
+        Raises :class:`ModbusError` when the drive answers an exception or the wrong
+        number of words, besides what :meth:`transact` raises."""
+        fc = READ_HOLDING_REGISTERS if table == "holding" else READ_INPUT_REGISTERS
+        reply = await self.transact(unit_id, build_read_request(fc, address, count))
+        if is_exception(reply):
+            raise ModbusError(f"{self.name}: unit {unit_id} refused the read of "
+                              f"0x{address:04X}", reply[1])  # fmt: skip
+        words = parse_read_registers_response(reply)
+        if len(words) != count:
+            raise ModbusError(f"{self.name}: unit {unit_id} answered {len(words)} words, "
+                              f"not {count}")  # fmt: skip
+        return words
 
     def submit(self, unit_id: int, pdu: bytes, done: Done) -> bool:
         """Start ``transact(unit_id, pdu)`` without a task when the bus can send at once

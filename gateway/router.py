@@ -182,9 +182,33 @@ class Gateway:
             out[name] = {**state.saved(), "command_scale": scale}
         return out
 
-    def restore_axis(self, name: str, saved: dict[str, object]) -> None:
-        """Carry on from a saved state (the drive was checked to hold its command)."""
-        self._axes[name].state.restore(saved)
+    async def carry_on(self, saved_axes: dict[str, dict[str, object]]) -> None:
+        """Take back each saved axis (:meth:`saved_axes` of an earlier process) whose drive
+        still holds the saved command; any other axis starts afresh (its drive was moved
+        or rewritten while compgw was down, or the entry is unusable). Logged per axis."""
+        for name, saved in saved_axes.items():
+            axis = self.setup.config.axes.get(name)
+            if axis is None:
+                continue
+            try:
+                if saved.get("command_scale") != axis.command_scale:
+                    log.info("axis %s: saved state has another command_scale: starting afresh",
+                             name)  # fmt: skip
+                    continue
+                target = axis.registers.target
+                words = await self.buses[axis.bus].read_registers(
+                    axis.unit, "holding", target.address, 2)
+                held = unpack_int32(words, target.order)
+                if held != saved["last_command_units"]:
+                    log.info("axis %s: the drive holds target %d, not the saved %s: starting "
+                             "afresh", name, held, saved["last_command_units"])  # fmt: skip
+                    continue
+                self._axes[name].state.restore(saved)
+            except (ModbusError, KeyError, TypeError, ValueError) as exc:
+                log.warning("axis %s: saved state not used: %s", name, exc)
+                continue
+            log.info("axis %s: carried on from the state file: nominal %s, drive command %s",
+                     name, saved["last_nominal_pulses"], held)  # fmt: skip
 
     def last_correction_mm(self, name: str) -> float:
         return self._axes[name].last_correction_mm
@@ -567,12 +591,9 @@ class Gateway:
             return True
         runtime = self._axes[name]
         if time.monotonic() - runtime.status_at_s > status.max_age_s or runtime.status_word is None:
-            fc = READ_HOLDING_REGISTERS if status.table == "holding" else READ_INPUT_REGISTERS
-            request = build_read_request(fc, status.address, 1)
-            reply = await self.buses[axis.bus].transact(axis.unit, request)
-            if is_exception(reply):
-                raise ModbusError("drive refused the status read", reply[1])
-            self._saw_status(name, parse_read_registers_response(reply)[0])
+            bus = self.buses[axis.bus]
+            words = await bus.read_registers(axis.unit, status.table, status.address, 1)
+            self._saw_status(name, words[0])
         assert runtime.status_word is not None
         return bool(runtime.status_word >> status.homed_bit & 1)
 

@@ -76,7 +76,7 @@ def test_a_restarted_gateway_carries_on(tmp_path: Path, caplog: pytest.LogCaptur
             assert saved["Y"]["direction"] == -1 and saved["Y"]["last_nominal_pulses"] == 50_000
 
             # a new process: feedback is the nominal at once, Y keeps going −
-            with caplog.at_level(logging.INFO, logger="gateway.app"):
+            with caplog.at_level(logging.INFO, logger="gateway.router"):
                 async with gateway(tmp_path, sim.tcp_port) as (app, master):
                     assert "axis X: carried on from the state file" in caplog.text
                     assert await read32(master, 1, FEEDBACK) == 300_000
@@ -90,7 +90,7 @@ def test_a_restarted_gateway_carries_on(tmp_path: Path, caplog: pytest.LogCaptur
                                                      device_id=1)).isError()  # fmt: skip
             assert not (await direct.write_register(0x6002, 0x10, device_id=1)).isError()
             caplog.clear()
-            with caplog.at_level(logging.INFO, logger="gateway.app"):
+            with caplog.at_level(logging.INFO, logger="gateway.router"):
                 async with gateway(tmp_path, sim.tcp_port) as (app, master):
                     assert "axis X: the drive holds target 123000" in caplog.text
                     assert await read32(master, 1, FEEDBACK) == 123_000  # raw: not applied
