@@ -16,6 +16,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 from .config_types import (
     Address,
     Bit,
+    Interval,
     Port,
     Positive,
     UnitId,
@@ -226,7 +227,7 @@ class Axis(Model):
     profile: str | None = None
     pulse_mm: Positive
     rotary: bool = False
-    travel_mm: tuple[float, float]
+    travel_mm: Interval
     home_direction: Literal[1, -1] = 1
     registers: Registers
     fc16_max_words: Annotated[int, in_range(2, 123)] = 123
@@ -244,13 +245,6 @@ class Axis(Model):
         if name not in PROFILES:
             raise ValueError(f"profile: {name!r} is not one of {profile_names()}")
         return merge_defaults(PROFILES[name].defaults(), data)
-
-    @field_validator("travel_mm")
-    @classmethod
-    def _ordered(cls, value: tuple[float, float]) -> tuple[float, float]:
-        if not value[0] < value[1]:
-            raise ValueError(f"[{value[0]:g}, {value[1]:g}] must be [low, high] with low < high")
-        return value
 
     @model_validator(mode="after")
     def _fits_int32(self) -> Axis:
@@ -322,18 +316,11 @@ class ThermalSource(Model):
     reference_c: float = 20.0
     poll_s: float = Field(default=1.0, gt=0.0, le=3600.0)
     smoothing: float = Field(default=0.3, gt=0.0, le=1.0)
-    range_mm: tuple[float, float] = (-0.5, 0.5)
+    range_mm: Interval = (-0.5, 0.5)
     max_rate_mm_s: float = Field(default=0.01, gt=0.0)
     noise_mm: float | None = Field(default=None, ge=0.0)
     hold_s: float = Field(default=30.0, ge=0.0)
     fallback: Literal["hold", "zero", "disable"] = "hold"
-
-    @field_validator("range_mm")
-    @classmethod
-    def _range_ordered(cls, value: tuple[float, float]) -> tuple[float, float]:
-        if not value[0] < value[1]:
-            raise ValueError(f"[{value[0]:g}, {value[1]:g}] must be [low, high] with low < high")
-        return value
 
     @model_validator(mode="after")
     def _scales(self) -> ThermalSource:

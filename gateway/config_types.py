@@ -33,6 +33,12 @@ def _greater_than_zero(value: float) -> float:
     return value
 
 
+def _low_below_high(value: tuple[float, float]) -> tuple[float, float]:
+    if not value[0] < value[1]:
+        raise ValueError(f"[{value[0]:g}, {value[1]:g}] must be [low, high] with low < high")
+    return value
+
+
 Address = Annotated[int, in_range(0, 0xFFFF)]
 Word = Annotated[int, in_range(0, 0xFFFF)]
 Port = Annotated[int, in_range(0, 65535)]
@@ -41,6 +47,7 @@ Bit = Annotated[int, in_range(0, 15)]
 Positive = Annotated[float, AfterValidator(_greater_than_zero)]
 PositiveFloat = Annotated[float, Field(gt=0)]
 NonNegFloat = Annotated[float, Field(ge=0)]
+Interval = Annotated[tuple[float, float], AfterValidator(_low_below_high)]  # [low, high]
 WordOrder = Literal["hi_lo", "lo_hi"]
 
 

@@ -20,6 +20,7 @@ from sim.config import RtuConfig
 from sim.config import parse_config as parse_sim_config
 from sim.server import SimServer
 from tests.conftest import PtyPair
+from tests.test_sim_support import example_dict
 
 ROOT = Path(__file__).resolve().parent.parent
 SIM_EXAMPLE = ROOT / "config" / "example-sim.yaml"
@@ -83,9 +84,7 @@ async def rig(
     ``upstream="rtu"`` makes ``master`` an RTU client on a pty to the gateway.
     ``direct`` is always TCP to the sim (the drive's truth, the instruments).
     """
-    sim_data = yaml.safe_load(SIM_EXAMPLE.read_text())
-    for sim_axis in sim_data["sim"]["axes"].values():
-        sim_axis["pulse_mm"] = 0.001  # as the rig's gateway axes (axis_config)
+    sim_data = example_dict()  # 1 µm pulses, as the rig's gateway axes (axis_config)
     if sim_edit is not None:
         sim_edit(sim_data)
     sim_cfg = parse_sim_config(sim_data, SIM_EXAMPLE.parent)

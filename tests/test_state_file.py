@@ -16,20 +16,17 @@ from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import GatewayApp, load
 from gateway.frames import pack_int32
-from sim.config import parse_config as parse_sim_config
 from sim.server import SimServer
-from tests.gateway_rig import FEEDBACK, SIM_EXAMPLE, TARGET, base_config
+from tests.gateway_rig import FEEDBACK, TARGET, base_config
 from tests.helpers_modbus import wait_for_condition
 from tests.test_gateway_e2e import PITCH_X, move, read32, run
+from tests.test_sim_support import config_from, example_dict
 
 B_PULSES = 5  # half of Y's 0.01 mm backlash, in 1 µm pulses
 
 
 def sim_config():
-    data = yaml.safe_load(SIM_EXAMPLE.read_text())
-    for axis in data["sim"]["axes"].values():
-        axis["pulse_mm"] = 0.001
-    return parse_sim_config(data, SIM_EXAMPLE.parent)
+    return config_from(example_dict())  # 1 µm pulses, as base_config's axes
 
 
 @contextlib.asynccontextmanager
