@@ -39,29 +39,14 @@ from gateway.calibration.plans import (
 )
 from gateway.calibration.rawdata import read_raw_csv
 from gateway.calibration.session import planar_figures
-from gateway.cli import build_parser, main
+from gateway.cli import build_parser
 from gateway.compensation import PitchTable
 from gateway.formats import read_pitch_csv, write_pitch_csv
-from tests.test_calibration_rig import Bench, example_config, without
+from tests.test_calibration_rig import Bench, compgw, example_config, ok, without
 
 #: dense (a quarter of the 10 mm lead: the sim's once-per-lead error is followed), uneven
 ISO_ID = ["--step-mm", "2.5", "--lead-mm", "10", "--overrun-mm", "1"]
 RUNS = {"X": "5", "Y": "5"}
-
-
-def compgw(*args: object) -> tuple[int, str]:
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        rc = main([str(a) for a in args])
-    return rc, out.getvalue()
-
-
-def ok(*args: object) -> str:
-    t0 = time.monotonic()
-    rc, out = compgw(*args)
-    print(f"  {time.monotonic() - t0:5.2f} s  compgw {' '.join(str(a) for a in args[:4])}")
-    assert rc == 0, (args, out)
-    return out
 
 
 def iso_figures(path: Path) -> dict[str, dict[str, float]]:
@@ -293,7 +278,7 @@ def test_interrupted_run_resumes_and_loses_nothing(flow):
 
 def test_report_of_before_and_after(flow, tmp_path):
     d = flow["dir"]
-    rc, out = compgw("report", d / "X_after.csv", "--json")
+    rc, out, _ = compgw("report", d / "X_after.csv", "--json")
     assert rc == 0
     data = json.loads(out)
     assert data["X"]["E_um"] == pytest.approx(flow["X_after"]["E_um"])

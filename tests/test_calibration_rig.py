@@ -7,8 +7,11 @@ Configs switch by reload (same listeners, buses and thermal sources), like SIGHU
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import copy
+import io
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +19,7 @@ import yaml
 from pymodbus.client import ModbusTcpClient
 
 from gateway.app import GatewayApp, load
+from gateway.cli import main as cli_main
 from gateway.sensors import ThermalState
 from sim.config import load_config as load_sim_config
 from sim.server import SimServer
@@ -50,6 +54,23 @@ def without(data: dict[str, Any], *stages: str) -> dict[str, Any]:
     if "planar" in stages:
         data.pop("planar", None)
     return data
+
+
+def compgw(*args: object) -> tuple[int, str, str]:
+    """``compgw ARGS`` in this process: (exit code, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = cli_main([str(a) for a in args])
+    return rc, out.getvalue(), err.getvalue()
+
+
+def ok(*args: object) -> str:
+    """``compgw ARGS`` that must succeed; prints its duration; returns its stdout."""
+    t0 = time.monotonic()
+    rc, out, err = compgw(*args)
+    print(f"  {time.monotonic() - t0:5.2f} s  compgw {' '.join(str(a) for a in args[:4])}")
+    assert rc == 0, (args, out, err)
+    return out
 
 
 class Bench:

@@ -10,8 +10,6 @@ table's points, not the sim's 0.3 µm repeatability per stop (as tests/test_cycl
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import time
 from pathlib import Path
@@ -22,30 +20,14 @@ import pytest
 
 from gateway.calibration.plans import Move, Plan, read_plan, write_plan
 from gateway.calibration.rawdata import read_raw_csv
-from gateway.cli import main
 from gateway.formats import read_cyclic
-from tests.test_calibration_rig import Bench, example_config, without
+from tests.test_calibration_rig import Bench, compgw, example_config, ok, without
 
 LEAD_MM = 10.0
 COARSE = ["--step-mm", "39.7", "--runs", "3", "--overrun-mm", "1"]  # 21 targets, 1..799 mm
 POSITIONS, VISITS = 500, 3
 #: the example machine's X: 1.5 µm once per 10 mm lead at phase 30° (config/example-sim.yaml)
 TRUE_AMPLITUDE_UM, TRUE_PHASE_DEG = 1.5, 30.0
-
-
-def compgw(*args: object) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = main([str(a) for a in args])
-    return rc, out.getvalue(), err.getvalue()
-
-
-def ok(*args: object) -> str:
-    t0 = time.monotonic()
-    rc, out, err = compgw(*args)
-    print(f"  {time.monotonic() - t0:5.2f} s  compgw {' '.join(str(a) for a in args[:4])}")
-    assert rc == 0, (args, out, err)
-    return out
 
 
 def off_grid_plan(axis: str) -> Plan:
