@@ -20,6 +20,7 @@ import ctypes
 import ctypes.util
 import logging
 import os
+import select
 import sys
 import time
 from collections.abc import Callable
@@ -32,6 +33,18 @@ from .frames import find_rtu_frame
 log = logging.getLogger(__name__)
 
 MAX_BUFFER_BYTES = 1024  # beyond this the oldest bytes are garbage by construction
+#: empty reads in a row after which a port that keeps reporting readable is taken as gone
+#: (pyserial's rule for a disconnected device, which never reports a hang-up)
+MAX_EMPTY_READS = 100
+
+
+def _hung_up(fd: int) -> bool:
+    """True if the tty behind ``fd`` reports a hang-up or an error (USB adapter unplugged,
+    the other end of a pty closed)."""
+    poller = select.poll()
+    poller.register(fd, select.POLLIN)
+    return any(ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL)
+               for _, ev in poller.poll(0))
 PRECISE_BELOW_S = 0.02  # waits shorter than this use the exact timer (when available)
 
 T35Mode = Literal["spec", "exact"]
@@ -223,6 +236,8 @@ class SerialLine:
         self.last_rx_s = 0.0  # time.monotonic() of the last byte received
         self.tx_end_s = 0.0  # estimated end of our last transmission on the wire
         self.garbage_bytes = 0
+        self.spurious_wakeups = 0  # readable, then nothing to read (not a loss)
+        self._empty_reads = 0  # in a row
         self.lost = False
 
     # ------------------------------------------------------------------ open/close
@@ -242,6 +257,7 @@ class SerialLine:
         self._fd = ser.fileno()
         os.set_blocking(self._fd, False)
         self._buf.clear()
+        self._empty_reads = 0
         self.lost = False
         asyncio.get_running_loop().add_reader(self._fd, self._on_readable)
         if self._timer is None:
@@ -281,10 +297,16 @@ class SerialLine:
             log.warning("serial %s lost: %s", self.port, err)
             self.close()
             return
-        if not data:
-            log.warning("serial %s lost: end of file", self.port)
-            self.close()
+        if not data:  # with VMIN=0 an empty read means "nothing there", not end of file
+            self._empty_reads += 1
+            if _hung_up(self._fd) or self._empty_reads >= MAX_EMPTY_READS:
+                log.warning("serial %s lost: hung up (ready to read, nothing to read)",
+                            self.port)
+                self.close()
+            else:  # a tty's wake-up without data (seen on ptys); keep the line
+                self.spurious_wakeups += 1
             return
+        self._empty_reads = 0
         self._buf += data
         if len(self._buf) > MAX_BUFFER_BYTES:
             drop = len(self._buf) - MAX_BUFFER_BYTES // 4

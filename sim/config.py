@@ -61,14 +61,24 @@ class TcpConfig(_Model):
     port: Annotated[int, _in_range(0, 65535)] = 5021
 
 
+#: ``rtu.port`` value: the sim opens a new pseudo-terminal and prints its path
+PTY_PORT = "pty"
+
+
 class RtuConfig(_Model):
     """Modbus RTU on a serial port (a pty in tests; a pty ignores the baud rate)."""
 
+    #: a serial device, or ``pty``: a new pseudo-terminal whose path ``compgw sim`` prints
+    #: ("modbus rtu on /dev/pts/N"), for a master (the gateway) to open as its port
     port: str
     baudrate: PositiveFloat = 115200
     parity: Literal["N", "E", "O"] = "E"
     stopbits: Literal[1, 2] = 1
     bytesize: Literal[7, 8] = 8
+    #: line silence the drives keep after a request before they reply, in s. 0: at once,
+    #: faster than any real drive; 0.00175: a Modbus slave that finds the end of a request by
+    #: t3.5 of silence (1.75 ms above 19200 baud), as the spec describes.
+    reply_silence_s: Annotated[float, _in_range(0, 1)] = 0.0
 
 
 # ---------------------------------------------------------------- drive registers

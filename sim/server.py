@@ -22,9 +22,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import signal
 import sys
 import time
+import tty
 from collections.abc import Callable
 from pathlib import Path
 
@@ -32,7 +34,7 @@ import serial
 from pymodbus.framer import FramerRTU, FramerSocket
 from pymodbus.pdu import DecodePDU
 
-from sim.config import RtuConfig, SimConfig, SimConfigError, TcpConfig, load_config
+from sim.config import PTY_PORT, RtuConfig, SimConfig, SimConfigError, TcpConfig, load_config
 from sim.pdu import GATEWAY_NO_RESPONSE, exception_pdu
 from sim.simulation import Reply, Simulation
 
@@ -90,8 +92,7 @@ class SimServer:
                 self.tcp_port = self._tcp_server.sockets[0].getsockname()[1]
             if cfg.rtu is not None:
                 self._rtu = _RtuLine(cfg.rtu, self.sim)
-                self._rtu.open()
-                self.rtu_port = cfg.rtu.port
+                self.rtu_port = self._rtu.open()
         except BaseException:
             await self.stop()
             raise
@@ -164,6 +165,40 @@ class SimServer:
         await writer.drain()
 
 
+class _PtyPort:
+    """The drives' end of a new pseudo-terminal (``rtu.port: pty``): the masters open
+    :attr:`path` as their serial port, with no bridge process or thread in between. The
+    sim keeps the terminal's own end open too, so a master closing it does not hang it up."""
+
+    def __init__(self) -> None:
+        self._fd, self._keep = os.openpty()
+        tty.setraw(self._keep)
+        os.set_blocking(self._fd, False)
+        self.path = os.ttyname(self._keep)
+
+    def fileno(self) -> int:
+        return self._fd
+
+    def read(self, size: int) -> bytes:
+        try:
+            return os.read(self._fd, size)
+        except BlockingIOError:
+            return b""
+
+    def write(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            try:
+                view = view[os.write(self._fd, view):]
+            except BlockingIOError:  # the master is not reading: its input queue is full
+                return
+
+    def close(self) -> None:
+        for fd in (self._fd, self._keep):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
 class _RtuLine:
     """Modbus RTU on one serial port: one request at a time, replies in order."""
 
@@ -171,7 +206,7 @@ class _RtuLine:
         self.cfg = cfg
         self.sim = sim
         self.framer = FramerRTU(DecodePDU(is_server=True))
-        self._port: serial.Serial | None = None
+        self._port: serial.Serial | _PtyPort | None = None
         self._buffer = b""
         self._gap: asyncio.TimerHandle | None = None
         self._queue: asyncio.Queue[tuple[int, bytes, float]] = asyncio.Queue()
@@ -179,19 +214,26 @@ class _RtuLine:
         self._frame_start_s = 0.0  # when the frame being received began
         self._worker: asyncio.Task | None = None
 
-    def open(self) -> None:
-        """Open the port and start reading (raises serial.SerialException)."""
-        self._port = serial.Serial(
-            port=self.cfg.port,
-            baudrate=int(self.cfg.baudrate),
-            parity=_PARITY[self.cfg.parity],
-            stopbits=self.cfg.stopbits,
-            bytesize=self.cfg.bytesize,
-            timeout=0,
-        )
+    def open(self) -> str:
+        """Open the port and start reading (raises serial.SerialException, OSError);
+        returns the device path the masters open (for ``pty``: the new terminal's)."""
+        if self.cfg.port == PTY_PORT:
+            self._port = _PtyPort()
+            path = self._port.path
+        else:
+            self._port = serial.Serial(
+                port=self.cfg.port,
+                baudrate=int(self.cfg.baudrate),
+                parity=_PARITY[self.cfg.parity],
+                stopbits=self.cfg.stopbits,
+                bytesize=self.cfg.bytesize,
+                timeout=0,
+            )
+            path = self.cfg.port
         loop = asyncio.get_running_loop()
         loop.add_reader(self._port.fileno(), self._on_readable)
         self._worker = loop.create_task(self._work())
+        return path
 
     async def close(self) -> None:
         """Stop reading and close the port."""
@@ -250,6 +292,9 @@ class _RtuLine:
                 continue
             if reply.delay_s > 0:
                 await asyncio.sleep(reply.delay_s)
+            keep_s = self.cfg.reply_silence_s - (time.monotonic() - self._line_idle_since_s)
+            if keep_s > 0:  # a slave that needs t3.5 of silence to see the request's end
+                await asyncio.sleep(keep_s)
             frame = self.framer.encode(reply.pdu, unit, 0)
             if reply.garbage:
                 frame = self.sim.scramble(frame)

@@ -121,3 +121,27 @@ def test_same_move_is_instant_at_time_scale_0() -> None:
             return elapsed
 
     assert run(script()) < 0.5
+
+
+def test_rtu_on_its_own_pty_keeps_the_reply_silence() -> None:
+    """`rtu.port: pty`: the sim makes the terminal, a master opens the path it reports; a
+    drive that keeps t3.5 before its reply (`reply_silence_s`) never answers sooner."""
+    data = with_rtu(example_dict())
+    data["sim"]["rtu"] |= {"port": "pty", "reply_silence_s": 0.005}
+
+    async def script() -> list[float]:
+        async with SimServer(config_from(data)) as server:
+            assert server.rtu_port is not None and server.rtu_port.startswith("/dev/")
+            m = Master(await rtu_client(server.rtu_port), data)
+            gaps = []
+            for _ in range(5):
+                t0 = time.monotonic()
+                await m.feedback("X")
+                gaps.append(time.monotonic() - t0)
+            await m.move_pulses("X", 123_000)
+            assert await m.feedback("X") == 123_000
+            m.client.close()
+            return gaps
+
+    gaps = run(script())
+    assert min(gaps) >= 0.005, gaps

@@ -1,0 +1,75 @@
+"""The serial line tells a tty's empty wake-up from a hang-up: an empty read on a port that
+is still there keeps the line (closing it would flush a request in flight), a closed
+other end or a port that is ready forever with nothing to read is a loss."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+
+from gateway.frames import rtu_encode, rtu_request_length
+from gateway.serialline import MAX_EMPTY_READS, SerialLine
+from tests.helpers_modbus import PtyPair, run
+
+
+async def _until(predicate, timeout_s: float = 5.0) -> None:
+    deadline = asyncio.get_running_loop().time() + timeout_s
+    while not predicate():
+        assert asyncio.get_running_loop().time() < deadline, "condition not reached"
+        await asyncio.sleep(0.005)
+
+
+def test_empty_wakeup_keeps_the_line_and_its_bytes() -> None:
+    async def main() -> None:
+        pair = PtyPair()
+        line = SerialLine(pair.path, baudrate=115200)
+        line.open()
+        try:
+            frame = rtu_encode(1, bytes.fromhex("0300000001"))
+            pair.write(frame[:3])  # half a request is buffered ...
+            await _until(lambda: line.pending_bytes == 3)
+            line._on_readable()  # ... when the tty wakes us with nothing more to read
+            assert line.is_open and line.spurious_wakeups == 1
+            assert line.pending_bytes == 3
+            pair.write(frame[3:])
+            got = await line.read_frame(rtu_request_length, timeout_s=2.0)
+            assert got == frame
+        finally:
+            line.close()
+            pair.close()
+
+    run(main())
+
+
+def test_other_end_closed_is_a_loss() -> None:
+    async def main() -> None:
+        pair = PtyPair()
+        line = SerialLine(pair.path, baudrate=115200)
+        line.open()
+        try:
+            os.close(pair.master)  # the adapter goes away
+            await _until(lambda: not line.is_open)
+            assert line.lost
+        finally:
+            line.close()
+            pair.close()
+
+    run(main())
+
+
+def test_ready_forever_with_nothing_to_read_is_a_loss() -> None:
+    async def main() -> None:
+        pair = PtyPair()
+        line = SerialLine(pair.path, baudrate=115200)
+        line.open()
+        try:
+            for _ in range(MAX_EMPTY_READS - 1):
+                line._on_readable()
+            assert line.is_open
+            line._on_readable()
+            assert line.lost and line.spurious_wakeups == MAX_EMPTY_READS - 1
+        finally:
+            line.close()
+            pair.close()
+
+    run(main())
