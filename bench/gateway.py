@@ -71,12 +71,13 @@ from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sim.nullmodem import PtyPair
-
 ROOT = Path(__file__).resolve().parent.parent
 TABLES = ROOT / "config" / "tables"
 UNITS = tuple(range(1, 9))
 RTU_UPSTREAM_OFFSET = 10  # gateway upstream unit of RTU axis k = 10 + k
+#: rows with the drives on the RTU line: an RTU master on the gateway's RTU server (the same
+#: master program as direct, t3.5 think time included), and a TCP master (no think time)
+RTU_TRANSPORTS = ["rtu", "tcp>rtu"]
 BAUD = 115200
 T35_S = 0.00175  # Modbus: fixed 1.75 ms above 19200 baud
 TARGET = 250_000  # pulses (250 mm) written in the warm-up: the axes then have applied=True
@@ -184,9 +185,14 @@ async def _tcp_masters(spec: dict) -> dict:
 class _RtuPort:
     """The master end of a pty, raw, read with loop.add_reader."""
 
-    def __init__(self, path: str) -> None:
-        self.fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-        tty.setraw(self.fd)
+    def __init__(self, path: str | None = None, fd: int | None = None) -> None:
+        if fd is None:
+            assert path is not None
+            fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+            tty.setraw(fd)
+        else:  # the terminal end of a pty, inherited from the orchestrator
+            os.set_blocking(fd, False)
+        self.fd = fd
         self.buf = bytearray()
         self.event = asyncio.Event()
         self.last_rx = 0.0
@@ -226,7 +232,7 @@ async def _rtu_masters(spec: dict) -> dict:
     pdu = bytes.fromhex(spec["pdu"])
     n, warm, gap = spec["requests"], spec["warmup"], spec["gap_s"]
     want = reply_length(pdu)
-    port = _RtuPort(spec["device"])
+    port = _RtuPort(spec.get("device"), spec.get("fd"))
     line = asyncio.Lock()
     lat: list[float] = []
     errors = [0]
@@ -458,7 +464,7 @@ def compgw(command: str, config: Path, patch: str = "") -> list[str]:
     return [sys.executable, "-c", code, str(config)]
 
 
-def sim_config(tcp: bool, rtu_port: str | None) -> dict:
+def sim_config(tcp: bool, reply_silence_s: float = T35_S) -> dict:
     regs = {"memory": [{"address": 0x6200, "count": 16}]}
     sim: dict = {
         "seed": 1,
@@ -468,12 +474,12 @@ def sim_config(tcp: bool, rtu_port: str | None) -> dict:
     }
     if tcp:
         sim["tcp"] = {"host": "127.0.0.1", "port": 0}
-    if rtu_port:
-        sim["rtu"] = {"port": rtu_port, "baudrate": BAUD, "parity": "N", "stopbits": 1}
+    sim["rtu"] = {"port": "pty", "baudrate": BAUD, "parity": "N", "stopbits": 1,
+                  "reply_silence_s": reply_silence_s}
     return {"sim": sim}
 
 
-def gateway_config(sim_port: int, rtu_port: str) -> dict:
+def gateway_config(sim_port: int, rtu_port: str, upstream_rtu: str) -> dict:
     def axis(bus: str, unit: int, upstream: int) -> dict:
         return {
             "bus": bus, "unit": unit, "upstream_unit": upstream, "pulse_mm": 0.001,
@@ -497,7 +503,9 @@ def gateway_config(sim_port: int, rtu_port: str) -> dict:
     axes = {f"T{u}": axis(f"t{u}", u, u) for u in UNITS}
     axes |= {f"R{u}": axis("line", u, RTU_UPSTREAM_OFFSET + u) for u in UNITS}
     return {
-        "upstream": {"tcp": {"host": "127.0.0.1", "port": 0, "max_connections": 64}},
+        "upstream": {"tcp": {"host": "127.0.0.1", "port": 0, "max_connections": 64},
+                     "rtu": {"port": upstream_rtu, "baudrate": BAUD, "parity": "N",
+                             "stopbits": 1}},
         "buses": buses,
         "axes": axes,
         "status": {"upstream_unit": 247},
@@ -514,7 +522,8 @@ def _write_yaml(path: Path, data: dict) -> Path:
 def run_load(spec: dict) -> dict:
     out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--load",
                           json.dumps(spec)], capture_output=True, text=True, cwd=ROOT,
-                         timeout=spec["time_cap"] + 60)
+                         timeout=spec["time_cap"] + 60,
+                         pass_fds=(spec["fd"],) if "fd" in spec else ())
     if out.returncode != 0:
         raise RuntimeError(f"load generator failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout)
@@ -562,23 +571,30 @@ class Bench:
         self.args = args
         self.tmp = Path(tempfile.mkdtemp(prefix="compgw-bench-"))
         self.procs: dict[str, Proc] = {}
-        self.ptys: list[PtyPair] = []
+        self.keep_fds: list[int] = []
+        self.reply_s = T35_S if args.drive_reply == "t35" else 0.0
 
     # ---------------------------------------------------------------- set-up
     def start(self) -> None:
-        p1, p2 = PtyPair(), PtyPair()
-        self.ptys += [p1, p2]
-        self.gw_line, self.direct_line = p1.b, p2.b
+        # Every RTU line is one pseudo-terminal, no bridge: the sims open theirs (`port:
+        # pty`) and print the path; the gateway's upstream line is made here and its
+        # master end handed to each load generator.
+        self.master_fd, upstream_fd = os.openpty()
+        tty.setraw(upstream_fd)
+        self.keep_fds = [self.master_fd, upstream_fd]
+        self.upstream_line = os.ttyname(upstream_fd)  # the gateway's RTU server
         world = PIN_WORLD if self.args.pin else None
         sim_a = Proc("sim A", compgw("sim", _write_yaml(
-            self.tmp / "sim-a.yaml", sim_config(tcp=True, rtu_port=p1.a))), cpus=world)
+            self.tmp / "sim-a.yaml", sim_config(True, self.reply_s))), cpus=world)
         self.procs["sim"] = sim_a
         sim_b = Proc("sim B", compgw("sim", _write_yaml(
-            self.tmp / "sim-b.yaml", sim_config(tcp=False, rtu_port=p2.a))), cpus=world)
+            self.tmp / "sim-b.yaml", sim_config(False, self.reply_s))), cpus=world)
         self.procs["simB"] = sim_b
         self.sim_port = int(sim_a.wait_for(r"modbus tcp on 127\.0\.0\.1:(\d+)").group(1))
-        sim_b.wait_for(r"modbus rtu on")
-        self.gw_cfg = _write_yaml(self.tmp / "gw.yaml", gateway_config(self.sim_port, p1.b))
+        self.gw_line = sim_a.wait_for(r"modbus rtu on (\S+)").group(1)  # the gateway's bus
+        self.direct_line = sim_b.wait_for(r"modbus rtu on (\S+)").group(1)  # direct master
+        self.gw_cfg = _write_yaml(self.tmp / "gw.yaml", gateway_config(
+            self.sim_port, self.gw_line, self.upstream_line))
         self.gw_port = self.start_gateway("gw", self.gw_cfg)
 
     def start_gateway(self, name: str, cfg: Path, t35_s: float | None = None,
@@ -618,8 +634,8 @@ class Bench:
     def stop(self) -> None:
         for name in reversed(list(self.procs)):
             self.procs[name].stop()
-        for pty in self.ptys:
-            pty.close()
+        for fd in self.keep_fds:
+            os.close(fd)
         shutil.rmtree(self.tmp, ignore_errors=True)
 
     # ---------------------------------------------------------------- measuring
@@ -640,12 +656,16 @@ class Bench:
             through = {**common, "kind": "tcp", "host": "127.0.0.1", "units": units,
                        "port": gw_port or self.gw_port}
             d_watch, g_watch = ("sim",), ("sim", gw_name)
-        else:
+        else:  # the drives on the RTU line; direct: a master on that line (sim B's)
             direct = {**common, "kind": "rtu", "device": self.direct_line, "units": units,
                       "gap_s": T35_S}
-            through = {**common, "kind": "tcp", "host": "127.0.0.1",
-                       "port": gw_port or self.gw_port,
-                       "units": [RTU_UPSTREAM_OFFSET + u for u in units]}
+            upstream_units = [RTU_UPSTREAM_OFFSET + u for u in units]
+            if transport == "rtu":  # the same RTU master program, on the gateway's RTU server
+                through = {**common, "kind": "rtu", "fd": self.master_fd,
+                           "units": upstream_units, "gap_s": T35_S}
+            else:  # "tcp>rtu": a TCP master, which sends at once: no t3.5 think time
+                through = {**common, "kind": "tcp", "host": "127.0.0.1",
+                           "port": gw_port or self.gw_port, "units": upstream_units}
             d_watch, g_watch = ("simB",), ("sim", gw_name)
         d, g = Side(), Side()
         half = max(requests // 2, 1)
@@ -777,7 +797,9 @@ def main(argv: list[str] | None = None) -> int:
                          "(default requests/4: the line serialises them)")
     ap.add_argument("--time-cap", type=float, default=60.0, help="seconds per measurement")
     ap.add_argument("--warmup", type=int, default=20, help="untimed requests per master")
-    ap.add_argument("--only", choices=("tcp", "rtu"))
+    ap.add_argument("--only", choices=("tcp", "rtu"),
+                    help="tcp: TCP master and drives; rtu: the drives on the RTU line, with an "
+                         "RTU master (rtu) and a TCP master (tcp>rtu) on the gateway")
     ap.add_argument("--extra", action=argparse.BooleanOptionalAction, default=None,
                     help="also the feedback-read and target-write cases (default: full run)")
     ap.add_argument("--what-if", action="store_true",
@@ -795,6 +817,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="diagnostic: the load generator and the sims on CPU 0, the gateway "
                          "on CPU 1 (a gateway on its own box), in both the direct and the "
                          "gateway runs; not the issue's measurement")
+    ap.add_argument("--drive-reply", choices=("t35", "at-once"), default="t35",
+                    help="when the RTU drives reply: after t3.5 (1.75 ms) of silence, as a "
+                         "Modbus slave that finds the request's end by silence (default), or "
+                         "at once (faster than a real drive; the gateway's own t3.5 before "
+                         "its RTU reply is then all added latency)")
     ap.add_argument("--load", help=argparse.SUPPRESS)
     ap.add_argument("--proxy", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
@@ -807,7 +834,7 @@ def main(argv: list[str] | None = None) -> int:
     rtu8 = a.rtu8_requests or max(requests // 4, 50)
     extra = (not a.quick) if a.extra is None else a.extra
     cases = [c for c in CASES if extra or not c.extra]
-    transports = [a.only] if a.only else ["tcp", "rtu"]
+    transports = {"tcp": ["tcp"], "rtu": RTU_TRANSPORTS}.get(a.only, ["tcp", *RTU_TRANSPORTS])
     bench = Bench(a)
     rows: list[Row] = []
     t_start = time.monotonic()
@@ -820,7 +847,7 @@ def main(argv: list[str] | None = None) -> int:
         for transport in transports:
             for case in cases:
                 for masters in (1, 8):
-                    n = rtu8 if transport == "rtu" and masters == 8 else requests
+                    n = rtu8 if transport in RTU_TRANSPORTS and masters == 8 else requests
                     row = bench.pair(transport, case, masters, n)
                     rows.append(row)
                     print(format_row(row), flush=True)
@@ -832,7 +859,7 @@ def main(argv: list[str] | None = None) -> int:
                 for transport in transports:
                     for case in cases[:2]:
                         for masters in (1, 8):
-                            n = rtu8 if transport == "rtu" and masters == 8 else requests
+                            n = rtu8 if transport in RTU_TRANSPORTS and masters == 8 else requests
                             row = bench.pair(transport, case, masters, n, gw_port=port,
                                              gw_name="gw-base")
                             row.note = f"baseline gateway from {a.baseline}"
@@ -856,8 +883,8 @@ def main(argv: list[str] | None = None) -> int:
                     rows.append(row)
                     print(format_row(row), flush=True)
             bench.procs.pop("ref").stop()
-        if a.what_if and "rtu" in transports:
-            exact = gateway_config(bench.sim_port, bench.gw_line)
+        if a.what_if and "tcp>rtu" in transports:
+            exact = gateway_config(bench.sim_port, bench.gw_line, bench.upstream_line)
             exact["buses"]["line"]["rtu"]["t35"] = "exact"  # the product's option
             exact_cfg = _write_yaml(bench.tmp / "gw-exact.yaml", exact)
             for t35, label in ((3.5 * 10 / BAUD, "config rtu.t35: exact at 115200 8N1"),
@@ -871,7 +898,7 @@ def main(argv: list[str] | None = None) -> int:
                     else:
                         port = bench.start_gateway("gw-t35", bench.gw_cfg, t35_s=t35)
                     for case in cases[:2]:
-                        row = bench.pair("rtu", case, 1, requests, gw_port=port,
+                        row = bench.pair("tcp>rtu", case, 1, requests, gw_port=port,
                                          gw_name="gw-t35")
                         row.note = f"what-if: gateway t3.5 = {t35 * 1e3:.2f} ms ({label})"
                         rows.append(row)
@@ -880,7 +907,7 @@ def main(argv: list[str] | None = None) -> int:
                 finally:
                     bench.procs["gw"].p.send_signal(signal.SIGCONT)
         if a.profile:
-            targets = [("tcp", CASES[0], 8), ("tcp", CASES[0], 1), ("rtu", CASES[0], 1)]
+            targets = [("tcp", CASES[0], 8), ("tcp", CASES[0], 1), ("tcp>rtu", CASES[0], 1)]
             for transport, case, masters in targets:
                 if transport in transports:
                     n = requests if masters == 1 else max(requests // 2, 100)
