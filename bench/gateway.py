@@ -386,6 +386,56 @@ async def _reference_proxy(sim_port: int) -> None:
     await stop.wait()
 
 
+class _RefRtuRelay:
+    """RTU master line to RTU drive line, one frame at a time, by length (FC03/FC16 only),
+    no CRC check, no timing rules (the bench's drives keep t3.5 themselves), no unit
+    mapping but the offset: the floor for a CPython relay between two ptys."""
+
+    def __init__(self, upstream: str, downstream: str) -> None:
+        self.up = os.open(upstream, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        self.down = os.open(downstream, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        for fd in (self.up, self.down):
+            tty.setraw(fd)
+        self.up_buf, self.down_buf = bytearray(), bytearray()
+        self.want = 0  # length of the reply awaited from the drive; 0: none
+        loop = asyncio.get_running_loop()
+        loop.add_reader(self.up, self._from_master)
+        loop.add_reader(self.down, self._from_drive)
+
+    def _from_master(self) -> None:
+        with contextlib.suppress(BlockingIOError):
+            self.up_buf += os.read(self.up, 4096)
+        buf = self.up_buf
+        if len(buf) < 7 or self.want:
+            return
+        size = 9 + buf[6] if buf[1] == 16 else 8
+        if len(buf) < size:
+            return
+        unit = buf[0] - RTU_UPSTREAM_OFFSET
+        pdu = bytes(buf[1:size - 2])
+        del buf[:size]
+        self.want = reply_length(pdu)
+        os.write(self.down, rtu_frame(unit, pdu))
+
+    def _from_drive(self) -> None:
+        with contextlib.suppress(BlockingIOError):
+            self.down_buf += os.read(self.down, 4096)
+        if not self.want or len(self.down_buf) < self.want:
+            return
+        reply = self.down_buf[:self.want]
+        del self.down_buf[:self.want]
+        self.want = 0
+        os.write(self.up, rtu_frame(reply[0] + RTU_UPSTREAM_OFFSET, bytes(reply[1:-2])))
+
+
+async def _reference_rtu_relay(upstream: str, downstream: str) -> None:
+    _RefRtuRelay(upstream, downstream)
+    print(f"reference relay on {upstream} -> {downstream}", flush=True)
+    stop = asyncio.Event()
+    asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, stop.set)
+    await stop.wait()
+
+
 # -- the orchestrator ------------------------------------------------------------------------
 
 
@@ -432,11 +482,22 @@ class Proc:
                 self._cond.wait(min(left, 0.2))
 
     def cpu_s(self) -> float:
-        """CPU time of the process (all threads), from /proc/PID/schedstat."""
-        try:
-            return int(Path(f"/proc/{self.p.pid}/schedstat").read_text().split()[0]) / 1e9
-        except (OSError, ValueError, IndexError):
-            return float("nan")
+        """CPU time of the process and of its live children (all threads; a forking
+        forwarder such as socat serves each connection in a child), from schedstat."""
+        total = 0.0
+        for proc in Path("/proc").iterdir():
+            if not proc.name.isdigit():
+                continue
+            try:  # field 5 of stat is the process group: ours (start_new_session)
+                fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()
+                if int(fields[2]) != self.p.pid:
+                    continue
+                total += int((proc / "schedstat").read_text().split()[0]) / 1e9
+                if int(proc.name) == self.p.pid:  # children that ended (cutime + cstime)
+                    total += (int(fields[13]) + int(fields[14])) / os.sysconf("SC_CLK_TCK")
+            except (OSError, ValueError, IndexError):
+                continue
+        return total if total else float("nan")
 
     def stop(self) -> None:
         if self.p.poll() is None:
@@ -645,7 +706,8 @@ class Bench:
         return result, {k: self.procs[k].cpu_s() - before[k] for k in watch}
 
     def pair(self, transport: str, case: Case, masters: int, requests: int,
-             gw_port: int | None = None, gw_name: str = "gw") -> Row:
+             gw_port: int | None = None, gw_name: str = "gw",
+             upstream_offset: int = RTU_UPSTREAM_OFFSET) -> Row:
         a = self.args
         units = list(UNITS[:masters])
         common = {"pdu": case.pdu.hex(), "warmup": a.warmup, "time_cap": a.time_cap / 2,
@@ -659,7 +721,7 @@ class Bench:
         else:  # the drives on the RTU line; direct: a master on that line (sim B's)
             direct = {**common, "kind": "rtu", "device": self.direct_line, "units": units,
                       "gap_s": T35_S}
-            upstream_units = [RTU_UPSTREAM_OFFSET + u for u in units]
+            upstream_units = [upstream_offset + u for u in units]
             if transport == "rtu":  # the same RTU master program, on the gateway's RTU server
                 through = {**common, "kind": "rtu", "fd": self.master_fd,
                            "units": upstream_units, "gap_s": T35_S}
@@ -824,11 +886,15 @@ def main(argv: list[str] | None = None) -> int:
                          "its RTU reply is then all added latency)")
     ap.add_argument("--load", help=argparse.SUPPRESS)
     ap.add_argument("--proxy", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--relay", nargs=2, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.load:
         return load_main(a.load)
     if a.proxy:
         asyncio.run(_reference_proxy(a.proxy))
+        return 0
+    if a.relay:
+        asyncio.run(_reference_rtu_relay(*a.relay))
         return 0
     requests = a.requests or (300 if a.quick else 2000)
     rtu8 = a.rtu8_requests or max(requests // 4, 50)
@@ -883,6 +949,49 @@ def main(argv: list[str] | None = None) -> int:
                     rows.append(row)
                     print(format_row(row), flush=True)
             bench.procs.pop("ref").stop()
+            socat = shutil.which("socat")
+            if socat:  # a C forwarder, a process per connection: what the machine allows
+                proc = Proc("socat-tcp", [socat, "-d", "-d", "TCP-LISTEN:0,bind=127.0.0.1,"
+                                          "reuseaddr,fork", f"TCP:127.0.0.1:{bench.sim_port}"])
+                bench.procs["socat-tcp"] = proc
+                port = int(proc.wait_for(r"listening on .*127\.0\.0\.1:(\d+)").group(1))
+                for case in cases[:2]:
+                    for masters in (1, 8):
+                        row = bench.pair("tcp", case, masters, requests, gw_port=port,
+                                         gw_name="socat-tcp")
+                        row.note = "socat byte pump (C, a process per connection)"
+                        rows.append(row)
+                        print(format_row(row), flush=True)
+                bench.procs.pop("socat-tcp").stop()
+        if reference and "rtu" in transports:  # the RTU lines are shared: gateway stopped
+            bench.procs["gw"].p.send_signal(signal.SIGSTOP)
+            try:
+                relay = Proc("relay", [sys.executable, str(Path(__file__).resolve()),
+                                       "--relay", bench.upstream_line, bench.gw_line],
+                             cpus=PIN_GATEWAY if a.pin else None)
+                bench.procs["relay"] = relay
+                relay.wait_for(r"reference relay on")
+                for case in cases[:2]:
+                    row = bench.pair("rtu", case, 1, requests, gw_name="relay")
+                    row.note = "reference RTU relay, not the gateway"
+                    rows.append(row)
+                    print(format_row(row), flush=True)
+                bench.procs.pop("relay").stop()
+                socat = shutil.which("socat")
+                if socat:  # a byte pump in C: what two pty hops and a process cost here
+                    bench.procs["socat"] = Proc("socat", [
+                        socat, "-b", "4096", f"FILE:{bench.upstream_line},raw,echo=0",
+                        f"FILE:{bench.gw_line},raw,echo=0"])
+                    time.sleep(0.5)  # socat prints nothing when it is up
+                    for case in cases[:2]:
+                        row = bench.pair("rtu", case, 1, requests, gw_name="socat",
+                                         upstream_offset=0)
+                        row.note = "socat byte pump (C), not the gateway"
+                        rows.append(row)
+                        print(format_row(row), flush=True)
+                    bench.procs.pop("socat").stop()
+            finally:
+                bench.procs["gw"].p.send_signal(signal.SIGCONT)
         if a.what_if and "tcp>rtu" in transports:
             exact = gateway_config(bench.sim_port, bench.gw_line, bench.upstream_line)
             exact["buses"]["line"]["rtu"]["t35"] = "exact"  # the product's option
