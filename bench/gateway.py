@@ -3,17 +3,20 @@ to `compgw sim`, in the same run, every party its own process.
 
 Processes (all on 127.0.0.1, every TCP port bound as 0 and read back from the logs):
 
-- sim A: ``compgw sim``: 8 drives (units 1..8) on Modbus TCP, and on RTU on pty pair P1;
-- sim B: ``compgw sim``: the same 8 drives, RTU only on pty pair P2 (the direct RTU line);
-- gateway: ``compgw run``: upstream TCP; axes T1..T8 (upstream units 1..8) each on its own
-  TCP bus (8 connections to sim A: 8 buses in parallel), axes R1..R8 (upstream 11..18) on
-  one RTU bus on P1 (a single RS-485 line: transactions are serialised);
+- sim A: ``compgw sim``: 8 drives (units 1..8) on Modbus TCP, and on RTU on a pty it makes
+  itself (``rtu.port: pty``: a kernel terminal, no bridge thread or process);
+- sim B: ``compgw sim``: the same 8 drives, RTU only on its own pty (the direct RTU line);
+  the drives of both keep t3.5 of silence before they reply (``--drive-reply t35``), as a
+  Modbus slave that finds the end of a request by silence;
+- gateway: ``compgw run``: upstream TCP, and upstream RTU on a pty made by this process
+  (its master end is inherited by each RTU load generator); axes T1..T8 (upstream units
+  1..8) each on its own TCP bus (8 connections to sim A: 8 buses in parallel), axes R1..R8
+  (upstream 11..18) on one RTU bus on sim A's pty (a single RS-485 line: transactions are
+  serialised);
 - load generators: one short-lived process per measurement (this file, ``--load``),
   1 or 8 masters as asyncio tasks, each master on its own TCP connection and its own
-  unit (drive); on RTU-direct the masters share the one line (an asyncio lock = ideal
+  unit (drive); on an RTU line the masters share the one line (an asyncio lock = ideal
   arbitration on a single-master line).
-- the pty bridges (``sim.nullmodem.PtyPair``: two ``os.openpty`` joined by a thread) run in the
-  orchestrating process, which otherwise only waits.
 
 The load is raw Modbus (MBAP over asyncio streams; RTU frames on the pty fd with
 ``loop.add_reader``), not pymodbus clients: a pymodbus client spends ~100-200 µs of its
@@ -35,9 +38,11 @@ and gateway runs alternate (direct, gateway, gateway, direct; half the requests 
 slow drift of the shared machine hits both. tx/s = requests / wall time of the slowest
 master. CPU per transaction of the gateway and sim processes comes from
 /proc/PID/schedstat. RTU: a compliant master keeps t3.5 (1.75 ms above 19200 baud) of
-silence after a reply before it sends; the direct master does this as think time (not in
-its latency); the gateway does it inside the transaction, as a gateway must. A pty has no
-baud rate, so no wire time is included anywhere (FC03x10 at 115200 is ~2.9 ms of wire).
+silence after a reply before it sends, as think time (not in its latency). Rows ``rtu``:
+the same RTU master program on the direct line and on the gateway's RTU server. Rows
+``tcp>rtu``: a TCP master, which sends at once, so the gateway keeps the line's t3.5 inside
+the transaction, as a gateway must. A pty has no baud rate, so no wire time is included
+anywhere (FC03x10 at 115200 is ~2.9 ms of wire).
 
 Run:  .venv/bin/python bench/gateway.py            (full: 2000 requests per master, ~6 min)
       .venv/bin/python bench/gateway.py --quick    (300 per master, ~1 min)
@@ -45,8 +50,9 @@ Run:  .venv/bin/python bench/gateway.py            (full: 2000 requests per mast
       gateway, separate runs after the table), --what-if (a second gateway process whose RTU
       line's t3.5 is patched at start-up to the exact 0.30 ms at 115200, then to 0: how
       much of "RTU added" is the silence rule; diagnostic, not the product),
-      --reference/--no-reference (a minimal asyncio.Protocol forwarder, no interception,
-      measured the same way: the floor for CPython on this machine; on by default in the
+      --reference/--no-reference (a minimal asyncio.Protocol forwarder and a minimal RTU
+      relay, no interception, and socat byte pumps when socat is installed, measured the
+      same way: the floors for CPython and for C on this machine; on by default in the
       full run).
 """
 

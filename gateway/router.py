@@ -249,14 +249,7 @@ class Gateway:
             start, count = struct.unpack_from(">HH", pdu, 1)
             if not 1 <= count <= MAX_READ_REGISTERS or start + count > 0x10000:
                 return False
-            key = (name, fc, start, count)
-            plan = setup.read_plans.get(key)
-            if plan is None:
-                plan = self._read_plan(setup, name, axis, fc, start, count, pdu)
-                if len(setup.read_plans) >= READ_PLANS_MAX:
-                    setup.read_plans.clear()
-                setup.read_plans[key] = plan
-            request, finish = plan
+            request, finish = self._cached_read_plan(setup, name, axis, fc, start, count, pdu)
             if finish is None:
                 return bus.submit(axis.unit, request, done)
             return bus.submit(axis.unit, request, _finishing(finish, done))
@@ -313,10 +306,22 @@ class Gateway:
         return bases
 
     async def _read(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
-        request, finish = self._read_plan(setup, name, axis, req.function,
-                                          req.read_address or 0, req.read_count, pdu)
+        request, finish = self._cached_read_plan(setup, name, axis, req.function,
+                                                 req.read_address or 0, req.read_count, pdu)
         reply = await self.buses[axis.bus].transact(axis.unit, request)
         return reply if finish is None else finish(reply)
+
+    def _cached_read_plan(self, setup: Setup, name: str, axis: Axis, fc: int, start: int,
+                          count: int, pdu: bytes) -> tuple[bytes, Finish | None]:
+        """:meth:`_read_plan`, cached per setup (a new setup on reload starts empty)."""
+        key = (name, fc, start, count)
+        plan = setup.read_plans.get(key)
+        if plan is None:
+            plan = self._read_plan(setup, name, axis, fc, start, count, pdu)
+            if len(setup.read_plans) >= READ_PLANS_MAX:
+                setup.read_plans.clear()
+            setup.read_plans[key] = plan
+        return plan
 
     def _read_plan(self, setup: Setup, name: str, axis: Axis, fc: int, start: int, count: int,
                    pdu: bytes) -> tuple[bytes, Finish | None]:
@@ -325,7 +330,7 @@ class Gateway:
         Reads touching an intercepted pair are widened to cover it and rewritten; a read
         covering the status word records it for the homed check. Depends on the setup and
         the read only (the axis state is looked at in the reply's turn), so it is cached
-        per setup by :meth:`handle_fast`."""
+        per setup by :meth:`_cached_read_plan`."""
         table = "holding" if fc == READ_HOLDING_REGISTERS else "input"
         bases = [b for b in self._pairs_read_by(axis, table) if overlap(start, count, b)]
         if not bases:
