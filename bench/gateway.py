@@ -74,6 +74,7 @@ import threading
 import time
 import tty
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -743,6 +744,28 @@ class Bench:
         return Row(transport, case, masters, d, g)
 
 
+    def run_rows(self, out: list[Row], transport: str, cases: tuple[Case, ...] | list[Case],
+                 masters: tuple[int, ...], requests: int, *, rtu8: int | None = None,
+                 note: str = "", **pair_kw: object) -> None:
+        """Measure every case with each number of masters, print and keep each row (``rtu8``:
+        requests per master with 8 masters on an RTU line)."""
+        for case in cases:
+            for m in masters:
+                n = rtu8 if rtu8 and m == 8 and transport in RTU_TRANSPORTS else requests
+                row = self.pair(transport, case, m, n, **pair_kw)  # type: ignore[arg-type]
+                row.note = note
+                out.append(row)
+                print(format_row(row), flush=True)
+
+    @contextlib.contextmanager
+    def main_gateway_stopped(self) -> Iterator[None]:
+        """The main gateway SIGSTOPped meanwhile: another process uses its RTU lines."""
+        self.procs["gw"].p.send_signal(signal.SIGSTOP)
+        try:
+            yield
+        finally:
+            self.procs["gw"].p.send_signal(signal.SIGCONT)
+
     def profile(self, out: Path, transport: str, case: Case, masters: int,
                 requests: int) -> Path | None:
         """Gateway side of one case again, with py-spy attached to the gateway process
@@ -916,111 +939,70 @@ def main(argv: list[str] | None = None) -> int:
               f"{bench.gw_line}, direct RTU line {bench.direct_line}; {os.cpu_count()} CPUs; "
               f"{requests} requests/master ({rtu8} on RTU x8)", flush=True)
         print(HEADER, flush=True)
+        both = (1, 8)
         for transport in transports:
-            for case in cases:
-                for masters in (1, 8):
-                    n = rtu8 if transport in RTU_TRANSPORTS and masters == 8 else requests
-                    row = bench.pair(transport, case, masters, n)
-                    rows.append(row)
-                    print(format_row(row), flush=True)
+            bench.run_rows(rows, transport, cases, both, requests, rtu8=rtu8)
         if a.baseline:  # another gateway tree (e.g. `git archive` of an older commit)
-            # measured in the same run; it shares the RTU line: the main gateway is stopped
-            bench.procs["gw"].p.send_signal(signal.SIGSTOP)
-            try:
+            with bench.main_gateway_stopped():  # it shares the RTU lines
                 port = bench.start_gateway("gw-base", bench.gw_cfg, root=Path(a.baseline))
                 for transport in transports:
-                    for case in cases[:2]:
-                        for masters in (1, 8):
-                            n = rtu8 if transport in RTU_TRANSPORTS and masters == 8 else requests
-                            row = bench.pair(transport, case, masters, n, gw_port=port,
-                                             gw_name="gw-base")
-                            row.note = f"baseline gateway from {a.baseline}"
-                            rows.append(row)
-                            print(format_row(row), flush=True)
+                    bench.run_rows(rows, transport, cases[:2], both, requests, rtu8=rtu8,
+                                   note=f"baseline gateway from {a.baseline}",
+                                   gw_port=port, gw_name="gw-base")
                 bench.procs.pop("gw-base").stop()
-            finally:
-                bench.procs["gw"].p.send_signal(signal.SIGCONT)
         reference = (not a.quick) if a.reference is None else a.reference
+        pin = PIN_GATEWAY if a.pin else None
+        socat = shutil.which("socat")
         if reference and "tcp" in transports:
-            ref = Proc("ref", [sys.executable, str(Path(__file__).resolve()), "--proxy",
-                               str(bench.sim_port)], cpus=PIN_GATEWAY if a.pin else None)
-            bench.procs["ref"] = ref
+            ref = bench.procs["ref"] = Proc("ref", [sys.executable, str(Path(__file__).resolve()),
+                                                    "--proxy", str(bench.sim_port)], cpus=pin)
             port = int(ref.wait_for(r"reference proxy listening on 127\.0\.0\.1:(\d+)")
                        .group(1))
-            for case in cases[:2]:
-                for masters in (1, 8):
-                    row = bench.pair("tcp", case, masters, requests, gw_port=port,
-                                     gw_name="ref")
-                    row.note = "reference forwarder, not the gateway"
-                    rows.append(row)
-                    print(format_row(row), flush=True)
+            bench.run_rows(rows, "tcp", cases[:2], both, requests, gw_port=port, gw_name="ref",
+                           note="reference forwarder, not the gateway")
             bench.procs.pop("ref").stop()
-            socat = shutil.which("socat")
             if socat:  # a C forwarder, a process per connection: what the machine allows
-                proc = Proc("socat-tcp", [socat, "-d", "-d", "TCP-LISTEN:0,bind=127.0.0.1,"
-                                          "reuseaddr,fork", f"TCP:127.0.0.1:{bench.sim_port}"])
-                bench.procs["socat-tcp"] = proc
+                proc = bench.procs["socat-tcp"] = Proc("socat-tcp", [
+                    socat, "-d", "-d", "TCP-LISTEN:0,bind=127.0.0.1,reuseaddr,fork",
+                    f"TCP:127.0.0.1:{bench.sim_port}"], cpus=pin)
                 port = int(proc.wait_for(r"listening on .*127\.0\.0\.1:(\d+)").group(1))
-                for case in cases[:2]:
-                    for masters in (1, 8):
-                        row = bench.pair("tcp", case, masters, requests, gw_port=port,
-                                         gw_name="socat-tcp")
-                        row.note = "socat byte pump (C, a process per connection)"
-                        rows.append(row)
-                        print(format_row(row), flush=True)
+                bench.run_rows(rows, "tcp", cases[:2], both, requests, gw_port=port,
+                               gw_name="socat-tcp",
+                               note="socat byte pump (C, a process per connection)")
                 bench.procs.pop("socat-tcp").stop()
-        if reference and "rtu" in transports:  # the RTU lines are shared: gateway stopped
-            bench.procs["gw"].p.send_signal(signal.SIGSTOP)
-            try:
-                relay = Proc("relay", [sys.executable, str(Path(__file__).resolve()),
-                                       "--relay", bench.upstream_line, bench.gw_line],
-                             cpus=PIN_GATEWAY if a.pin else None)
-                bench.procs["relay"] = relay
+        if reference and "rtu" in transports:
+            with bench.main_gateway_stopped():  # the forwarders use its RTU lines
+                relay = bench.procs["relay"] = Proc("relay", [
+                    sys.executable, str(Path(__file__).resolve()), "--relay",
+                    bench.upstream_line, bench.gw_line], cpus=pin)
                 relay.wait_for(r"reference relay on")
-                for case in cases[:2]:
-                    row = bench.pair("rtu", case, 1, requests, gw_name="relay")
-                    row.note = "reference RTU relay, not the gateway"
-                    rows.append(row)
-                    print(format_row(row), flush=True)
+                bench.run_rows(rows, "rtu", cases[:2], (1,), requests, gw_name="relay",
+                               note="reference RTU relay, not the gateway")
                 bench.procs.pop("relay").stop()
-                socat = shutil.which("socat")
                 if socat:  # a byte pump in C: what two pty hops and a process cost here
                     bench.procs["socat"] = Proc("socat", [
                         socat, "-b", "4096", f"FILE:{bench.upstream_line},raw,echo=0",
-                        f"FILE:{bench.gw_line},raw,echo=0"])
+                        f"FILE:{bench.gw_line},raw,echo=0"], cpus=pin)
                     time.sleep(0.5)  # socat prints nothing when it is up
-                    for case in cases[:2]:
-                        row = bench.pair("rtu", case, 1, requests, gw_name="socat",
-                                         upstream_offset=0)
-                        row.note = "socat byte pump (C), not the gateway"
-                        rows.append(row)
-                        print(format_row(row), flush=True)
+                    bench.run_rows(rows, "rtu", cases[:2], (1,), requests, gw_name="socat",
+                                   upstream_offset=0,  # no unit mapping: the drives' units
+                                   note="socat byte pump (C), not the gateway")
                     bench.procs.pop("socat").stop()
-            finally:
-                bench.procs["gw"].p.send_signal(signal.SIGCONT)
         if a.what_if and "tcp>rtu" in transports:
             exact = gateway_config(bench.sim_port, bench.gw_line, bench.upstream_line)
             exact["buses"]["line"]["rtu"]["t35"] = "exact"  # the product's option
             exact_cfg = _write_yaml(bench.tmp / "gw-exact.yaml", exact)
             for t35, label in ((3.5 * 10 / BAUD, "config rtu.t35: exact at 115200 8N1"),
                                (0.0, "none, patched in: diagnostic")):
-                # The main gateway holds the same RTU line: stopped meanwhile, or both
-                # processes would read the drives' replies.
-                bench.procs["gw"].p.send_signal(signal.SIGSTOP)
-                try:
+                with bench.main_gateway_stopped():  # or both would read the drives' replies
                     if t35:
                         port = bench.start_gateway("gw-t35", exact_cfg)
                     else:
                         port = bench.start_gateway("gw-t35", bench.gw_cfg, t35_s=t35)
-                    for case in cases[:2]:
-                        row = bench.pair("tcp>rtu", case, 1, requests, gw_port=port,
-                                         gw_name="gw-t35")
-                        row.note = f"what-if: gateway t3.5 = {t35 * 1e3:.2f} ms ({label})"
-                        rows.append(row)
-                        print(format_row(row), flush=True)
+                    bench.run_rows(rows, "tcp>rtu", cases[:2], (1,), requests, gw_port=port,
+                                   gw_name="gw-t35",
+                                   note=f"what-if: gateway t3.5 = {t35 * 1e3:.2f} ms ({label})")
                     bench.procs.pop("gw-t35").stop()
-                finally:
-                    bench.procs["gw"].p.send_signal(signal.SIGCONT)
         if a.profile:
             targets = [("tcp", CASES[0], 8), ("tcp", CASES[0], 1), ("tcp>rtu", CASES[0], 1)]
             for transport, case, masters in targets:
