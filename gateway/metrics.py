@@ -133,14 +133,26 @@ class StateCollector(Collector):
             for key in ("transactions", "replies", "timeouts", "retries", "dropped",
                         "unavailable", "reconnects")
         }
+        garbage = CounterMetricFamily(
+            "compgw_bus_line_garbage_bytes", "Bytes on an RTU line that formed no frame for "
+            "the gateway: noise, fragments, late replies", labels=["bus"])
+        empty = CounterMetricFamily(
+            "compgw_bus_line_empty_wakeups", "Times an RTU line reported bytes and had none "
+            "(the line is kept open)", labels=["bus"])
         for name, bus in app.buses.items():
             depth.add_metric([name], bus.queue_depth)
             up.add_metric([name], int(bus.connected))
             for key, family in bus_counters.items():
                 family.add_metric([name], getattr(bus.counters, key))
+            line = getattr(bus, "line", None)  # RTU buses only
+            if line is not None:
+                garbage.add_metric([name], line.garbage_bytes)
+                empty.add_metric([name], line.spurious_wakeups)
         yield depth
         yield up
         yield from bus_counters.values()
+        yield garbage
+        yield empty
 
         gw = app.gateway
         correction = GaugeMetricFamily("compgw_axis_last_correction_mm",

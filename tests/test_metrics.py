@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import re
 from pathlib import Path
 
@@ -99,5 +100,35 @@ def test_sensor_state_is_exported(tmp_path: Path):
             assert value(text, "compgw_thermal_source_delta_a_mm", source="x_ref") == \
                 (sensor.delta_a_mm or 0.0)
             assert value(text, "compgw_thermal_source_failures_total", source="x_ref") == 0
+
+    asyncio.run(asyncio.wait_for(body(), 30))
+
+
+def test_rtu_line_noise_is_counted(tmp_path: Path):
+    """Bytes on the drives' line that belong to no reply are dropped and counted."""
+
+    def edit(data):
+        data["metrics"] = {"port": 0}
+
+    async def body():
+        async with rig(tmp_path, edit, drives="rtu") as r:
+            app, master = r["app"], r["master"]
+            assert not (await master.read_holding_registers(0x6200, count=1,
+                                                            device_id=1)).isError()
+            _, text = await scrape(app.metrics.port)
+            assert value(text, "compgw_bus_line_garbage_bytes_total", bus="line1") == 0
+            assert value(text, "compgw_bus_line_empty_wakeups_total", bus="line1") == 0
+            noise = os.open(r["drive_line"].a, os.O_WRONLY | os.O_NOCTTY)
+            try:  # the drives' end of the cable: noise between two transactions
+                os.write(noise, b"\xff\x00\x55\x13")
+            finally:
+                os.close(noise)
+            bus = app.buses["line1"]
+            while bus.line.pending_bytes < 4:  # arrived at the gateway's end
+                await asyncio.sleep(0.005)
+            assert not (await master.read_holding_registers(0x6200, count=1,
+                                                            device_id=1)).isError()
+            _, text = await scrape(app.metrics.port)
+            assert value(text, "compgw_bus_line_garbage_bytes_total", bus="line1") == 4
 
     asyncio.run(asyncio.wait_for(body(), 30))
