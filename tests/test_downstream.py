@@ -4,9 +4,12 @@ reconnection, fairness, cancellation, garbage on the line."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import tempfile
 import time
+from collections.abc import AsyncIterator
+from typing import Any
 
 import pytest
 
@@ -24,6 +27,22 @@ from tests.helpers_modbus import (
 )
 
 READ_ONE = f.build_read_request(3, 10, 1)
+
+
+@contextlib.asynccontextmanager
+async def rtu_bus_to_drive(**bus_kwargs: Any) -> AsyncIterator[tuple[RtuBus, PtyBridge]]:
+    """An RtuBus at 115200 on a null-modem cable to a pymodbus RTU drive; the bus is closed
+    and the cable unplugged afterwards."""
+    bridge = PtyBridge()
+    try:
+        async with rtu_drive(bridge.b):
+            bus = RtuBus(bridge.a, baudrate=115200, **bus_kwargs)
+            try:
+                yield bus, bridge
+            finally:
+                await bus.close()
+    finally:
+        bridge.unplug()
 
 
 async def seed(bus: TcpBus | RtuBus) -> None:
@@ -54,70 +73,52 @@ def test_tcp_late_reply_is_dropped_by_transaction_id_and_shape() -> None:
 @pytest.mark.parametrize("guard", ["default-guard", "no-guard-shape-check"])
 def test_rtu_late_reply_never_reaches_next_request(guard: str) -> None:
     async def main() -> None:
-        bridge = PtyBridge()
-        try:
-            async with rtu_drive(bridge.b):
-                kwargs = {} if guard == "default-guard" else {"late_guard_s": 0.0}
-                bus = RtuBus(bridge.a, baudrate=115200, timeout_s=0.1, retries=0, **kwargs)
-                await seed(bus)
-                # Same shape as the next request with the guard; a different one without.
-                count = 1 if guard == "default-guard" else 2
-                with pytest.raises(DriveTimeout):
-                    await bus.transact(DRIVE_UNIT, f.build_read_request(3, SLOW_ADDRESS, count))
-                t0 = time.monotonic()
-                try:
-                    reply = await bus.transact(DRIVE_UNIT, READ_ONE)
-                    assert reply == b"\x03\x02\x00\x6f"
-                except DriveTimeout:
-                    # Without a guard the drive may still be busy: a timeout is fine, a
-                    # wrong answer is not.
-                    assert guard != "default-guard"
-                assert time.monotonic() - t0 < 0.5
-                # The late reply is dropped either during the guard or before the next request.
-                await wait_for_condition(lambda: bus.counters.dropped >= 1
-                                         or bus.line.pending_bytes > 0, 2.0)
-                assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x6f"
-                assert bus.counters.dropped >= 1
-                await bus.close()
-        finally:
-            bridge.unplug()
+        kwargs = {} if guard == "default-guard" else {"late_guard_s": 0.0}
+        async with rtu_bus_to_drive(timeout_s=0.1, retries=0, **kwargs) as (bus, _):
+            await seed(bus)
+            # Same shape as the next request with the guard; a different one without.
+            count = 1 if guard == "default-guard" else 2
+            with pytest.raises(DriveTimeout):
+                await bus.transact(DRIVE_UNIT, f.build_read_request(3, SLOW_ADDRESS, count))
+            t0 = time.monotonic()
+            try:
+                reply = await bus.transact(DRIVE_UNIT, READ_ONE)
+                assert reply == b"\x03\x02\x00\x6f"
+            except DriveTimeout:
+                # Without a guard the drive may still be busy: a timeout is fine, a
+                # wrong answer is not.
+                assert guard != "default-guard"
+            assert time.monotonic() - t0 < 0.5
+            # The late reply is dropped either during the guard or before the next request.
+            await wait_for_condition(lambda: bus.counters.dropped >= 1
+                                     or bus.line.pending_bytes > 0, 2.0)
+            assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x6f"
+            assert bus.counters.dropped >= 1
 
     run(main())
 
 
 def test_rtu_retry_then_answer_and_exception_relayed() -> None:
     async def main() -> None:
-        bridge = PtyBridge()
-        try:
-            async with rtu_drive(bridge.b):
-                bus = RtuBus(bridge.a, baudrate=115200, timeout_s=0.1, retries=1)
-                # The drive takes 0.15 s: attempt 1 times out, its late answer serves the retry.
-                reply = await bus.transact(DRIVE_UNIT, f.build_read_request(3, SLOW_ADDRESS, 1))
-                assert reply == b"\x03\x02\x00\x00"
-                assert (bus.counters.timeouts, bus.counters.retries) == (1, 1)
-                assert await bus.transact(DRIVE_UNIT, f.build_read_request(3, EXC_ADDRESS, 1)) \
-                    == b"\x83\x03"
-                assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x00"
-                await bus.close()
-        finally:
-            bridge.unplug()
+        async with rtu_bus_to_drive(timeout_s=0.1, retries=1) as (bus, _):
+            # The drive takes 0.15 s: attempt 1 times out, its late answer serves the retry.
+            reply = await bus.transact(DRIVE_UNIT, f.build_read_request(3, SLOW_ADDRESS, 1))
+            assert reply == b"\x03\x02\x00\x00"
+            assert (bus.counters.timeouts, bus.counters.retries) == (1, 1)
+            assert await bus.transact(DRIVE_UNIT, f.build_read_request(3, EXC_ADDRESS, 1)) \
+                == b"\x83\x03"
+            assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x00"
 
     run(main())
 
 
 def test_rtu_garbage_on_the_line_is_skipped() -> None:
     async def main() -> None:
-        bridge = PtyBridge()
-        try:
-            async with rtu_drive(bridge.b):
-                bus = RtuBus(bridge.a, baudrate=115200, timeout_s=0.2, retries=0)
-                await seed(bus)
-                bridge.inject_to_a(b"\x01\x03\x02\xff")  # a stale fragment before the request
-                assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x6f"
-                assert bus.counters.timeouts == 0
-                await bus.close()
-        finally:
-            bridge.unplug()
+        async with rtu_bus_to_drive(timeout_s=0.2, retries=0) as (bus, bridge):
+            await seed(bus)
+            bridge.inject_to_a(b"\x01\x03\x02\xff")  # a stale fragment before the request
+            assert await bus.transact(DRIVE_UNIT, READ_ONE) == b"\x03\x02\x00\x6f"
+            assert bus.counters.timeouts == 0
 
     run(main())
 
@@ -265,18 +266,11 @@ def test_bad_requests_rejected_before_the_bus() -> None:
 
 def test_min_silence_between_frames() -> None:
     async def main() -> None:
-        bridge = PtyBridge()
-        try:
-            async with rtu_drive(bridge.b):
-                bus = RtuBus(bridge.a, baudrate=115200, timeout_s=0.2, retries=0,
-                             min_silence_s=0.02)
-                await seed(bus)
-                t0 = time.monotonic()
-                for _ in range(5):
-                    await bus.transact(DRIVE_UNIT, READ_ONE)
-                assert time.monotonic() - t0 >= 5 * 0.02
-                await bus.close()
-        finally:
-            bridge.unplug()
+        async with rtu_bus_to_drive(timeout_s=0.2, retries=0, min_silence_s=0.02) as (bus, _):
+            await seed(bus)
+            t0 = time.monotonic()
+            for _ in range(5):
+                await bus.transact(DRIVE_UNIT, READ_ONE)
+            assert time.monotonic() - t0 >= 5 * 0.02
 
     run(main())
