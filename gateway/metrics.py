@@ -208,13 +208,24 @@ class StateCollector(Collector):
                                      labels=["listener"])
             for key in ("connections", "refused", "malformed", "handler_errors")
         }
+        up_garbage = CounterMetricFamily(
+            "compgw_upstream_line_garbage_bytes", "Bytes on the upstream RTU line that formed "
+            "no request for the gateway: noise, fragments", labels=["listener"])
+        up_empty = CounterMetricFamily(
+            "compgw_upstream_line_empty_wakeups", "Times the upstream RTU line reported bytes "
+            "and had none (the line is kept open)", labels=["listener"])
         for kind, srv in listeners:
             if kind == "tcp":
                 current.add_metric([kind], srv.connection_count)  # type: ignore[union-attr]
+            else:
+                up_garbage.add_metric([kind], srv.line.garbage_bytes)  # type: ignore[union-attr]
+                up_empty.add_metric([kind], srv.line.spurious_wakeups)  # type: ignore[union-attr]
             for key, family in up_counters.items():
                 family.add_metric([kind], getattr(srv.counters, key))
         yield current
         yield from up_counters.values()
+        yield up_garbage
+        yield up_empty
         protected = CounterMetricFamily("compgw_write_protect_refused",
                                         "Writes refused by write_protect")
         protected.add_metric([], app.write_guard.refused if app.write_guard else 0)

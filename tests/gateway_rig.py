@@ -130,7 +130,8 @@ async def rig(
                 assert await master.connect() and await direct.connect()
                 try:
                     yield {"sim": sim, "app": app, "master": master, "direct": direct,
-                           "chain": chain, "config_path": path, "drive_line": drive_line}
+                           "chain": chain, "config_path": path, "drive_line": drive_line,
+                           "upstream_line": upstream_line}
                 finally:
                     master.close()
                     direct.close()

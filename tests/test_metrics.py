@@ -132,3 +132,29 @@ def test_rtu_line_noise_is_counted(tmp_path: Path):
             assert value(text, "compgw_bus_line_garbage_bytes_total", bus="line1") == 4
 
     asyncio.run(asyncio.wait_for(body(), 30))
+
+
+def test_upstream_rtu_line_noise_is_counted(tmp_path: Path):
+    """Noise on the masters' RTU line is skipped, counted, and the next request served."""
+
+    def edit(data):
+        data["metrics"] = {"port": 0}
+
+    async def body():
+        async with rig(tmp_path, edit, upstream="rtu") as r:
+            app, master = r["app"], r["master"]
+            noise = os.open(r["upstream_line"].b, os.O_WRONLY | os.O_NOCTTY)
+            try:  # the masters' end of the cable
+                os.write(noise, b"\xff\x00\x55")
+            finally:
+                os.close(noise)
+            while app.rtu.line.garbage_bytes < 3:  # dropped once the line fell silent
+                await asyncio.sleep(0.01)
+            assert not (await master.read_holding_registers(0x6200, count=1,
+                                                            device_id=1)).isError()
+            _, text = await scrape(app.metrics.port)
+            assert value(text, "compgw_upstream_line_garbage_bytes_total", listener="rtu") == 3
+            assert value(text, "compgw_upstream_line_empty_wakeups_total", listener="rtu") == 0
+            assert value(text, "compgw_requests_total", function="3") == 1
+
+    asyncio.run(asyncio.wait_for(body(), 30))
