@@ -36,6 +36,13 @@ MAX_BUFFER_BYTES = 1024  # beyond this the oldest bytes are garbage by construct
 #: empty reads in a row after which a port that keeps reporting readable is taken as gone
 #: (pyserial's rule for a disconnected device, which never reports a hang-up)
 MAX_EMPTY_READS = 100
+PRECISE_BELOW_S = 0.02  # waits shorter than this use the exact timer (when available)
+
+T35Mode = Literal["spec", "exact"]
+
+
+class SerialLineLost(OSError):
+    """The port went away (unplugged adapter, closed pty) or could not be opened."""
 
 
 def _hung_up(fd: int) -> bool:
@@ -45,13 +52,6 @@ def _hung_up(fd: int) -> bool:
     poller.register(fd, select.POLLIN)
     return any(ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL)
                for _, ev in poller.poll(0))
-PRECISE_BELOW_S = 0.02  # waits shorter than this use the exact timer (when available)
-
-T35Mode = Literal["spec", "exact"]
-
-
-class SerialLineLost(OSError):
-    """The port went away (unplugged adapter, closed pty) or could not be opened."""
 
 
 def char_time_s(baudrate: int, bytesize: int = 8, parity: str = "E", stopbits: float = 1) -> float:
