@@ -5,8 +5,14 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import pytest
+from hypothesis import settings
 
 from sim.nullmodem import PtyPair
+
+# Property tests are deterministic like the rest: the same examples on every run and
+# machine (no random seed, no example database carried between runs).
+settings.register_profile("compgw", derandomize=True, database=None)
+settings.load_profile("compgw")
 
 __all__ = ["PtyPair", "pty_pair"]
 

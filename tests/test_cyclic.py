@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import brentq
 
@@ -32,6 +32,7 @@ def cyclic_models(draw):
     n = draw(st.integers(1, 4))
     stations = np.sort(np.array(draw(st.lists(st.floats(0, 800), min_size=n, max_size=n,
                                               unique=True))))
+    assume(np.all(np.diff(stations) >= lead))  # a model that loads: a lead apart at least
     amp = st.lists(st.lists(st.floats(-0.003, 0.003), min_size=k, max_size=k),
                    min_size=n, max_size=n)
     origin = draw(st.floats(-5, 5))
@@ -54,6 +55,16 @@ def test_round_trip_within_half_pulse_both_directions(model, data):
         assert abs(back - nominal) <= 0.51
         exact = axis.actual_mm(axis.command_mm(nominal * PULSE_MM, direction), direction)
         assert abs(float(exact) - nominal * PULSE_MM) < 1e-9
+
+
+def test_stations_closer_than_one_lead_are_refused():
+    """A dense scan spans two leads or more: amplitudes that change within one turn of the
+    screw are a broken file (they would make the correction steeper than the pulse grid)."""
+    with pytest.raises(TableError, match=r"x.yaml: stations 0 and 0.03125 mm are closer "
+                                         r"than one lead \(4 mm\)"):
+        CyclicModel(4.0, np.array([0.0, 0.03125, 100.0]), np.full((3, 1), 0.001),
+                    np.zeros((3, 1)), source="x.yaml")
+    CyclicModel(4.0, np.array([0.0, 4.0]), np.full((2, 1), 0.001), np.zeros((2, 1)))
 
 
 def test_forward_matches_root_finding_on_the_model():

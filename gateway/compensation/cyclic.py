@@ -51,6 +51,11 @@ class CyclicModel:
             raise TableError(f"{self.source}: 1..{MAX_HARMONICS} harmonics, got {a.shape[1]}")
         if np.any(np.diff(st) <= 0):
             raise TableError(f"{self.source}: station positions must increase")
+        close = np.flatnonzero(np.diff(st) < self.lead_mm)
+        if close.size:  # amplitudes from scans of 2+ leads cannot change within one turn
+            i = int(close[0])
+            raise TableError(f"{self.source}: stations {st[i]:g} and {st[i + 1]:g} mm are "
+                             f"closer than one lead ({self.lead_mm:g} mm)")
         if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.all(np.isfinite(st))):
             raise TableError(f"{self.source}: amplitudes and positions must be finite")
         for name, value in (("station_mm", st), ("sin_mm", a), ("cos_mm", b)):
