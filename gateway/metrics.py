@@ -116,6 +116,16 @@ class RequestMetrics:
         return counted
 
 
+def _line_families(prefix: str, label: str, what: str
+                   ) -> tuple[CounterMetricFamily, CounterMetricFamily]:
+    """The two counters of a serial line: noise bytes and empty wake-ups."""
+    return (CounterMetricFamily(f"{prefix}_garbage_bytes", f"Bytes on {what} that formed no "
+                                "frame for the gateway: noise, fragments, late replies",
+                                labels=[label]),
+            CounterMetricFamily(f"{prefix}_empty_wakeups", f"Times {what} reported bytes and "
+                                "had none (the line is kept open)", labels=[label]))
+
+
 class StateCollector(Collector):
     """Gauges and counters read from the running app at scrape time."""
 
@@ -133,12 +143,7 @@ class StateCollector(Collector):
             for key in ("transactions", "replies", "timeouts", "retries", "dropped",
                         "unavailable", "reconnects")
         }
-        garbage = CounterMetricFamily(
-            "compgw_bus_line_garbage_bytes", "Bytes on an RTU line that formed no frame for "
-            "the gateway: noise, fragments, late replies", labels=["bus"])
-        empty = CounterMetricFamily(
-            "compgw_bus_line_empty_wakeups", "Times an RTU line reported bytes and had none "
-            "(the line is kept open)", labels=["bus"])
+        garbage, empty = _line_families("compgw_bus_line", "bus", "an RTU bus")
         for name, bus in app.buses.items():
             depth.add_metric([name], bus.queue_depth)
             up.add_metric([name], int(bus.connected))
@@ -208,12 +213,8 @@ class StateCollector(Collector):
                                      labels=["listener"])
             for key in ("connections", "refused", "malformed", "handler_errors")
         }
-        up_garbage = CounterMetricFamily(
-            "compgw_upstream_line_garbage_bytes", "Bytes on the upstream RTU line that formed "
-            "no request for the gateway: noise, fragments", labels=["listener"])
-        up_empty = CounterMetricFamily(
-            "compgw_upstream_line_empty_wakeups", "Times the upstream RTU line reported bytes "
-            "and had none (the line is kept open)", labels=["listener"])
+        up_garbage, up_empty = _line_families("compgw_upstream_line", "listener",
+                                              "the upstream RTU line")
         for kind, srv in listeners:
             if kind == "tcp":
                 current.add_metric([kind], srv.connection_count)  # type: ignore[union-attr]

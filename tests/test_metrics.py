@@ -31,6 +31,15 @@ def value(body: str, name: str, **labels: str) -> float:
     return float(match.group(1))
 
 
+def put_on_line(path: str, noise: bytes) -> None:
+    """Write raw bytes at one end of a cable, as noise on the line."""
+    fd = os.open(path, os.O_WRONLY | os.O_NOCTTY)
+    try:
+        os.write(fd, noise)
+    finally:
+        os.close(fd)
+
+
 def test_metrics_are_off_by_default(tmp_path: Path):
     async def body():
         async with rig(tmp_path) as r:
@@ -118,11 +127,7 @@ def test_rtu_line_noise_is_counted(tmp_path: Path):
             _, text = await scrape(app.metrics.port)
             assert value(text, "compgw_bus_line_garbage_bytes_total", bus="line1") == 0
             assert value(text, "compgw_bus_line_empty_wakeups_total", bus="line1") == 0
-            noise = os.open(r["drive_line"].a, os.O_WRONLY | os.O_NOCTTY)
-            try:  # the drives' end of the cable: noise between two transactions
-                os.write(noise, b"\xff\x00\x55\x13")
-            finally:
-                os.close(noise)
+            put_on_line(r["drive_line"].a, b"\xff\x00\x55\x13")  # between two transactions
             bus = app.buses["line1"]
             while bus.line.pending_bytes < 4:  # arrived at the gateway's end
                 await asyncio.sleep(0.005)
@@ -143,11 +148,7 @@ def test_upstream_rtu_line_noise_is_counted(tmp_path: Path):
     async def body():
         async with rig(tmp_path, edit, upstream="rtu") as r:
             app, master = r["app"], r["master"]
-            noise = os.open(r["upstream_line"].b, os.O_WRONLY | os.O_NOCTTY)
-            try:  # the masters' end of the cable
-                os.write(noise, b"\xff\x00\x55")
-            finally:
-                os.close(noise)
+            put_on_line(r["upstream_line"].b, b"\xff\x00\x55")  # the masters' end
             while app.rtu.line.garbage_bytes < 3:  # dropped once the line fell silent
                 await asyncio.sleep(0.01)
             assert not (await master.read_holding_registers(0x6200, count=1,
