@@ -9,6 +9,7 @@ from pathlib import Path
 
 from gateway.frames import pack_int32
 from tests.gateway_rig import TARGET, TRIGGER, rig
+from tests.helpers_modbus import wait_for_condition
 
 PITCH_X = "position_mm,error_um\n0,0\n200,12\n400,20\n600,8\n800,-15\n"
 
@@ -29,6 +30,11 @@ def value(body: str, name: str, **labels: str) -> float:
     match = re.search(pattern, body, re.M)
     assert match, f"{name}{{{want}}} not in:\n{body}"
     return float(match.group(1))
+
+
+def metrics_on(data: dict) -> None:
+    """Config edit: the Prometheus endpoint on a free loopback port."""
+    data["metrics"] = {"port": 0}
 
 
 def put_on_line(path: str, noise: bytes) -> None:
@@ -116,11 +122,8 @@ def test_sensor_state_is_exported(tmp_path: Path):
 def test_rtu_line_noise_is_counted(tmp_path: Path):
     """Bytes on the drives' line that belong to no reply are dropped and counted."""
 
-    def edit(data):
-        data["metrics"] = {"port": 0}
-
     async def body():
-        async with rig(tmp_path, edit, drives="rtu") as r:
+        async with rig(tmp_path, metrics_on, drives="rtu") as r:
             app, master = r["app"], r["master"]
             assert not (await master.read_holding_registers(0x6200, count=1,
                                                             device_id=1)).isError()
@@ -128,9 +131,8 @@ def test_rtu_line_noise_is_counted(tmp_path: Path):
             assert value(text, "compgw_bus_line_garbage_bytes_total", bus="line1") == 0
             assert value(text, "compgw_bus_line_empty_wakeups_total", bus="line1") == 0
             put_on_line(r["drive_line"].a, b"\xff\x00\x55\x13")  # between two transactions
-            bus = app.buses["line1"]
-            while bus.line.pending_bytes < 4:  # arrived at the gateway's end
-                await asyncio.sleep(0.005)
+            line = app.buses["line1"].line
+            await wait_for_condition(lambda: line.pending_bytes >= 4)  # at the gateway's end
             assert not (await master.read_holding_registers(0x6200, count=1,
                                                             device_id=1)).isError()
             _, text = await scrape(app.metrics.port)
@@ -142,15 +144,12 @@ def test_rtu_line_noise_is_counted(tmp_path: Path):
 def test_upstream_rtu_line_noise_is_counted(tmp_path: Path):
     """Noise on the masters' RTU line is skipped, counted, and the next request served."""
 
-    def edit(data):
-        data["metrics"] = {"port": 0}
-
     async def body():
-        async with rig(tmp_path, edit, upstream="rtu") as r:
+        async with rig(tmp_path, metrics_on, upstream="rtu") as r:
             app, master = r["app"], r["master"]
             put_on_line(r["upstream_line"].b, b"\xff\x00\x55")  # the masters' end
-            while app.rtu.line.garbage_bytes < 3:  # dropped once the line fell silent
-                await asyncio.sleep(0.01)
+            # dropped once the line fell silent
+            await wait_for_condition(lambda: app.rtu.line.garbage_bytes >= 3)
             assert not (await master.read_holding_registers(0x6200, count=1,
                                                             device_id=1)).isError()
             _, text = await scrape(app.metrics.port)

@@ -4,72 +4,61 @@ other end or a port that is ready forever with nothing to read is a loss."""
 
 from __future__ import annotations
 
-import asyncio
+import contextlib
 import os
+from collections.abc import Iterator
 
 from gateway.frames import rtu_encode, rtu_request_length
 from gateway.serialline import MAX_EMPTY_READS, SerialLine
-from tests.helpers_modbus import PtyPair, run
+from tests.helpers_modbus import PtyPair, run, wait_for_condition
 
 
-async def _until(predicate, timeout_s: float = 5.0) -> None:
-    deadline = asyncio.get_running_loop().time() + timeout_s
-    while not predicate():
-        assert asyncio.get_running_loop().time() < deadline, "condition not reached"
-        await asyncio.sleep(0.005)
+@contextlib.contextmanager
+def open_line() -> Iterator[tuple[PtyPair, SerialLine]]:
+    """A SerialLine opened on a pty; the test holds the other end (``pair.master``)."""
+    pair = PtyPair()
+    line = SerialLine(pair.path, baudrate=115200)
+    line.open()
+    try:
+        yield pair, line
+    finally:
+        line.close()
+        pair.close()
 
 
 def test_empty_wakeup_keeps_the_line_and_its_bytes() -> None:
     async def main() -> None:
-        pair = PtyPair()
-        line = SerialLine(pair.path, baudrate=115200)
-        line.open()
-        try:
+        with open_line() as (pair, line):
             frame = rtu_encode(1, bytes.fromhex("0300000001"))
             pair.write(frame[:3])  # half a request is buffered ...
-            await _until(lambda: line.pending_bytes == 3)
+            await wait_for_condition(lambda: line.pending_bytes == 3)
             line._on_readable()  # ... when the tty wakes us with nothing more to read
             assert line.is_open and line.spurious_wakeups == 1
             assert line.pending_bytes == 3
             pair.write(frame[3:])
             got = await line.read_frame(rtu_request_length, timeout_s=2.0)
             assert got == frame
-        finally:
-            line.close()
-            pair.close()
 
     run(main())
 
 
 def test_other_end_closed_is_a_loss() -> None:
     async def main() -> None:
-        pair = PtyPair()
-        line = SerialLine(pair.path, baudrate=115200)
-        line.open()
-        try:
+        with open_line() as (pair, line):
             os.close(pair.master)  # the adapter goes away
-            await _until(lambda: not line.is_open)
+            await wait_for_condition(lambda: not line.is_open)
             assert line.lost
-        finally:
-            line.close()
-            pair.close()
 
     run(main())
 
 
 def test_ready_forever_with_nothing_to_read_is_a_loss() -> None:
     async def main() -> None:
-        pair = PtyPair()
-        line = SerialLine(pair.path, baudrate=115200)
-        line.open()
-        try:
+        with open_line() as (_, line):
             for _ in range(MAX_EMPTY_READS - 1):
                 line._on_readable()
             assert line.is_open
             line._on_readable()
             assert line.lost and line.spurious_wakeups == MAX_EMPTY_READS - 1
-        finally:
-            line.close()
-            pair.close()
 
     run(main())
