@@ -3,12 +3,13 @@
 
 FC03×10 and FC16×2, 1 and 8 concurrent masters (master i talks to unit i, own connection).
 Bounded: REQUESTS per master and TIME_LIMIT_S per case. Drive, forwarder and masters share
-one process and event loop here, so ratios are indicative (bench/gateway will use processes).
+one process and event loop here, so ratios are indicative (bench/forwarding will use processes).
 Run: .venv/bin/python bench/transport.py
 """
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import statistics
 import sys
@@ -51,7 +52,9 @@ def pct(values: list[float], q: float) -> float:
     return statistics.quantiles(values, n=100)[q - 1] * 1000 if len(values) > 1 else 0.0
 
 
-async def main() -> None:
+async def main(requests: int) -> None:
+    global REQUESTS
+    REQUESTS = requests
     units = tuple(range(1, 9))
     print(f"{'case':<10}{'masters':>8}{'direct p50':>12}{'p99':>8}{'tx/s':>8}"
           f"{'fwd p50':>10}{'p99':>8}{'tx/s':>8}{'p50x':>7}{'p99x':>7}{'tx/s x':>8}")
@@ -76,4 +79,6 @@ async def main() -> None:
 
 
 if __name__ == "__main__":
-    asyncio.run(main())
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--requests", type=int, default=REQUESTS, help="per master and case")
+    asyncio.run(main(parser.parse_args().requests))

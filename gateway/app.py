@@ -139,6 +139,7 @@ class GatewayApp:
                     allow=up.tcp.allow,
                     max_connections=up.tcp.max_connections,
                     idle_timeout_s=up.tcp.idle_timeout_s or None,
+                    frame_timeout_s=up.tcp.frame_timeout_s,
                     fast=self.fast_handler,
                 )
                 await self.tcp.start()

@@ -41,7 +41,10 @@ class TcpListen(Model):
     port: Port = 502
     allow: list[str] = Field(default_factory=lambda: ["127.0.0.0/8", "::1/128"])
     max_connections: Annotated[int, in_range(1, 1024)] = 16
-    idle_timeout_s: float = Field(default=0.0, ge=0.0)
+    #: a connection with no request for this long is closed (0: never)
+    idle_timeout_s: float = Field(default=60.0, ge=0.0)
+    #: a frame must be complete this long after its first byte, or its connection closes
+    frame_timeout_s: float = Field(default=2.0, gt=0.0)
 
     @field_validator("allow")
     @classmethod

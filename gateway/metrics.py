@@ -211,7 +211,8 @@ class StateCollector(Collector):
         up_counters = {
             key: CounterMetricFamily(f"compgw_upstream_{key}", f"Upstream {key}",
                                      labels=["listener"])
-            for key in ("connections", "refused", "malformed", "handler_errors")
+            for key in ("connections", "refused", "evicted", "slow_frames", "idle_closed",
+                        "malformed", "handler_errors")
         }
         up_garbage, up_empty = _line_families("compgw_upstream_line", "listener",
                                               "the upstream RTU line")

@@ -61,7 +61,10 @@ class ServerCounters:
     """Monotonic counters for metrics."""
 
     connections: int = 0  # accepted
-    refused: int = 0  # closed at accept: not allowed, or too many
+    refused: int = 0  # closed at accept: not allowed, or every connection busy
+    evicted: int = 0  # closed to make room for a new connection (idle longest)
+    slow_frames: int = 0  # closed: a frame not complete within frame_timeout_s
+    idle_closed: int = 0  # closed: no request for idle_timeout_s
     requests: int = 0
     replies: int = 0
     handler_errors: int = 0  # handler raised something other than ModbusError
@@ -138,6 +141,11 @@ class _Connection(asyncio.Protocol):
     answered. End of input (EOF, idle timeout, malformed frame): what was received is
     answered, then the connection closes. Server stopping: the request in flight is
     answered, the rest dropped, nothing more is read.
+
+    Activity (``last_active``, for the idle timeout and for eviction) is a complete request
+    received or a reply sent, never a lone byte: a client dripping a frame byte by byte is
+    idle, and is closed when its frame is not complete ``frame_timeout_s`` after its first
+    byte.
     """
 
     def __init__(self, server: TcpServer) -> None:
@@ -162,7 +170,9 @@ class _Connection(asyncio.Protocol):
         self._advancing = False  # _advance() is on the stack
         self._done_cb = self._fast_done  # one bound method for every fast request
         self.last_active = self.loop.time()
+        self.requested = False  # a complete request has arrived on this connection
         self._idle: asyncio.TimerHandle | None = None
+        self._frame_timer: asyncio.TimerHandle | None = None  # a frame is incomplete
         self.done: asyncio.Future[None] = self.loop.create_future()  # closed and idle
 
     # ------------------------------------------------------------------ protocol
@@ -172,17 +182,16 @@ class _Connection(asyncio.Protocol):
         server = self.server
         peername = transport.get_extra_info("peername") or ("?", 0)
         self.peer = f"{peername[0]}:{peername[1]}"
-        reason = None
+        # one log template per cause: the log filter limits repeats per template
         if not _allowed(str(peername[0]), server.allow):
-            reason = "not in the allowlist"
-        elif len(server._connections) >= server.max_connections:
-            reason = f"more than {server.max_connections} connections"
-        elif server._server is None:
-            reason = "server closing"
-        if reason:
-            server.counters.refused += 1
-            log.warning("refused Modbus TCP client %s: %s", self.peer, reason)
-            transport.close()
+            self._refuse("refused Modbus TCP client %s: not in the allowlist", self.peer)
+            return
+        if server._server is None:
+            self._refuse("refused Modbus TCP client %s: server closing", self.peer)
+            return
+        if server.open_count() >= server.max_connections and not server.make_room(self):
+            self._refuse("refused Modbus TCP client %s: all %d connections have a request "
+                         "in flight (max_connections)", self.peer, server.max_connections)
             return
         sock = transport.get_extra_info("socket")
         if sock is not None:
@@ -191,15 +200,21 @@ class _Connection(asyncio.Protocol):
         self.accepted = True
         server.counters.connections += 1
         server._connections[self] = None
+        self.last_active = self.loop.time()
         if server.idle_timeout_s:
             self._idle = self.loop.call_later(server.idle_timeout_s, self._idle_check)
         log.debug("client %s connected", self.peer)
 
+    def _refuse(self, template: str, *args: object) -> None:
+        """Close at accept, counted and logged (``template``: one per cause)."""
+        self.server.counters.refused += 1
+        log.warning(template, *args)
+        assert self.transport is not None
+        self.transport.close()
+
     def data_received(self, data: bytes) -> None:
         if self.eof or self.stopping or not self.accepted:
             return
-        if self._idle is not None:
-            self.last_active = self.loop.time()
         self.buf += data
         self._cut()
 
@@ -216,6 +231,7 @@ class _Connection(asyncio.Protocol):
         if self._idle is not None:
             self._idle.cancel()
             self._idle = None
+        self._stop_frame_timer()
         if self._draining:
             self._draining = False
             self._next()
@@ -237,8 +253,10 @@ class _Connection(asyncio.Protocol):
         start answering them if the connection is idle."""
         buf = self.buf
         limit = self.server.max_pipeline
+        cut = limited = False
         while len(buf) >= 8 and not self.eof and not self.stopping:
             if len(self.pending) + self.busy >= limit:
+                limited = True
                 if not self.read_paused and self.transport is not None:
                     self.read_paused = True  # backpressure: stop reading when too far ahead
                     self.transport.pause_reading()
@@ -254,8 +272,39 @@ class _Connection(asyncio.Protocol):
                 break
             self.pending.append(((buf[0] << 8) | buf[1], buf[6], bytes(buf[7:size])))
             del buf[:size]
+            cut = True
+        if cut:
+            self.requested = True
+            self.last_active = self.loop.time()
+        if buf and not limited and not self.eof and not self.stopping:
+            if cut or self._frame_timer is None:  # a new frame began: its clock starts
+                self._start_frame_timer()
+        else:
+            self._stop_frame_timer()
         if self.pending and not self.working:
             self._advance()
+
+    def _start_frame_timer(self) -> None:
+        self._stop_frame_timer()
+        timeout_s = self.server.frame_timeout_s
+        if timeout_s:
+            self._frame_timer = self.loop.call_later(timeout_s, self._frame_expired)
+
+    def _stop_frame_timer(self) -> None:
+        if self._frame_timer is not None:
+            self._frame_timer.cancel()
+            self._frame_timer = None
+
+    def _frame_expired(self) -> None:
+        """A frame begun ``frame_timeout_s`` ago is still incomplete: a slow or stuck
+        sender, closed (what was received complete is answered first)."""
+        self._frame_timer = None
+        if self.eof or self.stopping or self.lost or not self.buf:
+            return
+        self.server.counters.slow_frames += 1
+        log.warning("Modbus TCP client %s: frame incomplete %.1f s after its first byte: "
+                    "closing", self.peer, self.server.frame_timeout_s)
+        self._end_input()
 
     def _advance(self) -> None:
         """Start the next requests of ``pending`` in order, as long as they are answered
@@ -343,8 +392,7 @@ class _Connection(asyncio.Protocol):
         self._next()
 
     def _next(self) -> None:
-        if self._idle is not None:
-            self.last_active = self.loop.time()
+        self.last_active = self.loop.time()
         if self.read_paused and not (self.eof or self.stopping or self.lost):
             self._cut()  # frames already received, up to the limit again
             if len(self.pending) < self.server.max_pipeline and self.transport is not None:
@@ -358,6 +406,7 @@ class _Connection(asyncio.Protocol):
         if self.eof:
             return
         self.eof = True
+        self._stop_frame_timer()
         self._stop_reading()
 
     def stop(self) -> None:
@@ -365,6 +414,7 @@ class _Connection(asyncio.Protocol):
         dropped, then the connection closes."""
         self.stopping = True
         self.pending.clear()
+        self._stop_frame_timer()
         self._stop_reading()
 
     def _stop_reading(self) -> None:
@@ -399,26 +449,34 @@ class _Connection(asyncio.Protocol):
             self.last_active = now
         due = self.last_active + idle_s
         if now >= due:
-            log.info("%s: idle for %.0f s: closing", self.peer, idle_s)
+            self.server.counters.idle_closed += 1
+            log.info("Modbus TCP client %s: no request for %.0f s (idle_timeout_s): closing",
+                     self.peer, idle_s)
             self._end_input()
             return
         self._idle = self.loop.call_at(due, self._idle_check)
 
 
 class TcpServer(Listener):
-    """Modbus TCP server: MBAP framing, pipelining, allowlist, connection limits.
+    """Modbus TCP server: MBAP framing, pipelining, allowlist, connection management.
 
     ``allow``: client networks accepted (None: all); others are closed at accept and
-    logged. ``max_connections``: further connections are closed at accept.
+    logged. ``max_connections``: when that many are open, an allowed new connection closes
+    the one idle longest to make room — first among those that never sent a complete
+    request, then by time since their last request or reply — as the Modbus TCP
+    implementation guide advises, so leaked or silent connections can never lock a working
+    master out; only when every connection has a request in flight is the new one refused.
     ``idle_timeout_s``: a connection with no request for that long is closed (None: never).
-    ``max_pipeline``: requests read ahead per connection before reading pauses.
-    ``fast``: the fast handler tried first for each request (see the module's docstring).
+    ``frame_timeout_s``: a frame not complete that long after its first byte closes its
+    connection (None: never). ``max_pipeline``: requests read ahead per connection before
+    reading pauses. ``fast``: the fast handler tried first for each request (see the
+    module's docstring).
     """
 
     def __init__(self, handler: Handler, host: str = "127.0.0.1", port: int = 502, *,
                  allow: Iterable[str | Network] | None = None, max_connections: int = 16,
-                 idle_timeout_s: float | None = None, max_pipeline: int = 16,
-                 fast: FastHandler | None = None) -> None:
+                 idle_timeout_s: float | None = None, frame_timeout_s: float | None = 2.0,
+                 max_pipeline: int = 16, fast: FastHandler | None = None) -> None:
         super().__init__(handler, fast)
         if max_pipeline < 1:
             raise ValueError("max_pipeline must be >= 1")
@@ -427,6 +485,7 @@ class TcpServer(Listener):
         self.allow = parse_networks(allow)
         self.max_connections = max_connections
         self.idle_timeout_s = idle_timeout_s
+        self.frame_timeout_s = frame_timeout_s
         self.max_pipeline = max_pipeline
         self._server: asyncio.Server | None = None
         self._connections: dict[_Connection, None] = {}
@@ -439,6 +498,26 @@ class TcpServer(Listener):
     @property
     def connection_count(self) -> int:
         return len(self._connections)
+
+    def open_count(self) -> int:
+        """Connections that count against ``max_connections``: accepted and not closing."""
+        return sum(1 for c in self._connections if not (c.eof or c.stopping))
+
+    def make_room(self, newcomer: _Connection) -> bool:
+        """Close the connection idle longest (nothing in flight; one that never sent a
+        complete request first) for ``newcomer``; False when every one is busy."""
+        idle = [c for c in self._connections
+                if not (c.eof or c.stopping or c.working or c.pending)]
+        if not idle:
+            return False
+        victim = min(idle, key=lambda c: (c.requested, c.last_active))
+        self.counters.evicted += 1
+        log.warning("Modbus TCP client %s closed to make room for %s (max_connections %d): "
+                    "idle longest, %.1f s%s", victim.peer, newcomer.peer, self.max_connections,
+                    victim.loop.time() - victim.last_active,
+                    "" if victim.requested else ", no request yet")
+        victim._end_input()
+        return True
 
     async def start(self) -> None:
         """Bind and listen; raises OSError if the address cannot be bound."""

@@ -4,6 +4,7 @@ control off by default (the daemon protects the drives; Modbus has no authentica
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import socket
 from pathlib import Path
@@ -11,7 +12,7 @@ from pathlib import Path
 from gateway.frames import pack_int32
 from tests.gateway_rig import SPEED, TARGET, rig
 from tests.test_gateway_e2e import read32
-from tests.test_service_helpers import mbap, read_pdu
+from tests.test_service_helpers import mbap, read_pdu, sim_and_gateway
 
 
 def run(coro, timeout_s: float = 30.0):
@@ -59,31 +60,79 @@ def test_client_outside_the_allowlist_is_refused_and_logged(tmp_path: Path, capl
     run(body())
 
 
-def test_connection_limit_and_idle_timeout(tmp_path: Path):
+def _rss_kib(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    raise AssertionError("no VmRSS")
+
+
+async def _closed_by_server(reader: asyncio.StreamReader, timeout_s: float = 5.0) -> bool:
+    try:
+        return await asyncio.wait_for(reader.read(100), timeout_s) == b""
+    except ConnectionError:
+        return True
+
+
+def test_silent_and_dripping_clients_never_lock_out_a_master(tmp_path: Path):
+    """2 × max_connections silent clients, then max_connections clients dripping a frame
+    byte by byte: each newcomer closes the connection idle longest (first those that never
+    sent a request), a real master is still served, every drip is closed frame_timeout_s
+    after its first byte, and the gateway's memory stays flat over rounds of it."""
+    limit, frame_timeout_s = 4, 0.6
+
     def edit(data):
-        data["upstream"]["tcp"].update(max_connections=2, idle_timeout_s=0.3)
+        data["upstream"]["tcp"].update(max_connections=limit, idle_timeout_s=30,
+                                       frame_timeout_s=frame_timeout_s)
 
-    async def body():
-        async with rig(tmp_path, edit) as r:
-            app, master = r["app"], r["master"]
-            port = app.tcp_port
-            assert app.tcp.connection_count == 1  # the rig's master
+    async def round_(port: int) -> None:
+        silent = []
+        for i in range(2 * limit):
+            silent.append(await asyncio.open_connection("127.0.0.1", port))
+            if i >= limit:  # full: this one closed the oldest silent connection, only it
+                assert await _closed_by_server(silent[i - limit][0])
+                assert not any(r.at_eof() for r, _ in silent[i - limit + 1:])
+        drips = []
+        loop = asyncio.get_running_loop()
+        for _ in range(limit):
             reader, writer = await asyncio.open_connection("127.0.0.1", port)
-            # the third is closed at accept
-            assert await raw_request(port, read_pdu(3, 0x6200, 1)) is None
-            assert app.tcp.counters.refused >= 1
-            # an idle connection is closed by the gateway after idle_timeout_s
-            t0 = asyncio.get_running_loop().time()
-            assert await asyncio.wait_for(reader.read(), 5) == b""
-            assert asyncio.get_running_loop().time() - t0 >= 0.25
+            writer.write(bytes((0, 1, 0, 0, 0, 254, 1)))  # announces a 253-byte PDU ...
+            drips.append((reader, writer, loop.time()))
+        for reader, _ in silent:
+            assert await _closed_by_server(reader)
+        # a real master gets in (closing the oldest drip) and is served
+        reply = await raw_request(port, read_pdu(3, 0x6200, 2))
+        assert reply is not None and reply[:2] == b"\x03\x04"
+        for k, (reader, writer, t0) in enumerate(drips):
+            if k == 0:
+                assert await _closed_by_server(reader)
+                continue
+            while not reader.at_eof():  # ... and drips a byte every 0.1 s
+                writer.write(b"\x03")
+                with contextlib.suppress(asyncio.TimeoutError, ConnectionError):
+                    await asyncio.wait_for(reader.read(100), 0.1)
+                assert loop.time() - t0 < frame_timeout_s + 3.0, "drip client never closed"
+            assert loop.time() - t0 >= frame_timeout_s - 0.05
+        for _, writer in silent:
             writer.close()
-            master.close()
-            while app.tcp.connection_count:  # both idle ones gone: room again
-                await asyncio.sleep(0.02)
-            reply = await raw_request(port, read_pdu(3, 0x6200, 1))
-            assert reply is not None and reply[0] == 3
+        for _, writer, _ in drips:
+            writer.close()
 
-    run(body())
+    with sim_and_gateway(tmp_path, edit) as r:
+        port, pid = r["port"], r["gw"].popen.pid
+
+        async def body() -> list[int]:
+            rss = []
+            for _ in range(6):
+                await round_(port)
+                rss.append(_rss_kib(pid))
+            return rss
+
+        rss = asyncio.run(asyncio.wait_for(body(), 60))
+        assert rss[-1] - rss[1] < 1024, f"gateway RSS grew {rss} KiB over the rounds"
+        log = r["gw"].text()
+        assert "closed to make room" in log and "no request yet" in log
+        assert "frame incomplete" in log
 
 
 def test_write_to_a_protected_range_gets_0x02_and_reaches_no_drive(tmp_path: Path):

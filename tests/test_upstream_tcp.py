@@ -201,22 +201,49 @@ def test_allowlist_refuses_at_accept() -> None:
     run(main())
 
 
-def test_max_connections_and_idle_timeout() -> None:
+def test_max_connections_makes_room_and_idle_timeout() -> None:
+    """At max_connections a new client closes the one idle longest; idle ones time out."""
+
     async def main() -> None:
         async with TcpServer(address_echo, "127.0.0.1", 0, max_connections=1,
                              idle_timeout_s=0.3) as server:
             first = await RawTcpMaster.connect(server.port)
             assert await first.request(1, f.build_read_request(3, 0, 1)) == b"\x03\x02\x00\x01"
             second = await RawTcpMaster.connect(server.port)
-            await assert_closed_by_server(second.reader)
-            assert server.counters.refused == 1
+            await assert_closed_by_server(first.reader)  # made room for the second
+            assert server.counters.evicted == 1 and server.counters.refused == 0
+            assert await second.request(1, f.build_read_request(3, 0, 1)) == b"\x03\x02\x00\x01"
             t0 = time.monotonic()
-            await assert_closed_by_server(first.reader)  # idle
+            await assert_closed_by_server(second.reader)  # idle
             assert 0.25 < time.monotonic() - t0 < 1.0
+            assert server.counters.idle_closed == 1
             await wait_for_condition(lambda: server.connection_count == 0)
-            third = await RawTcpMaster.connect(server.port)
-            assert await third.request(1, f.build_read_request(3, 0, 1)) == b"\x03\x02\x00\x01"
-            for m in (first, second, third):
+            for m in (first, second):
+                await m.close()
+
+    run(main())
+
+
+def test_connection_busy_everywhere_refuses_the_newcomer() -> None:
+    """Only when every connection has a request in flight is a new one refused."""
+
+    async def main() -> None:
+        release = asyncio.Event()
+
+        async def held(unit_id: int, pdu: bytes) -> bytes | None:
+            await release.wait()
+            return await address_echo(unit_id, pdu)
+
+        async with TcpServer(held, "127.0.0.1", 0, max_connections=1) as server:
+            busy = await RawTcpMaster.connect(server.port)
+            busy.writer.write(mbap(5, 1, f.build_read_request(3, 0, 1)))
+            await wait_for_condition(lambda: server.counters.requests == 1)
+            newcomer = await RawTcpMaster.connect(server.port)
+            await assert_closed_by_server(newcomer.reader)
+            assert server.counters.refused == 1 and server.counters.evicted == 0
+            release.set()
+            assert (await read_mbap(busy.reader))[0] == 5  # the busy one was not touched
+            for m in (busy, newcomer):
                 await m.close()
 
     run(main())
@@ -325,6 +352,32 @@ def test_eof_after_pipelined_requests_answers_them_then_closes() -> None:
                 assert (await read_mbap(m.reader))[0] == t
             await assert_closed_by_server(m.reader)
             await wait_for_condition(lambda: server.connection_count == 0)
+            await m.close()
+
+    run(main())
+
+
+def test_frame_must_complete_within_frame_timeout() -> None:
+    """A frame in two segments a little apart is served; one left incomplete closes its
+    connection frame_timeout_s after its first byte, counted; a later byte does not
+    restart the clock."""
+
+    async def main() -> None:
+        async with TcpServer(address_echo, "127.0.0.1", 0, frame_timeout_s=0.4) as server:
+            m = await RawTcpMaster.connect(server.port)
+            frame = mbap(9, 1, f.build_read_request(3, 10, 1))
+            m.writer.write(frame[:5])
+            await asyncio.sleep(0.1)  # well inside the frame timeout
+            m.writer.write(frame[5:])
+            assert (await read_mbap(m.reader))[2] == b"\x03\x02\x00\x0b"
+            loop = asyncio.get_running_loop()
+            t0 = loop.time()
+            m.writer.write(frame[:9])
+            await asyncio.sleep(0.2)
+            m.writer.write(frame[9:10])  # still one byte short
+            await assert_closed_by_server(m.reader)
+            assert 0.35 < loop.time() - t0 < 1.5
+            assert server.counters.slow_frames == 1
             await m.close()
 
     run(main())

@@ -44,8 +44,8 @@ the same RTU master program on the direct line and on the gateway's RTU server. 
 the transaction, as a gateway must. A pty has no baud rate, so no wire time is included
 anywhere (FC03x10 at 115200 is ~2.9 ms of wire).
 
-Run:  .venv/bin/python bench/gateway.py            (full: 2000 requests per master, ~6 min)
-      .venv/bin/python bench/gateway.py --quick    (300 per master, ~1 min)
+Run:  .venv/bin/python bench/forwarding.py            (full: 2000 requests per master, ~6 min)
+      .venv/bin/python bench/forwarding.py --quick    (300 per master, ~1 min)
       options: --only tcp|rtu, --requests N, --time-cap S, --profile DIR (py-spy on the
       gateway, separate runs after the table), --what-if (a second gateway process whose RTU
       line's t3.5 is patched at start-up to the exact 0.30 ms at 115200, then to 0: how
