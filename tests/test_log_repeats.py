@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import asyncio
 import io
+import ipaddress
 import logging
 
 from gateway.service import RepeatFilter, configure_logging
+from gateway.upstream import TcpServer
+from tests.helpers_modbus import run, wait_for_condition
 
 
 class Clock:
@@ -60,3 +64,47 @@ def test_the_daemons_log_handler_holds_repeats_back() -> None:
     finally:
         root.handlers[:], level = saved
         root.setLevel(level)
+
+
+def test_refusals_of_different_causes_are_held_back_separately() -> None:
+    """A flood of allowlist refusals must not swallow (or count) a refusal of another
+    cause: each cause of the TCP server's refusals is its own kind."""
+    out = io.StringIO()
+    handler = logging.StreamHandler(out)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    handler.addFilter(RepeatFilter(burst=1, window_s=60.0, clock=Clock()))
+    logger = logging.getLogger("gateway.upstream")
+    saved = logger.handlers[:], logger.level
+    logger.handlers[:] = [handler]
+    logger.setLevel(logging.WARNING)
+
+    async def held(unit_id: int, pdu: bytes) -> bytes | None:
+        await asyncio.sleep(10)
+        return None
+
+    async def main() -> None:
+        async with TcpServer(held, "127.0.0.1", 0, allow=["127.0.0.0/8"],
+                             max_connections=1) as server:
+            server.allow = [ipaddress.ip_network("127.0.0.2/32")]
+            for _ in range(3):  # not in the allowlist
+                _, w = await asyncio.open_connection("127.0.0.1", server.port)
+                w.close()
+            await wait_for_condition(lambda: server.counters.refused == 3)
+            server.allow = None
+            _, busy = await asyncio.open_connection("127.0.0.1", server.port)
+            busy.write(bytes((0, 1, 0, 0, 0, 6, 1, 3, 0, 0, 0, 1)))
+            await wait_for_condition(lambda: server.counters.requests == 1)
+            _, w = await asyncio.open_connection("127.0.0.1", server.port)  # all busy
+            await wait_for_condition(lambda: server.counters.refused == 4)
+            w.close()
+            busy.close()
+            await server.close(timeout_s=0.1)
+
+    try:
+        run(main())
+    finally:
+        logger.handlers[:], logger.level = saved
+    lines = out.getvalue().splitlines()
+    assert sum("not in the allowlist" in ln for ln in lines) == 1  # 2 held back
+    assert [ln for ln in lines if "max_connections" in ln] != []  # not held, not counted
+    assert "held back" not in out.getvalue()
