@@ -51,7 +51,15 @@ WordOrder = Literal["hi_lo", "lo_hi"]
 
 
 class FrameError(ValueError):
-    """A PDU or frame that does not follow the protocol (message says what is wrong)."""
+    """A PDU or frame that does not follow the protocol (message says what is wrong).
+
+    ``code``: the exception a conforming server answers it with (spec 1.1b3 section 6): 0x03
+    for a wrong length, byte count or quantity, 0x02 for a range running past 0xFFFF.
+    """
+
+    def __init__(self, message: str, code: int = ILLEGAL_DATA_VALUE) -> None:
+        super().__init__(message)
+        self.code = code
 
 
 class ModbusError(Exception):
@@ -124,7 +132,8 @@ def _check_count(count: int, limit: int, what: str) -> None:
 
 def _check_range(address: int, count: int, what: str) -> None:
     if address + count > 0x10000:
-        raise FrameError(f"{what}: address {address} + quantity {count} exceeds 65536")
+        raise FrameError(f"{what}: address {address} + quantity {count} exceeds 65536",
+                         ILLEGAL_DATA_ADDRESS)
 
 
 def parse_request(pdu: bytes) -> Request:

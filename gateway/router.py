@@ -285,9 +285,9 @@ class Gateway:
             req = parse_request(pdu)
         except FrameError as exc:
             # never forwarded: a lenient drive might act on a malformed write of the target
-            # (an uncorrected position), or answer a malformed read with raw feedback
-            raise ModbusError(f"axis {name}: malformed request refused: {exc}",
-                              ILLEGAL_DATA_VALUE) from None
+            # (an uncorrected position), or answer a malformed read with raw feedback; the
+            # code is the spec's (and a conforming drive's): 0x03 length, 0x02 range
+            raise ModbusError(f"axis {name}: request refused: {exc}", exc.code) from None
         if fc in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS):
             return await self._read(setup, name, axis, req, pdu)
         if fc == READ_WRITE_MULTIPLE_REGISTERS:

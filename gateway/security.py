@@ -3,7 +3,8 @@
 Modbus has no authentication, so the gateway guards the drives itself: a write request
 (FC05/06/0F/10/16/17) to an upstream unit whose written range touches a ``write_protect``
 entry is answered with exception 0x02 (illegal data address) and sent to no drive. A write
-PDU too short to show its range is refused the same way when the unit has any protection.
+PDU too short to show its range is refused with 0x03 (as a drive answers a malformed
+request) when the unit protects the table it writes; a rule protects only its own table.
 The rules are read from the current config at each request, so a reload changes them
 between transactions.
 """
@@ -16,6 +17,7 @@ from collections.abc import Awaitable, Callable, Sequence
 from .config import WriteProtect
 from .frames import (
     ILLEGAL_DATA_ADDRESS,
+    ILLEGAL_DATA_VALUE,
     READ_WRITE_MULTIPLE_REGISTERS,
     WRITE_MULTIPLE_COILS,
     WRITE_MULTIPLE_REGISTERS,
@@ -36,15 +38,23 @@ _HOLDING_WRITES = {WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_REGISTERS, MASK_WRITE_R
 _COIL_WRITES = {WRITE_SINGLE_COIL, WRITE_MULTIPLE_COILS}
 
 
+def written_table(pdu: bytes) -> str | None:
+    """The table ("holding" or "coils") a write request writes; None for other requests."""
+    fc = pdu[0] if pdu else 0
+    if fc in _HOLDING_WRITES:
+        return "holding"
+    return "coils" if fc in _COIL_WRITES else None
+
+
 def written_range(pdu: bytes) -> tuple[str, int, int] | None:
     """(table, first address, count) a write request touches; None for other requests.
 
     Raises ValueError when the PDU is a write too short to tell.
     """
-    fc = pdu[0] if pdu else 0
-    if fc not in _HOLDING_WRITES and fc not in _COIL_WRITES:
+    table = written_table(pdu)
+    if table is None:
         return None
-    table = "coils" if fc in _COIL_WRITES else "holding"
+    fc = pdu[0]
     if fc == READ_WRITE_MULTIPLE_REGISTERS:
         if len(pdu) < 9:
             raise ValueError("short FC23")
@@ -65,23 +75,31 @@ class WriteGuard:
         self.refused = 0
 
     def check(self, unit_id: int, pdu: bytes) -> None:
-        """Raise ModbusError(0x02) when ``pdu`` writes a protected register of ``unit_id``."""
+        """Raise ModbusError(0x02) when ``pdu`` writes a protected register of ``unit_id``.
+
+        Only the rules of the table the request writes apply. A write of a protected table
+        too short to show its range is refused with 0x03, as a conforming drive answers a
+        malformed request (and never reaches the drive, which might act on it leniently).
+        """
         rules = self.rules()
         if not rules:
             return
-        rules = [r for r in rules if r.unit == unit_id]
+        table = written_table(pdu)
+        if table is None:
+            return
+        rules = [r for r in rules if r.unit == unit_id and r.table == table]
         if not rules:
             return
         try:
             span = written_range(pdu)
-        except ValueError:
-            span = ("any", 0, 65536)
-        if span is None:
-            return
-        table, start, count = span
+        except ValueError as exc:
+            self.refused += 1
+            log.warning("malformed write to unit %d refused: it has write_protect %s: %s",
+                        unit_id, table, exc)
+            raise ModbusError(f"unit {unit_id}: malformed write", ILLEGAL_DATA_VALUE) from None
+        assert span is not None
+        _, start, count = span
         for rule in rules:
-            if table not in ("any", rule.table):
-                continue
             if start < rule.address + rule.count and rule.address < start + count:
                 self.refused += 1
                 log.warning("write to unit %d %s %d..%d refused: write_protect %d..%d",

@@ -61,19 +61,21 @@ def handle_pdu(unit: RegisterUnit, pdu: bytes) -> bytes:
 
 def _dispatch(unit: RegisterUnit, fc: int, data: bytes) -> bytes:
     if fc in (0x03, 0x04):
-        address, count = struct.unpack(">HH", data[:4])
+        _check_length(data, 4)
+        address, count = struct.unpack(">HH", data)
         if not 1 <= count <= 125:
             raise ModbusError(ILLEGAL_VALUE, "read count")
         _check_span(address, count)
         values = unit.read("holding" if fc == 0x03 else "input", address, count)
         return bytes([fc]) + _registers(values)
     if fc == 0x06:
-        address, value = struct.unpack(">HH", data[:4])
+        _check_length(data, 4)
+        address, value = struct.unpack(">HH", data)
         unit.write(address, [value], fc)
         return bytes([fc]) + data[:4]
     if fc == 0x10:
         address, count, nbytes = struct.unpack(">HHB", data[:5])
-        if not 1 <= count <= 123 or nbytes != 2 * count or len(data) < 5 + nbytes:
+        if not 1 <= count <= 123 or nbytes != 2 * count or len(data) != 5 + nbytes:
             raise ModbusError(ILLEGAL_VALUE, "write count")
         _check_span(address, count)
         values = list(struct.unpack(f">{count}H", data[5 : 5 + nbytes]))
@@ -81,7 +83,8 @@ def _dispatch(unit: RegisterUnit, fc: int, data: bytes) -> bytes:
         return bytes([fc]) + data[:4]
     if fc == 0x17:
         r_addr, r_count, w_addr, w_count, nbytes = struct.unpack(">HHHHB", data[:9])
-        if not (1 <= r_count <= 125 and 1 <= w_count <= 121 and nbytes == 2 * w_count):
+        if not (1 <= r_count <= 125 and 1 <= w_count <= 121 and nbytes == 2 * w_count
+                and len(data) == 9 + nbytes):
             raise ModbusError(ILLEGAL_VALUE, "read/write count")
         _check_span(r_addr, r_count)
         _check_span(w_addr, w_count)
@@ -89,6 +92,12 @@ def _dispatch(unit: RegisterUnit, fc: int, data: bytes) -> bytes:
         unit.write(w_addr, values, fc)
         return bytes([fc]) + _registers(unit.read("holding", r_addr, r_count))
     raise ModbusError(ILLEGAL_FUNCTION, f"function {fc:#04x}")
+
+
+def _check_length(data: bytes, length: int) -> None:
+    """A request whose length its function code does not allow: 0x03, as the spec says."""
+    if len(data) != length:
+        raise ModbusError(ILLEGAL_VALUE, f"{len(data) + 1}-byte PDU")
 
 
 def _check_span(address: int, count: int) -> None:

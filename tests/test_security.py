@@ -157,7 +157,7 @@ def test_write_to_a_protected_range_gets_0x02_and_reaches_no_drive(tmp_path: Pat
             rr = await master.write_coil(0, True, device_id=20)
             assert rr.isError() and rr.exception_code == 0x02
             # a short (malformed) write PDU to a protected unit is refused too
-            assert await raw_request(app.tcp_port, b"\x10\x62", unit=1) == b"\x90\x02"
+            assert await raw_request(app.tcp_port, b"\x10\x62", unit=1) == b"\x90\x03"
             assert bus.counters.transactions == sent  # nothing reached a drive
             assert await read32(direct, 1, TARGET) == drive_target
             assert app.write_guard.refused == 5
