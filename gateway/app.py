@@ -23,8 +23,9 @@ from pathlib import Path
 
 from .compensation import Chain
 from .config import Bus as BusConfig
-from .config import ConfigError, GatewayConfig, bus_silence_s, load_config
+from .config import ConfigError, GatewayConfig, TcpListen, bus_silence_s, load_config
 from .downstream import Bus, RtuBus, TcpBus
+from .mbsecurity import TlsGate
 from .metrics import MetricsServer
 from .metrics import build as build_metrics
 from .router import Gateway
@@ -34,6 +35,7 @@ from .service import Notifier
 from .state_store import StateStore
 from .status import StatusUnit
 from .tables import build_chain
+from .tlsfiles import server_context
 from .upstream import RtuServer, TcpServer
 
 log = logging.getLogger(__name__)
@@ -47,6 +49,7 @@ def make_bus(name: str, cfg: BusConfig, min_silence_s: float | None = None) -> B
         "timeout_s": cfg.timeout_s,
         "retries": cfg.retries,
         "min_silence_s": cfg.min_silence_s if min_silence_s is None else min_silence_s,
+        "turnaround_s": cfg.turnaround_s,
     }
     if cfg.tcp is not None:
         return TcpBus(cfg.tcp.host, cfg.tcp.port, **common)
@@ -104,6 +107,7 @@ class GatewayApp:
                 path = Path(source).resolve().parent / path
             self.state_store = StateStore(path, self.gateway.saved_axes)
         self.tcp: TcpServer | None = None
+        self.tls: TcpServer | None = None  # Modbus/TCP Security
         self.rtu: RtuServer | None = None
         self._stop_sensors = asyncio.Event()
         self._sensor_task: asyncio.Task[None] | None = None
@@ -132,17 +136,12 @@ class GatewayApp:
         up = self.config.upstream
         try:
             if up.tcp is not None:
-                self.tcp = TcpServer(
-                    self.handler,
-                    up.tcp.host,
-                    up.tcp.port,
-                    allow=up.tcp.allow,
-                    max_connections=up.tcp.max_connections,
-                    idle_timeout_s=up.tcp.idle_timeout_s or None,
-                    frame_timeout_s=up.tcp.frame_timeout_s,
-                    fast=self.fast_handler,
-                )
+                self.tcp = self._tcp_server(up.tcp)
                 await self.tcp.start()
+            if up.tls is not None:  # raises ConfigError when its files cannot be used
+                base = Path(self.source).resolve().parent if self.source is not None else None
+                self.tls = self._tcp_server(up.tls, TlsGate(up.tls, server_context(up.tls, base)))
+                await self.tls.start()
             if up.rtu is not None:
                 self.rtu = RtuServer(
                     self.handler,
@@ -161,9 +160,22 @@ class GatewayApp:
             await self.stop()
             raise
 
+    def _tcp_server(self, listen: TcpListen, tls: TlsGate | None = None) -> TcpServer:
+        return TcpServer(
+            self.handler,
+            listen.host,
+            listen.port,
+            allow=listen.allow,
+            max_connections=listen.max_connections,
+            idle_timeout_s=listen.idle_timeout_s or None,
+            frame_timeout_s=listen.frame_timeout_s,
+            fast=self.fast_handler,
+            tls=tls,
+        )
+
     async def stop(self) -> None:
         """Stop listening (in-flight transactions finish), then close the buses."""
-        for listener in (self.tcp, self.rtu, self.metrics):
+        for listener in (self.tcp, self.tls, self.rtu, self.metrics):
             if listener is not None:
                 await listener.close()
         self._stop_sensors.set()
@@ -208,6 +220,8 @@ class GatewayApp:
         parts = []
         if self.tcp is not None:
             parts.append(f"Modbus TCP {self.tcp.host}:{self.tcp.port}")
+        if self.tls is not None:
+            parts.append(f"Modbus/TCP Security {self.tls.host}:{self.tls.port}")
         if self.rtu is not None:
             parts.append(f"Modbus RTU {self.rtu.line.port}")
         buses = ", ".join(f"{name} {'up' if bus.connected else 'DOWN'}"
@@ -236,6 +250,10 @@ async def serve(path: str | Path, *, stop: asyncio.Event | None = None,
     app = GatewayApp(config, chain, source=str(path))
     try:
         await app.start()
+    except ConfigError as exc:  # upstream.tls files the listener cannot use
+        log.error("%s", exc)
+        notifier.status(f"config error: {exc}")
+        return 1
     except OSError as exc:
         log.error("cannot listen: %s", exc)
         notifier.status(f"cannot listen: {exc}")

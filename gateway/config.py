@@ -11,7 +11,7 @@ import ipaddress
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Discriminator, Field, Tag, ValidationError, field_validator, model_validator
 
 from .config_types import (
     Address,
@@ -57,6 +57,56 @@ class TcpListen(Model):
         return value
 
 
+# which member of a "word or list" union a value is for: errors then name the key, not
+# pydantic's member type (the tags are in _UNION_TAGS)
+def _units_tag(value: Any) -> str:
+    return "<all>" if isinstance(value, str) else "<units>"
+
+
+def _write_tag(value: Any) -> str:
+    return "<ranges>" if isinstance(value, list) else "<flag>"
+
+
+class TlsRole(Model):
+    """What a client certificate's role may do (Modbus/TCP Security).
+
+    ``units``: ``all`` (and broadcasts) or a list of upstream units. ``read``: FC01-04 and
+    the other read-only functions. ``write``: ``true`` every write and every other function,
+    ``false`` none, or ``[[first, last], ...]``: FC05/06/0F/10/16/17 whose written addresses
+    (holding registers or coils) all lie in these inclusive ranges.
+    """
+
+    units: Annotated[Annotated[Literal["all"], Tag("<all>")]
+                     | Annotated[list[UnitId], Tag("<units>")], Discriminator(_units_tag)] = "all"
+    read: bool = True
+    write: Annotated[Annotated[bool, Tag("<flag>")]
+                     | Annotated[list[tuple[Address, Address]], Tag("<ranges>")],
+                     Discriminator(_write_tag)] = False
+
+    @field_validator("write")
+    @classmethod
+    def _ranges(cls, value: bool | list[tuple[int, int]]) -> bool | list[tuple[int, int]]:
+        if not isinstance(value, bool):
+            for first, last in value:
+                if first > last:
+                    raise ValueError(f"[{first}, {last}] must be [first, last] with first <= last")
+        return value
+
+
+class TlsListen(TcpListen):
+    """Modbus/TCP Security (MB-TCP-Security): the TCP listener's settings, over TLS >= 1.2
+    with a client certificate verified against ``ca``; each request authorised by the
+    certificate's role (``roles``; ``no_role`` for a certificate without one). Paths are
+    relative to the config file."""
+
+    port: Port = 802
+    cert: str
+    key: str
+    ca: str
+    roles: dict[str, TlsRole] = Field(default_factory=dict)
+    no_role: Literal["refuse", "read_only"] = "refuse"
+
+
 class SerialLine(Model):
     """An RS-485/RS-232 line: device path and serial settings."""
 
@@ -72,12 +122,16 @@ class SerialLine(Model):
 
 class Upstream(Model):
     tcp: TcpListen | None = None
+    tls: TlsListen | None = None
     rtu: SerialLine | None = None
 
     @model_validator(mode="after")
     def _one_at_least(self) -> Upstream:
-        if self.tcp is None and self.rtu is None:
-            raise ValueError("needs tcp, rtu or both")
+        if self.tcp is None and self.tls is None and self.rtu is None:
+            raise ValueError("needs tcp, tls, rtu or any of them together")
+        if (self.tcp is not None and self.tls is not None and self.tls.port != 0
+                and (self.tcp.host, self.tcp.port) == (self.tls.host, self.tls.port)):
+            raise _path_error(("tls", "port"), self.tls.port, "is upstream.tcp's port too")
         return self
 
 
@@ -95,6 +149,9 @@ class Bus(Model):
     timeout_s: float = Field(default=0.1, gt=0.0, le=10.0)
     retries: Annotated[int, in_range(0, 5)] = 1
     min_silence_s: float = Field(default=0.0, ge=0.0, le=1.0)
+    #: after a broadcast on an RTU line, the time left to the drives before the next request
+    #: (the serial-line spec's turnaround delay, typically 0.1-0.2 s)
+    turnaround_s: float = Field(default=0.1, ge=0.0, le=2.0)
 
     @model_validator(mode="after")
     def _exactly_one(self) -> Bus:
@@ -420,7 +477,7 @@ def _path_error(path: tuple[Any, ...], value: Any, rule: str) -> ValueError:
     return ValueError(f"{'.'.join(str(p) for p in path)}: {value!r} {rule}")
 
 
-_UNION_TAGS = frozenset({"str", "PitchFile"})
+_UNION_TAGS = frozenset({"str", "PitchFile", "<all>", "<units>", "<flag>", "<ranges>"})
 
 
 def bus_silence_s(config: GatewayConfig, bus: str) -> float:

@@ -78,6 +78,7 @@ class BusCounters:
     dropped: int = 0  # late or mismatched replies discarded
     unavailable: int = 0  # transactions refused with BusUnavailable
     open_attempts: int = 0  # attempts to (re)open the port/connection
+    broadcasts: int = 0  # broadcast() calls
     reconnects: int = 0  # successful (re)opens
 
 
@@ -139,14 +140,18 @@ class Bus(ABC):
     ``reconnect_min_s``/``reconnect_max_s`` bound the exponential backoff between
     attempts to reopen a failed port/connection: meanwhile transactions fail at once
     with :class:`BusUnavailable` (no busy loop, no master left hanging).
+    ``turnaround_s``: after a broadcast, how long the drives are given before the next
+    request (RTU; the serial-line spec's turnaround delay).
     """
 
     def __init__(self, *, name: str = "bus", timeout_s: float = 0.1, retries: int = 1,
                  min_silence_s: float = 0.0, reconnect_min_s: float = 0.1,
-                 reconnect_max_s: float = 5.0) -> None:
-        if timeout_s <= 0 or retries < 0 or min_silence_s < 0:
-            raise ValueError("timeout_s must be > 0, retries and min_silence_s >= 0")
+                 reconnect_max_s: float = 5.0, turnaround_s: float = 0.1) -> None:
+        if timeout_s <= 0 or retries < 0 or min_silence_s < 0 or turnaround_s < 0:
+            raise ValueError("timeout_s must be > 0, retries, min_silence_s and turnaround_s "
+                             ">= 0")
         self.name = name
+        self.turnaround_s = turnaround_s
         self.timeout_s = timeout_s
         self.retries = retries
         self.min_silence_s = min_silence_s
@@ -202,6 +207,25 @@ class Bus(ABC):
             raise ModbusError(f"{self.name}: unit {unit_id} answered {len(words)} words, "
                               f"not {count}")  # fmt: skip
         return words
+
+    async def broadcast(self, pdu: bytes, units: list[int]) -> None:
+        """A write request for every drive on this bus at once. Here (a TCP endpoint has no
+        broadcast): one unicast per unit in ``units``; as on a serial line, where nobody
+        answers a broadcast, a drive's exception reply or silence is logged, not raised;
+        :class:`BusUnavailable` (nothing could be sent) is raised. :class:`RtuBus` sends
+        one unit-0 frame."""
+        self.counters.broadcasts += 1
+        for unit in units:
+            try:
+                reply = await self.transact(unit, pdu)
+            except BusUnavailable:
+                raise
+            except ModbusError as exc:
+                log.warning("%s: broadcast FC%02d to unit %d: %s", self.name, pdu[0], unit, exc)
+                continue
+            if is_exception(reply):
+                log.debug("%s: unit %d answered the broadcast with exception 0x%02X",
+                          self.name, unit, reply[1])
 
     def submit(self, unit_id: int, pdu: bytes, done: Done) -> bool:
         """Start ``transact(unit_id, pdu)`` without a task when the bus can send at once
@@ -362,7 +386,8 @@ class RtuBus(Bus):
     it does not fit; a late reply of the very same shape after the guard is the one case
     RTU cannot tell, hence the guard. Retries of the same request are sent without the
     guard (a late answer to the first attempt is a correct answer to the retry). Unit 0 is
-    broadcast: sent, no reply awaited, ``b""`` returned.
+    broadcast: sent, no reply awaited, ``b""`` returned, and the next request waits
+    ``turnaround_s`` (input meanwhile discarded) while the drives act on it.
 
     t3.5 is ``silence_s`` if given, else per ``t35`` (``"spec"``: 1.75 ms above 19200 baud;
     ``"exact"``: 3.5 characters at the baud rate). Silences are timed exactly (no rounding
@@ -414,9 +439,16 @@ class RtuBus(Bus):
             self.counters.dropped += 1
             self.line.garbage_bytes += dropped
 
+    async def broadcast(self, pdu: bytes, units: list[int]) -> None:
+        """One unit-0 frame on the line, no reply (every drive acts on it)."""
+        self.counters.broadcasts += 1
+        await self.transact(0, pdu)
+
     async def _send(self, unit_id: int, pdu: bytes) -> int | None:
         await self.line.write(rtu_encode(unit_id, pdu))
         self._last_send_s = time.monotonic()
+        if unit_id == 0:  # the drives' turnaround: no request (nor reply) meanwhile
+            self._hold_until_s = max(self._hold_until_s, self._last_send_s + self.turnaround_s)
         return None
 
     async def _recv_internal(self, timeout_s: float

@@ -199,7 +199,10 @@ class StateCollector(Collector):
         for key, help_text in (("commits", "Corrected targets written to drives"),
                                ("refused_travel", "Targets refused: outside travel"),
                                ("refused_correction", "Targets refused: correction above cap"),
-                               ("feedback_reads", "Feedback reads corrected")):
+                               ("feedback_reads", "Feedback reads corrected"),
+                               ("broadcasts", "Broadcast (unit 0) writes handled"),
+                               ("broadcasts_expanded",
+                                "Broadcasts touching a target, sent as corrected unicasts")):
             family = CounterMetricFamily(f"compgw_{key}", help_text)
             family.add_metric([], getattr(c, key))
             yield family

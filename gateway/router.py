@@ -48,13 +48,16 @@ from .downstream import Bus, Done
 from .frames import (
     GATEWAY_PATH_UNAVAILABLE,
     ILLEGAL_DATA_VALUE,
+    ILLEGAL_FUNCTION,
     MAX_READ_REGISTERS,
     MAX_WRITE_REGISTERS,
     READ_HOLDING_REGISTERS,
     READ_INPUT_REGISTERS,
     READ_WRITE_MULTIPLE_REGISTERS,
     SERVER_DEVICE_FAILURE,
+    WRITE_MULTIPLE_COILS,
     WRITE_MULTIPLE_REGISTERS,
+    WRITE_SINGLE_COIL,
     WRITE_SINGLE_REGISTER,
     FrameError,
     ModbusError,
@@ -113,6 +116,8 @@ class GatewayCounters:
     """Monotonic counters for the status unit and metrics."""
 
     commits: int = 0
+    broadcasts: int = 0  # unit-0 writes handled
+    broadcasts_expanded: int = 0  # of those, sent as corrected unicast writes (a target)
     refused_travel: int = 0
     refused_correction: int = 0
     feedback_reads: int = 0
@@ -216,6 +221,8 @@ class Gateway:
     # -- routing --------------------------------------------------------------------------
     async def handle(self, unit_id: int, pdu: bytes) -> bytes | None:
         setup = self.setup
+        if unit_id == 0:
+            return await self._broadcast(setup, pdu)
         axis_name = setup.axis_by_unit.get(unit_id)
         if axis_name is not None:
             return await self._axis_request(setup, axis_name, pdu)
@@ -434,6 +441,110 @@ class Gateway:
         self._rewrite_read(setup, name, axis, "holding", start, words)
         return build_read_registers_response(req.function, words)
 
+    # -- broadcasts (unit 0) ----------------------------------------------------------------
+    async def _broadcast(self, setup: Setup, pdu: bytes) -> bytes:
+        """A write for every drive at once (unit 0). Never a nominal target to a drive:
+
+        - touching an axis's target: expanded into what a unicast of the same request to
+          each axis whose target or trigger it touches does (corrected target, planar
+          commit rules, trigger after its target); nothing is broadcast;
+        - touching triggers only: each fired axis's pending target is committed first (one
+          corrected unicast write each, its planar partner's too under ``on_trigger``),
+          then the request is broadcast;
+        - anything else: broadcast as it is.
+
+        Broadcast means one unit-0 frame on every RTU bus, and one unicast to each known
+        drive (axes and pass-through units) on every TCP bus. The reply (for a TCP master;
+        an RTU master gets none) is the normal write response once every bus has it.
+        """
+        fc = pdu[0]
+        if fc not in _BROADCAST_WRITES:
+            raise ModbusError(f"broadcast of FC{fc:02d}: only writes can be broadcast",
+                              ILLEGAL_FUNCTION)
+        try:
+            req = parse_request(pdu) if fc != MASK_WRITE_REGISTER else None
+        except FrameError as exc:
+            raise ModbusError(f"broadcast refused: {exc}", exc.code) from None
+        self.counters.broadcasts += 1
+        reply = pdu[:5] if req is None else response_for_write(req)
+        if req is None or fc not in (WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_REGISTERS):
+            await self._broadcast_raw(setup, pdu)
+            return reply
+        start, count = req.write_address or 0, req.write_count
+        targets, triggers = [], []
+        for name, axis in setup.config.axes.items():
+            regs = axis.registers
+            if overlap(start, count, regs.target.address):
+                targets.append(name)
+            elif regs.trigger is not None and overlap(start, count, regs.trigger.address, 1):
+                triggers.append(name)
+        if targets:
+            self.counters.broadcasts_expanded += 1
+            log.info("broadcast FC%02d at 0x%04X touches the target of %s: sent to each axis "
+                     "corrected", fc, start, ", ".join(targets))  # fmt: skip
+            failure: ModbusError | None = None
+            for name in [*targets, *triggers]:  # one axis refused: the others still go
+                try:
+                    answer = await self._write(setup, name, setup.config.axes[name], req, pdu)
+                except ModbusError as exc:
+                    failure = failure or exc
+                    continue
+                if is_exception(answer) and failure is None:
+                    failure = ModbusError(f"axis {name} refused the broadcast", answer[1])
+            if failure is not None:
+                raise failure
+            return reply
+        if triggers:
+            await self._broadcast_trigger(setup, triggers, req, pdu)
+        else:
+            await self._broadcast_raw(setup, pdu)
+        return reply
+
+    async def _broadcast_trigger(self, setup: Setup, names: list[str], req: Request,
+                                 pdu: bytes) -> None:
+        """Commit each fired axis's target (unicast, corrected), then broadcast the
+        trigger; every axis involved stays locked until the trigger is out."""
+        start = req.write_address or 0
+        involved = set(names)
+        for name in names:
+            partner = setup.planar_partner(name)
+            if partner is not None:
+                involved.add(partner)
+        locks = sorted((self._axes[n].lock for n in involved), key=id)
+        async with _all(locks):
+            for name in names:
+                axis = setup.config.axes[name]
+                runtime = self._axes[name]
+                if not self._trigger_fires(runtime, axis, req, start):
+                    continue
+                partner = setup.planar_partner(name)
+                partners = ([partner] if partner is not None and setup.hold_until_trigger(name)
+                            else [])  # fmt: skip
+                await self._commit(setup, name, partners, None)
+            await self._broadcast_raw(setup, pdu)
+            homed = [n for n in names if self._homes(setup.config.axes[n], req, start)]
+            for name in homed:
+                self._axes[name].state.homing_started(setup.config.axes[name].home_direction)
+            if homed:
+                self.on_state_change()
+
+    async def _broadcast_raw(self, setup: Setup, pdu: bytes) -> None:
+        """``pdu`` to every drive: all buses at once (see :meth:`_broadcast`)."""
+        units: dict[str, set[int]] = {name: set() for name in self.buses}
+        for axis in setup.config.axes.values():
+            units[axis.bus].add(axis.unit)
+        for route in setup.config.passthrough.values():
+            units[route.bus].add(route.unit)
+        results = await asyncio.gather(
+            *(bus.broadcast(pdu, sorted(units[name])) for name, bus in self.buses.items()),
+            return_exceptions=True)
+        for name, result in zip(self.buses, results):
+            if isinstance(result, BaseException):
+                log.warning("broadcast FC%02d on bus %s failed: %s", pdu[0], name, result)
+        for result in results:
+            if isinstance(result, BaseException):
+                raise result
+
     # -- writes ---------------------------------------------------------------------------
     async def _write(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
         regs = axis.registers
@@ -651,6 +762,12 @@ class Gateway:
 
 def _nothing() -> None:
     pass
+
+
+MASK_WRITE_REGISTER = 0x16
+#: function codes a broadcast may carry (the spec allows writes only)
+_BROADCAST_WRITES = frozenset({WRITE_SINGLE_COIL, WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_COILS,
+                               WRITE_MULTIPLE_REGISTERS, MASK_WRITE_REGISTER})
 
 
 def _finishing(finish: Finish, done: Done) -> Done:

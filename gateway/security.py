@@ -87,7 +87,8 @@ class WriteGuard:
         table = written_table(pdu)
         if table is None:
             return
-        rules = [r for r in rules if r.unit == unit_id and r.table == table]
+        # a broadcast (unit 0) writes every unit: every unit's rules apply
+        rules = [r for r in rules if r.table == table and unit_id in (0, r.unit)]
         if not rules:
             return
         try:

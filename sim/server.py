@@ -268,7 +268,7 @@ class _RtuLine:
             self._buffer = b""  # a frame, or a bad CRC: either way the buffer is spent
             silence_s = self._frame_start_s - self._line_idle_since_s
             self._line_idle_since_s = now
-            if pdu and unit != 0:
+            if pdu:
                 self._queue.put_nowait((unit, pdu, silence_s))
         if self._gap is not None:
             self._gap.cancel()
@@ -283,6 +283,11 @@ class _RtuLine:
     async def _work(self) -> None:
         while True:
             unit, pdu, silence_s = await self._queue.get()
+            if unit == 0:  # broadcast: every unit on the line acts on it, none answers
+                for each in list(self.sim.units):
+                    if each != self.sim.config.sim.faults.unit:  # the harness's, no device
+                        self.sim.respond(each, pdu)
+                continue
             drive = self.sim.drives_by_unit.get(unit)
             if drive is not None and silence_s < drive.regs_cfg.min_silence_s:
                 drive.silence_violations += 1  # the drive does not see a frame this close
