@@ -177,7 +177,7 @@ def calibrate(
     from .machine import Endpoint, MachineError, MotionSettings
     from .plans import write_plan
     from .runner import join_readings
-    from .session import Instruments, Session, format_figures, identify_config_text, round_figures
+    from .session import Instruments, Session, format_figures, identify_config_text, within
     from .session import iterate as iterate_rounds
 
     try:
@@ -250,16 +250,20 @@ def calibrate(
                 print(f"{raw}: {summary.total_moves} moves, resumed at move "
                       f"{summary.resumed_at}, {summary.measured_now} points measured now")
                 return EXIT_OK
+            vplan = make_plan(args, config, verification=True)
             rounds = await iterate_rounds(
                 session, plan, raw, args.iterate, args.tolerance_um,
-                reload or _reload_fn(args), print,
+                reload or _reload_fn(args), print, verification=vplan,
             )  # fmt: skip
-            vplan = make_plan(args, config, verification=True)
-            if vplan is not None:
-                vraw = raw.with_name(f"{raw.stem}.verify.csv")
-                await session.run(vplan, vraw, "on")
-                print(f"verification ({vraw.name}): {format_figures(round_figures(vplan, vraw))}")
-            print(f"{len(rounds)} round(s)")
+            last = rounds[-1]
+            print(f"{len(rounds)} round(s); last verification: "
+                  f"{last.verify_path or last.raw_path}")  # fmt: skip
+            if not within(last.judged, args.tolerance_um):
+                where = "between the calibration targets" if vplan is not None else \
+                    "at the calibration targets"
+                _err("calibrate", f"tolerance {args.tolerance_um:g} µm not met {where}: "
+                     f"{format_figures(last.judged)}")  # fmt: skip
+                return EXIT_BAD_INPUT
             return EXIT_OK
 
     try:
