@@ -21,11 +21,19 @@ def _cmd_check(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config)
         chain = build_chain(config, Path(args.config).resolve().parent)
+        tls_lines, tls_warnings = [], []
+        if config.upstream.tls is not None:
+            from .tlsfiles import check_files
+
+            tls_lines, tls_warnings = check_files(config.upstream.tls,
+                                                  Path(args.config).resolve().parent)
     except ConfigError as exc:
         print(f"compgw check: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     print(describe(config, chain))
-    for line in warnings(config):
+    for line in tls_lines:
+        print(line)
+    for line in [*warnings(config), *tls_warnings]:
         print(f"compgw check: warning: {line}", file=sys.stderr)
     return EXIT_OK
 

@@ -12,7 +12,9 @@ counter increments and a histogram observation per request):
 Read from the live state at scrape time: per bus queue depth, connected flag and counters;
 per axis last correction, Δa used and compensation switch; per thermal source state (0
 starting, 1 ok, 2 holding, 3 alarm), Δa and failed reads; per listener connections and
-refusals; gateway counters (targets committed, refused).
+refusals; gateway counters (targets committed, refused); with ``upstream.tls``, TLS clients
+refused by reason (``compgw_tls_refused{reason}``) and requests refused by role
+(``compgw_role_denied{role,reason}``).
 """
 
 from __future__ import annotations
@@ -207,8 +209,8 @@ class StateCollector(Collector):
             family.add_metric([], getattr(c, key))
             yield family
 
-        listeners = [(kind, srv) for kind, srv in (("tcp", app.tcp), ("rtu", app.rtu))
-                     if srv is not None]
+        listeners = [(kind, srv) for kind, srv in (("tcp", app.tcp), ("tls", app.tls),
+                                                   ("rtu", app.rtu)) if srv is not None]
         current = GaugeMetricFamily("compgw_upstream_connections_open",
                                     "Open upstream TCP connections", labels=["listener"])
         up_counters = {
@@ -220,7 +222,7 @@ class StateCollector(Collector):
         up_garbage, up_empty = _line_families("compgw_upstream_line", "listener",
                                               "the upstream RTU line")
         for kind, srv in listeners:
-            if kind == "tcp":
+            if kind != "rtu":
                 current.add_metric([kind], srv.connection_count)  # type: ignore[union-attr]
             else:
                 up_garbage.add_metric([kind], srv.line.garbage_bytes)  # type: ignore[union-attr]
@@ -235,6 +237,20 @@ class StateCollector(Collector):
                                         "Writes refused by write_protect")
         protected.add_metric([], app.write_guard.refused if app.write_guard else 0)
         yield protected
+        gate = app.tls.tls if app.tls is not None else None
+        if gate is not None:
+            refused = CounterMetricFamily("compgw_tls_refused", "TLS clients refused: at the "
+                                          "handshake (no certificate, another CA, expired, "
+                                          "TLS < 1.2, ...), the allowlist, an invalid role "
+                                          "extension", labels=["reason"])
+            for reason, count in sorted(gate.refused.items()):
+                refused.add_metric([reason], count)
+            denied = CounterMetricFamily("compgw_role_denied", "Requests refused with 0x01 by "
+                                         "the client's role", labels=["role", "reason"])
+            for (role, reason), count in sorted(gate.denied.items()):
+                denied.add_metric([role, reason], count)
+            yield refused
+            yield denied
 
 
 class MetricsServer:

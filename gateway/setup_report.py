@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from .compensation import Chain
-from .config import GatewayConfig
+from .config import GatewayConfig, TlsRole
 
 
 def describe(config: GatewayConfig, chain: Chain) -> str:
@@ -11,6 +11,11 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
     if config.upstream.tcp is not None:
         tcp = config.upstream.tcp
         lines.append(f"  tcp {tcp.host}:{tcp.port} allow {', '.join(tcp.allow)}")
+    if config.upstream.tls is not None:
+        tls = config.upstream.tls
+        roles = "; ".join(f"{name} ({_role(role)})" for name, role in tls.roles.items())
+        lines.append(f"  tls {tls.host}:{tls.port} allow {', '.join(tls.allow)}, roles "
+                     f"{roles or '(none)'}, no_role {tls.no_role}")
     if config.upstream.rtu is not None:
         rtu = config.upstream.rtu
         lines.append(f"  rtu {rtu.port} {rtu.baudrate} {rtu.bytesize}{rtu.parity}{rtu.stopbits}")
@@ -99,3 +104,13 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
         f"{'on' if config.status.remote_control else 'off'}"
     )
     return "\n".join(lines)
+
+
+def _role(role: TlsRole) -> str:
+    """``units 1,2, read, write 0x6201-0x6202``: what a TLS role may do, in one phrase."""
+    units = "all" if role.units == "all" else ",".join(map(str, role.units))
+    if isinstance(role.write, bool):
+        write = "write" if role.write else "no write"
+    else:
+        write = "write " + ",".join(f"0x{a:04X}-0x{b:04X}" for a, b in role.write)
+    return f"units {units}, {'read' if role.read else 'no read'}, {write}"

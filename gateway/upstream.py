@@ -34,6 +34,7 @@ import socket
 from collections import deque
 from collections.abc import Awaitable, Callable, Collection, Iterable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from .downstream import current_caller
 from .frames import (
@@ -45,6 +46,9 @@ from .frames import (
     rtu_request_length,
 )
 from .serialline import SerialLine, SerialLineLost, T35Mode
+
+if TYPE_CHECKING:
+    from .mbsecurity import Check, TlsGate, TlsServer
 
 log = logging.getLogger(__name__)
 
@@ -173,6 +177,7 @@ class _Connection(asyncio.Protocol):
         self.requested = False  # a complete request has arrived on this connection
         self._idle: asyncio.TimerHandle | None = None
         self._frame_timer: asyncio.TimerHandle | None = None  # a frame is incomplete
+        self.authorise: Check | None = None  # TLS: what the client's role may ask
         self.done: asyncio.Future[None] = self.loop.create_future()  # closed and idle
 
     # ------------------------------------------------------------------ protocol
@@ -198,6 +203,8 @@ class _Connection(asyncio.Protocol):
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.accepted = True
+        if server.tls is not None:  # after the handshake: the certificate's role
+            self.authorise = server.tls.authoriser(transport, self.peer)
         server.counters.connections += 1
         server._connections[self] = None
         self.last_active = self.loop.time()
@@ -220,7 +227,9 @@ class _Connection(asyncio.Protocol):
 
     def eof_received(self) -> bool:
         self._end_input()
-        return True  # keep our side open to answer what was received; closed when done
+        # keep our side open to answer what was received; closed when done (TLS cannot:
+        # asyncio closes it anyway, and warns when asked to keep it open)
+        return self.server.tls is None
 
     def connection_lost(self, exc: Exception | None) -> None:
         if exc is not None:
@@ -328,6 +337,11 @@ class _Connection(asyncio.Protocol):
                 self.busy = True
                 self.current = request = pending.popleft()
                 server.counters.requests += 1
+                if self.authorise is not None:
+                    refusal = self.authorise(request[1], request[2])
+                    if refusal is not None:  # not this client's role: 0x01, nothing forwarded
+                        self._fast_done(None, refusal)
+                        continue
                 fast = server.fast
                 if fast is not None:
                     try:
@@ -470,13 +484,16 @@ class TcpServer(Listener):
     ``frame_timeout_s``: a frame not complete that long after its first byte closes its
     connection (None: never). ``max_pipeline``: requests read ahead per connection before
     reading pauses. ``fast``: the fast handler tried first for each request (see the
-    module's docstring).
+    module's docstring). ``tls``: Modbus/TCP Security (:mod:`gateway.mbsecurity`): each
+    connection's TLS handshake comes before ``connection_made``, and each request is
+    authorised by the client certificate's role before it reaches a handler.
     """
 
     def __init__(self, handler: Handler, host: str = "127.0.0.1", port: int = 502, *,
                  allow: Iterable[str | Network] | None = None, max_connections: int = 16,
                  idle_timeout_s: float | None = None, frame_timeout_s: float | None = 2.0,
-                 max_pipeline: int = 16, fast: FastHandler | None = None) -> None:
+                 max_pipeline: int = 16, fast: FastHandler | None = None,
+                 tls: TlsGate | None = None) -> None:
         super().__init__(handler, fast)
         if max_pipeline < 1:
             raise ValueError("max_pipeline must be >= 1")
@@ -487,7 +504,8 @@ class TcpServer(Listener):
         self.idle_timeout_s = idle_timeout_s
         self.frame_timeout_s = frame_timeout_s
         self.max_pipeline = max_pipeline
-        self._server: asyncio.Server | None = None
+        self.tls = tls
+        self._server: asyncio.Server | TlsServer | None = None
         self._connections: dict[_Connection, None] = {}
 
     @property
@@ -522,10 +540,15 @@ class TcpServer(Listener):
     async def start(self) -> None:
         """Bind and listen; raises OSError if the address cannot be bound."""
         loop = asyncio.get_running_loop()
-        self._server = await loop.create_server(lambda: _Connection(self), self.host,
-                                                self._port)
+        if self.tls is not None:
+            self._server = await self.tls.serve(lambda: _Connection(self), self.host,
+                                                self._port, lambda h: _allowed(h, self.allow))
+        else:
+            self._server = await loop.create_server(lambda: _Connection(self), self.host,
+                                                    self._port)
         self._port = self._server.sockets[0].getsockname()[1]
-        log.info("Modbus TCP server listening on %s:%d", self.host, self._port)
+        log.info("Modbus %s server listening on %s:%d", "TCP" if self.tls is None
+                 else "TCP Security (TLS)", self.host, self._port)
 
     async def __aenter__(self) -> TcpServer:
         await self.start()

@@ -91,7 +91,7 @@ BAD = [
     ("buses.line1.tcp.port", 70000, r"buses\.line1\.tcp\.port: 70000 is not in 0\.\.65535"),
     ("buses.line1.tcp", {"host": "127.0.0.1", "port": 1, "tls": True}, r"buses\.line1\.tcp\.tls: unknown key"),
     ("upstream.tcp.allow", ["127.0.0.0/33"], r"upstream\.tcp\.allow: .*not an IP network"),
-    ("upstream.tcp", None, r"upstream: .*needs tcp, rtu or both"),
+    ("upstream.tcp", None, r"upstream: .*needs tcp, tls, rtu or any of them together"),
     ("upstream.rtu", {"port": "/dev/ttyS1", "parity": "X"}, r"upstream\.rtu\.parity: 'X'"),
     ("upstream.rtu", {"port": "/dev/ttyS1", "stopbits": 3}, r"upstream\.rtu\.stopbits: 3"),
     ("thermal_sources.x_ref.bus", "line2", r"thermal_sources\.x_ref\.bus: 'line2' is not one of buses"),
