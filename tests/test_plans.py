@@ -204,3 +204,16 @@ def test_snap_to_pulses_puts_every_target_on_its_axis_pulse_grid():
     assert np.abs(pts - np.array([m.target_mm for m in plan.moves])).max() <= 0.0005 + 1e-12
     assert [m.role for m in snapped.moves] == [m.role for m in plan.moves]
     assert snap_to_pulses(plan, {}).moves == plan.moves  # unknown axes are left alone
+
+
+@pytest.mark.parametrize(("step_mm", "lead_mm"), [(10.0, 10.0), (5.0, 5.0), (20.0, 10.0)])
+def test_one_point_per_lead_is_planned_clear_of_whole_leads(step_mm: float, lead_mm: float):
+    """A step of (a multiple of) the lead, a natural choice, gets targets whose every
+    spacing is clear of a whole number of leads (the once-per-lead error sampled at
+    different phases), deterministically per seed."""
+    t = iso230_targets_mm((0, 800), step_mm=step_mm, lead_mm=lead_mm, seed=3)
+    turns = np.diff(t) / lead_mm
+    assert np.all(np.abs(turns - np.round(turns)) >= 0.05)
+    assert t[0] == 5.0 and t[-1] == 795.0 and len(t) == round(790 / step_mm) + 1
+    assert np.array_equal(t, iso230_targets_mm((0, 800), step_mm=step_mm, lead_mm=lead_mm,
+                                               seed=3))

@@ -158,13 +158,44 @@ def iso230_targets_mm(
     nominal = np.linspace(first, last, n_targets)
     step = (last - first) / (n_targets - 1)
     rng = np.random.default_rng(seed)
-    for _ in range(1000):
+    for _ in range(100):
         offsets = rng.uniform(-step / 4, step / 4, n_targets)
         offsets[[0, -1]] = 0.0
         targets = _round(nominal + offsets)
         if lead_mm is None or _clear_of_lead(np.diff(targets), lead_mm, min_lead_fraction):
             return targets
-    raise ValueError(f"no target spacing clear of multiples of lead {lead_mm:g} mm")
+    # steps near a whole number of leads (one point per lead, say): drawn target by target
+    assert lead_mm is not None
+    targets = _targets_clear_of_lead(nominal, step, lead_mm, min_lead_fraction, rng)
+    if targets is None:
+        raise ValueError(
+            f"no target spacing clear of multiples of lead {lead_mm:g} mm with step "
+            f"{step:g} mm: use a step that is not close to a whole number of leads (e.g. "
+            f"{0.45 * lead_mm:g} or {1.45 * lead_mm:g} mm), or add the cyclic stage")
+    return targets
+
+
+def _targets_clear_of_lead(nominal: NDArray[np.float64], step: float, lead_mm: float,
+                           fraction: float, rng: np.random.Generator
+                           ) -> NDArray[np.float64] | None:
+    """Targets near ``nominal`` (within ±step/4, the ends fixed) with every spacing clear of
+    a whole number of leads, chosen one after the other; None when none is found."""
+    out = _round(nominal.copy())
+    n = out.size
+    for i in range(1, n - 1):
+        for _ in range(200):
+            candidate = _round(nominal[i] + rng.uniform(-step / 4, step / 4))
+            gaps = [candidate - out[i - 1]]
+            if i == n - 2:
+                gaps.append(out[-1] - candidate)
+            if _clear_of_lead(np.asarray(gaps), lead_mm, fraction):
+                out[i] = candidate
+                break
+        else:
+            return None
+    if not _clear_of_lead(np.diff(out), lead_mm, fraction):
+        return None
+    return out
 
 
 def _clear_of_lead(spacing_mm: NDArray[np.float64], lead_mm: float, fraction: float) -> bool:
