@@ -28,7 +28,15 @@ from tests.gateway_rig import FEEDBACK, SIM_EXAMPLE, TARGET, TRIGGER, base_confi
 from tests.helpers_modbus import wait_for_condition
 from tests.test_gateway_e2e import PITCH_X, move, read32, with_pitch
 from tests.test_metrics import scrape, value
-from tests.tls_certs import DAY, NOW, Issued, issue, make_ca
+from tests.tls_certs import (
+    DAY,
+    NOW,
+    Issued,
+    issue,
+    issue_duplicate_role,
+    make_ca,
+    make_ed25519_ca,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 ROLES = {
@@ -45,10 +53,14 @@ def run(coro, timeout_s: float = 20.0):
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Issued]:
     d = tmp_path_factory.mktemp("pki")
-    ca, other = make_ca(d), make_ca(d, "other-ca", "another CA")
+    ca, other, ed_ca = make_ca(d), make_ca(d, "other-ca", "another CA"), make_ed25519_ca(d)
     server = issue(d, "server", ca, server=True)
+    bundle = d / "bundle.pem"  # the gateway trusts both CAs
+    bundle.write_bytes(ca.cert_path.read_bytes() + ed_ca.cert_path.read_bytes())
     return {
         "ca": ca, "other_ca": other, "server": server,
+        "bundle": Issued(ca.cert, ca.key, bundle, ca.key_path),
+        "duplicate": issue_duplicate_role(d, "duplicate", ed_ca),
         "operator": issue(d, "operator", ca, role="operator"),
         "monitor": issue(d, "monitor", ca, role="monitor"),
         "setter": issue(d, "setter", ca, role="setter"),
@@ -67,7 +79,7 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Issued]:
 
 def tls_section(pki: dict[str, Issued], no_role: str = "refuse", **extra: Any) -> dict:
     return {"host": "127.0.0.1", "port": 0, "cert": str(pki["server"].cert_path),
-            "key": str(pki["server"].key_path), "ca": str(pki["ca"].cert_path),
+            "key": str(pki["server"].key_path), "ca": str(pki["bundle"].cert_path),
             "roles": ROLES, "no_role": no_role, **extra}
 
 
@@ -212,7 +224,7 @@ def test_a_certificate_without_role_gets_the_no_role_rule(tmp_path: Path,
 def test_unknown_and_invalid_roles_may_do_nothing(tmp_path: Path, pki: dict[str, Issued]):
     async def body():
         async with rig(tmp_path, with_tls(pki, "read_only"), {"x.csv": PITCH_X}) as r:
-            for who in ("guest", "printable"):
+            for who in ("guest", "printable", "duplicate"):
                 client = await as_client(r, pki, who)
                 try:
                     read = await client.read_holding_registers(FEEDBACK, count=2, device_id=1)
@@ -220,8 +232,8 @@ def test_unknown_and_invalid_roles_may_do_nothing(tmp_path: Path, pki: dict[str,
                 finally:
                     client.close()
             gate = r["app"].tls.tls
-            assert gate.denied == {("guest", "unknown_role"): 1, ("(invalid)", "bad_role"): 1}
-            assert gate.refused == {"bad_role": 1}
+            assert gate.denied == {("guest", "unknown_role"): 1, ("(invalid)", "bad_role"): 2}
+            assert gate.refused == {"bad_role": 2}
 
     run(body())
 
@@ -237,7 +249,7 @@ async def s_client(port: int, pki: dict[str, Issued], *args: str) -> int:
 
 
 def test_handshakes_refused_without_a_good_certificate_or_with_old_tls(
-        tmp_path: Path, pki: dict[str, Issued]):
+        tmp_path: Path, pki: dict[str, Issued], caplog: pytest.LogCaptureFixture):
     async def body():
         async with rig(tmp_path, with_tls(pki), {"x.csv": PITCH_X}) as r:
             port = r["app"].tls.port
@@ -264,6 +276,8 @@ def test_handshakes_refused_without_a_good_certificate_or_with_old_tls(
             assert await read32(r["direct"], 1, TARGET) == before
             assert gate.denied == {}
             assert r["app"].tls.counters.connections == 0  # none got past the handshake
+            templates = {rec.msg for rec in caplog.records if rec.name == "gateway.mbsecurity"}
+            assert len(templates) == len(gate.refused)  # one log kind per reason
             _, metrics = await scrape(r["app"].metrics.port)
             assert value(metrics, "compgw_tls_refused_total", reason="expired") == 1
         if not shutil.which("openssl"):
@@ -329,21 +343,27 @@ def test_compgw_run_on_uvloop_serves_tls(tmp_path: Path, pki: dict[str, Issued])
                 sys.executable, "-c", "import sys; from gateway.cli import main; "
                 "sys.exit(main(sys.argv[1:]))", "run", "-c", str(path), "--log-level", "debug",
                 cwd=ROOT, stderr=subprocess.PIPE, env={**os.environ, "PYTHONASYNCIODEBUG": ""})
-            assert proc.stderr is not None
+            stderr = proc.stderr
+            assert stderr is not None
+
+            async def line_with(text: str) -> str:
+                while True:
+                    line = (await asyncio.wait_for(stderr.readline(), 10)).decode()
+                    assert line, f"compgw run ended before logging {text!r}"
+                    assert "Using selector" not in line, "not on uvloop: " + line
+                    if text in line:
+                        return line
+
             try:
-                port = None
-                while port is None:
-                    line = (await asyncio.wait_for(proc.stderr.readline(), 10)).decode()
-                    assert line, "compgw run ended before listening"
-                    if "Using selector" in line:
-                        raise AssertionError("not on uvloop: " + line)
-                    if "TCP Security (TLS) server listening on" in line:
-                        port = int(line.rsplit(":", 1)[1])
+                line = await line_with("TCP Security (TLS) server listening on")
+                port = int(line.rsplit(":", 1)[1])
                 client = tls_client(port, client_context(pki, "operator"))
                 assert await client.connect()
                 await move(client, 2, 100_000)
                 assert await read32(client, 2, FEEDBACK) == 100_000
                 client.close()
+                assert await refused_at_handshake(port, client_context(pki, "expired"))
+                await line_with("certificate expired")
                 proc.send_signal(signal.SIGTERM)
                 assert await asyncio.wait_for(proc.wait(), 10) == 0
             finally:
@@ -367,3 +387,5 @@ def test_role_is_read_from_the_extension_and_an_invalid_one_is_refused(
     assert asn1.decode_der(str, asn1.encode_der("monitor")) == "monitor"
     with pytest.raises(RoleError, match="not a DER UTF8String"):
         certificate_role(der("printable"))
+    with pytest.raises(RoleError, match="more than once"):
+        certificate_role(der("duplicate"))
