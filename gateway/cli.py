@@ -87,6 +87,14 @@ def _cmd_status(args: argparse.Namespace) -> int:
 
 
 def _cmd_sim(args: argparse.Namespace) -> int:
+    if args.random_machine is not None or args.real_machine is not None:
+        from sim.machine_cli import write_machine_dir
+
+        return write_machine_dir(args.random_machine, args.roughness, args.real_machine, args.out)
+    if args.config is None:
+        print("compgw sim: give -c FILE, --random-machine SEED or --real-machine NAME",
+              file=sys.stderr)
+        return EXIT_USAGE
     from sim.server import main as sim_main
 
     return sim_main(args.config)
@@ -118,7 +126,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_check)
 
     p = sub.add_parser("sim", help="run the simulated drives and instruments")
-    p.add_argument("-c", "--config", required=True, help="simulator YAML config")
+    p.add_argument("-c", "--config", help="simulator YAML config")
+    p.add_argument("--random-machine", type=int, metavar="SEED",
+                   help="write a random machine (sim + gateway config, truth) and exit")
+    p.add_argument("--roughness", choices=["smooth", "rough"], default="smooth")
+    p.add_argument("--real-machine", metavar="NAME",
+                   help="write a machine from real measured data (sim/README.md) and exit")
+    p.add_argument("--out", metavar="DIR", help="where to write the machine")
     p.set_defaults(func=_cmd_sim)
 
     p = sub.add_parser("demo", help="sim + gateway + scripted upper computer, before/after")

@@ -25,7 +25,17 @@ from pydantic import (
     model_validator,
 )
 
+from sim.config_truth import (
+    CyclicScrew,
+    DeviationTable,
+    LostMotionConfig,
+    PlaneField,
+    ScrewHeat,
+    Settling,
+    StickSlip,
+)
 from sim.profiles import DRIVE_PROFILES, profile_registers
+from sim.truth_check import check_truth_data
 
 
 class SimConfigError(ValueError):
@@ -277,13 +287,43 @@ class ThermalConfig(_Model):
 
 
 class AxisErrors(_Model):
-    """The true errors of one axis (all optional; absent = perfect)."""
+    """The true errors of one axis (all optional; absent = perfect).
+
+    The parametric terms (``pitch``, ``backlash_um``, ``thermal``) and the data-driven ones
+    of :mod:`sim.config_truth` (``deviation``, ``lost_motion``, ``cyclic``, ``heat``) add
+    up; ``stick_slip`` and ``settling`` act on every stop.
+    """
 
     pitch: PitchConfig = PitchConfig()
     backlash_um: NonNegFloat = 0.0
     backlash_um_per_m: float = 0.0
     repeatability_um: NonNegFloat = 0.0
     thermal: ThermalConfig | None = None
+    deviation: DeviationTable | None = None
+    lost_motion: LostMotionConfig | None = None
+    cyclic: CyclicScrew | None = None
+    stick_slip: StickSlip | None = None
+    settling: Settling | None = None
+    heat: ScrewHeat | None = None
+
+    @model_validator(mode="after")
+    def _one_of_each(self) -> AxisErrors:
+        if self.thermal is not None and self.heat is not None:
+            raise ValueError("heat: give either thermal (one screw temperature) or heat "
+                             "(a temperature profile), not both")  # fmt: skip
+        if self.lost_motion is not None and (self.backlash_um or self.backlash_um_per_m):
+            raise ValueError("lost_motion: give the play either as backlash_um or as "
+                             "lost_motion, not both")  # fmt: skip
+        dev, lm = self.deviation, self.lost_motion
+        if dev is not None and dev.reverse_column and lm is not None and (lm.um or lm.table):
+            raise ValueError("lost_motion: the deviation table's reverse column already "
+                             "holds the lost motion (keep only lost_motion.takeup)")  # fmt: skip
+        return self
+
+    @property
+    def data_driven(self) -> bool:
+        """True when the axis' play and deviation come from data (the screw path)."""
+        return any(v is not None for v in (self.deviation, self.lost_motion, self.cyclic))
 
 
 class PlaneConfig(_Model):
@@ -300,6 +340,8 @@ class PlaneConfig(_Model):
     straightness_x_um: float = 0.0
     straightness_y_um: float = 0.0
     cross_um: float = 0.0
+    #: a measured (ex, ey) field on grid nodes, added to the terms above (sim.config_truth)
+    field: PlaneField | None = None
 
 
 # ---------------------------------------------------------------- instruments
@@ -310,6 +352,12 @@ class LaserConfig(_Model):
     axes: tuple[str, ...] | None = None
     resolution_um: PositiveFloat = 0.1
     noise_um: NonNegFloat = 0.0
+    #: machine time one reading takes (averaging); at time_scale 0 each read advances the
+    #: clock by it, so a master reading until stable lets a settling axis settle
+    sample_s: NonNegFloat = 0.0
+    #: a channel's stable flag (registers after the readings) is 1 once the axis is at
+    #: rest and its ringing is within this band
+    stable_band_um: PositiveFloat = 0.1
 
 
 class XYConfig(_Model):
@@ -318,6 +366,8 @@ class XYConfig(_Model):
     unit: UnitId = 21
     resolution_um: PositiveFloat = 0.1
     noise_um: NonNegFloat = 0.0
+    sample_s: NonNegFloat = 0.0
+    stable_band_um: PositiveFloat = 0.1
 
 
 class DeltaAConfig(_Model):
@@ -336,6 +386,9 @@ class TemperatureConfig(_Model):
     unit: UnitId = 23
     channels: tuple[str, ...] | None = None
     noise_C: NonNegFloat = 0.0
+    #: where a screw channel sits along its screw (mm, axis coordinates); matters for a
+    #: ``heat`` profile (default: the middle of the travel)
+    positions_mm: dict[str, float] = Field(default_factory=dict)
 
 
 class InstrumentsConfig(_Model):
@@ -405,7 +458,7 @@ class SimSection(_Model):
             if ins.delta_a.axis not in self.axes:
                 raise ValueError(f"instruments.delta_a.axis: {ins.delta_a.axis!r} is not an axis")
             errs = self.machine.get(ins.delta_a.axis)
-            if errs is None or errs.thermal is None:
+            if errs is None or (errs.thermal is None and errs.heat is None):
                 raise ValueError("instruments.delta_a: its axis has no machine thermal model")
         if ins.temperature is not None and ins.temperature.channels is not None:
             for ch in ins.temperature.channels:
@@ -457,6 +510,10 @@ def parse_config(data: object, base_dir: str | Path = ".") -> SimConfig:
                 load_pitch_table(errs.pitch.table, cfg.base_dir)
             except (OSError, ValueError, KeyError) as err:
                 raise SimConfigError(f"sim.machine.{name}.pitch.table: {err}") from None
+    try:
+        check_truth_data(cfg.sim, cfg.base_dir)
+    except ValueError as err:
+        raise SimConfigError(str(err)) from None
     return cfg
 
 

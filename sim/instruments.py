@@ -4,8 +4,14 @@ Register maps (0-based addresses; int32 = two registers, high word first, two's 
 
 * laser interferometer (``instruments.laser``): axis k (config order, or ``axes``) at
   registers 2k, 2k+1: true table position along that axis, int32 in nanometres, quantised
-  to ``resolution_um``, plus normal noise ``noise_um`` per read.
-* 2-D device (``instruments.xy``): 0-1 true X, 2-3 true Y of the plane axes, int32 nm.
+  to ``resolution_um``, plus normal noise ``noise_um`` per read; then, after the N axes'
+  readings, register 2N + k: 1 when axis k is at rest and stable (its settling ringing within
+  ``stable_band_um``), else 0 — a laser's "capture when stable".
+* 2-D device (``instruments.xy``): 0-1 true X, 2-3 true Y of the plane axes, int32 nm;
+  4, 5: X, Y stable flags as the laser's.
+* Laser and XY device take ``sample_s`` of machine time per reading: at time_scale 0 each
+  read advances the machine clock by it (a master that reads until stable lets the axis
+  settle; at time_scale > 0 the wall clock does).
 * displacement sensor at reference point A (``instruments.delta_a``): 0 = delta_a as int16
   in steps of ``resolution_um`` (so a gateway reads it with ``scale_mm = resolution_um/1000``),
   1-2 = delta_a as int32 nm (same quantisation).
@@ -58,7 +64,7 @@ class Instrument:
 
 
 class Laser(Instrument):
-    """Laser interferometer, one channel per axis."""
+    """Laser interferometer, one channel per axis, with a stable flag per channel."""
 
     def __init__(self, cfg: LaserConfig, axes: list[str], *args) -> None:
         super().__init__(*args)
@@ -66,13 +72,14 @@ class Laser(Instrument):
         self.axes = list(cfg.axes) if cfg.axes is not None else axes
 
     def sample(self) -> list[int]:
-        """Axis k at 2k: true position, nm."""
-        now_s = self.clock.now_s()
+        """Axis k at 2k: true position, nm; 2N + k: stable flag."""
+        now_s = _take_sample(self.clock, self.machine, self.cfg.sample_s)
         out: list[int] = []
         for name in self.axes:
             pos_mm = self.machine.table_mm(name, now_s) + self._noise(self.cfg.noise_um) / 1000
             out += int32_to_words(_quantised_nm(pos_mm, self.cfg.resolution_um), "hi_lo")
-        return out
+        band = self.cfg.stable_band_um
+        return out + [int(self.machine.ringing_um(n, now_s) <= band) for n in self.axes]
 
 
 class XYDevice(Instrument):
@@ -83,13 +90,25 @@ class XYDevice(Instrument):
         self.cfg = cfg
 
     def sample(self) -> list[int]:
-        """0-1 X nm, 2-3 Y nm."""
-        x_mm, y_mm = self.machine.table_xy_mm(self.clock.now_s())
+        """0-1 X nm, 2-3 Y nm, 4-5 stable flags."""
+        now_s = _take_sample(self.clock, self.machine, self.cfg.sample_s)
+        x_mm, y_mm = self.machine.table_xy_mm(now_s)
         out: list[int] = []
         for v_mm in (x_mm, y_mm):
             v_mm += self._noise(self.cfg.noise_um) / 1000
             out += int32_to_words(_quantised_nm(v_mm, self.cfg.resolution_um), "hi_lo")
-        return out
+        assert self.machine.plane is not None
+        band = self.cfg.stable_band_um
+        axes = self.machine.plane.axes
+        return out + [int(self.machine.ringing_um(n, now_s) <= band) for n in axes]
+
+
+def _take_sample(clock: MachineClock, machine: Machine, sample_s: float) -> float:
+    """The machine time of a reading that takes ``sample_s`` (advanced at time_scale 0)."""
+    if sample_s > 0 and clock.time_scale == 0:
+        clock.advance(sample_s)
+        machine.update(clock.now_s())
+    return clock.now_s()
 
 
 class DeltaASensor(Instrument):
@@ -125,7 +144,7 @@ class TemperatureSensors(Instrument):
             temp_C = (
                 self.machine.ambient_C()
                 if ch == "ambient"
-                else self.machine.screw_temp_C(ch, now_s)
+                else self.machine.screw_temp_C(ch, now_s, self.cfg.positions_mm.get(ch))
             )
             temp_C += self._noise(self.cfg.noise_C)
             out.append(max(-32768, min(32767, round(temp_C * 100.0))) & 0xFFFF)

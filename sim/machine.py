@@ -14,6 +14,13 @@ Written from the physics, independently of ``gateway.compensation`` (never impor
   ``alpha * (T - ambient) * (u - origin)`` from its fixed end.
 * XY plane: squareness, straightness bows and a cross term (see :class:`PlaneConfig`).
 * repeatability: a fresh normal offset (sigma ``repeatability_um``) on each stop.
+
+Data-driven axes (issue 14, any of ``deviation``, ``lost_motion``, ``cyclic``): the table
+sits at motor + forward deviation + s · lost motion, s the nut's state between its two
+flanks (0 after moving +, 1 after moving −) moved by each reversal along its take-up curve
+(:class:`sim.truth.TakeUpCurve`). On any axis: ``stick_slip`` (a stop short of the target),
+``settling`` (ringing after the stop), ``heat`` (a temperature profile along the screw,
+:mod:`sim.heat`), and the plane's measured ``field``.
 All randomness comes from generators spawned from the seed, one per axis.
 """
 
@@ -25,6 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sim.config import AxisConfig, AxisErrors, PitchConfig, PlaneConfig, SimSection, ThermalConfig
+from sim.heat import ScrewHeatModel
+from sim.truth import ScrewTruth, XYField, load_screw
 
 ARCSEC_RAD = math.pi / (180.0 * 3600.0)
 
@@ -126,6 +135,41 @@ class AxisState:
     moving: bool = False
     stops: int = 0
     distance_mm: float = field(default=0.0)
+    screw: ScrewTruth | None = None  # data-driven deviation and lost motion
+    heat: ScrewHeatModel | None = None  # temperature profile along the screw
+    takeup_s0: float = 0.0  # nut state at the start of the current move / at rest
+    move_dir: int = 0  # +1 / -1 / 0 of the current (or last) move
+    play_start_mm: float = 0.0  # lost motion where the current move started
+    stop_s: float = -math.inf  # when the last real move ended (settling)
+    stop_dir: int = 0
+    stick_mm: float = 0.0  # how far the last stop stuck short (signed, mm)
+
+    def takeup_at(self, t_s: float) -> float:
+        """Nut state s at ``t_s`` (data-driven axes): 0 on the + flank, 1 on the − flank."""
+        if self.screw is None or not self.moving:
+            return self.takeup_s0
+        r_mm = abs(self.motor_pulses(t_s) - self.start_pulses) * self.cfg.pulse_mm
+        return self.screw.takeup.after(self.takeup_s0, self.move_dir, r_mm, self.play_start_mm)
+
+    def after_stop_mm(self, t_s: float) -> float:
+        """Stick-slip shortfall plus the settling ringing of the last stop, mm."""
+        out = self.stick_mm
+        st = self.errors.settling
+        if st is not None and not self.moving and self.stop_dir != 0:
+            dt = t_s - self.stop_s
+            ring = math.cos(2.0 * math.pi * dt / st.period_s) if st.period_s else 1.0
+            decay = math.exp(-dt / st.time_constant_s)
+            out += self.stop_dir * st.amplitude_um / 1000.0 * decay * ring
+        return out
+
+    def ringing_um(self, t_s: float) -> float:
+        """Envelope of the settling ringing now (µm; inf while moving)."""
+        if self.moving:
+            return math.inf
+        st = self.errors.settling
+        if st is None or self.stop_dir == 0:
+            return 0.0
+        return abs(st.amplitude_um) * math.exp(-(t_s - self.stop_s) / st.time_constant_s)
 
     def backlash_mm(self, motor_mm: float) -> float:
         """Play between motor and nut at this motor position (never negative)."""
@@ -152,10 +196,16 @@ class Machine:
         self,
         cfg: SimSection,
         pitch_tables: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
+        base_dir: str = ".",
     ) -> None:
         pitch_tables = pitch_tables or {}
         self.cfg = cfg
         self.plane: PlaneConfig | None = cfg.plane
+        self.field = (
+            XYField(cfg.plane.field, base_dir)
+            if cfg.plane is not None and cfg.plane.field is not None
+            else None
+        )
         seeds = np.random.SeedSequence(cfg.seed).spawn(len(cfg.axes))
         self.axes: dict[str, AxisState] = {}
         for (name, axis_cfg), seq in zip(cfg.axes.items(), seeds, strict=True):
@@ -168,7 +218,10 @@ class Machine:
                 pitch=PitchModel(errs.pitch, axis_cfg.travel_mm, pitch_tables.get(name)),
                 rng=np.random.default_rng(seq),
                 thermal=thermal,
-            )
+                screw=load_screw(errs.deviation, errs.lost_motion, errs.cyclic,
+                                 errs.backlash_um, base_dir) if errs.data_driven else None,
+                heat=ScrewHeatModel(errs.heat, axis_cfg.travel_mm) if errs.heat else None,
+            )  # fmt: skip
 
     # ------------------------------------------------------------ motion
     def begin_move(self, name: str, target_pulses: int, speed_mm_s: float, now_s: float) -> float:
@@ -177,12 +230,21 @@ class Machine:
         self.update(now_s)
         here_pulses = ax.motor_pulses(now_s)
         ax.nut_mm = ax.nut_at(now_s)
+        ax.takeup_s0 = ax.takeup_at(now_s)
         distance_mm = abs(target_pulses - here_pulses) * ax.cfg.pulse_mm
         duration_s = distance_mm / speed_mm_s
+        here_mm = here_pulses * ax.cfg.pulse_mm
+        ax.move_dir = int(np.sign(target_pulses - here_pulses))
+        if ax.screw is not None:
+            ax.play_start_mm = ax.screw.lost_motion_mm(here_mm)
+        if ax.heat is not None:
+            ax.heat.add_move(now_s, now_s + duration_s, here_mm,
+                             target_pulses * ax.cfg.pulse_mm, speed_mm_s)  # fmt: skip
         ax.start_pulses, ax.target_pulses = here_pulses, float(target_pulses)
         ax.start_s, ax.end_s = now_s, now_s + duration_s
         ax.moving = True
         ax.noise_mm = 0.0
+        ax.stick_mm = 0.0
         ax.distance_mm += distance_mm
         if ax.thermal is not None:
             th = ax.thermal.cfg
@@ -195,10 +257,23 @@ class Machine:
         for ax in self.axes.values():
             if ax.moving and now_s >= ax.end_s:
                 ax.nut_mm = ax.nut_at(ax.end_s)
+                ax.takeup_s0 = ax.takeup_at(ax.end_s)
                 ax.moving = False
                 ax.stops += 1
                 sigma_mm = ax.errors.repeatability_um / 1000.0
                 ax.noise_mm = float(ax.rng.normal(0.0, sigma_mm)) if sigma_mm > 0 else 0.0
+                if ax.move_dir != 0:
+                    ax.stop_s, ax.stop_dir = ax.end_s, ax.move_dir
+                    ax.stick_mm = self._stick_mm(ax)
+
+    @staticmethod
+    def _stick_mm(ax: AxisState) -> float:
+        """Draw how far this stop sticks short (against the move's direction), mm."""
+        st = ax.errors.stick_slip
+        if st is None or ax.rng.random() >= st.probability:
+            return 0.0
+        short_um = min(float(ax.rng.exponential(st.mean_um)), st.band_um)
+        return -ax.move_dir * short_um / 1000.0
 
     def is_moving(self, name: str, now_s: float) -> bool:
         """True while the axis' motor is moving."""
@@ -213,10 +288,20 @@ class Machine:
     # ------------------------------------------------------------ truth
     def _axis_true_mm(self, ax: AxisState, now_s: float) -> tuple[float, float]:
         """(true position along the axis without plane terms, nut coordinate)."""
-        nut_mm = ax.nut_at(now_s)
-        true_mm = nut_mm + float(ax.pitch.error_mm(nut_mm)) + ax.noise_mm
+        if ax.screw is None:
+            nut_mm = ax.nut_at(now_s)
+            true_mm = nut_mm + float(ax.pitch.error_mm(nut_mm)) + ax.noise_mm
+        else:  # data-driven: motor + forward deviation + s · lost motion
+            nut_mm = ax.motor_pulses(now_s) * ax.cfg.pulse_mm
+            true_mm = nut_mm + float(ax.pitch.error_mm(nut_mm)) + ax.noise_mm
+            true_mm += ax.screw.forward_mm(nut_mm)
+            true_mm += ax.takeup_at(now_s) * ax.screw.lost_motion_mm(nut_mm)
         if ax.thermal is not None:
             true_mm += ax.thermal.growth_mm(nut_mm, now_s)
+        if ax.heat is not None:
+            true_mm += ax.heat.growth_mm(nut_mm, now_s)
+        if ax.stick_mm or ax.errors.settling is not None:
+            true_mm += ax.after_stop_mm(now_s)
         return true_mm, nut_mm
 
     def table_xy_mm(self, now_s: float) -> tuple[float, float]:
@@ -233,6 +318,9 @@ class Machine:
         x_mm += (uy_mm - ax_y.cfg.travel_mm[0]) * math.tan(p.squareness_arcsec * ARCSEC_RAD)
         x_mm += (p.straightness_y_um * 4.0 * ty * (1.0 - ty) + p.cross_um * tx * ty) / 1000.0
         y_mm += p.straightness_x_um * 4.0 * tx * (1.0 - tx) / 1000.0
+        if self.field is not None:
+            ex_mm, ey_mm = self.field.error_mm(ux_mm, uy_mm)
+            x_mm, y_mm = x_mm + ex_mm, y_mm + ey_mm
         return x_mm, y_mm
 
     def table_mm(self, name: str, now_s: float) -> float:
@@ -242,9 +330,15 @@ class Machine:
             return self.table_xy_mm(now_s)[self.plane.axes.index(name)]
         return self._axis_true_mm(self.axes[name], now_s)[0]
 
-    def screw_temp_C(self, name: str, now_s: float) -> float:
-        """Screw temperature (ambient when the axis has no thermal model)."""
-        th = self.axes[name].thermal
+    def screw_temp_C(self, name: str, now_s: float, at_mm: float | None = None) -> float:
+        """Screw temperature (ambient when the axis has no thermal model); with a ``heat``
+        profile, where the sensor sits (``at_mm``, default mid-travel)."""
+        ax = self.axes[name]
+        if ax.heat is not None:
+            lo, hi = ax.cfg.travel_mm
+            where = at_mm if at_mm is not None else (lo + hi) / 2.0
+            return ax.heat.cfg.ambient_C + ax.heat.temperature_rise_K(where, now_s)
+        th = ax.thermal
         return th.temp_at(now_s) if th is not None else self.ambient_C()
 
     def ambient_C(self) -> float:
@@ -252,9 +346,19 @@ class Machine:
         for ax in self.axes.values():
             if ax.thermal is not None:
                 return ax.thermal.cfg.ambient_C
+            if ax.heat is not None:
+                return ax.heat.cfg.ambient_C
         return 20.0
 
     def delta_a_mm(self, name: str, a_mm: float, now_s: float) -> float:
         """Growth of the screw at reference point A since the cold state (seed 002)."""
-        th = self.axes[name].thermal
+        ax = self.axes[name]
+        if ax.heat is not None:
+            return ax.heat.growth_mm(a_mm, now_s)
+        th = ax.thermal
         return th.growth_mm(a_mm, now_s) if th is not None else 0.0
+
+    def ringing_um(self, name: str, now_s: float) -> float:
+        """How far the axis still rings after its last stop (inf while it moves)."""
+        self.update(now_s)
+        return self.axes[name].ringing_um(now_s)

@@ -48,7 +48,7 @@ class Simulation:
             for name, errs in cfg.machine.items()
             if errs.pitch.table is not None
         }
-        self.machine = Machine(cfg, tables)
+        self.machine = Machine(cfg, tables, config.base_dir)
         self.drives: dict[str, Drive] = {
             name: Drive(name, axis, self.machine, self.clock) for name, axis in cfg.axes.items()
         }
