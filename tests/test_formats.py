@@ -84,8 +84,10 @@ def test_csv_missing_and_binary_files(tmp_path: Path):
 
 def test_csv_write_read_round_trip_is_exact(tmp_path: Path):
     rng = np.random.default_rng(11)
-    pos = np.sort(rng.uniform(0, 800, 50)) + np.arange(50)
-    table = PitchTable(pos, rng.normal(0, 0.01, 50), rng.normal(0, 0.01, 50))
+    # positions to 1 nm and deviations to 0.1 nm, what is written: read back exactly
+    pos = np.round(np.sort(rng.uniform(0, 800, 50)) + np.arange(50), 6)
+    table = PitchTable(pos, np.round(rng.normal(0, 0.01, 50), 7),
+                       np.round(rng.normal(0, 0.01, 50), 7))
     write_pitch_csv(tmp_path / "t.csv", table, comment="fitted by a test")
     back = read_pitch_csv(tmp_path / "t.csv")
     np.testing.assert_array_equal(back.position_mm, table.position_mm)
@@ -169,3 +171,20 @@ def test_planar_points_and_model_file(tmp_path: Path):
     (tmp_path / "xy_bad.csv").write_text("x_mm,y_mm,dx_um,dy_um\n0,0,1,1\n1,2,x,1\n")
     with pytest.raises(TableError, match=r"xy_bad\.csv: line 3: dx_um 'x'"):
         read_planar_csv(tmp_path / "xy_bad.csv")
+
+
+def test_written_tables_carry_no_float_noise(tmp_path: Path) -> None:
+    """Positions on a 0.001 mm pulse grid (104570 × 0.001 = 104.56999999999998 in binary)
+    are written as 104.57; deviations to 0.1 nm; what is read back is what was meant."""
+    from gateway.compensation import PitchTable
+    from gateway.formats import read_pitch_csv, write_pitch_csv
+
+    pos = np.arange(104_570, 104_620, 10) * 0.001
+    assert repr(float(pos[0])) != "104.57"  # binary float noise
+    table = PitchTable(pos, np.full(5, 0.1 + 0.2) * 1e-3, np.full(5, -0.3) * 1e-3)
+    write_pitch_csv(tmp_path / "t.csv", table)
+    text = (tmp_path / "t.csv").read_text()
+    assert "104.57,0.3,-0.3" in text and "104.6,0.3,-0.3" in text
+    assert "9999" not in text and "0000000" not in text
+    back = read_pitch_csv(tmp_path / "t.csv")
+    assert np.allclose(back.position_mm, pos, atol=1e-9)

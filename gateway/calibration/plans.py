@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from ..compensation.errors import TableError
 from ..config_types import read_text
 from ..formats.atomic import atomic_write_text
-from ..formats.lines import fmt, parse_number
+from ..formats.lines import POSITION_DECIMALS, fmt, parse_number
 from .rawdata import RawData, axis_deviations
 
 #: measure: stop and measure; overrun: reversal point past a travel end; takeup: approach
@@ -653,7 +653,8 @@ def format_plan(plan: Plan) -> str:
 
     for m in plan.moves:
         cells = [str(m.run), _DIRECTION_TEXT[m.direction], m.role]
-        cells += [fmt(t) for t in m.target_mm] + [opt(m.speed_mm_s), opt(m.dwell_s)]
+        cells += [fmt(t, POSITION_DECIMALS) for t in m.target_mm]
+        cells += [opt(m.speed_mm_s), opt(m.dwell_s)]
         out.append(",".join(cells))
     return "\n".join(out) + "\n"
 

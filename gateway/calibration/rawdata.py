@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..compensation.errors import TableError
-from ..formats.lines import csv_cells, csv_header, data_lines, fmt, parse_number
+from ..formats.lines import POSITION_DECIMALS, csv_cells, csv_header, data_lines, fmt, parse_number
 
 RAW_COLUMNS: tuple[str, ...] = ("axis", "run", "direction", "target_mm", "actual_mm")
 #: Targets closer than this (mm) are the same ISO 230-2 target position.
@@ -202,7 +202,7 @@ class RawWriter:
             "axis": axis,
             "run": str(int(run)),
             "direction": sign,
-            "target_mm": fmt(target_mm),
+            "target_mm": fmt(target_mm, POSITION_DECIMALS),
             "actual_mm": fmt(actual_mm),
         }
         for name, value in extra.items():

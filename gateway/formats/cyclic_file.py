@@ -25,6 +25,7 @@ from ..compensation.cyclic import CyclicModel
 from ..compensation.errors import TableError
 from ..config_types import read_yaml
 from .atomic import atomic_write_text
+from .lines import POSITION_DECIMALS
 
 _STATION_KEYS = {"position_mm", "sin_um", "cos_um", "sin_sd_um", "cos_sd_um"}
 
@@ -80,7 +81,7 @@ def write_cyclic(
     stations = []
     for i, pos in enumerate(model.station_mm):
         st: dict[str, Any] = {
-            "position_mm": float(pos),
+            "position_mm": round(float(pos), POSITION_DECIMALS),
             "sin_um": [round(float(v) * 1e3, 4) for v in model.sin_mm[i]],
             "cos_um": [round(float(v) * 1e3, 4) for v in model.cos_mm[i]],
         }

@@ -55,6 +55,15 @@ def parse_number(path: str | os.PathLike[str], number: int, field: str, text: st
     return value
 
 
-def fmt(value: float) -> str:
-    """Shortest text that reads back as the same float."""
-    return repr(float(value))
+#: decimals written for positions (mm or deg: 1 nm) and deviations (µm or mdeg: 0.1 nm)
+POSITION_DECIMALS = 6
+DEVIATION_DECIMALS = 4
+
+
+def fmt(value: float, decimals: int | None = None) -> str:
+    """Shortest text that reads back as the same float; rounded to ``decimals`` first, so
+    float noise (``104.56999999999998`` for 104570 pulses of 0.001 mm) is not written."""
+    value = float(value)
+    if decimals is not None:
+        value = round(value, decimals) + 0.0  # + 0.0: no "-0.0"
+    return repr(value)

@@ -20,7 +20,10 @@ import numpy as np
 from ..compensation.errors import TableError
 from ..compensation.pitch import PitchTable
 from .atomic import atomic_write_text
+from .lines import POSITION_DECIMALS as POS
 from .lines import data_lines, fmt, parse_number
+
+VALUE = 7  # decimals of the actual / trim values (mm): 0.1 nm
 
 
 def read_linuxcnc(path: str | os.PathLike[str], comp_type: int) -> PitchTable:
@@ -60,7 +63,7 @@ def format_linuxcnc(table: PitchTable, comp_type: int) -> str:
     rev = table.reverse_mm if table.reverse_mm is not None else table.forward_mm
     nominal = table.position_mm
     cols = (nominal, nominal + fwd, nominal + rev) if comp_type == 0 else (nominal, -fwd, -rev)
-    return "".join(f"{fmt(a)} {fmt(b)} {fmt(c)}\n" for a, b, c in zip(*cols))
+    return "".join(f"{fmt(a, POS)} {fmt(b, VALUE)} {fmt(c, VALUE)}\n" for a, b, c in zip(*cols))
 
 
 def write_linuxcnc(path: str | os.PathLike[str], table: PitchTable, comp_type: int) -> None:

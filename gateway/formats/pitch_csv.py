@@ -24,6 +24,8 @@ import numpy as np
 from ..compensation.errors import TableError
 from ..compensation.pitch import PitchTable
 from .atomic import atomic_write_text
+from .lines import DEVIATION_DECIMALS as DEV
+from .lines import POSITION_DECIMALS as POS
 from .lines import csv_cells, csv_header, data_lines, fmt, parse_number
 
 _LINEAR_HEADERS = {
@@ -97,11 +99,12 @@ def format_pitch_csv(table: PitchTable, comment: str = "") -> str:
     fwd = table.forward_mm / _VALUE_SCALE
     if table.reverse_mm is None:
         out.append(f"{pos},forward_{dev}")
-        out += [f"{fmt(p)},{fmt(f)}" for p, f in zip(table.position_mm, fwd)]
+        out += [f"{fmt(p, POS)},{fmt(f, DEV)}" for p, f in zip(table.position_mm, fwd)]
     else:
         rev = table.reverse_mm / _VALUE_SCALE
         out.append(f"{pos},forward_{dev},reverse_{dev}")
-        out += [f"{fmt(p)},{fmt(f)},{fmt(r)}" for p, f, r in zip(table.position_mm, fwd, rev)]
+        out += [f"{fmt(p, POS)},{fmt(f, DEV)},{fmt(r, DEV)}"
+                for p, f, r in zip(table.position_mm, fwd, rev)]
     return "\n".join(out) + "\n"
 
 

@@ -25,6 +25,8 @@ from ..compensation.errors import TableError
 from ..compensation.planar import GridModel, PlanarMeasurement, PlanarModel, PolyModel
 from ..config_types import read_yaml
 from .atomic import atomic_write_text
+from .lines import DEVIATION_DECIMALS as DEV
+from .lines import POSITION_DECIMALS as POS
 from .lines import csv_header, data_lines, fmt, parse_number
 
 _HEADER = ("x_mm", "y_mm", "dx_um", "dy_um")
@@ -56,7 +58,7 @@ def read_planar_csv(path: str | os.PathLike[str]) -> PlanarMeasurement:
 def write_planar_csv(path: str | os.PathLike[str], meas: PlanarMeasurement) -> None:
     dev = meas.error_mm * 1e3
     body = "".join(
-        f"{fmt(x)},{fmt(y)},{fmt(dx)},{fmt(dy)}\n"
+        f"{fmt(x, POS)},{fmt(y, POS)},{fmt(dx, DEV)},{fmt(dy, DEV)}\n"
         for (x, y), (dx, dy) in zip(meas.command_mm, dev)
     )
     head = "# deviation actual - commanded (um)\n" + ",".join(_HEADER) + "\n"
