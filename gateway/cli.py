@@ -68,7 +68,13 @@ def _cmd_status(args: argparse.Namespace) -> int:
         print("compgw status: needs upstream.tcp to reach the gateway", file=sys.stderr)
         return EXIT_BAD_INPUT
     host = config.upstream.tcp.host
+    host = {"0.0.0.0": "127.0.0.1", "::": "::1", "": "127.0.0.1"}.get(host, host)
     port = args.port or config.upstream.tcp.port
+    if not port:
+        print(f"compgw status: {args.config}: upstream.tcp.port is 0, so the gateway chose its "
+              "port when it started (its log says 'Modbus TCP server listening on "
+              "HOST:PORT'): give that port with --port", file=sys.stderr)  # fmt: skip
+        return EXIT_BAD_INPUT
     client = ModbusTcpClient(host, port=port, timeout=2, retries=0)
     try:
         if not client.connect():

@@ -108,6 +108,9 @@ def test_example_configs_run_as_processes(tmp_path: Path):
             assert unpack_int32(rr.registers, "hi_lo") == 250_000
         finally:
             master.close()
+        status = compgw("status", "-c", str(tmp_path / "gw.yaml"))  # port 0 in the file
+        assert status.returncode == 1 and "upstream.tcp.port is 0" in status.stderr
+        assert "--port" in status.stderr
         status = compgw("status", "-c", str(tmp_path / "gw.yaml"), "--port", str(port))
         assert status.returncode == 0, status.stderr
         assert "axis X: compensation on, last target corrected" in status.stdout
