@@ -389,3 +389,29 @@ def test_role_is_read_from_the_extension_and_an_invalid_one_is_refused(
         certificate_role(der("printable"))
     with pytest.raises(RoleError, match="more than once"):
         certificate_role(der("duplicate"))
+
+
+def test_rules_sort_every_function_into_read_write_or_neither():
+    from gateway.config import TlsRole
+    from gateway.mbsecurity import READ_ONLY, Rules
+
+    monitor = Rules.of(TlsRole(read=True, write=False))
+    setter = Rules.of(TlsRole(units=[1], read=False, write=[(0x6201, 0x6201), (0x6202, 0x6203)]))
+    fc16 = "10{:04x}0002040000000a"
+    cases = [  # (rules, unit, PDU hex, refusal)
+        (monitor, 1, "0300000002", None), (monitor, 9, "0400000001", None),
+        (monitor, 0, "2b0e0100", None),  # read device identification
+        (monitor, 1, "2b0d00", "write"), (monitor, 1, "0800000000", "write"),
+        (monitor, 1, "17000000010000000102ffff", "write"), (monitor, 1, "0600000001", "write"),
+        (setter, 1, fc16.format(0x6201), None), (setter, 1, "0562020000", None),  # coil
+        (setter, 1, fc16.format(0x6200), "range"), (setter, 1, fc16.format(0x6203), "range"),
+        (setter, 1, "066201", "range"),  # too short to tell what it writes
+        (setter, 1, "1700000001620100010200ff", "read"), (setter, 1, "0300000001", "read"),
+        (setter, 1, "0800000000", "function"), (setter, 1, "63", "function"),
+        (setter, 0, fc16.format(0x6201), "unit"), (setter, 2, fc16.format(0x6201), "unit"),
+        (READ_ONLY, 1, fc16.format(0x6201), "write"),
+    ]
+    for rules, unit, pdu, refusal in cases:
+        assert rules.refusal(unit, bytes.fromhex(pdu)) == refusal, (rules, unit, pdu)
+    assert Rules.of(TlsRole(write=True)).allows_all and not monitor.allows_all
+    assert setter.write == ((0x6201, 0x6203),)  # adjacent ranges merged
