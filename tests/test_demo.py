@@ -76,6 +76,7 @@ def test_example_configs_run_as_processes(tmp_path: Path):
     """`compgw sim` and `compgw run` with the example configs (ports moved to 0)."""
     sim_cfg = yaml.safe_load((CONFIG / "example-sim.yaml").read_text())
     sim_cfg["sim"]["tcp"]["port"] = 0
+    sim_cfg["sim"]["time_scale"] = 0  # instant moves: the feedback is read right after
     (tmp_path / "sim.yaml").write_text(yaml.safe_dump(sim_cfg))
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     sim = subprocess.Popen(
