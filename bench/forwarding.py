@@ -53,7 +53,9 @@ Run:  .venv/bin/python bench/forwarding.py            (full: 2000 requests per m
       --reference/--no-reference (a minimal asyncio.Protocol forwarder and a minimal RTU
       relay, no interception, and socat byte pumps when socat is installed, measured the
       same way: the floors for CPython and for C on this machine; on by default in the
-      full run).
+      full run), --tls (also rows through the gateway's Modbus/TCP Security listener: TLS
+      1.3, a client certificate whose role is checked at every request; direct stays plain
+      TCP, and the plain TCP rows of the same run show the gateway without TLS).
 """
 
 from __future__ import annotations
@@ -145,7 +147,13 @@ async def _tcp_masters(spec: dict) -> dict:
     pdu = bytes.fromhex(spec["pdu"])
     n, warm = spec["requests"], spec["warmup"]
     units = spec["units"]
-    conns = [await asyncio.open_connection(spec["host"], spec["port"]) for _ in units]
+    ctx = None
+    if spec.get("tls"):  # Modbus/TCP Security: the handshakes happen before the timed part
+        import ssl
+
+        ctx = ssl.create_default_context(cafile=spec["tls"]["ca"])
+        ctx.load_cert_chain(spec["tls"]["cert"], spec["tls"]["key"])
+    conns = [await asyncio.open_connection(spec["host"], spec["port"], ssl=ctx) for _ in units]
     for _, w in conns:
         w.get_extra_info("socket").setsockopt(6, 1, 1)  # TCP_NODELAY
     lat: list[float] = []
@@ -547,7 +555,8 @@ def sim_config(tcp: bool, reply_silence_s: float = T35_S) -> dict:
     return {"sim": sim}
 
 
-def gateway_config(sim_port: int, rtu_port: str, upstream_rtu: str) -> dict:
+def gateway_config(sim_port: int, rtu_port: str, upstream_rtu: str,
+                   tls: dict | None = None) -> dict:
     def axis(bus: str, unit: int, upstream: int) -> dict:
         return {
             "bus": bus, "unit": unit, "upstream_unit": upstream, "pulse_mm": 0.001,
@@ -570,7 +579,7 @@ def gateway_config(sim_port: int, rtu_port: str, upstream_rtu: str) -> dict:
                      "timeout_s": 0.2, "retries": 1}
     axes = {f"T{u}": axis(f"t{u}", u, u) for u in UNITS}
     axes |= {f"R{u}": axis("line", u, RTU_UPSTREAM_OFFSET + u) for u in UNITS}
-    return {
+    config = {
         "upstream": {"tcp": {"host": "127.0.0.1", "port": 0, "max_connections": 64},
                      "rtu": {"port": upstream_rtu, "baudrate": BAUD, "parity": "N",
                              "stopbits": 1}},
@@ -578,6 +587,25 @@ def gateway_config(sim_port: int, rtu_port: str, upstream_rtu: str) -> dict:
         "axes": axes,
         "status": {"upstream_unit": 247},
     }
+    if tls is not None:  # a role that may do all on the TCP axes: checked at every request
+        config["upstream"]["tls"] = {
+            "host": "127.0.0.1", "port": 0, "max_connections": 64, "cert": tls["server"],
+            "key": tls["server_key"], "ca": tls["ca"],
+            "roles": {"operator": {"units": list(UNITS), "read": True, "write": True}}}
+    return config
+
+
+def make_certificates(directory: Path) -> dict:
+    """A CA, the gateway's certificate and an `operator` client's (tests/tls_certs.py)."""
+    sys.path.insert(0, str(ROOT))
+    from tests.tls_certs import issue, make_ca
+
+    ca = make_ca(directory)
+    server = issue(directory, "server", ca, server=True)
+    client = issue(directory, "operator", ca, role="operator")
+    return {"ca": str(ca.cert_path), "server": str(server.cert_path),
+            "server_key": str(server.key_path), "cert": str(client.cert_path),
+            "key": str(client.key_path)}
 
 
 def _write_yaml(path: Path, data: dict) -> Path:
@@ -661,9 +689,13 @@ class Bench:
         self.sim_port = int(sim_a.wait_for(r"modbus tcp on 127\.0\.0\.1:(\d+)").group(1))
         self.gw_line = sim_a.wait_for(r"modbus rtu on (\S+)").group(1)  # the gateway's bus
         self.direct_line = sim_b.wait_for(r"modbus rtu on (\S+)").group(1)  # direct master
+        self.tls = make_certificates(self.tmp) if self.args.tls else None
         self.gw_cfg = _write_yaml(self.tmp / "gw.yaml", gateway_config(
-            self.sim_port, self.gw_line, self.upstream_line))
+            self.sim_port, self.gw_line, self.upstream_line, self.tls))
         self.gw_port = self.start_gateway("gw", self.gw_cfg)
+        if self.tls is not None:
+            self.tls_port = int(self.procs["gw"].wait_for(
+                r"\(TLS\) server listening on 127\.0\.0\.1:(\d+)").group(1))
 
     def start_gateway(self, name: str, cfg: Path, t35_s: float | None = None,
                       root: Path = ROOT) -> int:
@@ -719,11 +751,13 @@ class Bench:
         units = list(UNITS[:masters])
         common = {"pdu": case.pdu.hex(), "warmup": a.warmup, "time_cap": a.time_cap / 2,
                   "pin": a.pin}
-        if transport == "tcp":
+        if transport in ("tcp", "tls"):
             direct = {**common, "kind": "tcp", "host": "127.0.0.1", "port": self.sim_port,
                       "units": units}
             through = {**common, "kind": "tcp", "host": "127.0.0.1", "units": units,
                        "port": gw_port or self.gw_port}
+            if transport == "tls":  # the gateway's TLS listener; direct: plain TCP, as ever
+                through |= {"port": self.tls_port, "tls": self.tls}
             d_watch, g_watch = ("sim",), ("sim", gw_name)
         else:  # the drives on the RTU line; direct: a master on that line (sim B's)
             direct = {**common, "kind": "rtu", "device": self.direct_line, "units": units,
@@ -913,6 +947,9 @@ def main(argv: list[str] | None = None) -> int:
                          "Modbus slave that finds the request's end by silence (default), or "
                          "at once (faster than a real drive; the gateway's own t3.5 before "
                          "its RTU reply is then all added latency)")
+    ap.add_argument("--tls", action="store_true",
+                    help="also rows through the gateway's Modbus/TCP Security listener (TLS, "
+                         "a client certificate with a role), direct still plain TCP")
     ap.add_argument("--load", help=argparse.SUPPRESS)
     ap.add_argument("--proxy", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--relay", nargs=2, help=argparse.SUPPRESS)
@@ -942,6 +979,9 @@ def main(argv: list[str] | None = None) -> int:
         both = (1, 8)
         for transport in transports:
             bench.run_rows(rows, transport, cases, both, requests, rtu8=rtu8)
+        if a.tls and "tcp" in transports:  # compare with the tcp rows just above
+            bench.run_rows(rows, "tls", cases, both, requests,
+                           note="Modbus/TCP Security: TLS 1.3, client certificate, role check")
         if a.baseline:  # another gateway tree (e.g. `git archive` of an older commit)
             with bench.main_gateway_stopped():  # it shares the RTU lines
                 port = bench.start_gateway("gw-base", bench.gw_cfg, root=Path(a.baseline))
