@@ -91,6 +91,8 @@ class GatewayApp:
             lambda: any(not bus.connected for bus in self.buses.values()),
         )
         self.gateway.status_handler = self.status.handle
+        if source is not None:
+            self.status.reloader = self.reload_file
         self.write_guard = WriteGuard(lambda: self.config.write_protect)
         self.handler = self.write_guard.wrap(self.gateway.handle)
         self.fast_handler = self.write_guard.wrap_fast(self.gateway.handle_fast)
@@ -207,6 +209,22 @@ class GatewayApp:
         self.gateway.reload(config, chain)
         self.config = config
 
+    def reload_file(self) -> str | None:
+        """Load the config file again (``source``) and swap to it; None when taken, else
+        the one-line reason it was refused (the old config stays). SIGHUP and the status
+        unit's reload register both come here."""
+        assert self.source is not None
+        try:
+            new_config, new_chain = load(self.source)
+            self.reload(new_config, new_chain)
+        except ConfigError as exc:
+            log.error("reload refused, old config kept: %s", exc)
+            self.status.reloaded(str(exc))
+            return str(exc)
+        log.info("reloaded %s", self.source)
+        self.status.reloaded(None)
+        return None
+
     async def __aenter__(self) -> GatewayApp:
         await self.start()
         return self
@@ -263,14 +281,9 @@ async def serve(path: str | Path, *, stop: asyncio.Event | None = None,
 
     def do_reload() -> None:
         notifier.reloading()
-        try:
-            new_config, new_chain = load(path)
-            app.reload(new_config, new_chain)
-        except ConfigError as exc:
-            log.error("reload refused, old config kept: %s", exc)
+        if app.reload_file() is not None:
             notifier.ready(f"reload refused, old config kept; {app.describe()}")
             return
-        log.info("reloaded %s", path)
         notifier.ready(app.describe())
 
     loop.add_signal_handler(signal.SIGTERM, stop.set)

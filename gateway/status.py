@@ -13,6 +13,8 @@ address    meaning
 5-6        targets refused: outside travel (uint32)
 7-8        targets refused: correction above max_correction_mm (uint32)
 9-10       feedback reads corrected (uint32)
+11-12      config generation (uint32): 1 at start, +1 at each config reload that took
+13         last reload: 0 none or taken, 1 refused (the old config stays; see the log)
 16 + 8k    axis k: bit 0 compensation enabled, bit 1 last target corrected (homed and
            enabled when it was sent), bit 2 direction of the last move is −,
            bit 3 thermal correction active on this axis
@@ -25,8 +27,11 @@ address    meaning
 =========  ==========================================================================
 
 Holding registers (FC03 read, FC06/FC16 write): address k = 1 to switch compensation of
-axis k on, 0 off. Writes are refused with exception 0x01 unless ``status.remote_control``
-is true: by default nobody on the network can switch correction off.
+axis k on, 0 off; address 100 (``RELOAD_REGISTER``) = 1 reloads the config file, as
+SIGHUP does, and answers when it is done (exception 0x04 when the new config is refused:
+the old one stays). Writes are refused with exception 0x01 unless
+``status.remote_control`` is true: by default nobody on the network can switch correction
+off or make the gateway reload.
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ from .frames import (
     ILLEGAL_FUNCTION,
     READ_HOLDING_REGISTERS,
     READ_INPUT_REGISTERS,
+    SERVER_DEVICE_FAILURE,
     WRITE_MULTIPLE_REGISTERS,
     WRITE_SINGLE_REGISTER,
     FrameError,
@@ -58,6 +64,11 @@ MAP_VERSION = 1
 AXIS_BASE, AXIS_STRIDE = 16, 8
 SOURCE_BASE, SOURCE_STRIDE = 80, 4
 INPUT_SIZE = 120  # one FC04 reads it all (at most 125 registers)
+RELOAD_REGISTER = 100
+GENERATION_REGISTER = 11
+
+#: reloads the config file; returns None when the new config was taken, else why not
+Reloader = Callable[[], str | None]
 
 
 def _u32(value: int) -> list[int]:
@@ -77,6 +88,9 @@ class StatusUnit:
         self.gateway = gateway
         self.sensors = sensors
         self.buses_down = buses_down
+        self.reloader: Reloader | None = None  # set by whoever knows the config file
+        self.generation = 1
+        self.last_reload_refused = False
 
     def input_registers(self) -> list[int]:
         """The whole input-register image, computed from the live state."""
@@ -91,6 +105,8 @@ class StatusUnit:
         regs[5:7] = _u32(c.refused_travel)
         regs[7:9] = _u32(c.refused_correction)
         regs[9:11] = _u32(c.feedback_reads)
+        regs[11:13] = _u32(self.generation)
+        regs[13] = int(self.last_reload_refused)
         for k, (name, axis) in enumerate(config.axes.items()):
             base = AXIS_BASE + AXIS_STRIDE * k
             if base + AXIS_STRIDE > SOURCE_BASE:
@@ -120,7 +136,14 @@ class StatusUnit:
 
     def holding_registers(self) -> list[int]:
         gw = self.gateway
-        return [int(gw.axis_state(name).enabled) for name in gw.setup.config.axes]
+        regs = [int(gw.axis_state(name).enabled) for name in gw.setup.config.axes]
+        return regs + [0] * (RELOAD_REGISTER + 1 - len(regs))
+
+    def reloaded(self, refused: str | None) -> None:
+        """Count a reload (from SIGHUP or the control register): ``refused`` says why not."""
+        self.last_reload_refused = refused is not None
+        if refused is None:
+            self.generation += 1
 
     def handle(self, pdu: bytes) -> bytes:
         try:
@@ -148,6 +171,8 @@ class StatusUnit:
             raise ModbusError("remote control is off", ILLEGAL_FUNCTION)
         names = list(config.axes)
         start = req.write_address or 0
+        if start == RELOAD_REGISTER and req.write_count == 1:
+            return self._reload(req)
         if start + req.write_count > len(names):
             raise ModbusError("no such axis", ILLEGAL_DATA_ADDRESS)
         if any(v not in (0, 1) for v in req.values):
@@ -159,6 +184,18 @@ class StatusUnit:
                 log.warning("axis %s: compensation switched %s remotely", name,
                             "on" if value else "off")
             state.enabled = bool(value)
+        return response_for_write(req)
+
+
+    def _reload(self, req) -> bytes:  # type: ignore[no-untyped-def]
+        if req.values[0] != 1:
+            raise ModbusError("write 1 to reload", ILLEGAL_DATA_VALUE)
+        if self.reloader is None:
+            raise ModbusError("this gateway has no config file to reload", ILLEGAL_FUNCTION)
+        log.warning("config reload requested over Modbus (status unit)")
+        refused = self.reloader()
+        if refused is not None:
+            raise ModbusError(f"reload refused: {refused}", SERVER_DEVICE_FAILURE)
         return response_for_write(req)
 
 
@@ -178,6 +215,8 @@ def format_status(names: list[str], sources: list[str], regs: list[int]) -> str:
         f"bus down: {'YES' if flags & 2 else 'no'}",
         f"targets committed {u32(3)}, refused (travel) {u32(5)}, refused (cap) {u32(7)}, "
         f"feedback reads {u32(9)}",
+        f"config generation {u32(GENERATION_REGISTER)}"
+        f"{', last reload REFUSED' if regs[13] else ''}",
     ]
     for k, name in enumerate(names):
         base = AXIS_BASE + AXIS_STRIDE * k

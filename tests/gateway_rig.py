@@ -116,7 +116,7 @@ async def rig(
             path = tmp_path / "gw.yaml"
             path.write_text(yaml.safe_dump(copy.deepcopy(data)))
             config, chain = load(path)
-            async with GatewayApp(config, chain) as app:
+            async with GatewayApp(config, chain, source=str(path)) as app:
                 if upstream_line is not None:
                     master = AsyncModbusSerialClient(
                         upstream_line.b, baudrate=115200, parity="N", stopbits=1, timeout=2,

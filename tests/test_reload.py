@@ -7,12 +7,18 @@ from __future__ import annotations
 import signal
 from pathlib import Path
 
+import yaml
 from pymodbus.client import ModbusTcpClient
 
 from gateway.app import load
 from gateway.compensation import AxisInput
 from gateway.frames import pack_int32, unpack_int32
-from tests.gateway_rig import TARGET, TRIGGER
+from gateway.status import GENERATION_REGISTER, RELOAD_REGISTER
+from tests.gateway_rig import TARGET, TRIGGER, rig
+from tests.helpers_modbus import run
+from tests.test_gateway_e2e import PITCH_X
+from tests.test_gateway_e2e import move as move_async
+from tests.test_gateway_e2e import read32 as read32_async
 from tests.test_service_helpers import sim_and_gateway
 
 PITCH_A = "position_mm,error_um\n0,0\n200,12\n400,20\n600,8\n800,-15\n"
@@ -96,3 +102,44 @@ def test_sighup_reload_valid_then_invalid(tmp_path: Path):
             master.close()
             direct.close()
         assert gw.stop() == 0
+
+
+def test_reload_over_modbus_with_remote_control(tmp_path: Path) -> None:
+    """The status unit's reload register (100) reloads the config file as SIGHUP does and
+    answers when done: the generation register counts reloads taken; a refused config gets
+    0x04 and the old one stays; without status.remote_control the write is refused 0x01."""
+    def edit(data: dict) -> None:
+        data["status"] = {"upstream_unit": 247, "remote_control": True}
+
+    async def generation(master) -> tuple[int, int]:
+        rr = await master.read_input_registers(GENERATION_REGISTER, count=3, device_id=247)
+        return (rr.registers[0] << 16) | rr.registers[1], rr.registers[2]
+
+    async def body() -> None:
+        async with rig(tmp_path, edit, {"x.csv": PITCH_X}) as r:
+            master, direct, path = r["master"], r["direct"], r["config_path"]
+            await move_async(master, 1, 300_000)
+            assert await read32_async(direct, 1, 0x6201) == 300_000  # no table yet
+            assert await generation(master) == (1, 0)
+            data = yaml.safe_load(path.read_text())
+            data["axes"]["X"]["compensation"]["pitch"] = "x.csv"
+            path.write_text(yaml.safe_dump(data))
+            assert not (await master.write_register(RELOAD_REGISTER, 1, device_id=247)).isError()
+            assert await generation(master) == (2, 0)
+            await move_async(master, 1, 310_000)
+            assert await read32_async(direct, 1, 0x6201) != 310_000  # the table is on
+            data["axes"]["X"]["compensation"]["pitch"] = "missing.csv"
+            path.write_text(yaml.safe_dump(data))
+            rr = await master.write_register(RELOAD_REGISTER, 1, device_id=247)
+            assert rr.isError() and rr.exception_code == 0x04
+            assert await generation(master) == (2, 1)  # refused, the old one stays
+            await move_async(master, 1, 320_000)
+            assert await read32_async(direct, 1, 0x6201) != 320_000
+            data["status"]["remote_control"] = False
+            data["axes"]["X"]["compensation"]["pitch"] = "x.csv"
+            path.write_text(yaml.safe_dump(data))
+            assert not (await master.write_register(RELOAD_REGISTER, 1, device_id=247)).isError()
+            rr = await master.write_register(RELOAD_REGISTER, 1, device_id=247)
+            assert rr.isError() and rr.exception_code == 0x01  # now off
+
+    run(body())
