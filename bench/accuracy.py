@@ -1,0 +1,192 @@
+"""Accuracy of a calibration workflow on machines its authors never saw.
+
+For each machine: ``compgw sim --random-machine SEED --roughness R`` (or ``--real-machine
+NAME``) writes it; ``compgw sim`` and ``compgw run`` start as processes; the workflow
+(``--workflow``, bench/workflows.py) calibrates it with ``compgw`` commands only; then the
+independent evaluator (bench/evaluate.py) measures the same random targets with the
+uncalibrated config (before) and the calibrated one (after), reading the truth from the
+sim's instruments and computing ISO 230-2 itself.
+
+Reported per machine and as median / worst per group (smooth, rough, real):
+E cut (worst axis), A − R after (worst axis), XY maximum vector error cut at random points,
+off-grid RMS after (random positions and short steps, worst axis), thermal change after a
+warm-up cycle with compensation (largest axis; `-` for a machine without a thermal sensor:
+then nothing can correct it and the figure shows the drift).
+
+    python bench/accuracy.py                      # 20 random (10 smooth, 10 rough) + real
+    python bench/accuracy.py --machines 4 --real none --jobs 2
+    python bench/accuracy.py --json > accuracy.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import concurrent.futures
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from evaluate import evaluate, plan
+from workflows import WORKFLOWS, MachineRun, compgw_argv
+
+REAL_MACHINES = ("slit-11358", "slit-11359", "slit-11361", "mcu1025", "slit-11360-iso",
+                 "slit-11358-retest", "sdss-1396", "sdss-1597", "sdss-2130")  # fmt: skip
+
+
+def machine_list(count: int, seed: int, real: str) -> list[tuple[str, list[str]]]:
+    """(label, `compgw sim` arguments): half smooth, half rough on the same seeds, then real."""
+    out = []
+    for k in range(count):
+        s, rough = seed + k // 2, k % 2 == 1
+        roughness = "rough" if rough else "smooth"
+        out.append((f"{roughness}-{s}", ["--random-machine", str(s), "--roughness", roughness]))
+    names = REAL_MACHINES if real == "all" else () if real == "none" else real.split(",")
+    out += [(f"real-{n}", ["--real-machine", n]) for n in names]
+    return out
+
+
+def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed: int
+                ) -> dict[str, Any]:  # fmt: skip
+    """Generate, calibrate and evaluate one machine; a dict of its figures (or its error)."""
+    t0 = time.monotonic()
+    mdir = root / label
+    shutil.rmtree(mdir, ignore_errors=True)
+    subprocess.run([*compgw_argv(), "sim", *gen_args, "--out", str(mdir)], check=True,
+                   capture_output=True, text=True)  # fmt: skip
+    run = MachineRun.start(mdir, mdir / "work")
+    out: dict[str, Any] = {"machine": label, "group": label.split("-")[0]}
+    try:
+        result = WORKFLOWS[workflow](run)
+        out["workflow_s"] = round(time.monotonic() - t0, 1)
+        out["notes"] = result.notes
+        the_plan = plan(run.machine, result.calibration_targets_mm, seed)
+
+        async def cool() -> None:
+            await asyncio.to_thread(run.cool_down)
+
+        phases = {}
+        for phase, config in (("before", run.base_config()), ("after", result.config)):
+            run.use(config)
+            phases[phase] = asyncio.run(
+                evaluate(run.machine, the_plan, run.sim_port, run.gateway_port, cool))
+        out.update(phases)
+        out["sensor"] = run.machine.get("thermal_sensor", "none")
+        out["commands"] = len(run.commands)
+    except Exception as exc:  # reported, the other machines go on
+        out["error"] = f"{type(exc).__name__}: {exc}"
+        out["traceback"] = traceback.format_exc(limit=3)
+    finally:
+        run.stop()
+    out["wall_s"] = round(time.monotonic() - t0, 1)
+    return out
+
+
+def summary(r: dict[str, Any]) -> dict[str, float]:
+    """The headline figures of one machine."""
+    b, a = r["before"], r["after"]
+    axes = list(a["axes"])
+    e_cut = min(1 - a["axes"][n]["E_um"] / b["axes"][n]["E_um"] for n in axes)
+    return {
+        "E_before_um": max(b["axes"][n]["E_um"] for n in axes),
+        "E_after_um": max(a["axes"][n]["E_um"] for n in axes),
+        "E_cut_pct": 100 * e_cut,
+        "A_minus_R_um": max(a["axes"][n]["A_um"] - a["axes"][n]["R_um"] for n in axes),
+        "R_um": max(a["axes"][n]["R_um"] for n in axes),
+        "xy_before_um": b["xy"]["max_um"], "xy_after_um": a["xy"]["max_um"],
+        "xy_cut_pct": 100 * (1 - a["xy"]["max_um"] / b["xy"]["max_um"]),
+        "offgrid_rms_um": max(a["axes"][n]["offgrid_rms_um"] for n in axes),
+        "thermal_off_um": max(b["axes"][n]["thermal_um"] for n in axes),
+        "thermal_on_um": max(a["axes"][n]["thermal_um"] for n in axes),
+    }  # fmt: skip
+
+
+HEAD = (f"{'machine':<24}{'E before':>9}{'after':>7}{'cut %':>7}{'A-R':>6}{'XY before':>10}"
+        f"{'after':>7}{'cut %':>7}{'offgrid':>8}{'therm off':>10}{'on':>6}  sensor")
+
+
+def row(label: str, s: dict[str, float], sensor: str) -> str:
+    on = f"{s['thermal_on_um']:6.1f}" if sensor != "none" and "thermal_on_um" in s else f"{'-':>6}"
+    return (f"{label:<24}{s['E_before_um']:9.1f}{s['E_after_um']:7.2f}{s['E_cut_pct']:7.1f}"
+            f"{s['A_minus_R_um']:6.2f}{s['xy_before_um']:10.1f}{s['xy_after_um']:7.2f}"
+            f"{s['xy_cut_pct']:7.1f}{s['offgrid_rms_um']:8.2f}{s['thermal_off_um']:10.1f}{on}"
+            f"  {sensor}")  # fmt: skip
+
+
+def group_stats(results: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, float]]]:
+    """Median and worst of each headline figure per group."""
+    worst_is_min = {"E_cut_pct", "xy_cut_pct"}
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for group in ("smooth", "rough", "real"):
+        rows = [r for r in results if r["group"] == group and "summary" in r]
+        if not rows:
+            continue
+        stats: dict[str, dict[str, float]] = {"median": {}, "worst": {}}
+        for key in rows[0]["summary"]:
+            values = [r["summary"][key] for r in rows
+                      if not (key == "thermal_on_um" and r["sensor"] == "none")]  # fmt: skip
+            if not values:
+                continue
+            stats["median"][key] = float(np.median(values))
+            stats["worst"][key] = float(min(values) if key in worst_is_min else max(values))
+        out[group] = stats
+    return out
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog=__doc__.split("\n\n", 1)[1])  # fmt: skip
+    parser.add_argument("--workflow", choices=sorted(WORKFLOWS), default="manual")
+    parser.add_argument("--machines", type=int, default=20,
+                        help="random machines, half smooth and half rough (20)")
+    parser.add_argument("--seed", type=int, default=0, help="first random machine seed (0)")
+    parser.add_argument("--real", default="all",
+                        help="real-data machines: all, none, or NAME[,NAME...] (all)")
+    parser.add_argument("--jobs", type=int, default=1, help="machines in parallel (1)")
+    parser.add_argument("--keep", type=Path, help="keep every machine's files in this directory")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    args = parser.parse_args()
+    machines = machine_list(args.machines, args.seed, args.real)
+    root = args.keep or Path(tempfile.mkdtemp(prefix="compgw-accuracy-"))
+    root.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    results: list[dict[str, Any]] = []
+    say = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
+    say(f"{len(machines)} machines, workflow {args.workflow}, {args.jobs} job(s)")
+    say(HEAD)
+    with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        futures = [pool.submit(run_machine, label, gen, args.workflow, root, args.seed)
+                   for label, gen in machines]  # fmt: skip
+        for fut in futures:
+            r = fut.result()
+            if "error" in r:
+                say(f"{r['machine']:<24}failed: {r['error']}")
+            else:
+                r["summary"] = summary(r)
+                say(row(r["machine"], r["summary"], r["sensor"]))
+            results.append(r)
+    stats = group_stats(results)
+    wall = time.monotonic() - t0
+    say("")
+    for group, st in stats.items():
+        for which in ("median", "worst"):
+            say(row(f"{group} {which}", st[which], "any"))
+    say(f"wall time {wall / 60:.1f} min; machine files in {root}")
+    if args.json:
+        print(json.dumps({"workflow": args.workflow, "wall_s": round(wall, 1), "groups": stats,
+                          "machines": results}, indent=2))  # fmt: skip
+    if not args.keep:
+        shutil.rmtree(root, ignore_errors=True)
+    return 1 if any("error" in r for r in results) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,306 @@
+"""The independent judge of a calibration: an upper computer that moves the machine through
+the gateway to random targets no workflow measured, waits until the instruments say the
+axis is stable, reads the truth from the sim's laser and XY device, and computes the
+ISO 230-2 figures with its own few lines of arithmetic (not ``gateway.calibration.iso230``:
+a mistake shared with the gateway could not hide).
+
+Per axis (the other axis parked at a random place): 5 bidirectional ISO 230-2 runs over
+random targets (overrun past both ends) → E, A, R, M, B; an off-grid sequence, half long
+moves to random positions and half short steps (5 µm-2 mm, either way: reversals that take
+up only part of a play) → RMS of the deviations. In the plane: random XY points in random
+order → max and RMS vector error. Thermal: deviations at a few positions cold, then after
+30 min of machine time cycling the axis over a work zone (40 % of the travel), warm → the
+largest change (µm).
+
+At time_scale 0 the sim's clock stands still between moves: where a real upper computer
+would sleep until the reading is stable, this one reads the stable flag (laser 2N+k, XY
+4/5) and, while it is 0, advances the machine clock 10 ms through the sim's control block.
+
+``python bench/evaluate.py --machine DIR --sim-port P --gateway-port G`` evaluates a
+running gateway in front of a running sim and prints the figures as JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pymodbus.client import AsyncModbusTcpClient
+
+TARGET, TRIGGER, STATUS = 0x6201, 0x6002, 0x1003
+MOVING_BIT, IN_POSITION_BIT, ALARM_BIT = 2, 4, 0
+LASER_UNIT, XY_UNIT, FAULTS_UNIT, ADVANCE_MS = 20, 21, 250, 0x0801
+SETTLE_STEP_MS, SETTLE_MAX_STEPS = 10, 300
+WARMUP_S, ZONE_FRACTION = 1800.0, 0.4
+
+
+def iso230(up: np.ndarray, down: np.ndarray) -> dict[str, float]:
+    """ISO 230-2 axis figures (µm) from deviations [target, run] approached ↑ and ↓."""
+    mu, md = up.mean(axis=1), down.mean(axis=1)
+    su, sd = up.std(axis=1, ddof=1), down.std(axis=1, ddof=1)
+    b_i = mu - md
+    r_i = np.maximum(2 * su + 2 * sd + np.abs(b_i), np.maximum(4 * su, 4 * sd))
+    mean_i = (mu + md) / 2
+    both = np.concatenate([mu, md])
+    return {
+        "E_um": float(both.max() - both.min()),
+        "A_um": float(max((mu + 2 * su).max(), (md + 2 * sd).max())
+                      - min((mu - 2 * su).min(), (md - 2 * sd).min())),
+        "R_um": float(r_i.max()), "M_um": float(mean_i.max() - mean_i.min()),
+        "B_um": float(np.abs(b_i).max()),
+    }  # fmt: skip
+
+
+def _s32(words: Sequence[int]) -> int:
+    raw = (words[0] << 16) | words[1]
+    return raw - (1 << 32) if raw & 0x80000000 else raw
+
+
+def _words(value: int) -> list[int]:
+    raw = value & 0xFFFFFFFF
+    return [raw >> 16, raw & 0xFFFF]
+
+
+@dataclass
+class Axis:
+    name: str
+    unit: int
+    pulse_mm: float
+    travel_mm: tuple[float, float]
+    channel: int  # laser channel
+
+
+class Master:
+    """The upper computer: moves through the gateway, reads the sim's instruments."""
+
+    def __init__(self, gateway: AsyncModbusTcpClient, sim: AsyncModbusTcpClient,
+                 axes: dict[str, Axis]) -> None:  # fmt: skip
+        self.gw, self.sim, self.axes = gateway, sim, axes
+        self.moves = 0
+        self.settle_steps = 0
+
+    async def _ok(self, call: Any) -> Any:
+        reply = await call
+        if reply.isError():
+            raise RuntimeError(f"modbus: {reply}")
+        return reply
+
+    async def move(self, targets_mm: dict[str, float]) -> None:
+        """Write every target, then every trigger, then wait until each is in position."""
+        for name, pos in targets_mm.items():
+            ax = self.axes[name]
+            pulses = round(pos / ax.pulse_mm)
+            await self._ok(self.gw.write_registers(TARGET, _words(pulses), device_id=ax.unit))
+        for name in targets_mm:
+            await self._ok(self.gw.write_register(TRIGGER, 0x10, device_id=self.axes[name].unit))
+        for name in targets_mm:
+            for _ in range(10_000):
+                rr = await self._ok(self.gw.read_holding_registers(STATUS, count=1,
+                                                                   device_id=self.axes[name].unit))
+                word = rr.registers[0]
+                if word >> ALARM_BIT & 1:
+                    raise RuntimeError(f"axis {name}: alarm at {targets_mm[name]:g} mm")
+                if not word >> MOVING_BIT & 1 and word >> IN_POSITION_BIT & 1:
+                    break
+            else:
+                raise RuntimeError(f"axis {name}: never in position")
+        self.moves += 1
+
+    async def _settled(self, unit: int, flags: slice) -> list[int]:
+        """Read the instrument until its stable flags are all set; the registers then."""
+        count = flags.stop
+        for _ in range(SETTLE_MAX_STEPS):
+            rr = await self._ok(self.sim.read_input_registers(0, count=count, device_id=unit))
+            if all(rr.registers[flags]):
+                return list(rr.registers)
+            self.settle_steps += 1  # what sleeping would do: let the machine clock run
+            await self._ok(self.sim.write_register(ADVANCE_MS, SETTLE_STEP_MS,
+                                                   device_id=FAULTS_UNIT))
+        raise RuntimeError("the instrument never said stable")
+
+    async def laser_mm(self, name: str) -> float:
+        n = len(self.axes)
+        regs = await self._settled(LASER_UNIT, slice(2 * n, 3 * n))
+        k = self.axes[name].channel
+        return _s32(regs[2 * k: 2 * k + 2]) / 1e6
+
+    async def xy_mm(self) -> tuple[float, float]:
+        regs = await self._settled(XY_UNIT, slice(4, 6))
+        return _s32(regs[0:2]) / 1e6, _s32(regs[2:4]) / 1e6
+
+    async def deviation_um(self, name: str, pos_mm: float) -> float:
+        ax = self.axes[name]
+        return (await self.laser_mm(name) - round(pos_mm / ax.pulse_mm) * ax.pulse_mm) * 1e3
+
+
+def _snap(pos: float, pulse_mm: float) -> float:
+    return round(round(pos / pulse_mm) * pulse_mm, 9)
+
+
+def _clear_of(rng: np.random.Generator, lo: float, hi: float, avoid: np.ndarray, n: int,
+              gap_mm: float, pulse_mm: float) -> np.ndarray:
+    """``n`` random positions in [lo, hi] at least ``gap_mm`` from every ``avoid`` target."""
+    out: list[float] = []
+    for _ in range(100 * n):
+        p = _snap(float(rng.uniform(lo, hi)), pulse_mm)
+        if avoid.size == 0 or np.abs(avoid - p).min() >= gap_mm:
+            out.append(p)
+            if len(out) == n:
+                return np.array(out)
+    raise RuntimeError("no random target clear of the calibration targets")
+
+
+def plan(machine: dict[str, Any], avoid: dict[str, list[float]], seed: int) -> dict[str, Any]:
+    """Random targets (seeded), the same before and after calibration."""
+    rng = np.random.default_rng([seed, 230])
+    out: dict[str, Any] = {"axes": {}}
+    names = list(machine["axes"])
+    for name in names:
+        info = machine["axes"][name]
+        lo, hi = info["travel_mm"]
+        pulse = info["pulse_mm"]
+        other = next(a for a in names if a != name)
+        olo, ohi = machine["axes"][other]["travel_mm"]
+        gap = min(0.05, (hi - lo) / 2000)
+        far = np.array(avoid.get(name, []))
+        m = int(np.clip(round((hi - lo) / 40), 6, 15))
+        iso = np.sort(_clear_of(rng, lo + 3, hi - 3, far, m, gap, pulse))
+        seq = []
+        pos = float(rng.uniform(lo + 2, hi - 2))
+        for _ in range(150):
+            if rng.random() < 0.5:
+                pos = float(rng.uniform(lo + 1, hi - 1))
+            else:
+                pos = float(np.clip(pos + rng.choice((-1, 1)) * 10 ** rng.uniform(-2.3, 0.3),
+                                    lo + 1, hi - 1))
+            seq.append(_snap(pos, pulse))
+        zone_len = ZONE_FRACTION * (hi - lo)
+        z0 = float(rng.uniform(lo, hi - zone_len))
+        out["axes"][name] = {
+            "iso_targets": iso.tolist(), "park": {other: _snap(rng.uniform(olo + 1, ohi - 1),
+                                                              machine["axes"][other]["pulse_mm"])},
+            "offgrid": seq, "zone": [_snap(z0, pulse), _snap(z0 + zone_len, pulse)],
+            "thermal_points": np.sort(_clear_of(rng, lo + 2, hi - 2, far, 5, gap, pulse)).tolist(),
+        }  # fmt: skip
+    (x0, x1), (y0, y1) = (machine["axes"][n]["travel_mm"] for n in names)
+    px, py = (machine["axes"][n]["pulse_mm"] for n in names)
+    points = [(_snap(rng.uniform(x0 + 2, x1 - 2), px), _snap(rng.uniform(y0 + 2, y1 - 2), py))
+              for _ in range(40)]  # fmt: skip
+    out["xy_points"] = points
+    return out
+
+
+async def _iso_runs(m: Master, name: str, p: dict[str, Any], runs: int = 5) -> dict[str, float]:
+    targets = p["iso_targets"]
+    lo, hi = m.axes[name].travel_mm
+    below, above = max(lo, targets[0] - 2.0), min(hi, targets[-1] + 2.0)
+    up = np.zeros((len(targets), runs))
+    down = np.zeros((len(targets), runs))
+    for j in range(runs):
+        await m.move({name: below})
+        for i, t in enumerate(targets):
+            await m.move({name: t})
+            up[i, j] = await m.deviation_um(name, t)
+        await m.move({name: above})
+        for i in reversed(range(len(targets))):
+            await m.move({name: targets[i]})
+            down[i, j] = await m.deviation_um(name, targets[i])
+    return iso230(up, down)
+
+
+async def _offgrid_rms(m: Master, name: str, p: dict[str, Any]) -> float:
+    devs = []
+    for pos in p["offgrid"]:
+        await m.move({name: pos})
+        devs.append(await m.deviation_um(name, pos))
+    return float(np.sqrt(np.mean(np.square(devs))))
+
+
+async def _thermal(m: Master, name: str, p: dict[str, Any], speed_mm_s: float,
+                   cool: Any) -> float:  # fmt: skip
+    """Largest change of the deviation at the thermal points after a warm-up (µm)."""
+
+    async def at_points() -> np.ndarray:
+        out = []
+        for pos in p["thermal_points"]:
+            await m.move({name: pos - 1.0})
+            await m.move({name: pos})
+            out.append(await m.deviation_um(name, pos))
+        return np.array(out)
+
+    await m.move(p["park"])
+    await cool()
+    cold = await at_points()
+    z0, z1 = p["zone"]
+    strokes = max(2, math.ceil(WARMUP_S * speed_mm_s / (z1 - z0)))
+    for k in range(strokes):
+        await m.move({name: z1 if k % 2 == 0 else z0})
+    warm = await at_points()
+    return float(np.abs(warm - cold).max())
+
+
+async def evaluate(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: int,
+                   gateway_port: int, cool: Any = None) -> dict[str, Any]:
+    """All figures of one phase (the gateway's current config) as a dict."""
+    names = list(machine["axes"])
+    axes = {n: Axis(n, k + 1, machine["axes"][n]["pulse_mm"],
+                    tuple(machine["axes"][n]["travel_mm"]), k)
+            for k, n in enumerate(names)}  # fmt: skip
+    gw = AsyncModbusTcpClient("127.0.0.1", port=gateway_port, timeout=5, retries=0)
+    sim = AsyncModbusTcpClient("127.0.0.1", port=sim_port, timeout=5, retries=0)
+    assert await gw.connect() and await sim.connect()
+    m = Master(gw, sim, axes)  # type: ignore[arg-type]
+    out: dict[str, Any] = {"axes": {}}
+    try:
+        if cool is not None:
+            await cool()
+        for name in names:
+            p = the_plan["axes"][name]
+            await m.move(p["park"])
+            fig = await _iso_runs(m, name, p)
+            fig["offgrid_rms_um"] = await _offgrid_rms(m, name, p)
+            out["axes"][name] = fig
+        errs = []
+        for x, y in the_plan["xy_points"]:
+            await m.move({names[0]: x, names[1]: y})
+            tx, ty = await m.xy_mm()
+            ax, ay = axes[names[0]], axes[names[1]]
+            errs.append(math.hypot(tx - _snap(x, ax.pulse_mm), ty - _snap(y, ay.pulse_mm)) * 1e3)
+        out["xy"] = {"max_um": float(max(errs)), "rms_um": float(np.sqrt(np.mean(np.square(errs))))}
+        if cool is not None:  # last: the warm-ups heat the machine
+            for name in names:
+                p = the_plan["axes"][name]
+                speed = machine["axes"][name]["speed_mm_s"]
+                out["axes"][name]["thermal_um"] = await _thermal(m, name, p, speed, cool)
+        out["moves"], out["settle_steps"] = m.moves, m.settle_steps
+    finally:
+        gw.close()
+        sim.close()
+    return out
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--machine", type=Path, required=True, help="machine directory")
+    parser.add_argument("--sim-port", type=int, required=True)
+    parser.add_argument("--gateway-port", type=int, required=True)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random targets")
+    args = parser.parse_args()
+    machine = json.loads((args.machine / "machine.json").read_text())
+    figures = asyncio.run(evaluate(machine, plan(machine, {}, args.seed), args.sim_port,
+                                   args.gateway_port))  # fmt: skip
+    print(json.dumps(figures, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

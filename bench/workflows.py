@@ -1,0 +1,417 @@
+"""Calibration workflows run on a generated machine with the `compgw` command line only.
+
+A workflow gets a :class:`MachineRun`: the machine's directory (``compgw sim --random-machine``
+or ``--real-machine``: sim.yaml, gateway.yaml, machine.json), a running ``compgw sim`` and
+``compgw run`` (separate processes, free ports), and helpers that do what a user does:
+``compgw(...)`` runs a command, ``use(config)`` writes the gateway's config file and sends
+SIGHUP (as ``systemctl reload``), ``cool_down()`` lets the machine cool (the sim's clock). It
+returns the calibrated gateway config and the targets it measured, which the evaluator keeps
+clear of. ``WORKFLOWS`` maps a name to a workflow (``--workflow`` of bench/accuracy.py):
+
+- ``manual``: exactly gateway/calibration/README.md's workflow: warm-up and thermal fit
+  (with a Δa sensor), ISO 230-2 identification of each axis with a table every quarter of
+  the screw lead (5 runs), the XY grid (9 x 7, 3 runs) with the pitch tables on, fits.
+
+``python bench/workflows.py DIR [--workflow manual]`` runs one workflow on a machine
+directory and prints the final config's path.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import copy
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pymodbus.client import ModbusTcpClient
+
+ROOT = Path(__file__).resolve().parent.parent
+FAULTS_UNIT, ADVANCE_CLOCK_S = 250, 0x0800
+STATUS_UNIT, SOURCE_BASE, SOURCE_STRIDE = 247, 80, 4
+COOL_DOWN_S = 30_000
+START_TIMEOUT_S, COMMAND_TIMEOUT_S = 60.0, 3600.0
+
+
+def compgw_argv() -> list[str]:
+    """The `compgw` command of this Python environment."""
+    script = Path(sys.executable).with_name("compgw")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "gateway.cli"]
+
+
+class CommandFailed(RuntimeError):
+    """A `compgw` command exited non-zero; the message holds its last stderr lines."""
+
+
+class _Lines:
+    """Lines of a child's stream, collected by a thread; wait for a pattern."""
+
+    def __init__(self, stream: Any) -> None:
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream: Any) -> None:
+        for line in stream:
+            with self._cond:
+                self.lines.append(line.rstrip("\n"))
+                self._cond.notify_all()
+
+    def wait_for(self, pattern: str, start: int = 0, timeout_s: float = START_TIMEOUT_S
+                 ) -> re.Match[str]:  # fmt: skip
+        rx = re.compile(pattern)
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                for line in self.lines[start:]:
+                    found = rx.search(line)
+                    if found:
+                        return found
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    tail = "\n".join(self.lines[-5:])
+                    raise TimeoutError(f"no line matching {pattern!r} in {timeout_s:g} s: {tail}")
+                self._cond.wait(min(left, 0.5))
+
+
+@dataclass
+class MachineRun:
+    """A generated machine with its sim and gateway running; what a workflow works with."""
+
+    dir: Path
+    work: Path
+    machine: dict[str, Any]
+    sim_port: int = 0
+    gateway_port: int = 0
+    commands: list[str] = field(default_factory=list)
+    command_wall_s: float = 0.0
+    _sim: subprocess.Popen[str] | None = None
+    _gateway: subprocess.Popen[str] | None = None
+    _gw_log: _Lines | None = None
+    _gw_path: Path | None = None
+
+    # -- processes ----------------------------------------------------------------------------
+    @classmethod
+    def start(cls, machine_dir: Path, work: Path) -> MachineRun:
+        """Start ``compgw sim`` (free port) and ``compgw run`` with the uncalibrated config."""
+        machine_dir, work = machine_dir.resolve(), work.resolve()
+        machine = json.loads((machine_dir / "machine.json").read_text())
+        work.mkdir(parents=True, exist_ok=True)
+        run = cls(machine_dir, work, machine)
+        try:
+            run._start_sim()
+            run._start_gateway(run.base_config())
+        except BaseException:
+            run.stop()
+            raise
+        return run
+
+    def _start_sim(self) -> None:
+        data = yaml.safe_load((self.dir / "sim.yaml").read_text())
+        data["sim"]["tcp"]["port"] = 0
+        path = self.dir / "sim.run.yaml"  # beside sim.yaml: truth/ paths stay valid
+        path.write_text(yaml.safe_dump(data, sort_keys=False))
+        self._sim = subprocess.Popen([*compgw_argv(), "sim", "-c", str(path)], text=True,
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
+        lines = _Lines(self._sim.stdout)
+        self.sim_port = int(lines.wait_for(r"modbus tcp on [\d.]+:(\d+)").group(1))
+
+    def _start_gateway(self, config: dict[str, Any]) -> None:
+        self._gw_path = self.work / "gw.yaml"
+        self._write(self._gw_path, config)
+        self._gateway = subprocess.Popen(
+            [*compgw_argv(), "run", "-c", str(self._gw_path), "--log-level", "info"],
+            text=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)  # fmt: skip
+        self._gw_log = _Lines(self._gateway.stderr)
+        found = self._gw_log.wait_for(r"compgw running: Modbus TCP [\d.]+:(\d+)")
+        self.gateway_port = int(found.group(1))
+
+    def stop(self) -> None:
+        """SIGTERM the gateway and the sim, wait for both."""
+        for proc in (self._gateway, self._sim):
+            if proc is not None and proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        for proc in (self._gateway, self._sim):
+            if proc is not None:
+                try:
+                    proc.wait(10)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait(10)
+
+    # -- configs ------------------------------------------------------------------------------
+    def base_config(self) -> dict[str, Any]:
+        """The machine's gateway.yaml on this run's ports (uncalibrated)."""
+        data = yaml.safe_load((self.dir / "gateway.yaml").read_text())
+        data["upstream"]["tcp"]["port"] = 0
+        for bus in data["buses"].values():
+            bus["tcp"]["port"] = self.sim_port
+        return data
+
+    @staticmethod
+    def _write(path: Path, data: dict[str, Any]) -> None:
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(yaml.safe_dump(data, sort_keys=False))
+        os.replace(tmp, path)
+
+    def write_config(self, name: str, data: dict[str, Any]) -> Path:
+        """A config file in the work directory (tables relative to it)."""
+        path = self.work / name
+        self._write(path, data)
+        return path
+
+    def use(self, data: dict[str, Any] | Path) -> None:
+        """Make the running gateway load ``data`` (its config file rewritten, then SIGHUP)."""
+        assert self._gateway is not None and self._gw_log is not None and self._gw_path
+        if isinstance(data, Path):
+            data = yaml.safe_load(data.read_text())
+        self._write(self._gw_path, data)
+        start = len(self._gw_log.lines)
+        self._gateway.send_signal(signal.SIGHUP)
+        found = self._gw_log.wait_for(r"(reloaded|reload refused.*)", start)
+        if found.group(1) != "reloaded":
+            raise CommandFailed(f"gateway: {found.group(1)}")
+
+    # -- the machine --------------------------------------------------------------------------
+    def instrument(self, unit: int, address: int | None = None) -> str:
+        tail = "" if address is None else f":{address}"
+        return f"127.0.0.1:{self.sim_port}:{unit}{tail}"
+
+    @property
+    def gateway(self) -> str:
+        return f"127.0.0.1:{self.gateway_port}"
+
+    def cool_down(self, seconds: int = COOL_DOWN_S) -> None:
+        """Let the machine cool (the sim's clock), then wait until the gateway's thermal
+        sources read cold again (its status unit)."""
+        client = ModbusTcpClient("127.0.0.1", port=self.sim_port, timeout=2, retries=0)
+        assert client.connect()
+        try:
+            client.write_register(ADVANCE_CLOCK_S, seconds, device_id=FAULTS_UNIT)
+        finally:
+            client.close()
+        sources = len(yaml.safe_load(self._gw_path.read_text()).get("thermal_sources") or {})  # type: ignore[union-attr]
+        if not sources:
+            return
+        gw = ModbusTcpClient("127.0.0.1", port=self.gateway_port, timeout=2, retries=0)
+        assert gw.connect()
+        try:
+            deadline = time.monotonic() + 20
+            while True:
+                regs = gw.read_input_registers(SOURCE_BASE, count=SOURCE_STRIDE * sources,
+                                               device_id=STATUS_UNIT).registers  # fmt: skip
+                cold = True
+                for s in range(sources):
+                    state, hi, lo = regs[4 * s: 4 * s + 3]
+                    da = ((hi << 16) | lo) - ((1 << 32) if hi & 0x8000 else 0)
+                    cold &= state == 1 and abs(da) <= 5  # 0.5 µm
+                if cold:
+                    return
+                if time.monotonic() > deadline:
+                    raise TimeoutError("thermal sources did not read cold after the cool-down")
+                time.sleep(0.02)
+        finally:
+            gw.close()
+
+    def compgw(self, *args: object) -> str:
+        """Run ``compgw ARGS`` in the work directory; its stdout; CommandFailed if non-zero."""
+        argv = [*compgw_argv(), *(str(a) for a in args)]
+        self.commands.append(" ".join(["compgw", *(str(a) for a in args)]))
+        t0 = time.monotonic()
+        out = subprocess.run(argv, cwd=self.work, text=True, capture_output=True,
+                             timeout=COMMAND_TIMEOUT_S)  # fmt: skip
+        self.command_wall_s += time.monotonic() - t0
+        if out.returncode != 0:
+            tail = (out.stderr.strip() or out.stdout.strip()).splitlines()[-3:]
+            raise CommandFailed(f"compgw {' '.join(map(str, args[:3]))}: exit "
+                                f"{out.returncode}: {' | '.join(tail)}")  # fmt: skip
+        return out.stdout
+
+
+@dataclass
+class WorkflowResult:
+    """What a workflow leaves: the calibrated config, the targets it measured, remarks."""
+
+    config: dict[str, Any]
+    calibration_targets_mm: dict[str, list[float]]
+    notes: list[str] = field(default_factory=list)
+    machine_time_s: float = 0.0
+
+
+# -- helpers shared by workflows -----------------------------------------------------------------
+def without(data: dict[str, Any], *stages: str) -> dict[str, Any]:
+    """A copy with the given compensation stages (pitch, thermal, cyclic, planar) removed."""
+    data = copy.deepcopy(data)
+    for axis in data["axes"].values():
+        for stage in stages:
+            axis.get("compensation", {}).pop(stage, None)
+    if "planar" in stages:
+        data.pop("planar", None)
+    return data
+
+
+def thermal_setup(run: MachineRun, data: dict[str, Any]) -> str | None:
+    """Point each axis with a sensor at its thermal source (origin at the screw's fixed end);
+    the sensor kind (``delta_a``, ``temperature``) or None."""
+    sources = data.get("thermal_sources") or {}
+    kind = None
+    for name, axis in data["axes"].items():
+        info = run.machine["axes"][name]
+        origin = info.get("screw_fixed_end_mm")
+        lo, hi = axis["travel_mm"]
+        for src_name, src in sources.items():
+            displacement = src.get("kind", "displacement") == "displacement"
+            if displacement and src_name == f"{name.lower()}_ref":
+                a_mm = run.machine["instruments"]["delta_a"]["a_mm"]
+                axis["compensation"]["thermal"] = {"source": src_name, "origin_mm": origin,
+                                                   "length_mm": abs(a_mm - origin)}  # fmt: skip
+                kind = "delta_a"
+            elif src.get("kind") == "temperature" and src_name == f"{name.lower()}_screw":
+                far = hi if abs(hi - origin) >= abs(lo - origin) else lo
+                axis["compensation"]["thermal"] = {"source": src_name, "origin_mm": origin,
+                                                   "length_mm": abs(far - origin)}  # fmt: skip
+                kind = "temperature"
+    return kind
+
+
+def measured_targets(raw_path: Path) -> dict[str, list[float]]:
+    """Targets of the measured rows of a raw CSV, by axis (XY files: both coordinates)."""
+    out: dict[str, set[float]] = {}
+    lines = [ln for ln in raw_path.read_text().splitlines() if ln and not ln.startswith("#")]
+    header = lines[0].split(",")
+    col = {name: k for k, name in enumerate(header)}
+    for line in lines[1:]:
+        cells = line.split(",")
+        out.setdefault(cells[col["axis"]], set()).add(float(cells[col["target_mm"]]))
+        for axis in ("X", "Y"):
+            key = f"{axis.lower()}_mm"
+            if key in col and cells[col[key]]:
+                out.setdefault(axis, set()).add(float(cells[col[key]]))
+    return {a: sorted(v) for a, v in out.items()}
+
+
+def merge_targets(*parts: dict[str, list[float]]) -> dict[str, list[float]]:
+    out: dict[str, set[float]] = {}
+    for part in parts:
+        for axis, values in part.items():
+            out.setdefault(axis, set()).update(values)
+    return {a: sorted(v) for a, v in out.items()}
+
+
+def table_step_mm(info: dict[str, Any]) -> tuple[float, float | None]:
+    """The README's table spacing: a quarter of the screw lead (else half the data spacing of
+    a real-data axis, whose lead is not known); and the lead for ``--lead-mm``."""
+    lead = info.get("lead_mm")
+    if lead:
+        return lead / 4.0, float(lead)
+    return float(info.get("data_spacing_mm") or 10.0) / 2.0, None
+
+
+# -- the workflows -------------------------------------------------------------------------------
+def manual(run: MachineRun) -> WorkflowResult:
+    """gateway/calibration/README.md, step by step, as a user types it."""
+    notes: list[str] = []
+    full = run.base_config()
+    (run.work / "tables").mkdir(exist_ok=True)
+    names = list(full["axes"])
+    low = {a: full["axes"][a]["travel_mm"][0] for a in names}
+    for a in names:
+        full["axes"][a]["compensation"]["pitch"] = {"file": f"tables/{a.lower()}_pitch.csv",
+                                                    "interpolation": "smooth"}  # fmt: skip
+    full["planar"] = {"axes": names, "model": "tables/xy_model.yaml", "commit": "on_trigger"}
+    kind = thermal_setup(run, full)
+    gw = run.write_config("gw.calibrated.yaml", full)
+    laser = run.instrument(20)
+    common = ["-c", gw, "--gateway", run.gateway, "--no-progress"]
+    targets: list[dict[str, list[float]]] = []
+
+    # 1. warm-up with nothing on: the thermal length (a Δa sensor only)
+    if kind == "delta_a":
+        axis = next(a for a in names if "thermal" in full["axes"][a]["compensation"])
+        other = next(a for a in names if a != axis)
+        run.use(without(full, "pitch", "thermal", "planar"))
+        run.cool_down()
+        delta_a = run.instrument(10, 1)
+        run.compgw("calibrate", *common, "--warmup", axis, "--laser", laser, "--delta-a",
+                   delta_a, "--park", f"{other}={low[other]:g}", "--measure-every", "2",
+                   "--raw", run.work / "warm.csv")  # fmt: skip
+        fit = json.loads(run.compgw("fit", run.work / "warm.csv", "-c", gw, "--json"))
+        length = fit[axis]["thermal"]["length_mm"]
+        full["axes"][axis]["compensation"]["thermal"]["length_mm"] = round(length, 1)
+        notes.append(f"thermal length of {axis}: {length:.1f} mm")
+        gw = run.write_config("gw.calibrated.yaml", full)
+    ident = run.work / "ident.yaml"
+    run.compgw("calibrate", "-c", gw, "--identify-config", ident)
+
+    # 2. ISO 230-2 identification of each axis, a table every quarter lead, thermal on
+    run.use(ident)
+    run.cool_down()
+    raws = []
+    for axis in names:
+        other = next(a for a in names if a != axis)
+        step, lead = table_step_mm(run.machine["axes"][axis])
+        lead_args = ["--lead-mm", f"{lead:g}"] if lead else []
+        raw = run.work / f"{axis}_id.csv"
+        run.compgw("calibrate", *common, "--iso", axis, "--step-mm", f"{step:g}", *lead_args,
+                   "--runs", "5", "--overrun-mm", "1", "--laser", laser,
+                   "--park", f"{other}={low[other]:g}", "--raw", raw)  # fmt: skip
+        raws.append(raw)
+        targets.append(measured_targets(raw))
+    run.compgw("fit", *raws, "-c", gw)
+
+    # 3. the XY grid with the pitch tables on
+    run.use(without(full, "planar"))
+    run.cool_down()
+    xy_raw = run.work / "xy_id.csv"
+    run.compgw("calibrate", *common, "--xy", "--grid", "9", "7", "--grid-runs", "3",
+               "--overrun-mm", "1", "--xy-device", run.instrument(21), "--raw", xy_raw)  # fmt: skip
+    targets.append(measured_targets(xy_raw))
+    pins = [f"{a}@{b}={low[b]:g}" for a, b in ((names[0], names[1]), (names[1], names[0]))]
+    fit = json.loads(run.compgw("fit", xy_raw, "-c", gw, "--json", "--pitch-line", pins[0],
+                                "--pitch-line", pins[1]))  # fmt: skip
+    planar = fit.get("planar", {})
+    notes.append(f"planar: {planar.get('kind')} degree {planar.get('degree')}, residual RMS "
+                 f"{planar.get('residual_rms_um', float('nan')):.2f} µm")  # fmt: skip
+    return WorkflowResult(yaml.safe_load(gw.read_text()), merge_targets(*targets), notes)
+
+
+Workflow = Callable[[MachineRun], WorkflowResult]
+WORKFLOWS: dict[str, Workflow] = {"manual": manual}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("machine", type=Path, help="a machine directory (machine.json, ...)")
+    parser.add_argument("--workflow", choices=sorted(WORKFLOWS), default="manual")
+    parser.add_argument("--work", type=Path, help="work directory (default: DIR/work)")
+    args = parser.parse_args()
+    work = args.work or args.machine / "work"
+    with contextlib.suppress(FileNotFoundError):
+        shutil.rmtree(work)
+    run = MachineRun.start(args.machine, work)
+    try:
+        result = WORKFLOWS[args.workflow](run)
+    finally:
+        run.stop()
+    print("\n".join(run.commands))
+    print("\n".join(result.notes))
+    print(run.write_config("gw.final.yaml", result.config))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
