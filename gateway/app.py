@@ -9,7 +9,9 @@ logged and the old one stays. Under systemd it speaks the notify protocol
 The upstream handler is the router's, wrapped: write protection (:mod:`gateway.security`)
 inside, metrics (:mod:`gateway.metrics`, only when ``metrics.port`` is set) outside. The
 TCP listener also gets the router's fast handler (:meth:`Gateway.handle_fast`), wrapped
-the same way.
+the same way. With ``upstream.tls`` a second TCP listener speaks Modbus/TCP Security
+(:mod:`gateway.mbsecurity`): same handlers, each request first authorised by the client
+certificate's role.
 """
 
 from __future__ import annotations

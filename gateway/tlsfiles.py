@@ -33,24 +33,23 @@ def server_context(tls: TlsListen, base: Path | None) -> ssl.SSLContext:
     """The listener's context: TLS >= 1.2, the server's certificate and key, client
     certificates required and verified against ``ca``."""
     cert, key, ca = (tls_path(p, base) for p in (tls.cert, tls.key, tls.ca))
+    for name, path in (("cert", cert), ("key", key), ("ca", ca)):
+        _read(name, path)  # a missing or unreadable file, named
     ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
     ctx.minimum_version = ssl.TLSVersion.TLSv1_2
     ctx.verify_mode = ssl.CERT_REQUIRED
     try:
         ctx.load_cert_chain(cert, key)
-    except (OSError, ssl.SSLError) as err:
-        raise ConfigError(f"upstream.tls.cert/key: {cert}, {key}: {_why(err)}") from None
+    except ssl.SSLError as err:
+        if err.reason == "KEY_VALUES_MISMATCH":
+            raise ConfigError(f"upstream.tls.key: {key}: does not match the certificate "
+                              f"{cert}") from None
+        raise ConfigError(f"upstream.tls.cert, key: {cert}, {key}: {err}") from None
     try:
         ctx.load_verify_locations(cafile=ca)
-    except (OSError, ssl.SSLError) as err:
-        raise ConfigError(f"upstream.tls.ca: {ca}: {_why(err)}") from None
+    except ssl.SSLError as err:
+        raise ConfigError(f"upstream.tls.ca: {ca}: {err}") from None
     return ctx
-
-
-def _why(err: BaseException) -> str:
-    if isinstance(err, ssl.SSLError) and err.reason == "KEY_VALUES_MISMATCH":
-        return "the key does not match the certificate"
-    return getattr(err, "strerror", None) or str(err)
 
 
 def _read(key: str, path: Path) -> bytes:
@@ -152,9 +151,10 @@ def check_files(tls: TlsListen, base: Path | None, now: dt.datetime | None = Non
     for other in chain[1:]:
         warnings += _dates("cert", cert_path, other, now)
     warnings += _dates("ca", ca_path, ca, now)
-    if key_path.stat().st_mode & 0o077:
-        warnings.append(f"upstream.tls.key: {key_path} is readable by others "
-                        f"(mode {key_path.stat().st_mode & 0o777:o}): chmod 600")
+    mode = key_path.stat().st_mode & 0o777
+    if mode & 0o027:  # group read is how a service user gets it (systemd/README.md)
+        warnings.append(f"upstream.tls.key: {key_path} is open to others (mode {mode:o}): "
+                        "chmod 600, or 640 with a group only the gateway is in")
     server_context(tls, base)  # what the listener will do with them
     try:
         names = leaf.extensions.get_extension_for_class(x509.SubjectAlternativeName).value

@@ -324,6 +324,21 @@ def test_check_prints_the_tls_files_and_warns_before_expiry(tmp_path: Path,
     assert "expires in" not in out.err
     assert cli_main(["check", "-c", str(check_config(tmp_path, pki, "server_soon"))]) == 0
     assert "server.pem (server-soon) expires in 9 days" in capsys.readouterr().err
+    (tmp_path / "server.key").chmod(0o644)
+    assert cli_main(["check", "-c", str(tmp_path / "gw.yaml")]) == 0
+    assert "server.key is open to others (mode 644)" in capsys.readouterr().err
+
+
+def test_the_daemon_refuses_to_start_without_its_tls_files(tmp_path: Path,
+                                                           pki: dict[str, Issued], caplog):
+    from gateway.app import serve
+
+    path = check_config(tmp_path, pki)
+    (tmp_path / "server.key").unlink()
+    assert asyncio.run(serve(path)) == 1  # bad input: systemd does not restart it in a loop
+    errors = [r.getMessage() for r in caplog.records if r.levelname == "ERROR"]
+    assert len(errors) == 1 and "upstream.tls.key: " in errors[0], errors
+    assert "server.key: cannot read: No such file or directory" in errors[0]
 
 
 def test_compgw_run_on_uvloop_serves_tls(tmp_path: Path, pki: dict[str, Issued]):
