@@ -72,7 +72,7 @@ class TlsRole(Model):
 
     ``units``: ``all`` (and broadcasts) or a list of upstream units. ``read``: FC01-04 and
     the other read-only functions. ``write``: ``true`` every write and every other function,
-    ``false`` none, or ``[[first, last], ...]``: FC05/06/0F/10/16/17 whose written addresses
+    ``false`` none, or ``[[first, last], ...]``: FC05/06/15/16/22/23 whose written addresses
     (holding registers or coils) all lie in these inclusive ranges.
     """
 

@@ -15,14 +15,14 @@ extension: no role, the ``no_role`` rule. Two such extensions, or one that is no
 UTF8String: the certificate is refused (every request 0x01, logged at connect). A role not
 in ``roles`` may do nothing.
 
-**Requests** (:class:`Rules`): reads are FC01/02/03/04, FC07/0B/0C/11/14/18 and FC2B/0E
-(device identification), allowed by ``read``; FC05/06/0F/10/16 are writes, allowed by
-``write: true`` or when every address they write lies in the ``write`` ranges; FC17 needs
-both; any other function (diagnostics FC08, file records, unknown codes) only with
-``write: true``. Units outside ``units``, and broadcasts (unit 0) unless ``units: all``,
-are refused. A refusal is exception 0x01 (ILLEGAL FUNCTION, as the spec chose), sent by
-the listener: nothing reaches the handler or a drive. Counted by (role, reason) in
-:attr:`TlsGate.denied`.
+**Requests** (:class:`Rules`; function codes in decimal): reads are FC01/02/03/04,
+FC07/11/12/17/20/24 and FC43/14 (device identification), allowed by ``read``;
+FC05/06/15/16/22 are writes, allowed by ``write: true`` or when every address they write
+lies in the ``write`` ranges; FC23 needs both; any other function (diagnostics FC08, file
+records, unknown codes) only with ``write: true``. Units outside ``units``, and
+broadcasts (unit 0) unless ``units: all``, are refused. A refusal is exception 0x01
+(ILLEGAL FUNCTION, as the spec chose), sent by the listener: nothing reaches the handler
+or a drive. Counted by (role, reason) in :attr:`TlsGate.denied`.
 """
 
 from __future__ import annotations
