@@ -141,11 +141,27 @@ class TcpEndpoint(Model):
     port: Port = 502
 
 
+class RtuOverTcp(Model):
+    """RTU frames (with CRC, no MBAP header) inside a TCP connection: a serial device server
+    in transparent mode. The serial settings are the RS-485 side's (set in the device
+    server): they time the line's silence and the wire time of replies."""
+
+    host: str
+    port: Port = 502
+    baudrate: Annotated[int, in_range(300, 4_000_000)] = 19200
+    parity: Literal["N", "E", "O"] = "E"
+    stopbits: Literal[1, 2] = 1
+    bytesize: Literal[7, 8] = 8
+    t35: Literal["spec", "exact"] = "spec"
+
+
 class Bus(Model):
-    """One drive-side bus: an RS-485 line (rtu) or a Modbus TCP endpoint (tcp)."""
+    """One drive-side bus: an RS-485 line (rtu), a Modbus TCP endpoint (tcp), or an RS-485
+    line behind a serial device server (rtu_over_tcp)."""
 
     rtu: SerialLine | None = None
     tcp: TcpEndpoint | None = None
+    rtu_over_tcp: RtuOverTcp | None = None
     timeout_s: float = Field(default=0.1, gt=0.0, le=10.0)
     retries: Annotated[int, in_range(0, 5)] = 1
     min_silence_s: float = Field(default=0.0, ge=0.0, le=1.0)
@@ -155,8 +171,8 @@ class Bus(Model):
 
     @model_validator(mode="after")
     def _exactly_one(self) -> Bus:
-        if (self.rtu is None) == (self.tcp is None):
-            raise ValueError("needs exactly one of rtu or tcp")
+        if sum(x is not None for x in (self.rtu, self.tcp, self.rtu_over_tcp)) != 1:
+            raise ValueError("needs exactly one of rtu or tcp or rtu_over_tcp")
         return self
 
 
@@ -201,23 +217,53 @@ class StatusRegister(Model):
 class TriggerRegister(Model):
     """What starts a move: any write (no value), a write of ``value``, or ``rising_bit``.
 
+    ``table: holding`` (default): a holding register written by FC06/FC16 (and the words of
+    FC16 blocks around it); ``words: 2`` a 32-bit trigger field (``order``; ``value`` then
+    compares the 32-bit value; a write of either word counts). ``table: coils``: a coil
+    written by FC05 or FC15 (``value`` 1: switched on, 0: off; none: any write).
+
     ``home_value``: a write of this value starts the drive's homing; the gateway forwards
     it and then takes the next move as the first after homing (``home_direction``), since
     the axis no longer stands at its last target.
     """
 
     address: Address
-    value: Annotated[int, in_range(0, 65535)] | None = None
+    table: Literal["holding", "coils"] = "holding"
+    words: Literal[1, 2] = 1
+    order: WordOrder = "hi_lo"
+    value: Annotated[int, in_range(-(2**31), 2**32 - 1)] | None = None
     rising_bit: Bit | None = None
-    home_value: Annotated[int, in_range(0, 65535)] | None = None
+    home_value: Annotated[int, in_range(-(2**31), 2**32 - 1)] | None = None
 
     @model_validator(mode="after")
     def _one_rule(self) -> TriggerRegister:
         if self.value is not None and self.rising_bit is not None:
             raise ValueError("give value or rising_bit, not both")
-        if self.home_value is not None and self.home_value == self.value:
-            raise ValueError(f"home_value 0x{self.home_value:X} is also the move value")
+        if (self.home_value is not None and self.value is not None
+                and self.home_value & 0xFFFFFFFF == self.value & 0xFFFFFFFF):
+            raise ValueError(f"home_value {self.home_value} is also the move value")
+        if self.table == "coils":
+            if self.words != 1 or self.rising_bit is not None:
+                raise ValueError("a coil trigger has no words or rising_bit (value 1: on)")
+            top, what = 1, "a coil"
+        elif self.words == 2:
+            if self.rising_bit is not None:
+                raise ValueError("rising_bit needs words: 1 (one 16-bit register)")
+            if self.address == 0xFFFF:
+                raise _path_error(("address",), self.address, "+ 2 words runs past 0xFFFF")
+            return self
+        else:
+            top, what = 0xFFFF, "a one-register trigger"
+        for key in ("value", "home_value"):
+            got = getattr(self, key)
+            if got is not None and not 0 <= got <= top:
+                raise _path_error((key,), got, f"is not in 0..{top} ({what})")
         return self
+
+    @property
+    def span(self) -> range:
+        """The registers (or the coil) it occupies."""
+        return range(self.address, self.address + self.words)
 
 
 class Registers(Model):
@@ -232,8 +278,9 @@ class Registers(Model):
         f = self.feedback.address
         if self.feedback.table == "holding" and abs(t - f) < 2:
             raise ValueError(f"target {t} and feedback {f} registers overlap")
-        if self.trigger is not None and t <= self.trigger.address <= t + 1:
-            raise ValueError(f"trigger {self.trigger.address} overlaps the target pair")
+        trigger = self.trigger
+        if trigger is not None and trigger.table == "holding" and set(trigger.span) & {t, t + 1}:
+            raise ValueError(f"trigger {trigger.address} overlaps the target pair")
         return self
 
 

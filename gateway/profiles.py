@@ -122,6 +122,99 @@ PROFILES: dict[str, DriveProfile] = {
             notes="P5-07 reads 20000+PR# when the path is done. No homed bit is known: "
             "compensation is applied whenever enabled.",
         ),
+        DriveProfile(
+            name="oriental-az-direct",
+            title="Oriental Motor AZ series (AZD-CD, AZD-CX; also AR-KD), direct data "
+            "operation",
+            verified=True,
+            check="direct data operation block 0x0058..0x0067 (operation type 0x005A = 1 "
+            "absolute, target 0x005C, trigger 0x0066), command position 0x0122, driver "
+            "output status 0x007F (HOME-END bit in its default assignment), frame spacing",
+            serial="8E1 by default (baud rate as set on the drive); unit 0 is broadcast",
+            axis={
+                "registers": {
+                    "target": {"address": 0x005C, "words": 2, "order": "hi_lo"},
+                    "feedback": {"address": 0x0122, "table": "holding", "order": "hi_lo",
+                                 "counts_per_pulse": 1},
+                    # any write of the 32-bit trigger field starts: 1 (all fields) and
+                    # -1..-7 (one field updated) alike
+                    "trigger": {"address": 0x0066, "words": 2, "order": "hi_lo"},
+                },
+                "fc16_max_words": 123,
+                "min_silence_s": 0.005,
+            },
+            eeprom=Eeprom(
+                writes_eeprom_by_default=False,
+                ram_setting="none expected: direct data operation fields act at once and "
+                "are not saved (check the manual's non-volatile memory section)",
+                verified=False,
+            ),
+            notes="The master writes one FC16 of 16 registers at 0x0058 holding the target "
+            "and the trigger: compgw corrects the target inside it and sends it as one "
+            "write. Use operation type 1 (absolute): an incremental move (2, 3) would be "
+            "corrected as a position. Feedback position (encoder) is 0x0120. No homed bit "
+            "by default: compensation is applied whenever enabled.",
+        ),
+        DriveProfile(
+            name="panasonic-a6-block",
+            title="Panasonic MINAS A6 over Modbus, block operation, block 0",
+            verified=False,
+            check="Pr5.37 = 2 and Pr6.28 = 1 (block operation over Modbus: EEPROM save and "
+            "power cycle), block 0 command 0x4800 (code 2 = absolute in the top byte) and "
+            "target 0x4802 (high word first), block number 0x4414 = 0, STB coil 0x0120, "
+            "actual position 0x600F",
+            serial="as set in Pr5.xx (set both ends)",
+            axis={
+                "registers": {
+                    "target": {"address": 0x4802, "words": 2, "order": "hi_lo"},
+                    "feedback": {"address": 0x600F, "table": "holding", "order": "hi_lo",
+                                 "counts_per_pulse": 1},
+                    "trigger": {"address": 0x0120, "table": "coils", "value": 1},
+                },
+                "fc16_max_words": 123,
+                "min_silence_s": 0.0,
+            },
+            eeprom=Eeprom(
+                writes_eeprom_by_default=False,
+                ram_setting="unknown: check whether block data written over Modbus stays "
+                "in RAM",
+                verified=False,
+            ),
+            notes="The start is the coil STB (FC05 ON to 0x0120, or FC15 covering it): "
+            "compgw writes the corrected target, then forwards the coil write. Only block 0 "
+            "is corrected (select it in 0x4414; for block n set target to 0x4802 + 4n). "
+            "Homed (HOME-CMP) is a coil, which compgw does not read: compensation is applied "
+            "whenever enabled.",
+        ),
+        DriveProfile(
+            name="kinco-fd",
+            title="Kinco FD / CD / FD5P servo drives, profile position mode",
+            verified=False,
+            check="operating mode 0x3500 = 1, target position 0x4000 (low word first), "
+            "control word 0x3100 (0x2F -> 0x3F starts an absolute move), actual position "
+            "0x3700, status word 0x3200 (one source says 0x3000) bit 15 home found",
+            serial="as set on the drive (some series need a save and restart for it)",
+            axis={
+                "registers": {
+                    "target": {"address": 0x4000, "words": 2, "order": "lo_hi"},
+                    "feedback": {"address": 0x3700, "table": "holding", "order": "lo_hi",
+                                 "counts_per_pulse": 1},
+                    "status": {"address": 0x3200, "table": "holding", "homed_bit": 15},
+                    "trigger": {"address": 0x3100, "rising_bit": 4},
+                },
+                "fc16_max_words": 123,
+                "min_silence_s": 0.0,
+            },
+            eeprom=Eeprom(
+                writes_eeprom_by_default=False,
+                ram_setting="none expected: objects are saved only by the drive's store "
+                "command",
+                verified=False,
+            ),
+            notes="The start is a 0->1 edge of the control word's new-set-point bit 4 "
+            "(0x2F -> 0x3F): compgw commits the corrected target before forwarding it. Use "
+            "absolute moves: a relative one (0x4F -> 0x5F) would be corrected as a position.",
+        ),
     )
 }
 

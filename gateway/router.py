@@ -8,13 +8,19 @@ anything else is refused with 0x0A. On an axis:
   single-register writes in either order) update the *shadow* of what the master wrote;
   the drive only ever receives a whole, corrected value (one FC16 of the pair or the
   rewritten block);
+- a trigger (:mod:`gateway.triggers`: a register, a 32-bit field or a coil written by
+  FC05/15) that fires first commits the pending target, then goes out; a block holding
+  both target and trigger goes out as one write with the target words corrected; a block
+  split for the drive sends the trigger's piece last;
 - ``commit: on_trigger`` (planar axes) holds targets until a trigger write, then writes
   every planar axis's corrected target and forwards the trigger; ``immediate`` corrects
   at once with the partner's latest target;
 - reads of the target pair return the shadow; reads of the feedback pair return the
   inverse-corrected (nominal) position; reads touching half a pair are widened;
-- a malformed FC03/04/06/16/23 PDU to an axis is answered 0x03 and never forwarded (a
-  lenient drive could act on a malformed target write: an uncorrected position);
+- a malformed FC03/04/06/16/23 PDU to an axis (and FC05/15 when its trigger is a coil) is
+  answered 0x03 and never forwarded (a lenient drive could act on a malformed target
+  write: an uncorrected position);
+- unit 0 (broadcasts) is :mod:`gateway.broadcast`'s;
 - everything else is forwarded byte for byte and the drive's reply relayed as it is.
 
 :meth:`Gateway.handle_fast` is the same routing without a coroutine, for the requests that
@@ -31,10 +37,11 @@ import asyncio
 import logging
 import struct
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from .axis import AxisState, overlap
+from .broadcast import Broadcasts
 from .compensation import (
     AxisInput,
     Chain,
@@ -48,16 +55,13 @@ from .downstream import Bus, Done
 from .frames import (
     GATEWAY_PATH_UNAVAILABLE,
     ILLEGAL_DATA_VALUE,
-    ILLEGAL_FUNCTION,
     MAX_READ_REGISTERS,
     MAX_WRITE_REGISTERS,
     READ_HOLDING_REGISTERS,
     READ_INPUT_REGISTERS,
     READ_WRITE_MULTIPLE_REGISTERS,
     SERVER_DEVICE_FAILURE,
-    WRITE_MULTIPLE_COILS,
     WRITE_MULTIPLE_REGISTERS,
-    WRITE_SINGLE_COIL,
     WRITE_SINGLE_REGISTER,
     FrameError,
     ModbusError,
@@ -65,7 +69,6 @@ from .frames import (
     build_read_registers_response,
     build_read_request,
     build_write_multiple_registers,
-    build_write_single_register,
     is_exception,
     pack_int32,
     parse_read_registers_response,
@@ -73,6 +76,7 @@ from .frames import (
     response_for_write,
     unpack_int32,
 )
+from .triggers import COIL_WRITES, TriggerShadow, Verdict, judge, writes_trigger
 
 log = logging.getLogger(__name__)
 
@@ -124,21 +128,16 @@ class GatewayCounters:
 
 
 @dataclass
-class _Trigger:
-    last_value: int = 0
-
-
-@dataclass
 class _AxisRuntime:
     state: AxisState
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
-    trigger: _Trigger = field(default_factory=_Trigger)
+    trigger: TriggerShadow = field(default_factory=TriggerShadow)
     status_word: int | None = None  # the drive's status word, as last read
     status_at_s: float = -1e9  # when (monotonic)
     last_correction_mm: float = 0.0
 
 
-class Gateway:
+class Gateway(Broadcasts):
     """The upstream handler: ``await gateway.handle(unit_id, pdu)``."""
 
     def __init__(
@@ -266,13 +265,13 @@ class Gateway:
                 return False  # malformed: refused by the coroutine path
             start, count = span
             regs = axis.registers
-            trigger = regs.trigger
             if (overlap(start, count, regs.target.address)
-                    or (trigger is not None and overlap(start, count, trigger.address, 1))
+                    or writes_trigger(regs.trigger, fc, start, count)
                     or (fc == WRITE_MULTIPLE_REGISTERS and count > axis.fc16_max_words)):
                 return False
             return bus.submit(axis.unit, pdu, done)
-        if fc == READ_WRITE_MULTIPLE_REGISTERS:
+        if fc == READ_WRITE_MULTIPLE_REGISTERS or (
+                fc in COIL_WRITES and _coil_trigger(axis)):
             return False
         return bus.submit(axis.unit, pdu, done)
 
@@ -286,7 +285,7 @@ class Gateway:
             WRITE_SINGLE_REGISTER,
             WRITE_MULTIPLE_REGISTERS,
             READ_WRITE_MULTIPLE_REGISTERS,
-        ):
+        ) and not (fc in COIL_WRITES and _coil_trigger(axis)):
             return await bus.transact(axis.unit, pdu)
         try:
             req = parse_request(pdu)
@@ -427,8 +426,8 @@ class Gateway:
         and commit rules); reads of intercepted pairs are rewritten when fully covered."""
         regs = axis.registers
         w_start, w_count = req.write_address or 0, req.write_count
-        touched = [regs.target.address] + ([regs.trigger.address] if regs.trigger else [])
-        if any(overlap(w_start, w_count, a, 2 if a == regs.target.address else 1) for a in touched):
+        if overlap(w_start, w_count, regs.target.address) \
+                or writes_trigger(regs.trigger, req.function, w_start, w_count):
             raise ModbusError(
                 f"axis {name}: FC23 writing the target or trigger is not supported",
                 ILLEGAL_DATA_VALUE,
@@ -441,117 +440,15 @@ class Gateway:
         self._rewrite_read(setup, name, axis, "holding", start, words)
         return build_read_registers_response(req.function, words)
 
-    # -- broadcasts (unit 0) ----------------------------------------------------------------
-    async def _broadcast(self, setup: Setup, pdu: bytes) -> bytes:
-        """A write for every drive at once (unit 0). Never a nominal target to a drive:
-
-        - touching an axis's target: expanded into what a unicast of the same request to
-          each axis whose target or trigger it touches does (corrected target, planar
-          commit rules, trigger after its target); nothing is broadcast;
-        - touching triggers only: each fired axis's pending target is committed first (one
-          corrected unicast write each, its planar partner's too under ``on_trigger``),
-          then the request is broadcast;
-        - anything else: broadcast as it is.
-
-        Broadcast means one unit-0 frame on every RTU bus, and one unicast to each known
-        drive (axes and pass-through units) on every TCP bus. The reply (for a TCP master;
-        an RTU master gets none) is the normal write response once every bus has it.
-        """
-        fc = pdu[0]
-        if fc not in _BROADCAST_WRITES:
-            raise ModbusError(f"broadcast of FC{fc:02d}: only writes can be broadcast",
-                              ILLEGAL_FUNCTION)
-        try:
-            req = parse_request(pdu) if fc != MASK_WRITE_REGISTER else None
-        except FrameError as exc:
-            raise ModbusError(f"broadcast refused: {exc}", exc.code) from None
-        self.counters.broadcasts += 1
-        reply = pdu[:5] if req is None else response_for_write(req)
-        if req is None or fc not in (WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_REGISTERS):
-            await self._broadcast_raw(setup, pdu)
-            return reply
-        start, count = req.write_address or 0, req.write_count
-        targets, triggers = [], []
-        for name, axis in setup.config.axes.items():
-            regs = axis.registers
-            if overlap(start, count, regs.target.address):
-                targets.append(name)
-            elif regs.trigger is not None and overlap(start, count, regs.trigger.address, 1):
-                triggers.append(name)
-        if targets:
-            self.counters.broadcasts_expanded += 1
-            log.info("broadcast FC%02d at 0x%04X touches the target of %s: sent to each axis "
-                     "corrected", fc, start, ", ".join(targets))  # fmt: skip
-            failure: ModbusError | None = None
-            for name in [*targets, *triggers]:  # one axis refused: the others still go
-                try:
-                    answer = await self._write(setup, name, setup.config.axes[name], req, pdu)
-                except ModbusError as exc:
-                    failure = failure or exc
-                    continue
-                if is_exception(answer) and failure is None:
-                    failure = ModbusError(f"axis {name} refused the broadcast", answer[1])
-            if failure is not None:
-                raise failure
-            return reply
-        if triggers:
-            await self._broadcast_trigger(setup, triggers, req, pdu)
-        else:
-            await self._broadcast_raw(setup, pdu)
-        return reply
-
-    async def _broadcast_trigger(self, setup: Setup, names: list[str], req: Request,
-                                 pdu: bytes) -> None:
-        """Commit each fired axis's target (unicast, corrected), then broadcast the
-        trigger; every axis involved stays locked until the trigger is out."""
-        start = req.write_address or 0
-        involved = set(names)
-        for name in names:
-            partner = setup.planar_partner(name)
-            if partner is not None:
-                involved.add(partner)
-        locks = sorted((self._axes[n].lock for n in involved), key=id)
-        async with _all(locks):
-            for name in names:
-                axis = setup.config.axes[name]
-                runtime = self._axes[name]
-                if not self._trigger_fires(runtime, axis, req, start):
-                    continue
-                partner = setup.planar_partner(name)
-                partners = ([partner] if partner is not None and setup.hold_until_trigger(name)
-                            else [])  # fmt: skip
-                await self._commit(setup, name, partners, None)
-            await self._broadcast_raw(setup, pdu)
-            homed = [n for n in names if self._homes(setup.config.axes[n], req, start)]
-            for name in homed:
-                self._axes[name].state.homing_started(setup.config.axes[name].home_direction)
-            if homed:
-                self.on_state_change()
-
-    async def _broadcast_raw(self, setup: Setup, pdu: bytes) -> None:
-        """``pdu`` to every drive: all buses at once (see :meth:`_broadcast`)."""
-        units: dict[str, set[int]] = {name: set() for name in self.buses}
-        for axis in setup.config.axes.values():
-            units[axis.bus].add(axis.unit)
-        for route in setup.config.passthrough.values():
-            units[route.bus].add(route.unit)
-        results = await asyncio.gather(
-            *(bus.broadcast(pdu, sorted(units[name])) for name, bus in self.buses.items()),
-            return_exceptions=True)
-        for name, result in zip(self.buses, results):
-            if isinstance(result, BaseException):
-                log.warning("broadcast FC%02d on bus %s failed: %s", pdu[0], name, result)
-        for result in results:
-            if isinstance(result, BaseException):
-                raise result
-
     # -- writes ---------------------------------------------------------------------------
     async def _write(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
+        """A register write (FC06/16), or a coil write (FC05/15) to an axis whose trigger
+        is a coil."""
         regs = axis.registers
         start, count = req.write_address or 0, req.write_count
-        target_offsets = overlap(start, count, regs.target.address)
-        trigger = regs.trigger
-        trigger_hit = trigger is not None and bool(overlap(start, count, trigger.address, 1))
+        coils = req.function in COIL_WRITES
+        target_offsets = range(0) if coils else overlap(start, count, regs.target.address)
+        trigger_hit = writes_trigger(regs.trigger, req.function, start, count)
         if not target_offsets and not trigger_hit:
             return await self._forward_write(name, axis, req, pdu)
         if target_offsets and count > 1 and len(target_offsets) == 1:
@@ -560,21 +457,20 @@ class Gateway:
                 ILLEGAL_DATA_VALUE,
             )
         runtime = self._axes[name]
-        partner = setup.planar_partner(name)
-        locks = [runtime.lock] + ([self._axes[partner].lock] if partner else [])
-        locks.sort(key=id)
-        async with _all(locks):
+        async with self._axis_locks([name, setup.planar_partner(name)]):
             if target_offsets:
                 first = target_offsets[0]
                 index = regs.target.address + first - start
                 words = req.values[index : index + len(target_offsets)]
                 runtime.state.write_words(first, list(words))
-            if trigger_hit and self._trigger_fires(runtime, axis, req, start):
-                return await self._trigger_write(setup, name, axis, req)
-            if target_offsets:
+            verdict = self._judge(runtime, axis, req) if trigger_hit else _NO_TRIGGER
+            if verdict.fires:
+                reply = await self._trigger_write(setup, name, axis, req, pdu)
+            elif target_offsets:
                 return await self._target_write(setup, name, axis, req)
-            reply = await self._forward_write(name, axis, req, pdu)
-            if trigger_hit and self._homes(axis, req, start) and not is_exception(reply):
+            else:
+                reply = await self._forward_write(name, axis, req, pdu)
+            if verdict.homes and not is_exception(reply):
                 runtime.state.homing_started(axis.home_direction)
                 self.on_state_change()
             return reply
@@ -589,37 +485,42 @@ class Gateway:
 
     async def _send_block(self, name: str, axis: Axis, address: int, values: list[int]) -> None:
         """Write ``values`` at ``address`` in FC16 pieces of at most ``fc16_max_words``,
-        never splitting the target pair; an exception from the drive is raised."""
+        never splitting the target pair or a two-word trigger; a piece holding trigger
+        words goes last (never a trigger before the target it starts); an exception from
+        the drive is raised."""
         limit = axis.fc16_max_words
-        target = axis.registers.target.address
+        regs = axis.registers
+        pairs = {regs.target.address}
+        trigger = range(0)
+        if regs.trigger is not None and regs.trigger.table == "holding":
+            trigger = regs.trigger.span
+            if regs.trigger.words == 2:
+                pairs.add(regs.trigger.address)
+        pieces: list[tuple[int, int]] = []
         start = 0
         while start < len(values):
             end = min(start + limit, len(values))
-            if end < len(values) and address + end - 1 == target:
-                end -= 1  # the cut would fall between the two target words
+            if end < len(values) and address + end - 1 in pairs:
+                end -= 1  # the cut would fall between the two words of a pair
+            pieces.append((start, end))
+            start = end
+        pieces.sort(key=lambda p: any(address + i in trigger for i in range(*p)))
+        for start, end in pieces:
             pdu = build_write_multiple_registers(address + start, values[start:end])
             reply = await self.buses[axis.bus].transact(axis.unit, pdu)
             if is_exception(reply):
                 raise ModbusError(f"axis {name}: drive refused a register block", reply[1])
-            start = end
 
-    @staticmethod
-    def _homes(axis: Axis, req: Request, start: int) -> bool:
-        """Whether this trigger write starts the drive's homing (``home_value``)."""
-        rule = axis.registers.trigger
-        return (rule is not None and rule.home_value is not None
-                and req.values[rule.address - start] == rule.home_value)  # fmt: skip
+    def _axis_locks(self, names: Iterable[str | None]) -> _all:
+        """The locks of these axes (None: no axis), taken in a fixed order (no deadlock)."""
+        locks = {id(lock): lock for lock in (self._axes[n].lock for n in names if n)}
+        return _all([locks[key] for key in sorted(locks)])
 
-    def _trigger_fires(self, runtime: _AxisRuntime, axis: Axis, req: Request, start: int) -> bool:
+    def _judge(self, runtime: _AxisRuntime, axis: Axis, req: Request) -> Verdict:
+        """What this write of the trigger does (and the trigger's shadow updated)."""
         rule = axis.registers.trigger
         assert rule is not None
-        value = req.values[rule.address - start]
-        previous = runtime.trigger.last_value
-        runtime.trigger.last_value = value
-        if rule.rising_bit is not None:
-            bit = 1 << rule.rising_bit
-            return bool(value & bit) and not previous & bit
-        return rule.value is None or value == rule.value
+        return judge(rule, runtime.trigger, req)
 
     async def _target_write(self, setup: Setup, name: str, axis: Axis, req: Request) -> bytes:
         """Target words written, no trigger fired: commit now, or hold (half a pair, or a
@@ -634,17 +535,22 @@ class Gateway:
         await self._commit(setup, name, [], block)
         return response_for_write(req)
 
-    async def _trigger_write(self, setup: Setup, name: str, axis: Axis, req: Request) -> bytes:
+    async def _trigger_write(self, setup: Setup, name: str, axis: Axis, req: Request,
+                             pdu: bytes) -> bytes:
         """A trigger write that fires: commit pending targets (the planar partner's too
-        when ``on_trigger``), then forward the trigger (or the block that holds it)."""
+        when ``on_trigger``), then forward the trigger (or the block that holds it, its
+        target words corrected: one write)."""
         partner = setup.planar_partner(name)
         partners = [partner] if partner is not None and setup.hold_until_trigger(name) else []
         target = axis.registers.target.address
-        block = req if overlap(req.write_address or 0, req.write_count, target) else None
+        block = None
+        if req.function not in COIL_WRITES and overlap(req.write_address or 0,
+                                                       req.write_count, target):
+            block = req
         await self._commit(setup, name, partners, block)
         if block is not None:
             return response_for_write(req)
-        return await self._forward_write(name, axis, req, _build_write(req))
+        return await self._forward_write(name, axis, req, pdu)
 
     async def _forward_around_target(self, name: str, axis: Axis, req: Request) -> None:
         """Forward the words of a held block that are not the target, as sub-blocks."""
@@ -764,10 +670,12 @@ def _nothing() -> None:
     pass
 
 
-MASK_WRITE_REGISTER = 0x16
-#: function codes a broadcast may carry (the spec allows writes only)
-_BROADCAST_WRITES = frozenset({WRITE_SINGLE_COIL, WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_COILS,
-                               WRITE_MULTIPLE_REGISTERS, MASK_WRITE_REGISTER})
+_NO_TRIGGER = Verdict(fires=False, homes=False)
+
+
+def _coil_trigger(axis: Axis) -> bool:
+    trigger = axis.registers.trigger
+    return trigger is not None and trigger.table == "coils"
 
 
 def _finishing(finish: Finish, done: Done) -> Done:
@@ -796,12 +704,6 @@ def _write_span(pdu: bytes) -> tuple[int, int] | None:
             or len(pdu) != 6 + byte_count or address + count > 0x10000):
         return None
     return address, count
-
-
-def _build_write(req: Request) -> bytes:
-    if req.function == WRITE_SINGLE_REGISTER:
-        return build_write_single_register(req.write_address or 0, req.values[0])
-    return build_write_multiple_registers(req.write_address or 0, list(req.values))
 
 
 def _clamp_int32(value: int) -> int:

@@ -21,12 +21,15 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
         lines.append(f"  rtu {rtu.port} {rtu.baudrate} {rtu.bytesize}{rtu.parity}{rtu.stopbits}")
     lines.append("buses:")
     for name, bus in config.buses.items():
-        where = (
-            f"rtu {bus.rtu.port} {bus.rtu.baudrate} {bus.rtu.bytesize}{bus.rtu.parity}"
-            f"{bus.rtu.stopbits}"
-            if bus.rtu is not None
-            else f"tcp {bus.tcp.host}:{bus.tcp.port}"  # type: ignore[union-attr]
-        )
+        line = bus.rtu or bus.rtu_over_tcp
+        settings = "" if line is None else (
+            f"{line.baudrate} {line.bytesize}{line.parity}{line.stopbits}")
+        if bus.rtu is not None:
+            where = f"rtu {bus.rtu.port} {settings}"
+        elif bus.rtu_over_tcp is not None:
+            where = f"rtu over tcp {bus.rtu_over_tcp.host}:{bus.rtu_over_tcp.port} {settings}"
+        else:
+            where = f"tcp {bus.tcp.host}:{bus.tcp.port}"  # type: ignore[union-attr]
         lines.append(f"  {name}: {where}, timeout {bus.timeout_s:g} s, retries {bus.retries}")
     lines.append("axes:")
     for name, axis in config.axes.items():
@@ -53,16 +56,19 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
                 f"{axis.pulse_mm / axis.command_scale:g} {'deg' if axis.rotary else 'mm'}"
             )
         if regs.trigger is not None:
+            trigger = regs.trigger
             rule = (
-                f"value 0x{regs.trigger.value:X}"
-                if regs.trigger.value is not None
-                else f"rising bit {regs.trigger.rising_bit}"
-                if regs.trigger.rising_bit is not None
+                f"value {_hex(trigger.value)}"
+                if trigger.value is not None
+                else f"rising bit {trigger.rising_bit}"
+                if trigger.rising_bit is not None
                 else "any write"
             )
-            home = ("" if regs.trigger.home_value is None
-                    else f", homing on value 0x{regs.trigger.home_value:X}")  # fmt: skip
-            lines.append(f"    trigger 0x{regs.trigger.address:04X} on {rule}{home}")
+            home = ("" if trigger.home_value is None
+                    else f", homing on value {_hex(trigger.home_value)}")  # fmt: skip
+            kind = ("coil " if trigger.table == "coils" else
+                    f"32-bit ({trigger.order}) " if trigger.words == 2 else "")  # fmt: skip
+            lines.append(f"    trigger {kind}0x{trigger.address:04X} on {rule}{home}")
         parts = []
         if stages.pitch is not None:
             table = stages.pitch.table
@@ -104,6 +110,10 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
         f"{'on' if config.status.remote_control else 'off'}"
     )
     return "\n".join(lines)
+
+
+def _hex(value: int) -> str:
+    return f"0x{value:X}" if value >= 0 else str(value)
 
 
 def _role(role: TlsRole) -> str:

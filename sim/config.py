@@ -34,7 +34,7 @@ from sim.config_truth import (
     Settling,
     StickSlip,
 )
-from sim.profiles import DRIVE_PROFILES, profile_registers
+from sim.profiles import DRIVE_PROFILES, TRIGGER_STYLES, profile_registers
 from sim.truth_check import check_truth_data
 
 
@@ -124,13 +124,18 @@ class StatusRegister(_Model):
 class TriggerRegister(_Model):
     """How a move starts: write of ``value``, any write (no value), or a rising ``rising_bit``.
 
-    ``home_value`` (value-style only) starts homing instead of a move.
+    ``home_value`` (value-style only) starts homing instead of a move. ``table: coils``: the
+    trigger is a coil (FC05/FC15); ``words: 2``: a 32-bit field, high word first. ``style``
+    names a drive family's own start rules (sim/profiles.py, :data:`TRIGGER_STYLES`).
     """
 
     address: Address = 0x6002
     value: Word | None = 0x10
     rising_bit: Bit | None = None
     home_value: Word | None = 0x20
+    table: Literal["holding", "coils"] = "holding"
+    words: Literal[1, 2] = 1
+    style: Literal[TRIGGER_STYLES] = "plain"  # type: ignore[valid-type]
 
     @model_validator(mode="after")
     def _one_style(self) -> TriggerRegister:
@@ -199,8 +204,8 @@ class DriveRegisters(_Model):
         ]
         if self.feedback.table == "holding":
             spans.append(("feedback", self.feedback.address, 2))
-        if self.trigger is not None:
-            spans.append(("trigger", self.trigger.address, 1))
+        if self.trigger is not None and self.trigger.table == "holding":
+            spans.append(("trigger", self.trigger.address, self.trigger.words))
         if self.speed is not None:
             spans.append(("speed", self.speed.address, 1))
         if self.eeprom.counter is not None:
@@ -223,7 +228,7 @@ class AxisConfig(_Model):
     overtravel_mm: NonNegFloat = 1.0
     speed_mm_s: PositiveFloat = 100.0
     homed_at_start: bool = True
-    profile: Literal["leadshine-rs-pr0", "inovance-sv660p", "delta-asda-pr"] | None = None
+    profile: Literal[tuple(DRIVE_PROFILES)] | None = None  # type: ignore[valid-type]
     registers: DriveRegisters = DriveRegisters()
 
     @model_validator(mode="before")
@@ -414,6 +419,9 @@ class SimSection(_Model):
     time_scale: NonNegFloat = 0.0
     tcp: TcpConfig | None = None
     rtu: RtuConfig | None = None
+    #: RTU frames (with CRC) inside TCP, as behind a serial device server in transparent
+    #: mode; each connection is a line of its own; port 0 binds a free port (printed)
+    rtu_over_tcp: TcpConfig | None = None
     axes: dict[str, AxisConfig]
     machine: dict[str, AxisErrors] = Field(default_factory=dict)
     plane: PlaneConfig | None = None

@@ -2,7 +2,9 @@
 
 Works on raw PDU bytes (function code + data) so that the transports (TCP, RTU) only frame
 and unframe, and every unit sees exactly one call per request (no double calls, no lost
-transaction ids). Supported: FC03, FC04, FC06, FC16, FC23; anything else -> exception 0x01.
+transaction ids). Supported: FC03, FC04, FC06, FC16, FC23, and FC01, FC02, FC05, FC15 for
+units with coils (:meth:`BitUnit.read_bits`, :meth:`BitUnit.write_coils`); anything else ->
+exception 0x01.
 """
 
 from __future__ import annotations
@@ -34,6 +36,21 @@ class RegisterUnit(Protocol):
 
     def write(self, address: int, values: list[int], function_code: int) -> None:
         """Write holding registers (all or nothing); raise ModbusError to refuse."""
+        ...
+
+
+class BitUnit(Protocol):
+    """What a unit with coils adds (optional: a unit without them, or whose ``has_coils``
+    is false, answers FC01/02/05/15 with exception 0x01, whatever the request's length)."""
+
+    has_coils: bool
+
+    def read_bits(self, table: str, address: int, count: int) -> list[int]:
+        """Read ``count`` bits of ``table`` ("coils" or "discrete")."""
+        ...
+
+    def write_coils(self, address: int, bits: list[int], function_code: int) -> None:
+        """Write coils (values 0/1; all or nothing); raise ModbusError to refuse."""
         ...
 
 
@@ -91,7 +108,41 @@ def _dispatch(unit: RegisterUnit, fc: int, data: bytes) -> bytes:
         values = list(struct.unpack(f">{w_count}H", data[9 : 9 + nbytes]))
         unit.write(w_addr, values, fc)
         return bytes([fc]) + _registers(unit.read("holding", r_addr, r_count))
+    if fc in (0x01, 0x02, 0x05, 0x0F):
+        return _dispatch_bits(unit, fc, data)
     raise ModbusError(ILLEGAL_FUNCTION, f"function {fc:#04x}")
+
+
+def _dispatch_bits(unit: RegisterUnit, fc: int, data: bytes) -> bytes:
+    if not getattr(unit, "has_coils", False):
+        raise ModbusError(ILLEGAL_FUNCTION, f"function {fc:#04x}: no coils")
+    bits_unit: BitUnit = unit  # type: ignore[assignment]
+    if fc in (0x01, 0x02):
+        _check_length(data, 4)
+        address, count = struct.unpack(">HH", data)
+        if not 1 <= count <= 2000:
+            raise ModbusError(ILLEGAL_VALUE, "read count")
+        _check_span(address, count)
+        bits = bits_unit.read_bits("coils" if fc == 0x01 else "discrete", address, count)
+        packed = bytearray((count + 7) // 8)
+        for i, bit in enumerate(bits):
+            if bit:
+                packed[i // 8] |= 1 << (i % 8)
+        return bytes([fc, len(packed)]) + bytes(packed)
+    if fc == 0x05:
+        _check_length(data, 4)
+        address, value = struct.unpack(">HH", data)
+        if value not in (0x0000, 0xFF00):
+            raise ModbusError(ILLEGAL_VALUE, "coil value")
+        bits_unit.write_coils(address, [1 if value else 0], fc)
+        return bytes([fc]) + data[:4]
+    address, count, nbytes = struct.unpack(">HHB", data[:5])
+    if not 1 <= count <= 1968 or nbytes != (count + 7) // 8 or len(data) != 5 + nbytes:
+        raise ModbusError(ILLEGAL_VALUE, "write count")
+    _check_span(address, count)
+    bits = [data[5 + i // 8] >> (i % 8) & 1 for i in range(count)]
+    bits_unit.write_coils(address, bits, fc)
+    return bytes([fc]) + data[:4]
 
 
 def _check_length(data: bytes, length: int) -> None:

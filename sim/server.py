@@ -1,4 +1,4 @@
-"""The simulator's Modbus server (TCP and/or RTU serial) and the ``compgw sim`` entry point.
+"""The simulator's Modbus server (TCP, RTU serial and/or RTU over TCP) and ``compgw sim``.
 
 Frame-level on purpose, using pymodbus's framers (``FramerSocket``, ``FramerRTU``) only to
 split and build frames: the faults need the unit id of every request and control over
@@ -16,6 +16,10 @@ In-process use (tests, demo)::
 
 Unknown unit ids: no reply on RTU (another device's address on a shared line); exception
 0x0B (gateway target failed to respond) on TCP, as a TCP-to-RS-485 gateway answers.
+
+RTU over TCP (``rtu_over_tcp``): RTU frames with CRC inside TCP, no MBAP header, as a
+serial device server in transparent mode passes them; each connection is served as an RTU
+line of its own (unknown units unanswered, broadcasts acted on, replies in order).
 """
 
 from __future__ import annotations
@@ -57,6 +61,7 @@ class SimServer:
         *,
         tcp_port: int | None = None,
         rtu_port: str | None = None,
+        rtu_over_tcp_port: int | None = None,
         time_scale: float | None = None,
         seed: int | None = None,
         wall_s: Callable[[], float] = time.monotonic,
@@ -69,6 +74,9 @@ class SimServer:
             updates["rtu"] = (section.rtu or RtuConfig(port=rtu_port)).model_copy(
                 update={"port": rtu_port}
             )
+        if rtu_over_tcp_port is not None:
+            updates["rtu_over_tcp"] = (section.rtu_over_tcp or TcpConfig()).model_copy(
+                update={"port": rtu_over_tcp_port})
         if time_scale is not None:
             updates["time_scale"] = time_scale
         if seed is not None:
@@ -77,7 +85,10 @@ class SimServer:
         self.sim = Simulation(self.config, wall_s)
         self.tcp_port: int | None = None
         self.rtu_port: str | None = None
+        self.rtu_over_tcp_port: int | None = None
         self._tcp_server: asyncio.Server | None = None
+        self._rot_server: asyncio.Server | None = None
+        self._rot_lines: set[_RtuOverTcpLine] = set()
         self._rtu: _RtuLine | None = None
         self._tasks: set[asyncio.Task] = set()
 
@@ -93,12 +104,34 @@ class SimServer:
             if cfg.rtu is not None:
                 self._rtu = _RtuLine(cfg.rtu, self.sim)
                 self.rtu_port = self._rtu.open()
+            if cfg.rtu_over_tcp is not None:
+                await self.start_rtu_over_tcp(cfg.rtu_over_tcp.port)
         except BaseException:
             await self.stop()
             raise
 
+    async def start_rtu_over_tcp(self, port: int) -> int:
+        """Listen for RTU over TCP on ``port`` (0: a free one); returns the bound port.
+        With :meth:`stop_rtu_over_tcp`, a test kills and restarts this server alone."""
+        cfg = self.config.sim.rtu_over_tcp or TcpConfig()
+        line_cfg = RtuConfig(port=f"tcp:{cfg.host}")
+        self._rot_server = await asyncio.get_running_loop().create_server(
+            lambda: _RtuOverTcpLine(line_cfg, self.sim, self._rot_lines), cfg.host, port)
+        self.rtu_over_tcp_port = self._rot_server.sockets[0].getsockname()[1]
+        return self.rtu_over_tcp_port
+
+    async def stop_rtu_over_tcp(self) -> None:
+        """Stop listening for RTU over TCP and drop its connections."""
+        if self._rot_server is not None:
+            self._rot_server.close()
+            for line in list(self._rot_lines):
+                line.abort()
+            await self._rot_server.wait_closed()
+            self._rot_server = None
+
     async def stop(self) -> None:
         """Close listeners and connections."""
+        await self.stop_rtu_over_tcp()
         if self._rtu is not None:
             await self._rtu.close()
             self._rtu = None
@@ -257,8 +290,11 @@ class _RtuLine:
             # the line is gone (adapter unplugged): stop watching it instead of spinning
             asyncio.get_running_loop().remove_reader(self._port.fileno())
             return
-        if not chunk:
-            return
+        if chunk:
+            self._feed(chunk)
+
+    def _feed(self, chunk: bytes) -> None:
+        """Bytes from the line: cut frames (CRC) and queue each request."""
         now = time.monotonic()
         if not self._buffer:
             self._frame_start_s = now
@@ -305,9 +341,49 @@ class _RtuLine:
                 frame = self.sim.scramble(frame)
                 if FramerRTU.check_CRC(frame[:-2], int.from_bytes(frame[-2:], "big")):
                     frame = frame[:-1] + bytes([frame[-1] ^ 0xFF])
-            if self._port is not None:
-                self._port.write(frame)
-                self._line_idle_since_s = time.monotonic()
+            self._write(frame)
+
+    def _write(self, frame: bytes) -> None:
+        if self._port is not None:
+            self._port.write(frame)
+            self._line_idle_since_s = time.monotonic()
+
+
+class _RtuOverTcpLine(_RtuLine, asyncio.Protocol):
+    """One TCP connection carrying RTU frames (CRC, no MBAP), as a serial device server in
+    transparent mode passes them: each connection is a line of its own (its own framing,
+    silence and reply order), served by the :class:`_RtuLine` machinery."""
+
+    def __init__(self, cfg: RtuConfig, sim: Simulation, lines: set[_RtuOverTcpLine]) -> None:
+        super().__init__(cfg, sim)
+        self._lines = lines
+        self._transport: asyncio.Transport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self._transport = transport  # type: ignore[assignment]
+        self._lines.add(self)
+        self._worker = asyncio.get_running_loop().create_task(self._work())
+
+    def data_received(self, data: bytes) -> None:
+        self._feed(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._lines.discard(self)
+        self._transport = None
+        if self._gap is not None:
+            self._gap.cancel()
+        if self._worker is not None:
+            self._worker.cancel()
+
+    def _write(self, frame: bytes) -> None:
+        if self._transport is not None and not self._transport.is_closing():
+            self._transport.write(frame)
+            self._line_idle_since_s = time.monotonic()
+
+    def abort(self) -> None:
+        """Close the connection at once (the server stops)."""
+        if self._transport is not None:
+            self._transport.abort()
 
 
 # ---------------------------------------------------------------- command line
@@ -328,6 +404,9 @@ async def _serve(config: SimConfig) -> int:
         print(f"compgw sim: modbus tcp on {cfg.tcp.host}:{server.tcp_port}", flush=True)
     if server.rtu_port is not None:
         print(f"compgw sim: modbus rtu on {server.rtu_port}", flush=True)
+    if server.rtu_over_tcp_port is not None and cfg.rtu_over_tcp is not None:
+        print(f"compgw sim: modbus rtu over tcp on {cfg.rtu_over_tcp.host}:"
+              f"{server.rtu_over_tcp_port}", flush=True)
     units = ", ".join(f"{n}={a.unit}" for n, a in cfg.axes.items())
     print(f"compgw sim: drives {units}; faults unit {cfg.faults.unit}", flush=True)
     try:
@@ -344,8 +423,9 @@ def main(config_path: str) -> int:
     except SimConfigError as err:
         print(f"compgw sim: {Path(config_path)}: {err}", file=sys.stderr)
         return EXIT_BAD_CONFIG
-    if config.sim.tcp is None and config.sim.rtu is None:
-        print(f"compgw sim: {config_path}: sim: give tcp and/or rtu", file=sys.stderr)
+    if config.sim.tcp is None and config.sim.rtu is None and config.sim.rtu_over_tcp is None:
+        print(f"compgw sim: {config_path}: sim: give tcp, rtu and/or rtu_over_tcp",
+              file=sys.stderr)
         return EXIT_BAD_CONFIG
     try:
         return asyncio.run(_serve(config))

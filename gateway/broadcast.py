@@ -1,0 +1,162 @@
+"""Broadcasts (unit 0): a write for every drive at once, never a nominal target to a drive.
+
+A mixin of :class:`gateway.router.Gateway`: the rules are the unicast ones (its ``_write``,
+``_commit`` and trigger verdicts), applied to every axis a broadcast touches:
+
+- touching an axis's target: expanded into what a unicast of the same request to each axis
+  whose target or trigger it touches does (corrected target, planar commit rules, trigger
+  after its target); nothing is broadcast;
+- touching triggers only (a register, a 32-bit field or a coil, whatever the axis has):
+  each fired axis's pending target is committed first (one corrected unicast write each,
+  its planar partner's too under ``on_trigger``), then the request is broadcast;
+- anything else: broadcast as it is.
+
+Broadcast means one unit-0 frame on every RTU bus (serial or over TCP), and one unicast to
+each known drive (axes and pass-through units) on every Modbus TCP bus. The reply (for a TCP
+master; an RTU master gets none) is the normal write response once every bus has it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable, Iterable
+from contextlib import AbstractAsyncContextManager
+from typing import TYPE_CHECKING
+
+from .axis import overlap
+from .config import Axis
+from .downstream import Bus
+from .frames import (
+    ILLEGAL_FUNCTION,
+    WRITE_MULTIPLE_COILS,
+    WRITE_MULTIPLE_REGISTERS,
+    WRITE_SINGLE_COIL,
+    WRITE_SINGLE_REGISTER,
+    FrameError,
+    ModbusError,
+    Request,
+    is_exception,
+    parse_request,
+    response_for_write,
+)
+from .triggers import COIL_WRITES, judge, writes_trigger
+
+if TYPE_CHECKING:
+    from .router import GatewayCounters, Setup, _AxisRuntime
+
+log = logging.getLogger(__name__)
+
+MASK_WRITE_REGISTER = 0x16
+#: function codes a broadcast may carry (the spec allows writes only)
+BROADCAST_WRITES = frozenset({WRITE_SINGLE_COIL, WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_COILS,
+                              WRITE_MULTIPLE_REGISTERS, MASK_WRITE_REGISTER})
+
+
+class Broadcasts:
+    """The unit-0 half of the request handler (see the module docstring)."""
+
+    buses: dict[str, Bus]
+    counters: GatewayCounters
+    _axes: dict[str, _AxisRuntime]
+    on_state_change: Callable[[], None]
+
+    if TYPE_CHECKING:  # provided by the Gateway
+        async def _write(self, setup: Setup, name: str, axis: Axis, req: Request,
+                         pdu: bytes) -> bytes: ...
+
+        async def _commit(self, setup: Setup, owner: str, partners: list[str],
+                          block: Request | None) -> None: ...
+
+        def _axis_locks(self, names: Iterable[str]) -> AbstractAsyncContextManager[None]: ...
+
+    async def _broadcast(self, setup: Setup, pdu: bytes) -> bytes:
+        """Handle a unit-0 request ``pdu``; the reply a TCP master gets."""
+        fc = pdu[0]
+        if fc not in BROADCAST_WRITES:
+            raise ModbusError(f"broadcast of FC{fc:02d}: only writes can be broadcast",
+                              ILLEGAL_FUNCTION)
+        try:
+            req = parse_request(pdu) if fc != MASK_WRITE_REGISTER else None
+        except FrameError as exc:
+            raise ModbusError(f"broadcast refused: {exc}", exc.code) from None
+        self.counters.broadcasts += 1
+        if req is None:
+            await self._broadcast_raw(setup, pdu)
+            return pdu[:5]
+        reply = response_for_write(req)
+        start, count = req.write_address or 0, req.write_count
+        targets, triggers = [], []
+        for name, axis in setup.config.axes.items():
+            regs = axis.registers
+            if fc not in COIL_WRITES and overlap(start, count, regs.target.address):
+                targets.append(name)
+            elif writes_trigger(regs.trigger, fc, start, count):
+                triggers.append(name)
+        if targets:
+            self.counters.broadcasts_expanded += 1
+            log.info("broadcast FC%02d at 0x%04X touches the target of %s: sent to each axis "
+                     "corrected", fc, start, ", ".join(targets))  # fmt: skip
+            failure: ModbusError | None = None
+            for name in [*targets, *triggers]:  # one axis refused: the others still go
+                try:
+                    answer = await self._write(setup, name, setup.config.axes[name], req, pdu)
+                except ModbusError as exc:
+                    failure = failure or exc
+                    continue
+                if is_exception(answer) and failure is None:
+                    failure = ModbusError(f"axis {name} refused the broadcast", answer[1])
+            if failure is not None:
+                raise failure
+            return reply
+        if triggers:
+            await self._broadcast_trigger(setup, triggers, req, pdu)
+        else:
+            await self._broadcast_raw(setup, pdu)
+        return reply
+
+    async def _broadcast_trigger(self, setup: Setup, names: list[str], req: Request,
+                                 pdu: bytes) -> None:
+        """Commit each fired axis's target (unicast, corrected), then broadcast the
+        trigger; every axis involved stays locked until the trigger is out."""
+        involved = set(names)
+        for name in names:
+            partner = setup.planar_partner(name)
+            if partner is not None:
+                involved.add(partner)
+        homed = []
+        async with self._axis_locks(involved):
+            for name in names:
+                rule = setup.config.axes[name].registers.trigger
+                assert rule is not None
+                verdict = judge(rule, self._axes[name].trigger, req)
+                if verdict.homes:
+                    homed.append(name)
+                if not verdict.fires:
+                    continue
+                partner = setup.planar_partner(name)
+                partners = ([partner] if partner is not None and setup.hold_until_trigger(name)
+                            else [])  # fmt: skip
+                await self._commit(setup, name, partners, None)
+            await self._broadcast_raw(setup, pdu)
+            for name in homed:
+                self._axes[name].state.homing_started(setup.config.axes[name].home_direction)
+            if homed:
+                self.on_state_change()
+
+    async def _broadcast_raw(self, setup: Setup, pdu: bytes) -> None:
+        """``pdu`` to every drive: all buses at once."""
+        units: dict[str, set[int]] = {name: set() for name in self.buses}
+        for axis in setup.config.axes.values():
+            units[axis.bus].add(axis.unit)
+        for route in setup.config.passthrough.values():
+            units[route.bus].add(route.unit)
+        results = await asyncio.gather(
+            *(bus.broadcast(pdu, sorted(units[name])) for name, bus in self.buses.items()),
+            return_exceptions=True)
+        for name, result in zip(self.buses, results):
+            if isinstance(result, BaseException):
+                log.warning("broadcast FC%02d on bus %s failed: %s", pdu[0], name, result)
+        for result in results:
+            if isinstance(result, BaseException):
+                raise result

@@ -1,0 +1,80 @@
+"""Trigger rules: does a write touch an axis's trigger, and does it start a move (or homing)?
+
+Pure functions over a parsed write request (:class:`gateway.frames.Request`) and the
+trigger's config. A trigger is a holding register (FC06, FC16 blocks around it), a 32-bit
+field of two registers (``words: 2``, either word written counts), or a coil (FC05, FC15
+covering it). The router keeps, per axis, what the master last wrote to the trigger
+(:class:`TriggerShadow`), so a rising bit is an edge of what was written and a 32-bit value
+written one word at a time is judged whole.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .axis import overlap
+from .config import TriggerRegister
+from .frames import (
+    READ_WRITE_MULTIPLE_REGISTERS,
+    WRITE_MULTIPLE_COILS,
+    WRITE_MULTIPLE_REGISTERS,
+    WRITE_SINGLE_COIL,
+    WRITE_SINGLE_REGISTER,
+    Request,
+    unpack_int32,
+)
+
+REGISTER_WRITES = frozenset({WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_REGISTERS,
+                             READ_WRITE_MULTIPLE_REGISTERS})
+COIL_WRITES = frozenset({WRITE_SINGLE_COIL, WRITE_MULTIPLE_COILS})
+
+
+@dataclass
+class TriggerShadow:
+    """What the master last wrote to an axis's trigger (0 before any write)."""
+
+    words: list[int] = field(default_factory=lambda: [0, 0])
+    value: int = 0  # unsigned: 0..0xFFFF, 0..0xFFFFFFFF (words: 2) or 0/1 (a coil)
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """What a write of the trigger does: ``fires`` starts a move, ``homes`` the homing."""
+
+    fires: bool
+    homes: bool
+
+
+def writes_trigger(rule: TriggerRegister | None, fc: int, start: int, count: int) -> bool:
+    """Whether a write by function ``fc`` of ``count`` registers or coils at ``start``
+    writes (part of) the trigger."""
+    if rule is None:
+        return False
+    table = COIL_WRITES if rule.table == "coils" else REGISTER_WRITES
+    return fc in table and bool(overlap(start, count, rule.address, rule.words))
+
+
+def judge(rule: TriggerRegister, shadow: TriggerShadow, req: Request) -> Verdict:
+    """The verdict on ``req``, a write that :func:`writes_trigger`; ``shadow`` is updated
+    with the words (or the coil) it writes."""
+    start = req.write_address or 0
+    previous = shadow.value
+    if rule.table == "coils":
+        value = req.values[rule.address - start]
+        mask = 1
+    else:
+        for offset in overlap(start, req.write_count, rule.address, rule.words):
+            shadow.words[offset] = req.values[rule.address + offset - start]
+        if rule.words == 1:
+            value, mask = shadow.words[0], 0xFFFF
+        else:
+            value = unpack_int32(shadow.words, rule.order, signed=False)
+            mask = 0xFFFFFFFF
+    shadow.value = value
+    if rule.rising_bit is not None:
+        bit = 1 << rule.rising_bit
+        fires = bool(value & bit) and not previous & bit
+    else:
+        fires = rule.value is None or value == rule.value & mask
+    homes = rule.home_value is not None and value == rule.home_value & mask
+    return Verdict(fires, homes)
