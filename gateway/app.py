@@ -31,6 +31,7 @@ from .mbsecurity import TlsGate
 from .metrics import MetricsServer
 from .metrics import build as build_metrics
 from .router import Gateway
+from .rtu_over_tcp import RtuOverTcpBus
 from .security import WriteGuard
 from .sensors import SensorSet
 from .service import Notifier
@@ -55,6 +56,10 @@ def make_bus(name: str, cfg: BusConfig, min_silence_s: float | None = None) -> B
     }
     if cfg.tcp is not None:
         return TcpBus(cfg.tcp.host, cfg.tcp.port, **common)
+    if cfg.rtu_over_tcp is not None:
+        rot = cfg.rtu_over_tcp
+        return RtuOverTcpBus(rot.host, rot.port, baudrate=rot.baudrate, bytesize=rot.bytesize,
+                             parity=rot.parity, stopbits=rot.stopbits, t35=rot.t35, **common)
     assert cfg.rtu is not None
     return RtuBus(
         cfg.rtu.port,

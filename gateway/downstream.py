@@ -37,7 +37,7 @@ from .frames import (
     rtu_encode,
     rtu_response_length,
 )
-from .serialline import SerialLine, SerialLineLost, T35Mode
+from .serialline import RtuStream, SerialLine, SerialLineLost, T35Mode
 
 log = logging.getLogger(__name__)
 
@@ -401,9 +401,14 @@ class RtuBus(Bus):
                  serial_kwargs: dict[str, object] | None = None, **bus_kwargs: object) -> None:
         bus_kwargs.setdefault("name", port)
         super().__init__(**bus_kwargs)  # type: ignore[arg-type]
-        self.line = SerialLine(port, baudrate=baudrate, bytesize=bytesize, parity=parity,
-                               stopbits=stopbits, silence_s=silence_s, t35=t35,
-                               **(serial_kwargs or {}))
+        self._use_line(SerialLine(port, baudrate=baudrate, bytesize=bytesize, parity=parity,
+                                  stopbits=stopbits, silence_s=silence_s, t35=t35,
+                                  **(serial_kwargs or {})), late_guard_s)
+
+    def _use_line(self, line: RtuStream, late_guard_s: float | None) -> None:
+        """Serve transactions on ``line`` (a serial port here; another byte stream in
+        :class:`gateway.rtu_over_tcp.RtuOverTcpBus`)."""
+        self.line = line
         self.late_guard_s = self.timeout_s if late_guard_s is None else late_guard_s
         self._hold_until_s = 0.0  # no new request before this (monotonic)
         self._last_send_s = 0.0
@@ -413,10 +418,15 @@ class RtuBus(Bus):
         return self.line.is_open
 
     async def _open(self) -> None:
+        line = self.line
+        assert isinstance(line, SerialLine)
         try:
-            self.line.open()
+            line.open()
         except SerialLineLost as err:
             raise OSError(str(err)) from err
+        self._opened()
+
+    def _opened(self) -> None:
         self._hold_until_s = time.monotonic() + self.line.silence_s  # drop what was there
 
     async def _close(self) -> None:

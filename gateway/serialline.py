@@ -1,7 +1,9 @@
 """A serial port driven by the asyncio loop, with RTU frame reception.
 
 pyserial opens and configures the port (real UART, USB adapter or pty alike); reading is
-``loop.add_reader`` on its non-blocking fd, so no thread and no polling. Frames are cut by
+``loop.add_reader`` on its non-blocking fd, so no thread and no polling. The frame and
+timing half (:class:`RtuStream`) serves any fd: a TCP connection to a serial device server
+reuses it (:mod:`gateway.rtu_over_tcp`). Frames are cut by
 length and CRC (:func:`gateway.frames.find_rtu_frame`), by line silence for function codes
 whose length is unknown, and stale fragments are discarded, so garbage never blocks the line.
 
@@ -203,23 +205,27 @@ class ExactTimer:
         self._callback()
 
 
-class SerialLine:
-    """One serial port: open/close, async write, buffered async RTU frame reads.
+class RtuStream:
+    """RTU frames over a byte stream read with the loop's reader on a non-blocking fd: async
+    write, buffered async frame reads, exactly timed silences. A serial port
+    (:class:`SerialLine`) or a TCP connection to a serial device server
+    (:class:`gateway.rtu_over_tcp.TcpRtuLine`) opens the fd and hands it to
+    :meth:`_attach`; the line settings (those of the RS-485 side) time the silences.
 
     ``silence_s`` is the end-of-frame silence (default t3.5 from the line settings, per
     ``t35``: ``"spec"``, 1.75 ms above 19200 baud, or ``"exact"``, 3.5 characters; a pty
     ignores baud rate, so tests may pass a smaller value). ``stale_s`` is how long an
-    incomplete frame may wait for its remaining bytes (USB adapters deliver in chunks)
-    before it is discarded as a fragment.
+    incomplete frame may wait for its remaining bytes (USB adapters and TCP deliver in
+    chunks) before it is discarded as a fragment.
     """
+
+    kind = "line"  # for log messages
 
     def __init__(self, port: str, *, baudrate: int = 19200, bytesize: int = 8,
                  parity: str = "E", stopbits: float = 1, silence_s: float | None = None,
-                 stale_s: float = 0.1, t35: T35Mode = "spec", **serial_kwargs: object) -> None:
+                 stale_s: float = 0.1, t35: T35Mode = "spec") -> None:
         self.port = port
         self.baudrate = baudrate
-        self._settings = dict(baudrate=baudrate, bytesize=bytesize, parity=parity,
-                              stopbits=stopbits, **serial_kwargs)
         self.char_time_s = char_time_s(baudrate, bytesize, parity, stopbits)
         if t35 == "spec":  # positional call: a start-up patch of t35_s (bench what-if) holds
             default_s = t35_s(baudrate, bytesize, parity, stopbits)
@@ -228,7 +234,6 @@ class SerialLine:
         self.t35 = t35
         self.silence_s = default_s if silence_s is None else silence_s
         self.stale_s = max(stale_s, self.silence_s)
-        self._serial: serial.Serial | None = None
         self._fd: int | None = None
         self._buf = bytearray()
         self._waiter: asyncio.Future[None] | None = None  # wait_data: bytes, loss or timer
@@ -246,15 +251,9 @@ class SerialLine:
     def is_open(self) -> bool:
         return self._fd is not None and not self.lost
 
-    def open(self) -> None:
-        """Open and configure the port; raise :class:`SerialLineLost` if it cannot be."""
-        self.close()
-        try:
-            ser = serial.Serial(self.port, timeout=0, write_timeout=0, **self._settings)
-        except (OSError, serial.SerialException, ValueError) as err:
-            raise SerialLineLost(f"{self.port}: {err}") from err
-        self._serial = ser
-        self._fd = ser.fileno()
+    def _attach(self, fd: int) -> None:
+        """Start reading the freshly opened ``fd`` (made non-blocking)."""
+        self._fd = fd
         os.set_blocking(self._fd, False)
         self._buf.clear()
         self._empty_reads = 0
@@ -268,16 +267,19 @@ class SerialLine:
         if self._fd is not None:
             with contextlib.suppress(Exception):
                 asyncio.get_running_loop().remove_reader(self._fd)
-        if self._serial is not None:
-            with contextlib.suppress(Exception):
-                self._serial.close()
-        self._serial = None
+        self._release()
         self._fd = None
         self.lost = True
         if self._timer is not None:
             self._timer.close()
             self._timer = None
         self._wake_waiter()
+
+    def _release(self) -> None:
+        """Close what :meth:`_attach` was given (a hook)."""
+
+    def _empty_read(self) -> None:
+        """The fd was readable and gave nothing (a hook: a hang-up, or not)."""
 
     def _wake_waiter(self) -> None:
         waiter, self._waiter = self._waiter, None
@@ -294,17 +296,11 @@ class SerialLine:
         except BlockingIOError:
             return
         except OSError as err:  # EIO when the other side of a pty closes, ENXIO on unplug
-            log.warning("serial %s lost: %s", self.port, err)
+            log.warning("%s %s lost: %s", self.kind, self.port, err)
             self.close()
             return
-        if not data:  # with VMIN=0 an empty read means "nothing there", not end of file
-            self._empty_reads += 1
-            if _hung_up(self._fd) or self._empty_reads >= MAX_EMPTY_READS:
-                log.warning("serial %s lost: hung up (ready to read, nothing to read)",
-                            self.port)
-                self.close()
-            else:  # a tty's wake-up without data (seen on ptys); keep the line
-                self.spurious_wakeups += 1
+        if not data:
+            self._empty_read()
             return
         self._empty_reads = 0
         self._buf += data
@@ -403,7 +399,8 @@ class SerialLine:
                 break
             left = deadline - time.monotonic()
             if left <= 0:
-                log.warning("serial %s: line not quiet after %.3f s", self.port, max_wait_s)
+                log.warning("%s %s: line not quiet after %.3f s", self.kind, self.port,
+                            max_wait_s)
                 break
             await self.wait_data(min(remaining, left))
             if discard:
@@ -436,8 +433,51 @@ class SerialLine:
                 elif quiet < self.stale_s:
                     wait = min(wait, self.stale_s - quiet)
                 else:
-                    log.debug("serial %s: fragment discarded: %s", self.port, self._buf.hex())
+                    log.debug("%s %s: fragment discarded: %s", self.kind, self.port,
+                              self._buf.hex())
                     self.garbage_bytes += self.discard()
             if deadline is not None and time.monotonic() >= deadline:
                 return None
             await self.wait_data(max(wait, 0.0002))
+
+
+class SerialLine(RtuStream):
+    """One serial port (real UART, USB adapter or pty), opened and configured by pyserial;
+    ``serial_kwargs`` go to ``serial.Serial``."""
+
+    kind = "serial"
+
+    def __init__(self, port: str, *, baudrate: int = 19200, bytesize: int = 8,
+                 parity: str = "E", stopbits: float = 1, silence_s: float | None = None,
+                 stale_s: float = 0.1, t35: T35Mode = "spec", **serial_kwargs: object) -> None:
+        super().__init__(port, baudrate=baudrate, bytesize=bytesize, parity=parity,
+                         stopbits=stopbits, silence_s=silence_s, stale_s=stale_s, t35=t35)
+        self._settings = dict(baudrate=baudrate, bytesize=bytesize, parity=parity,
+                              stopbits=stopbits, **serial_kwargs)
+        self._serial: serial.Serial | None = None
+
+    def open(self) -> None:
+        """Open and configure the port; raise :class:`SerialLineLost` if it cannot be."""
+        self.close()
+        try:
+            ser = serial.Serial(self.port, timeout=0, write_timeout=0, **self._settings)
+        except (OSError, serial.SerialException, ValueError) as err:
+            raise SerialLineLost(f"{self.port}: {err}") from err
+        self._serial = ser
+        self._attach(ser.fileno())
+
+    def _release(self) -> None:
+        if self._serial is not None:
+            with contextlib.suppress(Exception):
+                self._serial.close()
+        self._serial = None
+
+    def _empty_read(self) -> None:
+        # with VMIN=0 an empty read means "nothing there", not end of file
+        assert self._fd is not None
+        self._empty_reads += 1
+        if _hung_up(self._fd) or self._empty_reads >= MAX_EMPTY_READS:
+            log.warning("serial %s lost: hung up (ready to read, nothing to read)", self.port)
+            self.close()
+        else:  # a tty's wake-up without data (seen on ptys); keep the line
+            self.spurious_wakeups += 1

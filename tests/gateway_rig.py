@@ -81,6 +81,8 @@ async def rig(
     ``sim_edit(sim_dict)`` the simulated machine.
 
     ``drives="rtu"`` puts the gateway's bus on a pty to the sim's RTU server;
+    ``drives="rtu_over_tcp"`` on a TCP connection carrying RTU frames (a serial device
+    server's transparent mode) to the sim's RTU-over-TCP server;
     ``upstream="rtu"`` makes ``master`` an RTU client on a pty to the gateway.
     ``direct`` is always TCP to the sim (the drive's truth, the instruments).
     """
@@ -101,8 +103,15 @@ async def rig(
         upstream_line = PtyPair()
         ptys.append(upstream_line)
     try:
-        async with SimServer(sim_cfg, tcp_port=0, time_scale=0) as sim:
+        rot_port = 0 if drives == "rtu_over_tcp" else None
+        async with SimServer(sim_cfg, tcp_port=0, time_scale=0,
+                             rtu_over_tcp_port=rot_port) as sim:
             data = base_config(sim.tcp_port)
+            if rot_port is not None:
+                data["buses"]["line1"] = {
+                    "rtu_over_tcp": {"host": "127.0.0.1", "port": sim.rtu_over_tcp_port,
+                                     "baudrate": 115200, "parity": "N"},
+                    "timeout_s": 0.2, "retries": 0}
             if drive_line is not None:
                 data["buses"]["line1"] = {"rtu": serial(drive_line.b), "timeout_s": 0.2,
                                           "retries": 0}
