@@ -15,7 +15,9 @@ row on the gateway (each axis's drive through one bus); the direct floors are a 
 TCP master on the sim's TCP port and an RTU-over-TCP master on the sim's RTU-over-TCP
 port (which sends again at once, as a TCP master does). Direct and gateway runs alternate
 (D G G D, half the requests each). Every reply is checked (tid or CRC, function code, no
-exception). tx/s is 1 / mean latency (one master: no overlap).
+exception). tx/s is 1 / mean latency (one master: no overlap). When ``socat`` is installed,
+a C byte pump between the RTU-over-TCP master and the sim is measured too (the floor of
+anything that forwards those bytes, with no Modbus at all).
 
 Cases: ``FC03x10@6200`` (covers the target pair: the gateway answers with its shadow) and
 ``FC16x2@6204`` (plain parameters, pass-through). No wire time anywhere (TCP loopback).
@@ -30,6 +32,7 @@ import argparse
 import asyncio
 import os
 import re
+import shutil
 import signal
 import statistics
 import struct
@@ -197,41 +200,50 @@ def pct(values: list[float], q: float) -> float:
     return s[min(len(s) - 1, int(q / 100 * len(s)))] * 1000
 
 
-async def bench(args: argparse.Namespace, sim: Proc, gw: Proc, ports: dict[str, int]) -> None:
+async def bench(args: argparse.Namespace, sim: Proc, gw: Proc, ports: dict[str, int],
+                pump: Proc | None) -> None:
     n = args.requests or (200 if args.quick else 1000)
     direct = {"tcp": await tcp_master(ports["sim_tcp"]),
               "rot": await rtu_over_tcp_master(ports["sim_rot"])}
     through = await tcp_master(ports["gw"])
+    rows = [(case, bus) for case in CASES for bus in BUSES]
+    if pump is not None:
+        rows += [(case, "socat") for case in CASES]
+        pumped = await rtu_over_tcp_master(ports["socat"])
     print(f"{n} requests per row, 1 master; p50/p99 in ms; added = gateway p50 - direct p50;"
           " cpu = gateway CPU per transaction (schedstat)\n")
     print("| case | bus | direct | d p50 | d p99 | gw p50 | gw p99 | p50 x | added | "
           "tx/s d | tx/s gw | cpu µs | err |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for case, pdu in CASES.items():
-        for bus, offset in BUSES.items():
-            floor = "tcp" if bus == "tcp" else "rot"
-            d_lat: list[float] = []
-            g_lat: list[float] = []
-            errors, cpu = 0, 0.0
-            half = max(n // 2, 1)
-            for side in ("d", "g", "g", "d"):
-                if side == "d":
-                    lat, err = await measure(direct[floor][0], 1, pdu, half, args.time_cap)
-                    d_lat += lat
-                else:
-                    cpu0 = gw.cpu_s()
-                    lat, err = await measure(through[0], offset + 1, pdu, half, args.time_cap)
-                    cpu += gw.cpu_s() - cpu0
-                    g_lat += lat
-                errors += err
-            d50, g50 = pct(d_lat, 50), pct(g_lat, 50)
-            label = {"tcp": "tcp", "rot": "rtu_over_tcp", "rot_exact": "rtu_over_tcp exact"}
-            print(f"| {case} | {label[bus]} | {'tcp' if floor == 'tcp' else 'rtu/tcp'} | "
-                  f"{d50:.3f} | {pct(d_lat, 99):.3f} | {g50:.3f} | {pct(g_lat, 99):.3f} | "
-                  f"{g50 / d50:.2f} | {g50 - d50:+.3f} | {1 / statistics.fmean(d_lat):.0f} | "
-                  f"{1 / statistics.fmean(g_lat):.0f} | {cpu / len(g_lat) * 1e6:.0f} | "
-                  f"{errors} |", flush=True)
-    for _, close in (*direct.values(), through):
+    label = {"tcp": "tcp", "rot": "rtu_over_tcp", "rot_exact": "rtu_over_tcp exact",
+             "socat": "socat pump (C), not the gateway"}
+    for case, bus in rows:
+        pdu = CASES[case]
+        floor = "tcp" if bus == "tcp" else "rot"
+        forward, unit, proc = (pumped[0], 1, pump) if bus == "socat" else (
+            through[0], BUSES[bus] + 1, gw)
+        d_lat: list[float] = []
+        g_lat: list[float] = []
+        errors, cpu = 0, 0.0
+        half = max(n // 2, 1)
+        for side in ("d", "g", "g", "d"):
+            if side == "d":
+                lat, err = await measure(direct[floor][0], 1, pdu, half, args.time_cap)
+                d_lat += lat
+            else:
+                assert proc is not None
+                cpu0 = proc.cpu_s()
+                lat, err = await measure(forward, unit, pdu, half, args.time_cap)
+                cpu += proc.cpu_s() - cpu0
+                g_lat += lat
+            errors += err
+        d50, g50 = pct(d_lat, 50), pct(g_lat, 50)
+        print(f"| {case} | {label[bus]} | {'tcp' if floor == 'tcp' else 'rtu/tcp'} | "
+              f"{d50:.3f} | {pct(d_lat, 99):.3f} | {g50:.3f} | {pct(g_lat, 99):.3f} | "
+              f"{g50 / d50:.2f} | {g50 - d50:+.3f} | {1 / statistics.fmean(d_lat):.0f} | "
+              f"{1 / statistics.fmean(g_lat):.0f} | {cpu / len(g_lat) * 1e6:.0f} | "
+              f"{errors} |", flush=True)
+    for _, close in (*direct.values(), through, *([pumped] if pump is not None else [])):
         close()
 
 
@@ -244,19 +256,24 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="compgw-rot-") as tmp:
         sim_cfg, gateway_cfg = configs(Path(tmp))
         sim = Proc([sys.executable, "-c", _SIM, str(sim_cfg)])
-        gw = None
+        gw = pump = None
         try:
             ports = {"sim_tcp": int(sim.wait_for(r"modbus tcp on 127\.0\.0\.1:(\d+)")[1]),
                      "sim_rot": int(sim.wait_for(r"rtu over tcp on 127\.0\.0\.1:(\d+)")[1])}
             gw = Proc([sys.executable, "-c", _RUN,
                        str(gateway_cfg(ports["sim_tcp"], ports["sim_rot"]))])
             ports["gw"] = int(gw.wait_for(r"listening on 127\.0\.0\.1:(\d+)")[1])
-            asyncio.run(asyncio.wait_for(bench(args, sim, gw, ports),
-                                         args.time_cap * 4 * 6 + 60))
+            socat = shutil.which("socat")
+            if socat:  # one connection, served by the listening process itself (no fork)
+                pump = Proc([socat, "-d", "-d", "TCP-LISTEN:0,bind=127.0.0.1,reuseaddr",
+                             f"TCP:127.0.0.1:{ports['sim_rot']},nodelay"])
+                ports["socat"] = int(pump.wait_for(r"listening on .*:(\d+)")[1])
+            asyncio.run(asyncio.wait_for(bench(args, sim, gw, ports, pump),
+                                         args.time_cap * 4 * 8 + 60))
         finally:
-            if gw is not None:
-                gw.stop()
-            sim.stop()
+            for proc in (pump, gw, sim):
+                if proc is not None:
+                    proc.stop()
     return 0
 
 
