@@ -7,7 +7,14 @@ late replies dropped after a timeout, and a server killed and restarted is recon
 from __future__ import annotations
 
 import asyncio
+import os
+import re
+import signal
+import subprocess
+import sys
 from pathlib import Path
+
+import yaml
 
 from gateway.compensation import AxisInput
 from gateway.frames import (
@@ -19,9 +26,10 @@ from gateway.frames import (
     rtu_encode,
     rtu_response_length,
 )
-from tests.gateway_rig import FEEDBACK, TARGET, TRIGGER, rig
+from tests.gateway_rig import FEEDBACK, ROOT, TARGET, TRIGGER, rig
 from tests.helpers_modbus import RawTcpMaster, wait_for_condition
 from tests.test_gateway_e2e import PITCH_X, read32, run, with_pitch
+from tests.test_sim_support import example_dict
 
 CONTROL_UNIT = 250
 
@@ -143,3 +151,34 @@ def test_server_killed_and_restarted_is_reconnected(tmp_path: Path) -> None:
             assert bus.counters.reconnects == 2
 
     run(body())
+
+
+def test_compgw_sim_serves_rtu_over_tcp_on_the_port_it_prints(tmp_path: Path) -> None:
+    data = example_dict()
+    data["sim"].pop("tcp")
+    data["sim"]["rtu_over_tcp"] = {"host": "127.0.0.1", "port": 0}
+    config = tmp_path / "sim.yaml"
+    config.write_text(yaml.safe_dump(data))
+    proc = subprocess.Popen([sys.executable, "-m", "gateway.cli", "sim", "-c", str(config)],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()  # blocks until the server prints its bound port
+        match = re.search(r"modbus rtu over tcp on 127\.0\.0\.1:(\d+)", line)
+        assert match, line
+
+        async def ask() -> bytes:
+            master = await RawRtuOverTcp.connect(int(match[1]))
+            try:
+                return await master.request(1, build_read_request(3, TARGET, 2))
+            finally:
+                await master.close()
+
+        assert run(ask())[:2] == b"\x03\x04"
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
