@@ -149,10 +149,15 @@ def test_moves_land_on_the_corrected_target_and_read_back_nominal(tmp_path: Path
     run(body())
 
 
-@pytest.mark.parametrize("name", [AZ, A6, KINCO])
-def test_on_trigger_planar_pair_commits_both_before_the_start(tmp_path: Path, name: str):
+@pytest.mark.parametrize(("name", "drives"), [(AZ, "rtu"), (A6, "rtu"), (KINCO, "rtu"),
+                                             (A6, "tcp")])
+def test_on_trigger_planar_pair_commits_both_before_the_start(tmp_path: Path, name: str,
+                                                              drives: str):
+    """(On a Modbus TCP bus too: a coil write there must not take the callback fast path
+    that forwards a request without looking at it.)"""
+
     async def body():
-        async with rig(tmp_path, gateway_profile(name, planar=True), XY_FILES, drives="rtu",
+        async with rig(tmp_path, gateway_profile(name, planar=True), XY_FILES, drives=drives,
                        sim_edit=sim_profile(name)) as r:
             master, chain = r["master"], r["chain"]
             x, y = r["sim"].sim.drives["X"], r["sim"].sim.drives["Y"]
