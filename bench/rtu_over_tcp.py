@@ -30,85 +30,24 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
-import re
 import shutil
-import signal
 import statistics
 import struct
-import subprocess
 import sys
 import tempfile
-import threading
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+# the gateway bench's process and frame helpers (bench/ is first on sys.path)
+from forwarding import Proc, compgw, reply_length, rtu_frame
+
 UNITS = tuple(range(1, 9))
 BUSES = {"tcp": 0, "rot": 10, "rot_exact": 20}  # bus -> upstream unit offset
 CASES = {
     "FC03x10@6200": struct.pack(">BHH", 3, 0x6200, 10),
     "FC16x2@6204": struct.pack(">BHHBHH", 16, 0x6204, 2, 4, 0x1234, 0x5678),
 }
-_SIM = "import sys; from sim.server import main; sys.exit(main(sys.argv[1]))"
-_RUN = ("import logging, sys; logging.basicConfig(level=logging.INFO); "
-        "from gateway import app; sys.exit(app.run(sys.argv[1]))")
-
-
-def _crc16(data: bytes) -> bytes:
-    crc = 0xFFFF
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return struct.pack("<H", crc)
-
-
-def _reply_length(pdu: bytes) -> int:
-    """Length of the normal RTU reply frame to ``pdu`` (unit + PDU + CRC)."""
-    return 5 + 2 * struct.unpack(">H", pdu[3:5])[0] if pdu[0] in (3, 4) else 8
-
-
-class Proc:
-    """A child process whose output is drained by a thread (and searched)."""
-
-    def __init__(self, argv: list[str]) -> None:
-        self.p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                  text=True, cwd=ROOT, start_new_session=True,
-                                  env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        self.lines: list[str] = []
-        threading.Thread(target=self._drain, daemon=True).start()
-
-    def _drain(self) -> None:
-        assert self.p.stdout is not None
-        for line in self.p.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    def wait_for(self, pattern: str, timeout_s: float = 30.0) -> re.Match[str]:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            for line in list(self.lines):
-                if m := re.search(pattern, line):
-                    return m
-            if self.p.poll() is not None:
-                break
-            time.sleep(0.05)
-        raise RuntimeError(f"no {pattern!r} in:\n" + "\n".join(self.lines[-20:]))
-
-    def cpu_s(self) -> float:
-        return int(Path(f"/proc/{self.p.pid}/schedstat").read_text().split()[0]) / 1e9
-
-    def stop(self) -> None:
-        if self.p.poll() is None:
-            self.p.send_signal(signal.SIGTERM)
-            try:
-                self.p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                self.p.kill()
-                self.p.wait()
-
-
 def configs(tmp: Path) -> tuple[Path, Callable[[int, int], Path]]:
     import yaml
 
@@ -168,10 +107,9 @@ async def rtu_over_tcp_master(port: int) -> tuple[Request, Callable[[], None]]:
     writer.get_extra_info("socket").setsockopt(6, 1, 1)
 
     async def request(unit: int, pdu: bytes) -> bytes:
-        body = bytes([unit]) + pdu
-        writer.write(body + _crc16(body))
-        frame = await reader.readexactly(_reply_length(pdu))
-        if frame[0] != unit or _crc16(frame[:-2]) != frame[-2:]:
+        writer.write(rtu_frame(unit, pdu))
+        frame = await reader.readexactly(reply_length(pdu))
+        if rtu_frame(frame[0], frame[1:-2]) != frame:
             raise RuntimeError(f"bad RTU reply {frame.hex()}")
         return frame[1:-2]
 
@@ -255,18 +193,17 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="compgw-rot-") as tmp:
         sim_cfg, gateway_cfg = configs(Path(tmp))
-        sim = Proc([sys.executable, "-c", _SIM, str(sim_cfg)])
+        sim = Proc("sim", compgw("sim", sim_cfg))
         gw = pump = None
         try:
             ports = {"sim_tcp": int(sim.wait_for(r"modbus tcp on 127\.0\.0\.1:(\d+)")[1]),
                      "sim_rot": int(sim.wait_for(r"rtu over tcp on 127\.0\.0\.1:(\d+)")[1])}
-            gw = Proc([sys.executable, "-c", _RUN,
-                       str(gateway_cfg(ports["sim_tcp"], ports["sim_rot"]))])
+            gw = Proc("gateway", compgw("run", gateway_cfg(ports["sim_tcp"], ports["sim_rot"])))
             ports["gw"] = int(gw.wait_for(r"listening on 127\.0\.0\.1:(\d+)")[1])
             socat = shutil.which("socat")
             if socat:  # one connection, served by the listening process itself (no fork)
-                pump = Proc([socat, "-d", "-d", "TCP-LISTEN:0,bind=127.0.0.1,reuseaddr",
-                             f"TCP:127.0.0.1:{ports['sim_rot']},nodelay"])
+                pump = Proc("socat", [socat, "-d", "-d", "TCP-LISTEN:0,bind=127.0.0.1,reuseaddr",
+                                      f"TCP:127.0.0.1:{ports['sim_rot']},nodelay"])
                 ports["socat"] = int(pump.wait_for(r"listening on .*:(\d+)")[1])
             asyncio.run(asyncio.wait_for(bench(args, sim, gw, ports, pump),
                                          args.time_cap * 4 * 8 + 60))
