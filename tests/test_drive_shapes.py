@@ -19,7 +19,7 @@ import pytest
 
 from gateway.axis import overlap
 from gateway.compensation import AxisInput
-from gateway.config import ConfigError, parse_config
+from gateway.config import ConfigError, parse_config, warnings
 from gateway.frames import (
     build_write_multiple_registers,
     build_write_single_coil,
@@ -28,6 +28,8 @@ from gateway.frames import (
     unpack_int32,
 )
 from gateway.profiles import PROFILES
+from gateway.setup_report import describe
+from gateway.tables import build_chain
 from sim.drive import Drive
 from tests.gateway_rig import rig
 from tests.helpers_modbus import RawTcpMaster, wait_for_condition
@@ -58,12 +60,16 @@ async def set_target(master, name: str, unit: int, pulses: int) -> None:
         await ok(await master.write_registers(address, words, device_id=unit))
 
 
-async def start(master, name: str, unit: int, *, fc15: bool = False) -> None:
-    """The drive's own start."""
+async def start(master, name: str, unit: int, *, other_form: bool = False) -> None:
+    """The drive's own start (``other_form``: FC06 of the trigger field's low word for the
+    AZ, FC15 for the A6)."""
     if name == AZ:  # the 32-bit trigger field: 1 = all fields updated, start now
-        await ok(await master.write_registers(AZ_BLOCK + 14, [0, 1], device_id=unit))
+        if other_form:
+            await ok(await master.write_register(AZ_BLOCK + 15, 1, device_id=unit))
+        else:
+            await ok(await master.write_registers(AZ_BLOCK + 14, [0, 1], device_id=unit))
     elif name == A6:  # STB on; it clears itself
-        if fc15:
+        if other_form:
             await ok(await master.write_coils(A6_STB, [True], device_id=unit))
         else:
             await ok(await master.write_coil(A6_STB, True, device_id=unit))
@@ -137,13 +143,16 @@ def test_moves_land_on_the_corrected_target_and_read_back_nominal(tmp_path: Path
                 assert await read32(master, unit, f["address"], f["order"]) == nominal
             if name == A6:  # the FC15 form of the start, covering the STB coil
                 await set_target(master, name, 2, 50_000)
-                await start(master, name, 2, fc15=True)
+                await start(master, name, 2, other_form=True)
                 corrected = chain.command_pulses("Y", {"Y": AxisInput(50_000, -1)})
                 expected["Y"].append((50_000, corrected))
             for unit, axis in ((1, "X"), (2, "Y")):
                 drive = drives[axis]
                 assert started_targets(drive, name) == [c for _, c in expected[axis]]
                 assert not target_values_seen(drive, name) & {n for n, _ in expected[axis]}
+                if name == AZ:  # each move: the master's one block, as one write
+                    assert all((e.address, len(e.values)) == (AZ_BLOCK, 16)
+                               for e in drive.received)
                 assert await control(direct, unit, 4) == 0  # its line silence always kept
 
     run(body())
@@ -175,7 +184,9 @@ def test_on_trigger_planar_pair_commits_both_before_the_start(tmp_path: Path, na
             x_start = [e for e in x.received if e.started is not None]
             assert len(y_target) == 1 and len(x_start) == 1
             assert y_target[0].seq < x_start[0].seq and y.moves_started == 0
-            await start(master, name, 2)  # Y's own start: its target is already corrected
+            # Y's own start (for the AZ the trigger's low word alone, which the drive
+            # takes): its target is already corrected
+            await start(master, name, 2, other_form=True)
             assert started_targets(x, name) == [want["X"]]
             assert started_targets(y, name) == [want["Y"]]
             for drive in (x, y):
@@ -339,6 +350,22 @@ def test_split_block_sends_the_trigger_last(tmp_path: Path):
             assert await control(r["direct"], 1, 5) == 0  # no piece over its limit
 
     run(body())
+
+
+def test_compgw_check_describes_the_trigger_shapes(tmp_path: Path):
+    data = {"upstream": {"tcp": {"port": 0}},
+            "buses": {"b": {"rtu_over_tcp": {"host": "127.0.0.1", "port": 4001}}},
+            "axes": {name: {"bus": "b", "unit": unit, "profile": profile, "pulse_mm": 0.001,
+                            "travel_mm": [0, 800], "ram_setting_applied": True}
+                     for unit, (name, profile) in enumerate(
+                         [("X", AZ), ("Y", A6), ("Z", KINCO)], start=1)}}
+    config = parse_config(data)
+    text = describe(config, build_chain(config, tmp_path))
+    assert "b: rtu over tcp 127.0.0.1:4001 19200 8E1" in text
+    assert "trigger 32-bit (hi_lo) 0x0066 on any write" in text
+    assert "trigger coil 0x0120 on value 0x1" in text
+    assert "trigger 0x3100 on rising bit 4" in text
+    assert [w.split(":")[0] for w in warnings(config)] == ["axes.Y", "axes.Z"]  # unverified
 
 
 def test_profiles_are_marked_with_their_sources():
