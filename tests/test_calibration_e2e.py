@@ -307,4 +307,4 @@ def test_iteration_folds_the_residual_until_within_tolerance(flow):
     if flow["iterate_rc"] == 0:
         assert between[-1] <= 2.0 and "within 2 µm: done" in text, text
     else:  # judged between the points, honestly: not met is said and exits 1
-        assert between[-1] > 2.0 and "not within" in text or "too coarse" in text, text
+        assert (between[-1] > 2.0 and "not within" in text) or "too coarse" in text, text

@@ -6,6 +6,7 @@ rates (time_scale 1) and config/example.yaml's plausibility limit for the Δa se
 from __future__ import annotations
 
 import asyncio
+import itertools
 
 from pymodbus.client import AsyncModbusTcpClient
 
@@ -48,7 +49,8 @@ def test_shipped_thermal_limits_accept_the_shipped_machine_heating_in_real_time(
     s = run(body(), 60)
     growth_mm = s[-1][2] - s[0][2]
     assert growth_mm > 0.003, f"the warm-up should grow the screw: {growth_mm * 1e3:.1f} µm"
-    machine_rate = max((b[2] - a[2]) / (b[0] - a[0]) for a, b in zip(s, s[1:]) if b[0] > a[0])
+    machine_rate = max((b[2] - a[2]) / (b[0] - a[0])
+                       for a, b in itertools.pairwise(s) if b[0] > a[0])
     assert machine_rate < limit_mm_s / 10, (machine_rate, limit_mm_s)  # real time: accepted
     wall_s = s[-1][1] - s[0][1]
     assert growth_mm / wall_s > limit_mm_s, "at time_scale 0 the same growth outruns the limit"

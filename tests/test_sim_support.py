@@ -25,9 +25,11 @@ FAULTS_UNIT = 250
 
 
 def example_dict() -> dict[str, Any]:
-    """The example machine as plain YAML data (a fresh copy each call), at 1 µm per pulse:
-    the sim's tests command in pulses and read their numbers as µm."""
+    """The example machine as plain YAML data (a fresh copy each call), at 1 µm per pulse
+    and with instant moves (time_scale 0; shipped: real time): the sim's tests command in
+    pulses and read their numbers as µm."""
     data = copy.deepcopy(yaml.safe_load(EXAMPLE.read_text()))
+    data["sim"]["time_scale"] = 0
     for axis in data["sim"]["axes"].values():
         axis["pulse_mm"] = 0.001
     return data
