@@ -124,14 +124,12 @@ class Broadcasts:
             partner = setup.planar_partner(name)
             if partner is not None:
                 involved.add(partner)
-        homed = []
+        verdicts = {}
         async with self._axis_locks(involved):
             for name in names:
                 rule = setup.config.axes[name].registers.trigger
                 assert rule is not None
-                verdict = judge(rule, self._axes[name].trigger, req)
-                if verdict.homes:
-                    homed.append(name)
+                verdicts[name] = verdict = judge(rule, self._axes[name].trigger, req)
                 if not verdict.fires:
                     continue
                 partner = setup.planar_partner(name)
@@ -139,8 +137,13 @@ class Broadcasts:
                             else [])  # fmt: skip
                 await self._commit(setup, name, partners, None)
             await self._broadcast_raw(setup, pdu)
-            for name in homed:
-                self._axes[name].state.homing_started(setup.config.axes[name].home_direction)
+            homed = False
+            for name, verdict in verdicts.items():  # the drives have the trigger write
+                self._axes[name].trigger = verdict.shadow
+                if verdict.homes:
+                    self._axes[name].state.homing_started(
+                        setup.config.axes[name].home_direction)
+                    homed = True
             if homed:
                 self.on_state_change()
 

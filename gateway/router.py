@@ -467,12 +467,14 @@ class Gateway(Broadcasts):
             if verdict.fires:
                 reply = await self._trigger_write(setup, name, axis, req, pdu)
             elif target_offsets:
-                return await self._target_write(setup, name, axis, req)
+                reply = await self._target_write(setup, name, axis, req)
             else:
                 reply = await self._forward_write(name, axis, req, pdu)
-            if verdict.homes and not is_exception(reply):
-                runtime.state.homing_started(axis.home_direction)
-                self.on_state_change()
+            if trigger_hit and not is_exception(reply):  # the drive has the trigger write
+                runtime.trigger = verdict.shadow
+                if verdict.homes:
+                    runtime.state.homing_started(axis.home_direction)
+                    self.on_state_change()
             return reply
 
     async def _forward_write(self, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
@@ -517,7 +519,7 @@ class Gateway(Broadcasts):
         return _all([locks[key] for key in sorted(locks)])
 
     def _judge(self, runtime: _AxisRuntime, axis: Axis, req: Request) -> Verdict:
-        """What this write of the trigger does (and the trigger's shadow updated)."""
+        """What this write of the trigger does (the shadow to take once the drive has it)."""
         rule = axis.registers.trigger
         assert rule is not None
         return judge(rule, runtime.trigger, req)

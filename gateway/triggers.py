@@ -5,7 +5,9 @@ trigger's config. A trigger is a holding register (FC06, FC16 blocks around it),
 field of two registers (``words: 2``, either word written counts), or a coil (FC05, FC15
 covering it). The router keeps, per axis, what the master last wrote to the trigger
 (:class:`TriggerShadow`), so a rising bit is an edge of what was written and a 32-bit value
-written one word at a time is judged whole.
+written one word at a time is judged whole. It takes the shadow a verdict gives only once
+the drive has the write: a trigger refused (a target out of travel, the drive's exception)
+leaves the edge still to come.
 """
 
 from __future__ import annotations
@@ -29,20 +31,22 @@ REGISTER_WRITES = frozenset({WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_REGISTERS,
 COIL_WRITES = frozenset({WRITE_SINGLE_COIL, WRITE_MULTIPLE_COILS})
 
 
-@dataclass
+@dataclass(frozen=True)
 class TriggerShadow:
     """What the master last wrote to an axis's trigger (0 before any write)."""
 
-    words: list[int] = field(default_factory=lambda: [0, 0])
+    words: tuple[int, int] = (0, 0)
     value: int = 0  # unsigned: 0..0xFFFF, 0..0xFFFFFFFF (words: 2) or 0/1 (a coil)
 
 
 @dataclass(frozen=True)
 class Verdict:
-    """What a write of the trigger does: ``fires`` starts a move, ``homes`` the homing."""
+    """What a write of the trigger does: ``fires`` starts a move, ``homes`` the homing;
+    ``shadow``: the trigger's shadow once the drive has the write."""
 
     fires: bool
     homes: bool
+    shadow: TriggerShadow = field(default_factory=TriggerShadow)
 
 
 def writes_trigger(rule: TriggerRegister | None, fc: int, start: int, count: int) -> bool:
@@ -55,26 +59,25 @@ def writes_trigger(rule: TriggerRegister | None, fc: int, start: int, count: int
 
 
 def judge(rule: TriggerRegister, shadow: TriggerShadow, req: Request) -> Verdict:
-    """The verdict on ``req``, a write that :func:`writes_trigger`; ``shadow`` is updated
-    with the words (or the coil) it writes."""
+    """The verdict on ``req``, a write that :func:`writes_trigger`, after ``shadow``."""
     start = req.write_address or 0
     previous = shadow.value
+    words = list(shadow.words)
     if rule.table == "coils":
         value = req.values[rule.address - start]
         mask = 1
     else:
         for offset in overlap(start, req.write_count, rule.address, rule.words):
-            shadow.words[offset] = req.values[rule.address + offset - start]
+            words[offset] = req.values[rule.address + offset - start]
         if rule.words == 1:
-            value, mask = shadow.words[0], 0xFFFF
+            value, mask = words[0], 0xFFFF
         else:
-            value = unpack_int32(shadow.words, rule.order, signed=False)
+            value = unpack_int32(words, rule.order, signed=False)
             mask = 0xFFFFFFFF
-    shadow.value = value
     if rule.rising_bit is not None:
         bit = 1 << rule.rising_bit
         fires = bool(value & bit) and not previous & bit
     else:
         fires = rule.value is None or value == rule.value & mask
     homes = rule.home_value is not None and value == rule.home_value & mask
-    return Verdict(fires, homes)
+    return Verdict(fires, homes, TriggerShadow((words[0], words[1]), value))
