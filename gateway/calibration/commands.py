@@ -223,6 +223,7 @@ def calibrate(
                 laser_axes=args.laser_axes.split(",") if args.laser_axes else None,
                 xy=Endpoint.parse(args.xy_device) if args.xy_device else None,
                 delta_a=Endpoint.parse(args.delta_a) if args.delta_a else None,
+                wait_stable=not args.no_wait_stable,
             ),
             MotionSettings(args.in_position_bit, args.moving_bit, args.alarm_bit,
                            args.in_position_pulses, args.timeout_s),
@@ -331,6 +332,8 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     i.add_argument("--laser-axes", metavar="X,Y", help="laser channel order (config order)")
     i.add_argument("--xy-device", metavar="HOST:PORT:UNIT", help="XY device: X at 0, Y at 2")
     i.add_argument("--delta-a", metavar="HOST:PORT:UNIT[:ADDR]", help="Δa sensor (int32 nm)")
+    i.add_argument("--no-wait-stable", action="store_true", help="read the laser / XY device "
+                   "at once (default: wait for their stable flags, 2N+k / 4-5)")  # fmt: skip
     i.add_argument("--join", metavar="FILE", help="offline: join a laser system's CSV export")
     m = p.add_argument_group("motion")
     m.add_argument("--compensation", choices=["off", "on"], default="off",
@@ -602,6 +605,9 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-a
     """Register the calibration subcommands on the `compgw` parser."""
     _add_calibrate(sub)
     _add_fit(sub)
+    from .commission_cli import add_parser as add_commission
+
+    add_commission(sub)
     from .export import add_arguments as export_args
     from .report import add_arguments as report_args
 

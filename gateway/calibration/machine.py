@@ -224,35 +224,68 @@ async def read_int32_mm(link: Link, unit: int, address: int, table: str = "input
     return unpack_int32(await link.read(unit, address, 2, table), "hi_lo") / NM_PER_MM
 
 
+#: how long a reading may wait for the instrument's stable flag (s), and how often it asks
+STABLE_TIMEOUT_S = 30.0
+STABLE_POLL_S = 0.002
+
+
+async def _stable_words(link: Link, unit: int, count: int, flags: Sequence[int],
+                        wait: bool) -> list[int]:
+    """Input registers 0..count-1 of an instrument, read when every flag register in
+    ``flags`` is 1 (the instrument's "stable": a table still ringing after a stop reads
+    off by the ringing). Value and flags come from one read, so they belong together."""
+    if not wait or not flags:
+        return await link.read(unit, 0, count, "input")
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + STABLE_TIMEOUT_S
+    while True:
+        words = await link.read(unit, 0, count, "input")
+        if all(words[f] == 1 for f in flags):
+            return words
+        if loop.time() > deadline:
+            raise MachineError(f"unit {unit}: reading not stable after {STABLE_TIMEOUT_S:g} s "
+                               f"(flag registers {flags}); --no-wait-stable if the instrument "
+                               "has no stable flag")  # fmt: skip
+        await asyncio.sleep(STABLE_POLL_S)
+
+
 @dataclass
 class Laser:
-    """Laser interferometer: one int32 nm reading per axis (axis k at registers 2k, 2k+1)."""
+    """Laser interferometer: one int32 nm reading per axis (axis k at registers 2k, 2k+1),
+    and per axis a stable flag (2N + k, N channels) that a reading waits for."""
 
     link: Link
     unit: int
     index: Mapping[str, int]
+    wait_stable: bool = True
 
     async def read_mm(self, axes: Sequence[str]) -> dict[str, float]:
-        out = {}
         for name in axes:
             if name not in self.index:
                 raise MachineError(f"laser: no channel for axis {name} ({', '.join(self.index)})")
-            out[name] = await read_int32_mm(self.link, self.unit, 2 * self.index[name])
-        return out
+        n = max(self.index.values()) + 1
+        flags = [2 * n + self.index[a] for a in axes]
+        words = await _stable_words(self.link, self.unit, 3 * n if self.wait_stable else 2 * n,
+                                    flags, self.wait_stable)  # fmt: skip
+        return {a: unpack_int32(words[2 * self.index[a] : 2 * self.index[a] + 2], "hi_lo")
+                / NM_PER_MM for a in axes}  # fmt: skip
 
 
 @dataclass
 class XYDevice:
-    """2-D measuring device: true positions of the plane's two axes (registers 0-3)."""
+    """2-D measuring device: true positions of the plane's two axes (registers 0-3) and
+    their stable flags (4, 5), which a reading waits for."""
 
     link: Link
     unit: int
     axes: tuple[str, str]
+    wait_stable: bool = True
 
     async def read_mm(self, axes: Sequence[str]) -> dict[str, float]:
-        words = await self.link.read(self.unit, 0, 4, "input")
+        words = await _stable_words(self.link, self.unit, 6 if self.wait_stable else 4,
+                                    [4, 5], self.wait_stable)  # fmt: skip
         values = dict(zip(self.axes, (unpack_int32(words[:2], "hi_lo") / NM_PER_MM,
-                                      unpack_int32(words[2:], "hi_lo") / NM_PER_MM)))  # fmt: skip
+                                      unpack_int32(words[2:4], "hi_lo") / NM_PER_MM)))  # fmt: skip
         missing = [a for a in axes if a not in values]
         if missing:
             raise MachineError(f"XY device measures {', '.join(self.axes)}, not {missing[0]}")

@@ -241,6 +241,38 @@ def iso230_linear_plan(
     targets = iso230_targets_mm((lo, hi), n_targets, step_mm, margin, seed, lead_mm)
     if verification:
         targets = verification_targets_mm(targets)
+    kind = "iso230-verification" if verification else "iso230-linear"
+    meta = _meta(
+        kind=kind, axis=axis, travel_mm=(lo, hi), n_targets=n_targets, step_mm=step_mm,
+        margin_mm=margin, overrun_mm=overrun_mm, runs=runs, seed=seed, lead_mm=lead_mm,
+    )  # fmt: skip
+    return Plan(kind, (axis,), _bidirectional_moves((lo, hi), targets, runs, overrun_mm,
+                                                    speed_mm_s, dwell_s), meta)  # fmt: skip
+
+
+def targets_plan(
+    axis: str, travel_mm: Sequence[float], targets_mm: Sequence[float], runs: int = 2,
+    overrun_mm: float = 1.0, kind: str = "iso230-verification", speed_mm_s: float | None = None,
+    **meta: object,
+) -> Plan:  # fmt: skip
+    """The ISO 230-2 cycle (``runs`` bidirectional runs, overrun past each end) over given
+    targets: verification and refinement targets chosen by someone else (sorted here)."""
+    lo, hi = _travel(travel_mm)
+    targets = _round(np.sort(np.asarray(targets_mm, dtype=np.float64)))
+    if targets.size == 0 or targets[0] < lo or targets[-1] > hi:
+        raise ValueError(f"targets must lie in the travel {lo:g}..{hi:g} mm")
+    info = _meta(kind=kind, axis=axis, travel_mm=(lo, hi), overrun_mm=overrun_mm, runs=runs,
+                 **meta)  # type: ignore[arg-type]  # fmt: skip
+    return Plan(kind, (axis,), _bidirectional_moves((lo, hi), targets, runs, overrun_mm,
+                                                    speed_mm_s, None), info)  # fmt: skip
+
+
+def _bidirectional_moves(travel: tuple[float, float], targets: NDArray[np.float64], runs: int,
+                         overrun_mm: float, speed_mm_s: float | None, dwell_s: float | None
+                         ) -> tuple[Move, ...]:
+    """Each run: the overrun point below the first target (approached in −), every target
+    going up (+), the overrun point past the last, every target going down (−)."""
+    lo, hi = travel
     below = float(_round(max(lo, targets[0] - overrun_mm)))
     above = float(_round(min(hi, targets[-1] + overrun_mm)))
     moves: list[Move] = []
@@ -251,12 +283,7 @@ def iso230_linear_plan(
         moves += [
             Move(j, -1, "measure", (float(t),), speed_mm_s, dwell_s) for t in targets[::-1]
         ]
-    kind = "iso230-verification" if verification else "iso230-linear"
-    meta = _meta(
-        kind=kind, axis=axis, travel_mm=(lo, hi), n_targets=n_targets, step_mm=step_mm,
-        margin_mm=margin, overrun_mm=overrun_mm, runs=runs, seed=seed, lead_mm=lead_mm,
-    )  # fmt: skip
-    return Plan(kind, (axis,), tuple(moves), meta)
+    return tuple(moves)
 
 
 # -- backlash (seed 000) ------------------------------------------------------------------

@@ -50,6 +50,8 @@ class Instruments:
     laser_axes: Sequence[str] | None = None
     xy: Endpoint | None = None
     delta_a: Endpoint | None = None
+    #: readings wait for the instrument's stable flag (see :class:`.machine.Laser`)
+    wait_stable: bool = True
 
 
 @dataclass
@@ -87,14 +89,15 @@ class Session:
     async def _measure_fn(self, plan: Plan, links: Links):  # type: ignore[no-untyped-def]
         ins = self.instruments
         if len(plan.axes) == 2 and ins.xy is not None:
-            dev = XYDevice(await links.get(*ins.xy.key), ins.xy.unit, tuple(plan.axes))  # type: ignore[arg-type]
+            dev = XYDevice(await links.get(*ins.xy.key), ins.xy.unit, tuple(plan.axes),  # type: ignore[arg-type]
+                           ins.wait_stable)
         elif ins.laser is not None:
             order = list(ins.laser_axes or self.config.axes)
-            dev = Laser(await links.get(*ins.laser.key), ins.laser.unit,
-                        {a: k for k, a in enumerate(order)})  # type: ignore[assignment]  # fmt: skip
+            dev = Laser(await links.get(*ins.laser.key), ins.laser.unit,  # type: ignore[assignment]
+                        {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
         elif ins.xy is not None:
             dev = XYDevice(await links.get(*ins.xy.key), ins.xy.unit, tuple(self.config.planar.axes)  # type: ignore[union-attr]
-                           if self.config.planar else ("X", "Y"))  # type: ignore[assignment]  # fmt: skip
+                           if self.config.planar else ("X", "Y"), ins.wait_stable)  # type: ignore[assignment]  # fmt: skip
         else:
             raise MachineError("no instrument: give --laser or --xy-device (or --join FILE)")
 

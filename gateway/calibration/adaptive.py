@@ -1,0 +1,164 @@
+"""Adaptive calibration, the pure part: how coarse to start, how to judge a verification
+run, where to refine, and the refined table (``compgw commission``; I/O in
+:mod:`.commission`).
+
+Judging happens where the machine will be used: at verification targets that were never
+used to fit anything (midpoints of the table's spans and seeded random targets). A
+verification residual that stands out of the machine's repeatability, from the run's own
+median, marks the table span it lies in as failing; failing spans get the midpoint as a
+new table point, whose value is the table's own value there plus the residual measured
+with compensation on (seed 001's fold, at a new point). Positions are mm, deviations mm
+unless the name says µm.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..compensation import PitchStage, PitchTable
+from .iso230 import iso230_axis
+from .rawdata import AxisDeviations
+
+#: the coarse table: about this many points over the travel, at least this far apart
+COARSE_POINTS = 21
+#: random verification targets per axis and round, besides the new spans' midpoints
+RANDOM_TARGETS = 16
+#: a table never gets points closer than this (mm): below it noise would set the slope
+MIN_SPACING_MM = 0.5
+
+
+def coarse_step_mm(travel_mm: Sequence[float], lead_mm: float | None = None) -> float:
+    """Nominal spacing of the first table: the travel in ``COARSE_POINTS`` − 1 steps, kept
+    clear of a whole number of leads by the plan (uneven spacing)."""
+    lo, hi = float(travel_mm[0]), float(travel_mm[1])
+    step = (hi - lo) / (COARSE_POINTS - 1)
+    if lead_mm:
+        turns = step / lead_mm
+        if abs(turns - round(turns)) < 0.1 and turns >= 0.5:
+            step = (round(turns) + 0.45) * lead_mm  # a step of whole leads aliases
+    return step
+
+
+def random_targets_mm(
+    travel_mm: Sequence[float], count: int, seed: int, avoid_mm: NDArray[np.float64],
+    margin_mm: float = 2.0, clearance_mm: float = 0.2,
+) -> NDArray[np.float64]:  # fmt: skip
+    """``count`` seeded random targets inside the travel, each at least ``clearance_mm``
+    from every position in ``avoid_mm`` (the table's points: never judged where fitted)."""
+    lo, hi = float(travel_mm[0]) + margin_mm, float(travel_mm[1]) - margin_mm
+    rng = np.random.default_rng(seed)
+    out: list[float] = []
+    for _ in range(200 * count):
+        if len(out) == count:
+            break
+        t = round(float(rng.uniform(lo, hi)), 4)
+        if avoid_mm.size == 0 or np.min(np.abs(avoid_mm - t)) >= clearance_mm:
+            out.append(t)
+    return np.sort(np.array(out))
+
+
+def midpoints_mm(positions_mm: NDArray[np.float64], spans: Sequence[int] | None = None
+                 ) -> NDArray[np.float64]:
+    """Midpoints of the table spans ``spans`` (indices i of [x_i, x_i+1]; all when None)
+    that are at least ``2 × MIN_SPACING_MM`` long."""
+    x = np.asarray(positions_mm, dtype=np.float64)
+    idx = np.arange(x.size - 1) if spans is None else np.asarray(sorted(set(spans)), dtype=int)
+    idx = idx[(x[idx + 1] - x[idx]) >= 2 * MIN_SPACING_MM] if idx.size else idx
+    return np.round(0.5 * (x[idx] + x[idx + 1]), 4)
+
+
+@dataclass(frozen=True)
+class AxisVerdict:
+    """What a verification run of one axis says (µm)."""
+
+    axis: str
+    E_um: float
+    A_um: float
+    R_um: float
+    #: largest |target mean − the run's median| over targets and directions
+    worst_um: float
+    #: what a target mean may differ by from noise alone (3 standard errors)
+    noise_um: float
+    #: spans of the table holding a target whose residual stands out
+    failing_spans: tuple[int, ...]
+    tolerance_um: float
+
+    @property
+    def within(self) -> bool:
+        return self.E_um <= self.tolerance_um
+
+    def to_json(self) -> dict[str, object]:
+        return {"E_um": self.E_um, "A_um": self.A_um, "R_um": self.R_um,
+                "worst_um": self.worst_um, "noise_um": self.noise_um,
+                "failing_spans": list(self.failing_spans), "within": self.within}  # fmt: skip
+
+
+def judge_axis(dev: AxisDeviations, table_mm: NDArray[np.float64], tolerance_um: float,
+               repeatability_sd_um: float | None = None) -> AxisVerdict:
+    """ISO 230-2 E, A, R of a verification run, and the table spans where its residual
+    stands out: by more than half the tolerance and more than 3 standard errors of a target
+    mean from the run's median (a constant offset moves no span)."""
+    iso = iso230_axis(dev)
+    means = []
+    runs = 1
+    for x in (dev.up_mm, dev.down_mm):
+        if x is not None:
+            means.append(np.nanmean(x, axis=1))
+            runs = max(runs, int(np.min(np.sum(np.isfinite(x), axis=1))))
+    m = np.column_stack(means) * 1e3  # µm, targets × directions
+    spread = m - np.median(m, axis=0)
+    sd = repeatability_sd_um
+    if sd is None:
+        sd = (iso.R_um or 0.0) / 4.0  # R = 4 s
+    noise = 3.0 * sd / math.sqrt(runs)
+    bad = np.flatnonzero(np.max(np.abs(spread), axis=1) > max(0.5 * tolerance_um, noise))
+    x = np.asarray(table_mm, dtype=np.float64)
+    spans = sorted({int(np.clip(np.searchsorted(x, dev.target_mm[k]) - 1, 0, x.size - 2))
+                    for k in bad})  # fmt: skip
+    return AxisVerdict(dev.axis, float(iso.E_um or 0.0), float(iso.A_um or 0.0),
+                       float(iso.R_um or 0.0), float(np.max(np.abs(spread))), float(noise),
+                       tuple(spans), tolerance_um)  # fmt: skip
+
+
+def refined_table(table: PitchTable, stage: PitchStage, dev: AxisDeviations) -> PitchTable:
+    """``table`` with a new point at each target of ``dev`` (measured with ``stage`` on):
+    the table's value there plus the mean residual, per direction. Targets closer than
+    ``MIN_SPACING_MM`` to an existing point are left out (a pair that close would let
+    noise set the slope)."""
+    x = table.position_mm
+    keep = np.array([np.min(np.abs(x - t)) >= MIN_SPACING_MM for t in dev.target_mm])
+    if not keep.any():
+        return table
+    p = dev.target_mm[keep]
+    cols = []
+    for direction, values, meas in ((1, table.forward_mm, dev.up_mm),
+                                    (-1, table.reverse_mm, dev.down_mm)):  # fmt: skip
+        if values is None:
+            cols.append(None)
+            continue
+        own = stage.inverse(p, np.full(p.size, direction)) - p  # e_t(p): the table's value
+        other = dev.down_mm if meas is None else meas  # one direction measured: use it
+        r = np.nanmean(other, axis=1)[keep]
+        cols.append((values, own + r))
+    pos = np.concatenate([x, p])
+    order = np.argsort(pos, kind="stable")
+    fwd = np.concatenate(cols[0])[order]  # type: ignore[index]
+    rev = None if cols[1] is None else np.concatenate(cols[1])[order]
+    return PitchTable(pos[order], fwd, rev, table.rotary, table.source)
+
+
+def worst_cell(points_mm: NDArray[np.float64], error_um: NDArray[np.float64]
+               ) -> tuple[float, float, float]:
+    """(x, y, |error| µm) of the largest vector error of an XY verification."""
+    k = int(np.argmax(error_um))
+    return float(points_mm[k, 0]), float(points_mm[k, 1]), float(error_um[k])
+
+
+def denser_grid(nx: int, ny: int, limit: int = 33) -> tuple[int, int]:
+    """The next XY grid: every cell split in two each way (at most ``limit`` per axis)."""
+    return min(2 * nx - 1, limit), min(2 * ny - 1, limit)

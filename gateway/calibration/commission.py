@@ -1,0 +1,617 @@
+"""``compgw commission``: one command from an uncalibrated machine to verified tables.
+
+The steps, each a plan run through the running gateway (readings appended and fsynced by
+:mod:`.runner`), each recorded in ``DIR/commission.json`` once done, so running the same
+command again after Ctrl-C, a crash or a power loss carries on where it stopped:
+
+1. identification config (no pitch, backlash, cyclic or planar stage) loaded; per axis a
+   warm-up for the thermal length (when the axis has a thermal source and a Δa sensor is
+   given), seed 000's backlash at three places, a coarse ISO 230-2 run, the cyclic scans
+   (when the lead is known), and the *before* verification run (random targets off the
+   table); the *before* XY run when the plane is commissioned;
+2. tables fitted (the joint pitch + cyclic fit), the *pitch* config loaded, the XY grid
+   measured and the planar model fitted (poly or grid by cross-validation), the *full*
+   config loaded;
+3. rounds of verification at targets never used for fitting (the new spans' midpoints and
+   fresh random targets): judged by ISO 230-2 E (XY: maximum vector error) against the
+   tolerance; where the residual stands out of the repeatability the span gets its
+   midpoint as a new table point (its value: the table's own plus the residual), a
+   failing plane a denser grid; until within tolerance, out of rounds, or out of budget;
+4. the *before* targets measured again with everything on (before / after on the same
+   points), the full config left loaded, the report written.
+
+The gateway is made to load each config by writing it over the config file it runs and
+asking it to reload (the status unit's reload register, or SIGHUP / a command). An abort
+puts the user's own config back, reloads it, and says so. Machine time is the plans'
+estimate (:func:`.plans.plan_time_s`): the same yardstick for any workflow.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from ..compensation import PitchStage
+from ..compensation.errors import TableError
+from ..config import GatewayConfig, load_config
+from ..config_types import read_yaml
+from ..formats import atomic_write_text, read_pitch_csv
+from . import adaptive
+from .commission_configs import HEADER, Tables, identification, with_tables
+from .fit import planar_measurement
+from .iso230 import iso230_axis
+from .machine import MachineError, MotionSettings
+from .models import thermal_fit
+from .outputs import (
+    fit_cyclic_raw,
+    fit_pitch,
+    fit_planar,
+    net_pitch,
+    save_cyclic,
+    save_pitch,
+    save_planar,
+)
+from .plans import (
+    Plan,
+    backlash_from_raw,
+    backlash_plan,
+    cyclic_plan,
+    iso230_linear_plan,
+    plan_time_s,
+    read_plan,
+    snap_to_pulses,
+    targets_plan,
+    warmup_plan,
+    write_plan,
+    xy_grid_plan,
+    xy_verification_plan,
+)
+from .rawdata import AxisDeviations, axis_deviations, read_raw_csv
+from .runner import read_raw_meta
+from .session import Instruments, Session, planar_figures
+
+STATE = "commission.json"
+Say = Callable[[str], None]
+Reload = Callable[[], Awaitable[None]]
+
+
+class BudgetSpent(Exception):
+    """The next step does not fit in the machine-time budget."""
+
+
+class CommissionAborted(Exception):
+    """Commissioning stopped; the message says where the gateway was left."""
+
+
+@dataclass
+class Settings:
+    """What the command line gives."""
+
+    config_path: Path
+    out_dir: Path
+    gateway: Any  # machine.Endpoint
+    instruments: Instruments
+    axes: tuple[str, ...]
+    planar: tuple[str, str] | None = None
+    lead_mm: dict[str, float] = field(default_factory=dict)
+    tolerance_um: float = 2.0
+    budget_s: float = 8 * 3600.0
+    speed_mm_s: float = 100.0
+    stop_s: float = 2.0
+    motion: MotionSettings = field(default_factory=MotionSettings)
+    seed: int = 0
+    max_rounds: int = 6
+    runs: int = 3  # coarse ISO runs
+    verify_runs: int = 2
+    warmup_s: float = 1800.0
+    grid: tuple[int, int] = (7, 5)
+
+
+class Commission:
+    """One commissioning, resumable from its state file."""
+
+    def __init__(self, settings: Settings, reload: Reload, say: Say = print,
+                 progress: Callable[[str, int, int], None] | None = None) -> None:
+        self.s = settings
+        self.reload_fn = reload
+        self.say = say
+        self.progress = progress
+        self.dir = settings.out_dir
+        self.config_dir = settings.config_path.resolve().parent
+        self.state_path = self.dir / STATE
+        self.state: dict[str, Any] = {"version": 1, "steps": {}, "rounds": [], "notes": []}
+        if self.state_path.exists():
+            self.state = json.loads(self.state_path.read_text())
+        self.original_path = self.dir / "original.yaml"
+        self.tables = Tables.from_json(self.state.get("tables", {}))
+        self.config: GatewayConfig = load_config(settings.config_path)
+
+    # -- state ---------------------------------------------------------------------------
+    def _save(self) -> None:
+        self.state["tables"] = self.tables.to_json()
+        self.dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(self.state_path, json.dumps(self.state, indent=1, default=float))
+
+    @property
+    def used_s(self) -> float:
+        return float(sum(step["machine_s"] for step in self.state["steps"].values()))
+
+    def _rel(self, path: Path) -> str:
+        return str(path.resolve().relative_to(self.config_dir)) if path.resolve().is_relative_to(
+            self.config_dir) else str(path.resolve())  # fmt: skip
+
+    # -- configs -------------------------------------------------------------------------
+    def original(self) -> dict[str, Any]:
+        """The user's config as it was before commissioning (kept in DIR/original.yaml)."""
+        if not self.original_path.exists():
+            self.dir.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(self.s.config_path, self.original_path)
+        return read_yaml(self.original_path, TableError)
+
+    def phase_config(self, phase: str) -> dict[str, Any]:
+        original = self.original()
+        if phase == "identification":
+            return identification(original, self.s.axes, self.tables)
+        return with_tables(original, self.s.axes, self.tables, planar=phase == "full")
+
+    def staged(self, phase: str) -> tuple[GatewayConfig, Path]:
+        """The phase's config written under DIR/configs (for the fits' paths and checks)."""
+        path = self.dir / "configs" / f"{phase}.yaml"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, yaml.safe_dump(self.phase_config(phase), sort_keys=False))
+        return load_config(path), path
+
+    async def use(self, phase: str) -> None:
+        """Write the phase's config over the gateway's config file and have it reload."""
+        text = HEADER.format(phase=phase, original=self._rel(self.original_path))
+        text += yaml.safe_dump(self.phase_config(phase), sort_keys=False)
+        atomic_write_text(self.s.config_path, text)
+        await self.reload_fn()
+        self.state["phase"] = phase
+        self._save()
+
+    async def restore(self) -> str:
+        """Put the user's own config back and have the gateway load it; says what happened."""
+        if not self.original_path.exists():
+            return "the gateway's config file was not changed"
+        shutil.copyfile(self.original_path, self.s.config_path)
+        self.state["phase"] = "original"
+        self._save()
+        try:
+            await self.reload_fn()
+        except Exception as exc:  # the gateway may be down: it loads the file at its start
+            return (f"your own config is back in {self.s.config_path} (the gateway did not "
+                    f"reload it: {exc}; it loads it when it starts)")  # fmt: skip
+        return f"the gateway runs your own config again ({self.s.config_path})"
+
+    # -- steps ---------------------------------------------------------------------------
+    def _snap(self, plan: Plan) -> Plan:
+        return snap_to_pulses(plan, {n: a.pulse_mm for n, a in self.config.axes.items()})
+
+    def _check_limits(self, plan: Plan) -> None:
+        for move in plan.moves:
+            for name, target in zip(plan.axes, move.target_mm):
+                lo, hi = self.config.axes[name].travel_mm
+                if not lo <= target <= hi:
+                    raise TableError(f"plan {plan.kind}: axis {name} target {target:g} mm is "
+                                     f"outside the soft limits {lo:g}..{hi:g} mm")  # fmt: skip
+
+    def estimate_s(self, plan: Plan) -> float:
+        return plan_time_s(plan, self.s.speed_mm_s, self.s.stop_s)
+
+    def done(self, name: str) -> bool:
+        return name in self.state["steps"]
+
+    async def step(self, name: str, make: Callable[[], Plan], compensation: str,
+                   park: dict[str, float] | None = None) -> Path:
+        """Run the plan ``make()`` as step ``name`` (once: a done step is skipped; a step
+        begun resumes from its raw file with its saved plan); its raw file."""
+        raw = self.dir / "raw" / f"{name}.csv"
+        if self.done(name):
+            return raw
+        plan_path = self.dir / "plans" / f"{name}.plan"
+        if plan_path.exists():
+            plan = read_plan(plan_path)
+        else:
+            plan = self._snap(make())
+            self._check_limits(plan)
+            plan_path.parent.mkdir(parents=True, exist_ok=True)
+            write_plan(plan_path, plan)
+        cost_s = self.estimate_s(plan)
+        if self.used_s + cost_s > self.s.budget_s:
+            raise BudgetSpent(f"{name} needs {cost_s / 60:.1f} min of machine time, "
+                              f"{max(0.0, self.s.budget_s - self.used_s) / 60:.1f} min left")
+        raw.parent.mkdir(parents=True, exist_ok=True)
+        self.say(f"{name}: {sum(m.measured for m in plan.moves)} readings, "
+                 f"{cost_s / 60:.1f} min of machine time ({compensation})")
+        session = Session(self.config, self.config_dir, self.s.gateway, self.s.instruments,
+                          self.s.motion, park or {})  # fmt: skip
+        if self.progress is not None:
+            session.progress = lambda k, n: self.progress(name, k, n)  # type: ignore[misc]
+        await session.run(plan, raw, compensation)
+        self.state["steps"][name] = {"machine_s": cost_s, "raw": self._rel(raw)}
+        self._save()
+        return raw
+
+    def _park(self, axis: str) -> dict[str, float]:
+        """Where the other plane axis stands while ``axis`` is measured: its lower end."""
+        if self.s.planar is None or axis not in self.s.planar:
+            return {}
+        other = self.s.planar[1] if axis == self.s.planar[0] else self.s.planar[0]
+        return {other: float(self.config.axes[other].travel_mm[0])}
+
+    def _travel(self, axis: str) -> tuple[float, float]:
+        lo, hi = self.config.axes[axis].travel_mm
+        return float(lo), float(hi)
+
+    # -- the whole thing -----------------------------------------------------------------
+    def initial_plans(self) -> list[tuple[str, Plan]]:
+        """The steps before any adaptation, for the printed plan and its estimate."""
+        out: list[tuple[str, Plan]] = []
+        for a in self.s.axes:
+            travel = self._travel(a)
+            if self._thermal(a):
+                out.append((f"warmup-{a}", self._warmup_plan(a)))
+            out.append((f"backlash-{a}", backlash_plan(a, travel)))
+            out.append((f"iso-{a}", self._iso_plan(a)))
+            if a in self.s.lead_mm:
+                out.append((f"cyclic-{a}", cyclic_plan(a, travel, self.s.lead_mm[a])))
+        if self.s.planar is not None:
+            out.append(("xy-grid", self._grid_plan(self.s.grid)))
+        return [(n, self._snap(p)) for n, p in out]
+
+    def _thermal(self, axis: str) -> bool:
+        th = self.config.axes[axis].compensation.thermal
+        return th is not None and self.s.instruments.delta_a is not None
+
+    def _warmup_plan(self, axis: str) -> Plan:
+        lo, hi = self._travel(axis)
+        margin = 0.05 * (hi - lo)
+        return warmup_plan(axis, (lo + margin, hi - margin), self.s.speed_mm_s,
+                           self.s.warmup_s, hi - margin)  # fmt: skip
+
+    def _iso_plan(self, axis: str) -> Plan:
+        lead = self.s.lead_mm.get(axis)
+        return iso230_linear_plan(axis, self._travel(axis),
+                                  step_mm=adaptive.coarse_step_mm(self._travel(axis), lead),
+                                  runs=self.s.runs, overrun_mm=1.0, lead_mm=lead,
+                                  seed=self.s.seed)  # fmt: skip
+
+    def _grid_plan(self, grid: tuple[int, int], runs: int = 2) -> Plan:
+        assert self.s.planar is not None
+        ax, ay = self.s.planar
+        (x0, x1), (y0, y1) = self._travel(ax), self._travel(ay)
+        return xy_grid_plan((x0 + 2, x1 - 2), (y0 + 2, y1 - 2), grid[0], grid[1], (ax, ay),
+                            runs=runs, approach_mm=1.0, lower_mm=(x0, y0))  # fmt: skip
+
+    def _xy_check_plan(self, seed: int, grid: tuple[int, int]) -> Plan:
+        assert self.s.planar is not None
+        ax, ay = self.s.planar
+        (x0, x1), (y0, y1) = self._travel(ax), self._travel(ay)
+        return xy_verification_plan((x0 + 2, x1 - 2), (y0 + 2, y1 - 2), grid[0], grid[1],
+                                    (ax, ay), mode="random", count=adaptive.RANDOM_TARGETS,
+                                    seed=seed, approach_mm=1.0, lower_mm=(x0, y0))  # fmt: skip
+
+    def print_plan(self) -> float:
+        """Say what will be measured first and its machine time; returns that time (s)."""
+        total = 0.0
+        self.say(f"commissioning {', '.join(self.s.axes)}"
+                 f"{' and the plane ' + '/'.join(self.s.planar) if self.s.planar else ''}: "
+                 f"tolerance {self.s.tolerance_um:g} µm between the points, budget "
+                 f"{self.s.budget_s / 3600:.2f} h of machine time")  # fmt: skip
+        for name, plan in self.initial_plans():
+            self._check_limits(plan)
+            t = self.estimate_s(plan)
+            total += t
+            self.say(f"  {name:<14} {sum(m.measured for m in plan.moves):>5} readings "
+                     f"{len(plan.moves):>5} moves {t / 60:>7.1f} min")  # fmt: skip
+        self.say(f"  then verification rounds (before, each round, after) within the budget; "
+                 f"first steps: {total / 3600:.2f} h at {self.s.speed_mm_s:g} mm/s and "
+                 f"{self.s.stop_s:g} s per reading")  # fmt: skip
+        return total
+
+    async def run(self) -> dict[str, Any]:
+        """Commission; returns the summary (also in DIR/summary.json). Raises
+        CommissionAborted (after restoring the user's config) on a machine fault."""
+        self.original()
+        try:
+            await self._identify()
+            await self._fit_axes()
+            await self._plane()
+            outcome = await self._rounds()
+        except BudgetSpent as exc:
+            self.state["notes"].append(f"budget spent: {exc}")
+            self.say(f"budget spent: {exc}")
+            outcome = "budget"
+        except (MachineError, OSError) as exc:
+            where = await self.restore()
+            raise CommissionAborted(f"{exc}; {where}") from exc
+        try:
+            await self._after()
+        except BudgetSpent as exc:
+            self.state["notes"].append(f"no after-run: {exc}")
+        if self.tables.pitch:
+            await self.use("full")
+        else:
+            self.say(await self.restore())
+        summary = self.summary(outcome)
+        atomic_write_text(self.dir / "summary.json", json.dumps(summary, indent=1))
+        return summary
+
+    # -- 1. identification ---------------------------------------------------------------
+    async def _identify(self) -> None:
+        await self.use("identification")
+        results = self.state.setdefault("identify", {})
+        for a in self.s.axes:
+            travel = self._travel(a)
+            if self._thermal(a) and a not in self.tables.thermal_length_mm:
+                raw = await self.step(f"warmup-{a}", lambda a=a: self._warmup_plan(a), "off")
+                th = self.config.axes[a].compensation.thermal
+                assert th is not None
+                tf = thermal_fit(read_raw_csv(raw), a, th.origin_mm, th.length_mm)
+                self.tables.thermal_length_mm[a] = float(tf.length_mm)
+                results[f"thermal-{a}"] = {"length_mm": tf.length_mm,
+                                           "growth_max_um": tf.growth_max_um,
+                                           "residual_rms_um": tf.residual_rms_um}  # fmt: skip
+                await self.use("identification")  # with the length
+            raw = await self.step(f"backlash-{a}", lambda a=a, t=travel: backlash_plan(a, t),
+                                  "off", self._park(a))  # fmt: skip
+            b = backlash_from_raw(read_raw_csv(raw), a)
+            results[f"backlash-{a}"] = {"B_um": b.backlash_mm * 1e3,
+                                        "places_um": [m * 1e3 for m in b.mean_mm]}  # fmt: skip
+            await self.step(f"iso-{a}", lambda a=a: self._iso_plan(a), "off", self._park(a))
+            if a in self.s.lead_mm:
+                await self.step(f"cyclic-{a}", lambda a=a, t=travel: cyclic_plan(
+                    a, t, self.s.lead_mm[a]), "off", self._park(a))  # fmt: skip
+            await self.step(f"before-{a}", lambda a=a: self._before_plan(a), "off",
+                            self._park(a))  # fmt: skip
+        if self.s.planar is not None:
+            await self.step("before-xy", lambda: self._xy_check_plan(10_000 + self.s.seed,
+                                                                    self.s.grid), "off")
+        self._save()
+
+    def _before_plan(self, axis: str) -> Plan:
+        """The targets judged before and after: random, off the coarse table's points."""
+        table = self._iso_targets(axis)
+        targets = adaptive.random_targets_mm(self._travel(axis), 2 * adaptive.RANDOM_TARGETS,
+                                             1000 + self.s.seed, table)  # fmt: skip
+        return targets_plan(axis, self._travel(axis), targets, self.s.verify_runs,
+                            kind="iso230-verification", note="before-after")  # fmt: skip
+
+    def _iso_targets(self, axis: str) -> np.ndarray:
+        return read_plan(self.dir / "plans" / f"iso-{axis}.plan").targets_mm(axis)
+
+    # -- 2. fit, XY ----------------------------------------------------------------------
+    async def _fit_axes(self) -> None:
+        if all(a in self.tables.pitch for a in self.s.axes):
+            return
+        tables_dir = self.dir / "tables"
+        tables_dir.mkdir(parents=True, exist_ok=True)
+        for a in self.s.axes:
+            self.tables.pitch[a] = self._rel(tables_dir / f"{a.lower()}_pitch.csv")
+            if a in self.s.lead_mm:
+                self.tables.cyclic[a] = self._rel(tables_dir / f"{a.lower()}_cyclic.yaml")
+        config, _ = self.staged("pitch")
+        for a in self.s.axes:
+            model = None
+            if a in self.s.lead_mm:
+                raw_c = self.dir / "raw" / f"cyclic-{a}.csv"
+                cr = fit_cyclic_raw(read_raw_csv(raw_c), read_raw_meta(raw_c), config,
+                                    self.config_dir, a)  # fmt: skip
+                save_cyclic(cr, "compgw commission: dense scans")
+                model = cr.model
+                self.state.setdefault("identify", {})[f"cyclic-{a}"] = {
+                    "harmonics": cr.fit.harmonics, "peak_um": cr.model.peak_mm() * 1e3}
+            r = fit_pitch(read_raw_csv(self.dir / "raw" / f"iso-{a}.csv"), config,
+                          self.config_dir, a, mode="bidirectional", reversal_degree=2)  # fmt: skip
+            if model is not None:
+                r = net_pitch(r, model, config)
+            save_pitch(r, "compgw commission: coarse ISO 230-2 run" +
+                       (", net of the cyclic term" if model is not None else ""))  # fmt: skip
+            self.state.setdefault("spans", {})[a] = []  # every span is new: all verified
+        self._save()
+        await self.use("pitch")
+
+    async def _plane(self) -> None:
+        if self.s.planar is None or self.tables.planar_model is not None:
+            return
+        raw = await self.step("xy-grid", lambda: self._grid_plan(self.s.grid), "on")
+        self.tables.planar_axes = self.s.planar
+        self.tables.planar_model = self._rel(self.dir / "tables" / "xy_model.yaml")
+        config, _ = self.staged("full")
+        self._fit_plane(config, raw, residual=False)
+        self.state["grid"] = list(self.s.grid)
+        self._save()
+        await self.use("full")
+
+    def _fit_plane(self, config: GatewayConfig, raw: Path, residual: bool) -> None:
+        assert self.s.planar is not None
+        meas = planar_measurement(read_raw_csv(raw), self.s.planar)
+        ax, ay = self.s.planar
+        lines = {ax: self._park(ax)[ay], ay: self._park(ay)[ax]}
+        res = fit_planar(meas, config, self.config_dir, "auto", residual, lines)
+        save_planar(res, "compgw commission")
+        self.state.setdefault("planar_fits", []).append(
+            {"kind": res.choice.kind, "pinned": res.choice.pinned,
+             "loo_rms_um": res.choice.loo_rms_um, "residual": residual})  # fmt: skip
+
+    # -- 3. verification rounds ----------------------------------------------------------
+    async def _rounds(self) -> str:
+        await self.use("full" if self.tables.planar_model else "pitch")
+        rounds = self.state["rounds"]
+        while len(rounds) < self.s.max_rounds:
+            r = len(rounds) + 1
+            verdicts, xy = await self._verify(r)
+            entry = {"round": r, "axes": {a: v.to_json() for a, v in verdicts.items()},
+                     "xy": xy, "machine_s": self.used_s}  # fmt: skip
+            failing = [a for a, v in verdicts.items() if not v.within]
+            xy_bad = xy is not None and xy["max_um"] > self.s.tolerance_um
+            self.say(f"round {r}: " + "; ".join(
+                f"{a} E {v.E_um:.2f} A {v.A_um:.2f} R {v.R_um:.2f} µm"
+                for a, v in verdicts.items()) + (f"; XY max {xy['max_um']:.2f} µm" if xy else
+                                                 ""))  # fmt: skip
+            if not failing and not xy_bad:
+                entry["outcome"] = "within"
+                rounds.append(entry)
+                self._save()
+                self.say(f"round {r}: within {self.s.tolerance_um:g} µm between the points")
+                return "within"
+            added = {}
+            for a in failing:
+                added[a] = await self._refine_axis(r, a, verdicts[a])
+            if xy_bad:
+                entry["grid"] = list(await self._refine_plane(r))
+            entry["added"] = added
+            rounds.append(entry)
+            self._save()
+            if not any(added.values()) and not xy_bad:
+                self.say(f"round {r}: nothing left to refine where it misses (repeatability "
+                         "or structure below the table's resolution)")  # fmt: skip
+                return "floor"
+            await self.use("full" if self.tables.planar_model else "pitch")
+        return "rounds"
+
+    def _verify_targets(self, r: int, axis: str) -> np.ndarray:
+        table = read_pitch_csv(self.config_dir / self.tables.pitch[axis]).position_mm
+        spans = self.state.get("spans", {}).get(axis) or None  # None: all spans new
+        mids = adaptive.midpoints_mm(table, spans)
+        rand = adaptive.random_targets_mm(self._travel(axis), adaptive.RANDOM_TARGETS,
+                                          100 * r + self.s.seed, table)  # fmt: skip
+        targets = np.unique(np.concatenate([mids, rand]))
+        return targets
+
+    async def _verify(self, r: int) -> tuple[dict[str, adaptive.AxisVerdict], dict | None]:
+        verdicts = {}
+        for a in self.s.axes:
+            raw = await self.step(f"verify{r}-{a}", lambda a=a: targets_plan(
+                a, self._travel(a), self._verify_targets(r, a), self.s.verify_runs,
+                kind="iso230-verification", round=r), "on", self._park(a))  # fmt: skip
+            table = read_pitch_csv(self.config_dir / self.tables.pitch[a]).position_mm
+            verdicts[a] = adaptive.judge_axis(axis_deviations(read_raw_csv(raw), a), table,
+                                              self.s.tolerance_um, self._sd_um(a))  # fmt: skip
+        xy = None
+        if self.s.planar is not None:
+            grid = tuple(self.state.get("grid", self.s.grid))
+            raw = await self.step(f"verify{r}-xy", lambda: self._xy_check_plan(r, grid), "on")
+            xy = planar_figures(raw, self.s.planar)
+        return verdicts, xy
+
+    def _sd_um(self, axis: str) -> float:
+        """The axis's repeatability (standard deviation, µm) from the coarse ISO run."""
+        iso = iso230_axis(axis_deviations(read_raw_csv(self.dir / "raw" / f"iso-{axis}.csv"),
+                                          axis))  # fmt: skip
+        return float(iso.R_um or 0.0) / 4.0
+
+    async def _refine_axis(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> int:
+        """New table points at the midpoints of the failing spans; their values from the
+        residual measured there with the table on (measured now where not yet). Returns
+        how many points were added."""
+        path = self.config_dir / self.tables.pitch[axis]
+        table = read_pitch_csv(path)
+        mids = adaptive.midpoints_mm(table.position_mm, verdict.failing_spans)
+        if mids.size == 0:
+            return 0
+        raw = await self.step(f"refine{r}-{axis}", lambda: targets_plan(
+            axis, self._travel(axis), mids, self.s.verify_runs, kind="iso230-refine",
+            round=r), "on", self._park(axis))  # fmt: skip
+        dev = axis_deviations(read_raw_csv(raw), axis)
+        stage = PitchStage(table, "linear")
+        new = adaptive.refined_table(table, stage, dev)
+        config, _ = self.staged("full" if self.tables.planar_model else "pitch")
+        try:
+            from .outputs import check_pitch, write_table
+
+            check_pitch(new, config, axis)
+        except Exception as exc:  # a refinement the gateway would refuse: keep the table
+            self.state["notes"].append(f"{axis}: refinement {r} not applied: {exc}")
+            return 0
+        write_table(path, "csv", new, f"compgw commission: refined in round {r}")
+        added = int(new.position_mm.size - table.position_mm.size)
+        x = new.position_mm
+        self.state.setdefault("spans", {})[axis] = [
+            int(i) for i in range(x.size - 1)
+            if np.any(np.isclose(x[i], mids, atol=1e-6)) or np.any(np.isclose(x[i + 1], mids,
+                                                                              atol=1e-6))]
+        return added
+
+    async def _refine_plane(self, r: int) -> tuple[int, int]:
+        grid = adaptive.denser_grid(*tuple(self.state.get("grid", self.s.grid)))
+        raw = await self.step(f"refine{r}-xy", lambda: self._grid_plan(grid, runs=1), "on")
+        config, _ = self.staged("full")
+        self._fit_plane(config, raw, residual=True)
+        self.state["grid"] = list(grid)
+        return grid
+
+    # -- 4. after ------------------------------------------------------------------------
+    async def _after(self) -> None:
+        if not self.tables.pitch:
+            return
+        await self.use("full" if self.tables.planar_model else "pitch")
+        for a in self.s.axes:
+            plan = read_plan(self.dir / "plans" / f"before-{a}.plan")
+            await self.step(f"after-{a}", lambda p=plan: p, "on", self._park(a))
+        if self.s.planar is not None:
+            plan = read_plan(self.dir / "plans" / "before-xy.plan")
+            await self.step("after-xy", lambda: plan, "on")
+
+    # -- summary -------------------------------------------------------------------------
+    def summary(self, outcome: str) -> dict[str, Any]:
+        out: dict[str, Any] = {"outcome": outcome, "tolerance_um": self.s.tolerance_um,
+                               "machine_h": self.used_s / 3600,
+                               "budget_h": self.s.budget_s / 3600, "axes": {},
+                               "rounds": self.state["rounds"], "notes": self.state["notes"],
+                               "identify": self.state.get("identify", {}),
+                               "config": str(self.s.config_path)}  # fmt: skip
+        for a in self.s.axes:
+            entry: dict[str, Any] = {}
+            for phase in ("before", "after"):
+                raw = self.dir / "raw" / f"{phase}-{a}.csv"
+                if raw.exists() and self.done(f"{phase}-{a}"):
+                    iso = iso230_axis(axis_deviations(read_raw_csv(raw), a))
+                    entry[phase] = {"E_um": iso.E_um, "A_um": iso.A_um, "R_um": iso.R_um,
+                                    "B_um": iso.B_um, "M_um": iso.M_um}  # fmt: skip
+            if a in self.tables.pitch:
+                entry["table_points"] = int(read_pitch_csv(
+                    self.config_dir / self.tables.pitch[a]).position_mm.size)
+            out["axes"][a] = entry
+        if self.s.planar is not None:
+            xy: dict[str, Any] = {}
+            for phase in ("before", "after"):
+                raw = self.dir / "raw" / f"{phase}-xy.csv"
+                if raw.exists() and self.done(f"{phase}-xy"):
+                    xy[phase] = planar_figures(raw, self.s.planar)
+            out["xy"] = xy
+        return out
+
+
+def parse_leads(text: str | None, axes: Sequence[str]) -> dict[str, float]:
+    """``10`` (every axis) or ``X=10,Y=5`` → {axis: lead mm}."""
+    if not text:
+        return {}
+    if "=" not in text:
+        lead = float(text)
+        if not (math.isfinite(lead) and lead > 0):
+            raise ValueError(f"--lead-mm {text!r} must be > 0")
+        return dict.fromkeys(axes, lead)
+    out = {}
+    for item in text.split(","):
+        name, _, value = item.partition("=")
+        if name.strip() not in axes:
+            raise ValueError(f"--lead-mm {item!r}: {name.strip()!r} is not a commissioned axis")
+        out[name.strip()] = float(value)
+    return out
+
+
+def dev_subset(dev: AxisDeviations, keep: np.ndarray) -> AxisDeviations:
+    """The targets ``keep`` (a boolean mask) of ``dev``."""
+    return AxisDeviations(dev.axis, dev.target_mm[keep], dev.runs,
+                          None if dev.up_mm is None else dev.up_mm[keep],
+                          None if dev.down_mm is None else dev.down_mm[keep], dev.source)

@@ -1,0 +1,255 @@
+"""`compgw commission`: argument handling, the gateway reload, progress and printing (the
+work is :mod:`.commission`)."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import shlex
+import signal
+import subprocess
+import sys
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+
+from ..compensation.errors import CompensationError, TableError
+from ..config import ConfigError, GatewayConfig, load_config
+
+EXIT_OK, EXIT_NOT_MET, EXIT_USAGE, EXIT_RUNTIME = 0, 1, 2, 3
+
+HELP = """\
+Commission a machine with one command: identification, fit, verification between the
+points, refinement where the verification misses, until --tolerance-um is met there or the
+--budget-h of machine time is spent; then the report. The gateway must be running the
+config given with -c: commissioning writes its own configs over that file (yours is kept
+in DIR/original.yaml) and makes the gateway reload each: through the status unit's reload
+register (needs status.remote_control: true), or --reload-pid PID (SIGHUP) or
+--reload-cmd CMD. An abort puts your config back. Run the same command again to resume.
+Exit 0: within tolerance; 1: not met (budget, rounds, repeatability: see the report) or
+bad input; 3: the machine or gateway failed."""
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser("commission", help="identify, fit, verify and refine until within "
+                       "tolerance: one command", description=HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    p.add_argument("-c", "--config", required=True, help="the config the gateway runs")
+    p.add_argument("--gateway", metavar="HOST:PORT",
+                   help="the running gateway (default: the config's upstream.tcp)")
+    p.add_argument("--laser", metavar="HOST:PORT:UNIT", help="laser interferometer")
+    p.add_argument("--laser-axes", metavar="X,Y", help="laser channel order")
+    p.add_argument("--xy-device", metavar="HOST:PORT:UNIT", help="XY measuring device: "
+                   "the plane is commissioned too")  # fmt: skip
+    p.add_argument("--delta-a", metavar="HOST:PORT:UNIT[:ADDRESS]",
+                   help="Δa sensor: a warm-up fits the thermal length of axes with a "
+                   "thermal source")  # fmt: skip
+    p.add_argument("--no-wait-stable", action="store_true", help="read the instruments at "
+                   "once (they have no stable flag)")  # fmt: skip
+    p.add_argument("--axes", metavar="X,Y", help="axes to commission (default: all)")
+    p.add_argument("--plane", metavar="X,Y", help="the plane's axes (default: the planar "
+                   "section's, else the first two axes) when --xy-device is given")
+    p.add_argument("--lead-mm", metavar="L or X=L,Y=L",
+                   help="screw lead: adds the cyclic stage (dense scans)")
+    p.add_argument("--tolerance-um", type=float, default=2.0, metavar="T",
+                   help="ISO 230-2 E (XY: max vector error) between the points (2)")
+    p.add_argument("--budget-h", type=float, default=8.0, metavar="H",
+                   help="machine time at most (8 h, plan estimate)")
+    p.add_argument("--out", metavar="DIR", help="working directory (default: "
+                   "commission/ beside the config)")  # fmt: skip
+    p.add_argument("--max-rounds", type=int, default=6)
+    p.add_argument("--warmup-min", type=float, default=30.0, help="warm-up length (30)")
+    p.add_argument("--seed", type=int, default=0, help="random verification targets")
+    p.add_argument("--dry-run", action="store_true", help="print the plan and stop")
+    p.add_argument("--reload-pid", type=int, metavar="PID", help="reload by SIGHUP")
+    p.add_argument("--reload-cmd", metavar="CMD", help="reload by a command")
+    p.add_argument("--estimate-speed-mm-s", type=float, default=100.0)
+    p.add_argument("--estimate-stop-s", type=float, default=2.0)
+    p.add_argument("--in-position-bit", type=int, default=4)
+    p.add_argument("--moving-bit", type=int, default=2)
+    p.add_argument("--alarm-bit", type=int, default=0)
+    p.add_argument("--in-position-pulses", type=float, default=2.0)
+    p.add_argument("--timeout-s", type=float, default=120.0)
+    p.add_argument("--progress", action="store_true", help="progress bar even off a terminal")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=main)
+
+
+def _err(message: object) -> None:
+    print(f"compgw commission: {message}", file=sys.stderr)
+
+
+def gateway_endpoint(args: argparse.Namespace, config: GatewayConfig):  # type: ignore[no-untyped-def]
+    from .machine import Endpoint
+
+    if args.gateway:
+        return Endpoint.parse(args.gateway)
+    tcp = config.upstream.tcp
+    if tcp is None or not tcp.port:
+        raise TableError("--gateway HOST:PORT is needed (the config has no fixed "
+                         "upstream.tcp port)")  # fmt: skip
+    host = {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(tcp.host, tcp.host)
+    return Endpoint.parse(f"{host}:{tcp.port}")
+
+
+def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
+                ) -> Callable[[], Awaitable[None]]:  # type: ignore[no-untyped-def]
+    """How the gateway is made to load its config file again, checked by the status
+    unit's config generation (a refused config is an error naming why to look)."""
+    from pymodbus.client import AsyncModbusTcpClient
+
+    from ..frames import unpack_int32
+    from ..status import GENERATION_REGISTER, RELOAD_REGISTER
+    from .machine import MachineError
+
+    unit = config.status.upstream_unit
+
+    async def generation(client: AsyncModbusTcpClient) -> tuple[int, int]:
+        rr = await client.read_input_registers(GENERATION_REGISTER, count=3, device_id=unit)
+        if rr.isError():
+            raise MachineError(f"the gateway's status unit {unit} answered {rr}")
+        return unpack_int32(rr.registers[:2], "hi_lo", signed=False), rr.registers[2]
+
+    async def reload() -> None:
+        client = AsyncModbusTcpClient(gateway.host, port=gateway.port, timeout=5, retries=0)
+        if not await client.connect():
+            raise MachineError(f"no gateway at {gateway.host}:{gateway.port}")
+        try:
+            before, _ = await generation(client)
+            if args.reload_pid or args.reload_cmd:
+                if args.reload_pid:
+                    os.kill(args.reload_pid, signal.SIGHUP)
+                else:
+                    subprocess.run(shlex.split(args.reload_cmd), check=True)
+                for _ in range(200):
+                    now, refused = await generation(client)
+                    if now != before or refused:
+                        break
+                    await asyncio.sleep(0.05)
+            else:
+                rr = await client.write_register(RELOAD_REGISTER, 1, device_id=unit)
+                if rr.isError() and rr.exception_code == 0x01:
+                    raise MachineError("the gateway refuses to reload over Modbus: set "
+                                       "status.remote_control: true, or give --reload-pid or "
+                                       "--reload-cmd")  # fmt: skip
+            now, refused = await generation(client)
+            if now == before:
+                why = "refused the config (see its log)" if refused else "did not reload"
+                raise MachineError(f"the gateway {why}")
+        finally:
+            client.close()
+
+    return reload
+
+
+def main(args: argparse.Namespace) -> int:
+    from .commission import Commission, CommissionAborted, Settings, parse_leads
+    from .commission_report import write as write_report
+    from .machine import Endpoint, MachineError, MotionSettings
+    from .session import Instruments
+
+    try:
+        config_path = Path(args.config)
+        config = load_config(config_path)
+        axes = tuple(args.axes.split(",")) if args.axes else tuple(config.axes)
+        for a in axes:
+            if a not in config.axes:
+                raise TableError(f"--axes: {a!r} is not an axis of {config_path}")
+        plane = None
+        if args.xy_device:
+            names = (args.plane.split(",") if args.plane else
+                     list(config.planar.axes) if config.planar else list(axes[:2]))  # fmt: skip
+            if len(names) != 2 or any(n not in axes for n in names):
+                raise TableError(f"--plane {','.join(names)}: two commissioned axes")
+            plane = (names[0], names[1])
+        if args.laser is None:
+            raise TableError("--laser HOST:PORT:UNIT is required (the axes' instrument)")
+        gateway = gateway_endpoint(args, config)
+        settings = Settings(
+            config_path=config_path,
+            out_dir=Path(args.out) if args.out else config_path.resolve().parent / "commission",
+            gateway=gateway,
+            instruments=Instruments(
+                laser=Endpoint.parse(args.laser),
+                laser_axes=args.laser_axes.split(",") if args.laser_axes else None,
+                xy=Endpoint.parse(args.xy_device) if args.xy_device else None,
+                delta_a=Endpoint.parse(args.delta_a) if args.delta_a else None,
+                wait_stable=not args.no_wait_stable,
+            ),
+            axes=axes, planar=plane, lead_mm=parse_leads(args.lead_mm, axes),
+            tolerance_um=args.tolerance_um, budget_s=args.budget_h * 3600.0,
+            speed_mm_s=args.estimate_speed_mm_s, stop_s=args.estimate_stop_s,
+            motion=MotionSettings(args.in_position_bit, args.moving_bit, args.alarm_bit,
+                                  args.in_position_pulses, args.timeout_s),
+            seed=args.seed, max_rounds=args.max_rounds, warmup_s=args.warmup_min * 60.0,
+        )  # fmt: skip
+        reload = make_reload(args, config, gateway)
+        job = Commission(settings, reload, print, None)
+        job.print_plan()
+    except (ConfigError, TableError, CompensationError, ValueError, OSError) as exc:
+        _err(exc)
+        return EXIT_NOT_MET
+    if args.dry_run:
+        return EXIT_OK
+
+    async def body() -> dict:  # type: ignore[type-arg]
+        from .commands import _progress_bar
+
+        bar = _progress_bar((not args.no_progress and sys.stderr.isatty()) or args.progress)
+        with bar as progress:
+            if progress is not None:
+                tasks: dict[str, object] = {}
+
+                def update(name: str, done: int, total: int) -> None:
+                    if name not in tasks:
+                        tasks[name] = progress.add_task(name, total=total)
+                    progress.update(tasks[name], completed=done, total=total)  # type: ignore[arg-type]
+
+                job.progress = update
+            task = asyncio.current_task()
+            loop = asyncio.get_running_loop()
+            loop.add_signal_handler(signal.SIGTERM, task.cancel)  # type: ignore[union-attr]
+            try:
+                return await job.run()
+            except asyncio.CancelledError:
+                raise KeyboardInterrupt from None
+
+    try:
+        summary = asyncio.run(body())
+    except KeyboardInterrupt:
+        where = asyncio.run(_restore(job))
+        _err(f"interrupted: every reading so far is kept in {settings.out_dir}; {where}; run "
+             "the same command again to resume")  # fmt: skip
+        return EXIT_RUNTIME
+    except CommissionAborted as exc:
+        _err(f"aborted: {exc}; run the same command again to resume")
+        return EXIT_RUNTIME
+    except (TableError, CompensationError, ConfigError) as exc:
+        where = asyncio.run(_restore(job))
+        _err(f"{exc}; {where}")
+        return EXIT_NOT_MET
+    except (MachineError, OSError) as exc:
+        where = asyncio.run(_restore(job))
+        _err(f"{exc}; {where}")
+        return EXIT_RUNTIME
+    report = write_report(settings.out_dir, summary)
+    for axis, entry in summary["axes"].items():
+        b, a = entry.get("before", {}), entry.get("after", {})
+        if b and a:
+            print(f"{axis}: E {b['E_um']:.2f} → {a['E_um']:.2f} µm, A {b['A_um']:.2f} → "
+                  f"{a['A_um']:.2f} µm (R {a['R_um']:.2f}), {entry.get('table_points')} "
+                  "table points")  # fmt: skip
+    if summary.get("xy", {}).get("after"):
+        xy = summary["xy"]
+        print(f"XY max vector error {xy['before']['max_um']:.2f} → {xy['after']['max_um']:.2f} µm")
+    print(f"outcome: {summary['outcome']}; machine time {summary['machine_h']:.2f} h; "
+          f"report: {report}")  # fmt: skip
+    return EXIT_OK if summary["outcome"] == "within" else EXIT_NOT_MET
+
+
+async def _restore(job) -> str:  # type: ignore[no-untyped-def]
+    try:
+        return await job.restore()
+    except Exception as exc:  # never hide the first error behind a second
+        return f"your config could not be put back ({exc}): copy {job.original_path} over " \
+               f"{job.s.config_path}"

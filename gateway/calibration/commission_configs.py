@@ -1,0 +1,79 @@
+"""The configs ``compgw commission`` makes the gateway run, as pure dict transforms of the
+user's config: *identification* (no pitch, backlash, cyclic or planar stage; thermal kept,
+with the fitted length once known), *pitch* (the axes' tables and cyclic terms, no planar
+model: what the XY grid is measured with) and *full* (everything: the final config).
+
+Only sections the gateway can reload change (``axes.*.compensation`` and ``planar``);
+everything else is the user's, untouched. Table paths are relative to the config file.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from typing import Any
+
+HEADER = ("# written by compgw commission ({phase} config): your own config is kept in "
+          "{original}\n")  # fmt: skip
+
+
+@dataclass
+class Tables:
+    """What commissioning has fitted so far (paths relative to the config file)."""
+
+    pitch: dict[str, str] = field(default_factory=dict)  # axis → table CSV
+    cyclic: dict[str, str] = field(default_factory=dict)  # axis → cyclic YAML
+    thermal_length_mm: dict[str, float] = field(default_factory=dict)
+    planar_model: str | None = None
+    planar_axes: tuple[str, str] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"pitch": self.pitch, "cyclic": self.cyclic,
+                "thermal_length_mm": self.thermal_length_mm,
+                "planar_model": self.planar_model,
+                "planar_axes": list(self.planar_axes) if self.planar_axes else None}  # fmt: skip
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> Tables:
+        axes = data.get("planar_axes")
+        return cls(dict(data.get("pitch", {})), dict(data.get("cyclic", {})),
+                   {k: float(v) for k, v in data.get("thermal_length_mm", {}).items()},
+                   data.get("planar_model"), tuple(axes) if axes else None)  # type: ignore[arg-type]  # fmt: skip
+
+
+def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tables
+                   ) -> dict[str, Any]:
+    """The user's config with the commissioned axes' pitch, backlash and cyclic stages and
+    the planar model removed; thermal kept (with the fitted length once known)."""
+    data = copy.deepcopy(original)
+    for name in axes:
+        comp = data["axes"][name].setdefault("compensation", {}) or {}
+        for key in ("pitch", "backlash_mm", "cyclic", "backlash_table_direction",
+                    "allow_backlash_with_bidirectional"):  # fmt: skip
+            comp.pop(key, None)
+        comp["enabled"] = True
+        if name in tables.thermal_length_mm and comp.get("thermal"):
+            comp["thermal"] = {**comp["thermal"], "length_mm": tables.thermal_length_mm[name]}
+        data["axes"][name]["compensation"] = comp
+    if tables.planar_axes is not None or set(axes) & set((data.get("planar") or {}).get(
+            "axes", ())):  # fmt: skip
+        data.pop("planar", None)
+    return data
+
+
+def with_tables(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
+                planar: bool) -> dict[str, Any]:
+    """Identification plus the fitted tables and cyclic terms; the planar model too when
+    ``planar`` (and fitted)."""
+    data = identification(original, axes, tables)
+    for name in axes:
+        comp = data["axes"][name]["compensation"]
+        if name in tables.pitch:
+            comp["pitch"] = {"file": tables.pitch[name], "interpolation": "linear"}
+        if name in tables.cyclic:
+            comp["cyclic"] = tables.cyclic[name]
+    if planar and tables.planar_model is not None and tables.planar_axes is not None:
+        commit = (original.get("planar") or {}).get("commit", "immediate")
+        data["planar"] = {"axes": list(tables.planar_axes), "model": tables.planar_model,
+                          "commit": commit}  # fmt: skip
+    return data
