@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 from evaluate import evaluate, plan
 from workflows import WORKFLOWS, MachineRun, compgw_argv
 
@@ -53,14 +54,31 @@ def machine_list(count: int, seed: int, real: str) -> list[tuple[str, list[str]]
     return out
 
 
-def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed: int
-                ) -> dict[str, Any]:  # fmt: skip
+#: what ``--without`` can take out of every machine's truth (sim.yaml keys per axis)
+ABLATIONS = {"thermal": ("thermal", "heat"), "settling": ("settling",),
+             "stick_slip": ("stick_slip",), "takeup": ("lost_motion",), "cyclic": ("cyclic",)}
+
+
+def ablate(sim_yaml: Path, without: list[str]) -> None:
+    """Remove the named structures from a machine's truth (to see what each one costs)."""
+    data = yaml.safe_load(sim_yaml.read_text())
+    for errs in data["sim"]["machine"].values():
+        for name in without:
+            for key in ABLATIONS[name]:
+                errs.pop(key, None)
+    sim_yaml.write_text(yaml.safe_dump(data, sort_keys=False))
+
+
+def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed: int,
+                without: list[str] | None = None) -> dict[str, Any]:  # fmt: skip
     """Generate, calibrate and evaluate one machine; a dict of its figures (or its error)."""
     t0 = time.monotonic()
     mdir = root / label
     shutil.rmtree(mdir, ignore_errors=True)
     subprocess.run([*compgw_argv(), "sim", *gen_args, "--out", str(mdir)], check=True,
                    capture_output=True, text=True)  # fmt: skip
+    if without:
+        ablate(mdir / "sim.yaml", without)
     run = MachineRun.start(mdir, mdir / "work")
     out: dict[str, Any] = {"machine": label, "group": label.split("-")[0]}
     try:
@@ -79,6 +97,8 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
                 evaluate(run.machine, the_plan, run.sim_port, run.gateway_port, cool))
         out.update(phases)
         out["sensor"] = run.machine.get("thermal_sensor", "none")
+        out["sensor_axes"] = [a for a, ax in result.config["axes"].items()
+                              if "thermal" in ax.get("compensation", {})]  # fmt: skip
         out["commands"] = len(run.commands)
     except Exception as exc:  # reported, the other machines go on
         out["error"] = f"{type(exc).__name__}: {exc}"
@@ -93,28 +113,35 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
     """The headline figures of one machine."""
     b, a = r["before"], r["after"]
     axes = list(a["axes"])
-    e_cut = min(1 - a["axes"][n]["E_um"] / b["axes"][n]["E_um"] for n in axes)
+    worst = min(axes, key=lambda n: 1 - a["axes"][n]["E_um"] / b["axes"][n]["E_um"])
+    default = {"delta_a": ["X"], "temperature": axes}.get(r.get("sensor", "none"), [])
+    sensed = r.get("sensor_axes", default)
     return {
-        "E_before_um": max(b["axes"][n]["E_um"] for n in axes),
-        "E_after_um": max(a["axes"][n]["E_um"] for n in axes),
-        "E_cut_pct": 100 * e_cut,
+        "E_axis": worst,  # the axis whose E fell least
+        "E_before_um": b["axes"][worst]["E_um"],
+        "E_after_um": a["axes"][worst]["E_um"],
+        "E_cut_pct": 100 * (1 - a["axes"][worst]["E_um"] / b["axes"][worst]["E_um"]),
         "A_minus_R_um": max(a["axes"][n]["A_um"] - a["axes"][n]["R_um"] for n in axes),
         "R_um": max(a["axes"][n]["R_um"] for n in axes),
         "xy_before_um": b["xy"]["max_um"], "xy_after_um": a["xy"]["max_um"],
         "xy_cut_pct": 100 * (1 - a["xy"]["max_um"] / b["xy"]["max_um"]),
         "offgrid_rms_um": max(a["axes"][n]["offgrid_rms_um"] for n in axes),
-        "thermal_off_um": max(b["axes"][n]["thermal_um"] for n in axes),
-        "thermal_on_um": max(a["axes"][n]["thermal_um"] for n in axes),
+        # thermal: on the axes with a sensor (all axes when there is none: the drift)
+        "thermal_off_um": max(b["axes"][n]["thermal_um"] for n in sensed or axes),
+        "thermal_on_um": max(a["axes"][n]["thermal_um"] for n in sensed or axes),
+        "thermal_unsensed_um": max([a["axes"][n]["thermal_um"] for n in axes
+                                    if n not in sensed] or [0.0]),
     }  # fmt: skip
 
 
-HEAD = (f"{'machine':<24}{'E before':>9}{'after':>7}{'cut %':>7}{'A-R':>6}{'XY before':>10}"
+HEAD = (f"{'machine':<24}{'E  before':>11}{'after':>7}{'cut %':>7}{'A-R':>6}{'XY before':>10}"
         f"{'after':>7}{'cut %':>7}{'offgrid':>8}{'therm off':>10}{'on':>6}  sensor")
 
 
-def row(label: str, s: dict[str, float], sensor: str) -> str:
+def row(label: str, s: dict[str, Any], sensor: str) -> str:
     on = f"{s['thermal_on_um']:6.1f}" if sensor != "none" and "thermal_on_um" in s else f"{'-':>6}"
-    return (f"{label:<24}{s['E_before_um']:9.1f}{s['E_after_um']:7.2f}{s['E_cut_pct']:7.1f}"
+    return (f"{label:<24}{s.get('E_axis', ' '):>2}{s['E_before_um']:9.1f}{s['E_after_um']:7.2f}"
+            f"{s['E_cut_pct']:7.1f}"
             f"{s['A_minus_R_um']:6.2f}{s['xy_before_um']:10.1f}{s['xy_after_um']:7.2f}"
             f"{s['xy_cut_pct']:7.1f}{s['offgrid_rms_um']:8.2f}{s['thermal_off_um']:10.1f}{on}"
             f"  {sensor}")  # fmt: skip
@@ -130,6 +157,8 @@ def group_stats(results: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, 
             continue
         stats: dict[str, dict[str, float]] = {"median": {}, "worst": {}}
         for key in rows[0]["summary"]:
+            if key == "E_axis":
+                continue
             values = [r["summary"][key] for r in rows
                       if not (key == "thermal_on_um" and r["sensor"] == "none")]  # fmt: skip
             if not values:
@@ -138,6 +167,24 @@ def group_stats(results: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, 
             stats["worst"][key] = float(min(values) if key in worst_is_min else max(values))
         out[group] = stats
     return out
+
+
+def print_table(data: dict[str, Any]) -> int:
+    """The table of a saved ``--json`` output (figures recomputed from the raw phases)."""
+    print(HEAD)
+    results = data["machines"]
+    for r in results:
+        if "error" in r:
+            print(f"{r['machine']:<24}failed: {r['error']}")
+            continue
+        r["summary"] = summary(r)
+        print(row(r["machine"], r["summary"], r["sensor"]))
+    print()
+    for group, st in group_stats(results).items():
+        for which in ("median", "worst"):
+            print(row(f"{group} {which}", st[which], "any"))
+    print(f"wall time {data['wall_s'] / 60:.1f} min")
+    return 0
 
 
 def main() -> int:
@@ -152,9 +199,24 @@ def main() -> int:
                         help="real-data machines: all, none, or NAME[,NAME...] (all)")
     parser.add_argument("--jobs", type=int, default=1, help="machines in parallel (1)")
     parser.add_argument("--keep", type=Path, help="keep every machine's files in this directory")
+    parser.add_argument("--only", metavar="LABEL[,LABEL...]",
+                        help="run only these machines (labels as printed, e.g. rough-3)")
+    parser.add_argument("--without", metavar="WHAT[,WHAT...]",
+                        help="take structure out of every machine's truth to see what it costs: "
+                             + ", ".join(ABLATIONS))
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--table", type=Path, metavar="JSON",
+                        help="print the table of an earlier run's --json output and exit")
     args = parser.parse_args()
+    if args.table:
+        return print_table(json.loads(args.table.read_text()))
     machines = machine_list(args.machines, args.seed, args.real)
+    if args.only:
+        machines = [m for m in machines if m[0] in args.only.split(",")]
+    without = args.without.split(",") if args.without else []
+    for name in without:
+        if name not in ABLATIONS:
+            parser.error(f"--without {name}: not one of {', '.join(ABLATIONS)}")
     root = args.keep or Path(tempfile.mkdtemp(prefix="compgw-accuracy-"))
     root.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
@@ -163,7 +225,7 @@ def main() -> int:
     say(f"{len(machines)} machines, workflow {args.workflow}, {args.jobs} job(s)")
     say(HEAD)
     with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        futures = [pool.submit(run_machine, label, gen, args.workflow, root, args.seed)
+        futures = [pool.submit(run_machine, label, gen, args.workflow, root, args.seed, without)
                    for label, gen in machines]  # fmt: skip
         for fut in futures:
             r = fut.result()
@@ -181,7 +243,8 @@ def main() -> int:
             say(row(f"{group} {which}", st[which], "any"))
     say(f"wall time {wall / 60:.1f} min; machine files in {root}")
     if args.json:
-        print(json.dumps({"workflow": args.workflow, "wall_s": round(wall, 1), "groups": stats,
+        print(json.dumps({"workflow": args.workflow, "without": without,
+                          "wall_s": round(wall, 1), "groups": stats,
                           "machines": results}, indent=2))  # fmt: skip
     if not args.keep:
         shutil.rmtree(root, ignore_errors=True)

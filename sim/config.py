@@ -383,6 +383,9 @@ class DeltaAConfig(_Model):
     a_mm: float
     resolution_um: PositiveFloat = 1.0
     noise_um: NonNegFloat = 0.0
+    #: how it is mounted: 1 reads + when point A moves +; -1 when it moves − (a sensor at
+    #: the low free end of a screw held at its high end reads elongation positive so)
+    direction: Literal[1, -1] = 1
 
 
 class TemperatureConfig(_Model):

@@ -120,7 +120,9 @@ class DeltaASensor(Instrument):
 
     def sample(self) -> list[int]:
         """0 = int16 resolution steps, 1-2 = int32 nm."""
-        d_mm = self.machine.delta_a_mm(self.cfg.axis, self.cfg.a_mm, self.clock.now_s())
+        d_mm = self.cfg.direction * self.machine.delta_a_mm(
+            self.cfg.axis, self.cfg.a_mm, self.clock.now_s()
+        )
         d_mm += self._noise(self.cfg.noise_um) / 1000
         steps = round(d_mm * 1000.0 / self.cfg.resolution_um)
         steps = max(-32768, min(32767, steps))

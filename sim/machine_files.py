@@ -137,7 +137,7 @@ def sim_config(spec: MachineSpec) -> dict[str, Any]:
     if sensor.get("kind") == "delta_a":
         instruments["delta_a"] = {"unit": DELTA_A_UNIT, "axis": sensor["axis"],
                                   "a_mm": sensor["a_mm"], "resolution_um": 0.1,
-                                  "noise_um": 0.1}  # fmt: skip
+                                  "noise_um": 0.1, "direction": sensor["direction"]}  # fmt: skip
     elif sensor.get("kind") == "temperature":
         instruments["temperature"] = {"unit": TEMPERATURE_UNIT, "channels": [*names, "ambient"],
                                       "noise_C": 0.01,
@@ -226,6 +226,7 @@ def instruments_summary(spec: MachineSpec) -> dict[str, Any]:
     sensor = spec.sensor or {}
     if sensor.get("kind") == "delta_a":
         out["delta_a"] = {"unit": DELTA_A_UNIT, "axis": sensor["axis"], "a_mm": sensor["a_mm"],
+                          "reads": "elongation of the screw at a_mm (+ when warm)",
                           "registers": "1-2: int32 nm", "calibrate":
                           f"--delta-a 127.0.0.1:{SIM_PORT}:{DELTA_A_UNIT}:1"}  # fmt: skip
     elif sensor.get("kind") == "temperature":

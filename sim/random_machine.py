@@ -251,7 +251,9 @@ def random_machine(seed: int, roughness: str = "smooth") -> MachineSpec:
             a_mm = s1 if heat["fixed_end_mm"] == s0 else s0
         else:
             a_mm = x_axis.travel_mm[1] if x_axis.fixed_end_mm < 0 else x_axis.travel_mm[0]
-        sensor = {"kind": "delta_a", "axis": "X", "a_mm": float(a_mm)}
+        # mounted to read the elongation positive, whichever end is held
+        direction = 1 if a_mm > x_axis.fixed_end_mm else -1
+        sensor = {"kind": "delta_a", "axis": "X", "a_mm": float(a_mm), "direction": direction}
     elif kind == "temperature":
         spots = rng.uniform(0.2, 0.8, 2)
         positions = {ax.name: round(ax.travel_mm[0] + (f if rough else 0.5) *

@@ -109,7 +109,9 @@ def _data_axis(name: str, unit: int, x: np.ndarray, fwd: np.ndarray, rev: np.nda
             "repeatability_um": round(sigma_um, 2),
             "lost_motion_um": [round(float((rev - fwd).min()), 1),
                                round(float((rev - fwd).max()), 1)]}  # fmt: skip
-    return AxisSpec(name=name, unit=unit, travel_mm=(float(x[0]), float(x[-1])),
+    # the travel: the measured range rounded out to whole millimetres (end values held)
+    travel = (float(np.floor(x[0])), float(np.ceil(x[-1])))
+    return AxisSpec(name=name, unit=unit, travel_mm=travel,
                     speed_mm_s=20.0, pulse_mm=0.001, command_scale=10, positions_mm=x,
                     forward_um=fwd, reverse_um=rev, repeatability_um=round(sigma_um, 3),
                     info=info)  # fmt: skip
