@@ -3,14 +3,29 @@ files (sim config, truth, gateway config, machine.json) and exit. 0 ok, 1 bad in
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+from sim.machine_files import write_machine
+
 
 def write_machine_dir(seed: int | None, roughness: str, real: str | None, out: str | None) -> int:
-    """Dispatch to the random or the real-data generator."""
-    if real is not None:
-        from sim.real_machines import main as real_main
+    """Draw the random machine of ``seed`` or build the real-data machine ``real``; write it."""
+    try:
+        if real is not None:
+            from sim.real_machines import real_machine
 
-        return real_main(real, out)
-    from sim.random_machine import main as random_main
+            spec = real_machine(real)
+            out_dir = Path(out or f"real-machine-{real}")
+        else:
+            from sim.random_machine import random_machine
 
-    assert seed is not None
-    return random_main(seed, roughness, out)
+            assert seed is not None
+            spec = random_machine(seed, roughness)
+            out_dir = Path(out or f"random-machine-{seed}-{roughness}")
+        write_machine(spec, out_dir)
+    except (ValueError, OSError, KeyError) as err:
+        print(f"compgw sim: {err}", file=sys.stderr)
+        return 1
+    print(f"compgw sim: wrote {out_dir}/sim.yaml, gateway.yaml, machine.json, truth/")
+    return 0

@@ -21,13 +21,11 @@ the screw (growth not linear in position).
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from sim.machine_files import AxisSpec, MachineSpec, write_machine
+from sim.machine_files import AxisSpec, MachineSpec
 
 ROUGHNESS = ("smooth", "rough")
 #: ISO 3408-3 / JIS B1192 (THK 512E A15-11): ±ep, mean travel deviation over the thread
@@ -271,15 +269,3 @@ def random_machine(seed: int, roughness: str = "smooth") -> MachineSpec:
     return MachineSpec(name=name, sim_seed=seed, axes=(x_axis, y_axis), field=field,
                        sensor=sensor, sample_s=sample_s, header=header, info=info)
 
-
-def main(seed: int, roughness: str, out: str | None) -> int:
-    """Write the machine's files; 0 ok, 1 bad input."""
-    try:
-        spec = random_machine(seed, roughness)
-    except ValueError as err:
-        print(f"compgw sim: {err}", file=sys.stderr)
-        return 1
-    out_dir = Path(out or f"random-machine-{seed}-{roughness}")
-    write_machine(spec, out_dir)
-    print(f"compgw sim: wrote {out_dir}/sim.yaml, gateway.yaml, machine.json, truth/")
-    return 0

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import csv
 import os
-import sys
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -21,7 +20,7 @@ from typing import Any
 import numpy as np
 from scipy.interpolate import RBFInterpolator
 
-from sim.machine_files import AxisSpec, MachineSpec, write_machine
+from sim.machine_files import AxisSpec, MachineSpec
 
 #: BIFROST slit SAT tables: (accuracy CSV, repeatability CSV) per axis
 SLITS = {
@@ -175,15 +174,3 @@ def real_machine(name: str, root: Path | None = None) -> MachineSpec:
     return MachineSpec(name=name, sim_seed=1, axes=axes, header=header,
                        info={"real_data": str(root)})  # fmt: skip
 
-
-def main(name: str, out: str | None) -> int:
-    """Write the machine's files; 0 ok, 1 bad input (unknown name, data missing)."""
-    try:
-        spec = real_machine(name)
-    except (ValueError, OSError, KeyError) as err:
-        print(f"compgw sim: {err}", file=sys.stderr)
-        return 1
-    out_dir = Path(out or f"real-machine-{name}")
-    write_machine(spec, out_dir)
-    print(f"compgw sim: wrote {out_dir}/sim.yaml, gateway.yaml, machine.json, truth/")
-    return 0
