@@ -15,14 +15,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..compensation import PitchStage, PitchTable
 from .iso230 import iso230_axis
-from .rawdata import AxisDeviations
+from .rawdata import AxisDeviations, RawData
 
 #: the coarse table: about this many points over the travel, at least this far apart
 COARSE_POINTS = 21
@@ -162,3 +162,46 @@ def worst_cell(points_mm: NDArray[np.float64], error_um: NDArray[np.float64]
 def denser_grid(nx: int, ny: int, limit: int = 33) -> tuple[int, int]:
     """The next XY grid: every cell split in two each way (at most ``limit`` per axis)."""
     return min(2 * nx - 1, limit), min(2 * ny - 1, limit)
+
+
+# -- thermal drift during commissioning ---------------------------------------------------
+@dataclass(frozen=True)
+class Drift:
+    """How far an axis's deviation has drifted since commissioning began (mm), measured at
+    two reference positions ``x_mm`` just before and just after a run; linear in position
+    between (and beyond) them, linear in the run's progress."""
+
+    x_mm: tuple[float, float]
+    before_mm: tuple[float, float]
+    after_mm: tuple[float, float]
+
+    def at(self, x_mm: NDArray[np.float64], fraction: NDArray[np.float64]
+           ) -> NDArray[np.float64]:
+        """Drift (mm) at positions ``x_mm`` a ``fraction`` (0..1) through the run."""
+        lo = self.before_mm[0] + (self.after_mm[0] - self.before_mm[0]) * fraction
+        hi = self.before_mm[1] + (self.after_mm[1] - self.before_mm[1]) * fraction
+        x0, x1 = self.x_mm
+        return lo + (hi - lo) * (np.asarray(x_mm) - x0) / (x1 - x0)
+
+    def to_json(self) -> list[float]:
+        return [*self.x_mm, *self.before_mm, *self.after_mm]
+
+    @classmethod
+    def from_json(cls, v: Sequence[float]) -> Drift:
+        return cls((v[0], v[1]), (v[2], v[3]), (v[4], v[5]))
+
+
+def drift_corrected(raw: RawData, drifts: dict[str, Drift]) -> RawData:
+    """``raw`` with each reading's drift taken off (a row's progress through its run is its
+    measured move's place among them all; one row per plan axis and move)."""
+    if not drifts or len(raw) == 0:
+        return raw
+    per_move = max(1, len(raw.axes))
+    moves = np.arange(len(raw)) // per_move
+    fraction = moves / max(1, moves[-1])
+    actual = raw.actual_mm.copy()
+    names = np.array(raw.axis)
+    for axis, drift in drifts.items():
+        rows = names == axis
+        actual[rows] -= drift.at(raw.target_mm[rows], fraction[rows])
+    return replace(raw, actual_mm=actual)

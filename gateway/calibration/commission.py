@@ -74,9 +74,9 @@ from .plans import (
     xy_grid_plan,
     xy_verification_plan,
 )
-from .rawdata import AxisDeviations, axis_deviations, read_raw_csv
+from .rawdata import axis_deviations, read_raw_csv
 from .runner import read_raw_meta
-from .session import Instruments, Session, planar_figures
+from .session import Instruments, Session
 
 STATE = "commission.json"
 Say = Callable[[str], None]
@@ -142,7 +142,8 @@ class Commission:
 
     @property
     def used_s(self) -> float:
-        return float(sum(step["machine_s"] for step in self.state["steps"].values()))
+        steps = sum(step["machine_s"] for step in self.state["steps"].values())
+        return float(steps + self.state.get("refs_s", 0.0))
 
     def _rel(self, path: Path) -> str:
         return str(path.resolve().relative_to(self.config_dir)) if path.resolve().is_relative_to(
@@ -170,13 +171,95 @@ class Commission:
         return load_config(path), path
 
     async def use(self, phase: str) -> None:
-        """Write the phase's config over the gateway's config file and have it reload."""
+        """Write the phase's config over the gateway's config file and have it reload.
+
+        The drift references are read just before and just after the switch (the same
+        thermal state): what they read differently is the new config, not drift, so the
+        drift since the start stays known across configs."""
+        base = self.state.get("drift_base")
         text = HEADER.format(phase=phase, original=self._rel(self.original_path))
         text += yaml.safe_dump(self.phase_config(phase), sort_keys=False)
+        if (base is not None and self.state.get("phase") == phase == base["phase"]
+                and self.s.config_path.read_text() == text):
+            return  # loaded already: nothing to switch
+        before = None
+        if base is not None and self.state.get("phase") == base["phase"]:
+            last = self.state.get("last_refs")  # read since the last moves: the same state
+            before = last["refs"] if last and last["phase"] == base["phase"] else \
+                await self._measure_refs()
         atomic_write_text(self.s.config_path, text)
         await self.reload_fn()
         self.state["phase"] = phase
+        after = await self._measure_refs()
+        drift = {a: [0.0, 0.0] for a in self.s.axes}
+        if base is not None:
+            if before is None:  # the chain broke (an abort restored your config): the last
+                drift = self.state.get("drift_last", drift)  # known drift carries on
+                self.state["notes"].append(f"drift references re-linked when {phase} was "
+                                           "loaded after an interruption")  # fmt: skip
+            else:
+                drift = {a: [before[a][k] - base["refs"][a][k] for k in (0, 1)]
+                         for a in self.s.axes}  # fmt: skip
+        self.state["drift_base"] = {"phase": phase, "refs": {
+            a: [after[a][k] - drift[a][k] for k in (0, 1)] for a in self.s.axes}}
+        self.state["drift_last"] = drift
         self._save()
+
+    def _ref_positions(self, axis: str) -> tuple[float, float]:
+        lo, hi = self._travel(axis)
+        pulse = self.config.axes[axis].pulse_mm
+        return (round((lo + 0.05 * (hi - lo) + 1.0) / pulse) * pulse,
+                round((hi - 0.05 * (hi - lo)) / pulse) * pulse)
+
+    async def _measure_refs(self, repeats: int = 3) -> dict[str, list[float]]:
+        """Deviation (mm) of each commissioned axis at its two drift references, the mean
+        of ``repeats`` approaches in + from 1 mm below (the other plane axis parked)."""
+        from .machine import Laser, Links, MachineDriver
+
+        links = Links()
+        out: dict[str, list[float]] = {}
+        cost = 0.0
+        try:
+            link = await links.get(self.s.gateway.host, self.s.gateway.port)
+            driver = MachineDriver(link, self.config, self.s.motion)
+            ins = self.s.instruments
+            assert ins.laser is not None
+            order = list(ins.laser_axes or self.config.axes)
+            laser = Laser(await links.get(*ins.laser.key), ins.laser.unit,
+                          {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
+            for a in self.s.axes:
+                park = self._park(a)
+                if park:
+                    await driver.move(park)
+                devs = []
+                for x in self._ref_positions(a):
+                    readings = []
+                    for _ in range(repeats):
+                        await driver.move({a: x - 1.0})
+                        await driver.move({a: x})
+                        readings.append((await laser.read_mm([a]))[a] - x)
+                        cost += self.s.stop_s + 2.0 / self.s.speed_mm_s
+                    devs.append(float(np.mean(readings)))
+                out[a] = devs
+        finally:
+            links.close()
+        self.state["refs_s"] = self.state.get("refs_s", 0.0) + cost
+        self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out}
+        return out
+
+    def _drift_now(self, refs: dict[str, list[float]]) -> dict[str, list[float]]:
+        base = self.state["drift_base"]["refs"]
+        return {a: [refs[a][k] - base[a][k] for k in (0, 1)] for a in self.s.axes}
+
+    def raw(self, name: str):  # type: ignore[no-untyped-def]
+        """A step's raw data with the machine's thermal drift during it taken off (what the
+        readings would have been in the state commissioning began in)."""
+        raw = read_raw_csv(self.dir / "raw" / f"{name}.csv")
+        stored = self.state["steps"].get(name, {}).get("drift")
+        if not stored:
+            return raw
+        return adaptive.drift_corrected(
+            raw, {a: adaptive.Drift.from_json(v) for a, v in stored.items()})
 
     async def restore(self) -> str:
         """Put the user's own config back and have the gateway load it; says what happened."""
@@ -211,9 +294,10 @@ class Commission:
         return name in self.state["steps"]
 
     async def step(self, name: str, make: Callable[[], Plan], compensation: str,
-                   park: dict[str, float] | None = None) -> Path:
+                   park: dict[str, float] | None = None, drift: bool = True) -> Path:
         """Run the plan ``make()`` as step ``name`` (once: a done step is skipped; a step
-        begun resumes from its raw file with its saved plan); its raw file."""
+        begun resumes from its raw file with its saved plan); its raw file. ``drift``: the
+        drift references are read before and after it (see :meth:`raw`)."""
         raw = self.dir / "raw" / f"{name}.csv"
         if self.done(name):
             return raw
@@ -232,12 +316,26 @@ class Commission:
         raw.parent.mkdir(parents=True, exist_ok=True)
         self.say(f"{name}: {sum(m.measured for m in plan.moves)} readings, "
                  f"{cost_s / 60:.1f} min of machine time ({compensation})")
+        drifting = drift and "drift_base" in self.state
+        pending = self.state.setdefault("pending_refs", {})
+        if drifting and name not in pending:
+            pending[name] = self._drift_now(await self._measure_refs())
+            self._save()
+        self.state["last_refs"] = None  # the step's moves change the thermal state
         session = Session(self.config, self.config_dir, self.s.gateway, self.s.instruments,
                           self.s.motion, park or {})  # fmt: skip
         if self.progress is not None:
             session.progress = lambda k, n: self.progress(name, k, n)  # type: ignore[misc]
         await session.run(plan, raw, compensation)
-        self.state["steps"][name] = {"machine_s": cost_s, "raw": self._rel(raw)}
+        entry: dict[str, Any] = {"machine_s": cost_s, "raw": self._rel(raw)}
+        if drifting:
+            after = self._drift_now(await self._measure_refs())
+            self._save()
+            before = pending.pop(name)
+            entry["drift"] = {a: [*self._ref_positions(a), *before[a], *after[a]]
+                              for a in self.s.axes}  # fmt: skip
+            self.state["drift_last"] = after
+        self.state["steps"][name] = entry
         self._save()
         return raw
 
@@ -353,7 +451,8 @@ class Commission:
         for a in self.s.axes:
             travel = self._travel(a)
             if self._thermal(a) and a not in self.tables.thermal_length_mm:
-                raw = await self.step(f"warmup-{a}", lambda a=a: self._warmup_plan(a), "off")
+                raw = await self.step(f"warmup-{a}", lambda a=a: self._warmup_plan(a), "off",
+                                      drift=False)  # fmt: skip
                 th = self.config.axes[a].compensation.thermal
                 assert th is not None
                 tf = thermal_fit(read_raw_csv(raw), a, th.origin_mm, th.length_mm)
@@ -362,9 +461,9 @@ class Commission:
                                            "growth_max_um": tf.growth_max_um,
                                            "residual_rms_um": tf.residual_rms_um}  # fmt: skip
                 await self.use("identification")  # with the length
-            raw = await self.step(f"backlash-{a}", lambda a=a, t=travel: backlash_plan(a, t),
-                                  "off", self._park(a))  # fmt: skip
-            b = backlash_from_raw(read_raw_csv(raw), a)
+            await self.step(f"backlash-{a}", lambda a=a, t=travel: backlash_plan(a, t), "off",
+                            self._park(a))  # fmt: skip
+            b = backlash_from_raw(self.raw(f"backlash-{a}"), a)
             results[f"backlash-{a}"] = {"B_um": b.backlash_mm * 1e3,
                                         "places_um": [m * 1e3 for m in b.mean_mm]}  # fmt: skip
             await self.step(f"iso-{a}", lambda a=a: self._iso_plan(a), "off", self._park(a))
@@ -404,14 +503,14 @@ class Commission:
             model = None
             if a in self.s.lead_mm:
                 raw_c = self.dir / "raw" / f"cyclic-{a}.csv"
-                cr = fit_cyclic_raw(read_raw_csv(raw_c), read_raw_meta(raw_c), config,
+                cr = fit_cyclic_raw(self.raw(f"cyclic-{a}"), read_raw_meta(raw_c), config,
                                     self.config_dir, a)  # fmt: skip
                 save_cyclic(cr, "compgw commission: dense scans")
                 model = cr.model
                 self.state.setdefault("identify", {})[f"cyclic-{a}"] = {
                     "harmonics": cr.fit.harmonics, "peak_um": cr.model.peak_mm() * 1e3}
-            r = fit_pitch(read_raw_csv(self.dir / "raw" / f"iso-{a}.csv"), config,
-                          self.config_dir, a, mode="bidirectional", reversal_degree=2)  # fmt: skip
+            r = fit_pitch(self.raw(f"iso-{a}"), config, self.config_dir, a,
+                          mode="bidirectional", reversal_degree=2)  # fmt: skip
             if model is not None:
                 r = net_pitch(r, model, config)
             save_pitch(r, "compgw commission: coarse ISO 230-2 run" +
@@ -423,18 +522,18 @@ class Commission:
     async def _plane(self) -> None:
         if self.s.planar is None or self.tables.planar_model is not None:
             return
-        raw = await self.step("xy-grid", lambda: self._grid_plan(self.s.grid), "on")
+        await self.step("xy-grid", lambda: self._grid_plan(self.s.grid), "on")
         self.tables.planar_axes = self.s.planar
         self.tables.planar_model = self._rel(self.dir / "tables" / "xy_model.yaml")
         config, _ = self.staged("full")
-        self._fit_plane(config, raw, residual=False)
+        self._fit_plane(config, "xy-grid", residual=False)
         self.state["grid"] = list(self.s.grid)
         self._save()
         await self.use("full")
 
-    def _fit_plane(self, config: GatewayConfig, raw: Path, residual: bool) -> None:
+    def _fit_plane(self, config: GatewayConfig, name: str, residual: bool) -> None:
         assert self.s.planar is not None
-        meas = planar_measurement(read_raw_csv(raw), self.s.planar)
+        meas = planar_measurement(self.raw(name), self.s.planar)
         ax, ay = self.s.planar
         lines = {ax: self._park(ax)[ay], ay: self._park(ay)[ax]}
         res = fit_planar(meas, config, self.config_dir, "auto", residual, lines)
@@ -491,23 +590,29 @@ class Commission:
     async def _verify(self, r: int) -> tuple[dict[str, adaptive.AxisVerdict], dict | None]:
         verdicts = {}
         for a in self.s.axes:
-            raw = await self.step(f"verify{r}-{a}", lambda a=a: targets_plan(
+            await self.step(f"verify{r}-{a}", lambda a=a: targets_plan(
                 a, self._travel(a), self._verify_targets(r, a), self.s.verify_runs,
                 kind="iso230-verification", round=r), "on", self._park(a))  # fmt: skip
             table = read_pitch_csv(self.config_dir / self.tables.pitch[a]).position_mm
-            verdicts[a] = adaptive.judge_axis(axis_deviations(read_raw_csv(raw), a), table,
-                                              self.s.tolerance_um, self._sd_um(a))  # fmt: skip
+            dev = axis_deviations(self.raw(f"verify{r}-{a}"), a)
+            verdicts[a] = adaptive.judge_axis(dev, table, self.s.tolerance_um, self._sd_um(a))
         xy = None
         if self.s.planar is not None:
             grid = tuple(self.state.get("grid", self.s.grid))
-            raw = await self.step(f"verify{r}-xy", lambda: self._xy_check_plan(r, grid), "on")
-            xy = planar_figures(raw, self.s.planar)
+            await self.step(f"verify{r}-xy", lambda: self._xy_check_plan(r, grid), "on")
+            xy = self._xy_figures(f"verify{r}-xy")
         return verdicts, xy
+
+    def _xy_figures(self, name: str) -> dict[str, float]:
+        """Max and RMS vector error (µm) of an XY run, drift taken off."""
+        assert self.s.planar is not None
+        meas = planar_measurement(self.raw(name), self.s.planar)
+        norm = np.hypot(*meas.error_mm.T) * 1e3
+        return {"max_um": float(norm.max()), "rms_um": float(np.sqrt(np.mean(norm**2)))}
 
     def _sd_um(self, axis: str) -> float:
         """The axis's repeatability (standard deviation, µm) from the coarse ISO run."""
-        iso = iso230_axis(axis_deviations(read_raw_csv(self.dir / "raw" / f"iso-{axis}.csv"),
-                                          axis))  # fmt: skip
+        iso = iso230_axis(axis_deviations(self.raw(f"iso-{axis}"), axis))
         return float(iso.R_um or 0.0) / 4.0
 
     async def _refine_axis(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> int:
@@ -519,10 +624,10 @@ class Commission:
         mids = adaptive.midpoints_mm(table.position_mm, verdict.failing_spans)
         if mids.size == 0:
             return 0
-        raw = await self.step(f"refine{r}-{axis}", lambda: targets_plan(
+        await self.step(f"refine{r}-{axis}", lambda: targets_plan(
             axis, self._travel(axis), mids, self.s.verify_runs, kind="iso230-refine",
             round=r), "on", self._park(axis))  # fmt: skip
-        dev = axis_deviations(read_raw_csv(raw), axis)
+        dev = axis_deviations(self.raw(f"refine{r}-{axis}"), axis)
         stage = PitchStage(table, "linear")
         new = adaptive.refined_table(table, stage, dev)
         config, _ = self.staged("full" if self.tables.planar_model else "pitch")
@@ -544,9 +649,9 @@ class Commission:
 
     async def _refine_plane(self, r: int) -> tuple[int, int]:
         grid = adaptive.denser_grid(*tuple(self.state.get("grid", self.s.grid)))
-        raw = await self.step(f"refine{r}-xy", lambda: self._grid_plan(grid, runs=1), "on")
+        await self.step(f"refine{r}-xy", lambda: self._grid_plan(grid, runs=1), "on")
         config, _ = self.staged("full")
-        self._fit_plane(config, raw, residual=True)
+        self._fit_plane(config, f"refine{r}-xy", residual=True)
         self.state["grid"] = list(grid)
         return grid
 
@@ -573,9 +678,8 @@ class Commission:
         for a in self.s.axes:
             entry: dict[str, Any] = {}
             for phase in ("before", "after"):
-                raw = self.dir / "raw" / f"{phase}-{a}.csv"
-                if raw.exists() and self.done(f"{phase}-{a}"):
-                    iso = iso230_axis(axis_deviations(read_raw_csv(raw), a))
+                if self.done(f"{phase}-{a}"):
+                    iso = iso230_axis(axis_deviations(self.raw(f"{phase}-{a}"), a))
                     entry[phase] = {"E_um": iso.E_um, "A_um": iso.A_um, "R_um": iso.R_um,
                                     "B_um": iso.B_um, "M_um": iso.M_um}  # fmt: skip
             if a in self.tables.pitch:
@@ -585,9 +689,8 @@ class Commission:
         if self.s.planar is not None:
             xy: dict[str, Any] = {}
             for phase in ("before", "after"):
-                raw = self.dir / "raw" / f"{phase}-xy.csv"
-                if raw.exists() and self.done(f"{phase}-xy"):
-                    xy[phase] = planar_figures(raw, self.s.planar)
+                if self.done(f"{phase}-xy"):
+                    xy[phase] = self._xy_figures(f"{phase}-xy")
             out["xy"] = xy
         return out
 
@@ -608,10 +711,3 @@ def parse_leads(text: str | None, axes: Sequence[str]) -> dict[str, float]:
             raise ValueError(f"--lead-mm {item!r}: {name.strip()!r} is not a commissioned axis")
         out[name.strip()] = float(value)
     return out
-
-
-def dev_subset(dev: AxisDeviations, keep: np.ndarray) -> AxisDeviations:
-    """The targets ``keep`` (a boolean mask) of ``dev``."""
-    return AxisDeviations(dev.axis, dev.target_mm[keep], dev.runs,
-                          None if dev.up_mm is None else dev.up_mm[keep],
-                          None if dev.down_mm is None else dev.down_mm[keep], dev.source)

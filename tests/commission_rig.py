@@ -1,0 +1,84 @@
+"""A small random machine for the commissioning tests: `compgw sim --random-machine`, its
+travel cut to a few centimetres so a whole commissioning takes seconds at time_scale 0, the
+sim and `compgw run` as real processes, and `compgw commission` as a real process too.
+(No tests here.)"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import shutil
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from tests.test_service_helpers import Proc
+
+TRAVEL_MM = (0.0, 90.0)
+
+
+def small_machine(directory: Path, seed: int = 7, roughness: str = "smooth") -> dict[str, Any]:
+    """Write a random machine into ``directory`` with both axes' travel cut to TRAVEL_MM
+    (the truth files cover more: a part of them is used); machine.json returned."""
+    proc = Proc(["-m", "gateway.cli", "sim", "--random-machine", str(seed), "--roughness",
+                 roughness, "--out", str(directory)])  # fmt: skip
+    assert proc.popen.wait(timeout=60) == 0, proc.text()
+    sim = yaml.safe_load((directory / "sim.yaml").read_text())
+    sim["sim"]["tcp"]["port"] = 0
+    for axis in sim["sim"]["axes"].values():
+        axis["travel_mm"] = list(TRAVEL_MM)
+    (directory / "sim.yaml").write_text(yaml.safe_dump(sim, sort_keys=False))
+    gw = yaml.safe_load((directory / "gateway.yaml").read_text())
+    for axis in gw["axes"].values():
+        axis["travel_mm"] = list(TRAVEL_MM)
+    gw["upstream"]["tcp"]["port"] = 0
+    gw["status"]["remote_control"] = True
+    (directory / "gateway.yaml").write_text(yaml.safe_dump(gw, sort_keys=False))
+    return json.loads((directory / "machine.json").read_text())
+
+
+@dataclass
+class Rig:
+    dir: Path
+    machine: dict[str, Any]
+    sim: Proc
+    sim_port: int
+    gw: Proc
+    gw_port: int
+    config: Path  # the file the gateway runs (commissioning writes over it)
+
+    def commission_args(self, *extra: str) -> list[str]:
+        leads = ",".join(f"{a}={v['lead_mm']:g}" for a, v in self.machine["axes"].items())
+        return ["-m", "gateway.cli", "commission", "-c", str(self.config),
+                "--gateway", f"127.0.0.1:{self.gw_port}",
+                "--laser", f"127.0.0.1:{self.sim_port}:20",
+                "--xy-device", f"127.0.0.1:{self.sim_port}:21",
+                "--lead-mm", leads, "--no-progress", *extra]  # fmt: skip
+
+    def commission(self, *extra: str) -> Proc:
+        return Proc(self.commission_args(*extra))
+
+
+@contextlib.contextmanager
+def running(template: Path, directory: Path) -> Iterator[Rig]:
+    """The machine in ``template`` copied to ``directory``, its sim and gateway running."""
+    shutil.copytree(template, directory)
+    machine = json.loads((directory / "machine.json").read_text())
+    sim = Proc(["-m", "gateway.cli", "sim", "-c", str(directory / "sim.yaml")])
+    gw = None
+    try:
+        sim_port = int(sim.wait_line(r"modbus tcp on 127\.0\.0\.1:(\d+)").group(1))
+        data = yaml.safe_load((directory / "gateway.yaml").read_text())
+        data["buses"]["line1"]["tcp"]["port"] = sim_port
+        config = directory / "gw.yaml"
+        config.write_text(yaml.safe_dump(data, sort_keys=False))
+        gw = Proc(["-m", "gateway.cli", "run", "-c", str(config)])
+        gw_port = int(gw.wait_line(r"listening on 127\.0\.0\.1:(\d+)").group(1))
+        yield Rig(directory, machine, sim, sim_port, gw, gw_port, config)
+    finally:
+        if gw is not None:
+            gw.stop()
+        sim.stop()

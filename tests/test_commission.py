@@ -1,0 +1,144 @@
+"""`compgw commission` end to end on a small random machine (sim, gateway and the command as
+real processes, time_scale 0): one command from uncalibrated to verified tables judged
+between the points, resumable after a kill, an abort leaving the gateway on the stated
+config, and a budget too small ending with an honest report."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gateway.calibration.plans import read_plan
+from gateway.calibration.rawdata import read_raw_csv
+from tests.commission_rig import TRAVEL_MM, running, small_machine
+from tests.test_service_helpers import ROOT
+
+
+@pytest.fixture(scope="module")
+def template(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    directory = tmp_path_factory.mktemp("machine") / "m"
+    small_machine(directory, seed=7)
+    return directory
+
+
+def wait_for_steps(state: Path, count: int, proc, timeout_s: float = 60.0) -> None:  # type: ignore[no-untyped-def]
+    """Until the commissioning's state file records ``count`` steps done."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if state.exists():
+            try:
+                if len(json.loads(state.read_text())["steps"]) >= count:
+                    return
+            except (ValueError, KeyError):
+                pass  # written atomically: a partial read cannot happen, a missing key can
+        assert proc.popen.poll() is None, proc.text()
+        time.sleep(0.02)
+    raise AssertionError(f"no {count} steps in {state}")
+
+
+def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
+    with running(template, tmp_path / "m") as rig:
+        original = rig.config.read_text()
+        proc = rig.commission("--tolerance-um", "2")
+        rc = proc.popen.wait(timeout=300)
+        text = proc.text()
+        assert rc in (0, 1), text
+        out = rig.dir / "commission"
+        summary = json.loads((out / "summary.json").read_text())
+        for axis, entry in summary["axes"].items():
+            before, after = entry["before"]["E_um"], entry["after"]["E_um"]
+            assert after < 0.35 * before, (axis, before, after, text)
+        xy = summary["xy"]
+        assert xy["after"]["max_um"] < 0.2 * xy["before"]["max_um"], text
+        assert rc == (0 if summary["outcome"] == "within" else 1)
+        # the plan was printed before anything moved, with its machine time
+        assert "min" in proc.lines[1] and "readings" in proc.lines[1]
+        # before/after targets were never calibration points
+        for axis in ("X", "Y"):
+            judged = read_plan(out / "plans" / f"before-{axis}.plan").targets_mm(axis)
+            fitted = read_plan(out / "plans" / f"iso-{axis}.plan").targets_mm(axis)
+            assert np.min(np.abs(judged[:, None] - fitted[None, :])) >= 0.19
+            assert TRAVEL_MM[0] <= judged.min() and judged.max() <= TRAVEL_MM[1]
+        # the gateway ends on the final config, which checks, and yours is kept
+        assert "(full config)" in rig.config.read_text().splitlines()[0]
+        assert (out / "original.yaml").read_text() == original
+        check = subprocess.run([sys.executable, "-m", "gateway.cli", "check", "-c",
+                                str(rig.config)], cwd=ROOT, capture_output=True, text=True)
+        assert check.returncode == 0, check.stdout + check.stderr
+        report = (out / "report" / "report.html").read_text()
+        assert "id='summary'" in report and "What remains" in report
+        assert report.count("data:image/png;base64,") == 3  # X, Y, the XY field
+        # written tables carry no float noise
+        assert "9999999" not in (out / "tables" / "x_pitch.csv").read_text()
+
+
+def test_commission_resumes_after_a_kill(template: Path, tmp_path: Path) -> None:
+    """SIGKILL in the middle (a power loss): the same command carries on; every reading
+    taken before the kill is kept, none is taken twice."""
+    with running(template, tmp_path / "m") as rig:
+        state = rig.dir / "commission" / "commission.json"
+        first = rig.commission()
+        wait_for_steps(state, 4, first)
+        first.kill()
+        done_before = set(json.loads(state.read_text())["steps"])
+        second = rig.commission()
+        assert second.popen.wait(timeout=300) in (0, 1), second.text()
+        text = second.text()
+        assert not any(f"{name}:" in line for name in done_before for line in second.lines
+                       if "readings" in line), text  # fmt: skip
+        out = rig.dir / "commission"
+        for name in json.loads(state.read_text())["steps"]:
+            plan = read_plan(out / "plans" / f"{name}.plan")
+            rows = len(read_raw_csv(out / "raw" / f"{name}.csv"))
+            assert rows == sum(m.measured for m in plan.moves) * len(plan.axes), name
+        assert json.loads((out / "summary.json").read_text())["axes"]["X"]["after"]
+
+
+def test_an_abort_leaves_the_gateway_on_your_config(template: Path, tmp_path: Path) -> None:
+    """Ctrl-C mid-run: exit 3, your config back in the file and loaded by the gateway (its
+    config generation moved on), the message says so; running again resumes."""
+    with running(template, tmp_path / "m") as rig:
+        original = rig.config.read_text()
+        state = rig.dir / "commission" / "commission.json"
+        proc = rig.commission()
+        wait_for_steps(state, 2, proc)
+        proc.signal(signal.SIGINT)
+        assert proc.popen.wait(timeout=60) == 3, proc.text()
+        assert "the gateway runs your own config again" in proc.text()
+        assert rig.config.read_text() == original
+        reloads = [ln for ln in rig.gw.lines if "reloaded" in ln]
+        assert len(reloads) >= 2  # identification, then yours again
+        assert json.loads(state.read_text())["phase"] == "original"
+
+
+def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path: Path) -> None:
+    with running(template, tmp_path / "m") as rig:
+        original = rig.config.read_text()
+        proc = rig.commission("--budget-h", "0.05")
+        assert proc.popen.wait(timeout=120) == 1, proc.text()
+        out = rig.dir / "commission"
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["outcome"] == "budget"
+        assert summary["machine_h"] <= 0.05
+        assert any("budget spent" in n for n in summary["notes"])
+        assert "budget" in (out / "report" / "report.html").read_text()
+        assert rig.config.read_text() == original  # nothing fitted: your config, loaded
+        assert "outcome: budget" in proc.text()
+
+
+def test_dry_run_prints_the_plan_and_moves_nothing(template: Path, tmp_path: Path) -> None:
+    with running(template, tmp_path / "m") as rig:
+        proc = rig.commission("--dry-run")
+        assert proc.popen.wait(timeout=60) == 0, proc.text()
+        text = proc.text()
+        for step in ("backlash-X", "iso-X", "cyclic-X", "iso-Y", "xy-grid"):
+            assert step in text
+        assert not (rig.dir / "commission" / "raw").exists()
+        assert "then verification rounds" in text
