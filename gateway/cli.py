@@ -48,6 +48,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    if args.commission:
+        from .demo_commission import main as commission_demo
+
+        return commission_demo(args.save)
     from .demo import main as demo_main
 
     return demo_main(as_json=args.json, identify_dir=args.identify)
@@ -146,6 +150,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--identify", metavar="DIR", help="measure the example machine, write its tables to DIR"
     )
+    p.add_argument("--commission", action="store_true",
+                   help="run `compgw commission` live on a random machine (about 20 s)")
+    p.add_argument("--save", metavar="FILE", help="with --commission: keep its output there")
     p.set_defaults(func=_cmd_demo)
 
     from .calibration.commands import add_parsers as add_calibration_parsers

@@ -320,4 +320,9 @@ def main(as_json: bool = False, identify_dir: str | None = None) -> int:
         return 0
     result = asyncio.run(compare())
     print(json.dumps(result, indent=2) if as_json else format_table(result))
+    if not as_json:
+        from .demo_commission import saved
+
+        print("\nCommissioning (a saved run of `compgw demo --commission`, which runs it live):")
+        print(saved(), end="")
     return 0

@@ -123,3 +123,18 @@ def test_example_configs_run_as_processes(tmp_path: Path):
             if proc is not None and proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
                 proc.wait(timeout=20)
+
+
+def test_demo_commission_runs_live_and_the_saved_run_is_shown() -> None:
+    """`compgw demo --commission` commissions a random machine live (in seconds); plain
+    `compgw demo` shows the saved run of it after the before/after table."""
+    out = compgw("demo", "--commission")
+    assert out.returncode == 0, out.stderr
+    cuts = re.findall(r"^([XY]): E ([\d.]+) → ([\d.]+) µm", out.stdout, re.MULTILINE)
+    assert len(cuts) == 2, out.stdout
+    for _, before, after in cuts:
+        assert float(after) < 0.35 * float(before), out.stdout
+    assert re.search(r"XY max vector error [\d.]+ → [\d.]+ µm", out.stdout)
+    assert "outcome: " in out.stdout
+    saved = (ROOT / "config" / "commission-demo.txt").read_text()
+    assert "outcome: " in saved and "round 1" in saved
