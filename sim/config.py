@@ -25,6 +25,7 @@ from pydantic import (
     model_validator,
 )
 
+from sim.config_rotary import AngleConfig, SwingConfig, TurntableConfig
 from sim.config_truth import (
     CyclicScrew,
     DeviationTable,
@@ -310,6 +311,9 @@ class AxisErrors(_Model):
     stick_slip: StickSlip | None = None
     settling: Settling | None = None
     heat: ScrewHeat | None = None
+    #: rotary truths (sim/config_rotary.py): a swing axis through a linkage, a turntable
+    swing: SwingConfig | None = None
+    turntable: TurntableConfig | None = None
 
     @model_validator(mode="after")
     def _one_of_each(self) -> AxisErrors:
@@ -319,6 +323,17 @@ class AxisErrors(_Model):
         if self.lost_motion is not None and (self.backlash_um or self.backlash_um_per_m):
             raise ValueError("lost_motion: give the play either as backlash_um or as "
                              "lost_motion, not both")  # fmt: skip
+        if self.swing is not None or self.turntable is not None:
+            kind = "swing" if self.swing is not None else "turntable"
+            linear = ("deviation", "lost_motion", "cyclic", "thermal", "heat")
+            if ((self.swing is not None and self.turntable is not None)
+                    or any(getattr(self, k) is not None for k in linear)
+                    or self.pitch != PitchConfig() or self.backlash_um
+                    or self.backlash_um_per_m or self.repeatability_um):
+                raise ValueError(f"{kind}: a rotary truth carries its own errors, play and "
+                                 "repeatability: no pitch, backlash_um, repeatability_um, "
+                                 "deviation, lost_motion, cyclic, thermal or heat beside it, "
+                                 "and not both swing and turntable")  # fmt: skip
         dev, lm = self.deviation, self.lost_motion
         if dev is not None and dev.reverse_column and lm is not None and (lm.um or lm.table):
             raise ValueError("lost_motion: the deviation table's reverse column already "
@@ -406,6 +421,7 @@ class InstrumentsConfig(_Model):
     xy: XYConfig | None = None
     delta_a: DeltaAConfig | None = None
     temperature: TemperatureConfig | None = None
+    angle: AngleConfig | None = None
 
 
 class FaultsConfig(_Model):
@@ -454,7 +470,7 @@ class SimSection(_Model):
         for name, axis in self.axes.items():
             claim(axis.unit, f"axes.{name}")
         ins = self.instruments
-        for key in ("laser", "xy", "delta_a", "temperature"):
+        for key in ("laser", "xy", "delta_a", "temperature", "angle"):
             item = getattr(ins, key)
             if item is not None:
                 claim(item.unit, f"instruments.{key}")
@@ -463,6 +479,10 @@ class SimSection(_Model):
             for name in ins.laser.axes:
                 if name not in self.axes:
                     raise ValueError(f"instruments.laser.axes: {name!r} is not an axis")
+        if ins.angle is not None:
+            for name in ins.angle.axes:
+                if name not in self.axes:
+                    raise ValueError(f"instruments.angle.axes: {name!r} is not an axis")
         if ins.xy is not None and self.plane is None:
             raise ValueError("instruments.xy: needs a plane (which axes are X and Y)")
         if ins.delta_a is not None:

@@ -21,6 +21,8 @@ flanks (0 after moving +, 1 after moving −) moved by each reversal along its t
 (:class:`sim.truth.TakeUpCurve`). On any axis: ``stick_slip`` (a stop short of the target),
 ``settling`` (ringing after the stop), ``heat`` (a temperature profile along the screw,
 :mod:`sim.heat`), and the plane's measured ``field``.
+Rotary axes (issue 16, ``swing`` or ``turntable``): positions are degrees; the truth in
+:mod:`sim.rotary` gives the play (through the same play operator) and the table's angle.
 All randomness comes from generators spawned from the seed, one per axis.
 """
 
@@ -33,6 +35,7 @@ import numpy as np
 
 from sim.config import AxisConfig, AxisErrors, PitchConfig, PlaneConfig, SimSection, ThermalConfig
 from sim.heat import ScrewHeatModel
+from sim.rotary import RotaryTruth, rotary_truth
 from sim.truth import ScrewTruth, XYField, load_screw
 
 ARCSEC_RAD = math.pi / (180.0 * 3600.0)
@@ -143,6 +146,7 @@ class AxisState:
     stop_s: float = -math.inf  # when the last real move ended (settling)
     stop_dir: int = 0
     stick_mm: float = 0.0  # how far the last stop stuck short (signed, mm)
+    rotary: RotaryTruth | None = None  # swing or turntable truth (degrees)
 
     def takeup_at(self, t_s: float) -> float:
         """Nut state s at ``t_s`` (data-driven axes): 0 on the + flank, 1 on the − flank."""
@@ -173,6 +177,8 @@ class AxisState:
 
     def backlash_mm(self, motor_mm: float) -> float:
         """Play between motor and nut at this motor position (never negative)."""
+        if self.rotary is not None:
+            return self.rotary.play_deg(motor_mm)
         x_m = (motor_mm - self.cfg.travel_mm[0]) / 1000.0
         return max(0.0, self.errors.backlash_um + self.errors.backlash_um_per_m * x_m) / 1000.0
 
@@ -221,6 +227,7 @@ class Machine:
                 screw=load_screw(errs.deviation, errs.lost_motion, errs.cyclic,
                                  errs.backlash_um, base_dir) if errs.data_driven else None,
                 heat=ScrewHeatModel(errs.heat, axis_cfg.travel_mm) if errs.heat else None,
+                rotary=rotary_truth(errs.swing, errs.turntable),
             )  # fmt: skip
 
     # ------------------------------------------------------------ motion
@@ -261,6 +268,8 @@ class Machine:
                 ax.moving = False
                 ax.stops += 1
                 sigma_mm = ax.errors.repeatability_um / 1000.0
+                if ax.rotary is not None:
+                    sigma_mm = ax.rotary.repeatability_deg
                 ax.noise_mm = float(ax.rng.normal(0.0, sigma_mm)) if sigma_mm > 0 else 0.0
                 if ax.move_dir != 0:
                     ax.stop_s, ax.stop_dir = ax.end_s, ax.move_dir
@@ -288,7 +297,10 @@ class Machine:
     # ------------------------------------------------------------ truth
     def _axis_true_mm(self, ax: AxisState, now_s: float) -> tuple[float, float]:
         """(true position along the axis without plane terms, nut coordinate)."""
-        if ax.screw is None:
+        if ax.rotary is not None:
+            nut_mm = ax.nut_at(now_s)
+            true_mm = ax.rotary.true_deg(nut_mm) + ax.noise_mm
+        elif ax.screw is None:
             nut_mm = ax.nut_at(now_s)
             true_mm = nut_mm + float(ax.pitch.error_mm(nut_mm)) + ax.noise_mm
         else:  # data-driven: motor + forward deviation + s · lost motion

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.angle import AngleEncoder
 from sim.clock import MachineClock
 from sim.config import SimConfig, load_pitch_table
 from sim.drive import Drive
@@ -22,7 +23,8 @@ from sim.machine import Machine
 from sim.pdu import RegisterUnit, exception_pdu, handle_pdu
 
 # spawn keys for instrument noise, well away from the machine's per-axis keys (0..n-1)
-_INSTRUMENT_KEYS = {"laser": 1001, "xy": 1002, "delta_a": 1003, "temperature": 1004}
+_INSTRUMENT_KEYS = {"laser": 1001, "xy": 1002, "delta_a": 1003, "temperature": 1004,
+                    "angle": 1005}
 _GARBAGE_KEY = 1100
 
 
@@ -74,6 +76,8 @@ class Simulation:
             self.instruments["temperature"] = TemperatureSensors(
                 ins.temperature, axes, *base, rng("temperature")
             )
+        if ins.angle is not None:
+            self.instruments["angle"] = AngleEncoder(ins.angle, *base, rng("angle"))
         self.units: dict[int, RegisterUnit] = dict(self.drives_by_unit)
         for key, inst in self.instruments.items():
             self.units[getattr(ins, key).unit] = inst
