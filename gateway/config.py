@@ -307,6 +307,9 @@ class Compensation(Model):
     allow_backlash_with_bidirectional: bool = False
     thermal: AxisThermal | None = None
     cyclic: str | None = None  # the cyclic-error file (lead, harmonics at stations)
+    #: a swing axis's linkage file (rocking-block geometry, the control's scale): the
+    #: kinematic stage after the pitch table (gateway/compensation/linkage.py)
+    linkage: str | None = None
     max_correction_mm: float = Field(default=0.2, gt=0.0, le=5.0)
     enabled: bool = True
 
@@ -326,6 +329,9 @@ class Axis(Model):
     ``command_scale`` (k): the drive's electronic gear is set k times finer than the upper
     computer's pulse, so targets go to the drive in units of ``pulse_mm``/k and corrections
     land to a k-th of a pulse while the master keeps its own units.
+    ``rotary``: positions in degrees (``pulse_mm``, ``travel_mm``, ``max_correction_mm``
+    too); a turntable by default (tables modulo 360°, targets of any turn), or with
+    ``wrap: false`` a swing axis whose angle stays within its travel.
     """
 
     bus: str
@@ -334,6 +340,7 @@ class Axis(Model):
     profile: str | None = None
     pulse_mm: Positive
     rotary: bool = False
+    wrap: bool | None = None
     travel_mm: Interval
     home_direction: Literal[1, -1] = 1
     registers: Registers
@@ -364,6 +371,22 @@ class Axis(Model):
                 "signed 32-bit target holds"
             )
         return self
+
+    @model_validator(mode="after")
+    def _rotary_kind(self) -> Axis:
+        if self.wrap is not None and not self.rotary:
+            raise _path_error(("wrap",), self.wrap, "needs rotary: true (a linear axis "
+                              "never wraps)")  # fmt: skip
+        comp = self.compensation
+        if comp.linkage is not None and not (self.rotary and self.wrap is False):
+            raise _path_error(("compensation", "linkage"), comp.linkage, "needs a swing axis "
+                              "(rotary: true, wrap: false)")  # fmt: skip
+        return self
+
+    @property
+    def wraps(self) -> bool:
+        """A turntable: positions modulo 360° (rotary and not ``wrap: false``)."""
+        return self.rotary and self.wrap is not False
 
     @model_validator(mode="after")
     def _feedback_scale_is_explicit(self) -> Axis:
@@ -544,7 +567,8 @@ def warnings(config: GatewayConfig) -> list[str]:
         unit_mm = axis.pulse_mm / axis.command_scale
         comp = axis.compensation
         corrects = comp.pitch is not None or comp.backlash_mm > 0 or comp.thermal is not None \
-            or comp.cyclic is not None or (config.planar is not None and name in config.planar.axes)
+            or comp.cyclic is not None or comp.linkage is not None \
+            or (config.planar is not None and name in config.planar.axes)
         if corrects and not axis.rotary and unit_mm > COARSE_UNIT_MM:
             out.append(
                 f"axes.{name}: corrections land to whole drive units of {unit_mm * 1000:g} µm "

@@ -39,7 +39,10 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
             f"  {name}: upstream unit {axis.upstream} -> {axis.bus} unit {axis.unit}, "
             f"{axis.pulse_mm:g} {'deg' if axis.rotary else 'mm'}/pulse, "
             f"travel [{axis.travel_mm[0]:g}, {axis.travel_mm[1]:g}]"
+            + ("" if not axis.rotary else ", turntable (modulo 360 deg)" if axis.wraps
+                else ", swing axis")
         )
+        small, unit = (3600.0, '"') if axis.rotary else (1e3, " µm")
         if axis.command_scale == 1:
             counts = f"{regs.feedback.counts_per_pulse:g} counts/pulse"
         else:
@@ -76,18 +79,26 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
                 f"pitch {table.source} ({table.position_mm.size} points, "
                 f"{'bi' if table.bidirectional else 'uni'}directional, "
                 f"{stages.pitch.interpolation}, "
-                f"max {stages.pitch.max_abs_correction_mm() * 1e3:.1f} µm)"
+                f"max {stages.pitch.max_abs_correction_mm() * small:.1f}{unit})"
+            )
+        if stages.linkage is not None:
+            link = stages.linkage.model
+            parts.append(
+                f"linkage {link.source} (arm {link.arm_mm:g} mm, base {link.base_mm:g} mm, "
+                f"phi0 {link.phi0_deg:g} deg, {link.mm_per_deg:g} mm/deg, "
+                f"max {stages.linkage.max_abs_correction_mm():.4f} deg)"
             )
         if stages.cyclic is not None:
             model = stages.cyclic.model
             parts.append(
-                f"cyclic {model.source} (lead {model.lead_mm:g} mm, {model.harmonics} "
+                f"cyclic {model.source} (lead {model.lead_mm:g} "
+                f"{'deg' if axis.rotary else 'mm'}, {model.harmonics} "
                 f"harmonic(s), {model.station_mm.size} station(s), "
-                f"peak {model.peak_mm() * 1e3:.1f} µm)"
+                f"peak {model.peak_mm() * small:.1f}{unit})"
             )
         if stages.backlash is not None:
             parts.append(
-                f"backlash {stages.backlash.backlash_mm * 1e3:.1f} µm "
+                f"backlash {stages.backlash.backlash_mm * small:.1f}{unit} "
                 f"({stages.backlash.table_direction})"
             )
         if stages.thermal is not None:

@@ -15,13 +15,17 @@ from .compensation import (
     Chain,
     CompensationError,
     CyclicStage,
+    LinkageStage,
     PitchStage,
     PitchTable,
     PlanarStage,
     ThermalStage,
 )
 from .config import Axis, ConfigError, GatewayConfig
-from .formats import load_planar_model, read_cyclic, read_linuxcnc, read_pitch_csv
+from .formats import load_planar_model, read_cyclic, read_linkage, read_linuxcnc, read_pitch_csv
+
+#: a turntable's period (deg): its tables and worm term repeat every turn
+TURN_DEG = 360.0
 
 
 def _read_pitch(axis_name: str, axis: Axis, base_dir: Path) -> PitchStage | None:
@@ -32,15 +36,17 @@ def _read_pitch(axis_name: str, axis: Axis, base_dir: Path) -> PitchStage | None
     table: PitchTable
     if spec.format == "csv":
         table = read_pitch_csv(path)
-    else:
+    else:  # a LinuxCNC file has no unit: it is in the axis's (mm or degrees)
         table = read_linuxcnc(path, int(spec.format[-1]))
+        table = PitchTable(table.position_mm, table.forward_mm, table.reverse_mm,
+                           axis.rotary, table.source, table.lines)  # fmt: skip
     if table.rotary != axis.rotary:
         kind = "rotary (position_deg)" if table.rotary else "linear (position_mm)"
         raise CompensationError(
             f"axes.{axis_name}.compensation.pitch: {path} is a {kind} table but the axis is "
             f"{'rotary' if axis.rotary else 'linear'}"
         )
-    stage = PitchStage(table, spec.interpolation, spec.outside, spec.taper_mm)
+    stage = PitchStage(table, spec.interpolation, spec.outside, spec.taper_mm, axis.wraps)
     stage.check_cap(axis.compensation.max_correction_mm)
     return stage
 
@@ -55,7 +61,11 @@ def build_axis(name: str, axis: Axis, base_dir: Path) -> AxisChain:
         thermal = ThermalStage(comp.thermal.length_mm, comp.thermal.origin_mm)
     cyclic = None
     if comp.cyclic is not None:
-        cyclic = CyclicStage(read_cyclic(base_dir / comp.cyclic), axis.travel_mm)
+        period = TURN_DEG if axis.wraps else None
+        cyclic = CyclicStage(read_cyclic(base_dir / comp.cyclic), axis.travel_mm, period)
+    linkage = None
+    if comp.linkage is not None:
+        linkage = LinkageStage(read_linkage(base_dir / comp.linkage), axis.travel_mm)
     return AxisChain(
         name,
         axis.pulse_mm,
@@ -67,6 +77,7 @@ def build_axis(name: str, axis: Axis, base_dir: Path) -> AxisChain:
         travel_mm=axis.travel_mm,
         max_correction_mm=comp.max_correction_mm,
         allow_backlash_with_bidirectional=comp.allow_backlash_with_bidirectional,
+        linkage=linkage,
     )
 
 

@@ -63,10 +63,15 @@ def _range(text: str) -> tuple[float, float]:
 def make_plan(args: argparse.Namespace, config: GatewayConfig, verification: bool = False):  # type: ignore[no-untyped-def]
     """The plan the options describe (``verification``: its verification variant), its
     targets on each axis' pulse grid when the machine is driven (not for ``--join``)."""
-    from .plans import snap_to_pulses
+    from .plans import Plan, snap_to_pulses
 
     plan = _described_plan(args, config, verification)
-    if plan is None or getattr(args, "join", None):
+    if plan is None:
+        return plan
+    if all(a in config.axes and config.axes[a].rotary for a in plan.axes) \
+            and "unit" not in dict(plan.meta):  # fmt: skip
+        plan = Plan(plan.kind, plan.axes, plan.moves, (*plan.meta, ("unit", "deg")))
+    if getattr(args, "join", None):
         return plan
     return snap_to_pulses(plan, {name: axis.pulse_mm for name, axis in config.axes.items()})
 
@@ -97,7 +102,14 @@ def _described_plan(args: argparse.Namespace, config: GatewayConfig, verificatio
             lead_mm=args.lead_mm, overrun_mm=args.overrun_mm, verification=verification,
         )  # fmt: skip
     if args.backlash:
-        return None if verification else backlash_plan(args.backlash, travel(args.backlash))
+        if verification:
+            return None
+        lo, hi = travel(args.backlash)
+        if config.axes[args.backlash].rotary:
+            # seed 000 in angle: 1° take-up, 1° on and back, 1° from the ends
+            return backlash_plan(args.backlash, (lo, hi), takeup_mm=1.0, away_mm=1.0,
+                                 margin_mm=1.0)  # fmt: skip
+        return backlash_plan(args.backlash, (lo, hi))
     if args.cyclic:
         if verification:
             return None
@@ -223,6 +235,8 @@ def calibrate(
                 laser_axes=args.laser_axes.split(",") if args.laser_axes else None,
                 xy=Endpoint.parse(args.xy_device) if args.xy_device else None,
                 delta_a=Endpoint.parse(args.delta_a) if args.delta_a else None,
+                angle=Endpoint.parse(args.angle) if args.angle else None,
+                angle_axes=args.angle_axes.split(",") if args.angle_axes else None,
                 wait_stable=not args.no_wait_stable,
             ),
             MotionSettings(args.in_position_bit, args.moving_bit, args.alarm_bit,
@@ -332,6 +346,9 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     i.add_argument("--laser-axes", metavar="X,Y", help="laser channel order (config order)")
     i.add_argument("--xy-device", metavar="HOST:PORT:UNIT", help="XY device: X at 0, Y at 2")
     i.add_argument("--delta-a", metavar="HOST:PORT:UNIT[:ADDR]", help="Δa sensor (int32 nm)")
+    i.add_argument("--angle", metavar="HOST:PORT:UNIT",
+                   help="angle instrument of rotary axes: int32 µdeg at 2k (axis k)")
+    i.add_argument("--angle-axes", metavar="A,C", help="its channel order (the rotary axes)")
     i.add_argument("--no-wait-stable", action="store_true", help="read the laser / XY device "
                    "at once (default: wait for their stable flags, 2N+k / 4-5)")  # fmt: skip
     i.add_argument("--join", metavar="FILE", help="offline: join a laser system's CSV export")
@@ -413,9 +430,11 @@ def fit(args: argparse.Namespace) -> int:
                 for a in raw.axes:
                     res = backlash_from_raw(raw, a)
                     backlash[a] = res.backlash_mm
-                    report.setdefault(a, {})["backlash_um"] = res.backlash_mm * 1e3
+                    angular = a in config.axes and config.axes[a].rotary
+                    key, scale = ("backlash_arcsec", 3600.0) if angular else ("backlash_um", 1e3)
+                    report.setdefault(a, {})[key] = res.backlash_mm * scale
                     report[a]["backlash_places"] = {
-                        f"{p:g}": m * 1e3 for p, m in zip(res.place_mm, res.mean_mm)
+                        f"{p:g}": m * scale for p, m in zip(res.place_mm, res.mean_mm)
                     }
         pending: list[Callable[[], None]] = []
         cyclic: dict[str, Any] = {}  # axis → the cyclic model written (for the joint fit)
@@ -461,6 +480,7 @@ def fit(args: argparse.Namespace) -> int:
                                  points=int(r.table.position_mm.size))  # fmt: skip
                     if r.backlash_mm is not None:
                         entry["backlash_mm"] = r.backlash_mm
+                    entry.update(_rotary_entry(r, config, a))
             elif kind == "planar":
                 if config.planar is None:
                     raise TableError(f"{path}: an XY run, but the config has no planar section")
@@ -505,6 +525,24 @@ def fit(args: argparse.Namespace) -> int:
     else:
         print(format_fit(report, args.dry_run))
     return EXIT_OK
+
+
+def _rotary_entry(r: Any, config: GatewayConfig, axis: str) -> dict[str, Any]:
+    """What a rotary axis's fit adds to the report: the interpolation chosen by
+    cross-validation (scores in arcseconds) and a swing axis's fitted linkage."""
+    out: dict[str, Any] = {}
+    if r.interpolation_cv is not None:
+        best, scores = r.interpolation_cv
+        spec = config.axes[axis].compensation.pitch_file
+        out["interpolation_cv"] = {
+            "best": best, "configured": spec.interpolation if spec else "linear",
+            "loo_rms_arcsec": {k: v * 3600.0 for k, v in scores.items()}}  # fmt: skip
+    if r.linkage is not None:
+        fit = r.linkage
+        out["linkage"] = {"file": str(r.linkage_path), "fitted": list(fit.free),
+                          "values": fit.model.values(), "rms_deg": fit.rms_deg,
+                          "max_deg": fit.max_deg, "drawing_rms_deg": fit.start_rms_deg}
+    return out
 
 
 def _pitch_lines(items: list[str] | None) -> dict[str, float] | None:
@@ -552,11 +590,28 @@ def format_fit(report: dict[str, Any], dry_run: bool = False) -> str:
             lines.append(f"{name}: {verb} {entry['table']} ({entry['mode']}, "
                          f"{entry['points']} points{', folded' if entry['folded'] else ''}"
                          f"{net})")
+        if "linkage" in entry:
+            lk = entry["linkage"]
+            fitted = ", ".join(f"{k} {lk['values'][k]:.6g}" for k in lk["fitted"])
+            lines.append(f"{name}: {verb} {lk['file']} (linkage: {fitted}; residual RMS "
+                         f"{lk['rms_deg']:.6f} deg, max {lk['max_deg']:.6f} deg; drawing's "
+                         f"values {lk['drawing_rms_deg']:.6f} deg); the table holds the rest")
+        if "interpolation_cv" in entry:
+            cv = entry["interpolation_cv"]
+            scores = ", ".join(f"{k} {v:.3f}" for k, v in cv["loo_rms_arcsec"].items())
+            line = (f"{name}: interpolation by leave-one-out: {cv['best']} (RMS arcsec: "
+                    f"{scores})")
+            if cv["best"] != cv["configured"]:
+                line += f"; set axes.{name}.compensation.pitch.interpolation: {cv['best']}"
+            lines.append(line)
         if "backlash_mm" in entry:
             lines.append(f"{name}: set axes.{name}.compensation.backlash_mm: "
                          f"{entry['backlash_mm']:.6g}")  # fmt: skip
         if "backlash_um" in entry:
             lines.append(f"{name}: backlash (seed 000) {entry['backlash_um']:.2f} µm")
+        if "backlash_arcsec" in entry:
+            lines.append(f"{name}: backlash (seed 000) {entry['backlash_arcsec']:.2f} arcsec "
+                         f"({entry['backlash_arcsec'] / 3600:.6f} deg)")
         if "thermal" in entry:
             t = entry["thermal"]
             lines.append(f"{name}: thermal length_mm {t['length_mm']:.1f} (set axes.{name}."

@@ -173,3 +173,30 @@ def fold_backlash(backlash_mm: float, residual_reversal_mean_mm: float) -> float
     the residual B̄ = B − L and the new backlash is B − B̄.
     """
     return max(0.0, backlash_mm - residual_reversal_mean_mm)
+
+
+#: a turntable's period (deg)
+TURN_DEG = 360.0
+
+
+def as_axis_table(table: PitchTable, rotary: bool, wrap: bool) -> PitchTable:
+    """``table`` in the axis's kind: degrees for a rotary axis; for a turntable (``wrap``)
+    positions taken modulo 360 and sorted, readings of one angle in different turns (0 and
+    360, 10 and 370) averaged into one point."""
+    if not rotary:
+        return table
+    pos, fwd, rev = table.position_mm, table.forward_mm, table.reverse_mm
+    if wrap:
+        pos = np.mod(pos, TURN_DEG)
+        pos[np.isclose(pos, TURN_DEG, rtol=0.0, atol=TARGET_TOLERANCE_MM)] = 0.0
+        order = np.argsort(pos, kind="stable")
+        pos, fwd = pos[order], fwd[order]
+        rev = None if rev is None else rev[order]
+        group = np.concatenate([[0], np.cumsum(np.diff(pos) > TARGET_TOLERANCE_MM)])
+
+        def merged(v: NDArray[np.float64]) -> NDArray[np.float64]:
+            return np.bincount(group, weights=v) / np.bincount(group)
+
+        pos, fwd = merged(pos), merged(fwd)
+        rev = None if rev is None else merged(rev)
+    return PitchTable(pos, fwd, rev, True, table.source)

@@ -12,6 +12,10 @@ From the deviations ``x_ij = actual − target`` (mm) at targets i, runs j, appr
 - A↑ = max(x̄i↑ + 2si↑) − min(x̄i↑ − 2si↑) (↓ likewise);
   A = max(x̄i↑ + 2si↑, x̄i↓ + 2si↓) − min(x̄i↑ − 2si↑, x̄i↓ − 2si↓).
 
+Rotary axes (ISO 230-2 clause 3 applies to them too): positions and deviations in degrees,
+the "µm" figures are then millidegrees; :meth:`Iso230Result.to_json_dict` with ``angular``
+gives them in arcseconds and degrees.
+
 Missing measurements (NaN) are left out per target. With a single run s is undefined: it is
 taken as 0 and ``s_defined`` is False. With one direction only, the figures that need both
 (B, B̄, R, E, M, A) are ``None``.
@@ -29,6 +33,8 @@ from ..compensation.errors import TableError
 from .rawdata import AxisDeviations, RawData, deviations_by_axis
 
 UM_PER_MM = 1000.0
+#: a rotary axis's figures: arcseconds per millidegree (the "µm" of a degree axis)
+ARCSEC_PER_MDEG = 3.6
 #: Keys of :meth:`Iso230Result.to_json_dict` that ``compgw report --json`` promises.
 JSON_KEYS = (
     "A_um",
@@ -140,16 +146,17 @@ class Iso230Result:
     def A_down_um(self) -> float | None:
         return self._dir(self.down, "A_um")
 
-    def to_json_dict(self) -> dict[str, Any]:
-        """Axis figures for ``compgw report --json`` (µm; None where undefined)."""
+    def to_json_dict(self, angular: bool = False) -> dict[str, Any]:
+        """Axis figures for ``compgw report --json`` (µm; None where undefined); a rotary
+        axis (``angular``) in arcseconds and degrees (``A_arcsec``, ``A_deg``, …)."""
         out: dict[str, Any] = {key: getattr(self, key) for key in JSON_KEYS}
-        out.update(
-            A_up_um=self.A_up_um,
-            A_down_um=self.A_down_um,
-            targets=int(self.target_mm.size),
-            runs=self.runs,
-            s_defined=self.s_defined,
-        )
+        out.update(A_up_um=self.A_up_um, A_down_um=self.A_down_um)
+        if angular:
+            out = {f"{k[:-3]}_{unit}": None if v is None else v * scale
+                   for k, v in out.items()
+                   for unit, scale in (("arcsec", ARCSEC_PER_MDEG), ("deg", 1e-3))}  # fmt: skip
+            out["unit"] = "deg"
+        out.update(targets=int(self.target_mm.size), runs=self.runs, s_defined=self.s_defined)
         return out
 
     def per_target_rows(self) -> list[dict[str, float | None]]:
@@ -232,6 +239,7 @@ def iso230_raw(raw: RawData) -> dict[str, Iso230Result]:
     return {name: iso230_axis(dev) for name, dev in deviations_by_axis(raw).items()}
 
 
-def report_json(raw: RawData) -> dict[str, dict[str, Any]]:
-    """``{"X": {"A_um": …, …}}``: what ``compgw report RAW.csv --json`` prints."""
-    return {name: result.to_json_dict() for name, result in iso230_raw(raw).items()}
+def report_json(raw: RawData, angular: bool = False) -> dict[str, dict[str, Any]]:
+    """``{"X": {"A_um": …, …}}``: what ``compgw report RAW.csv --json`` prints (rotary
+    axes, ``angular``: ``{"A": {"A_arcsec": …, "A_deg": …, …}}``)."""
+    return {name: result.to_json_dict(angular) for name, result in iso230_raw(raw).items()}

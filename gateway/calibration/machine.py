@@ -10,7 +10,11 @@ devices with the register map of the simulator's (``sim/README.md``):
   gives the order;
 - XY device (``--xy HOST:PORT:UNIT``): input registers 0-1 true X, 2-3 true Y, int32 nm;
 - Δa sensor (``--delta-a HOST:PORT:UNIT[:ADDRESS]``): input registers ADDRESS (default 1),
-  ADDRESS+1, int32 nm (the sim's displacement sensor at reference point A).
+  ADDRESS+1, int32 nm (the sim's displacement sensor at reference point A);
+- angle instrument (``--angle HOST:PORT:UNIT``, rotary axes): the laser's layout in µdeg
+  (axis k at 2k, 2k+1, stable flags at 2N + k; ``--angle-axes`` the channel order), read
+  by :class:`Laser` as degrees; a turntable's reading (modulo 360) is taken in the turn of
+  its target (:func:`nearest_turn_deg`).
 
 Any instrument behind the gateway's ``passthrough`` can be reached through the gateway's
 own address, e.g. ``--laser 127.0.0.1:5020:20``.
@@ -269,6 +273,12 @@ class Laser:
                                     flags, self.wait_stable)  # fmt: skip
         return {a: unpack_int32(words[2 * self.index[a] : 2 * self.index[a] + 2], "hi_lo")
                 / NM_PER_MM for a in axes}  # fmt: skip
+
+
+def nearest_turn_deg(reading_deg: float, target_deg: float) -> float:
+    """A turntable's angle read modulo 360, in the turn of ``target_deg`` (the reading
+    within ±180° of it): the instrument counts within a turn, the drive counts turns."""
+    return target_deg + ((reading_deg - target_deg + 180.0) % 360.0 - 180.0)
 
 
 @dataclass

@@ -25,9 +25,11 @@ from ..config_types import read_yaml
 from ..formats import (
     atomic_write_text,
     read_cyclic,
+    read_linkage,
     read_linuxcnc,
     read_pitch_csv,
     write_cyclic,
+    write_linkage,
     write_linuxcnc,
     write_pitch_csv,
     write_planar_csv,
@@ -35,6 +37,7 @@ from ..formats import (
 from ..formats.planar_file import load_planar_model
 from .cyclic_fit import CyclicFit, fit_cyclic, net_of_cyclic, scans_from_raw
 from .fit import (
+    as_axis_table,
     bidirectional_table,
     bidirectional_table_smooth_reversal,
     fold_backlash,
@@ -42,8 +45,10 @@ from .fit import (
     unidirectional_table,
 )
 from .iso230 import iso230_axis
+from .linkage_fit import LinkageFit, fit_linkage, mean_actual_deg, residual_deviations
 from .models import PlanarChoice, choose_planar_model, pinned_measurement
 from .rawdata import RawData, axis_deviations
+from .table_cv import choose_interpolation
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,6 +62,11 @@ class PitchResult:
     mode: str  # "bidirectional" or "unidirectional"
     folded: bool
     fmt: str = "csv"  # file format: csv, linuxcnc0, linuxcnc1
+    #: a swing axis: the linkage fitted before the table (written with it), and its file
+    linkage: LinkageFit | None = None
+    linkage_path: Path | None = None
+    #: rotary axes: the interpolation with the smallest leave-one-out RMS, and the scores
+    interpolation_cv: tuple[str, dict[str, float]] | None = None
 
 
 def pitch_spec(config: GatewayConfig, axis: str) -> PitchFile | None:
@@ -81,7 +91,8 @@ def check_pitch(table: PitchTable, config: GatewayConfig, axis: str) -> None:
     """The gateway's load checks: monotone map with its interpolation, and the cap."""
     spec = pitch_spec(config, axis) or PitchFile(file=table.source)
     comp = config.axes[axis].compensation
-    stage = PitchStage(table, spec.interpolation, spec.outside, spec.taper_mm)
+    stage = PitchStage(table, spec.interpolation, spec.outside, spec.taper_mm,
+                       config.axes[axis].wraps)  # fmt: skip
     stage.check_cap(comp.max_correction_mm)
 
 
@@ -112,14 +123,23 @@ def fit_pitch(
     measured by the backlash plan, used instead of the ISO reversal B̄.
     ``reversal_degree``: bidirectional tables take the reversal as a polynomial of this
     degree in position (:func:`.fit.bidirectional_table_smooth_reversal`); ``None``: per point.
+    Rotary axes: the table in degrees (a turntable's modulo 360), its interpolation scored
+    by cross-validation; a swing axis with ``compensation.linkage``: the linkage fitted first
+    (from the file's values) and the table made of what it leaves.
     """
     path, fmt = pitch_path(config, config_dir, axis)
-    comp = config.axes[axis].compensation
+    ax = config.axes[axis]
+    comp = ax.compensation
     if mode == "auto":
         mode = "unidirectional" if comp.backlash_mm > 0 else "bidirectional"
     if mode not in ("bidirectional", "unidirectional"):
         raise TableError(f"mode {mode!r} is not auto, bidirectional or unidirectional")
     dev = axis_deviations(raw, axis)
+    link: LinkageFit | None = None
+    link_path = config_dir / comp.linkage if comp.linkage is not None else None
+    if link_path is not None and not residual:
+        link = fit_linkage(dev.target_mm, mean_actual_deg(dev), read_linkage(link_path))
+        dev = residual_deviations(dev, link.model)
     if residual:
         current = read_table(path, fmt)
         resid = bidirectional_table(dev) if dev.up_mm is not None and dev.down_mm is not None \
@@ -143,12 +163,23 @@ def fit_pitch(
         uni = unidirectional_table(dev, str(path))
         lash = backlash_mm if backlash_mm is not None else uni.backlash_mm
         result = PitchResult(axis, path, uni.table, lash, mode, False, fmt)
+    if ax.rotary:
+        table = as_axis_table(result.table, True, ax.wraps)
+        cv = choose_interpolation(table, ax.wraps) if table.position_mm.size >= 5 else None
+        result = replace(result, table=table, linkage=link, linkage_path=link_path,
+                         interpolation_cv=cv)  # fmt: skip
     check_pitch(result.table, config, axis)
     return result
 
 
 def save_pitch(result: PitchResult, comment: str = "") -> None:
-    """Write the table (already checked by :func:`fit_pitch`) to its file, atomically."""
+    """Write the table (already checked by :func:`fit_pitch`) to its file, atomically; a
+    fitted linkage first (the table is what it leaves)."""
+    if result.linkage is not None and result.linkage_path is not None:
+        fit = result.linkage
+        note = (f"{comment}\nfitted {', '.join(fit.free)} to {fit.points} targets: residual "
+                f"RMS {fit.rms_deg:.6f} deg (drawing's values: {fit.start_rms_deg:.6f} deg)")
+        write_linkage(result.linkage_path, fit.model, note.strip())
     write_table(result.path, result.fmt, result.table, comment)
 
 

@@ -13,6 +13,8 @@
   A·sin(kθ + φ)) with their standard uncertainties (propagated from those of a and b), and a
   plot of the scans (deviation minus the fitted local trend and backlash step, both
   directions) with the fitted curve;
+- rotary axes (the raw file's ``# unit: deg``, which ``compgw calibrate`` writes for them,
+  or ``--unit deg``): targets in degrees, figures in arcseconds and degrees;
 - ``DIR/report.html`` (PNGs embedded as base64: one file to mail) and ``DIR/*.png``.
 
 ``--json`` prints ``{"X": {"A_um": …, "B_um": …, …}}`` (:func:`.iso230.report_json`) of
@@ -37,7 +39,7 @@ import numpy as np
 
 from ..compensation.errors import TableError
 from .fit import planar_measurement
-from .iso230 import JSON_KEYS, Iso230Result, iso230_raw, report_json
+from .iso230 import ARCSEC_PER_MDEG, JSON_KEYS, Iso230Result, iso230_raw, report_json
 from .rawdata import RawData, axis_deviations, read_raw_csv
 from .runner import read_raw_meta
 
@@ -47,6 +49,28 @@ LABELS = {
     "M_um": "M mean bidirectional", "R_up_um": "R↑ repeatability",
     "R_down_um": "R↓ repeatability", "R_um": "R repeatability",
 }  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Units:
+    """How figures are shown: µm over mm positions, or arcseconds (and degrees) over
+    degree positions. ``per_um``: display units per "µm" of :mod:`.iso230` (1000 × the
+    position unit)."""
+
+    name: str
+    position: str
+    per_um: float
+    angular: bool = False
+
+    def cell(self, value_um: float | None, digits: int = 2) -> str:
+        if value_um is None:
+            return "–"
+        text = f"{value_um * self.per_um:.{digits}f}"
+        return f"{text} ({value_um / 1000:.5f}°)" if self.angular else text
+
+
+LINEAR = Units("µm", "mm", 1.0)
+ANGULAR = Units("arcsec", "deg", ARCSEC_PER_MDEG, angular=True)
 
 
 def is_planar(raw: RawData) -> bool:
@@ -77,9 +101,11 @@ def _png(fig) -> bytes:  # type: ignore[no-untyped-def]
     return buf.getvalue()
 
 
-def plot_axis(axis: str, results: dict[str, tuple[RawData, Iso230Result]]) -> bytes:
+def plot_axis(axis: str, results: dict[str, tuple[RawData, Iso230Result]],
+              units: Units = LINEAR) -> bytes:  # fmt: skip
     """Deviation vs position, both directions, ±2s bands; one panel per phase."""
     plt = _pyplot()
+    k = units.per_um
     fig, panels = plt.subplots(len(results), 1, figsize=(8, 3.2 * len(results)), squeeze=False)
     for ax, (phase, (raw, iso)) in zip(panels[:, 0], results.items()):
         dev = axis_deviations(raw, axis)
@@ -89,14 +115,16 @@ def plot_axis(axis: str, results: dict[str, tuple[RawData, Iso230Result]]) -> by
             if stats is None or runs is None:
                 continue
             for j in range(runs.shape[1]):
-                ax.plot(t, runs[:, j] * 1e3, ".", color=colour, alpha=0.3, ms=3)
-            ax.plot(t, stats.mean_um, "-", color=colour, label=f"x̄ {label}")
-            ax.fill_between(t, stats.mean_um - 2 * stats.s_um, stats.mean_um + 2 * stats.s_um,
+                ax.plot(t, runs[:, j] * 1e3 * k, ".", color=colour, alpha=0.3, ms=3)
+            ax.plot(t, stats.mean_um * k, "-", color=colour, label=f"x̄ {label}")
+            ax.fill_between(t, (stats.mean_um - 2 * stats.s_um) * k,
+                            (stats.mean_um + 2 * stats.s_um) * k,
                             color=colour, alpha=0.2, label=f"±2s {label}")  # fmt: skip
         ax.axhline(0, color="0.5", lw=0.5)
-        ax.set_title(f"axis {axis}, {phase}: E {_f(iso.E_um)} µm, A {_f(iso.A_um)} µm")
-        ax.set_xlabel("target position (mm)")
-        ax.set_ylabel("deviation actual − target (µm)")
+        ax.set_title(f"axis {axis}, {phase}: E {units.cell(iso.E_um)} {units.name}, "
+                     f"A {units.cell(iso.A_um)} {units.name}")  # fmt: skip
+        ax.set_xlabel(f"target position ({units.position})")
+        ax.set_ylabel(f"deviation actual − target ({units.name})")
         ax.legend(fontsize=7, ncol=2)
         ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -130,7 +158,7 @@ def _f(value: float | None, digits: int = 2) -> str:
 
 
 # -- HTML ---------------------------------------------------------------------------------------
-def _figures_table(axis: str, results: dict[str, Iso230Result]) -> str:
+def _figures_table(axis: str, results: dict[str, Iso230Result], units: Units = LINEAR) -> str:
     phases = list(results)
     head = "".join(f"<th>{html.escape(p)}</th>" for p in phases)
     if len(phases) == 2:
@@ -138,24 +166,31 @@ def _figures_table(axis: str, results: dict[str, Iso230Result]) -> str:
     rows = []
     for key in JSON_KEYS:
         vals = [getattr(r, key) for r in results.values()]
-        cells = "".join(f"<td>{_f(v)}</td>" for v in vals)
+        cells = "".join(f"<td>{units.cell(v)}</td>" for v in vals)
         if len(vals) == 2:
             a, b = vals
             cut = "–" if not a or b is None else f"{100 * (1 - abs(b) / abs(a)):.0f} % less"
             cells += f"<td>{cut}</td>"
         rows.append(f"<tr><th>{html.escape(LABELS[key])}</th>{cells}</tr>")
-    return (f"<table class='fig' id='figures-{axis}'><tr><th>axis {axis} (µm)</th>{head}</tr>"
+    return (f"<table class='fig' id='figures-{axis}'><tr><th>axis {axis} ({units.name})</th>"
+            f"{head}</tr>"
             + "".join(rows) + "</table>")  # fmt: skip
 
 
-def _target_table(axis: str, phase: str, iso: Iso230Result) -> str:
+def _target_table(axis: str, phase: str, iso: Iso230Result, units: Units = LINEAR) -> str:
     cols = ("target_mm", "mean_up_um", "mean_down_um", "s_up_um", "s_down_um", "B_i_um",
             "R_up_i_um", "R_down_i_um", "R_i_um")  # fmt: skip
-    names = ("target mm", "x̄↑ µm", "x̄↓ µm", "s↑ µm", "s↓ µm", "Bi µm", "Ri↑ µm", "Ri↓ µm",
-             "Ri µm")  # fmt: skip
+    u = units.name
+    names = (f"target {units.position}", f"x̄↑ {u}", f"x̄↓ {u}", f"s↑ {u}", f"s↓ {u}",
+             f"Bi {u}", f"Ri↑ {u}", f"Ri↓ {u}", f"Ri {u}")  # fmt: skip
+
+    def cell(c: str, v: float | None) -> str:
+        return _f(v, 4 if units.angular else 3) if c == "target_mm" or v is None \
+            else f"{v * units.per_um:.3f}"  # fmt: skip
+
     head = "".join(f"<th>{n}</th>" for n in names)
     body = "".join(
-        "<tr>" + "".join(f"<td>{_f(row[c], 3)}</td>" for c in cols) + "</tr>"
+        "<tr>" + "".join(f"<td>{cell(c, row[c])}</td>" for c in cols) + "</tr>"
         for row in iso.per_target_rows()
     )
     return (f"<details><summary>axis {axis}, {html.escape(phase)}: per target</summary>"
@@ -182,12 +217,16 @@ LOADED_SCRIPT = ("window.addEventListener('load',function(){var n=0;"
 
 
 def build_report(
-    raw: RawData, before: RawData | None = None, title: str = "compgw calibration report"
+    raw: RawData, before: RawData | None = None, title: str = "compgw calibration report",
+    angular: bool = False,
 ) -> tuple[str, list[Figure], dict[str, Any]]:
-    """HTML text, the figures, and the figures as data (µm), from raw data (pure)."""
+    """HTML text, the figures, and the figures as data (µm; ``angular``, a rotary axis in
+    degrees: arcseconds and degrees), from raw data (pure)."""
+    units = ANGULAR if angular else LINEAR
     phases = {"before": before, "after": raw} if before is not None else {"run": raw}
+    what = ("in arcseconds (and degrees) over targets in degrees" if angular else "in µm")
     parts = [f"<h1>{html.escape(title)}</h1>",
-             "<p>ISO 230-2 figures in µm; deviations are actual − target. Sources: "
+             f"<p>ISO 230-2 figures {what}; deviations are actual − target. Sources: "
              + ", ".join(html.escape(f"{k}: {v.source}") for k, v in phases.items() if v)
              + "</p>"]  # fmt: skip
     figures: list[Figure] = []
@@ -208,15 +247,15 @@ def build_report(
         iso = {k: iso230_raw(v) for k, v in phases.items() if v is not None}
         for axis in raw.axes:
             per = {k: r[axis] for k, r in iso.items() if axis in r}
-            data[axis] = {k: r.to_json_dict() for k, r in per.items()}
+            data[axis] = {k: r.to_json_dict(angular) for k, r in per.items()}
             parts.append(f"<h2>Axis {html.escape(axis)}</h2>")
-            parts.append(_figures_table(axis, per))
-            png = plot_axis(axis, {k: (phases[k], r) for k, r in per.items()})  # type: ignore[misc]
+            parts.append(_figures_table(axis, per, units))
+            png = plot_axis(axis, {k: (phases[k], r) for k, r in per.items()}, units)  # type: ignore[misc]
             figures.append(Figure(f"axis-{axis}", png,
                                   f"axis {axis}: deviation vs position, both directions, ±2s"))
             parts.append(_img(figures[-1]))
             for k, r in per.items():
-                parts.append(_target_table(axis, k, r))
+                parts.append(_target_table(axis, k, r, units))
     body = "\n".join(parts)
     text = (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>"
             f"{html.escape(title)}</title><style>{STYLE}</style></head><body>{body}"
@@ -359,6 +398,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--harmonics", type=int, metavar="K",
                    help="cyclic runs: K harmonics (default: by cross-validation, as fit)")
     p.add_argument("--lead-mm", type=float, help="cyclic runs: the lead, if the file lacks it")
+    p.add_argument("--unit", choices=["mm", "deg"],
+                   help="positions in mm (µm figures) or deg (arcsec and degrees); default: "
+                        "the raw file's '# unit:' line, else mm")  # fmt: skip
 
 
 def main(args: argparse.Namespace) -> int:
@@ -379,15 +421,16 @@ def main(args: argparse.Namespace) -> int:
                 print(f"report written to {path}")
             return 0
         before = read_raw_csv(args.before) if args.before else None
+        angular = (args.unit or meta.get("unit", "mm")) == "deg"
         if args.json:
             if is_planar(raw):
                 _, _, data = build_report(raw, before, args.title)
                 print(json.dumps(data))
             else:
-                print(json.dumps(report_json(raw)))
+                print(json.dumps(report_json(raw, angular)))
             if not args.out:
                 return 0
-        text, figures, _ = build_report(raw, before, args.title)
+        text, figures, _ = build_report(raw, before, args.title, angular)
         path = write_report(Path(args.out or "report"), text, figures)
     except TableError as exc:
         print(f"compgw report: {exc}", file=sys.stderr)

@@ -2,11 +2,11 @@
 
 Compensation off / on (decided here, documented in ``compgw calibrate --help``): the
 runner does not switch the gateway. *Off* means the gateway it talks to runs an
-identification config: the same config with the pitch tables, backlash, cyclic term and planar
-model removed (``compgw calibrate --identify-config OUT.yaml -c CFG`` writes it; thermal stays
-on when configured, so a long run's heating does not enter the tables). *On* means the
-gateway runs the config whose tables are being verified. Iterating rewrites those tables;
-the gateway must then reload them (SIGHUP: ``--reload-pid``, or ``--reload-cmd``, e.g.
+identification config: the same config with the pitch tables, backlash, cyclic term, linkage
+and planar model removed (``compgw calibrate --identify-config OUT.yaml -c CFG`` writes it;
+thermal stays on when configured, so a long run's heating does not enter the tables). *On*
+means the gateway runs the config whose tables are being verified. Iterating rewrites those
+tables; the gateway must then reload them (SIGHUP: ``--reload-pid``, or ``--reload-cmd``, e.g.
 ``systemctl reload compgw``) before the next round. Talking straight to the drives (no
 gateway) is also compensation off. The raw file records ``# compensation: off|on``.
 """
@@ -33,6 +33,7 @@ from .machine import (
     MachineError,
     MotionSettings,
     XYDevice,
+    nearest_turn_deg,
 )
 from .outputs import fit_pitch, fit_planar, residual_figures, save_pitch, save_planar
 from .plans import Move, Plan
@@ -50,6 +51,9 @@ class Instruments:
     laser_axes: Sequence[str] | None = None
     xy: Endpoint | None = None
     delta_a: Endpoint | None = None
+    #: the angle instrument of rotary axes (the laser's layout in µdeg) and its channels
+    angle: Endpoint | None = None
+    angle_axes: Sequence[str] | None = None
     #: readings wait for the instrument's stable flag (see :class:`.machine.Laser`)
     wait_stable: bool = True
 
@@ -88,7 +92,12 @@ class Session:
 
     async def _measure_fn(self, plan: Plan, links: Links):  # type: ignore[no-untyped-def]
         ins = self.instruments
-        if len(plan.axes) == 2 and ins.xy is not None:
+        rotary = [a for a in plan.axes if a in self.config.axes and self.config.axes[a].rotary]
+        if rotary and ins.angle is not None:
+            order = list(ins.angle_axes or [a for a, c in self.config.axes.items() if c.rotary])
+            dev = Laser(await links.get(*ins.angle.key), ins.angle.unit,  # type: ignore[assignment]
+                        {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
+        elif len(plan.axes) == 2 and ins.xy is not None:
             dev = XYDevice(await links.get(*ins.xy.key), ins.xy.unit, tuple(plan.axes),  # type: ignore[arg-type]
                            ins.wait_stable)
         elif ins.laser is not None:
@@ -99,10 +108,16 @@ class Session:
             dev = XYDevice(await links.get(*ins.xy.key), ins.xy.unit, tuple(self.config.planar.axes)  # type: ignore[union-attr]
                            if self.config.planar else ("X", "Y"), ins.wait_stable)  # type: ignore[assignment]  # fmt: skip
         else:
-            raise MachineError("no instrument: give --laser or --xy-device (or --join FILE)")
+            raise MachineError("no instrument: give --laser, --angle or --xy-device (or "
+                               "--join FILE)")  # fmt: skip
+        wraps = {a for a in plan.axes if a in self.config.axes and self.config.axes[a].wraps}
 
-        async def measure(_: Move) -> Mapping[str, float]:
-            return await dev.read_mm(plan.axes)
+        async def measure(move: Move) -> Mapping[str, float]:
+            values = dict(await dev.read_mm(plan.axes))
+            for a, target in zip(plan.axes, move.target_mm):
+                if a in wraps:
+                    values[a] = nearest_turn_deg(values[a], target)
+            return values
 
         return measure
 
@@ -120,8 +135,8 @@ class Session:
 
 # -- identification config ----------------------------------------------------------------------
 def identify_config(path: Path) -> dict[str, Any]:
-    """The config at ``path`` without pitch tables, backlash, cyclic term and planar model
-    (thermal kept).
+    """The config at ``path`` without pitch tables, backlash, cyclic term, linkage and planar
+    model (thermal kept).
 
     Table paths are not needed by it; other relative paths stay valid when the result is
     written next to the original.
@@ -132,6 +147,7 @@ def identify_config(path: Path) -> dict[str, Any]:
         comp.pop("pitch", None)
         comp.pop("backlash_mm", None)
         comp.pop("cyclic", None)
+        comp.pop("linkage", None)
         axis["compensation"] = comp
     data.pop("planar", None)
     return data
@@ -139,7 +155,7 @@ def identify_config(path: Path) -> dict[str, Any]:
 
 def identify_config_text(path: Path) -> str:
     head = f"# identification config made from {path.name} by compgw calibrate: no pitch,\n"
-    head += "# backlash, cyclic or planar compensation (thermal kept)\n"
+    head += "# backlash, cyclic, linkage or planar compensation (thermal kept)\n"
     return head + yaml.safe_dump(identify_config(path), sort_keys=False)
 
 

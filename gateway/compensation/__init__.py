@@ -16,6 +16,7 @@ from .errors import (
     TableError,
     TravelError,
 )
+from .linkage import LinkageModel, LinkageStage
 from .monotone_map import MonotoneMap
 from .pitch import PitchStage, PitchTable
 from .planar import GridModel, PlanarMeasurement, PlanarStage, PolyModel
@@ -39,6 +40,8 @@ __all__ = [
     "CyclicModel",
     "CyclicStage",
     "GridModel",
+    "LinkageModel",
+    "LinkageStage",
     "MonotoneMap",
     "MotionState",
     "PitchStage",

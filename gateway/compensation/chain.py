@@ -2,8 +2,8 @@
 
 Stages, from the upper computer's nominal side to the drive:
 
-``planar`` (XY pair) → ``backlash`` → ``pitch`` → ``cyclic`` → ``thermal`` → round to whole
-pulses.
+``planar`` (XY pair) → ``backlash`` → ``pitch`` → ``linkage`` (a swing axis's kinematics) →
+``cyclic`` → ``thermal`` → round to whole pulses.
 
 Each stage has a ``forward`` (target → command) and an exact ``inverse`` (command → where the
 axis actually is), like Klipper's move transforms; the chain composes them and rounds once,
@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from .backlash import BacklashStage
 from .cyclic import CyclicStage
 from .errors import CompensationError, CorrectionLimitError, TableError, TravelError
+from .linkage import LinkageStage
 from .pitch import PitchStage
 from .planar import PlanarStage
 from .thermal import ThermalStage
@@ -68,6 +69,7 @@ class AxisChain:
     travel_mm: tuple[float, float] | None = None
     max_correction_mm: float = math.inf
     allow_backlash_with_bidirectional: bool = False
+    linkage: LinkageStage | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.pulse_mm) and self.pulse_mm > 0):
@@ -83,6 +85,8 @@ class AxisChain:
                 f"axes.{self.name}.compensation: a bidirectional pitch table already contains "
                 f"backlash; backlash_mm must be 0 (or set allow_backlash_with_bidirectional)"
             )
+        if self.linkage is not None and not self.rotary:
+            raise CompensationError(f"axes.{self.name}: a linkage needs a rotary (swing) axis")
         if self.rotary and self.thermal is not None:
             raise CompensationError(f"axes.{self.name}: thermal correction needs a linear axis")
         if self.pitch is not None and self.pitch.table.rotary != self.rotary:
@@ -101,6 +105,8 @@ class AxisChain:
             x = self.backlash.forward(x, direction)
         if self.pitch is not None:
             x = self.pitch.forward(x, direction)
+        if self.linkage is not None:
+            x = self.linkage.forward(x)
         if self.cyclic is not None:
             x = self.cyclic.forward(x)
         if self.thermal is not None:
@@ -116,6 +122,8 @@ class AxisChain:
             x = self.thermal.inverse(x, delta_a_mm)
         if self.cyclic is not None:
             x = self.cyclic.inverse(x)
+        if self.linkage is not None:
+            x = self.linkage.inverse(x)
         if self.pitch is not None:
             x = self.pitch.inverse(x, direction)
         if self.backlash is not None:
@@ -129,6 +137,8 @@ class AxisChain:
             x = self.backlash.forward_scalar(x, direction)
         if self.pitch is not None:
             x = self.pitch.forward_scalar(x, direction)
+        if self.linkage is not None:
+            x = self.linkage.forward_scalar(x)
         if self.cyclic is not None:
             x = self.cyclic.forward_scalar(x)
         if self.thermal is not None:
@@ -141,6 +151,8 @@ class AxisChain:
             x = self.thermal.inverse_scalar(x, delta_a_mm)
         if self.cyclic is not None:
             x = self.cyclic.inverse_scalar(x)
+        if self.linkage is not None:
+            x = self.linkage.inverse_scalar(x)
         if self.pitch is not None:
             x = self.pitch.inverse_scalar(x, direction)
         if self.backlash is not None:

@@ -6,10 +6,12 @@ few µm peak to peak. Its deviation is modelled as
     e(x) = Σ_k a_k(x)·sin(kθ) + b_k(x)·cos(kθ),   θ = 2π·(x − origin_mm)/lead_mm
 
 with amplitudes measured at a few stations along the travel and interpolated linearly
-between them (held beyond the first and last). Like every stage, forward (target →
-command) and inverse (command → actual) are exact: the error is resampled at build time
-into a :class:`MonotoneMap` with ``SAMPLES_PER_LEAD`` points per lead (for a 1.5 µm
-amplitude the resampling error is below 0.002 µm).
+between them (held beyond the first and last). A turntable's worm (``period_mm`` = 360:
+the error once per worm turn, lead = 360/teeth degrees) repeats every table turn: its
+amplitudes are interpolated around the circle and the stage is taken modulo 360. Like every
+stage, forward (target → command) and inverse (command → actual) are exact: the error is
+resampled at build time into a :class:`MonotoneMap` with ``SAMPLES_PER_LEAD`` points per lead
+(for a 1.5 µm amplitude the resampling error is below 0.002 µm).
 """
 
 from __future__ import annotations
@@ -66,19 +68,23 @@ class CyclicModel:
     def harmonics(self) -> int:
         return int(self.sin_mm.shape[1])
 
-    def amplitudes_mm(self, x_mm: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(a_k(x), b_k(x)) interpolated along the travel, shape (..., K)."""
+    def amplitudes_mm(
+        self, x_mm: ArrayLike, period_mm: float | None = None
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(a_k(x), b_k(x)) interpolated along the travel (around the circle with
+        ``period_mm``), shape (..., K)."""
         x = np.asarray(x_mm, dtype=np.float64)
-        a = np.stack([np.interp(x, self.station_mm, col) for col in self.sin_mm.T], axis=-1)
-        b = np.stack([np.interp(x, self.station_mm, col) for col in self.cos_mm.T], axis=-1)
+        st = self.station_mm
+        a = np.stack([np.interp(x, st, col, period=period_mm) for col in self.sin_mm.T], axis=-1)
+        b = np.stack([np.interp(x, st, col, period=period_mm) for col in self.cos_mm.T], axis=-1)
         return a, b
 
-    def error_mm(self, x_mm: ArrayLike) -> NDArray[np.float64]:
+    def error_mm(self, x_mm: ArrayLike, period_mm: float | None = None) -> NDArray[np.float64]:
         """The cyclic deviation (actual − commanded, mm) at screw position ``x_mm``."""
         x = np.asarray(x_mm, dtype=np.float64)
         theta = 2.0 * np.pi * (x - self.origin_mm) / self.lead_mm
         k = np.arange(1, self.harmonics + 1)
-        a, b = self.amplitudes_mm(x)
+        a, b = self.amplitudes_mm(x, period_mm)
         kt = theta[..., None] * k
         return np.sum(a * np.sin(kt) + b * np.cos(kt), axis=-1)
 
@@ -89,23 +95,34 @@ class CyclicModel:
 
 @dataclass(frozen=True, eq=False)
 class CyclicStage:
-    """The cyclic term as a chain stage over ``span_mm`` (the axis travel)."""
+    """The cyclic term as a chain stage over ``span_mm`` (the axis travel); with
+    ``period_mm`` (a turntable: 360) over one turn, taken modulo it."""
 
     model: CyclicModel
     span_mm: tuple[float, float]
+    period_mm: float | None = None
     map: MonotoneMap = field(init=False)
 
     def __post_init__(self) -> None:
         lo, hi = self.span_mm
         lead = self.model.lead_mm
         margin = lead  # commands stray slightly outside the nominal span
+        if self.period_mm is not None:
+            turns = self.period_mm / lead
+            if abs(turns - round(turns)) > 1e-9 * turns:
+                raise TableError(f"{self.model.source}: lead_mm {lead:g} is not a whole "
+                                 f"fraction of a turn ({self.period_mm:g}/{lead:g} = "
+                                 f"{turns:.6g}): a worm period is 360/teeth")  # fmt: skip
+            lo, hi, margin = 0.0, self.period_mm, 0.0
         n = int(np.ceil((hi - lo + 2 * margin) / lead * SAMPLES_PER_LEAD)) + 1
         if n > 1 << 22:
             raise TableError(f"{self.model.source}: travel / lead too large to resample")
         x = np.linspace(lo - margin, hi + margin, n)
-        e = self.model.error_mm(x)
+        e = self.model.error_mm(x, self.period_mm)
+        if self.period_mm is not None:
+            e[-1] = e[0]  # the same point one turn later
         try:
-            object.__setattr__(self, "map", MonotoneMap(x, e))
+            object.__setattr__(self, "map", MonotoneMap(x, e, self.period_mm))
         except ValueError:
             raise TableError(
                 f"{self.model.source}: cyclic amplitudes make the axis run backwards "

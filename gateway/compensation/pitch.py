@@ -98,9 +98,10 @@ class PitchTable:
                 f"{self.point(i)}: positions must increase by at least {MIN_SPACING_MM} "
                 f"{self.unit} (previous point {pos[i - 1]:g})"
             )
-        if self.rotary and (pos[0] < 0 or pos[-1] > ROTARY_PERIOD_DEG):
-            i = 0 if pos[0] < 0 else n - 1
-            raise TableError(f"{self.point(i)}: rotary table positions must lie in 0..360 deg")
+        if self.rotary and (pos[0] < -ROTARY_PERIOD_DEG or pos[-1] > ROTARY_PERIOD_DEG):
+            i = 0 if pos[0] < -ROTARY_PERIOD_DEG else n - 1
+            raise TableError(f"{self.point(i)}: rotary table positions must lie in "
+                             "-360..360 deg")  # fmt: skip
 
     @classmethod
     def equally_spaced(
@@ -121,6 +122,9 @@ class PitchTable:
 class PitchStage:
     """Pitch correction of one axis, from a :class:`PitchTable`.
 
+    ``wrap`` (default: the table's ``rotary``): positions modulo 360° with interpolation
+    across 360→0, a turntable's table (points in 0..360); a swing axis's rotary table (its
+    angle stays within its travel) has ``wrap=False`` and is interpolated like a linear one.
     ``interpolation``: ``linear`` (as LinuxCNC and SINUMERIK), ``smooth`` (C2 cubic spline)
     or ``pchip`` (monotone cubic, no overshoot). ``outside``: ``hold`` keeps the end value
     beyond the table; ``taper`` ramps it linearly to zero over ``taper_mm``.
@@ -132,6 +136,7 @@ class PitchStage:
     interpolation: Interpolation = "linear"
     outside: Outside = "hold"
     taper_mm: float = 0.0
+    wrap: bool | None = None
     forward_map: MonotoneMap = field(init=False)
     reverse_map: MonotoneMap = field(init=False)
 
@@ -142,6 +147,15 @@ class PitchStage:
             raise TableError(f"{self.table.source}: unknown outside rule {self.outside!r}")
         if self.outside == "taper" and not self.taper_mm > 0:
             raise TableError(f"{self.table.source}: taper_mm must be > 0 with outside: taper")
+        wrap = self.table.rotary if self.wrap is None else bool(self.wrap)
+        if wrap and not self.table.rotary:
+            raise TableError(f"{self.table.source}: a linear table cannot wrap at 360 deg")
+        object.__setattr__(self, "wrap", wrap)
+        pos = self.table.position_mm
+        if wrap and (pos[0] < 0 or pos[-1] > ROTARY_PERIOD_DEG):
+            i = 0 if pos[0] < 0 else pos.size - 1
+            raise TableError(f"{self.table.point(i)}: a turntable's table (positions modulo "
+                             "360) must lie in 0..360 deg")  # fmt: skip
         fwd = self._build(self.table.forward_mm, "forward")
         rev = fwd
         if self.table.reverse_mm is not None:
@@ -157,13 +171,13 @@ class PitchStage:
         table = self.table
         pos = table.position_mm
         self._check_monotone(pos, values, name)
-        period = ROTARY_PERIOD_DEG if table.rotary else None
-        if table.rotary:
+        period = ROTARY_PERIOD_DEG if self.wrap else None
+        if self.wrap:
             pos, values = _close_period(table, values, name)
         x, e = pos, values
         if self.interpolation != "linear":
-            x, e = _resample_spline(pos, values, self.interpolation, periodic=table.rotary)
-        if not table.rotary and self.outside == "taper":
+            x, e = _resample_spline(pos, values, self.interpolation, periodic=bool(self.wrap))
+        if not self.wrap and self.outside == "taper":
             x = np.concatenate([[x[0] - self.taper_mm], x, [x[-1] + self.taper_mm]])
             e = np.concatenate([[0.0], e, [0.0]])
         try:
