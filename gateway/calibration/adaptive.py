@@ -205,3 +205,72 @@ def drift_corrected(raw: RawData, drifts: dict[str, Drift]) -> RawData:
         rows = names == axis
         actual[rows] -= drift.at(raw.target_mm[rows], fraction[rows])
     return replace(raw, actual_mm=actual)
+
+
+# -- the screw lead, when nobody said -------------------------------------------------------
+#: leads of standard ball screws (mm), the candidates of a lead search
+STANDARD_LEADS_MM = (2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 16.0, 20.0, 25.0)
+LEAD_HARMONICS = 3
+TREND_DEGREE = 4
+
+
+def lead_scan_targets_mm(travel_mm: Sequence[float], length_mm: float = 60.0,
+                         step_mm: float = 0.25) -> NDArray[np.float64]:
+    """Dense targets for a lead search: ``length_mm`` (at most half the travel) around the
+    middle of the travel, every ``step_mm`` (16 points per lead down to 4 mm)."""
+    lo, hi = float(travel_mm[0]), float(travel_mm[1])
+    length = min(length_mm, 0.5 * (hi - lo))
+    mid = 0.5 * (lo + hi)
+    return np.round(np.arange(mid - length / 2, mid + length / 2 + 1e-9, step_mm), 4)
+
+
+@dataclass(frozen=True)
+class LeadSearch:
+    """The screw lead read from a dense scan: the standard lead whose harmonics 1..3 explain
+    the scan best (the shortest of those that do about equally well), or None when no
+    periodic error stands out of the noise."""
+
+    lead_mm: float | None
+    amplitude_um: float  # the largest harmonic's amplitude at that lead
+    f_ratio: float  # variance explained per parameter over residual variance
+    rss_um2: dict[float, float]
+
+
+def find_lead(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
+              candidates: Sequence[float] = STANDARD_LEADS_MM, f_min: float = 10.0,
+              amplitude_min_um: float = 0.2) -> LeadSearch:
+    """Search the lead among ``candidates`` that fit 2.5 times in the scan (see
+    LeadSearch)."""
+    x = np.asarray(x_mm, dtype=np.float64)
+    y = np.asarray(deviation_mm, dtype=np.float64) * 1e3
+    u = (x - x.mean()) / max(float(np.ptp(x)), 1e-9)
+    trend = np.column_stack([u**k for k in range(TREND_DEGREE + 1)])  # waviness longer
+    # than the scan, and the table's slope, are not a lead
+    rss0 = float(np.sum((y - trend @ np.linalg.lstsq(trend, y, rcond=None)[0]) ** 2))
+    step = float(np.median(np.diff(np.sort(x)))) if x.size > 1 else 1.0
+    rss: dict[float, float] = {}
+    amps: dict[float, float] = {}
+    for lead in candidates:
+        if lead < 4 * step or 2.5 * lead > np.ptp(x):
+            continue
+        cols = [trend]
+        for k in range(1, LEAD_HARMONICS + 1):
+            phase = 2 * np.pi * k * x / lead
+            cols.append(np.column_stack([np.sin(phase), np.cos(phase)]))
+        design = np.hstack(cols)
+        coef = np.linalg.lstsq(design, y, rcond=None)[0]
+        rss[lead] = float(np.sum((y - design @ coef) ** 2))
+        t = TREND_DEGREE + 1
+        amps[lead] = float(max(np.hypot(coef[t + 2 * k], coef[t + 1 + 2 * k])
+                               for k in range(LEAD_HARMONICS)))  # fmt: skip
+    if not rss:
+        return LeadSearch(None, 0.0, 0.0, rss)
+    best = min(rss.values())
+    p = 2 * LEAD_HARMONICS
+    dof = max(1, x.size - TREND_DEGREE - 1 - p)
+    # the shortest lead not significantly worse than the best (a multiple of the true lead
+    # fits its harmonics too, and some noise besides)
+    lead = min(lead for lead, r in rss.items() if (r - best) / p < 4.0 * best / dof)
+    f_ratio = ((rss0 - rss[lead]) / p) / max(rss[lead] / dof, 1e-12)
+    found = f_ratio >= f_min and amps[lead] >= amplitude_min_um
+    return LeadSearch(lead if found else None, amps[lead], f_ratio, rss)

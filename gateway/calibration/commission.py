@@ -109,6 +109,7 @@ class Settings:
     motion: MotionSettings = field(default_factory=MotionSettings)
     seed: int = 0
     max_rounds: int = 6
+    no_lead_search: bool = False  # axes without a lead get no cyclic stage
     runs: int = 3  # coarse ISO runs
     verify_runs: int = 2
     warmup_s: float = 1800.0
@@ -133,6 +134,9 @@ class Commission:
         self.original_path = self.dir / "original.yaml"
         self.tables = Tables.from_json(self.state.get("tables", {}))
         self.config: GatewayConfig = load_config(settings.config_path)
+        for axis, lead in self.state.get("leads", {}).items():  # found by a lead search
+            if lead and axis not in self.s.lead_mm:
+                self.s.lead_mm[axis] = float(lead)
 
     # -- state ---------------------------------------------------------------------------
     def _save(self) -> None:
@@ -362,9 +366,42 @@ class Commission:
             out.append((f"iso-{a}", self._iso_plan(a)))
             if a in self.s.lead_mm:
                 out.append((f"cyclic-{a}", cyclic_plan(a, travel, self.s.lead_mm[a])))
+            elif not self.s.no_lead_search:
+                out.append((f"lead-{a}", self._lead_plan(a)))
         if self.s.planar is not None:
             out.append(("xy-grid", self._grid_plan(self.s.grid)))
         return [(n, self._snap(p)) for n, p in out]
+
+    def _lead_plan(self, axis: str) -> Plan:
+        """A dense scan in + around the middle of the travel, for the lead search."""
+        from .plans import Move
+
+        targets = adaptive.lead_scan_targets_mm(self._travel(axis))
+        lo = self._travel(axis)[0]
+        moves = [Move(1, -1, "takeup", (max(lo, float(targets[0]) - 1.0),))]
+        moves += [Move(1, +1, "measure", (float(t),)) for t in targets]
+        return Plan("lead-search", (axis,), tuple(moves), (("kind", "lead-search"),
+                                                           ("axis", axis)))  # fmt: skip
+
+    async def _find_lead(self, axis: str) -> None:
+        """The lead search of an axis whose lead was not given (--lead-mm)."""
+        leads = self.state.setdefault("leads", {})
+        if axis in self.s.lead_mm or axis in leads or self.s.no_lead_search:
+            return
+        await self.step(f"lead-{axis}", lambda: self._lead_plan(axis), "off", self._park(axis))
+        raw = self.raw(f"lead-{axis}")
+        found = adaptive.find_lead(raw.target_mm, raw.deviation_mm)
+        leads[axis] = found.lead_mm or 0.0
+        self.state.setdefault("identify", {})[f"lead-{axis}"] = {
+            "lead_mm": found.lead_mm or 0.0, "amplitude_um": found.amplitude_um,
+            "f_ratio": found.f_ratio}  # fmt: skip
+        if found.lead_mm:
+            self.s.lead_mm[axis] = found.lead_mm
+            self.say(f"{axis}: a periodic error of {found.amplitude_um:.2f} µm every "
+                     f"{found.lead_mm:g} mm: the lead; the cyclic stage follows it")  # fmt: skip
+        else:
+            self.say(f"{axis}: no periodic error stands out of the noise: no cyclic stage")
+        self._save()
 
     def _thermal(self, axis: str) -> bool:
         th = self.config.axes[axis].compensation.thermal
@@ -466,6 +503,7 @@ class Commission:
             b = backlash_from_raw(self.raw(f"backlash-{a}"), a)
             results[f"backlash-{a}"] = {"B_um": b.backlash_mm * 1e3,
                                         "places_um": [m * 1e3 for m in b.mean_mm]}  # fmt: skip
+            await self._find_lead(a)
             await self.step(f"iso-{a}", lambda a=a: self._iso_plan(a), "off", self._park(a))
             if a in self.s.lead_mm:
                 await self.step(f"cyclic-{a}", lambda a=a, t=travel: cyclic_plan(

@@ -50,7 +50,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--plane", metavar="X,Y", help="the plane's axes (default: the planar "
                    "section's, else the first two axes) when --xy-device is given")
     p.add_argument("--lead-mm", metavar="L or X=L,Y=L",
-                   help="screw lead: adds the cyclic stage (dense scans)")
+                   help="screw lead: the cyclic stage's period (default: searched for by a "
+                   "dense scan; none found, no cyclic stage)")
+    p.add_argument("--no-lead-search", action="store_true",
+                   help="axes without --lead-mm get no cyclic stage (no search scan)")
     p.add_argument("--tolerance-um", type=float, default=2.0, metavar="T",
                    help="ISO 230-2 E (XY: max vector error) between the points (2)")
     p.add_argument("--budget-h", type=float, default=8.0, metavar="H",
@@ -182,6 +185,7 @@ def main(args: argparse.Namespace) -> int:
             motion=MotionSettings(args.in_position_bit, args.moving_bit, args.alarm_bit,
                                   args.in_position_pulses, args.timeout_s),
             seed=args.seed, max_rounds=args.max_rounds, warmup_s=args.warmup_min * 60.0,
+            no_lead_search=args.no_lead_search,
         )  # fmt: skip
         reload = make_reload(args, config, gateway)
         job = Commission(settings, reload, print, None)

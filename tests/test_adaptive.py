@@ -1,0 +1,93 @@
+"""The pure parts of commissioning (gateway/calibration/adaptive.py), checked against numbers
+made another way: the lead search, the verdict on a verification run, the refined table,
+and the drift taken off readings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gateway.calibration import adaptive
+from gateway.calibration.rawdata import AxisDeviations, RawData
+from gateway.compensation import PitchStage, PitchTable
+
+
+@pytest.mark.parametrize(("lead_mm", "second_um"), [(4.0, 0.0), (5.0, 0.4), (10.0, 0.5),
+                                                     (16.0, 0.3), (20.0, 0.0)])
+def test_the_lead_search_finds_the_screw_lead(lead_mm: float, second_um: float) -> None:
+    rng = np.random.default_rng(int(lead_mm))
+    x = adaptive.lead_scan_targets_mm((0.0, 700.0))
+    y_um = (1.2 * np.sin(2 * np.pi * x / lead_mm + 0.4)
+            + second_um * np.sin(4 * np.pi * x / lead_mm)
+            + 3.0 * np.sin(2 * np.pi * x / 70.0)  # waviness longer than the scan
+            + 20.0 * (x - 350) / 700 + rng.normal(0, 0.3, x.size))  # a table's slope, noise
+    found = adaptive.find_lead(x, y_um * 1e-3)
+    assert found.lead_mm == lead_mm  # not a multiple of it, which fits its harmonics too
+    assert found.amplitude_um == pytest.approx(1.2, abs=0.15)
+
+
+def test_no_lead_is_found_in_noise() -> None:
+    rng = np.random.default_rng(3)
+    x = adaptive.lead_scan_targets_mm((0.0, 500.0))
+    found = adaptive.find_lead(x, rng.normal(0, 0.3e-3, x.size))
+    assert found.lead_mm is None
+
+
+def _dev(targets: np.ndarray, up_um: np.ndarray, down_um: np.ndarray) -> AxisDeviations:
+    return AxisDeviations("X", targets, np.arange(1, up_um.shape[1] + 1), up_um * 1e-3,
+                          down_um * 1e-3)
+
+
+def test_the_verdict_marks_the_span_where_the_residual_stands_out() -> None:
+    table_mm = np.array([0.0, 50.0, 100.0, 150.0, 200.0])
+    targets = np.array([25.0, 75.0, 125.0, 175.0])
+    rng = np.random.default_rng(5)
+    up = rng.normal(0.0, 0.1, (4, 3)) + 0.7  # a constant offset moves no span
+    down = rng.normal(0.0, 0.1, (4, 3)) + 0.7
+    up[2] += 3.0  # 125 mm, in the span 100..150 (index 2)
+    down[2] += 3.0
+    v = adaptive.judge_axis(_dev(targets, up, down), table_mm, 2.0, repeatability_sd_um=0.1)
+    assert v.failing_spans == (2,)
+    assert not v.within and v.E_um == pytest.approx(3.0, abs=0.4)
+    calm = adaptive.judge_axis(_dev(targets, up - np.where(np.arange(4)[:, None] == 2, 3.0, 0),
+                                    down - np.where(np.arange(4)[:, None] == 2, 3.0, 0)),
+                               table_mm, 2.0, repeatability_sd_um=0.1)  # fmt: skip
+    assert calm.within and calm.failing_spans == ()
+
+
+def test_a_refined_table_holds_the_residual_at_its_new_points() -> None:
+    """New point = the table's own value there + the residual measured with it on: the
+    truth at that point, wherever the old points were (checked against a known truth)."""
+    def truth_mm(x: np.ndarray) -> np.ndarray:
+        return 1e-3 * (5 * np.sin(x / 30.0) + 0.02 * x)
+
+    pos = np.array([0.0, 60.0, 120.0, 180.0])
+    table = PitchTable(pos, truth_mm(pos), truth_mm(pos) + 0.002)  # reverse: +2 µm lost motion
+    stage = PitchStage(table, "linear")
+    mids = adaptive.midpoints_mm(pos, [0, 2])
+    np.testing.assert_allclose(mids, [30.0, 150.0])
+    table_at = np.interp(mids, pos, truth_mm(pos))
+    residual = truth_mm(mids) - table_at  # what the axis shows there with the table on
+    dev = AxisDeviations("X", mids, np.array([1]), residual[:, None],
+                         (residual + 0.0)[:, None])  # fmt: skip
+    new = adaptive.refined_table(table, stage, dev)
+    np.testing.assert_allclose(new.position_mm, [0, 30, 60, 120, 150, 180])
+    np.testing.assert_allclose(new.forward_mm[[1, 4]], truth_mm(mids), atol=1e-9)
+    np.testing.assert_allclose(new.reverse_mm[[1, 4]], truth_mm(mids) + 0.002, atol=1e-9)
+    np.testing.assert_allclose(new.forward_mm[[0, 2, 3, 5]], table.forward_mm)  # kept
+
+
+def test_drift_is_taken_off_by_position_and_progress() -> None:
+    """Drift measured 1/3 µm at 0/100 mm before a run and 2/6 µm after: a reading half-way
+    through at 50 mm loses (1.5 + 4.5)/2 = 3 µm."""
+    drift = adaptive.Drift((0.0, 100.0), (1e-3, 3e-3), (2e-3, 6e-3))
+    assert drift.at(np.array([50.0]), np.array([0.5]))[0] == pytest.approx(3e-3)
+    assert adaptive.Drift.from_json(drift.to_json()) == drift
+    n = 5
+    raw = RawData(("X",) * n, np.ones(n, dtype=np.int64), np.ones(n, dtype=np.int8),
+                  np.full(n, 50.0), np.full(n, 50.0) + np.linspace(2e-3, 4e-3, n), {},
+                  tuple(range(n)))  # fmt: skip
+    fixed = adaptive.drift_corrected(raw, {"X": drift})
+    expected = np.linspace(2e-3, 4e-3, n)  # the drift at 50 mm grows 2 → 4 µm
+    np.testing.assert_allclose(fixed.deviation_mm, 0.0, atol=1e-12)
+    np.testing.assert_allclose(raw.deviation_mm, expected)
