@@ -52,6 +52,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         from .demo_commission import main as commission_demo
 
         return commission_demo(args.save)
+    if args.seed003:
+        from .demo_seed003 import main as seed003_demo
+
+        return seed003_demo(as_json=args.json, work_dir=args.save)
     from .demo import main as demo_main
 
     return demo_main(as_json=args.json, identify_dir=args.identify)
@@ -152,7 +156,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--commission", action="store_true",
                    help="run `compgw commission` live on a random machine (about 20 s)")
-    p.add_argument("--save", metavar="FILE", help="with --commission: keep its output there")
+    p.add_argument("--seed003", action="store_true",
+                   help="seed 003's swing head through a linkage: uncompensated, the seed's "
+                        "table and compgw's choice from the same readings (about 6 s)")
+    p.add_argument("--save", metavar="FILE", help="with --commission: keep its output there "
+                   "(with --seed003: a directory for the raw files, tables and linkage)")
     p.set_defaults(func=_cmd_demo)
 
     from .calibration.commands import add_parsers as add_calibration_parsers

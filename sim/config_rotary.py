@@ -29,8 +29,9 @@ class SwingConfig(_Model):
     pivot. With ∠MAN = ``phi0_deg`` + θ (θ the tilt, 0 = the head horizontal) the nut sits
     s = √(|MN|² − offset²) from the block, |MN|² = arm² + base² − 2·arm·base·cos∠MAN.
     The control maps pulses linearly to degrees: a commanded angle c puts the nut at
-    s(0) + ``screw_mm_per_deg``·c (default: the chord over ``angle_range_deg``, so the two
-    ends are exact and the middle is off by the linkage's curvature). The screw adds its own
+    s(0) + ``screw_mm_per_deg``·c (default: the slope of the chord over ``angle_range_deg``,
+    the scale a commissioning engineer sets from the two ends; the head is exact at 0 and
+    off by the linkage's curvature elsewhere). The screw adds its own
     error along its length (µm: ``slope_um_per_m``, ``poly_um`` over the stroke t = 0..1,
     a once-per-``lead_mm`` term) and a play ``backlash_um``; ``repeatability_arcsec`` is the
     spread of a stop.
@@ -45,7 +46,7 @@ class SwingConfig(_Model):
     lead_mm: PositiveFloat = 5.0
     slope_um_per_m: float = 20.0
     poly_um: tuple[float, ...] = (0.0, 3.0, -3.0)
-    periodic_um: float = 0.4
+    periodic_um: float = 1.0
     periodic_phase_deg: float = 30.0
     backlash_um: NonNegFloat = 2.0
     repeatability_arcsec: NonNegFloat = 0.1

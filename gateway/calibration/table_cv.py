@@ -1,9 +1,12 @@
 """A pitch table's interpolation chosen by cross-validation (pure).
 
-Leave-one-out over the table's own points: each interior point is predicted from the others
-with ``linear`` (straight lines, as LinuxCNC and SINUMERIK), ``smooth`` (C2 cubic spline) and
+Leave-one-out over the table's own points: each point is predicted from the others with
+``linear`` (straight lines, as LinuxCNC and SINUMERIK), ``smooth`` (C2 cubic spline) and
 ``pchip`` (monotone cubic), as :class:`~gateway.compensation.PitchStage` interpolates; the
-RMS of the misses, over both directions, scores each. A smooth error sampled densely (seed
+RMS of the misses, over both directions, scores each. The end points count too, predicted as
+the stage predicts beyond a table (the end value held): commands run past the last measured
+point wherever the correction is large there, so a table whose error still changes at its
+ends scores badly, one that leaves little beyond a model well. A smooth error sampled densely (seed
 003's linkage at every degree) favours the spline; a rough one (real screws measured
 coarsely) straight lines. A turntable's table (``wrap``) is scored around the circle.
 """
@@ -21,6 +24,8 @@ TURN_DEG = 360.0
 
 
 def _predict(x: NDArray[np.float64], y: NDArray[np.float64], at: float, method: str) -> float:
+    if at < x[0] or at > x[-1]:  # beyond the table: the end value held (outside: hold)
+        return float(y[0] if at < x[0] else y[-1])
     if method == "linear":
         return float(np.interp(at, x, y))
     if method == "smooth":
@@ -39,7 +44,7 @@ def loo_rms(table: PitchTable, wrap: bool = False) -> dict[str, float]:
             continue
         misses: list[float] = []
         for y in series:
-            xx, yy, inner = x, y, range(1, n - 1)
+            xx, yy, inner = x, y, range(n)
             if wrap:  # three points of the neighbouring turns on each side
                 xx = np.concatenate([x[-3:] - TURN_DEG, x, x[:3] + TURN_DEG])
                 yy = np.concatenate([y[-3:], y, y[:3]])
