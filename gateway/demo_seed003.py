@@ -118,7 +118,8 @@ class Rig:
                 Instruments(angle=Endpoint("127.0.0.1", self.sim_port, ANGLE_UNIT),
                             angle_axes=["A", "C"]),
             )  # fmt: skip
-            await session.run(snap_to_pulses(plan, {AXIS: PULSE_DEG}), raw, compensation)
+            pulses = {a: config.axes[a].pulse_mm for a in plan.axes}
+            await session.run(snap_to_pulses(plan, pulses), raw, compensation)
         return config
 
 

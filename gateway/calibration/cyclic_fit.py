@@ -152,11 +152,14 @@ def fit_cyclic(
     )
 
 
-def net_of_cyclic(table: PitchTable, model: CyclicModel | None) -> PitchTable:
-    """The coarse table with the cyclic term at its targets taken out (the joint fit)."""
+def net_of_cyclic(
+    table: PitchTable, model: CyclicModel | None, period_mm: float | None = None
+) -> PitchTable:
+    """The coarse table with the cyclic term at its targets taken out (the joint fit);
+    ``period_mm``: a turntable's (amplitudes interpolated around the circle, as its stage)."""
     if model is None:
         return table
-    cyc = model.error_mm(table.position_mm)
+    cyc = model.error_mm(table.position_mm, period_mm)
     reverse = None if table.reverse_mm is None else table.reverse_mm - cyc
     return PitchTable(
         table.position_mm,

@@ -37,6 +37,7 @@ from ..formats import (
 from ..formats.planar_file import load_planar_model
 from .cyclic_fit import CyclicFit, fit_cyclic, net_of_cyclic, scans_from_raw
 from .fit import (
+    TURN_DEG,
     as_axis_table,
     bidirectional_table,
     bidirectional_table_smooth_reversal,
@@ -340,7 +341,8 @@ def fit_cyclic_raw(
     model = CyclicModel(lead, st[order], sin, cos, origin, source=str(path))
     comp = config.axes[axis].compensation
     try:
-        CyclicStage(model, config.axes[axis].travel_mm)
+        CyclicStage(model, config.axes[axis].travel_mm, TURN_DEG if config.axes[axis].wraps
+                    else None)  # fmt: skip
     except CompensationError as exc:
         raise TableError(str(exc)) from None
     if model.peak_mm() > comp.max_correction_mm:
@@ -394,6 +396,7 @@ def save_cyclic(result: CyclicResult, comment: str = "") -> None:
 
 def net_pitch(result: PitchResult, model: CyclicModel, config: GatewayConfig) -> PitchResult:
     """The joint fit: the pitch table net of the cyclic term at its targets, re-checked."""
-    table = net_of_cyclic(result.table, model)
+    table = net_of_cyclic(result.table, model,
+                          TURN_DEG if config.axes[result.axis].wraps else None)
     check_pitch(table, config, result.axis)
     return replace(result, table=table)
