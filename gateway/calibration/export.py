@@ -27,6 +27,15 @@ FANUC conventions (as in the 0i/30i parameter manuals, no. 3620-3624; check your
 - a bidirectional table is exported in one direction (``--direction forward``, default, the
   approach FANUC tables describe; ``reverse``; or ``mean``); FANUC's backlash parameter (no.
   1851) then holds the reversal, printed as a comment.
+
+Rotary axes (issue 16): a compgw CSV in ``position_deg`` is in degrees; a LinuxCNC file has
+no unit, ``--unit deg`` says it is one. A swing axis's table is exported like a linear one,
+in degrees (FANUC: detection units of ``--unit-mm`` degrees, 0.001 by default). A
+turntable's (``--turn``) covers one turn: LinuxCNC gets the first point again one turn
+later, so the table closes across 360→0; FANUC gets points every interval over one turn from
+the reference position (the interval must divide 360), the last one turn after the first,
+so the increments over a turn sum to zero, and no. 3625, the movement per rotation in
+detection units (the rotary-axis type of pitch error compensation).
 """
 
 from __future__ import annotations
@@ -66,6 +75,8 @@ class FanucPitch:
     unit_mm: float
     reference_mm: float
     backlash_units: int | None
+    unit: str = "mm"  # or "deg"
+    per_turn_units: int | None = None  # a turntable: no. 3625
 
     @property
     def interval_mm(self) -> float:
@@ -101,27 +112,41 @@ def fanuc_pitch(
     magnification: int | None = None,
     max_increment: int = 7,
     direction: str = "forward",
+    turn: bool = False,
 ) -> FanucPitch:
     """FANUC-style parameters from a deviation table (conventions: module docstring).
 
     Defaults: the interval is the table's mean spacing rounded to whole units, the
-    reference position the first table point.
+    reference position the first table point (a turntable's, ``turn``: 0°).
     """
     pos = table.position_mm
+    unit = table.unit
     if unit_mm <= 0 or max_increment < 1:
         raise TableError("unit_mm must be > 0 and max_increment >= 1")
+    if turn and not table.rotary:
+        raise TableError(f"{table.source}: --turn needs a rotary table (degrees)")
     if interval_mm is None:
         interval_mm = float((pos[-1] - pos[0]) / (pos.size - 1))
     units = round(interval_mm / unit_mm)
     if units < 1:
-        raise TableError(f"interval {interval_mm:g} mm is below one unit {unit_mm:g} mm")
+        raise TableError(f"interval {interval_mm:g} {unit} is below one unit {unit_mm:g} {unit}")
     step = units * unit_mm
-    ref = float(pos[0]) if reference_mm is None else float(reference_mm)
-    below = math.floor((ref - pos[0]) / step + 1e-9)
-    above = math.floor((pos[-1] - ref) / step + 1e-9)
+    per_turn = None
+    if turn:
+        per_turn = round(360.0 / unit_mm)
+        if abs(per_turn * unit_mm - 360.0) > 1e-9 or per_turn % units:
+            raise TableError(f"interval {step:g} deg does not divide a turn into whole "
+                             f"detection units of {unit_mm:g} deg")  # fmt: skip
+        ref = 0.0 if reference_mm is None else float(reference_mm)
+        below, above = 0, per_turn // units
+    else:
+        ref = float(pos[0]) if reference_mm is None else float(reference_mm)
+        below = math.floor((ref - pos[0]) / step + 1e-9)
+        above = math.floor((pos[-1] - ref) / step + 1e-9)
     positions = ref + step * np.arange(-below, above + 1)
     values = _direction_values(table, direction)
-    correction = -np.interp(positions, pos, values)
+    correction = -(np.interp(positions, pos, values, period=360.0) if turn
+                   else np.interp(positions, pos, values))  # fmt: skip
     correction -= correction[below]  # 0 at the reference position
     exact = correction / unit_mm  # detection units
 
@@ -146,7 +171,7 @@ def fanuc_pitch(
         backlash = round(float(np.mean(table.reverse_mm - table.forward_mm)) / unit_mm)
     return FanucPitch(reference_number, reference_number - below, reference_number + above,
                       magnification, units, tuple(int(v) for v in inc), unit_mm, ref,
-                      backlash)  # fmt: skip
+                      backlash, unit, per_turn)  # fmt: skip
 
 
 def format_fanuc(fp: FanucPitch, source: str = "") -> str:
@@ -154,35 +179,68 @@ def format_fanuc(fp: FanucPitch, source: str = "") -> str:
         f"# FANUC-style pitch error compensation from {source} (compgw export)",
         "# conventions: gateway/calibration/export.py; value of point n = increment of the",
         "# correction (opposite of the deviation) from point n-1 to n, in detection units",
-        f"# ({fp.unit_mm:g} mm) x magnification; 0 at the reference position "
-        f"{fp.reference_mm:g} mm",
+        f"# ({fp.unit_mm:g} {fp.unit}) x magnification; 0 at the reference position "
+        f"{fp.reference_mm:g} {fp.unit}",
     ]
+    if fp.per_turn_units is not None:
+        lines.append("# rotary axis type: one turn from the reference, increments summing to "
+                     "0 over it; 3625 = movement per rotation")  # fmt: skip
     if fp.backlash_units is not None:
         lines.append(f"# mean reversal of the bidirectional table: {fp.backlash_units} units "
                      "(backlash parameter, no. 1851)")  # fmt: skip
     lines += ["parameter,value", f"3620,{fp.reference_number}", f"3621,{fp.negative_end}",
-              f"3622,{fp.positive_end}", f"3623,{fp.magnification}", f"3624,{fp.interval_units}",
-              "point,value"]  # fmt: skip
+              f"3622,{fp.positive_end}", f"3623,{fp.magnification}", f"3624,{fp.interval_units}"]
+    if fp.per_turn_units is not None:
+        lines.append(f"3625,{fp.per_turn_units}")
+    lines.append("point,value")
     lines += [f"{fp.negative_end + k},{v}" for k, v in enumerate(fp.increments)]
     return "\n".join(lines) + "\n"
 
 
-def read_table(path: str | Path, fmt: str | None) -> PitchTable:
+def read_table(path: str | Path, fmt: str | None, unit: str | None = None) -> PitchTable:
+    """A table from a compgw CSV (its header gives the unit) or a LinuxCNC file (``unit``:
+    ``deg`` for a rotary axis's, default mm)."""
     fmt = fmt or ("csv" if str(path).lower().endswith(".csv") else None)
     if fmt is None:
         raise TableError(f"{path}: give --from linuxcnc0|linuxcnc1|csv")
-    return read_pitch_csv(path) if fmt == "csv" else read_linuxcnc(path, int(fmt[-1]))
+    if fmt == "csv":
+        table = read_pitch_csv(path)
+        if unit is not None and table.unit != unit:
+            raise TableError(f"{path}: the table is in {table.unit}, not {unit} (--unit)")
+        return table
+    table = read_linuxcnc(path, int(fmt[-1]))
+    if unit == "deg":
+        table = PitchTable(table.position_mm, table.forward_mm, table.reverse_mm, True,
+                           table.source, table.lines)  # fmt: skip
+    return table
+
+
+def closed_turn(table: PitchTable) -> PitchTable:
+    """A turntable's table with its first point again one turn later (LinuxCNC then
+    interpolates across 360→0), unless it has it."""
+    pos = table.position_mm
+    if not table.rotary or pos[-1] - pos[0] >= 360.0 - 1e-9:
+        return table
+    rev = None if table.reverse_mm is None else np.append(table.reverse_mm, table.reverse_mm[0])
+    # a plain table for the writer: its last point lies one turn on, past 360
+    return PitchTable(np.append(pos, pos[0] + 360.0), np.append(table.forward_mm,
+                      table.forward_mm[0]), rev, False, table.source)  # fmt: skip
 
 
 def export(args: argparse.Namespace) -> str:
-    table = read_table(args.input, args.from_format)
+    table = read_table(args.input, args.from_format, args.unit)
+    turn = getattr(args, "turn", False)
+    if turn and not table.rotary:
+        raise TableError(f"{args.input}: --turn needs a table in degrees (position_deg, or "
+                         "--unit deg for a LinuxCNC file)")  # fmt: skip
     if args.to == "csv":
         write_pitch_csv(args.output, table, f"exported from {args.input}")
     elif args.to in ("linuxcnc0", "linuxcnc1"):
-        write_linuxcnc(args.output, table, int(args.to[-1]))
+        write_linuxcnc(args.output, closed_turn(table) if turn else table, int(args.to[-1]))
     else:
         fp = fanuc_pitch(table, args.interval_mm, args.reference_mm, args.reference_number,
-                         args.unit_mm, args.magnification, args.max_increment, args.direction)
+                         args.unit_mm, args.magnification, args.max_increment, args.direction,
+                         turn)  # fmt: skip
         atomic_write_text(args.output, format_fanuc(fp, str(args.input)))
     return f"{args.input} → {args.output} ({args.to})"
 
@@ -192,11 +250,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True)
     p.add_argument("--to", required=True, choices=[*FORMATS, "fanuc"])
     p.add_argument("--from", dest="from_format", choices=FORMATS, help="input format")
+    p.add_argument("--unit", choices=["mm", "deg"],
+                   help="a LinuxCNC file's unit (mm; deg: a rotary axis's table)")
+    p.add_argument("--turn", action="store_true",
+                   help="a turntable's table: one full turn (LinuxCNC: closed at 360; FANUC: "
+                        "rotary type, no. 3625)")  # fmt: skip
     f = p.add_argument_group("fanuc")
     f.add_argument("--interval-mm", type=float, help="point interval (table's mean spacing)")
     f.add_argument("--reference-mm", type=float, help="reference position (first point)")
     f.add_argument("--reference-number", type=int, default=0, help="its point number (0)")
-    f.add_argument("--unit-mm", type=float, default=0.001, help="detection unit (0.001)")
+    f.add_argument("--unit-mm", type=float, default=0.001,
+                   help="detection unit, mm or deg (0.001)")
     f.add_argument("--magnification", type=int, help="fixed magnification (auto)")
     f.add_argument("--max-increment", type=int, default=7, help="per-point limit (7)")
     f.add_argument("--direction", choices=["forward", "reverse", "mean"], default="forward")
