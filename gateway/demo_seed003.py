@@ -131,8 +131,9 @@ def figures(raw_path: Path) -> dict[str, float]:
     every = np.concatenate([x.ravel() for x in (dev.up_mm, dev.down_mm)])  # type: ignore[union-attr]
     iso = iso230_axis(dev)
     worst = float(np.abs(means).max())
+    up, down = (float(np.abs(np.nanmean(x, axis=1)).max()) for x in (dev.up_mm, dev.down_mm))  # type: ignore[arg-type]
     return {
-        "max_deg": worst, "max_arcsec": worst * 3600.0,
+        "max_deg": worst, "max_arcsec": worst * 3600.0, "max_up_deg": up, "max_down_deg": down,
         "max_reading_deg": float(np.nanmax(np.abs(every))),
         "rms_arcsec": float(np.sqrt(np.nanmean(every**2)) * 3600.0),
         "E_arcsec": float(iso.E_um) * ARCSEC_PER_MDEG,  # type: ignore[arg-type]
