@@ -7,9 +7,11 @@ Real sockets: the sim, the gateway and the calibration's machine driver in one l
 from __future__ import annotations
 
 import asyncio
+import json
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from gateway.app import GatewayApp
 from gateway.calibration.iso230 import ARCSEC_PER_MDEG, iso230_axis
@@ -117,3 +119,29 @@ async def turntable_run(tmp_path: Path) -> None:
             finally:
                 master.close()
                 bench.close()
+
+
+def test_seed_000_backlash_plan_in_angle(tmp_path: Path, capsys):
+    """`--backlash C` on a rotary axis: 1° take-up, 1° on and back, both ends and the
+    middle; `compgw fit` reports B in arcseconds: the turntable's 12" play."""
+    from gateway.calibration.commands import fit, make_plan
+    from gateway.cli import build_parser
+
+    async def body() -> None:
+        async with SimServer(load_sim(SIM_CONFIG), tcp_port=0, time_scale=0) as sim:
+            data = turntable(sim.tcp_port)
+            (tmp_path / "gw.yaml").write_text(yaml.safe_dump(data))
+            args = build_parser().parse_args(["calibrate", "-c", str(tmp_path / "gw.yaml"),
+                                              "--backlash", "C"])
+            plan = make_plan(args, parse_config(data, "gw.yaml"))
+            assert dict(plan.meta)["unit"] == "deg" and dict(plan.meta)["takeup_mm"] == "1"
+            places = sorted({m.target_mm[0] for m in plan.moves if m.measured})
+            assert places[0] == TRAVEL[0] + 2 and places[-1] == TRAVEL[1] - 2
+            await Rig(sim.tcp_port, tmp_path).run(data, plan, tmp_path / "b.csv", "off")
+
+    asyncio.run(asyncio.wait_for(body(), 60))
+    code = fit(build_parser().parse_args(["fit", str(tmp_path / "b.csv"), "-c",
+                                          str(tmp_path / "gw.yaml"), "--json"]))
+    assert code == 0
+    b_arcsec = json.loads(capsys.readouterr().out)["C"]["backlash_arcsec"]
+    assert abs(b_arcsec - 12.0) < 1.0
