@@ -30,6 +30,7 @@ from gateway.calibration.plans import (
     verification_targets_mm,
 )
 from gateway.calibration.rawdata import axis_deviations, read_raw_csv
+from gateway.calibration.report import build_cyclic_report
 from gateway.calibration.runner import read_raw_meta
 from gateway.config import parse_config
 from gateway.demo_seed003 import SIM_CONFIG, Rig, axis_data, gateway_data
@@ -83,6 +84,11 @@ async def turntable_run(tmp_path: Path) -> None:
         assert table.table.position_mm.max() < 360 and table.interpolation_cv is not None
         save_cyclic(cyc)
         save_pitch(table)
+        page, _, data = build_cyclic_report(read_raw_csv(tmp_path / "cyclic.csv"),
+                                            read_raw_meta(tmp_path / "cyclic.csv"), angular=True)
+        station = data["C"]["cyclic"]["stations"][0]
+        assert abs(station["amplitude_arcsec"] - 3.0) < 0.6 and "station_deg" in station
+        assert "amplitude arcsec" in page and "lead 5 deg" in page
 
         # judged between the calibration targets, over a turn that crosses 360, and over
         # one three turns down (crossing -720), uncompensated and compensated alike

@@ -290,21 +290,23 @@ def cyclic_results(
     return out
 
 
-def plot_cyclic(axis: str, fit: Any, scans: list[Any], lead_mm: float, origin_mm: float) -> bytes:
+def plot_cyclic(axis: str, fit: Any, scans: list[Any], lead_mm: float, origin_mm: float,
+                units: Units = LINEAR) -> bytes:  # fmt: skip
     """Per station: the scan minus the fitted local trend vs position, both directions,
     with the fitted cyclic curve."""
     from .cyclic_fit import station_fit_curves
 
     plt = _pyplot()
+    small = 1e3 * units.per_um  # table units → µm or arcsec
     fig, panels = plt.subplots(len(scans), 1, figsize=(8, 2.6 * len(scans)), squeeze=False)
     k = fit.harmonics
     for ax, (station, scan) in zip(panels[:, 0], scans):
         detrended, _ = station_fit_curves(scan, lead_mm, origin_mm, k)
         for sign, colour, label in ((1, "tab:blue", "↑ (+)"), (-1, "tab:red", "↓ (−)")):
             sel = scan.direction == sign
-            ax.plot(scan.position_mm[sel], detrended[sel] * 1e3, ".", color=colour, ms=4,
+            ax.plot(scan.position_mm[sel], detrended[sel] * small, ".", color=colour, ms=4,
                     label=f"scan {label}")  # fmt: skip
-        title = f"axis {axis}, station {station:g} mm"
+        title = f"axis {axis}, station {station:g} {units.position}"
         if fit.model is not None:
             i = int(np.argmin(np.abs(fit.model.station_mm - station)))
             x = np.linspace(scan.position_mm.min(), scan.position_mm.max(), 400)
@@ -312,37 +314,38 @@ def plot_cyclic(axis: str, fit: Any, scans: list[Any], lead_mm: float, origin_mm
             h = np.arange(1, k + 1)
             curve = (np.sin(theta[:, None] * h) @ fit.model.sin_mm[i]
                      + np.cos(theta[:, None] * h) @ fit.model.cos_mm[i])  # fmt: skip
-            ax.plot(x, curve * 1e3, "-", color="k", lw=1.2, label=f"fit ({k} harmonic(s))")
-            amp = np.hypot(fit.model.sin_mm[i, 0], fit.model.cos_mm[i, 0]) * 1e3
-            title += f": first harmonic {amp:.2f} µm"
+            ax.plot(x, curve * small, "-", color="k", lw=1.2, label=f"fit ({k} harmonic(s))")
+            amp = np.hypot(fit.model.sin_mm[i, 0], fit.model.cos_mm[i, 0]) * small
+            title += f": first harmonic {amp:.2f} {units.name}"
         else:
             title += ": no cyclic error found (nothing added)"
         ax.axhline(0, color="0.5", lw=0.5)
         ax.set_title(title)
-        ax.set_xlabel("target position (mm)")
-        ax.set_ylabel("deviation − local trend (µm)")
+        ax.set_xlabel(f"target position ({units.position})")
+        ax.set_ylabel(f"deviation − local trend ({units.name})")
         ax.legend(fontsize=7, ncol=3)
         ax.grid(alpha=0.3)
     fig.tight_layout()
     return _png(fig)
 
 
-def _cyclic_table(axis: str, data: dict[str, Any]) -> str:
-    names = ("station mm", "k", "amplitude µm", "phase °", "sin a µm", "cos b µm")
+def _cyclic_table(axis: str, data: dict[str, Any], units: Units = LINEAR) -> str:
+    u, pos, f = units.name, units.position, units.per_um
+    names = (f"station {pos}", "k", f"amplitude {u}", "phase °", f"sin a {u}", f"cos b {u}")
     head = "".join(f"<th>{n}</th>" for n in names)
     rows = "".join(
         f"<tr><td>{h['station_mm']:g}</td><td>{h['k']}</td>"
-        f"<td>{h['amplitude_um']:.3f} ± {h['amplitude_sd_um']:.3f}</td>"
+        f"<td>{h['amplitude_um'] * f:.3f} ± {h['amplitude_sd_um'] * f:.3f}</td>"
         f"<td>{h['phase_deg']:.1f} ± {h['phase_sd_deg']:.1f}</td>"
-        f"<td>{h['sin_um']:.3f} ± {h['sin_sd_um']:.3f}</td>"
-        f"<td>{h['cos_um']:.3f} ± {h['cos_sd_um']:.3f}</td></tr>"
+        f"<td>{h['sin_um'] * f:.3f} ± {h['sin_sd_um'] * f:.3f}</td>"
+        f"<td>{h['cos_um'] * f:.3f} ± {h['cos_sd_um'] * f:.3f}</td></tr>"
         for h in data["stations"]
     )
-    cv = ", ".join(f"K={k}: {v:.3f}" for k, v in data["cv_rms_um"].items())
-    summary = (f"<p>lead {data['lead_mm']:g} mm, {data['readings']} readings; harmonics chosen: "
-               f"{data['harmonics']} (cross-validated RMS µm {cv}); residual RMS "
-               f"{data['residual_rms_um']:.3f} µm. ± = one standard uncertainty; the term is "
-               "A·sin(kθ + φ), θ = 2π·(x − origin)/lead.</p>")  # fmt: skip
+    cv = ", ".join(f"K={k}: {v * f:.3f}" for k, v in data["cv_rms_um"].items())
+    summary = (f"<p>lead {data['lead_mm']:g} {pos}, {data['readings']} readings; harmonics "
+               f"chosen: {data['harmonics']} (cross-validated RMS {u} {cv}); residual RMS "
+               f"{data['residual_rms_um'] * f:.3f} {u}. ± = one standard uncertainty; the term "
+               "is A·sin(kθ + φ), θ = 2π·(x − origin)/lead.</p>")  # fmt: skip
     if not data["stations"]:
         return summary + "<p>No cyclic error found: the fit adds nothing.</p>"
     return (summary + f"<table class='fig' id='cyclic-{axis}-harmonics'><tr>{head}</tr>"
@@ -351,23 +354,44 @@ def _cyclic_table(axis: str, data: dict[str, Any]) -> str:
 
 def build_cyclic_report(
     raw: RawData, meta: dict[str, str], title: str = "compgw calibration report",
-    harmonics: int | None = None, lead_mm: float | None = None,
+    harmonics: int | None = None, lead_mm: float | None = None, angular: bool = False,
 ) -> tuple[str, list[Figure], dict[str, Any]]:  # fmt: skip
-    """The report of a cyclic run: harmonics table and scan plot per axis (pure)."""
+    """The report of a cyclic run: harmonics table and scan plot per axis (pure); a rotary
+    axis's (``angular``: a worm's period in degrees) in arcseconds, its data keyed so."""
+    units = ANGULAR if angular else LINEAR
     parts = [f"<h1>{html.escape(title)}</h1>",
              f"<p>Cyclic (once-per-lead) screw error from dense scans. Source: "
              f"{html.escape(raw.source)}</p>"]  # fmt: skip
     figures: list[Figure] = []
     data: dict[str, Any] = {}
     for axis, (fit, scans, d) in cyclic_results(raw, meta, harmonics, lead_mm).items():
-        data[axis] = {"cyclic": d}
+        data[axis] = {"cyclic": _in_arcsec(d) if angular else d}
         parts.append(f"<h2>Axis {html.escape(axis)}: cyclic error</h2>")
-        parts.append(_cyclic_table(axis, d))
-        png = plot_cyclic(axis, fit, scans, d["lead_mm"], d["origin_mm"])
+        parts.append(_cyclic_table(axis, d, units))
+        png = plot_cyclic(axis, fit, scans, d["lead_mm"], d["origin_mm"], units)
         figures.append(Figure(f"cyclic-{axis}", png, f"axis {axis}: dense scans minus the "
                               "fitted local trend, both directions, with the fitted curve"))
         parts.append(_img(figures[-1]))
     return _page(title, "\n".join(parts)), figures, data
+
+
+def _in_arcsec(value: Any) -> Any:
+    """A rotary axis's cyclic data: ``*_um`` (millidegrees) as ``*_arcsec``, ``*_mm``
+    positions as ``*_deg``."""
+    if isinstance(value, list):
+        return [_in_arcsec(v) for v in value]
+    if not isinstance(value, dict):
+        return value
+    out: dict[str, Any] = {}
+    for key, v in value.items():
+        if key.endswith("_um"):
+            out[key[:-3] + "_arcsec"] = ({k: x * ARCSEC_PER_MDEG for k, x in v.items()}
+                                         if isinstance(v, dict) else v * ARCSEC_PER_MDEG)
+        elif key.endswith("_mm"):
+            out[key[:-3] + "_deg"] = v
+        else:
+            out[key] = _in_arcsec(v)
+    return out
 
 
 def _page(title: str, body: str) -> str:
@@ -410,8 +434,9 @@ def main(args: argparse.Namespace) -> int:
         if meta.get("kind") == "cyclic":
             if args.before:
                 raise TableError("--before: a cyclic run is reported on its own")
+            angular = (args.unit or meta.get("unit", "mm")) == "deg"
             text, figures, data = build_cyclic_report(raw, meta, args.title, args.harmonics,
-                                                      args.lead_mm)  # fmt: skip
+                                                      args.lead_mm, angular)  # fmt: skip
             if args.json:
                 print(json.dumps(data))
                 if not args.out:
