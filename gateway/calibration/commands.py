@@ -458,6 +458,7 @@ def fit(args: argparse.Namespace) -> int:
                     "cv_rms_um": {str(k): v for k, v in cr.fit.cv_rms_um.items()},
                     "residual_rms_um": cr.fit.residual_rms_um,
                     "peak_um": cr.model.peak_mm() * 1e3,
+                    "unit": "deg" if config.axes[a].rotary else "mm",
                     "stations": [h.to_json_dict() for h in harmonics_table(cr.fit)],
                 }  # fmt: skip
         for path, kind in kinds.items():
@@ -573,13 +574,15 @@ def format_fit(report: dict[str, Any], dry_run: bool = False) -> str:
             continue
         if "cyclic" in entry:
             c = entry["cyclic"]
-            cv = ", ".join(f"K={k} {v:.3f}" for k, v in c["cv_rms_um"].items())
-            lines.append(f"{name}: {verb} {c['file']} (cyclic, lead {c['lead_mm']:g} mm, "
+            # a rotary axis's (a worm's) figures: mdeg in the _um keys, shown in arcsec
+            pos, u, f = ("deg", "arcsec", 3.6) if c.get("unit") == "deg" else ("mm", "µm", 1.0)
+            cv = ", ".join(f"K={k} {v * f:.3f}" for k, v in c["cv_rms_um"].items())
+            lines.append(f"{name}: {verb} {c['file']} (cyclic, lead {c['lead_mm']:g} {pos}, "
                          f"{c['harmonics']} harmonic(s){', folded' if c['folded'] else ''}; "
-                         f"CV RMS µm: {cv}; residual RMS {c['residual_rms_um']:.3f} µm)")
+                         f"CV RMS {u}: {cv}; residual RMS {c['residual_rms_um'] * f:.3f} {u})")
             for h in c["stations"]:
-                lines.append(f"{name}:   at {h['station_mm']:g} mm, k={h['k']}: "
-                             f"{h['amplitude_um']:.3f} ± {h['amplitude_sd_um']:.3f} µm, "
+                lines.append(f"{name}:   at {h['station_mm']:g} {pos}, k={h['k']}: "
+                             f"{h['amplitude_um'] * f:.3f} ± {h['amplitude_sd_um'] * f:.3f} {u}, "
                              f"phase {h['phase_deg']:.1f} ± {h['phase_sd_deg']:.1f}°")
             if c["harmonics"] == 0:
                 lines.append(f"{name}:   no cyclic error found: the file adds nothing")
