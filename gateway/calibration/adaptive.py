@@ -113,8 +113,11 @@ def judge_axis(dev: AxisDeviations, table_mm: NDArray[np.float64], tolerance_um:
     m = np.column_stack(means) * 1e3  # µm, targets × directions
     spread = m - np.median(m, axis=0)
     sd = repeatability_sd_um
-    if sd is None:
-        sd = (iso.R_um or 0.0) / 4.0  # R = 4 s
+    if sd is None:  # the run's own scatter, pooled over targets and directions
+        var = [np.nanvar(x, axis=1, ddof=1) for x in (dev.up_mm, dev.down_mm)
+               if x is not None and x.shape[1] > 1]  # fmt: skip
+        sd = float(np.sqrt(np.nanmean(np.concatenate(var)))) * 1e3 if var else \
+            (iso.R_um or 0.0) / 4.0
     noise = 3.0 * sd / math.sqrt(runs)
     bad = np.flatnonzero(np.max(np.abs(spread), axis=1) > max(0.5 * tolerance_um, noise))
     x = np.asarray(table_mm, dtype=np.float64)

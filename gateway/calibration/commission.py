@@ -582,39 +582,93 @@ class Commission:
 
     # -- 3. verification rounds ----------------------------------------------------------
     async def _rounds(self) -> str:
+        """Verify; keep the best tables; refine what misses; a refinement that does not pay
+        is taken back and its axis (or the plane) settled at its best."""
         await self.use("full" if self.tables.planar_model else "pitch")
         rounds = self.state["rounds"]
+        best = self.state.setdefault("best", {})
+        settled = self.state.setdefault("settled", [])
         while len(rounds) < self.s.max_rounds:
             r = len(rounds) + 1
             verdicts, xy = await self._verify(r)
-            entry = {"round": r, "axes": {a: v.to_json() for a, v in verdicts.items()},
-                     "xy": xy, "machine_s": self.used_s}  # fmt: skip
-            failing = [a for a, v in verdicts.items() if not v.within]
-            xy_bad = xy is not None and xy["max_um"] > self.s.tolerance_um
+            entry: dict[str, Any] = {"round": r, "axes": {a: v.to_json()
+                                                          for a, v in verdicts.items()},
+                                     "xy": xy, "machine_s": self.used_s}  # fmt: skip
             self.say(f"round {r}: " + "; ".join(
                 f"{a} E {v.E_um:.2f} A {v.A_um:.2f} R {v.R_um:.2f} µm"
                 for a, v in verdicts.items()) + (f"; XY max {xy['max_um']:.2f} µm" if xy else
                                                  ""))  # fmt: skip
-            if not failing and not xy_bad:
+            scores = {a: v.E_um for a, v in verdicts.items()}
+            if xy is not None:
+                scores["XY"] = xy["max_um"]
+            restored = [name for name, score in scores.items()
+                        if name not in settled and not self._keep_best(name, score, r)]
+            for name in restored:
+                settled.append(name)
+                self.say(f"round {r}: {name}: the last refinement did not pay; back to round "
+                         f"{best[name]['round']}'s {'model' if name == 'XY' else 'table'} "
+                         f"({best[name]['score']:.2f} µm)")  # fmt: skip
+            names = [*self.s.axes, *(["XY"] if self.s.planar else [])]
+            good = {n: n in best and best[n]["score"] <= self.s.tolerance_um for n in names}
+            entry["restored"] = restored
+            if all(good.values()):
                 entry["outcome"] = "within"
                 rounds.append(entry)
                 self._save()
+                if restored:
+                    await self.use("full" if self.tables.planar_model else "pitch")
                 self.say(f"round {r}: within {self.s.tolerance_um:g} µm between the points")
                 return "within"
-            added = {}
-            for a in failing:
-                added[a] = await self._refine_axis(r, a, verdicts[a])
-            if xy_bad:
-                entry["grid"] = list(await self._refine_plane(r))
+            added: dict[str, int] = {}
+            for a, v in verdicts.items():
+                if not good[a] and a not in settled:
+                    added[a] = await self._refine_axis(r, a, v)
+                    if not added[a]:
+                        settled.append(a)
+            if "XY" in scores and not good["XY"] and "XY" not in settled:
+                if self.state.get("densified", 0) < 2:
+                    entry["grid"] = list(await self._refine_plane(r))
+                    self.state["densified"] = self.state.get("densified", 0) + 1
+                else:
+                    settled.append("XY")
             entry["added"] = added
             rounds.append(entry)
             self._save()
-            if not any(added.values()) and not xy_bad:
+            if not any(added.values()) and "grid" not in entry:
+                if restored:
+                    await self.use("full" if self.tables.planar_model else "pitch")
                 self.say(f"round {r}: nothing left to refine where it misses (repeatability "
                          "or structure below the table's resolution)")  # fmt: skip
                 return "floor"
             await self.use("full" if self.tables.planar_model else "pitch")
         return "rounds"
+
+    def _table_files(self, name: str) -> list[Path]:
+        """The files that hold an axis's table (or, for "XY", the planar model)."""
+        if name == "XY":
+            model = self.config_dir / str(self.tables.planar_model)
+            return [model, model.parent / "xy_points.csv"]
+        return [self.config_dir / self.tables.pitch[name]]
+
+    def _keep_best(self, name: str, score: float, r: int) -> bool:
+        """Record round ``r``'s verification score (µm) of an axis or the plane. A better
+        score than the best so far (by 10 %, at least 0.2 µm) makes the current table the
+        best (copied aside); else the best is put back. False when it was put back."""
+        best = self.state["best"]
+        keep = self.dir / "tables" / "best"
+        keep.mkdir(parents=True, exist_ok=True)
+        old = best.get(name)
+        if old is None or score < old["score"] - max(0.1 * old["score"], 0.2):
+            best[name] = {"score": score, "round": r}
+            for path in self._table_files(name):
+                if path.exists():
+                    shutil.copyfile(path, keep / f"{name}-{path.name}")
+            return True
+        for path in self._table_files(name):
+            saved = keep / f"{name}-{path.name}"
+            if saved.exists():
+                atomic_write_text(path, saved.read_text())
+        return False
 
     def _verify_targets(self, r: int, axis: str) -> np.ndarray:
         table = read_pitch_csv(self.config_dir / self.tables.pitch[axis]).position_mm
@@ -627,15 +681,18 @@ class Commission:
 
     async def _verify(self, r: int) -> tuple[dict[str, adaptive.AxisVerdict], dict | None]:
         verdicts = {}
+        settled = self.state.get("settled", [])
         for a in self.s.axes:
+            if a in settled:  # at its best: nothing new to judge
+                continue
             await self.step(f"verify{r}-{a}", lambda a=a: targets_plan(
                 a, self._travel(a), self._verify_targets(r, a), self.s.verify_runs,
                 kind="iso230-verification", round=r), "on", self._park(a))  # fmt: skip
             table = read_pitch_csv(self.config_dir / self.tables.pitch[a]).position_mm
             dev = axis_deviations(self.raw(f"verify{r}-{a}"), a)
-            verdicts[a] = adaptive.judge_axis(dev, table, self.s.tolerance_um, self._sd_um(a))
+            verdicts[a] = adaptive.judge_axis(dev, table, self.s.tolerance_um)
         xy = None
-        if self.s.planar is not None:
+        if self.s.planar is not None and "XY" not in settled:
             grid = tuple(self.state.get("grid", self.s.grid))
             await self.step(f"verify{r}-xy", lambda: self._xy_check_plan(r, grid), "on")
             xy = self._xy_figures(f"verify{r}-xy")
@@ -647,11 +704,6 @@ class Commission:
         meas = planar_measurement(self.raw(name), self.s.planar)
         norm = np.hypot(*meas.error_mm.T) * 1e3
         return {"max_um": float(norm.max()), "rms_um": float(np.sqrt(np.mean(norm**2)))}
-
-    def _sd_um(self, axis: str) -> float:
-        """The axis's repeatability (standard deviation, µm) from the coarse ISO run."""
-        iso = iso230_axis(axis_deviations(self.raw(f"iso-{axis}"), axis))
-        return float(iso.R_um or 0.0) / 4.0
 
     async def _refine_axis(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> int:
         """New table points at the midpoints of the failing spans; their values from the

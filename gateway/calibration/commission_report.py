@@ -86,6 +86,8 @@ def build(directory: Path, summary: dict[str, Any]) -> tuple[str, list[Figure]]:
         added = ", ".join(f"{k} +{n} points" for k, n in (entry.get("added") or {}).items())
         if entry.get("grid"):
             added += f"{', ' if added else ''}XY grid {entry['grid'][0]}×{entry['grid'][1]}"
+        for name in entry.get("restored") or []:
+            added += f"{', ' if added else ''}{name} back to its best (the refinement did not pay)"
         rrows.append(f"<tr><td>{entry['round']}</td><td>{html.escape(axes)}</td>"
                      f"<td>{html.escape(added or entry.get('outcome', '–'))}</td>"
                      f"<td>{entry['machine_s'] / 3600:.2f}</td></tr>")  # fmt: skip
