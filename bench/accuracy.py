@@ -100,6 +100,7 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
         out["sensor_axes"] = [a for a, ax in result.config["axes"].items()
                               if "thermal" in ax.get("compensation", {})]  # fmt: skip
         out["commands"] = len(run.commands)
+        out["machine_h"] = (result.machine_time_s or run.machine_s) / 3600
     except Exception as exc:  # reported, the other machines go on
         out["error"] = f"{type(exc).__name__}: {exc}"
         out["traceback"] = traceback.format_exc(limit=3)
@@ -131,11 +132,12 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
         "thermal_on_um": max(a["axes"][n]["thermal_um"] for n in sensed or axes),
         "thermal_unsensed_um": max([a["axes"][n]["thermal_um"] for n in axes
                                     if n not in sensed] or [0.0]),
+        "machine_h": r.get("machine_h", float("nan")),  # the workflow's plans, as estimated
     }  # fmt: skip
 
 
 HEAD = (f"{'machine':<24}{'E  before':>11}{'after':>7}{'cut %':>7}{'A-R':>6}{'XY before':>10}"
-        f"{'after':>7}{'cut %':>7}{'offgrid':>8}{'therm off':>10}{'on':>6}  sensor")
+        f"{'after':>7}{'cut %':>7}{'offgrid':>8}{'therm off':>10}{'on':>6}{'mach h':>7}  sensor")
 
 
 def row(label: str, s: dict[str, Any], sensor: str) -> str:
@@ -144,7 +146,7 @@ def row(label: str, s: dict[str, Any], sensor: str) -> str:
             f"{s['E_cut_pct']:7.1f}"
             f"{s['A_minus_R_um']:6.2f}{s['xy_before_um']:10.1f}{s['xy_after_um']:7.2f}"
             f"{s['xy_cut_pct']:7.1f}{s['offgrid_rms_um']:8.2f}{s['thermal_off_um']:10.1f}{on}"
-            f"  {sensor}")  # fmt: skip
+            f"{s.get('machine_h', float('nan')):7.2f}  {sensor}")  # fmt: skip
 
 
 def group_stats(results: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, float]]]:
