@@ -4,29 +4,35 @@ arcseconds and degrees, `compgw export` to LinuxCNC and FANUC rotary forms."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from gateway.calibration.rawdata import RawWriter
+from gateway.cli import build_parser
 from gateway.compensation import LinkageModel, PitchTable
 from gateway.demo_seed003 import axis_data, gateway_data
 from gateway.formats import read_linkage, read_linuxcnc, read_pitch_csv, write_linkage
 from gateway.formats.pitch_csv import write_pitch_csv
 
-ROOT = Path(__file__).resolve().parent.parent
 TRUE = LinkageModel(arm_mm=150.0, base_mm=450.0, phi0_deg=74.4, mm_per_deg=2.59144,
                     offset_mm=10.0, zero_deg=0.0)  # fmt: skip
 DRAWING = TRUE.with_values(base_mm=451.0, phi0_deg=75.0, mm_per_deg=2.59)
 
 
 def compgw(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "gateway.cli", *args], capture_output=True,
-                          text=True, timeout=60, cwd=ROOT)  # fmt: skip
+    """``compgw ARGS`` in this process (the parser and the command a user runs), its exit
+    code and output as a finished process's."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        parsed = build_parser().parse_args(list(args))
+        code = int(parsed.func(parsed))
+    return subprocess.CompletedProcess(list(args), code, out.getvalue(), err.getvalue())
 
 
 def swing_raw(path: Path, runs: int = 2) -> None:
