@@ -158,6 +158,10 @@ def main(args: argparse.Namespace) -> int:
         for a in axes:
             if a not in config.axes:
                 raise TableError(f"--axes: {a!r} is not an axis of {config_path}")
+            if config.axes[a].rotary:
+                raise TableError(f"axis {a} is rotary: commissioning handles linear axes so "
+                                 "far; calibrate it with compgw calibrate --angle (README, "
+                                 "Rotary and swing axes), or leave it out with --axes")  # fmt: skip
         plane = None
         if args.xy_device:
             names = (args.plane.split(",") if args.plane else
