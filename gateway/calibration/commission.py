@@ -165,7 +165,13 @@ class Commission:
         original = self.original()
         if phase == "identification":
             return identification(original, self.s.axes, self.tables)
-        return with_tables(original, self.s.axes, self.tables, planar=phase == "full")
+        # on_trigger where both plane axes have a trigger: a master writing both targets
+        # before the start gets both corrected for the point it asked for (immediate would
+        # correct the first with the other's previous target)
+        both = self.s.planar is not None and all(
+            self.config.axes[a].registers.trigger is not None for a in self.s.planar)
+        return with_tables(original, self.s.axes, self.tables, planar=phase == "full",
+                           commit_default="on_trigger" if both else "immediate")
 
     def staged(self, phase: str) -> tuple[GatewayConfig, Path]:
         """The phase's config written under DIR/configs (for the fits' paths and checks)."""

@@ -62,9 +62,10 @@ def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tabl
 
 
 def with_tables(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
-                planar: bool) -> dict[str, Any]:
+                planar: bool, commit_default: str = "immediate") -> dict[str, Any]:
     """Identification plus the fitted tables and cyclic terms; the planar model too when
-    ``planar`` (and fitted)."""
+    ``planar`` (and fitted), committed as the user's planar section says, else
+    ``commit_default``."""
     data = identification(original, axes, tables)
     for name in axes:
         comp = data["axes"][name]["compensation"]
@@ -73,7 +74,7 @@ def with_tables(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
         if name in tables.cyclic:
             comp["cyclic"] = tables.cyclic[name]
     if planar and tables.planar_model is not None and tables.planar_axes is not None:
-        commit = (original.get("planar") or {}).get("commit", "immediate")
+        commit = (original.get("planar") or {}).get("commit", commit_default)
         data["planar"] = {"axes": list(tables.planar_axes), "model": tables.planar_model,
                           "commit": commit}  # fmt: skip
     return data
