@@ -129,6 +129,7 @@ def test_silent_and_dripping_clients_never_lock_out_a_master(tmp_path: Path):
             return rss
 
         rss = asyncio.run(asyncio.wait_for(body(), 60))
+        print(f"gateway RSS over the rounds: {rss} KiB")
         assert rss[-1] - rss[1] < 1024, f"gateway RSS grew {rss} KiB over the rounds"
         log = r["gw"].text()
         assert "closed to make room" in log and "no request yet" in log
