@@ -30,6 +30,9 @@ COARSE_POINTS = 21
 RANDOM_TARGETS = 16
 #: a table never gets points closer than this (mm): below it noise would set the slope
 MIN_SPACING_MM = 0.5
+#: a failing span is cut into this many pieces: structure a few centimetres long (a screw's
+#: waviness) is followed after one refinement, not after several halvings
+REFINE_PARTS = 4
 
 
 def coarse_step_mm(travel_mm: Sequence[float], lead_mm: float | None = None) -> float:
@@ -62,14 +65,16 @@ def random_targets_mm(
     return np.sort(np.array(out))
 
 
-def midpoints_mm(positions_mm: NDArray[np.float64], spans: Sequence[int] | None = None
-                 ) -> NDArray[np.float64]:
-    """Midpoints of the table spans ``spans`` (indices i of [x_i, x_i+1]; all when None)
-    that are at least ``2 × MIN_SPACING_MM`` long."""
+def midpoints_mm(positions_mm: NDArray[np.float64], spans: Sequence[int] | None = None,
+                 parts: int = 2) -> NDArray[np.float64]:
+    """The points that cut the table spans ``spans`` (indices i of [x_i, x_i+1]; all when
+    None) into ``parts`` equal pieces (2: the midpoints), for spans long enough that no
+    piece is shorter than ``MIN_SPACING_MM``."""
     x = np.asarray(positions_mm, dtype=np.float64)
     idx = np.arange(x.size - 1) if spans is None else np.asarray(sorted(set(spans)), dtype=int)
-    idx = idx[(x[idx + 1] - x[idx]) >= 2 * MIN_SPACING_MM] if idx.size else idx
-    return np.round(0.5 * (x[idx] + x[idx + 1]), 4)
+    idx = idx[(x[idx + 1] - x[idx]) >= parts * MIN_SPACING_MM] if idx.size else idx
+    f = np.arange(1, parts) / parts
+    return np.round((x[idx, None] + (x[idx + 1] - x[idx])[:, None] * f).ravel(), 4)
 
 
 @dataclass(frozen=True)

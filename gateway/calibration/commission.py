@@ -717,7 +717,8 @@ class Commission:
         how many points were added."""
         path = self.config_dir / self.tables.pitch[axis]
         table = read_pitch_csv(path)
-        mids = adaptive.midpoints_mm(table.position_mm, verdict.failing_spans)
+        mids = adaptive.midpoints_mm(table.position_mm, verdict.failing_spans,
+                                     adaptive.REFINE_PARTS)  # fmt: skip
         if mids.size == 0:
             return 0
         await self.step(f"refine{r}-{axis}", lambda: targets_plan(
