@@ -60,12 +60,16 @@ ABLATIONS = {"thermal": ("thermal", "heat"), "settling": ("settling",),
 
 
 def ablate(sim_yaml: Path, without: list[str]) -> None:
-    """Remove the named structures from a machine's truth (to see what each one costs)."""
+    """Remove the named structures from a machine's truth (to see what each one costs).
+    Thermal: the screw no longer heats (the sensors stay, reading nothing)."""
     data = yaml.safe_load(sim_yaml.read_text())
     for errs in data["sim"]["machine"].values():
         for name in without:
             for key in ABLATIONS[name]:
-                errs.pop(key, None)
+                if key in errs and name == "thermal":
+                    errs[key]["heat_K_per_m" if key == "thermal" else "drag_torque_Nm"] = 0.0
+                else:
+                    errs.pop(key, None)
     sim_yaml.write_text(yaml.safe_dump(data, sort_keys=False))
 
 
@@ -79,9 +83,10 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
                    capture_output=True, text=True)  # fmt: skip
     if without:
         ablate(mdir / "sim.yaml", without)
-    run = MachineRun.start(mdir, mdir / "work")
     out: dict[str, Any] = {"machine": label, "group": label.split("-")[0]}
+    run = None
     try:
+        run = MachineRun.start(mdir, mdir / "work")
         result = WORKFLOWS[workflow](run)
         out["workflow_s"] = round(time.monotonic() - t0, 1)
         out["notes"] = result.notes
@@ -105,7 +110,8 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
         out["error"] = f"{type(exc).__name__}: {exc}"
         out["traceback"] = traceback.format_exc(limit=3)
     finally:
-        run.stop()
+        if run is not None:
+            run.stop()
     out["wall_s"] = round(time.monotonic() - t0, 1)
     return out
 
