@@ -416,6 +416,8 @@ def commission(run: MachineRun) -> WorkflowResult:
     except CommandFailed as exc:  # exit 1: tolerance not met (the evaluator judges anyway)
         notes.append(str(exc))
     out = run.work / "commission"
+    if not (out / "summary.json").exists():
+        raise CommandFailed(f"commission ended without a summary: {' | '.join(notes)}")
     summary = json.loads((out / "summary.json").read_text())
     run.machine_s = summary["machine_h"] * 3600
     notes.append(f"commission: {summary['outcome']}, {summary['machine_h']:.2f} h, "

@@ -142,7 +142,7 @@ class Commission:
     def _save(self) -> None:
         self.state["tables"] = self.tables.to_json()
         self.dir.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(self.state_path, json.dumps(self.state, indent=1, default=float))
+        atomic_write_text(self.state_path, json.dumps(self.state, indent=1, default=_plain))
 
     @property
     def used_s(self) -> float:
@@ -484,7 +484,8 @@ class Commission:
         else:
             self.say(await self.restore())
         summary = self.summary(outcome)
-        atomic_write_text(self.dir / "summary.json", json.dumps(summary, indent=1))
+        atomic_write_text(self.dir / "summary.json", json.dumps(summary, indent=1,
+                                                                default=_plain))  # fmt: skip
         return summary
 
     # -- 1. identification ---------------------------------------------------------------
@@ -507,8 +508,8 @@ class Commission:
             await self.step(f"backlash-{a}", lambda a=a, t=travel: backlash_plan(a, t), "off",
                             self._park(a))  # fmt: skip
             b = backlash_from_raw(self.raw(f"backlash-{a}"), a)
-            results[f"backlash-{a}"] = {"B_um": b.backlash_mm * 1e3,
-                                        "places_um": [m * 1e3 for m in b.mean_mm]}  # fmt: skip
+            results[f"backlash-{a}"] = {"B_um": float(b.backlash_mm * 1e3),
+                                        "places_um": [float(m * 1e3) for m in b.mean_mm]}
             await self._find_lead(a)
             await self.step(f"iso-{a}", lambda a=a: self._iso_plan(a), "off", self._park(a))
             if a in self.s.lead_mm:
@@ -553,8 +554,15 @@ class Commission:
                 model = cr.model
                 self.state.setdefault("identify", {})[f"cyclic-{a}"] = {
                     "harmonics": cr.fit.harmonics, "peak_um": cr.model.peak_mm() * 1e3}
+            places = self.state.get("identify", {}).get(f"backlash-{a}", {}).get("places_um")
+            uneven = bool(places) and bool(max(places) - min(places)
+                                           > 0.3 * max(max(places), 1e-9))  # fmt: skip
+            # the reversal as a smooth curve (both directions' readings serve every point),
+            # unless seed 000's three places show play that varies (a worn zone): per point
             r = fit_pitch(self.raw(f"iso-{a}"), config, self.config_dir, a,
-                          mode="bidirectional", reversal_degree=2)  # fmt: skip
+                          mode="bidirectional", reversal_degree=None if uneven else 2)  # fmt: skip
+            self.state.setdefault("identify", {})[f"reversal-{a}"] = {
+                "per_point": uneven}
             if model is not None:
                 r = net_pitch(r, model, config)
             save_pitch(r, "compgw commission: coarse ISO 230-2 run" +
@@ -808,3 +816,10 @@ def parse_leads(text: str | None, axes: Sequence[str]) -> dict[str, float]:
             raise ValueError(f"--lead-mm {item!r}: {name.strip()!r} is not a commissioned axis")
         out[name.strip()] = float(value)
     return out
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars (a bool or float from an array) as plain Python for JSON."""
+    if hasattr(value, "item"):
+        return value.item()
+    raise TypeError(f"{type(value).__name__} is not JSON serializable")
