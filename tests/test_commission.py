@@ -94,9 +94,10 @@ def test_commission_resumes_after_a_kill(template: Path, tmp_path: Path) -> None
         assert not any(f"{name}:" in line for name in done_before for line in second.lines
                        if "readings" in line), text  # fmt: skip
         out = rig.dir / "commission"
-        for name in json.loads(state.read_text())["steps"]:
+        for name, step in json.loads(state.read_text())["steps"].items():
             plan = read_plan(out / "plans" / f"{name}.plan")
-            rows = len(read_raw_csv(out / "raw" / f"{name}.csv"))
+            files = [rig.dir / part["raw"] for part in step["parts"]]  # one per run
+            rows = sum(len(read_raw_csv(f)) for f in files)
             assert rows == sum(m.measured for m in plan.moves) * len(plan.axes), name
         assert json.loads((out / "summary.json").read_text())["axes"]["X"]["after"]
 

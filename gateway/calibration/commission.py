@@ -28,6 +28,7 @@ estimate (:func:`.plans.plan_time_s`): the same yardstick for any workflow.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import shutil
@@ -74,7 +75,7 @@ from .plans import (
     xy_grid_plan,
     xy_verification_plan,
 )
-from .rawdata import axis_deviations, read_raw_csv
+from .rawdata import RawData, axis_deviations, read_raw_csv
 from .runner import read_raw_meta
 from .session import Instruments, Session
 
@@ -261,15 +262,27 @@ class Commission:
         base = self.state["drift_base"]["refs"]
         return {a: [refs[a][k] - base[a][k] for k in (0, 1)] for a in self.s.axes}
 
-    def raw(self, name: str):  # type: ignore[no-untyped-def]
-        """A step's raw data with the machine's thermal drift during it taken off (what the
-        readings would have been in the state commissioning began in)."""
-        raw = read_raw_csv(self.dir / "raw" / f"{name}.csv")
-        stored = self.state["steps"].get(name, {}).get("drift")
-        if not stored:
-            return raw
-        return adaptive.drift_corrected(
-            raw, {a: adaptive.Drift.from_json(v) for a, v in stored.items()})
+    def raw_paths(self, name: str) -> list[Path]:
+        """The raw files of a step (one per run when its runs were measured apart)."""
+        parts = self.state["steps"].get(name, {}).get("parts")
+        if not parts:
+            return [self.dir / "raw" / f"{name}.csv"]
+        return [self.config_dir / part["raw"] for part in parts]
+
+    def raw(self, name: str) -> RawData:
+        """A step's raw data (all its runs) with the machine's thermal drift during each run
+        taken off: what the readings would have been in the state commissioning began in."""
+        step = self.state["steps"].get(name, {})
+        parts = step.get("parts") or [{"raw": self._rel(self.dir / "raw" / f"{name}.csv")}]
+        datas = []
+        for part in parts:
+            data = read_raw_csv(self.config_dir / part["raw"])
+            stored = part.get("drift")
+            if stored:
+                data = adaptive.drift_corrected(
+                    data, {a: adaptive.Drift.from_json(v) for a, v in stored.items()})
+            datas.append(data)
+        return concat_raw(datas)
 
     async def restore(self) -> str:
         """Put the user's own config back and have the gateway load it; says what happened."""
@@ -327,27 +340,43 @@ class Commission:
         self.say(f"{name}: {sum(m.measured for m in plan.moves)} readings, "
                  f"{cost_s / 60:.1f} min of machine time ({compensation})")
         drifting = drift and "drift_base" in self.state
-        pending = self.state.setdefault("pending_refs", {})
-        if drifting and name not in pending:
-            pending[name] = self._drift_now(await self._measure_refs())
+        parts = _parts(plan) if drifting else [plan]
+        done_parts = self.state.setdefault("parts", {}).setdefault(name, [])
+        for k, part in enumerate(parts):
+            if k < len(done_parts):
+                continue
+            part_raw = raw if len(parts) == 1 else raw.with_name(f"{name}.part{k + 1}.csv")
+            entry = await self._run_part(f"{name}.part{k + 1}", part, part_raw, compensation,
+                                         park, drifting)  # fmt: skip
+            done_parts.append(entry)
             self._save()
-        self.state["last_refs"] = None  # the step's moves change the thermal state
+        self.state["steps"][name] = {"machine_s": cost_s, "parts": done_parts}
+        self.state["parts"].pop(name, None)
+        self._save()
+        return raw
+
+    async def _run_part(self, key: str, plan: Plan, raw: Path, compensation: str,
+                        park: dict[str, float] | None, drifting: bool) -> dict[str, Any]:
+        """One run of a step (its own raw file), the drift references read around it."""
+        pending = self.state.setdefault("pending_refs", {})
+        if drifting and key not in pending:
+            pending[key] = self._drift_now(await self._measure_refs())
+            self._save()
+        self.state["last_refs"] = None  # the moves change the thermal state
         session = Session(self.config, self.config_dir, self.s.gateway, self.s.instruments,
                           self.s.motion, park or {})  # fmt: skip
         if self.progress is not None:
+            name = key.rsplit(".", 1)[0]
             session.progress = lambda k, n: self.progress(name, k, n)  # type: ignore[misc]
         await session.run(plan, raw, compensation)
-        entry: dict[str, Any] = {"machine_s": cost_s, "raw": self._rel(raw)}
+        entry: dict[str, Any] = {"raw": self._rel(raw)}
         if drifting:
             after = self._drift_now(await self._measure_refs())
-            self._save()
-            before = pending.pop(name)
+            before = pending.pop(key)
             entry["drift"] = {a: [*self._ref_positions(a), *before[a], *after[a]]
                               for a in self.s.axes}  # fmt: skip
             self.state["drift_last"] = after
-        self.state["steps"][name] = entry
-        self._save()
-        return raw
+        return entry
 
     def _park(self, axis: str) -> dict[str, float]:
         """Where the other plane axis stands while ``axis`` is measured: its lower end."""
@@ -547,7 +576,7 @@ class Commission:
         for a in self.s.axes:
             model = None
             if a in self.s.lead_mm:
-                raw_c = self.dir / "raw" / f"cyclic-{a}.csv"
+                raw_c = self.raw_paths(f"cyclic-{a}")[0]
                 cr = fit_cyclic_raw(self.raw(f"cyclic-{a}"), read_raw_meta(raw_c), config,
                                     self.config_dir, a)  # fmt: skip
                 save_cyclic(cr, "compgw commission: dense scans")
@@ -823,3 +852,30 @@ def _plain(value: Any) -> Any:
     if hasattr(value, "item"):
         return value.item()
     raise TypeError(f"{type(value).__name__} is not JSON serializable")
+
+
+def _parts(plan: Plan) -> list[Plan]:
+    """A plan cut into its runs (each measured with its own drift references), in order;
+    a plan whose runs interleave (seed 000's backlash repeats) stays whole."""
+    runs = [m.run for m in plan.moves]
+    if len(set(runs)) < 2 or any(b < a for a, b in itertools.pairwise(runs)):
+        return [plan]
+    return [Plan(plan.kind, plan.axes, tuple(m for m in plan.moves if m.run == j), plan.meta)
+            for j in sorted(set(runs))]  # fmt: skip
+
+
+def concat_raw(parts: Sequence[RawData]) -> RawData:
+    """Raw data of several files as one (rows in order)."""
+    if len(parts) == 1:
+        return parts[0]
+    keys = set().union(*(p.extra for p in parts))
+    return RawData(
+        tuple(a for p in parts for a in p.axis),
+        np.concatenate([p.run for p in parts]),
+        np.concatenate([p.direction for p in parts]),
+        np.concatenate([p.target_mm for p in parts]),
+        np.concatenate([p.actual_mm for p in parts]),
+        {k: tuple(v for p in parts for v in p.extra.get(k, ("",) * len(p))) for k in keys},
+        tuple(n for p in parts for n in p.lines),
+        parts[0].source,
+    )

@@ -240,7 +240,10 @@ def main(args: argparse.Namespace) -> int:
         where = asyncio.run(_restore(job))
         _err(f"{exc}; {where}")
         return EXIT_RUNTIME
-    report = write_report(settings.out_dir, summary)
+    def load(step: str):  # type: ignore[no-untyped-def]
+        return job.raw(step) if job.done(step) else None
+
+    report = write_report(settings.out_dir, summary, load)
     for axis, entry in summary["axes"].items():
         b, a = entry.get("before", {}), entry.get("after", {})
         if b and a:

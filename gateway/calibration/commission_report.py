@@ -1,17 +1,21 @@
 """The commissioning report (HTML + PNG): before / after on the same verification targets
 (ISO 230-2 per axis, the XY vector map), what each round bought, what remains and why, and
-the machine time used. Built from the commissioning directory alone (pure but for reading
-its files), so it can be made again at any time."""
+the machine time used. Built from the summary and the steps' raw data, so it can be made
+again at any time."""
 
 from __future__ import annotations
 
 import html
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from .iso230 import iso230_raw
-from .rawdata import read_raw_csv
+from .rawdata import RawData
 from .report import Figure, _f, _figures_table, _img, _page, plot_axis, plot_xy, write_report
+
+#: a step's raw data as commissioning judged it, or None
+Load = Callable[[str], "RawData | None"]
 
 
 def _cut(before: float | None, after: float | None) -> str:
@@ -49,9 +53,9 @@ def remains(summary: dict[str, Any]) -> list[str]:
     return out
 
 
-def build(directory: Path, summary: dict[str, Any]) -> tuple[str, list[Figure]]:
-    """HTML text and figures of the commissioning in ``directory``."""
-    raw_dir = directory / "raw"
+def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
+    """HTML text and figures of a commissioning: its summary, and ``load(step)``, a step's
+    raw data as commissioning judged it (drift taken off), None when not measured."""
     parts = ["<h1>compgw commissioning report</h1>",
              f"<p>Configuration: {html.escape(summary['config'])}. Outcome: "
              f"<b>{html.escape(summary['outcome'])}</b>. Machine time used "
@@ -102,8 +106,7 @@ def build(directory: Path, summary: dict[str, Any]) -> tuple[str, list[Figure]]:
                         for k, v in ident.items())  # fmt: skip
         parts.append(f"<h2>Identification</h2><ul>{items}</ul>")
     for axis in summary["axes"]:
-        phases = {p: raw_dir / f"{p}-{axis}.csv" for p in ("before", "after")}
-        raws = {p: read_raw_csv(f) for p, f in phases.items() if f.exists()}
+        raws = {p: r for p in ("before", "after") if (r := load(f"{p}-{axis}")) is not None}
         if not raws:
             continue
         iso = {p: iso230_raw(r)[axis] for p, r in raws.items()}
@@ -113,9 +116,9 @@ def build(directory: Path, summary: dict[str, Any]) -> tuple[str, list[Figure]]:
         figures.append(Figure(f"axis-{axis}", png, f"axis {axis}: before and after, at the "
                               "same verification targets"))  # fmt: skip
         parts.append(_img(figures[-1]))
-    if xy:
-        raws = {p: read_raw_csv(raw_dir / f"{p}-xy.csv") for p in ("before", "after")
-                if (raw_dir / f"{p}-xy.csv").exists()}  # fmt: skip
+    xy_raws = {p: r for p in ("before", "after") if (r := load(f"{p}-xy")) is not None}
+    if xy and xy_raws:
+        raws = xy_raws
         axes = tuple(next(iter(raws.values())).axes)[:2]
         png, _ = plot_xy(raws, axes)  # type: ignore[arg-type]
         figures.append(Figure("xy-field", png, "XY error field before and after"))
@@ -130,6 +133,7 @@ def _short(value: Any) -> str:
     return str(value)
 
 
-def write(directory: Path, summary: dict[str, Any]) -> Path:
-    text, figures = build(directory, summary)
+def write(directory: Path, summary: dict[str, Any], load: Load) -> Path:
+    """The report in ``directory``/report (see :func:`build`)."""
+    text, figures = build(summary, load)
     return write_report(directory / "report", text, figures)
