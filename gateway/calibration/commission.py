@@ -166,6 +166,11 @@ class Commission:
         original = self.original()
         if phase == "identification":
             return identification(original, self.s.axes, self.tables)
+        if phase == "warmup":  # nothing on, thermal neither: the laser sees the whole growth
+            data = identification(original, self.s.axes, self.tables)
+            for a in self.s.axes:
+                data["axes"][a]["compensation"].pop("thermal", None)
+            return data
         # on_trigger where both plane axes have a trigger: a master writing both targets
         # before the start gets both corrected for the point it asked for (immediate would
         # correct the first with the other's previous target)
@@ -373,8 +378,11 @@ class Commission:
         if drifting:
             after = self._drift_now(await self._measure_refs())
             before = pending.pop(key)
+            # an axis with thermal compensation: the gateway follows its growth (the
+            # readings hold what it leaves, as they will in use); the others: taken off
             entry["drift"] = {a: [*self._ref_positions(a), *before[a], *after[a]]
-                              for a in self.s.axes}  # fmt: skip
+                              for a in self.s.axes
+                              if self.config.axes[a].compensation.thermal is None}  # fmt: skip
             self.state["drift_last"] = after
         return entry
 
@@ -524,6 +532,7 @@ class Commission:
         for a in self.s.axes:
             travel = self._travel(a)
             if self._thermal(a) and a not in self.tables.thermal_length_mm:
+                await self.use("warmup")
                 raw = await self.step(f"warmup-{a}", lambda a=a: self._warmup_plan(a), "off",
                                       drift=False)  # fmt: skip
                 th = self.config.axes[a].compensation.thermal
