@@ -248,3 +248,14 @@ def test_direction_follows_targets_and_starts_from_home_direction():
     assert state.approach(1500).direction == -1
     with pytest.raises(CompensationError, match="home_direction"):
         MotionState(0)
+
+
+def test_a_target_on_the_travel_end_is_not_refused_for_float_rounding() -> None:
+    """55800 pulses of 0.001 mm is 55.800000000000004 in floating point: still the end of
+    travel [0, 55.8]; one pulse past it is refused."""
+    axis = AxisChain("X", 0.001, travel_mm=(0.0, 55.8))
+    assert 55800 * 0.001 > 55.8
+    axis.check_travel(55800 * 0.001)
+    axis.check_travel(0 * 0.001)
+    with pytest.raises(TravelError):
+        axis.check_travel(55801 * 0.001)

@@ -33,6 +33,9 @@ from .thermal import ThermalStage
 ITERATION_TOLERANCE_PULSES = 0.01
 
 
+#: how far past a travel end a target computed from pulses may land by float rounding (mm)
+TRAVEL_SLACK_MM = 1e-6
+
 class AxisInput(NamedTuple):
     """One axis's position (pulses), direction of motion (+1/−1) and screw growth Δa (mm)."""
 
@@ -163,7 +166,9 @@ class AxisChain:
         if self.travel_mm is None:
             return
         lo, hi = self.travel_mm
-        if not (lo <= nominal_mm <= hi):
+        # a target on the travel's end, in pulses × pulse_mm, may land a rounding past it
+        # (55800 × 0.001 = 55.800000000000004): 1 nm of slack, far below any pulse
+        if not (lo - TRAVEL_SLACK_MM <= nominal_mm <= hi + TRAVEL_SLACK_MM):
             raise TravelError(
                 f"axis {self.name}: target {nominal_mm:g} mm is outside travel_mm [{lo:g}, {hi:g}]"
             )
