@@ -18,6 +18,7 @@ import yaml
 
 from .app import GatewayApp, load
 from .calibration.commission import Commission, Settings
+from .calibration.commission_report import summary_lines
 from .calibration.machine import Endpoint
 from .calibration.session import Instruments
 
@@ -77,28 +78,9 @@ async def live(say: Any = print) -> dict[str, Any]:
                     f"{TRAVEL_MM[1]:g} mm, leads {leads}")  # fmt: skip
                 job.print_plan()
                 summary = await job.run()
-    for line in format_summary(summary):
+    for line in summary_lines(summary):
         say(line)
     return summary
-
-
-def format_summary(summary: dict[str, Any]) -> list[str]:
-    lines = []
-    for axis, entry in summary["axes"].items():
-        b, a = entry.get("before", {}), entry.get("after", {})
-        if b and a:
-            lines.append(f"{axis}: E {b['E_um']:.2f} → {a['E_um']:.2f} µm "
-                         f"({100 * (1 - a['E_um'] / b['E_um']):.0f} % less), A "
-                         f"{b['A_um']:.2f} → {a['A_um']:.2f} µm, "
-                         f"{entry.get('table_points')} table points")  # fmt: skip
-    xy = summary.get("xy") or {}
-    if xy.get("before") and xy.get("after"):
-        b, a = xy["before"]["max_um"], xy["after"]["max_um"]
-        lines.append(f"XY max vector error {b:.2f} → {a:.2f} µm ({100 * (1 - a / b):.0f} % less)")
-    lines.append(f"outcome: {summary['outcome']}; machine time {summary['machine_h']:.2f} h "
-                 "(plan estimate); before and after at the same random targets, none a "
-                 "table point")  # fmt: skip
-    return lines
 
 
 def main(save: str | None = None) -> int:

@@ -160,13 +160,6 @@ def refined_table(table: PitchTable, stage: PitchStage, dev: AxisDeviations) -> 
     return PitchTable(pos[order], fwd, rev, table.rotary, table.source)
 
 
-def worst_cell(points_mm: NDArray[np.float64], error_um: NDArray[np.float64]
-               ) -> tuple[float, float, float]:
-    """(x, y, |error| µm) of the largest vector error of an XY verification."""
-    k = int(np.argmax(error_um))
-    return float(points_mm[k, 0]), float(points_mm[k, 1]), float(error_um[k])
-
-
 def denser_grid(nx: int, ny: int, limit: int = 33) -> tuple[int, int]:
     """The next XY grid: every cell split in two each way (at most ``limit`` per axis)."""
     return min(2 * nx - 1, limit), min(2 * ny - 1, limit)

@@ -77,7 +77,7 @@ from .plans import (
 )
 from .rawdata import RawData, axis_deviations, read_raw_csv
 from .runner import read_raw_meta
-from .session import Instruments, Session
+from .session import Instruments, Session, planar_figures
 
 STATE = "commission.json"
 Say = Callable[[str], None]
@@ -753,9 +753,7 @@ class Commission:
     def _xy_figures(self, name: str) -> dict[str, float]:
         """Max and RMS vector error (µm) of an XY run, drift taken off."""
         assert self.s.planar is not None
-        meas = planar_measurement(self.raw(name), self.s.planar)
-        norm = np.hypot(*meas.error_mm.T) * 1e3
-        return {"max_um": float(norm.max()), "rms_um": float(np.sqrt(np.mean(norm**2)))}
+        return planar_figures(self.raw(name), self.s.planar)
 
     async def _refine_axis(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> int:
         """New table points at the midpoints of the failing spans; their values from the

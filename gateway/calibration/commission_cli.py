@@ -147,6 +147,7 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
 
 def main(args: argparse.Namespace) -> int:
     from .commission import Commission, CommissionAborted, Settings, parse_leads
+    from .commission_report import summary_lines
     from .commission_report import write as write_report
     from .machine import Endpoint, MachineError, MotionSettings
     from .session import Instruments
@@ -244,17 +245,8 @@ def main(args: argparse.Namespace) -> int:
         return job.raw(step) if job.done(step) else None
 
     report = write_report(settings.out_dir, summary, load)
-    for axis, entry in summary["axes"].items():
-        b, a = entry.get("before", {}), entry.get("after", {})
-        if b and a:
-            print(f"{axis}: E {b['E_um']:.2f} → {a['E_um']:.2f} µm, A {b['A_um']:.2f} → "
-                  f"{a['A_um']:.2f} µm (R {a['R_um']:.2f}), {entry.get('table_points')} "
-                  "table points")  # fmt: skip
-    if summary.get("xy", {}).get("after"):
-        xy = summary["xy"]
-        print(f"XY max vector error {xy['before']['max_um']:.2f} → {xy['after']['max_um']:.2f} µm")
-    print(f"outcome: {summary['outcome']}; machine time {summary['machine_h']:.2f} h; "
-          f"report: {report}")  # fmt: skip
+    print("\n".join(summary_lines(summary)))
+    print(f"report: {report}")
     return EXIT_OK if summary["outcome"] == "within" else EXIT_NOT_MET
 
 

@@ -53,6 +53,26 @@ def remains(summary: dict[str, Any]) -> list[str]:
     return out
 
 
+def summary_lines(summary: dict[str, Any]) -> list[str]:
+    """What a commissioning bought, a line per axis, the plane and the outcome."""
+    lines = []
+    for axis, entry in summary["axes"].items():
+        b, a = entry.get("before", {}), entry.get("after", {})
+        if b and a:
+            lines.append(f"{axis}: E {b['E_um']:.2f} → {a['E_um']:.2f} µm "
+                         f"({100 * (1 - a['E_um'] / b['E_um']):.0f} % less), A "
+                         f"{b['A_um']:.2f} → {a['A_um']:.2f} µm (R {a['R_um']:.2f}), "
+                         f"{entry.get('table_points')} table points")  # fmt: skip
+    xy = summary.get("xy") or {}
+    if xy.get("before") and xy.get("after"):
+        b, a = xy["before"]["max_um"], xy["after"]["max_um"]
+        lines.append(f"XY max vector error {b:.2f} → {a:.2f} µm ({100 * (1 - a / b):.0f} % less)")
+    lines.append(f"outcome: {summary['outcome']}; machine time {summary['machine_h']:.2f} h "
+                 "(plan estimate); before and after at the same random targets, none a "
+                 "table point")  # fmt: skip
+    return lines
+
+
 def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
     """HTML text and figures of a commissioning: its summary, and ``load(step)``, a step's
     raw data as commissioning judged it (drift taken off), None when not measured."""

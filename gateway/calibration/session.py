@@ -37,7 +37,7 @@ from .machine import (
 )
 from .outputs import fit_pitch, fit_planar, residual_figures, save_pitch, save_planar
 from .plans import Move, Plan
-from .rawdata import read_raw_csv
+from .rawdata import RawData, read_raw_csv
 from .runner import ProgressFn, RunSummary, run_plan
 
 ReloadFn = Callable[[], Awaitable[None]]
@@ -175,11 +175,12 @@ class Round:
         return self.figures if self.verify_figures is None else self.verify_figures
 
 
-def planar_figures(raw_path: Path, axes: Sequence[str]) -> dict[str, float]:
-    """Max and RMS vector error (µm) of an XY run."""
+def planar_figures(raw: Path | RawData, axes: Sequence[str]) -> dict[str, float]:
+    """Max and RMS vector error (µm) of an XY run (its file, or its data)."""
     import numpy as np
 
-    meas = planar_measurement(read_raw_csv(raw_path), tuple(axes))  # type: ignore[arg-type]
+    data = read_raw_csv(raw) if isinstance(raw, Path) else raw
+    meas = planar_measurement(data, tuple(axes))  # type: ignore[arg-type]
     norm = np.hypot(*meas.error_mm.T) * 1e3
     return {"max_um": float(norm.max()), "rms_um": float(np.sqrt(np.mean(norm**2)))}
 
