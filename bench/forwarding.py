@@ -700,7 +700,7 @@ class Bench:
     def start_gateway(self, name: str, cfg: Path, t35_s: float | None = None,
                       root: Path = ROOT) -> int:
         patch = "" if t35_s is None else (  # diagnostic: the RTU line's t3.5 replaced
-            f"import gateway.serialline as s; s.t35_s = lambda *a, **k: {t35_s!r}; ")
+            f"import gateway.modbus.serialline as s; s.t35_s = lambda *a, **k: {t35_s!r}; ")
         argv = compgw("run", cfg, patch)
         cpus = PIN_GATEWAY if self.args.pin else None
         proc = Proc(name, argv, cwd=root, cpus=cpus)  # `import gateway` resolves in root first

@@ -18,9 +18,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from gateway import frames as f
-from gateway.downstream import TcpBus
-from gateway.upstream import TcpServer
+from gateway.modbus import frames as f
+from gateway.modbus.downstream import TcpBus
+from gateway.modbus.upstream import TcpServer
 from tests.helpers_modbus import RawTcpMaster, tcp_drive
 
 REQUESTS = 1000

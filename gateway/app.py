@@ -6,11 +6,11 @@ SIGHUP reloads the config and tables — validated completely first; an invalid 
 logged and the old one stays. Under systemd it speaks the notify protocol
 (:mod:`gateway.service`): READY=1 once listening, watchdog pings from the event loop.
 
-The upstream handler is the router's, wrapped: write protection (:mod:`gateway.security`)
+The upstream handler is the router's, wrapped: write protection (:mod:`gateway.modbus.security`)
 inside, metrics (:mod:`gateway.metrics`, only when ``metrics.port`` is set) outside. The
 TCP listener also gets the router's fast handler (:meth:`Gateway.handle_fast`), wrapped
 the same way. With ``upstream.tls`` a second TCP listener speaks Modbus/TCP Security
-(:mod:`gateway.mbsecurity`): same handlers, each request first authorised by the client
+(:mod:`gateway.modbus.mbsecurity`): same handlers, each request first authorised by the client
 certificate's role.
 """
 
@@ -26,20 +26,20 @@ from pathlib import Path
 from .compensation import Chain
 from .config import Bus as BusConfig
 from .config import ConfigError, GatewayConfig, TcpListen, bus_silence_s, load_config
-from .downstream import Bus, RtuBus, TcpBus
-from .mbsecurity import TlsGate
 from .metrics import MetricsServer
 from .metrics import build as build_metrics
+from .modbus.downstream import Bus, RtuBus, TcpBus
+from .modbus.mbsecurity import TlsGate
+from .modbus.rtu_over_tcp import RtuOverTcpBus
+from .modbus.security import WriteGuard
+from .modbus.tlsfiles import server_context
+from .modbus.upstream import RtuServer, TcpServer
 from .router import Gateway
-from .rtu_over_tcp import RtuOverTcpBus
-from .security import WriteGuard
 from .sensors import SensorSet
 from .service import Notifier
 from .state_store import StateStore
 from .status import StatusUnit
 from .tables import build_chain
-from .tlsfiles import server_context
-from .upstream import RtuServer, TcpServer
 
 log = logging.getLogger(__name__)
 

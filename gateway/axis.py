@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .compensation import MotionState
-from .frames import WordOrder, unpack_int32
+from .modbus.frames import WordOrder, unpack_int32
 
 
 @dataclass

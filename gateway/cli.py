@@ -23,7 +23,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
         chain = build_chain(config, Path(args.config).resolve().parent)
         tls_lines, tls_warnings = [], []
         if config.upstream.tls is not None:
-            from .tlsfiles import check_files
+            from .modbus.tlsfiles import check_files
 
             tls_lines, tls_warnings = check_files(config.upstream.tls,
                                                   Path(args.config).resolve().parent)
@@ -49,14 +49,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     if args.commission:
-        from .demo_commission import main as commission_demo
+        from .demos.commission import main as commission_demo
 
         return commission_demo(args.save)
     if args.seed003:
-        from .demo_seed003 import main as seed003_demo
+        from .demos.seed003 import main as seed003_demo
 
         return seed003_demo(as_json=args.json, work_dir=args.save)
-    from .demo import main as demo_main
+    from .demos.tour import main as demo_main
 
     return demo_main(as_json=args.json, identify_dir=args.identify)
 

@@ -31,7 +31,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.exposition import generate_latest
 from prometheus_client.registry import Collector
 
-from .frames import SERVER_DEVICE_FAILURE, ModbusError
+from .modbus.frames import SERVER_DEVICE_FAILURE, ModbusError
 
 if TYPE_CHECKING:
     from .app import GatewayApp
@@ -93,7 +93,7 @@ class RequestMetrics:
         return counted
 
     def wrap_fast(self, fast: FastHandler) -> FastHandler:
-        """A fast handler (see :mod:`gateway.upstream`) counted as :meth:`wrap` counts."""
+        """A fast handler (see :mod:`gateway.modbus.upstream`) counted as :meth:`wrap` counts."""
 
         def counted(unit_id: int, pdu: bytes, done: Done) -> bool:
             fc = pdu[0] & 0x7F if pdu else 0

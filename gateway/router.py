@@ -20,7 +20,7 @@ anything else is refused with 0x0A. On an axis:
 - a malformed FC03/04/06/16/23 PDU to an axis (and FC05/15 when its trigger is a coil) is
   answered 0x03 and never forwarded (a lenient drive could act on a malformed target
   write: an uncorrected position);
-- unit 0 (broadcasts) is :mod:`gateway.broadcast`'s;
+- unit 0 (broadcasts) is :mod:`gateway.modbus.broadcast`'s;
 - everything else is forwarded byte for byte and the drive's reply relayed as it is.
 
 :meth:`Gateway.handle_fast` is the same routing without a coroutine, for the requests that
@@ -41,7 +41,6 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from .axis import AxisState, overlap
-from .broadcast import Broadcasts
 from .compensation import (
     AxisInput,
     Chain,
@@ -51,8 +50,9 @@ from .compensation import (
     TravelError,
 )
 from .config import Axis, GatewayConfig
-from .downstream import Bus, Done
-from .frames import (
+from .modbus.broadcast import Broadcasts
+from .modbus.downstream import Bus, Done
+from .modbus.frames import (
     GATEWAY_PATH_UNAVAILABLE,
     ILLEGAL_DATA_VALUE,
     MAX_READ_REGISTERS,
@@ -696,7 +696,7 @@ def _finishing(finish: Finish, done: Done) -> Done:
 
 def _write_span(pdu: bytes) -> tuple[int, int] | None:
     """(first register, count) of an FC06 or FC16 request; None when malformed (where
-    :func:`gateway.frames.parse_request` raises FrameError)."""
+    :func:`gateway.modbus.frames.parse_request` raises FrameError)."""
     if pdu[0] == WRITE_SINGLE_REGISTER:
         return (((pdu[1] << 8) | pdu[2]), 1) if len(pdu) == 5 else None
     if len(pdu) < 6:

@@ -5,7 +5,7 @@ Two layers, kept apart:
 * :class:`ThermalFilter` is pure: it steps on ``(t_s, raw Δa mm or None)`` and decides what
   the correction may use (plausibility by range and rate, exponential smoothing, hold,
   alarm, fallback, recovery). No I/O, no clock of its own.
-* :class:`ThermalSensor` reads one source over a :class:`~gateway.downstream.Bus` every
+* :class:`ThermalSensor` reads one source over a :class:`~gateway.modbus.downstream.Bus` every
   ``poll_s`` and feeds the filter; :class:`SensorSet` runs all configured sources and
   answers "Δa for axis X" for the router.
 
@@ -60,8 +60,8 @@ from typing import Literal
 
 from .compensation import delta_a_from_temperature
 from .config import Axis, AxisThermal, SourceRegister, ThermalSource
-from .downstream import Bus
-from .frames import (
+from .modbus.downstream import Bus
+from .modbus.frames import (
     READ_HOLDING_REGISTERS,
     READ_INPUT_REGISTERS,
     ModbusError,

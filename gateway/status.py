@@ -39,7 +39,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 
-from .frames import (
+from .modbus.frames import (
     ILLEGAL_DATA_ADDRESS,
     ILLEGAL_DATA_VALUE,
     ILLEGAL_FUNCTION,
@@ -201,7 +201,7 @@ class StatusUnit:
 
 def format_status(names: list[str], sources: list[str], regs: list[int]) -> str:
     """Human-readable lines from an input-register image (for `compgw status`)."""
-    from .frames import unpack_int32
+    from .modbus.frames import unpack_int32
 
     def s32(at: int) -> int:
         return unpack_int32(regs[at : at + 2], "hi_lo")

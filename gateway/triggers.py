@@ -1,6 +1,6 @@
 """Trigger rules: does a write touch an axis's trigger, and does it start a move (or homing)?
 
-Pure functions over a parsed write request (:class:`gateway.frames.Request`) and the
+Pure functions over a parsed write request (:class:`gateway.modbus.frames.Request`) and the
 trigger's config. A trigger is a holding register (FC06, FC16 blocks around it), a 32-bit
 field of two registers (``words: 2``, either word written counts), or a coil (FC05, FC15
 covering it). The router keeps, per axis, what the master last wrote to the trigger
@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 from .axis import overlap
 from .config import TriggerRegister
-from .frames import (
+from .modbus.frames import (
     READ_WRITE_MULTIPLE_REGISTERS,
     WRITE_MULTIPLE_COILS,
     WRITE_MULTIPLE_REGISTERS,

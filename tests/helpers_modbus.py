@@ -22,7 +22,7 @@ from pymodbus.pdu import ModbusPDU
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from gateway.frames import rtu_encode
+from gateway.modbus.frames import rtu_encode
 
 T = TypeVar("T")
 
@@ -233,7 +233,7 @@ class RawTcpMaster:
 
 async def rtu_request(pair: PtyPair, unit: int, pdu: bytes, timeout_s: float = 3.0) -> bytes:
     """Send an RTU request on a pty master and collect one reply frame (unit+PDU+CRC)."""
-    from gateway.frames import find_rtu_frame, rtu_response_length
+    from gateway.modbus.frames import find_rtu_frame, rtu_response_length
 
     pair.write(rtu_encode(unit, pdu))
     buf = b""

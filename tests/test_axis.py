@@ -8,7 +8,7 @@ import pytest
 
 from gateway.axis import AxisState, overlap
 from gateway.compensation import MotionState
-from gateway.frames import pack_int32
+from gateway.modbus.frames import pack_int32
 
 
 def test_two_halves_in_either_order_complete_the_pair():

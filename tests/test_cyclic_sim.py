@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway import demo
 from gateway.calibration.cyclic_fit import (
     StationScan,
     dense_scan_targets,
@@ -18,6 +17,7 @@ from gateway.calibration.cyclic_fit import (
     net_of_cyclic,
 )
 from gateway.compensation import PitchTable
+from gateway.demos import tour as demo
 from gateway.formats import write_cyclic, write_pitch_csv
 from sim.config import parse_config
 from sim.server import SimServer

@@ -14,7 +14,7 @@ from pathlib import Path
 import yaml
 from pymodbus.client import ModbusTcpClient
 
-from gateway.frames import pack_int32, unpack_int32
+from gateway.modbus.frames import pack_int32, unpack_int32
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "config"

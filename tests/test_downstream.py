@@ -13,8 +13,8 @@ from typing import Any
 
 import pytest
 
-from gateway import frames as f
-from gateway.downstream import BusUnavailable, DriveTimeout, RtuBus, TcpBus
+from gateway.modbus import frames as f
+from gateway.modbus.downstream import BusUnavailable, DriveTimeout, RtuBus, TcpBus
 from tests.helpers_modbus import (
     DRIVE_UNIT,
     EXC_ADDRESS,

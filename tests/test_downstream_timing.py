@@ -9,9 +9,9 @@ import time
 
 import pytest
 
-from gateway import frames as f
-from gateway.downstream import RtuBus
-from gateway.serialline import ExactTimer, SerialLine, t35_s
+from gateway.modbus import frames as f
+from gateway.modbus.downstream import RtuBus
+from gateway.modbus.serialline import ExactTimer, SerialLine, t35_s
 from tests.helpers_modbus import DRIVE_UNIT, PtyBridge, PtyPair, rtu_drive, run
 
 READ_ONE = f.build_read_request(3, 10, 1)

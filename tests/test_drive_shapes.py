@@ -20,7 +20,7 @@ import pytest
 from gateway.axis import overlap
 from gateway.compensation import AxisInput
 from gateway.config import ConfigError, parse_config, warnings
-from gateway.frames import (
+from gateway.modbus.frames import (
     build_write_multiple_registers,
     build_write_single_coil,
     build_write_single_register,

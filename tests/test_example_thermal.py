@@ -11,7 +11,7 @@ import itertools
 from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.config import load_config
-from gateway.frames import pack_int32, unpack_int32
+from gateway.modbus.frames import pack_int32, unpack_int32
 from sim.config import load_config as load_sim_config
 from sim.server import SimServer
 from tests.gateway_rig import ROOT, SIM_EXAMPLE, TRIGGER

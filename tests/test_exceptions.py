@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from gateway.frames import pack_int32
+from gateway.modbus.frames import pack_int32
 from tests.gateway_rig import TARGET, rig
 from tests.helpers_modbus import mbap, read_mbap, run
 from tests.test_gateway_e2e import read32

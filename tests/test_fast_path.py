@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway import frames as f
-from gateway.downstream import Bus, Done, TcpBus
-from gateway.upstream import TcpServer
+from gateway.modbus import frames as f
+from gateway.modbus.downstream import Bus, Done, TcpBus
+from gateway.modbus.upstream import TcpServer
 from tests.gateway_rig import FEEDBACK, SPEED, STATUS, TARGET, TRIGGER, rig
 from tests.helpers_modbus import (
     DRIVE_UNIT,

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from pymodbus.client import ModbusTcpClient
 
-from gateway.frames import pack_int32, unpack_int32
+from gateway.modbus.frames import pack_int32, unpack_int32
 from tests.gateway_rig import TARGET, TRIGGER, serial
 from tests.helpers_modbus import PtyPair
 from tests.test_service_helpers import (

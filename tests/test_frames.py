@@ -7,7 +7,7 @@ import struct
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from gateway import frames as f
+from gateway.modbus import frames as f
 
 
 def test_exception_pdu() -> None:

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gateway.frames import rtu_encode
+from gateway.modbus.frames import rtu_encode
 from tests.gateway_rig import serial
 from tests.helpers_modbus import PtyPair
 from tests.test_service_helpers import (

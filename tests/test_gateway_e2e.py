@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from gateway.compensation import AxisInput
-from gateway.frames import pack_int32, unpack_int32
+from gateway.modbus.frames import pack_int32, unpack_int32
 from tests.gateway_rig import FEEDBACK, SPEED, TARGET, TRIGGER, rig
 
 PITCH_X = "position_mm,error_um\n0,0\n200,12\n400,20\n600,8\n800,-15\n"

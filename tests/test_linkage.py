@@ -25,7 +25,7 @@ from gateway.compensation import (
     TableError,
 )
 from gateway.config import ConfigError, parse_config
-from gateway.demo_seed003 import axis_data, gateway_data
+from gateway.demos.seed003 import axis_data, gateway_data
 from gateway.formats import read_linkage, write_linkage
 
 TRUE = LinkageModel(arm_mm=150.0, base_mm=450.0, phi0_deg=74.4, mm_per_deg=2.59144,

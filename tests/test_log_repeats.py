@@ -7,8 +7,8 @@ import io
 import ipaddress
 import logging
 
+from gateway.modbus.upstream import TcpServer
 from gateway.service import RepeatFilter, configure_logging
-from gateway.upstream import TcpServer
 from tests.helpers_modbus import run, wait_for_condition
 
 
@@ -73,7 +73,7 @@ def test_refusals_of_different_causes_are_held_back_separately() -> None:
     handler = logging.StreamHandler(out)
     handler.setFormatter(logging.Formatter("%(message)s"))
     handler.addFilter(RepeatFilter(burst=1, window_s=60.0, clock=Clock()))
-    logger = logging.getLogger("gateway.upstream")
+    logger = logging.getLogger("gateway.modbus.upstream")
     saved = logger.handlers[:], logger.level
     logger.handlers[:] = [handler]
     logger.setLevel(logging.WARNING)

@@ -7,7 +7,7 @@ import os
 import re
 from pathlib import Path
 
-from gateway.frames import pack_int32
+from gateway.modbus.frames import pack_int32
 from tests.gateway_rig import TARGET, TRIGGER, rig
 from tests.helpers_modbus import wait_for_condition
 

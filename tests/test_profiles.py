@@ -17,7 +17,7 @@ import yaml
 
 from gateway.compensation import AxisInput
 from gateway.config import load_config, warnings
-from gateway.frames import pack_int32, rtu_encode, unpack_int32
+from gateway.modbus.frames import pack_int32, rtu_encode, unpack_int32
 from gateway.profiles import PROFILES
 from sim.config import RtuConfig
 from sim.config import parse_config as parse_sim_config

@@ -12,7 +12,7 @@ from pymodbus.client import ModbusTcpClient
 
 from gateway.app import load
 from gateway.compensation import AxisInput
-from gateway.frames import pack_int32, unpack_int32
+from gateway.modbus.frames import pack_int32, unpack_int32
 from gateway.status import GENERATION_REGISTER, RELOAD_REGISTER
 from tests.gateway_rig import TARGET, TRIGGER, rig
 from tests.helpers_modbus import run

@@ -16,7 +16,7 @@ import yaml
 from gateway.calibration.rawdata import RawWriter
 from gateway.cli import build_parser
 from gateway.compensation import LinkageModel, PitchTable
-from gateway.demo_seed003 import axis_data, gateway_data
+from gateway.demos.seed003 import axis_data, gateway_data
 from gateway.formats import read_linkage, read_linuxcnc, read_pitch_csv, write_linkage
 from gateway.formats.pitch_csv import write_pitch_csv
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import yaml
 
 from gateway.compensation import AxisInput
-from gateway.frames import (
+from gateway.modbus.frames import (
     build_read_request,
     build_write_multiple_registers,
     build_write_single_register,

@@ -8,7 +8,7 @@ import logging
 import socket
 from pathlib import Path
 
-from gateway.frames import pack_int32
+from gateway.modbus.frames import pack_int32
 from tests.gateway_rig import SPEED, TARGET, rig
 from tests.test_gateway_e2e import read32
 from tests.test_service_helpers import mbap, read_pdu, sim_and_gateway
@@ -49,7 +49,7 @@ def test_client_outside_the_allowlist_is_refused_and_logged(tmp_path: Path, capl
         async with rig(tmp_path, edit) as r:
             app = r["app"]
             before = app.tcp.counters.refused  # the rig's own master (127.0.0.1) included
-            with caplog.at_level(logging.WARNING, logger="gateway.upstream"):
+            with caplog.at_level(logging.WARNING, logger="gateway.modbus.upstream"):
                 assert await raw_request(app.tcp_port, read_pdu(3, 0x6200, 1)) is None
             assert app.tcp.counters.refused == before + 1
             assert "not in the allowlist" in caplog.text

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gateway.demo_seed003 import RANGE_DEG, STEP_DEG, judge_targets
+from gateway.demos.seed003 import RANGE_DEG, STEP_DEG, judge_targets
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -7,8 +7,8 @@ import math
 import pytest
 
 from gateway.config import SourceRegister, ThermalSource
-from gateway.downstream import TcpBus
-from gateway.frames import build_read_registers_response, exception_pdu
+from gateway.modbus.downstream import TcpBus
+from gateway.modbus.frames import build_read_registers_response, exception_pdu
 from gateway.sensors import (
     FilterSettings,
     SensorReadError,

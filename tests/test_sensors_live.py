@@ -17,8 +17,8 @@ from typing import Any
 import pytest
 
 from gateway.config import GatewayConfig, ThermalSource, parse_config
-from gateway.downstream import TcpBus
-from gateway.frames import (
+from gateway.modbus.downstream import TcpBus
+from gateway.modbus.frames import (
     build_read_request,
     build_write_multiple_registers,
     build_write_single_register,

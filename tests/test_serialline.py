@@ -8,8 +8,8 @@ import contextlib
 import os
 from collections.abc import Iterator
 
-from gateway.frames import rtu_encode, rtu_request_length
-from gateway.serialline import MAX_EMPTY_READS, SerialLine
+from gateway.modbus.frames import rtu_encode, rtu_request_length
+from gateway.modbus.serialline import MAX_EMPTY_READS, SerialLine
 from tests.helpers_modbus import PtyPair, run, wait_for_condition
 
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import yaml
 
-from gateway.frames import rtu_encode
+from gateway.modbus.frames import rtu_encode
 from tests.gateway_rig import SIM_EXAMPLE, base_config
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -321,7 +321,7 @@ def rtu_read_reply(fd: int, timeout_s: float = 2.0) -> bytes | None:
     """Collect bytes from a pty master until one whole RTU response frame (or None)."""
     import select
 
-    from gateway.frames import find_rtu_frame, rtu_response_length
+    from gateway.modbus.frames import find_rtu_frame, rtu_response_length
 
     buf = b""
     deadline = time.monotonic() + timeout_s

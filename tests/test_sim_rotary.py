@@ -20,7 +20,7 @@ import yaml
 from scipy.optimize import brentq
 
 from gateway.calibration.machine import Link
-from gateway.frames import pack_int32, unpack_int32
+from gateway.modbus.frames import pack_int32, unpack_int32
 from sim.config import SimConfigError, parse_config
 from sim.server import SimServer
 from tests.helpers_modbus import run

@@ -15,7 +15,7 @@ import yaml
 from pymodbus.client import AsyncModbusTcpClient
 
 from gateway.app import GatewayApp, load
-from gateway.frames import pack_int32
+from gateway.modbus.frames import pack_int32
 from sim.server import SimServer
 from tests.gateway_rig import FEEDBACK, TARGET, base_config
 from tests.helpers_modbus import wait_for_condition

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from gateway.compensation import AxisInput
-from gateway.frames import unpack_int32
+from gateway.modbus.frames import unpack_int32
 from gateway.status import format_status
 from tests.gateway_rig import TARGET, rig
 from tests.test_gateway_e2e import PITCH_X, move, read32, run, with_pitch

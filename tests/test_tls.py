@@ -23,7 +23,7 @@ from pymodbus.client import AsyncModbusTlsClient
 
 from gateway.cli import main as cli_main
 from gateway.compensation import AxisInput
-from gateway.frames import pack_int32
+from gateway.modbus.frames import pack_int32
 from tests.gateway_rig import FEEDBACK, SIM_EXAMPLE, TARGET, TRIGGER, base_config, rig
 from tests.helpers_modbus import wait_for_condition
 from tests.test_gateway_e2e import PITCH_X, move, read32, with_pitch
@@ -276,7 +276,8 @@ def test_handshakes_refused_without_a_good_certificate_or_with_old_tls(
             assert await read32(r["direct"], 1, TARGET) == before
             assert gate.denied == {}
             assert r["app"].tls.counters.connections == 0  # none got past the handshake
-            templates = {rec.msg for rec in caplog.records if rec.name == "gateway.mbsecurity"}
+            templates = {rec.msg for rec in caplog.records
+                         if rec.name == "gateway.modbus.mbsecurity"}
             assert len(templates) == len(gate.refused)  # one log kind per reason
             _, metrics = await scrape(r["app"].metrics.port)
             assert value(metrics, "compgw_tls_refused_total", reason="expired") == 1
@@ -391,7 +392,7 @@ def test_compgw_run_on_uvloop_serves_tls(tmp_path: Path, pki: dict[str, Issued])
 
 def test_role_is_read_from_the_extension_and_an_invalid_one_is_refused(
         pki: dict[str, Issued]):
-    from gateway.mbsecurity import RoleError, certificate_role
+    from gateway.modbus.mbsecurity import RoleError, certificate_role
 
     def der(who: str) -> bytes:
         from cryptography.hazmat.primitives.serialization import Encoding
@@ -408,7 +409,7 @@ def test_role_is_read_from_the_extension_and_an_invalid_one_is_refused(
 
 def test_rules_sort_every_function_into_read_write_or_neither():
     from gateway.config import TlsRole
-    from gateway.mbsecurity import READ_ONLY, Rules
+    from gateway.modbus.mbsecurity import READ_ONLY, Rules
 
     monitor = Rules.of(TlsRole(read=True, write=False))
     setter = Rules.of(TlsRole(units=[1], read=False, write=[(0x6201, 0x6201), (0x6202, 0x6203)]))

@@ -33,8 +33,8 @@ from gateway.calibration.rawdata import axis_deviations, read_raw_csv
 from gateway.calibration.report import build_cyclic_report
 from gateway.calibration.runner import read_raw_meta
 from gateway.config import parse_config
-from gateway.demo_seed003 import SIM_CONFIG, Rig, axis_data, gateway_data
-from gateway.frames import unpack_int32
+from gateway.demos.seed003 import SIM_CONFIG, Rig, axis_data, gateway_data
+from gateway.modbus.frames import unpack_int32
 from gateway.tables import build_chain
 from sim.config import load_config as load_sim
 from sim.server import SimServer

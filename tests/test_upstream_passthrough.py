@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import pytest
 
-from gateway import frames as f
-from gateway.downstream import Bus, RtuBus, TcpBus
-from gateway.upstream import RtuServer, TcpServer
+from gateway.modbus import frames as f
+from gateway.modbus.downstream import Bus, RtuBus, TcpBus
+from gateway.modbus.upstream import RtuServer, TcpServer
 from tests.helpers_modbus import (
     DRIVE_UNIT,
     EXC_ADDRESS,

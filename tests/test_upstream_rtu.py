@@ -9,8 +9,8 @@ from collections.abc import AsyncIterator
 
 import pytest
 
-from gateway import frames as f
-from gateway.upstream import RtuServer
+from gateway.modbus import frames as f
+from gateway.modbus.upstream import RtuServer
 from tests.helpers_modbus import PtyPair, rtu_request, run, wait_for_condition
 
 UNIT = 3

@@ -9,9 +9,9 @@ import time
 
 import pytest
 
-from gateway import frames as f
-from gateway.downstream import TcpBus
-from gateway.upstream import TcpServer
+from gateway.modbus import frames as f
+from gateway.modbus.downstream import TcpBus
+from gateway.modbus.upstream import TcpServer
 from tests.helpers_modbus import (
     DRIVE_UNIT,
     RawTcpMaster,

@@ -101,7 +101,7 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
     unit's config generation (a refused config is an error naming why to look)."""
     from pymodbus.client import AsyncModbusTcpClient
 
-    from ..frames import unpack_int32
+    from ..modbus.frames import unpack_int32
     from ..status import GENERATION_REGISTER, RELOAD_REGISTER
     from .machine import MachineError
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pymodbus.client import AsyncModbusTcpClient
 
 from ..config import Axis, GatewayConfig
-from ..frames import pack_int32, unpack_int32
+from ..modbus.frames import pack_int32, unpack_int32
 
 #: Status bits of the sim's default (Leadshine-like) profile; override per run.
 DEFAULT_IN_POSITION_BIT = 4

@@ -3,8 +3,8 @@
 pyserial opens and configures the port (real UART, USB adapter or pty alike); reading is
 ``loop.add_reader`` on its non-blocking fd, so no thread and no polling. The frame and
 timing half (:class:`RtuStream`) serves any fd: a TCP connection to a serial device server
-reuses it (:mod:`gateway.rtu_over_tcp`). Frames are cut by
-length and CRC (:func:`gateway.frames.find_rtu_frame`), by line silence for function codes
+reuses it (:mod:`gateway.modbus.rtu_over_tcp`). Frames are cut by
+length and CRC (:func:`gateway.modbus.frames.find_rtu_frame`), by line silence for function codes
 whose length is unknown, and stale fragments are discarded, so garbage never blocks the line.
 
 Timing: asyncio's epoll selector rounds every timeout up to a whole millisecond, so a
@@ -209,7 +209,7 @@ class RtuStream:
     """RTU frames over a byte stream read with the loop's reader on a non-blocking fd: async
     write, buffered async frame reads, exactly timed silences. A serial port
     (:class:`SerialLine`) or a TCP connection to a serial device server
-    (:class:`gateway.rtu_over_tcp.TcpRtuLine`) opens the fd and hands it to
+    (:class:`gateway.modbus.rtu_over_tcp.TcpRtuLine`) opens the fd and hands it to
     :meth:`_attach`; the line settings (those of the RS-485 side) time the silences.
 
     ``silence_s`` is the end-of-frame silence (default t3.5 from the line settings, per

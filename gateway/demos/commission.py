@@ -16,14 +16,14 @@ from typing import Any
 
 import yaml
 
-from .app import GatewayApp, load
-from .calibration.commission import Commission, Settings
-from .calibration.commission_report import summary_lines
-from .calibration.machine import Endpoint
-from .calibration.session import Instruments
+from ..app import GatewayApp, load
+from ..calibration.commission import Commission, Settings
+from ..calibration.commission_report import summary_lines
+from ..calibration.machine import Endpoint
+from ..calibration.session import Instruments
 
 SEED, TRAVEL_MM = 7, (0.0, 120.0)
-SAVED = Path(__file__).resolve().parent.parent / "config" / "commission-demo.txt"
+SAVED = Path(__file__).resolve().parents[2] / "config" / "commission-demo.txt"
 
 
 def _machine(work: Path) -> dict[str, Any]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Awaitable, Callable, Sequence
 
-from .config import WriteProtect
+from ..config import WriteProtect
 from .frames import (
     ILLEGAL_DATA_ADDRESS,
     ILLEGAL_DATA_VALUE,
@@ -116,7 +116,7 @@ class WriteGuard:
         return guarded
 
     def wrap_fast(self, fast: FastHandler) -> FastHandler:
-        """The same check in front of a fast handler (see :mod:`gateway.upstream`): a
+        """The same check in front of a fast handler (see :mod:`gateway.modbus.upstream`): a
         refused write is answered at once, through ``done``."""
 
         def guarded(unit_id: int, pdu: bytes, done: Done) -> bool:

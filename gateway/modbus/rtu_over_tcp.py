@@ -4,9 +4,9 @@ The server passes bytes between a TCP connection and its serial port as they com
 RTU frames with their CRC, no MBAP header, no transaction id. So the bus is an RTU line in
 every respect but the cable: one transaction at a time, replies checked (unit, function,
 byte count, echoed address and quantity), the line's t3.5 kept before each request, the
-late-reply guard after a timeout (:class:`gateway.downstream.RtuBus`, whose hooks this
+late-reply guard after a timeout (:class:`gateway.modbus.downstream.RtuBus`, whose hooks this
 transport reuses) and frames cut by length and CRC from the byte stream
-(:class:`gateway.serialline.RtuStream`, whose reading and timing it reuses). Only opening
+(:class:`gateway.modbus.serialline.RtuStream`, whose reading and timing it reuses). Only opening
 differs: a TCP connect, re-tried with the bus's backoff after a refusal or a loss.
 """
 

@@ -22,17 +22,17 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .app import GatewayApp
-from .calibration.iso230 import iso230_2
-from .calibration.machine import Laser, Link, MachineDriver, XYDevice
-from .calibration.outputs import fit_planar, save_planar
-from .compensation import PitchTable, PlanarMeasurement
-from .config import parse_config
-from .formats import write_pitch_csv
-from .sensors import ThermalState
-from .tables import build_chain
+from ..app import GatewayApp
+from ..calibration.iso230 import iso230_2
+from ..calibration.machine import Laser, Link, MachineDriver, XYDevice
+from ..calibration.outputs import fit_planar, save_planar
+from ..compensation import PitchTable, PlanarMeasurement
+from ..config import parse_config
+from ..formats import write_pitch_csv
+from ..sensors import ThermalState
+from ..tables import build_chain
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
 GATEWAY_EXAMPLE = CONFIG_DIR / "example.yaml"
 SIM_EXAMPLE = CONFIG_DIR / "example-sim.yaml"
 
@@ -321,7 +321,7 @@ def main(as_json: bool = False, identify_dir: str | None = None) -> int:
     result = asyncio.run(compare())
     print(json.dumps(result, indent=2) if as_json else format_table(result))
     if not as_json:
-        from .demo_commission import saved
+        from .commission import saved
 
         print("\nCommissioning (a saved run of `compgw demo --commission`, which runs it live):")
         print(saved(), end="")

@@ -24,8 +24,9 @@ from collections.abc import Callable, Iterable
 from contextlib import AbstractAsyncContextManager
 from typing import TYPE_CHECKING
 
-from .axis import overlap
-from .config import Axis
+from ..axis import overlap
+from ..config import Axis
+from ..triggers import COIL_WRITES, judge, writes_trigger
 from .downstream import Bus
 from .frames import (
     ILLEGAL_FUNCTION,
@@ -40,10 +41,9 @@ from .frames import (
     parse_request,
     response_for_write,
 )
-from .triggers import COIL_WRITES, judge, writes_trigger
 
 if TYPE_CHECKING:
-    from .router import GatewayCounters, Setup, _AxisRuntime
+    from ..router import GatewayCounters, Setup, _AxisRuntime
 
 log = logging.getLogger(__name__)
 

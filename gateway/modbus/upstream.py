@@ -2,7 +2,7 @@
 
 Both hand every request PDU to one handler, ``async (unit_id, pdu) -> bytes | None``
 (None: no reply), and send back what it returns, byte for byte. A handler raising
-:class:`gateway.frames.ModbusError` (``DriveTimeout``, ``BusUnavailable``, or one raised
+:class:`gateway.modbus.frames.ModbusError` (``DriveTimeout``, ``BusUnavailable``, or one raised
 by the interception layer) is answered with that exception code; any other error with
 0x04 and a log line, so the master is never left hanging.
 
@@ -484,7 +484,7 @@ class TcpServer(Listener):
     ``frame_timeout_s``: a frame not complete that long after its first byte closes its
     connection (None: never). ``max_pipeline``: requests read ahead per connection before
     reading pauses. ``fast``: the fast handler tried first for each request (see the
-    module's docstring). ``tls``: Modbus/TCP Security (:mod:`gateway.mbsecurity`): each
+    module's docstring). ``tls``: Modbus/TCP Security (:mod:`gateway.modbus.mbsecurity`): each
     connection's TLS handshake comes before ``connection_made``, and each request is
     authorised by the client certificate's role before it reaches a handler.
     """
@@ -587,7 +587,7 @@ class RtuServer(Listener):
     handled without a reply. Frames are cut by length and CRC, unknown function codes by
     line silence; garbage and fragments are skipped. The port is reopened with backoff if it
     disappears. A reply leaves after t3.5 of line silence (``silence_s``, else per ``t35``
-    as :class:`gateway.downstream.RtuBus`), timed exactly.
+    as :class:`gateway.modbus.downstream.RtuBus`), timed exactly.
     """
 
     def __init__(self, handler: Handler, port: str, *, unit_ids: Collection[int],

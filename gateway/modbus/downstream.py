@@ -391,7 +391,7 @@ class RtuBus(Bus):
 
     t3.5 is ``silence_s`` if given, else per ``t35`` (``"spec"``: 1.75 ms above 19200 baud;
     ``"exact"``: 3.5 characters at the baud rate). Silences are timed exactly (no rounding
-    up to whole milliseconds, see :mod:`gateway.serialline`), and bytes arriving during
+    up to whole milliseconds, see :mod:`gateway.modbus.serialline`), and bytes arriving during
     one restart it.
     """
 
@@ -407,7 +407,7 @@ class RtuBus(Bus):
 
     def _use_line(self, line: RtuStream, late_guard_s: float | None) -> None:
         """Serve transactions on ``line`` (a serial port here; another byte stream in
-        :class:`gateway.rtu_over_tcp.RtuOverTcpBus`)."""
+        :class:`gateway.modbus.rtu_over_tcp.RtuOverTcpBus`)."""
         self.line = line
         self.late_guard_s = self.timeout_s if late_guard_s is None else late_guard_s
         self._hold_until_s = 0.0  # no new request before this (monotonic)

@@ -17,7 +17,7 @@ from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.types import PrivateKeyTypes
 from cryptography.x509.oid import NameOID
 
-from .config import ConfigError, TlsListen
+from ..config import ConfigError, TlsListen
 
 #: a certificate that expires sooner than this gets a warning from `compgw check`
 EXPIRY_WARNING = dt.timedelta(days=30)

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 from cryptography import x509
 from cryptography.hazmat import asn1
 
-from .config import TlsListen, TlsRole
+from ..config import TlsListen, TlsRole
 from .frames import ILLEGAL_FUNCTION, READ_WRITE_MULTIPLE_REGISTERS, ModbusError
 from .security import written_range
 

@@ -29,20 +29,20 @@ from typing import Any
 
 import numpy as np
 
-from .app import GatewayApp
-from .calibration.iso230 import ARCSEC_PER_MDEG, iso230_axis
-from .calibration.machine import Endpoint
-from .calibration.outputs import fit_pitch, save_pitch
-from .calibration.plans import Plan, snap_to_pulses, targets_plan
-from .calibration.rawdata import axis_deviations, read_raw_csv
-from .calibration.session import Instruments, Session
-from .compensation import PitchTable
-from .compensation.linkage import LinkageModel
-from .config import GatewayConfig, parse_config
-from .formats import write_linkage, write_pitch_csv
-from .tables import build_chain
+from ..app import GatewayApp
+from ..calibration.iso230 import ARCSEC_PER_MDEG, iso230_axis
+from ..calibration.machine import Endpoint
+from ..calibration.outputs import fit_pitch, save_pitch
+from ..calibration.plans import Plan, snap_to_pulses, targets_plan
+from ..calibration.rawdata import axis_deviations, read_raw_csv
+from ..calibration.session import Instruments, Session
+from ..compensation import PitchTable
+from ..compensation.linkage import LinkageModel
+from ..config import GatewayConfig, parse_config
+from ..formats import write_linkage, write_pitch_csv
+from ..tables import build_chain
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
 SIM_CONFIG = CONFIG_DIR / "rotary-sim.yaml"
 AXIS = "A"
 ANGLE_UNIT = 24

@@ -1,0 +1,1 @@
+"""`compgw demo`: the tour, commissioning and seed 003."""

@@ -1,0 +1,1 @@
+"""The Modbus layer: frames, upstream servers, downstream buses, serial lines, TLS."""
