@@ -28,28 +28,28 @@ estimate (:func:`.plans.plan_time_s`): the same yardstick for any workflow.
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 import shutil
-from collections.abc import Awaitable, Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from ..compensation import PitchStage
-from ..compensation.errors import TableError
-from ..config import GatewayConfig, load_config
-from ..config_types import read_yaml
+from ..config import GatewayConfig
 from ..formats import atomic_write_text, read_pitch_csv
 from . import adaptive
-from .commission_configs import HEADER, Tables, identification, with_tables
+from .commission_steps import (
+    BudgetSpent,
+    CommissionAborted,
+    Steps,
+    _plain,
+)
 from .fit import planar_measurement
 from .iso230 import iso230_axis
-from .machine import MachineError, MotionSettings
+from .machine import MachineError
 from .models import thermal_fit
 from .outputs import (
     fit_cyclic_raw,
@@ -66,336 +66,19 @@ from .plans import (
     backlash_plan,
     cyclic_plan,
     iso230_linear_plan,
-    plan_time_s,
     read_plan,
-    snap_to_pulses,
     targets_plan,
     warmup_plan,
-    write_plan,
     xy_grid_plan,
     xy_verification_plan,
 )
-from .rawdata import RawData, axis_deviations, read_raw_csv
+from .rawdata import axis_deviations, read_raw_csv
 from .runner import read_raw_meta
-from .session import Instruments, Session, planar_figures
-
-STATE = "commission.json"
-Say = Callable[[str], None]
-Reload = Callable[[], Awaitable[None]]
+from .session import planar_figures
 
 
-class BudgetSpent(Exception):
-    """The next step does not fit in the machine-time budget."""
-
-
-class CommissionAborted(Exception):
-    """Commissioning stopped; the message says where the gateway was left."""
-
-
-@dataclass
-class Settings:
-    """What the command line gives."""
-
-    config_path: Path
-    out_dir: Path
-    gateway: Any  # machine.Endpoint
-    instruments: Instruments
-    axes: tuple[str, ...]
-    planar: tuple[str, str] | None = None
-    lead_mm: dict[str, float] = field(default_factory=dict)
-    tolerance_um: float = 2.0
-    budget_s: float = 8 * 3600.0
-    speed_mm_s: float = 100.0
-    stop_s: float = 2.0
-    motion: MotionSettings = field(default_factory=MotionSettings)
-    seed: int = 0
-    max_rounds: int = 6
-    no_lead_search: bool = False  # axes without a lead get no cyclic stage
-    runs: int = 3  # coarse ISO runs
-    verify_runs: int = 2
-    warmup_s: float = 1800.0
-    grid: tuple[int, int] = (7, 5)
-
-
-class Commission:
-    """One commissioning, resumable from its state file."""
-
-    def __init__(self, settings: Settings, reload: Reload, say: Say = print,
-                 progress: Callable[[str, int, int], None] | None = None) -> None:
-        self.s = settings
-        self.reload_fn = reload
-        self.say = say
-        self.progress = progress
-        self.dir = settings.out_dir
-        self.config_dir = settings.config_path.resolve().parent
-        self.state_path = self.dir / STATE
-        self.state: dict[str, Any] = {"version": 1, "steps": {}, "rounds": [], "notes": []}
-        if self.state_path.exists():
-            self.state = json.loads(self.state_path.read_text())
-        self.original_path = self.dir / "original.yaml"
-        self.tables = Tables.from_json(self.state.get("tables", {}))
-        self.config: GatewayConfig = load_config(settings.config_path)
-        for axis, lead in self.state.get("leads", {}).items():  # found by a lead search
-            if lead and axis not in self.s.lead_mm:
-                self.s.lead_mm[axis] = float(lead)
-
-    # -- state ---------------------------------------------------------------------------
-    def _save(self) -> None:
-        self.state["tables"] = self.tables.to_json()
-        self.dir.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(self.state_path, json.dumps(self.state, indent=1, default=_plain))
-
-    @property
-    def used_s(self) -> float:
-        steps = sum(step["machine_s"] for step in self.state["steps"].values())
-        return float(steps + self.state.get("refs_s", 0.0))
-
-    def _rel(self, path: Path) -> str:
-        return str(path.resolve().relative_to(self.config_dir)) if path.resolve().is_relative_to(
-            self.config_dir) else str(path.resolve())  # fmt: skip
-
-    # -- configs -------------------------------------------------------------------------
-    def original(self) -> dict[str, Any]:
-        """The user's config as it was before commissioning (kept in DIR/original.yaml)."""
-        if not self.original_path.exists():
-            self.dir.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(self.s.config_path, self.original_path)
-        return read_yaml(self.original_path, TableError)
-
-    def phase_config(self, phase: str) -> dict[str, Any]:
-        original = self.original()
-        if phase == "identification":
-            return identification(original, self.s.axes, self.tables)
-        if phase == "warmup":  # nothing on, thermal neither: the laser sees the whole growth
-            data = identification(original, self.s.axes, self.tables)
-            for a in self.s.axes:
-                data["axes"][a]["compensation"].pop("thermal", None)
-            return data
-        # on_trigger where both plane axes have a trigger: a master writing both targets
-        # before the start gets both corrected for the point it asked for (immediate would
-        # correct the first with the other's previous target)
-        both = self.s.planar is not None and all(
-            self.config.axes[a].registers.trigger is not None for a in self.s.planar)
-        return with_tables(original, self.s.axes, self.tables, planar=phase == "full",
-                           commit_default="on_trigger" if both else "immediate")
-
-    def staged(self, phase: str) -> tuple[GatewayConfig, Path]:
-        """The phase's config written under DIR/configs (for the fits' paths and checks)."""
-        path = self.dir / "configs" / f"{phase}.yaml"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(path, yaml.safe_dump(self.phase_config(phase), sort_keys=False))
-        return load_config(path), path
-
-    async def use(self, phase: str) -> None:
-        """Write the phase's config over the gateway's config file and have it reload.
-
-        The drift references are read just before and just after the switch (the same
-        thermal state): what they read differently is the new config, not drift, so the
-        drift since the start stays known across configs."""
-        base = self.state.get("drift_base")
-        text = HEADER.format(phase=phase, original=self._rel(self.original_path))
-        text += yaml.safe_dump(self.phase_config(phase), sort_keys=False)
-        if (base is not None and self.state.get("phase") == phase == base["phase"]
-                and self.s.config_path.read_text() == text):
-            return  # loaded already: nothing to switch
-        before = None
-        if base is not None and self.state.get("phase") == base["phase"]:
-            last = self.state.get("last_refs")  # read since the last moves: the same state
-            before = last["refs"] if last and last["phase"] == base["phase"] else \
-                await self._measure_refs()
-        atomic_write_text(self.s.config_path, text)
-        await self.reload_fn()
-        self.state["phase"] = phase
-        after = await self._measure_refs()
-        drift = {a: [0.0, 0.0] for a in self.s.axes}
-        if base is not None:
-            if before is None:  # the chain broke (an abort restored your config): the last
-                drift = self.state.get("drift_last", drift)  # known drift carries on
-                self.state["notes"].append(f"drift references re-linked when {phase} was "
-                                           "loaded after an interruption")  # fmt: skip
-            else:
-                drift = {a: [before[a][k] - base["refs"][a][k] for k in (0, 1)]
-                         for a in self.s.axes}  # fmt: skip
-        self.state["drift_base"] = {"phase": phase, "refs": {
-            a: [after[a][k] - drift[a][k] for k in (0, 1)] for a in self.s.axes}}
-        self.state["drift_last"] = drift
-        self._save()
-
-    def _ref_positions(self, axis: str) -> tuple[float, float]:
-        lo, hi = self._travel(axis)
-        pulse = self.config.axes[axis].pulse_mm
-        return (round((lo + 0.05 * (hi - lo) + 1.0) / pulse) * pulse,
-                round((hi - 0.05 * (hi - lo)) / pulse) * pulse)
-
-    async def _measure_refs(self, repeats: int = 3) -> dict[str, list[float]]:
-        """Deviation (mm) of each commissioned axis at its two drift references, the mean
-        of ``repeats`` approaches in + from 1 mm below (the other plane axis parked)."""
-        from .machine import Laser, Links, MachineDriver
-
-        links = Links()
-        out: dict[str, list[float]] = {}
-        cost = 0.0
-        try:
-            link = await links.get(self.s.gateway.host, self.s.gateway.port)
-            driver = MachineDriver(link, self.config, self.s.motion)
-            ins = self.s.instruments
-            assert ins.laser is not None
-            order = list(ins.laser_axes or self.config.axes)
-            laser = Laser(await links.get(*ins.laser.key), ins.laser.unit,
-                          {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
-            for a in self.s.axes:
-                park = self._park(a)
-                if park:
-                    await driver.move(park)
-                devs = []
-                for x in self._ref_positions(a):
-                    readings = []
-                    for _ in range(repeats):
-                        await driver.move({a: x - 1.0})
-                        await driver.move({a: x})
-                        readings.append((await laser.read_mm([a]))[a] - x)
-                        cost += self.s.stop_s + 2.0 / self.s.speed_mm_s
-                    devs.append(float(np.mean(readings)))
-                out[a] = devs
-        finally:
-            links.close()
-        self.state["refs_s"] = self.state.get("refs_s", 0.0) + cost
-        self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out}
-        return out
-
-    def _drift_now(self, refs: dict[str, list[float]]) -> dict[str, list[float]]:
-        base = self.state["drift_base"]["refs"]
-        return {a: [refs[a][k] - base[a][k] for k in (0, 1)] for a in self.s.axes}
-
-    def raw_paths(self, name: str) -> list[Path]:
-        """The raw files of a step (one per run when its runs were measured apart)."""
-        parts = self.state["steps"].get(name, {}).get("parts")
-        if not parts:
-            return [self.dir / "raw" / f"{name}.csv"]
-        return [self.config_dir / part["raw"] for part in parts]
-
-    def raw(self, name: str) -> RawData:
-        """A step's raw data (all its runs) with the machine's thermal drift during each run
-        taken off: what the readings would have been in the state commissioning began in."""
-        step = self.state["steps"].get(name, {})
-        parts = step.get("parts") or [{"raw": self._rel(self.dir / "raw" / f"{name}.csv")}]
-        datas = []
-        for part in parts:
-            data = read_raw_csv(self.config_dir / part["raw"])
-            stored = part.get("drift")
-            if stored:
-                data = adaptive.drift_corrected(
-                    data, {a: adaptive.Drift.from_json(v) for a, v in stored.items()})
-            datas.append(data)
-        return concat_raw(datas)
-
-    async def restore(self) -> str:
-        """Put the user's own config back and have the gateway load it; says what happened."""
-        if not self.original_path.exists():
-            return "the gateway's config file was not changed"
-        shutil.copyfile(self.original_path, self.s.config_path)
-        self.state["phase"] = "original"
-        self._save()
-        try:
-            await self.reload_fn()
-        except Exception as exc:  # the gateway may be down: it loads the file at its start
-            return (f"your own config is back in {self.s.config_path} (the gateway did not "
-                    f"reload it: {exc}; it loads it when it starts)")  # fmt: skip
-        return f"the gateway runs your own config again ({self.s.config_path})"
-
-    # -- steps ---------------------------------------------------------------------------
-    def _snap(self, plan: Plan) -> Plan:
-        return snap_to_pulses(plan, {n: a.pulse_mm for n, a in self.config.axes.items()})
-
-    def _check_limits(self, plan: Plan) -> None:
-        for move in plan.moves:
-            for name, target in zip(plan.axes, move.target_mm):
-                lo, hi = self.config.axes[name].travel_mm
-                if not lo <= target <= hi:
-                    raise TableError(f"plan {plan.kind}: axis {name} target {target:g} mm is "
-                                     f"outside the soft limits {lo:g}..{hi:g} mm")  # fmt: skip
-
-    def estimate_s(self, plan: Plan) -> float:
-        return plan_time_s(plan, self.s.speed_mm_s, self.s.stop_s)
-
-    def done(self, name: str) -> bool:
-        return name in self.state["steps"]
-
-    async def step(self, name: str, make: Callable[[], Plan], compensation: str,
-                   park: dict[str, float] | None = None, drift: bool = True) -> Path:
-        """Run the plan ``make()`` as step ``name`` (once: a done step is skipped; a step
-        begun resumes from its raw file with its saved plan); its raw file. ``drift``: the
-        drift references are read before and after it (see :meth:`raw`)."""
-        raw = self.dir / "raw" / f"{name}.csv"
-        if self.done(name):
-            return raw
-        plan_path = self.dir / "plans" / f"{name}.plan"
-        if plan_path.exists():
-            plan = read_plan(plan_path)
-        else:
-            plan = self._snap(make())
-            self._check_limits(plan)
-            plan_path.parent.mkdir(parents=True, exist_ok=True)
-            write_plan(plan_path, plan)
-        cost_s = self.estimate_s(plan)
-        if self.used_s + cost_s > self.s.budget_s:
-            raise BudgetSpent(f"{name} needs {cost_s / 60:.1f} min of machine time, "
-                              f"{max(0.0, self.s.budget_s - self.used_s) / 60:.1f} min left")
-        raw.parent.mkdir(parents=True, exist_ok=True)
-        self.say(f"{name}: {sum(m.measured for m in plan.moves)} readings, "
-                 f"{cost_s / 60:.1f} min of machine time ({compensation})")
-        drifting = drift and "drift_base" in self.state
-        parts = _parts(plan) if drifting else [plan]
-        done_parts = self.state.setdefault("parts", {}).setdefault(name, [])
-        for k, part in enumerate(parts):
-            if k < len(done_parts):
-                continue
-            part_raw = raw if len(parts) == 1 else raw.with_name(f"{name}.part{k + 1}.csv")
-            entry = await self._run_part(f"{name}.part{k + 1}", part, part_raw, compensation,
-                                         park, drifting)  # fmt: skip
-            done_parts.append(entry)
-            self._save()
-        self.state["steps"][name] = {"machine_s": cost_s, "parts": done_parts}
-        self.state["parts"].pop(name, None)
-        self._save()
-        return raw
-
-    async def _run_part(self, key: str, plan: Plan, raw: Path, compensation: str,
-                        park: dict[str, float] | None, drifting: bool) -> dict[str, Any]:
-        """One run of a step (its own raw file), the drift references read around it."""
-        pending = self.state.setdefault("pending_refs", {})
-        if drifting and key not in pending:
-            pending[key] = self._drift_now(await self._measure_refs())
-            self._save()
-        self.state["last_refs"] = None  # the moves change the thermal state
-        session = Session(self.config, self.config_dir, self.s.gateway, self.s.instruments,
-                          self.s.motion, park or {})  # fmt: skip
-        if self.progress is not None:
-            name = key.rsplit(".", 1)[0]
-            session.progress = lambda k, n: self.progress(name, k, n)  # type: ignore[misc]
-        await session.run(plan, raw, compensation)
-        entry: dict[str, Any] = {"raw": self._rel(raw)}
-        if drifting:
-            after = self._drift_now(await self._measure_refs())
-            before = pending.pop(key)
-            # an axis with thermal compensation: the gateway follows its growth (the
-            # readings hold what it leaves, as they will in use); the others: taken off
-            entry["drift"] = {a: [*self._ref_positions(a), *before[a], *after[a]]
-                              for a in self.s.axes
-                              if self.config.axes[a].compensation.thermal is None}  # fmt: skip
-            self.state["drift_last"] = after
-        return entry
-
-    def _park(self, axis: str) -> dict[str, float]:
-        """Where the other plane axis stands while ``axis`` is measured: its lower end."""
-        if self.s.planar is None or axis not in self.s.planar:
-            return {}
-        other = self.s.planar[1] if axis == self.s.planar[0] else self.s.planar[0]
-        return {other: float(self.config.axes[other].travel_mm[0])}
-
-    def _travel(self, axis: str) -> tuple[float, float]:
-        lo, hi = self.config.axes[axis].travel_mm
-        return float(lo), float(hi)
+class Commission(Steps):
+    """One commissioning: the plans, the order of the steps, the fits and the rounds."""
 
     # -- the whole thing -----------------------------------------------------------------
     def initial_plans(self) -> list[tuple[str, Plan]]:
@@ -852,37 +535,3 @@ def parse_leads(text: str | None, axes: Sequence[str]) -> dict[str, float]:
             raise ValueError(f"--lead-mm {item!r}: {name.strip()!r} is not a commissioned axis")
         out[name.strip()] = float(value)
     return out
-
-
-def _plain(value: Any) -> Any:
-    """numpy scalars (a bool or float from an array) as plain Python for JSON."""
-    if hasattr(value, "item"):
-        return value.item()
-    raise TypeError(f"{type(value).__name__} is not JSON serializable")
-
-
-def _parts(plan: Plan) -> list[Plan]:
-    """A plan cut into its runs (each measured with its own drift references), in order;
-    a plan whose runs interleave (seed 000's backlash repeats) stays whole."""
-    runs = [m.run for m in plan.moves]
-    if len(set(runs)) < 2 or any(b < a for a, b in itertools.pairwise(runs)):
-        return [plan]
-    return [Plan(plan.kind, plan.axes, tuple(m for m in plan.moves if m.run == j), plan.meta)
-            for j in sorted(set(runs))]  # fmt: skip
-
-
-def concat_raw(parts: Sequence[RawData]) -> RawData:
-    """Raw data of several files as one (rows in order)."""
-    if len(parts) == 1:
-        return parts[0]
-    keys = set().union(*(p.extra for p in parts))
-    return RawData(
-        tuple(a for p in parts for a in p.axis),
-        np.concatenate([p.run for p in parts]),
-        np.concatenate([p.direction for p in parts]),
-        np.concatenate([p.target_mm for p in parts]),
-        np.concatenate([p.actual_mm for p in parts]),
-        {k: tuple(v for p in parts for v in p.extra.get(k, ("",) * len(p))) for k in keys},
-        tuple(n for p in parts for n in p.lines),
-        parts[0].source,
-    )

@@ -146,9 +146,10 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
 
 
 def main(args: argparse.Namespace) -> int:
-    from .commission import Commission, CommissionAborted, Settings, parse_leads
+    from .commission import Commission, parse_leads
     from .commission_report import summary_lines
     from .commission_report import write as write_report
+    from .commission_steps import CommissionAborted, Settings
     from .machine import Endpoint, MachineError, MotionSettings
     from .session import Instruments
 

@@ -17,8 +17,9 @@ from typing import Any
 import yaml
 
 from ..app import GatewayApp, load
-from ..calibration.commission import Commission, Settings
+from ..calibration.commission import Commission
 from ..calibration.commission_report import summary_lines
+from ..calibration.commission_steps import Settings
 from ..calibration.machine import Endpoint
 from ..calibration.session import Instruments
 
