@@ -91,3 +91,45 @@ def test_drift_is_taken_off_by_position_and_progress() -> None:
     expected = np.linspace(2e-3, 4e-3, n)  # the drift at 50 mm grows 2 → 4 µm
     np.testing.assert_allclose(fixed.deviation_mm, 0.0, atol=1e-12)
     np.testing.assert_allclose(raw.deviation_mm, expected)
+
+
+def test_a_refinement_scan_gives_the_point_its_mean_and_the_cyclic_term_a_station() -> None:
+    """Truth: a wavy screw whose once-per-turn amplitude grows along the travel. The model
+    on: a flat table and a constant 1 µm cyclic term. A one-lead scan at 130 mm (residual
+    of truth − model, with noise) must give the table the truth's level there, not the
+    level plus whatever phase of the cyclic term the point happens to sit at, and the new
+    station the truth's amplitude."""
+    from gateway.calibration.cyclic_fit import StationScan
+    from gateway.compensation.cyclic import CyclicModel
+
+    lead, centre = 5.0, 130.0
+    rng = np.random.default_rng(11)
+
+    def level_um(x: np.ndarray) -> np.ndarray:  # waviness, 40 mm
+        return 4.0 * np.sin(2 * np.pi * x / 40.0)
+
+    def amp_um(x: np.ndarray) -> np.ndarray:  # 1 µm at 0, 3 µm at 200 mm
+        return 1.0 + x / 100.0
+
+    table = PitchTable(np.array([0.0, 100.0, 200.0]), np.zeros(3), np.full(3, 0.004))
+    model = CyclicModel(lead, np.array([0.0, 200.0]), np.array([[1e-3], [1e-3]]),
+                        np.zeros((2, 1)))  # fmt: skip
+    x = np.linspace(centre - lead / 2, centre + lead / 2, 9)
+    xs = np.concatenate([x, x[::-1]])
+    dirs = np.array([1] * 9 + [-1] * 9)
+    theta = 2 * np.pi * xs / lead
+    truth_um = level_um(xs) + 4.0 * (dirs < 0) + amp_um(xs) * np.sin(theta)
+    model_um = 4.0 * (dirs < 0) + 1.0 * np.sin(theta)
+    resid_mm = (truth_um - model_um + rng.normal(0, 0.05, xs.size)) * 1e-3
+    scan = StationScan(xs, resid_mm, dirs)
+    got = adaptive.scan_refinement(table, PitchStage(table, "linear"), model, [centre], [scan])
+    i = int(np.flatnonzero(got.table.position_mm == centre)[0])
+    want_um = level_um(np.array([centre]))[0]
+    assert got.table.forward_mm[i] * 1e3 == pytest.approx(want_um, abs=0.15)
+    assert got.table.reverse_mm[i] * 1e3 == pytest.approx(want_um + 4.0, abs=0.15)
+    # a single reading at the centre would carry the cyclic term's phase there instead
+    assert abs(amp_um(np.array([centre]))[0] * np.sin(2 * np.pi * centre / lead + 0.5)) > 0.5
+    j = int(np.flatnonzero(got.cyclic.station_mm == centre)[0])
+    assert got.cyclic.sin_mm[j, 0] * 1e3 == pytest.approx(amp_um(np.array([centre]))[0],
+                                                          abs=0.1)  # fmt: skip
+    assert got.cyclic.station_mm.tolist() == [0.0, centre, 200.0]  # the old ones kept

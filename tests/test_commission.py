@@ -53,8 +53,11 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         out = rig.dir / "commission"
         summary = json.loads((out / "summary.json").read_text())
         for axis, entry in summary["axes"].items():
+            # X: 7.4 µm before, its floor about 2.6-3.0 µm (a reversal that scatters by 5 µm
+            # R on this 90 mm cut of the machine): the same tables judged twice differ by
+            # 0.3 µm, so the bar is a cut by half, not a number at that noise
             before, after = entry["before"]["E_um"], entry["after"]["E_um"]
-            assert after < 0.35 * before, (axis, before, after, text)
+            assert after < 0.5 * before, (axis, before, after, text)
         xy = summary["xy"]
         assert xy["after"]["max_um"] < 0.2 * xy["before"]["max_um"], text
         assert rc == (0 if summary["outcome"] == "within" else 1)
@@ -77,6 +80,14 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         assert report.count("data:image/png;base64,") == 3  # X, Y, the XY field
         # written tables carry no float noise
         assert "9999999" not in (out / "tables" / "x_pitch.csv").read_text()
+        # every refinement was loaded before it was judged: a table rewritten under the same
+        # file name needs a reload as much as a new config does (identification, pitch and
+        # full configs, then one per round that refined something)
+        state = json.loads((out / "commission.json").read_text())
+        refined = sum(1 for e in state["rounds"] if any(e.get("added", {}).values())
+                      or "grid" in e)  # fmt: skip
+        reloads = [ln for ln in rig.gw.lines if "reloaded" in ln]
+        assert len(reloads) >= 3 + refined, (refined, reloads)
 
 
 def test_commission_resumes_after_a_kill(template: Path, tmp_path: Path) -> None:

@@ -21,6 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..compensation import PitchStage, PitchTable
+from ..compensation.cyclic import CyclicModel
+from .cyclic_fit import StationScan
 from .iso230 import iso230_axis
 from .rawdata import AxisDeviations, RawData
 
@@ -158,6 +160,73 @@ def refined_table(table: PitchTable, stage: PitchStage, dev: AxisDeviations) -> 
     fwd = np.concatenate(cols[0])[order]  # type: ignore[index]
     rev = None if cols[1] is None else np.concatenate(cols[1])[order]
     return PitchTable(pos[order], fwd, rev, table.rotary, table.source)
+
+
+#: refinement scans: points per lead and leads per scan (a mean over whole leads carries no
+#: cyclic term; 8 per lead resolve harmonics 1-3)
+SCAN_PER_LEAD = 8
+SCAN_LEADS = 1.0
+
+
+@dataclass(frozen=True)
+class ScanRefinement:
+    """A table and cyclic model refined from short scans measured with both applied."""
+
+    table: PitchTable
+    cyclic: CyclicModel
+    #: per scan: station (mm), table offset ↑ and ↓ (µm), cyclic amplitude added (µm)
+    found: tuple[tuple[float, float, float, float], ...]
+
+
+def scan_refinement(table: PitchTable, stage: PitchStage, cyclic: CyclicModel,
+                    stations_mm: Sequence[float], scans: Sequence[StationScan]
+                    ) -> ScanRefinement:  # fmt: skip
+    """Fold short scans (residuals with the table and the cyclic term on) into both: each
+    scan's mean per direction at its centre (a least-squares level with a slope and the
+    harmonics: no cyclic term aliased into it) becomes a table point, its harmonics a new
+    cyclic station (the model's amplitudes there plus the residual's), kept where it is at
+    least a lead from every other station. Table points closer than ``MIN_SPACING_MM`` to
+    an existing one are left out."""
+    k = cyclic.harmonics
+    lead = cyclic.lead_mm
+    new_x, fwd, rev, found = [], [], [], []
+    st_new: list[tuple[float, np.ndarray, np.ndarray]] = []
+    for centre, scan in zip(stations_mm, scans):
+        x, d = scan.position_mm, scan.deviation_mm
+        theta = 2 * np.pi * (x - cyclic.origin_mm) / lead
+        cols = [np.ones_like(x), (x - centre) / lead, (scan.direction < 0).astype(np.float64)]
+        for h in range(1, k + 1):
+            cols += [np.sin(h * theta), np.cos(h * theta)]
+        coef = np.linalg.lstsq(np.column_stack(cols), d, rcond=None)[0]
+        up, down = float(coef[0]), float(coef[0] + coef[2])
+        a0, b0 = cyclic.amplitudes_mm(np.array([centre]))
+        da, db = coef[3::2], coef[4::2]
+        st_new.append((float(centre), a0[0] + da, b0[0] + db))
+        found.append((float(centre), up * 1e3, down * 1e3,
+                      float(np.sum(np.hypot(da, db))) * 1e3))  # fmt: skip
+        if np.min(np.abs(table.position_mm - centre)) >= MIN_SPACING_MM and \
+                (not new_x or np.min(np.abs(np.array(new_x) - centre)) >= MIN_SPACING_MM):
+            p = np.array([centre])
+            new_x.append(float(centre))
+            fwd.append(float(stage.inverse(p, np.array([1]))[0] - centre) + up)
+            rev.append(float(stage.inverse(p, np.array([-1]))[0] - centre) + down)
+    pos = np.concatenate([table.position_mm, new_x])
+    order = np.argsort(pos, kind="stable")
+    f = np.concatenate([table.forward_mm, fwd])[order]
+    r = None if table.reverse_mm is None else np.concatenate([table.reverse_mm, rev])[order]
+    if table.reverse_mm is None:  # a one-direction table: the mean of both
+        f = np.concatenate([table.forward_mm, (np.array(fwd) + np.array(rev)) / 2])[order]
+    new_table = PitchTable(pos[order], f, r, table.rotary, table.source)
+    stations = [(float(s), a, b) for s, a, b in zip(cyclic.station_mm, cyclic.sin_mm,
+                                                     cyclic.cos_mm)]  # fmt: skip
+    for s, a, b in st_new:
+        if all(abs(s - o[0]) >= lead for o in stations):
+            stations.append((s, a, b))
+    stations.sort(key=lambda e: e[0])
+    model = CyclicModel(lead, np.array([s[0] for s in stations]),
+                        np.array([s[1] for s in stations]), np.array([s[2] for s in stations]),
+                        cyclic.origin_mm, cyclic.source)  # fmt: skip
+    return ScanRefinement(new_table, model, tuple(found))
 
 
 def denser_grid(nx: int, ny: int, limit: int = 33) -> tuple[int, int]:

@@ -39,7 +39,7 @@ import numpy as np
 
 from ..compensation import PitchStage
 from ..config import GatewayConfig
-from ..formats import atomic_write_text, read_pitch_csv
+from ..formats import atomic_write_text, read_cyclic, read_pitch_csv, write_cyclic
 from . import adaptive
 from .commission_steps import (
     BudgetSpent,
@@ -47,6 +47,7 @@ from .commission_steps import (
     Steps,
     _plain,
 )
+from .cyclic_fit import scans_from_raw
 from .fit import planar_measurement
 from .iso230 import iso230_axis
 from .machine import MachineError
@@ -383,7 +384,10 @@ class Commission(Steps):
         if name == "XY":
             model = self.config_dir / str(self.tables.planar_model)
             return [model, model.parent / "xy_points.csv"]
-        return [self.config_dir / self.tables.pitch[name]]
+        files = [self.config_dir / self.tables.pitch[name]]
+        if name in self.tables.cyclic:  # refinement scans add cyclic stations too
+            files.append(self.config_dir / self.tables.cyclic[name])
+        return files
 
     def _keep_best(self, name: str, score: float, r: int) -> bool:
         """Record round ``r``'s verification score (µm) of an axis or the plane. A better
@@ -439,30 +443,54 @@ class Commission(Steps):
         return planar_figures(self.raw(name), self.s.planar)
 
     async def _refine_axis(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> int:
-        """New table points at the midpoints of the failing spans; their values from the
-        residual measured there with the table on (measured now where not yet). Returns
-        how many points were added."""
+        """New table points in the failing spans (each cut in ``REFINE_PARTS``); their values
+        from the residual measured there with the table on. With a cyclic term, each new
+        point is a short scan over a whole lead: its mean gives the point (no cyclic term
+        aliased into it) and its harmonics a new cyclic station. Returns the points added."""
+        from .outputs import check_cyclic, check_pitch, write_table
+
         path = self.config_dir / self.tables.pitch[axis]
         table = read_pitch_csv(path)
         mids = adaptive.midpoints_mm(table.position_mm, verdict.failing_spans,
                                      adaptive.REFINE_PARTS)  # fmt: skip
         if mids.size == 0:
             return 0
-        await self.step(f"refine{r}-{axis}", lambda: targets_plan(
-            axis, self._travel(axis), mids, self.s.verify_runs, kind="iso230-refine",
-            round=r), "on", self._park(axis))  # fmt: skip
-        dev = axis_deviations(self.raw(f"refine{r}-{axis}"), axis)
-        stage = PitchStage(table, "linear")
-        new = adaptive.refined_table(table, stage, dev)
         config, _ = self.staged("full" if self.tables.planar_model else "pitch")
+        stage = PitchStage(table, "linear")
+        cyclic_path = self.config_dir / self.tables.cyclic[axis] if axis in self.tables.cyclic \
+            else None  # fmt: skip
+        model = None
+        if cyclic_path is not None:
+            model = read_cyclic(cyclic_path)
+            lead = model.lead_mm
+            half = 0.5 * adaptive.SCAN_LEADS * lead + 1.0
+            lo, hi = self._travel(axis)
+            stations = np.unique(np.round(np.clip(mids, lo + half, hi - half), 4))
+            await self.step(f"refine{r}-{axis}", lambda: cyclic_plan(
+                axis, (lo, hi), lead, stations.tolist(), per_lead=adaptive.SCAN_PER_LEAD,
+                leads=adaptive.SCAN_LEADS, kind="refine-scan"), "on", self._park(axis),
+                whole=True)  # fmt: skip
+            where, scans = scans_from_raw(self.raw(f"refine{r}-{axis}"), axis, lead,
+                                          stations.tolist())  # fmt: skip
+            ref = adaptive.scan_refinement(table, stage, model, where, scans)
+            new, new_model = ref.table, ref.cyclic
+        else:
+            await self.step(f"refine{r}-{axis}", lambda: targets_plan(
+                axis, self._travel(axis), mids, self.s.verify_runs, kind="iso230-refine",
+                round=r), "on", self._park(axis))  # fmt: skip
+            dev = axis_deviations(self.raw(f"refine{r}-{axis}"), axis)
+            new, new_model = adaptive.refined_table(table, stage, dev), None
         try:
-            from .outputs import check_pitch, write_table
-
             check_pitch(new, config, axis)
+            if new_model is not None:
+                check_cyclic(new_model, config, axis)
         except Exception as exc:  # a refinement the gateway would refuse: keep the table
             self.state["notes"].append(f"{axis}: refinement {r} not applied: {exc}")
             return 0
         write_table(path, "csv", new, f"compgw commission: refined in round {r}")
+        if new_model is not None and cyclic_path is not None:
+            write_cyclic(cyclic_path, new_model, {"fitted": "compgw commission: refined in "
+                                                  f"round {r}"})  # fmt: skip
         added = int(new.position_mm.size - table.position_mm.size)
         x = new.position_mm
         self.state.setdefault("spans", {})[axis] = [

@@ -9,6 +9,7 @@ own file and reloaded; :meth:`Steps.restore` puts the user's back.
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import json
 import shutil
@@ -153,9 +154,11 @@ class Steps:
         base = self.state.get("drift_base")
         text = HEADER.format(phase=phase, original=self._rel(self.original_path))
         text += yaml.safe_dump(self.phase_config(phase), sort_keys=False)
+        digest = self._digest(text)
         if (base is not None and self.state.get("phase") == phase == base["phase"]
-                and self.s.config_path.read_text() == text):
-            return  # loaded already: nothing to switch
+                and self.s.config_path.read_text() == text
+                and self.state.get("loaded") == digest):
+            return  # loaded already, tables and all: nothing to switch
         before = None
         if base is not None and self.state.get("phase") == base["phase"]:
             last = self.state.get("last_refs")  # read since the last moves: the same state
@@ -164,6 +167,7 @@ class Steps:
         atomic_write_text(self.s.config_path, text)
         await self.reload_fn()
         self.state["phase"] = phase
+        self.state["loaded"] = digest
         after = await self._measure_refs()
         drift = {a: [0.0, 0.0] for a in self.s.axes}
         if base is not None:
@@ -178,6 +182,14 @@ class Steps:
             a: [after[a][k] - drift[a][k] for k in (0, 1)] for a in self.s.axes}}
         self.state["drift_last"] = drift
         self._save()
+
+    def _digest(self, text: str) -> str:
+        """What the gateway loads: the config text and every table file it names (a
+        refinement rewrites a table under the same name: the gateway must reload it)."""
+        h = hashlib.sha256(text.encode())
+        for path in sorted((self.dir / "tables").glob("*.*")):
+            h.update(path.name.encode() + b"\0" + path.read_bytes())
+        return h.hexdigest()
 
     def _ref_positions(self, axis: str) -> tuple[float, float]:
         lo, hi = self._travel(axis)
@@ -280,10 +292,12 @@ class Steps:
         return name in self.state["steps"]
 
     async def step(self, name: str, make: Callable[[], Plan], compensation: str,
-                   park: dict[str, float] | None = None, drift: bool = True) -> Path:
+                   park: dict[str, float] | None = None, drift: bool = True,
+                   whole: bool = False) -> Path:
         """Run the plan ``make()`` as step ``name`` (once: a done step is skipped; a step
         begun resumes from its raw file with its saved plan); its raw file. ``drift``: the
-        drift references are read before and after it (see :meth:`raw`)."""
+        drift references are read before and after each of its runs (see :meth:`raw`);
+        ``whole``: around the whole plan only (many short runs)."""
         raw = self.dir / "raw" / f"{name}.csv"
         if self.done(name):
             return raw
@@ -303,7 +317,7 @@ class Steps:
         self.say(f"{name}: {sum(m.measured for m in plan.moves)} readings, "
                  f"{cost_s / 60:.1f} min of machine time ({compensation})")
         drifting = drift and "drift_base" in self.state
-        parts = _parts(plan) if drifting else [plan]
+        parts = _parts(plan) if drifting and not whole else [plan]
         done_parts = self.state.setdefault("parts", {}).setdefault(name, [])
         for k, part in enumerate(parts):
             if k < len(done_parts):

@@ -339,6 +339,12 @@ def fit_cyclic_raw(
         sin[:, : current.harmonics] += a
         cos[:, : current.harmonics] += b
     model = CyclicModel(lead, st[order], sin, cos, origin, source=str(path))
+    check_cyclic(model, config, axis)
+    return CyclicResult(axis, path, fit, model, residual)
+
+
+def check_cyclic(model: CyclicModel, config: GatewayConfig, axis: str) -> None:
+    """The gateway's load checks of a cyclic term: its stage builds, and the cap."""
     comp = config.axes[axis].compensation
     try:
         CyclicStage(model, config.axes[axis].travel_mm, TURN_DEG if config.axes[axis].wraps
@@ -346,9 +352,8 @@ def fit_cyclic_raw(
     except CompensationError as exc:
         raise TableError(str(exc)) from None
     if model.peak_mm() > comp.max_correction_mm:
-        raise TableError(f"{path}: cyclic peak {model.peak_mm():.6g} mm exceeds "
+        raise TableError(f"{model.source}: cyclic peak {model.peak_mm():.6g} mm exceeds "
                          f"max_correction_mm {comp.max_correction_mm:g}")  # fmt: skip
-    return CyclicResult(axis, path, fit, model, residual)
 
 
 def _pad(values: np.ndarray, k: int) -> np.ndarray:

@@ -565,6 +565,7 @@ def cyclic_plan(
     takeup_mm: float = 1.0,
     speed_mm_s: float | None = None,
     dwell_s: float | None = None,
+    kind: str = "cyclic",
 ) -> Plan:
     """Dense scans for the cyclic (once-per-lead) screw error, issue 7.
 
@@ -574,8 +575,20 @@ def cyclic_plan(
     points measured going down (−). The take-up distance must exceed the backlash, so every
     point of a direction is approached with the play taken up the same way. Run number =
     station number (1, 2, …), so each scan is one run of the raw file.
+
+    ``kind="refine-scan"``: commissioning's short scans (``per_lead`` ≥ 8 over ``leads`` ≥ 1)
+    that give a new table point its value as a mean over whole leads (no cyclic term
+    aliased into it) and the cyclic term a new station.
     """
     from .cyclic_fit import dense_scan_targets
+
+    def scan_targets(station: float) -> NDArray[np.float64]:
+        if kind == "cyclic":
+            return dense_scan_targets(station, lead_mm, per_lead=per_lead, leads=leads)
+        if per_lead < 8 or leads < 1:
+            raise TableError("a refinement scan needs ≥ 8 points per lead over ≥ 1 lead")
+        half = 0.5 * leads * lead_mm
+        return np.linspace(station - half, station + half, round(per_lead * leads) + 1)
 
     if not (math.isfinite(lead_mm) and lead_mm > 0):
         raise ValueError(f"lead_mm {lead_mm!r} must be > 0")
@@ -586,8 +599,7 @@ def cyclic_plan(
     moves: list[Move] = []
     for j, station in enumerate(stations, start=1):
         try:
-            targets = _round(dense_scan_targets(float(station), lead_mm, per_lead=per_lead,
-                                                leads=leads))  # fmt: skip
+            targets = _round(scan_targets(float(station)))
         except TableError as exc:
             raise ValueError(str(exc)) from None
         below = float(_round(max(lo, targets[0] - takeup_mm)))
@@ -599,11 +611,11 @@ def cyclic_plan(
             Move(j, -1, "measure", (float(t),), speed_mm_s, dwell_s) for t in targets[::-1]
         ]
     meta = _meta(
-        kind="cyclic", axis=axis, travel_mm=(lo, hi), lead_mm=float(lead_mm),
+        kind=kind, axis=axis, travel_mm=(lo, hi), lead_mm=float(lead_mm),
         stations_mm=tuple(float(s) for s in stations), per_lead=per_lead,
         leads=float(leads), takeup_mm=float(takeup_mm),
     )  # fmt: skip
-    return Plan("cyclic", (axis,), tuple(moves), meta)
+    return Plan(kind, (axis,), tuple(moves), meta)
 
 
 def plan_time_s(
