@@ -395,7 +395,8 @@ def manual(run: MachineRun) -> WorkflowResult:
 
 def commission(run: MachineRun) -> WorkflowResult:
     """`compgw commission`: one command, the leads from the machine's data sheet
-    (machine.json), the Δa sensor when there is one, tolerance 2 µm; started cold."""
+    (machine.json), the Δa or temperature sensors when there are, tolerance 2 µm; started
+    cold."""
     data = run.base_config()
     data["status"]["remote_control"] = True  # it reloads the gateway through the status unit
     kind = thermal_setup(run, data)
@@ -410,6 +411,10 @@ def commission(run: MachineRun) -> WorkflowResult:
         args += ["--lead-mm", ",".join(leads)]
     if kind == "delta_a":
         args += ["--delta-a", run.instrument(10, 1)]
+    elif kind == "temperature":  # the sensors' unit; registers from the thermal sources
+        unit = next(s["unit"] for s in data["thermal_sources"].values()
+                    if s.get("kind") == "temperature")  # fmt: skip
+        args += ["--temperature", run.instrument(unit)]
     notes = []
     try:
         run.compgw(*args)

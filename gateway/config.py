@@ -298,6 +298,10 @@ class AxisThermal(Model):
     source: str
     length_mm: Positive
     origin_mm: float = 0.0
+    #: Δa used = gain × the source's Δa: the screw is not at the sensor's temperature (a
+    #: temperature sensor on the nut housing, heat uneven along the screw); fitted by
+    #: ``compgw commission --temperature`` from a warm-up
+    gain: float = Field(default=1.0, gt=0.0, le=10.0)
 
 
 class Compensation(Model):

@@ -509,8 +509,9 @@ class SensorSet:
         return any(s.alarm for s in self.sensors.values())
 
     def delta_a_mm_for(self, thermal: AxisThermal) -> float | None:
-        """Δa for an axis thermal setting (its source and length)."""
-        return self.sensors[thermal.source].delta_a_mm_for(thermal.length_mm)
+        """Δa for an axis thermal setting (its source, length and gain)."""
+        d = self.sensors[thermal.source].delta_a_mm_for(thermal.length_mm)
+        return None if d is None else d * thermal.gain
 
     def axis_delta_a_mm(self, axis: str) -> float | None:
         """Δa for axis ``axis``; None when it has no thermal source or it is off.

@@ -8,12 +8,18 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway.calibration.models import choose_planar_model, pinned_measurement, thermal_fit
+from gateway.calibration.models import (
+    choose_planar_model,
+    pinned_measurement,
+    thermal_fit,
+    thermal_gain_fit,
+)
 from gateway.calibration.plans import iso230_linear_plan, warmup_plan, write_plan
 from gateway.calibration.rawdata import RawWriter, read_raw_csv
 from gateway.calibration.runner import read_raw_meta, run_plan
 from gateway.cli import main
 from gateway.compensation import PlanarMeasurement
+from gateway.compensation.errors import TableError
 from gateway.formats import read_pitch_csv
 
 CONFIG = {
@@ -65,6 +71,28 @@ def test_thermal_fit_recovers_the_length_and_a_wrong_sign_is_refused(tmp_path):
     assert fit.length_mm == pytest.approx(750.0, rel=0.01)
     assert fit.gain == pytest.approx(800.0 / 750.0, rel=0.01)
     assert fit.residual_rms_um < 0.4
+
+
+def test_thermal_gain_fit_recovers_how_much_the_screw_follows_its_sensor(tmp_path):
+    """A screw growing 0.8× what α·ΔT at its sensor predicts (the sensor runs hotter than
+    the screw's mean): the fit finds 0.8; a sensor that saw no rise is refused by name."""
+    rng = np.random.default_rng(4)
+    path = tmp_path / "warm.csv"
+    temp_c = 21.0 + 4.0 * (1 - np.exp(-np.arange(31) / 10.0))
+    with RawWriter(path, ["temperature_c"]) as w:
+        for k, t in enumerate(temp_c):
+            growth = 0.8 * 11.5e-6 * (t - temp_c[0]) * (600.0 - 50.0)  # origin at 50 mm
+            w.append("X", k + 1, "+", 600.0, 600.002 + growth + rng.normal(0, 2e-4),
+                     temperature_c=round(float(t + rng.normal(0, 0.01)), 2))  # fmt: skip
+    fit = thermal_gain_fit(read_raw_csv(path), "X", origin_mm=50.0, alpha_per_k=11.5e-6)
+    assert fit.gain == pytest.approx(0.8, abs=0.03)
+    assert fit.residual_rms_um < 0.4
+    flat = tmp_path / "flat.csv"
+    with RawWriter(flat, ["temperature_c"]) as w:
+        for k in range(10):
+            w.append("X", k + 1, "+", 600.0, 600.002 + k * 1e-3, temperature_c=21.0)
+    with pytest.raises(TableError, match="no temperature rise"):
+        thermal_gain_fit(read_raw_csv(flat), "X", origin_mm=50.0, alpha_per_k=11.5e-6)
 
 
 def test_planar_choice_by_cross_validation_and_pinning():

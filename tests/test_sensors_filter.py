@@ -231,6 +231,24 @@ def test_temperature_source_converts_per_axis_length() -> None:
     assert sensor.filter.settings.noise_mm == pytest.approx(2 * 0.01 * 11.5e-6 * 800)
 
 
+def test_an_axis_gain_scales_its_delta_a_and_is_reloadable() -> None:
+    """``compensation.thermal.gain`` (fitted by commissioning when the sensor is not at the
+    screw's temperature) scales the axis's Δa; the source itself is untouched."""
+    from gateway.config import AxisThermal
+    from gateway.sensors import SensorSet
+
+    src = _source(kind="temperature", scale_c=0.01, alpha_per_k=11.5e-6, reference_c=20.0,
+                  smoothing=1.0)
+    sensor = ThermalSensor("t", src, TcpBus("127.0.0.1", 9), reference_length_mm=800.0)
+    for i in range(3):
+        sensor.filter.step(float(i), sensor.to_delta_a_mm(2300))  # 23.00 °C
+    sensors = SensorSet({"t": sensor}, {"X": AxisThermal(source="t", length_mm=800.0)})
+    assert sensors.axis_delta_a_mm("X") == pytest.approx(11.5e-6 * 800 * 3.0)
+    sensors.set_axis_thermal({"X": AxisThermal(source="t", length_mm=800.0, gain=0.8)})
+    assert sensors.axis_delta_a_mm("X") == pytest.approx(0.8 * 11.5e-6 * 800 * 3.0)
+    assert sensor.delta_a_mm_for(800.0) == pytest.approx(11.5e-6 * 800 * 3.0)
+
+
 def test_temperature_source_needs_positive_alpha() -> None:
     with pytest.raises(ValueError, match="alpha_per_k"):
         ThermalSensor("t", _source(kind="temperature", alpha_per_k=0.0),

@@ -51,7 +51,7 @@ from .cyclic_fit import scans_from_raw
 from .fit import planar_measurement
 from .iso230 import iso230_axis
 from .machine import MachineError
-from .models import thermal_fit
+from .models import thermal_fit, thermal_gain_fit
 from .outputs import (
     fit_cyclic_raw,
     fit_pitch,
@@ -73,7 +73,7 @@ from .plans import (
     xy_grid_plan,
     xy_verification_plan,
 )
-from .rawdata import axis_deviations, read_raw_csv
+from .rawdata import RawData, axis_deviations, read_raw_csv
 from .runner import read_raw_meta
 from .session import planar_figures
 
@@ -131,14 +131,25 @@ class Commission(Steps):
         self._save()
 
     def _thermal(self, axis: str) -> bool:
+        """A warm-up identifies this axis's thermal setting: its length from a Δa sensor
+        (--delta-a), or its gain from a temperature source (--temperature)."""
         th = self.config.axes[axis].compensation.thermal
-        return th is not None and self.s.instruments.delta_a is not None
+        if th is None:
+            return False
+        if self.config.thermal_sources[th.source].kind == "temperature":
+            return self.s.instruments.temperature is not None
+        return self.s.instruments.delta_a is not None
 
     def _warmup_plan(self, axis: str) -> Plan:
+        """Cycling over the travel; read at the end farthest from the screw's fixed end
+        (the thermal origin), where the growth is largest against the noise."""
         lo, hi = self._travel(axis)
         margin = 0.05 * (hi - lo)
+        th = self.config.axes[axis].compensation.thermal
+        origin = th.origin_mm if th is not None else lo
+        ref = hi - margin if abs(hi - origin) >= abs(lo - origin) else lo + margin
         return warmup_plan(axis, (lo + margin, hi - margin), self.s.speed_mm_s,
-                           self.s.warmup_s, hi - margin)  # fmt: skip
+                           self.s.warmup_s, ref)  # fmt: skip
 
     def _iso_plan(self, axis: str) -> Plan:
         lead = self.s.lead_mm.get(axis)
@@ -215,18 +226,13 @@ class Commission(Steps):
         results = self.state.setdefault("identify", {})
         for a in self.s.axes:
             travel = self._travel(a)
-            if self._thermal(a) and a not in self.tables.thermal_length_mm:
+            if self._thermal(a) and a not in self.tables.thermal_length_mm and \
+                    a not in self.tables.thermal_gain:
                 await self.use("warmup")
                 raw = await self.step(f"warmup-{a}", lambda a=a: self._warmup_plan(a), "off",
                                       drift=False)  # fmt: skip
-                th = self.config.axes[a].compensation.thermal
-                assert th is not None
-                tf = thermal_fit(read_raw_csv(raw), a, th.origin_mm, th.length_mm)
-                self.tables.thermal_length_mm[a] = float(tf.length_mm)
-                results[f"thermal-{a}"] = {"length_mm": tf.length_mm,
-                                           "growth_max_um": tf.growth_max_um,
-                                           "residual_rms_um": tf.residual_rms_um}  # fmt: skip
-                await self.use("identification")  # with the length
+                results[f"thermal-{a}"] = self._fit_thermal(a, read_raw_csv(raw))
+                await self.use("identification")  # with the length or gain
             await self.step(f"backlash-{a}", lambda a=a, t=travel: backlash_plan(a, t), "off",
                             self._park(a))  # fmt: skip
             b = backlash_from_raw(self.raw(f"backlash-{a}"), a)
@@ -243,6 +249,23 @@ class Commission(Steps):
             await self.step("before-xy", lambda: self._xy_check_plan(10_000 + self.s.seed,
                                                                     self.s.grid), "off")
         self._save()
+
+    def _fit_thermal(self, axis: str, raw: RawData) -> dict[str, float]:
+        """The warm-up's fit: a Δa source's length, or a temperature source's gain."""
+        th = self.config.axes[axis].compensation.thermal
+        assert th is not None
+        src = self.config.thermal_sources[th.source]
+        if src.kind == "temperature":
+            g = thermal_gain_fit(raw, axis, th.origin_mm, src.alpha_per_k)
+            self.tables.thermal_gain[axis] = g.gain
+            self.say(f"{axis}: the screw grows {g.gain:.2f}× what its sensor's "
+                     f"{g.temperature_rise_K:.2f} K predict: thermal gain {g.gain:.3f}")
+            return {"gain": g.gain, "growth_max_um": g.growth_max_um,
+                    "residual_rms_um": g.residual_rms_um, "rise_K": g.temperature_rise_K}
+        tf = thermal_fit(raw, axis, th.origin_mm, th.length_mm)
+        self.tables.thermal_length_mm[axis] = float(tf.length_mm)
+        return {"length_mm": tf.length_mm, "growth_max_um": tf.growth_max_um,
+                "residual_rms_um": tf.residual_rms_um}
 
     def _before_plan(self, axis: str) -> Plan:
         """The targets judged before and after: random, off the coarse table's points."""

@@ -12,6 +12,7 @@ import subprocess
 import sys
 from collections.abc import Awaitable, Callable
 from pathlib import Path
+from typing import Any
 
 from ..compensation.errors import CompensationError, TableError
 from ..config import ConfigError, GatewayConfig, load_config
@@ -44,6 +45,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--delta-a", metavar="HOST:PORT:UNIT[:ADDRESS]",
                    help="Δa sensor: a warm-up fits the thermal length of axes with a "
                    "thermal source")  # fmt: skip
+    p.add_argument("--temperature", metavar="HOST:PORT:UNIT",
+                   help="where the screw temperature sensors answer (their registers: the "
+                   "config's thermal sources): a warm-up fits the gain of axes with a "
+                   "temperature source")  # fmt: skip
     p.add_argument("--no-wait-stable", action="store_true", help="read the instruments at "
                    "once (they have no stable flag)")  # fmt: skip
     p.add_argument("--axes", metavar="X,Y", help="axes to commission (default: all)")
@@ -95,11 +100,28 @@ def gateway_endpoint(args: argparse.Namespace, config: GatewayConfig):  # type: 
     return Endpoint.parse(f"{host}:{tcp.port}")
 
 
+#: how long a reload may take the gateway (s): tables rebuilt, on a busy machine
+RELOAD_TIMEOUT_S = 30.0
+
+
+async def _modbus(call: Awaitable[Any], what: str) -> Any:
+    """``call``, with pymodbus's exceptions (a timeout, a lost connection) as MachineError."""
+    from pymodbus.exceptions import ModbusException
+
+    from .machine import MachineError
+
+    try:
+        return await call
+    except ModbusException as exc:
+        raise MachineError(f"the gateway: {what}: {exc}") from exc
+
+
 def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
                 ) -> Callable[[], Awaitable[None]]:  # type: ignore[no-untyped-def]
     """How the gateway is made to load its config file again, checked by the status
     unit's config generation (a refused config is an error naming why to look)."""
     from pymodbus.client import AsyncModbusTcpClient
+    from pymodbus.exceptions import ModbusException
 
     from ..modbus.frames import unpack_int32
     from ..status import GENERATION_REGISTER, RELOAD_REGISTER
@@ -114,28 +136,33 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
         return unpack_int32(rr.registers[:2], "hi_lo", signed=False), rr.registers[2]
 
     async def reload() -> None:
-        client = AsyncModbusTcpClient(gateway.host, port=gateway.port, timeout=5, retries=0)
+        # the gateway answers the reload write once it has loaded the tables: on a loaded
+        # machine that can take seconds; a lost reply is judged by the generation after it
+        client = AsyncModbusTcpClient(gateway.host, port=gateway.port, timeout=RELOAD_TIMEOUT_S,
+                                      retries=1)  # fmt: skip
         if not await client.connect():
             raise MachineError(f"no gateway at {gateway.host}:{gateway.port}")
         try:
-            before, _ = await generation(client)
+            before, _ = await _modbus(generation(client), "reading its config generation")
             if args.reload_pid or args.reload_cmd:
                 if args.reload_pid:
                     os.kill(args.reload_pid, signal.SIGHUP)
                 else:
                     subprocess.run(shlex.split(args.reload_cmd), check=True)
-                for _ in range(200):
-                    now, refused = await generation(client)
-                    if now != before or refused:
-                        break
-                    await asyncio.sleep(0.05)
             else:
-                rr = await client.write_register(RELOAD_REGISTER, 1, device_id=unit)
-                if rr.isError() and rr.exception_code == 0x01:
+                try:
+                    rr = await client.write_register(RELOAD_REGISTER, 1, device_id=unit)
+                except ModbusException:
+                    rr = None  # the generation says whether it was taken
+                if rr is not None and rr.isError() and rr.exception_code == 0x01:
                     raise MachineError("the gateway refuses to reload over Modbus: set "
                                        "status.remote_control: true, or give --reload-pid or "
                                        "--reload-cmd")  # fmt: skip
-            now, refused = await generation(client)
+            for _ in range(int(RELOAD_TIMEOUT_S / 0.05)):
+                now, refused = await _modbus(generation(client), "reading its config generation")
+                if now != before or refused:
+                    break
+                await asyncio.sleep(0.05)
             if now == before:
                 why = "refused the config (see its log)" if refused else "did not reload"
                 raise MachineError(f"the gateway {why}")
@@ -146,6 +173,8 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
 
 
 def main(args: argparse.Namespace) -> int:
+    from pymodbus.exceptions import ModbusException
+
     from .commission import Commission, parse_leads
     from .commission_report import summary_lines
     from .commission_report import write as write_report
@@ -183,6 +212,7 @@ def main(args: argparse.Namespace) -> int:
                 laser_axes=args.laser_axes.split(",") if args.laser_axes else None,
                 xy=Endpoint.parse(args.xy_device) if args.xy_device else None,
                 delta_a=Endpoint.parse(args.delta_a) if args.delta_a else None,
+                temperature=Endpoint.parse(args.temperature) if args.temperature else None,
                 wait_stable=not args.no_wait_stable,
             ),
             axes=axes, planar=plane, lead_mm=parse_leads(args.lead_mm, axes),
@@ -238,10 +268,11 @@ def main(args: argparse.Namespace) -> int:
         where = asyncio.run(_restore(job))
         _err(f"{exc}; {where}")
         return EXIT_NOT_MET
-    except (MachineError, OSError) as exc:
+    except (MachineError, OSError, ModbusException) as exc:  # a timeout, a lost link
         where = asyncio.run(_restore(job))
-        _err(f"{exc}; {where}")
+        _err(f"{exc}; {where}; run the same command again to resume")
         return EXIT_RUNTIME
+
     def load(step: str):  # type: ignore[no-untyped-def]
         return job.raw(step) if job.done(step) else None
 

@@ -24,12 +24,14 @@ class Tables:
     pitch: dict[str, str] = field(default_factory=dict)  # axis → table CSV
     cyclic: dict[str, str] = field(default_factory=dict)  # axis → cyclic YAML
     thermal_length_mm: dict[str, float] = field(default_factory=dict)
+    thermal_gain: dict[str, float] = field(default_factory=dict)  # temperature sources
     planar_model: str | None = None
     planar_axes: tuple[str, str] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {"pitch": self.pitch, "cyclic": self.cyclic,
                 "thermal_length_mm": self.thermal_length_mm,
+                "thermal_gain": self.thermal_gain,
                 "planar_model": self.planar_model,
                 "planar_axes": list(self.planar_axes) if self.planar_axes else None}  # fmt: skip
 
@@ -38,6 +40,7 @@ class Tables:
         axes = data.get("planar_axes")
         return cls(dict(data.get("pitch", {})), dict(data.get("cyclic", {})),
                    {k: float(v) for k, v in data.get("thermal_length_mm", {}).items()},
+                   {k: float(v) for k, v in data.get("thermal_gain", {}).items()},
                    data.get("planar_model"), tuple(axes) if axes else None)  # type: ignore[arg-type]  # fmt: skip
 
 
@@ -54,6 +57,8 @@ def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tabl
         comp["enabled"] = True
         if name in tables.thermal_length_mm and comp.get("thermal"):
             comp["thermal"] = {**comp["thermal"], "length_mm": tables.thermal_length_mm[name]}
+        if name in tables.thermal_gain and comp.get("thermal"):
+            comp["thermal"] = {**comp["thermal"], "gain": round(tables.thermal_gain[name], 4)}
         data["axes"][name]["compensation"] = comp
     if tables.planar_axes is not None or set(axes) & set((data.get("planar") or {}).get(
             "axes", ())):  # fmt: skip

@@ -303,6 +303,29 @@ class XYDevice:
 
 
 @dataclass
+class TemperatureSensor:
+    """A screw temperature sensor read as the config's thermal source reads it: its
+    register (address, table, words, word order, sign) times ``scale_c`` (°C per count)."""
+
+    link: Link
+    unit: int
+    address: int = 0
+    scale_c: float = 0.01
+    words: int = 1
+    table: str = "input"
+    order: str = "hi_lo"
+    signed: bool = True
+
+    async def read_c(self) -> float:
+        regs = await self.link.read(self.unit, self.address, self.words, self.table)
+        if self.words == 2:
+            counts = unpack_int32(regs, self.order, signed=self.signed)  # type: ignore[arg-type]
+        else:
+            counts = regs[0] - 0x10000 if self.signed and regs[0] & 0x8000 else regs[0]
+        return counts * self.scale_c
+
+
+@dataclass
 class DeltaASensor:
     """Displacement sensor at the screw's reference point A: Δa in mm (int32 nm)."""
 

@@ -197,6 +197,51 @@ def thermal_fit(
                       float(np.abs(resid).max() * UM_PER_MM), int(rows.size))  # fmt: skip
 
 
+@dataclass(frozen=True)
+class ThermalGainFit:
+    """How much of a temperature source's predicted growth the screw really shows."""
+
+    axis: str
+    gain: float  # measured growth / α·ΔT·(reference − origin)
+    growth_max_um: float
+    residual_rms_um: float
+    temperature_rise_K: float
+    points: int
+
+
+def thermal_gain_fit(raw: RawData, axis: str, origin_mm: float, alpha_per_k: float
+                     ) -> ThermalGainFit:  # fmt: skip
+    """Fit the gain of a temperature source from a warm-up run (``temperature_c`` column):
+    growth at the reference = offset + gain · α · (T − T_cold) · (reference − origin).
+    A sensor that is not at the screw's temperature (on the nut housing, where the screw
+    is not hot everywhere) reads a rise the screw's growth follows only in proportion."""
+    if "temperature_c" not in raw.extra:
+        raise TableError(f"{raw.source}: a temperature warm-up needs the column "
+                         "'temperature_c'")  # fmt: skip
+    rows = np.flatnonzero(np.array(raw.axis) == axis)
+    if rows.size < 3:
+        raise TableError(f"{raw.source}: axis {axis}: a warm-up run needs at least 3 readings")
+    target = raw.target_mm[rows]
+    if np.ptp(target) > 1e-6:
+        raise TableError(f"{raw.source}: axis {axis}: warm-up readings at more than one position")
+    temp = np.array([float(v) for v in np.array(raw.extra["temperature_c"])[rows]])
+    growth = raw.actual_mm[rows] - raw.actual_mm[rows[0]]
+    rise = temp - temp[0]
+    predicted = alpha_per_k * rise * (float(target[0]) - origin_mm)
+    if np.ptp(rise) < 0.05 or not np.any(predicted != 0):
+        raise TableError(f"{raw.source}: axis {axis}: the sensor saw no temperature rise "
+                         f"({np.ptp(rise):.3f} K) during the warm-up: is it on this screw?")
+    design = np.column_stack([np.ones_like(predicted), predicted])
+    (offset, gain), *_ = np.linalg.lstsq(design, growth, rcond=None)
+    if gain <= 0:
+        raise TableError(f"{raw.source}: axis {axis}: the growth does not follow the "
+                         "temperature (check the sensor's axis and the thermal origin_mm)")
+    resid = growth - offset - gain * predicted
+    return ThermalGainFit(axis, float(gain), float(np.abs(growth).max() * UM_PER_MM),
+                          float(np.sqrt(np.mean(resid**2)) * UM_PER_MM),
+                          float(np.ptp(rise)), int(rows.size))  # fmt: skip
+
+
 def drift_um(raw: RawData, axis: str) -> NDArray[np.float64]:
     """Deviation at the reference of a warm-up run relative to the cold reading (µm)."""
     rows = np.flatnonzero(np.array(raw.axis) == axis)

@@ -32,6 +32,7 @@ from .machine import (
     MachineDriver,
     MachineError,
     MotionSettings,
+    TemperatureSensor,
     XYDevice,
     nearest_turn_deg,
 )
@@ -51,6 +52,9 @@ class Instruments:
     laser_axes: Sequence[str] | None = None
     xy: Endpoint | None = None
     delta_a: Endpoint | None = None
+    #: where the screw temperature sensors answer (registers and scale: the config's
+    #: thermal sources); a warm-up records ``temperature_c`` of its axis's source
+    temperature: Endpoint | None = None
     #: the angle instrument of rotary axes (the laser's layout in µdeg) and its channels
     angle: Endpoint | None = None
     angle_axes: Sequence[str] | None = None
@@ -79,7 +83,10 @@ class Session:
             driver = MachineDriver(link, self.config, self.motion)
             measure = await self._measure_fn(plan, links)
             extra, names = None, ()
-            if plan.kind == "warmup" or self.instruments.delta_a is not None:
+            if plan.kind == "warmup" and self.instruments.delta_a is None and \
+                    self.instruments.temperature is not None:
+                extra, names = await self._temperature_fn(plan, links)
+            elif plan.kind == "warmup" or self.instruments.delta_a is not None:
                 extra, names = await self._delta_a_fn(links)
             if self.park:
                 await driver.move(dict(self.park))
@@ -120,6 +127,22 @@ class Session:
             return values
 
         return measure
+
+    async def _temperature_fn(self, plan: Plan, links: Links):  # type: ignore[no-untyped-def]
+        ep = self.instruments.temperature
+        assert ep is not None
+        thermal = self.config.axes[plan.axes[0]].compensation.thermal
+        if thermal is None:
+            raise MachineError(f"axis {plan.axes[0]}: no thermal source to warm up with")
+        src = self.config.thermal_sources[thermal.source]
+        reg = src.source_register
+        sensor = TemperatureSensor(await links.get(*ep.key), ep.unit, reg.address, src.scale_c,
+                                   reg.words, reg.table, reg.order, reg.signed)  # fmt: skip
+
+        async def extra(_: Move) -> Mapping[str, float]:
+            return {"temperature_c": await sensor.read_c()}
+
+        return extra, ("temperature_c",)
 
     async def _delta_a_fn(self, links: Links):  # type: ignore[no-untyped-def]
         ep = self.instruments.delta_a
