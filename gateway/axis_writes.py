@@ -1,0 +1,273 @@
+"""Writes to an axis: the target shadow, triggers, commits of the corrected target.
+
+A mixin of :class:`gateway.router.Gateway` (the routing is there): writes of the target pair
+(one FC16, the pair inside a longer FC16 block, or two single-register writes in either
+order) update the shadow of what the master wrote; the drive only ever receives a whole,
+corrected value (:meth:`AxisWrites._commit`, the chain's forward correction); a trigger
+write that fires commits the pending target first (and the planar partner's under
+``commit: on_trigger``); blocks longer than the drive accepts go out in pieces, never
+splitting a pair, the trigger's piece last. Its own module because the commit rules are a
+concern apart from the routing and from the read-back (:mod:`gateway.axis_reads`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterable
+from contextlib import AbstractAsyncContextManager
+from typing import TYPE_CHECKING
+
+from .axis import overlap
+from .compensation import AxisInput, CompensationError, CorrectionLimitError, TravelError
+from .config import Axis
+from .modbus.downstream import Bus
+from .modbus.frames import (
+    ILLEGAL_DATA_VALUE,
+    SERVER_DEVICE_FAILURE,
+    WRITE_MULTIPLE_REGISTERS,
+    ModbusError,
+    Request,
+    build_write_multiple_registers,
+    is_exception,
+    pack_int32,
+    response_for_write,
+)
+from .triggers import COIL_WRITES, Verdict, judge, writes_trigger
+
+if TYPE_CHECKING:
+    from .router import GatewayCounters, Setup, _AxisRuntime
+
+# the router's logger (this code was split from it): log settings keep working
+log = logging.getLogger("gateway.router")
+
+_NO_TRIGGER = Verdict(fires=False, homes=False)
+
+
+class AxisWrites:
+    """The write half of the axis request handler (see the module docstring)."""
+
+    buses: dict[str, Bus]
+    counters: GatewayCounters
+    _axes: dict[str, _AxisRuntime]
+    on_state_change: Callable[[], None]
+
+    if TYPE_CHECKING:  # provided by the Gateway
+        def _axis_locks(self, names: Iterable[str | None]
+                        ) -> AbstractAsyncContextManager[None]: ...
+
+        def _saw_status(self, name: str, word: int) -> None: ...
+
+        def _delta_a(self, name: str) -> float: ...
+
+    async def _write(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
+        """A register write (FC06/16), or a coil write (FC05/15) to an axis whose trigger
+        is a coil."""
+        regs = axis.registers
+        start, count = req.write_address or 0, req.write_count
+        coils = req.function in COIL_WRITES
+        target_offsets = range(0) if coils else overlap(start, count, regs.target.address)
+        trigger_hit = writes_trigger(regs.trigger, req.function, start, count)
+        if not target_offsets and not trigger_hit:
+            return await self._forward_write(name, axis, req, pdu)
+        if target_offsets and count > 1 and len(target_offsets) == 1:
+            raise ModbusError(
+                f"axis {name}: a register block must hold both words of the target",
+                ILLEGAL_DATA_VALUE,
+            )
+        runtime = self._axes[name]
+        async with self._axis_locks([name, setup.planar_partner(name)]):
+            if target_offsets:
+                first = target_offsets[0]
+                index = regs.target.address + first - start
+                words = req.values[index : index + len(target_offsets)]
+                runtime.state.write_words(first, list(words))
+            verdict = self._judge(runtime, axis, req) if trigger_hit else _NO_TRIGGER
+            if verdict.fires:
+                reply = await self._trigger_write(setup, name, axis, req, pdu)
+            elif target_offsets:
+                reply = await self._target_write(setup, name, axis, req)
+            else:
+                reply = await self._forward_write(name, axis, req, pdu)
+            if trigger_hit and not is_exception(reply):  # the drive has the trigger write
+                runtime.trigger = verdict.shadow
+                if verdict.homes:
+                    runtime.state.homing_started(axis.home_direction)
+                    self.on_state_change()
+            return reply
+
+    async def _forward_write(self, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
+        """A write the gateway does not rewrite: byte for byte, unless the block is longer
+        than the drive accepts (``fc16_max_words``): then in pieces, answered as one."""
+        if req.function == WRITE_MULTIPLE_REGISTERS and req.write_count > axis.fc16_max_words:
+            await self._send_block(name, axis, req.write_address or 0, list(req.values))
+            return response_for_write(req)
+        return await self.buses[axis.bus].transact(axis.unit, pdu)
+
+    async def _send_block(self, name: str, axis: Axis, address: int, values: list[int]) -> None:
+        """Write ``values`` at ``address`` in FC16 pieces of at most ``fc16_max_words``,
+        never splitting the target pair or a two-word trigger; a piece holding trigger
+        words goes last (never a trigger before the target it starts); an exception from
+        the drive is raised."""
+        limit = axis.fc16_max_words
+        regs = axis.registers
+        pairs = {regs.target.address}
+        trigger = range(0)
+        if regs.trigger is not None and regs.trigger.table == "holding":
+            trigger = regs.trigger.span
+            if regs.trigger.words == 2:
+                pairs.add(regs.trigger.address)
+        pieces: list[tuple[int, int]] = []
+        start = 0
+        while start < len(values):
+            end = min(start + limit, len(values))
+            if end < len(values) and address + end - 1 in pairs:
+                end -= 1  # the cut would fall between the two words of a pair
+            pieces.append((start, end))
+            start = end
+        pieces.sort(key=lambda p: any(address + i in trigger for i in range(*p)))
+        for start, end in pieces:
+            pdu = build_write_multiple_registers(address + start, values[start:end])
+            reply = await self.buses[axis.bus].transact(axis.unit, pdu)
+            if is_exception(reply):
+                raise ModbusError(f"axis {name}: drive refused a register block", reply[1])
+
+    def _judge(self, runtime: _AxisRuntime, axis: Axis, req: Request) -> Verdict:
+        """What this write of the trigger does (the shadow to take once the drive has it)."""
+        rule = axis.registers.trigger
+        assert rule is not None
+        return judge(rule, runtime.trigger, req)
+
+    async def _target_write(self, setup: Setup, name: str, axis: Axis, req: Request) -> bytes:
+        """Target words written, no trigger fired: commit now, or hold (half a pair, or a
+        planar axis with ``commit: on_trigger``)."""
+        state = self._axes[name].state
+        hold = setup.hold_until_trigger(name) and axis.registers.trigger is not None
+        if not state.pair_complete() or hold:
+            if req.function == WRITE_MULTIPLE_REGISTERS and req.write_count > 2:
+                await self._forward_around_target(name, axis, req)
+            return response_for_write(req)
+        block = req if req.write_count > 1 else None
+        await self._commit(setup, name, [], block)
+        return response_for_write(req)
+
+    async def _trigger_write(self, setup: Setup, name: str, axis: Axis, req: Request,
+                             pdu: bytes) -> bytes:
+        """A trigger write that fires: commit pending targets (the planar partner's too
+        when ``on_trigger``), then forward the trigger (or the block that holds it, its
+        target words corrected: one write)."""
+        partner = setup.planar_partner(name)
+        partners = [partner] if partner is not None and setup.hold_until_trigger(name) else []
+        target = axis.registers.target.address
+        block = None
+        if req.function not in COIL_WRITES and overlap(req.write_address or 0,
+                                                       req.write_count, target):
+            block = req
+        await self._commit(setup, name, partners, block)
+        if block is not None:
+            return response_for_write(req)
+        return await self._forward_write(name, axis, req, pdu)
+
+    async def _forward_around_target(self, name: str, axis: Axis, req: Request) -> None:
+        """Forward the words of a held block that are not the target, as sub-blocks."""
+        start = req.write_address or 0
+        target = axis.registers.target.address
+        before = req.values[: target - start]
+        after = req.values[target + 2 - start :]
+        for address, values in ((start, before), (target + 2, after)):
+            if values:
+                await self._send_block(name, axis, address, list(values))
+
+    async def _commit(
+        self, setup: Setup, owner: str, partners: list[str], block: Request | None
+    ) -> None:
+        """Correct and write the targets of ``partners`` then ``owner``.
+
+        ``block``, when given, is the owner's register block holding its target (and maybe
+        its trigger): it goes out whole with the target words corrected. Every correction
+        is computed before anything is written, so a refused target (outside travel,
+        correction above the cap) sends nothing at all.
+        """
+        plans: list[tuple[str, int, int, bool]] = []
+        for name in [*partners, owner]:
+            state = self._axes[name].state
+            if not (state.shadow_known or state.halves_written):
+                continue
+            nominal = state.nominal_target(setup.config.axes[name].registers.target.order)
+            pending = bool(state.halves_written) or state.last_nominal_pulses != nominal
+            if not pending and not (block is not None and name == owner):
+                continue
+            homed = await self._homed(name, setup.config.axes[name])
+            plans.append((name, nominal, *self._correct(setup, name, nominal, homed)))
+        for name, nominal, command, applied in plans:
+            axis = setup.config.axes[name]
+            words = list(pack_int32(command, axis.registers.target.order))
+            address, values = axis.registers.target.address, words
+            if block is not None and name == owner:
+                address, values = block.write_address or 0, list(block.values)
+                offset = axis.registers.target.address - address
+                values[offset : offset + 2] = words
+            await self._send_block(name, axis, address, values)
+            runtime = self._axes[name]
+            runtime.state.committed(nominal, command)
+            runtime.state.applied = applied
+            runtime.last_correction_mm = (command / axis.command_scale - nominal) * axis.pulse_mm
+            self.counters.commits += 1
+        if plans:
+            self.on_state_change()
+
+    async def _homed(self, name: str, axis: Axis) -> bool:
+        """Whether the drive reports homed (True when no homed bit is configured).
+
+        The status word is taken from the master's own status reads (a master polls it to
+        see a move end) or the gateway's last read when not older than the status
+        register's ``max_age_s`` (0.5 s), otherwise read from the drive now: no extra
+        transaction on a busy line, and never an answer older than that.
+        """
+        status = axis.registers.status
+        if status is None or status.homed_bit is None:
+            return True
+        runtime = self._axes[name]
+        if time.monotonic() - runtime.status_at_s > status.max_age_s or runtime.status_word is None:
+            bus = self.buses[axis.bus]
+            words = await bus.read_registers(axis.unit, status.table, status.address, 1)
+            self._saw_status(name, words[0])
+        assert runtime.status_word is not None
+        return bool(runtime.status_word >> status.homed_bit & 1)
+
+    def _correct(self, setup: Setup, name: str, nominal: int, homed: bool) -> tuple[int, bool]:
+        """Command for ``name`` in drive units (``command_scale`` per pulse) and whether
+        compensation was applied."""
+        axis_cfg = setup.config.axes[name]
+        state = self._axes[name].state
+        chain_axis = setup.chain.axes[name]
+        try:
+            chain_axis.check_travel(nominal * axis_cfg.pulse_mm)
+        except TravelError as exc:
+            self.counters.refused_travel += 1
+            log.warning("%s", exc)
+            raise ModbusError(str(exc), ILLEGAL_DATA_VALUE) from None
+        if not (state.enabled and homed):
+            return nominal * axis_cfg.command_scale, False
+        direction = state.motion.approach(nominal).direction
+        inputs = {name: AxisInput(nominal, direction, self._delta_a(name))}
+        partner = setup.planar_partner(name)
+        if partner is not None:
+            other = self._axes[partner].state
+            if other.shadow_known or other.halves_written:
+                order = setup.config.axes[partner].registers.target.order
+                other_nominal = other.nominal_target(order)
+                inputs[partner] = AxisInput(
+                    other_nominal,
+                    other.motion.approach(other_nominal).direction,
+                    self._delta_a(partner),
+                )
+        try:
+            return setup.chain.command_pulses(name, inputs, axis_cfg.command_scale), True
+        except CorrectionLimitError as exc:
+            self.counters.refused_correction += 1
+            log.error("%s: target refused", exc)
+            raise ModbusError(str(exc), SERVER_DEVICE_FAILURE) from None
+        except CompensationError as exc:
+            log.error("axis %s: target refused: %s", name, exc)
+            raise ModbusError(str(exc), SERVER_DEVICE_FAILURE) from None
