@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import workflows
 import yaml
 from evaluate import evaluate, plan
 from workflows import WORKFLOWS, MachineRun, compgw_argv
@@ -106,6 +107,8 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
                               if "thermal" in ax.get("compensation", {})]  # fmt: skip
         out["commands"] = len(run.commands)
         out["machine_h"] = (result.machine_time_s or run.machine_s) / 3600
+        if run.manual_s is not None:
+            out["manual_h"] = run.manual_s / 3600
     except Exception as exc:  # reported, the other machines go on
         out["error"] = f"{type(exc).__name__}: {exc}"
         out["traceback"] = traceback.format_exc(limit=3)
@@ -139,11 +142,14 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
         "thermal_unsensed_um": max([a["axes"][n]["thermal_um"] for n in axes
                                     if n not in sensed] or [0.0]),
         "machine_h": r.get("machine_h", float("nan")),  # the workflow's plans, as estimated
+        # against the manual workflow's plans on the same machine (when measured)
+        "vs_manual": r.get("machine_h", float("nan")) / r.get("manual_h", float("nan")),
     }  # fmt: skip
 
 
 HEAD = (f"{'machine':<24}{'E  before':>11}{'after':>7}{'cut %':>7}{'A-R':>6}{'XY before':>10}"
-        f"{'after':>7}{'cut %':>7}{'offgrid':>8}{'therm off':>10}{'on':>6}{'mach h':>7}  sensor")
+        f"{'after':>7}{'cut %':>7}{'offgrid':>8}{'therm off':>10}{'on':>6}{'mach h':>7}"
+        f"{'×man':>6}  sensor")
 
 
 def row(label: str, s: dict[str, Any], sensor: str) -> str:
@@ -152,7 +158,8 @@ def row(label: str, s: dict[str, Any], sensor: str) -> str:
             f"{s['E_cut_pct']:7.1f}"
             f"{s['A_minus_R_um']:6.2f}{s['xy_before_um']:10.1f}{s['xy_after_um']:7.2f}"
             f"{s['xy_cut_pct']:7.1f}{s['offgrid_rms_um']:8.2f}{s['thermal_off_um']:10.1f}{on}"
-            f"{s.get('machine_h', float('nan')):7.2f}  {sensor}")  # fmt: skip
+            f"{s.get('machine_h', float('nan')):7.2f}{s.get('vs_manual', float('nan')):6.2f}"
+            f"  {sensor}")  # fmt: skip
 
 
 def group_stats(results: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, float]]]:
@@ -212,12 +219,20 @@ def main() -> int:
     parser.add_argument("--without", metavar="WHAT[,WHAT...]",
                         help="take structure out of every machine's truth to see what it costs: "
                              + ", ".join(ABLATIONS))
+    parser.add_argument("--tolerance-um", type=float, default=workflows.TOLERANCE_UM,
+                        help="the tolerance given to `compgw commission` (µm, "
+                             f"{workflows.TOLERANCE_UM:g})")
+    parser.add_argument("--budget-vs-manual", type=float, metavar="F",
+                        help="give `compgw commission` F times the machine time the manual "
+                             "workflow's plans take on each machine (default: its own 8 h)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--table", type=Path, metavar="JSON",
                         help="print the table of an earlier run's --json output and exit")
     args = parser.parse_args()
     if args.table:
         return print_table(json.loads(args.table.read_text()))
+    workflows.TOLERANCE_UM = args.tolerance_um
+    workflows.BUDGET_VS_MANUAL = args.budget_vs_manual
     machines = machine_list(args.machines, args.seed, args.real)
     if args.only:
         machines = [m for m in machines if m[0] in args.only.split(",")]
@@ -252,6 +267,8 @@ def main() -> int:
     say(f"wall time {wall / 60:.1f} min; machine files in {root}")
     if args.json:
         print(json.dumps({"workflow": args.workflow, "without": without,
+                          "tolerance_um": args.tolerance_um,
+                          "budget_vs_manual": args.budget_vs_manual,
                           "wall_s": round(wall, 1), "groups": stats,
                           "machines": results}, indent=2))  # fmt: skip
     if not args.keep:

@@ -101,6 +101,8 @@ class MachineRun:
     command_wall_s: float = 0.0
     #: machine time of the plans run, as each command estimated it before moving (s)
     machine_s: float = 0.0
+    #: the manual workflow's machine time on this machine (s), when a workflow asked for it
+    manual_s: float | None = None
     _sim: subprocess.Popen[str] | None = None
     _gateway: subprocess.Popen[str] | None = None
     _gw_log: _Lines | None = None
@@ -393,10 +395,49 @@ def manual(run: MachineRun) -> WorkflowResult:
     return WorkflowResult(yaml.safe_load(gw.read_text()), merge_targets(*targets), notes)
 
 
+#: the tolerance `compgw commission` is given (µm, ISO 230-2 E and XY max vector error);
+#: accuracy.py --tolerance-um sets it
+TOLERANCE_UM = 2.0
+#: commission's machine-time budget as this many times the manual workflow's on the same
+#: machine (its plans' estimate, nothing run); None: commission's own default (8 h)
+BUDGET_VS_MANUAL: float | None = None
+
+
+def manual_machine_s(run: MachineRun) -> float:
+    """The machine time the manual workflow's plans take on this machine (s): what
+    `compgw calibrate` prints before it moves, asked without a --raw file (so nothing runs)."""
+    full = run.base_config()
+    kind = thermal_setup(run, full)
+    gw = run.write_config("gw.estimate.yaml", full)
+    names = list(full["axes"])
+    low = {a: full["axes"][a]["travel_mm"][0] for a in names}
+    asks = []
+    if kind == "delta_a":
+        axis = next(a for a in names if "thermal" in full["axes"][a]["compensation"])
+        asks.append(["--warmup", axis, "--measure-every", "2"])
+    for axis in names:
+        other = next(a for a in names if a != axis)
+        step, lead = table_step_mm(run.machine["axes"][axis])
+        asks.append(["--iso", axis, "--step-mm", f"{step:g}", "--runs", "5", "--overrun-mm",
+                     "1", "--park", f"{other}={low[other]:g}",
+                     *(["--lead-mm", f"{lead:g}"] if lead else [])])  # fmt: skip
+    asks.append(["--xy", "--grid", "9", "7", "--grid-runs", "3", "--overrun-mm", "1"])
+    total_min = 0.0
+    for ask in asks:
+        out = subprocess.run([*compgw_argv(), "calibrate", "-c", str(gw), *ask], cwd=run.work,
+                             text=True, capture_output=True, timeout=COMMAND_TIMEOUT_S)  # fmt: skip
+        found = re.findall(r"about ([\d.]+) min of machine time", out.stdout)
+        if not found:
+            raise CommandFailed(f"no machine-time estimate from calibrate {' '.join(ask)}: "
+                                f"{out.stderr.strip()[-200:]}")  # fmt: skip
+        total_min += float(found[0])
+    return 60.0 * total_min
+
+
 def commission(run: MachineRun) -> WorkflowResult:
     """`compgw commission`: one command, the leads from the machine's data sheet
-    (machine.json), the Δa or temperature sensors when there are, tolerance 2 µm; started
-    cold."""
+    (machine.json), the Δa or temperature sensors when there are, ``TOLERANCE_UM``;
+    started cold."""
     data = run.base_config()
     data["status"]["remote_control"] = True  # it reloads the gateway through the status unit
     kind = thermal_setup(run, data)
@@ -406,9 +447,13 @@ def commission(run: MachineRun) -> WorkflowResult:
              if info.get("lead_mm")]  # fmt: skip
     args = ["commission", "-c", run.work / "gw.yaml", "--gateway", run.gateway,
             "--laser", run.instrument(20), "--xy-device", run.instrument(21),
-            "--tolerance-um", "2", "--no-progress"]  # fmt: skip
+            "--tolerance-um", f"{TOLERANCE_UM:g}", "--no-progress"]  # fmt: skip
     if leads:
         args += ["--lead-mm", ",".join(leads)]
+    if BUDGET_VS_MANUAL is not None:
+        run.manual_s = manual_machine_s(run)
+        budget_h = BUDGET_VS_MANUAL * run.manual_s / 3600
+        args += ["--budget-h", f"{budget_h:.3f}"]
     if kind == "delta_a":
         args += ["--delta-a", run.instrument(10, 1)]
     elif kind == "temperature":  # the sensors' unit; registers from the thermal sources

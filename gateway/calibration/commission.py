@@ -204,6 +204,7 @@ class Commission(Steps):
             self.state["notes"].append(f"budget spent: {exc}")
             self.say(f"budget spent: {exc}")
             outcome = "budget"
+            self._restore_best()  # a refinement not yet judged is not kept
         except (MachineError, OSError) as exc:
             where = await self.restore()
             raise CommissionAborted(f"{exc}; {where}") from exc
@@ -411,6 +412,25 @@ class Commission(Steps):
         if name in self.tables.cyclic:  # refinement scans add cyclic stations too
             files.append(self.config_dir / self.tables.cyclic[name])
         return files
+
+    def reserve_s(self) -> float:
+        """The after-run (the before-run's targets again) is kept out of the budget."""
+        plans = [self.dir / "plans" / f"before-{a}.plan" for a in self.s.axes]
+        if self.s.planar is not None:
+            plans.append(self.dir / "plans" / "before-xy.plan")
+        return sum(self.estimate_s(read_plan(p)) for p in plans if p.exists())
+
+    def _restore_best(self) -> None:
+        """Put back the best table of every axis (and the plane's model) judged so far."""
+        keep = self.dir / "tables" / "best"
+        for name in self.state.get("best", {}):
+            for path in self._table_files(name):
+                saved = keep / f"{name}-{path.name}"
+                if saved.exists() and (not path.exists() or
+                                       path.read_bytes() != saved.read_bytes()):
+                    atomic_write_text(path, saved.read_text())
+                    self.state["notes"].append(f"{name}: back to its best "
+                                               f"(round {self.state['best'][name]['round']})")
 
     def _keep_best(self, name: str, score: float, r: int) -> bool:
         """Record round ``r``'s verification score (µm) of an axis or the plane. A better

@@ -108,11 +108,12 @@ async def _modbus(call: Awaitable[Any], what: str) -> Any:
     """``call``, with pymodbus's exceptions (a timeout, a lost connection) as MachineError."""
     from pymodbus.exceptions import ModbusException
 
-    from .machine import MachineError
+    from .machine import MachineError, reraise_cancel
 
     try:
         return await call
     except ModbusException as exc:
+        reraise_cancel()
         raise MachineError(f"the gateway: {what}: {exc}") from exc
 
 
@@ -125,7 +126,7 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
 
     from ..modbus.frames import unpack_int32
     from ..status import GENERATION_REGISTER, RELOAD_REGISTER
-    from .machine import MachineError
+    from .machine import MachineError, reraise_cancel
 
     unit = config.status.upstream_unit
 
@@ -153,6 +154,7 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
                 try:
                     rr = await client.write_register(RELOAD_REGISTER, 1, device_id=unit)
                 except ModbusException:
+                    reraise_cancel()
                     rr = None  # the generation says whether it was taken
                 if rr is not None and rr.isError() and rr.exception_code == 0x01:
                     raise MachineError("the gateway refuses to reload over Modbus: set "

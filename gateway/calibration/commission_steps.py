@@ -288,6 +288,10 @@ class Steps:
     def estimate_s(self, plan: Plan) -> float:
         return plan_time_s(plan, self.s.speed_mm_s, self.s.stop_s)
 
+    def reserve_s(self) -> float:
+        """Machine time kept back from every step for the steps that must end the job."""
+        return 0.0
+
     def done(self, name: str) -> bool:
         return name in self.state["steps"]
 
@@ -310,9 +314,13 @@ class Steps:
             plan_path.parent.mkdir(parents=True, exist_ok=True)
             write_plan(plan_path, plan)
         cost_s = self.estimate_s(plan)
-        if self.used_s + cost_s > self.s.budget_s:
+        reserve_s = 0.0 if name.startswith("after") else self.reserve_s()
+        if self.used_s + cost_s + reserve_s > self.s.budget_s:
+            left_s = max(0.0, self.s.budget_s - self.used_s - reserve_s)
             raise BudgetSpent(f"{name} needs {cost_s / 60:.1f} min of machine time, "
-                              f"{max(0.0, self.s.budget_s - self.used_s) / 60:.1f} min left")
+                              f"{left_s / 60:.1f} min left"
+                              + (f" ({reserve_s / 60:.1f} min kept for the after-run)"
+                                 if reserve_s else ""))  # fmt: skip
         raw.parent.mkdir(parents=True, exist_ok=True)
         self.say(f"{name}: {sum(m.measured for m in plan.moves)} readings, "
                  f"{cost_s / 60:.1f} min of machine time ({compensation})")

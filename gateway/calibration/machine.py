@@ -73,6 +73,15 @@ class Endpoint:
         return self.host, self.port
 
 
+def reraise_cancel() -> None:
+    """pymodbus turns a cancelled request (Ctrl-C, SIGTERM) into ModbusIOException: a
+    cancellation it swallowed is raised again, or the interrupt would be lost."""
+    task = asyncio.current_task()
+    cancelling = getattr(task, "cancelling", None)  # Python 3.11+
+    if task is not None and cancelling is not None and cancelling():
+        raise asyncio.CancelledError
+
+
 class Link:
     """One Modbus TCP connection, shared by every device at that host and port."""
 
@@ -91,6 +100,7 @@ class Link:
         try:
             reply = await call
         except Exception as exc:  # pymodbus raises ModbusIOException and friends
+            reraise_cancel()
             raise MachineError(f"{self.host}:{self.port}: {what}: {exc}") from exc
         if reply.isError():
             raise MachineError(f"{self.host}:{self.port}: {what}: {reply}")
