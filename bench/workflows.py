@@ -407,9 +407,10 @@ def manual_machine_s(run: MachineRun) -> float:
     """The machine time the manual workflow's plans take on this machine (s): what
     `compgw calibrate` prints before it moves, asked without a --raw file (so nothing runs)."""
     full = run.base_config()
+    names = list(full["axes"])
+    full["planar"] = {"axes": names, "model": "tables/xy_model.yaml", "commit": "on_trigger"}
     kind = thermal_setup(run, full)
     gw = run.write_config("gw.estimate.yaml", full)
-    names = list(full["axes"])
     low = {a: full["axes"][a]["travel_mm"][0] for a in names}
     asks = []
     if kind == "delta_a":
