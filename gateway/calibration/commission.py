@@ -37,14 +37,13 @@ from typing import Any
 
 import numpy as np
 
-from ..compensation import PitchStage
 from ..config import GatewayConfig
 from ..formats import atomic_write_text, read_cyclic, read_pitch_csv, write_cyclic
 from . import adaptive
+from .commission_rotary import RotarySteps
 from .commission_steps import (
     BudgetSpent,
     CommissionAborted,
-    Steps,
     _plain,
 )
 from .cyclic_fit import scans_from_raw
@@ -78,7 +77,7 @@ from .runner import read_raw_meta
 from .session import planar_figures
 
 
-class Commission(Steps):
+class Commission(RotarySteps):
     """One commissioning: the plans, the order of the steps, the fits and the rounds."""
 
     # -- the whole thing -----------------------------------------------------------------
@@ -86,6 +85,9 @@ class Commission(Steps):
         """The steps before any adaptation, for the printed plan and its estimate."""
         out: list[tuple[str, Plan]] = []
         for a in self.s.axes:
+            if self._rotary(a):  # in degrees (commission_rotary)
+                out += self.rotary_plans(a)
+                continue
             travel = self._travel(a)
             if self._thermal(a):
                 out.append((f"warmup-{a}", self._warmup_plan(a)))
@@ -178,7 +180,7 @@ class Commission(Steps):
         total = 0.0
         self.say(f"commissioning {', '.join(self.s.axes)}"
                  f"{' and the plane ' + '/'.join(self.s.planar) if self.s.planar else ''}: "
-                 f"tolerance {self.s.tolerance_um:g} µm between the points, budget "
+                 f"tolerance {self.tolerance_text()} between the points, budget "
                  f"{self.s.budget_s / 3600:.2f} h of machine time")  # fmt: skip
         for name, plan in self.initial_plans():
             self._check_limits(plan)
@@ -189,6 +191,7 @@ class Commission(Steps):
         self.say(f"  then verification rounds (before, each round, after) within the budget; "
                  f"first steps: {total / 3600:.2f} h at {self.s.speed_mm_s:g} mm/s and "
                  f"{self.s.stop_s:g} s per reading")  # fmt: skip
+        self.rotary_plan_lines()
         return total
 
     async def run(self) -> dict[str, Any]:
@@ -226,6 +229,9 @@ class Commission(Steps):
         await self.use("identification")
         results = self.state.setdefault("identify", {})
         for a in self.s.axes:
+            if self._rotary(a):  # in degrees, with the angle instrument (commission_rotary)
+                await self.identify_rotary(a)
+                continue
             travel = self._travel(a)
             if self._thermal(a) and a not in self.tables.thermal_length_mm and \
                     a not in self.tables.thermal_gain:
@@ -307,6 +313,7 @@ class Commission(Steps):
             # unless seed 000's three places show play that varies (a worn zone): per point
             r = fit_pitch(self.raw(f"iso-{a}"), config, self.config_dir, a,
                           mode="bidirectional", reversal_degree=None if uneven else 2)  # fmt: skip
+            r = self.rotary_fitted(a, r)
             self.state.setdefault("identify", {})[f"reversal-{a}"] = {
                 "per_point": uneven}
             if model is not None:
@@ -355,9 +362,8 @@ class Commission(Steps):
                                                           for a, v in verdicts.items()},
                                      "xy": xy, "machine_s": self.used_s}  # fmt: skip
             self.say(f"round {r}: " + "; ".join(
-                f"{a} E {v.E_um:.2f} A {v.A_um:.2f} R {v.R_um:.2f} µm"
-                for a, v in verdicts.items()) + (f"; XY max {xy['max_um']:.2f} µm" if xy else
-                                                 ""))  # fmt: skip
+                self.verdict_text(a, v) for a, v in verdicts.items())
+                + (f"; XY max {xy['max_um']:.2f} µm" if xy else ""))  # fmt: skip
             scores = {a: v.E_um for a, v in verdicts.items()}
             if xy is not None:
                 scores["XY"] = xy["max_um"]
@@ -367,9 +373,9 @@ class Commission(Steps):
                 settled.append(name)
                 self.say(f"round {r}: {name}: the last refinement did not pay; back to round "
                          f"{best[name]['round']}'s {'model' if name == 'XY' else 'table'} "
-                         f"({best[name]['score']:.2f} µm)")  # fmt: skip
+                         f"({self.score_text(name, best[name]['score'])})")  # fmt: skip
             names = [*self.s.axes, *(["XY"] if self.s.planar else [])]
-            good = {n: n in best and best[n]["score"] <= self.s.tolerance_um for n in names}
+            good = {n: n in best and best[n]["score"] <= self.tolerance_of(n) for n in names}
             entry["restored"] = restored
             if all(good.values()):
                 entry["outcome"] = "within"
@@ -377,7 +383,7 @@ class Commission(Steps):
                 self._save()
                 if restored:
                     await self.use("full" if self.tables.planar_model else "pitch")
-                self.say(f"round {r}: within {self.s.tolerance_um:g} µm between the points")
+                self.say(f"round {r}: within {self.tolerance_text()} between the points")
                 return "within"
             added: dict[str, int] = {}
             for a, v in verdicts.items():
@@ -454,6 +460,8 @@ class Commission(Steps):
 
     def _verify_targets(self, r: int, axis: str) -> np.ndarray:
         table = read_pitch_csv(self.config_dir / self.tables.pitch[axis]).position_mm
+        if self._rotary(axis):
+            return self.rotary_verify_targets(r, axis, table)
         spans = self.state.get("spans", {}).get(axis) or None  # None: all spans new
         mids = adaptive.midpoints_mm(table, spans)
         rand = adaptive.random_targets_mm(self._travel(axis), adaptive.RANDOM_TARGETS,
@@ -472,7 +480,7 @@ class Commission(Steps):
                 kind="iso230-verification", round=r), "on", self._park(a))  # fmt: skip
             table = read_pitch_csv(self.config_dir / self.tables.pitch[a]).position_mm
             dev = axis_deviations(self.raw(f"verify{r}-{a}"), a)
-            verdicts[a] = adaptive.judge_axis(dev, table, self.s.tolerance_um)
+            verdicts[a] = self.judge(a, dev, table)
         xy = None
         if self.s.planar is not None and "XY" not in settled:
             grid = tuple(self.state.get("grid", self.s.grid))
@@ -494,12 +502,11 @@ class Commission(Steps):
 
         path = self.config_dir / self.tables.pitch[axis]
         table = read_pitch_csv(path)
-        mids = adaptive.midpoints_mm(table.position_mm, verdict.failing_spans,
-                                     adaptive.REFINE_PARTS)  # fmt: skip
+        mids = self.refine_points(axis, table, verdict)
         if mids.size == 0:
             return 0
         config, _ = self.staged("full" if self.tables.planar_model else "pitch")
-        stage = PitchStage(table, "linear")
+        stage = self.table_stage(axis, table)
         cyclic_path = self.config_dir / self.tables.cyclic[axis] if axis in self.tables.cyclic \
             else None  # fmt: skip
         model = None
@@ -587,6 +594,7 @@ class Commission(Steps):
                 if self.done(f"{phase}-xy"):
                     xy[phase] = self._xy_figures(f"{phase}-xy")
             out["xy"] = xy
+        self.rotary_summary(out)
         return out
 
 

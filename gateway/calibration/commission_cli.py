@@ -27,6 +27,10 @@ config given with -c: commissioning writes its own configs over that file (yours
 in DIR/original.yaml) and makes the gateway reload each: through the status unit's reload
 register (needs status.remote_control: true), or --reload-pid PID (SIGHUP) or
 --reload-cmd CMD. An abort puts your config back. Run the same command again to resume.
+Rotary axes (rotary: true) are measured with the angle instrument (--angle) in degrees: a
+turntable over a whole turn (its table modulo 360), a swing axis over its range (its
+linkage fitted when the config has one); --lead-mm C=5 gives a worm period in degrees,
+--tolerance-arcsec their tolerance; they get no drift references.
 Exit 0: within tolerance; 1: not met (budget, rounds, repeatability: see the report) or
 bad input; 3: the machine or gateway failed."""
 
@@ -40,6 +44,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    help="the running gateway (default: the config's upstream.tcp)")
     p.add_argument("--laser", metavar="HOST:PORT:UNIT", help="laser interferometer")
     p.add_argument("--laser-axes", metavar="X,Y", help="laser channel order")
+    p.add_argument("--angle", metavar="HOST:PORT:UNIT", help="angle instrument of rotary "
+                   "axes: int32 µdeg at 2k (axis k), as calibrate --angle")  # fmt: skip
+    p.add_argument("--angle-axes", metavar="A,C", help="its channel order (default: the "
+                   "config's rotary axes)")  # fmt: skip
     p.add_argument("--xy-device", metavar="HOST:PORT:UNIT", help="XY measuring device: "
                    "the plane is commissioned too")  # fmt: skip
     p.add_argument("--delta-a", metavar="HOST:PORT:UNIT[:ADDRESS]",
@@ -56,11 +64,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    "section's, else the first two axes) when --xy-device is given")
     p.add_argument("--lead-mm", metavar="L or X=L,Y=L",
                    help="screw lead: the cyclic stage's period (default: searched for by a "
-                   "dense scan; none found, no cyclic stage)")
+                   "dense scan; none found, no cyclic stage); a rotary axis's: the worm "
+                   "period in degrees (360/teeth; not searched for)")  # fmt: skip
     p.add_argument("--no-lead-search", action="store_true",
                    help="axes without --lead-mm get no cyclic stage (no search scan)")
     p.add_argument("--tolerance-um", type=float, default=2.0, metavar="T",
                    help="ISO 230-2 E (XY: max vector error) between the points (2)")
+    p.add_argument("--tolerance-arcsec", type=float, default=3.0, metavar="T",
+                   help="rotary axes: ISO 230-2 E between the points, arcseconds (3)")
     p.add_argument("--budget-h", type=float, default=8.0, metavar="H",
                    help="machine time at most (8 h, plan estimate)")
     p.add_argument("--out", metavar="DIR", help="working directory (default: "
@@ -191,10 +202,9 @@ def main(args: argparse.Namespace) -> int:
         for a in axes:
             if a not in config.axes:
                 raise TableError(f"--axes: {a!r} is not an axis of {config_path}")
-            if config.axes[a].rotary:
-                raise TableError(f"axis {a} is rotary: commissioning handles linear axes so "
-                                 "far; calibrate it with compgw calibrate --angle (README, "
-                                 "Rotary and swing axes), or leave it out with --axes")  # fmt: skip
+            if config.axes[a].rotary and args.angle is None:
+                raise TableError(f"axis {a} is rotary: give its angle instrument, --angle "
+                                 "HOST:PORT:UNIT (or leave it out with --axes)")  # fmt: skip
         plane = None
         if args.xy_device:
             names = (args.plane.split(",") if args.plane else
@@ -202,7 +212,7 @@ def main(args: argparse.Namespace) -> int:
             if len(names) != 2 or any(n not in axes for n in names):
                 raise TableError(f"--plane {','.join(names)}: two commissioned axes")
             plane = (names[0], names[1])
-        if args.laser is None:
+        if args.laser is None and not all(config.axes[a].rotary for a in axes):
             raise TableError("--laser HOST:PORT:UNIT is required (the axes' instrument)")
         gateway = gateway_endpoint(args, config)
         settings = Settings(
@@ -210,15 +220,18 @@ def main(args: argparse.Namespace) -> int:
             out_dir=Path(args.out) if args.out else config_path.resolve().parent / "commission",
             gateway=gateway,
             instruments=Instruments(
-                laser=Endpoint.parse(args.laser),
+                laser=Endpoint.parse(args.laser) if args.laser else None,
                 laser_axes=args.laser_axes.split(",") if args.laser_axes else None,
+                angle=Endpoint.parse(args.angle) if args.angle else None,
+                angle_axes=args.angle_axes.split(",") if args.angle_axes else None,
                 xy=Endpoint.parse(args.xy_device) if args.xy_device else None,
                 delta_a=Endpoint.parse(args.delta_a) if args.delta_a else None,
                 temperature=Endpoint.parse(args.temperature) if args.temperature else None,
                 wait_stable=not args.no_wait_stable,
             ),
             axes=axes, planar=plane, lead_mm=parse_leads(args.lead_mm, axes),
-            tolerance_um=args.tolerance_um, budget_s=args.budget_h * 3600.0,
+            tolerance_um=args.tolerance_um, tolerance_arcsec=args.tolerance_arcsec,
+            budget_s=args.budget_h * 3600.0,
             speed_mm_s=args.estimate_speed_mm_s, stop_s=args.estimate_stop_s,
             motion=MotionSettings(args.in_position_bit, args.moving_bit, args.alarm_bit,
                                   args.in_position_pulses, args.timeout_s),

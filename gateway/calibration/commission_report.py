@@ -10,12 +10,37 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from .iso230 import iso230_raw
+from .iso230 import ARCSEC_PER_MDEG, iso230_raw
 from .rawdata import RawData
-from .report import Figure, _f, _figures_table, _img, _page, plot_axis, plot_xy, write_report
+from .report import (
+    ANGULAR,
+    LINEAR,
+    Figure,
+    _f,
+    _figures_table,
+    _img,
+    _page,
+    plot_axis,
+    plot_xy,
+    write_report,
+)
 
 #: a step's raw data as commissioning judged it, or None
 Load = Callable[[str], "RawData | None"]
+
+
+def _angular(entry: dict[str, Any]) -> bool:
+    """A rotary axis's summary entry: figures in arcseconds (``*_arcsec``)."""
+    return entry.get("unit") == "deg"
+
+
+def _fig(figures: dict[str, Any], key: str) -> float | None:
+    """Figure ``key`` (E, A, R, B, M) in its axis's unit: µm, or arcseconds."""
+    return figures.get(f"{key}_arcsec", figures.get(f"{key}_um"))
+
+
+def _unit(entry: dict[str, Any]) -> str:
+    return "″" if _angular(entry) else " µm"
 
 
 def _cut(before: float | None, after: float | None) -> str:
@@ -29,26 +54,31 @@ def remains(summary: dict[str, Any]) -> list[str]:
     out = []
     tol = summary["tolerance_um"]
     outcome = summary["outcome"]
+    rotary = f" (rotary axes {summary['tolerance_arcsec']:g}″)" if "tolerance_arcsec" in \
+        summary else ""  # fmt: skip
     if outcome == "within":
-        out.append(f"Every axis is within {tol:g} µm (E) between the calibration points.")
+        out.append(f"Every axis is within {tol:g} µm{rotary} (E) between the calibration "
+                   "points.")  # fmt: skip
     elif outcome == "budget":
         out.append(f"The machine-time budget ({summary['budget_h']:.2f} h) was spent before "
-                   f"the verification met {tol:g} µm; what was fitted so far is loaded.")
+                   f"the verification met {tol:g} µm{rotary}; what was fitted so far is "
+                   "loaded.")  # fmt: skip
     elif outcome == "floor":
         out.append("The residual that misses the tolerance does not stand out of the "
                    "machine's repeatability, or it is finer than the table can follow: more "
                    "points would not help.")  # fmt: skip
     else:
-        out.append(f"The rounds ran out before the verification met {tol:g} µm.")
+        out.append(f"The rounds ran out before the verification met {tol:g} µm{rotary}.")
     for axis, entry in summary["axes"].items():
         after = entry.get("after")
         if not after:
             continue
-        a, r, e = after.get("A_um"), after.get("R_um"), after.get("E_um")
+        a, r, e = _fig(after, "A"), _fig(after, "R"), _fig(after, "E")
+        u = _unit(entry)
         if a is not None and r is not None and e is not None:
-            out.append(f"Axis {axis}: A {a:.2f} µm of which R (repeatability, ±2s of single "
-                       f"approaches) {r:.2f} µm, which no table removes; the systematic part "
-                       f"E is {e:.2f} µm.")  # fmt: skip
+            out.append(f"Axis {axis}: A {a:.2f}{u} of which R (repeatability, ±2s of single "
+                       f"approaches) {r:.2f}{u}, which no table removes; the systematic part "
+                       f"E is {e:.2f}{u}.")  # fmt: skip
     out += [str(n) for n in summary.get("notes", [])]
     return out
 
@@ -59,10 +89,14 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
     for axis, entry in summary["axes"].items():
         b, a = entry.get("before", {}), entry.get("after", {})
         if b and a:
-            lines.append(f"{axis}: E {b['E_um']:.2f} → {a['E_um']:.2f} µm "
-                         f"({100 * (1 - a['E_um'] / b['E_um']):.0f} % less), A "
-                         f"{b['A_um']:.2f} → {a['A_um']:.2f} µm (R {a['R_um']:.2f}), "
-                         f"{entry.get('table_points')} table points")  # fmt: skip
+            u = _unit(entry)
+            eb, ea = _fig(b, "E") or 0.0, _fig(a, "E") or 0.0
+            lines.append(f"{axis}: E {eb:.2f} → {ea:.2f}{u} "
+                         f"({100 * (1 - ea / eb) if eb else 0:.0f} % less), A "
+                         f"{_fig(b, 'A') or 0:.2f} → {_fig(a, 'A') or 0:.2f}{u} (R "
+                         f"{_fig(a, 'R') or 0:.2f}), {entry.get('table_points')} table points"
+                         + (f", {entry['interpolation']} interpolation"
+                            if "interpolation" in entry else ""))  # fmt: skip
     xy = summary.get("xy") or {}
     if xy.get("before") and xy.get("after"):
         b, a = xy["before"]["max_um"], xy["after"]["max_um"]
@@ -81,15 +115,17 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
              f"<b>{html.escape(summary['outcome'])}</b>. Machine time used "
              f"{summary['machine_h']:.2f} h of a {summary['budget_h']:.2f} h budget. "
              "Before and after are measured at the same random targets, none of them a "
-             "calibration point; figures per ISO 230-2, in µm.</p>"]  # fmt: skip
+             "calibration point; figures per ISO 230-2, in µm (rotary axes: in arcseconds ″, "
+             "targets in degrees).</p>"]  # fmt: skip
     figures: list[Figure] = []
     rows = []
     for axis, entry in summary["axes"].items():
         b, a = entry.get("before", {}), entry.get("after", {})
-        rows.append(f"<tr><th>{html.escape(axis)}</th><td>{_f(b.get('E_um'))}</td>"
-                    f"<td>{_f(a.get('E_um'))}</td><td>{_cut(b.get('E_um'), a.get('E_um'))}</td>"
-                    f"<td>{_f(b.get('A_um'))}</td><td>{_f(a.get('A_um'))}</td>"
-                    f"<td>{_f(a.get('R_um'))}</td><td>{entry.get('table_points', '–')}</td></tr>")
+        name = f"{axis} ({_unit(entry).strip()})"
+        rows.append(f"<tr><th>{html.escape(name)}</th><td>{_f(_fig(b, 'E'))}</td>"
+                    f"<td>{_f(_fig(a, 'E'))}</td><td>{_cut(_fig(b, 'E'), _fig(a, 'E'))}</td>"
+                    f"<td>{_f(_fig(b, 'A'))}</td><td>{_f(_fig(a, 'A'))}</td>"
+                    f"<td>{_f(_fig(a, 'R'))}</td><td>{entry.get('table_points', '–')}</td></tr>")
     parts.append("<h2>Summary</h2><table id='summary'><tr><th>axis</th><th>E before</th>"
                  "<th>E after</th><th>E cut</th><th>A before</th><th>A after</th>"
                  "<th>R after</th><th>table points</th></tr>" + "".join(rows) + "</table>")
@@ -102,8 +138,10 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
     parts.append("<h2>What remains</h2><ul>" + "".join(
         f"<li>{html.escape(s)}</li>" for s in remains(summary)) + "</ul>")  # fmt: skip
     rrows = []
+    angular = any(_angular(e) for e in summary["axes"].values())
+    round_units = "µm, rotary axes ″" if angular else "µm"
     for entry in summary["rounds"]:
-        axes = "; ".join(f"{k}: E {v['E_um']:.2f}, A {v['A_um']:.2f}"
+        axes = "; ".join(_round_cell(k, v, summary["axes"].get(k, {}))
                          for k, v in entry["axes"].items())  # fmt: skip
         if entry.get("xy"):
             axes += f"; XY max {entry['xy']['max_um']:.2f}"
@@ -118,7 +156,7 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
     parts.append("<h2>Rounds: what each refinement bought</h2><p>Each round is judged at "
                  "targets never used to fit (the new spans' midpoints and fresh random "
                  "targets); where the residual stands out, the span gets a new point.</p>"
-                 "<table id='rounds'><tr><th>round</th><th>verification (µm)</th>"
+                 f"<table id='rounds'><tr><th>round</th><th>verification ({round_units})</th>"
                  "<th>then</th><th>machine h so far</th></tr>" + "".join(rrows) + "</table>")
     ident = summary.get("identify", {})
     if ident:
@@ -130,9 +168,10 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
         if not raws:
             continue
         iso = {p: iso230_raw(r)[axis] for p, r in raws.items()}
+        units = ANGULAR if _angular(summary["axes"][axis]) else LINEAR
         parts.append(f"<h2>Axis {html.escape(axis)}</h2>")
-        parts.append(_figures_table(axis, iso))
-        png = plot_axis(axis, {p: (raws[p], iso[p]) for p in raws})
+        parts.append(_figures_table(axis, iso, units))
+        png = plot_axis(axis, {p: (raws[p], iso[p]) for p in raws}, units)
         figures.append(Figure(f"axis-{axis}", png, f"axis {axis}: before and after, at the "
                               "same verification targets"))  # fmt: skip
         parts.append(_img(figures[-1]))
@@ -144,6 +183,14 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
         figures.append(Figure("xy-field", png, "XY error field before and after"))
         parts.append("<h2>XY plane</h2>" + _img(figures[-1]))
     return _page("compgw commissioning report", "\n".join(parts)), figures
+
+
+def _round_cell(axis: str, verdict: dict[str, Any], entry: dict[str, Any]) -> str:
+    """A round's verdict of an axis (µm; a rotary axis's millidegrees shown in ″)."""
+    if _angular(entry):
+        k = ARCSEC_PER_MDEG
+        return f"{axis}: E {verdict['E_um'] * k:.2f}″, A {verdict['A_um'] * k:.2f}″"
+    return f"{axis}: E {verdict['E_um']:.2f}, A {verdict['A_um']:.2f}"
 
 
 def _short(value: Any) -> str:

@@ -74,6 +74,7 @@ class Settings:
     verify_runs: int = 2
     warmup_s: float = 1800.0
     grid: tuple[int, int] = (7, 5)
+    tolerance_arcsec: float = 3.0  # rotary axes: ISO 230-2 E between the points
 
 class Steps:
     """One commissioning's state and the steps it runs (resumable from its state file)."""
@@ -197,9 +198,11 @@ class Steps:
         return (round((lo + 0.05 * (hi - lo) + 1.0) / pulse) * pulse,
                 round((hi - 0.05 * (hi - lo)) / pulse) * pulse)
 
-    async def _measure_refs(self, repeats: int = 3) -> dict[str, list[float]]:
-        """Deviation (mm) of each commissioned axis at its two drift references, the mean
-        of ``repeats`` approaches in + from 1 mm below (the other plane axis parked)."""
+    async def _measure_refs(self, repeats: int = 3, axes: Sequence[str] | None = None
+                            ) -> dict[str, list[float]]:  # fmt: skip
+        """Deviation (mm) of each commissioned axis (or of ``axes``) at its two drift
+        references, the mean of ``repeats`` approaches in + from 1 mm below (the other plane
+        axis parked)."""
         from .machine import Laser, Links, MachineDriver
 
         links = Links()
@@ -213,7 +216,7 @@ class Steps:
             order = list(ins.laser_axes or self.config.axes)
             laser = Laser(await links.get(*ins.laser.key), ins.laser.unit,
                           {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
-            for a in self.s.axes:
+            for a in self.s.axes if axes is None else axes:
                 park = self._park(a)
                 if park:
                     await driver.move(park)
