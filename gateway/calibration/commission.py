@@ -44,6 +44,7 @@ from .commission_rotary import RotarySteps
 from .commission_steps import (
     BudgetSpent,
     CommissionAborted,
+    _parts,
     _plain,
 )
 from .cyclic_fit import scans_from_raw
@@ -424,19 +425,30 @@ class Commission(RotarySteps):
         plans = [self.dir / "plans" / f"before-{a}.plan" for a in self.s.axes]
         if self.s.planar is not None:
             plans.append(self.dir / "plans" / "before-xy.plan")
-        return sum(self.estimate_s(read_plan(p)) for p in plans if p.exists())
+        # and the drift references read around each of its runs and the last config switch
+        linear = [a for a in self.s.axes if not self.config.axes[a].rotary]
+        refs_s = len(linear) * 2 * 3 * (self.s.stop_s + 2.0 / self.s.speed_mm_s)
+        total = 2 * refs_s
+        for path in plans:
+            if path.exists():
+                plan = read_plan(path)
+                total += self.estimate_s(plan) + 2 * refs_s * len(_parts(plan))
+        return total
 
     def _restore_best(self) -> None:
         """Put back the best table of every axis (and the plane's model) judged so far."""
         keep = self.dir / "tables" / "best"
         for name in self.state.get("best", {}):
+            back = False
             for path in self._table_files(name):
                 saved = keep / f"{name}-{path.name}"
                 if saved.exists() and (not path.exists() or
                                        path.read_bytes() != saved.read_bytes()):
                     atomic_write_text(path, saved.read_text())
-                    self.state["notes"].append(f"{name}: back to its best "
-                                               f"(round {self.state['best'][name]['round']})")
+                    back = True
+            if back:
+                self.state["notes"].append(f"{name}: back to its best "
+                                           f"(round {self.state['best'][name]['round']})")
 
     def _keep_best(self, name: str, score: float, r: int) -> bool:
         """Record round ``r``'s verification score (µm) of an axis or the plane. A better
