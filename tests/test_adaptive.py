@@ -55,6 +55,25 @@ def test_the_verdict_marks_the_span_where_the_residual_stands_out() -> None:
     assert calm.within and calm.failing_spans == ()
 
 
+def test_a_budget_refines_the_worst_spans_first() -> None:
+    """Three spans stand out of the rest by 3, 6 and 4 µm: with room for two, the 6 and the
+    4 are refined (in table order), their severities kept with them."""
+    table_mm = np.arange(0.0, 401.0, 50.0)
+    targets = table_mm[:-1] + 25.0
+    rng = np.random.default_rng(6)
+    up = rng.normal(0.0, 0.05, (targets.size, 3))
+    up[0] += 3.0
+    up[2] += 6.0
+    up[6] += 4.0
+    v = adaptive.judge_axis(_dev(targets, up, up.copy()), table_mm, 1.0,
+                            repeatability_sd_um=0.05)  # fmt: skip
+    assert v.failing_spans == (0, 2, 6)
+    two = v.worst_first(2)
+    assert two.failing_spans == (2, 6)
+    assert two.span_worst_um[0] > two.span_worst_um[1] > 3.5
+    assert v.worst_first(0).failing_spans == () and v.worst_first(5) is v
+
+
 def test_a_refined_table_holds_the_residual_at_its_new_points() -> None:
     """New point = the table's own value there + the residual measured with it on: the
     truth at that point, wherever the old points were (checked against a known truth)."""

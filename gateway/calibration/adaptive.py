@@ -94,6 +94,18 @@ class AxisVerdict:
     #: spans of the table holding a target whose residual stands out
     failing_spans: tuple[int, ...]
     tolerance_um: float
+    #: per failing span, the largest residual that stands out in it (µm): refined first
+    span_worst_um: tuple[float, ...] = ()
+
+    def worst_first(self, count: int) -> AxisVerdict:
+        """The verdict with only its ``count`` worst failing spans (what a budget allows)."""
+        if not self.span_worst_um or count >= len(self.failing_spans):
+            return self if count >= len(self.failing_spans) else \
+                replace(self, failing_spans=self.failing_spans[:count])  # fmt: skip
+        order = np.argsort(self.span_worst_um)[::-1][:count]
+        keep = sorted(int(k) for k in order)
+        return replace(self, failing_spans=tuple(self.failing_spans[k] for k in keep),
+                       span_worst_um=tuple(self.span_worst_um[k] for k in keep))
 
     @property
     def within(self) -> bool:
@@ -102,7 +114,8 @@ class AxisVerdict:
     def to_json(self) -> dict[str, object]:
         return {"E_um": self.E_um, "A_um": self.A_um, "R_um": self.R_um,
                 "worst_um": self.worst_um, "noise_um": self.noise_um,
-                "failing_spans": list(self.failing_spans), "within": self.within}  # fmt: skip
+                "failing_spans": list(self.failing_spans), "within": self.within,
+                "span_worst_um": list(self.span_worst_um)}  # fmt: skip
 
 
 def judge_axis(dev: AxisDeviations, table_mm: NDArray[np.float64], tolerance_um: float,
@@ -128,11 +141,14 @@ def judge_axis(dev: AxisDeviations, table_mm: NDArray[np.float64], tolerance_um:
     noise = 3.0 * sd / math.sqrt(runs)
     bad = np.flatnonzero(np.max(np.abs(spread), axis=1) > max(0.5 * tolerance_um, noise))
     x = np.asarray(table_mm, dtype=np.float64)
-    spans = sorted({int(np.clip(np.searchsorted(x, dev.target_mm[k]) - 1, 0, x.size - 2))
-                    for k in bad})  # fmt: skip
+    worst: dict[int, float] = {}
+    for k in bad:
+        span = int(np.clip(np.searchsorted(x, dev.target_mm[k]) - 1, 0, x.size - 2))
+        worst[span] = max(worst.get(span, 0.0), float(np.max(np.abs(spread[k]))))
+    spans = sorted(worst)
     return AxisVerdict(dev.axis, float(iso.E_um or 0.0), float(iso.A_um or 0.0),
                        float(iso.R_um or 0.0), float(np.max(np.abs(spread))), float(noise),
-                       tuple(spans), tolerance_um)  # fmt: skip
+                       tuple(spans), tolerance_um, tuple(worst[s] for s in spans))  # fmt: skip
 
 
 def refined_table(table: PitchTable, stage: PitchStage, dev: AxisDeviations) -> PitchTable:

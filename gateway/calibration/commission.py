@@ -387,12 +387,27 @@ class Commission(RotarySteps):
                 self.say(f"round {r}: within {self.tolerance_text()} between the points")
                 return "within"
             added: dict[str, int] = {}
-            for a, v in verdicts.items():
-                if not good[a] and a not in settled:
-                    added[a] = await self._refine_axis(r, a, v)
-                    if not added[a]:
-                        settled.append(a)
-            if "XY" in scores and not good["XY"] and "XY" not in settled:
+            refining = [a for a in verdicts if not good[a] and a not in settled]
+            plane = "XY" in scores and not good["XY"] and "XY" not in settled
+            allowance_s = self._refine_allowance_s(r, len(refining) + plane)
+            trimmed = []
+            for a in refining:
+                v = self._affordable(r, a, verdicts[a], allowance_s)
+                if len(v.failing_spans) < len(verdicts[a].failing_spans):
+                    trimmed.append(f"{a} {len(v.failing_spans)} of "
+                                   f"{len(verdicts[a].failing_spans)} spans")
+                added[a] = await self._refine_axis(r, a, v) if v.failing_spans else 0
+                if not added[a] and v.failing_spans == verdicts[a].failing_spans:
+                    settled.append(a)
+            if trimmed:
+                entry["budget"] = trimmed
+                self.say(f"round {r}: the budget allows the worst spans only: "
+                         + ", ".join(trimmed))  # fmt: skip
+            if plane and self.estimate_s(self._grid_plan(adaptive.denser_grid(*tuple(
+                    self.state.get("grid", self.s.grid))), runs=1)) > allowance_s:
+                settled.append("XY")  # a denser grid does not fit in what is left
+                entry.setdefault("budget", []).append("XY: no denser grid")
+            elif plane:
                 if self.state.get("densified", 0) < 2:
                     entry["grid"] = list(await self._refine_plane(r))
                     self.state["densified"] = self.state.get("densified", 0) + 1
@@ -404,6 +419,10 @@ class Commission(RotarySteps):
             if not any(added.values()) and "grid" not in entry:
                 if restored:
                     await self.use("full" if self.tables.planar_model else "pitch")
+                if "budget" in entry:
+                    self.say(f"round {r}: no refinement and the round after it fit in the "
+                             "budget left")  # fmt: skip
+                    return "budget"
                 self.say(f"round {r}: nothing left to refine where it misses (repeatability "
                          "or structure below the table's resolution)")  # fmt: skip
                 return "floor"
@@ -505,6 +524,57 @@ class Commission(RotarySteps):
         assert self.s.planar is not None
         return planar_figures(self.raw(name), self.s.planar)
 
+    def _refine_allowance_s(self, r: int, sharing: int) -> float:
+        """Machine time (s) each of ``sharing`` refinements may take: what the budget has
+        left once the next round's verification (this round's again) and the after-run
+        are kept, shared evenly."""
+        verify_s = sum(self.state["steps"][name]["machine_s"] for name in self.state["steps"]
+                       if name.startswith(f"verify{r}-"))  # fmt: skip
+        left = self.s.budget_s - self.used_s - self.reserve_s() - verify_s
+        return max(0.0, left) / max(1, sharing)
+
+    def _affordable(self, r: int, axis: str, verdict: adaptive.AxisVerdict,
+                    allowance_s: float) -> adaptive.AxisVerdict:
+        """``verdict`` with as many of its worst failing spans as a refinement (and the
+        four new midpoints each adds to the next verification) can measure in
+        ``allowance_s``."""
+        count = len(verdict.failing_spans)
+        while count > 0:
+            v = verdict.worst_first(count)
+            plan = self._refine_plan(r, axis, v)
+            cost = 0.0 if plan is None else self.estimate_s(plan)
+            per_target = self._verify_target_s(r, axis)
+            if cost + 4 * count * per_target <= allowance_s:
+                return v
+            count = count * 2 // 3 if count > 3 else count - 1
+        return verdict.worst_first(0)
+
+    def _verify_target_s(self, r: int, axis: str) -> float:
+        """Machine time (s) one more verification target of ``axis`` costs (this round's)."""
+        path = self.dir / "plans" / f"verify{r}-{axis}.plan"
+        if not path.exists():
+            return 0.0
+        plan = read_plan(path)
+        targets = max(1, len(np.unique(plan.targets_mm(axis))))
+        return self.estimate_s(plan) / targets
+
+    def _refine_plan(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> Plan | None:
+        """The refinement's plan for ``verdict``'s failing spans (None: no point to add)."""
+        table = read_pitch_csv(self.config_dir / self.tables.pitch[axis])
+        mids = self.refine_points(axis, table, verdict)
+        if mids.size == 0:
+            return None
+        if axis in self.tables.cyclic:
+            lead = read_cyclic(self.config_dir / self.tables.cyclic[axis]).lead_mm
+            half = 0.5 * adaptive.SCAN_LEADS * lead + 1.0
+            lo, hi = self._travel(axis)
+            stations = np.unique(np.round(np.clip(mids, lo + half, hi - half), 4))
+            return self._snap(cyclic_plan(axis, (lo, hi), lead, stations.tolist(),
+                                          per_lead=adaptive.SCAN_PER_LEAD,
+                                          leads=adaptive.SCAN_LEADS, kind="refine-scan"))
+        return self._snap(targets_plan(axis, self._travel(axis), mids, self.s.verify_runs,
+                                       kind="iso230-refine", round=r))  # fmt: skip
+
     async def _refine_axis(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> int:
         """New table points in the failing spans (each cut in ``REFINE_PARTS``); their values
         from the residual measured there with the table on. With a cyclic term, each new
@@ -522,25 +592,20 @@ class Commission(RotarySteps):
         cyclic_path = self.config_dir / self.tables.cyclic[axis] if axis in self.tables.cyclic \
             else None  # fmt: skip
         model = None
+        name = f"refine{r}-{axis}"
         if cyclic_path is not None:
             model = read_cyclic(cyclic_path)
-            lead = model.lead_mm
-            half = 0.5 * adaptive.SCAN_LEADS * lead + 1.0
-            lo, hi = self._travel(axis)
-            stations = np.unique(np.round(np.clip(mids, lo + half, hi - half), 4))
-            await self.step(f"refine{r}-{axis}", lambda: cyclic_plan(
-                axis, (lo, hi), lead, stations.tolist(), per_lead=adaptive.SCAN_PER_LEAD,
-                leads=adaptive.SCAN_LEADS, kind="refine-scan"), "on", self._park(axis),
-                whole=True)  # fmt: skip
-            where, scans = scans_from_raw(self.raw(f"refine{r}-{axis}"), axis, lead,
-                                          stations.tolist())  # fmt: skip
+            await self.step(name, lambda: self._refine_plan(r, axis, verdict), "on",
+                            self._park(axis), whole=True)  # type: ignore[arg-type,return-value]  # fmt: skip
+            stations = [float(s) for s in dict(read_plan(self.dir / "plans" / f"{name}.plan")
+                                               .meta)["stations_mm"].split()]  # fmt: skip
+            where, scans = scans_from_raw(self.raw(name), axis, model.lead_mm, stations)
             ref = adaptive.scan_refinement(table, stage, model, where, scans)
             new, new_model = ref.table, ref.cyclic
         else:
-            await self.step(f"refine{r}-{axis}", lambda: targets_plan(
-                axis, self._travel(axis), mids, self.s.verify_runs, kind="iso230-refine",
-                round=r), "on", self._park(axis))  # fmt: skip
-            dev = axis_deviations(self.raw(f"refine{r}-{axis}"), axis)
+            await self.step(name, lambda: self._refine_plan(r, axis, verdict), "on",
+                            self._park(axis))  # type: ignore[arg-type,return-value]  # fmt: skip
+            dev = axis_deviations(self.raw(name), axis)
             new, new_model = adaptive.refined_table(table, stage, dev), None
         try:
             check_pitch(new, config, axis)
@@ -557,8 +622,8 @@ class Commission(RotarySteps):
         x = new.position_mm
         self.state.setdefault("spans", {})[axis] = [
             int(i) for i in range(x.size - 1)
-            if np.any(np.isclose(x[i], mids, atol=1e-6)) or np.any(np.isclose(x[i + 1], mids,
-                                                                              atol=1e-6))]
+            if np.any(np.isclose(x[i], mids, atol=1e-3)) or np.any(np.isclose(x[i + 1], mids,
+                                                                              atol=1e-3))]
         return added
 
     async def _refine_plane(self, r: int) -> tuple[int, int]:
