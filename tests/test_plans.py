@@ -152,6 +152,11 @@ def test_warmup_plan() -> None:
     assert all(m.target_mm == (300.0,) and m.direction == 1 for m in stops)
     long_moves = [m for m in plan.moves if m.role == "move" and m.run > 0]
     assert len(long_moves) == 2 * cycles and all(m.speed_mm_s == 100 for m in long_moves)
+    # a reference at the cycle's lower end would be read once approached in + (the cold
+    # reading) and then from above, the play between them: refused, as one outside the ends
+    for ref in (0.0, 0.5, 601.0):
+        with pytest.raises(ValueError, match="approached in \\+"):
+            warmup_plan("X", (0, 600), 100, 1800, ref)
 
 
 @pytest.mark.parametrize(

@@ -150,7 +150,7 @@ class Commission(RotarySteps):
         margin = 0.05 * (hi - lo)
         th = self.config.axes[axis].compensation.thermal
         origin = th.origin_mm if th is not None else lo
-        ref = hi - margin if abs(hi - origin) >= abs(lo - origin) else lo + margin
+        ref = hi - margin if abs(hi - origin) >= abs(lo - origin) else lo + 2 * margin
         return warmup_plan(axis, (lo + margin, hi - margin), self.s.speed_mm_s,
                            self.s.warmup_s, ref)  # fmt: skip
 

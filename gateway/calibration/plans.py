@@ -496,6 +496,11 @@ def xy_verification_plan(
 
 
 # -- warm-up (seed 002) ---------------------------------------------------------------------
+#: the shortest + approach of a warm-up's reference from the cycle's lower end (mm): more
+#: than any play, so every reading has it taken up the same way
+WARMUP_APPROACH_MM = 1.0
+
+
 def warmup_plan(
     axis: str,
     ends_mm: Sequence[float],
@@ -516,6 +521,10 @@ def warmup_plan(
         raise ValueError("speed_mm_s, duration_s and measure_every must be positive")
     cycles = max(1, math.ceil(duration_s * speed_mm_s / (2 * (b - a))))
     ref = float(_round(reference_mm))
+    if not a + WARMUP_APPROACH_MM <= ref <= b:
+        raise ValueError(f"warm-up reference {ref:g} mm: it must lie in {a:g}..{b:g} mm and at "
+                         f"least {WARMUP_APPROACH_MM:g} mm above the lower end {a:g} mm, so "
+                         "every reading there is approached in + (the play taken up alike)")
     stop = (Move(0, -1, "move", (a,), speed_mm_s), Move(0, +1, "measure", (ref,), None, dwell_s))
     moves: list[Move] = list(stop)
     for k in range(1, cycles + 1):
