@@ -225,6 +225,9 @@ def main() -> int:
     parser.add_argument("--budget-vs-manual", type=float, metavar="F",
                         help="give `compgw commission` F times the machine time the manual "
                              "workflow's plans take on each machine (default: its own 8 h)")
+    parser.add_argument("--thermal-profile", action="store_true",
+                        help="Δa axes get compensation.thermal.profile (the Δa spread where "
+                             "the axis has travelled)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--table", type=Path, metavar="JSON",
                         help="print the table of an earlier run's --json output and exit")
@@ -233,6 +236,7 @@ def main() -> int:
         return print_table(json.loads(args.table.read_text()))
     workflows.TOLERANCE_UM = args.tolerance_um
     workflows.BUDGET_VS_MANUAL = args.budget_vs_manual
+    workflows.THERMAL_PROFILE = args.thermal_profile
     machines = machine_list(args.machines, args.seed, args.real)
     if args.only:
         machines = [m for m in machines if m[0] in args.only.split(",")]

@@ -270,6 +270,10 @@ def without(data: dict[str, Any], *stages: str) -> dict[str, Any]:
     return data
 
 
+#: Δa axes get ``thermal.profile`` (the travel-shaped spread); accuracy.py --thermal-profile
+THERMAL_PROFILE = False
+
+
 def thermal_setup(run: MachineRun, data: dict[str, Any]) -> str | None:
     """Point each axis with a sensor at its thermal source (origin at the screw's fixed end);
     the sensor kind (``delta_a``, ``temperature``) or None."""
@@ -285,6 +289,8 @@ def thermal_setup(run: MachineRun, data: dict[str, Any]) -> str | None:
                 a_mm = run.machine["instruments"]["delta_a"]["a_mm"]
                 axis["compensation"]["thermal"] = {"source": src_name, "origin_mm": origin,
                                                    "length_mm": abs(a_mm - origin)}  # fmt: skip
+                if THERMAL_PROFILE:
+                    axis["compensation"]["thermal"]["profile"] = {}
                 kind = "delta_a"
             elif src.get("kind") == "temperature" and src_name == f"{name.lower()}_screw":
                 far = hi if abs(hi - origin) >= abs(lo - origin) else lo

@@ -59,7 +59,7 @@ class AxisReads:
     if TYPE_CHECKING:  # provided by the Gateway
         def _saw_status(self, name: str, word: int) -> None: ...
 
-        def _delta_a(self, name: str) -> float: ...
+        def _delta_a(self, name: str, at_pulses: float | None = None) -> float: ...
 
     def _pairs_read_by(self, axis: Axis, table: str) -> list[int]:
         """Base addresses of intercepted pairs a read of ``table`` may touch."""
@@ -163,7 +163,8 @@ class AxisReads:
         state = self._axes[name].state
         if not state.applied:
             return command_pulses
-        inputs = {name: AxisInput(command_pulses, state.motion.direction, self._delta_a(name))}
+        inputs = {name: AxisInput(command_pulses, state.motion.direction,
+                                  self._delta_a(name, command_pulses))}
         partner = setup.planar_partner(name)
         if partner is not None:
             other = self._axes[partner].state
@@ -171,7 +172,7 @@ class AxisReads:
                 scale = setup.config.axes[partner].command_scale
                 inputs[partner] = AxisInput(
                     other.last_command_units / scale, other.motion.direction,
-                    self._delta_a(partner),
+                    self._delta_a(partner, other.last_command_units / scale),
                 )  # fmt: skip
         try:
             return setup.chain.nominal_pulses(name, inputs)

@@ -58,7 +58,9 @@ class AxisWrites:
 
         def _saw_status(self, name: str, word: int) -> None: ...
 
-        def _delta_a(self, name: str) -> float: ...
+        def _delta_a(self, name: str, at_pulses: float | None = None) -> float: ...
+
+        def _swept(self, name: str, to_pulses: float) -> None: ...
 
     async def _write(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
         """A register write (FC06/16), or a coil write (FC05/15) to an axis whose trigger
@@ -250,7 +252,7 @@ class AxisWrites:
         if not (state.enabled and homed):
             return nominal * axis_cfg.command_scale, False
         direction = state.motion.approach(nominal).direction
-        inputs = {name: AxisInput(nominal, direction, self._delta_a(name))}
+        inputs = {name: AxisInput(nominal, direction, self._delta_a(name, nominal))}
         partner = setup.planar_partner(name)
         if partner is not None:
             other = self._axes[partner].state
@@ -260,10 +262,12 @@ class AxisWrites:
                 inputs[partner] = AxisInput(
                     other_nominal,
                     other.motion.approach(other_nominal).direction,
-                    self._delta_a(partner),
+                    self._delta_a(partner, other_nominal),
                 )
         try:
-            return setup.chain.command_pulses(name, inputs, axis_cfg.command_scale), True
+            command = setup.chain.command_pulses(name, inputs, axis_cfg.command_scale)
+            self._swept(name, nominal)  # after: this move heats what comes next
+            return command, True
         except CorrectionLimitError as exc:
             self.counters.refused_correction += 1
             log.error("%s: target refused", exc)

@@ -294,6 +294,17 @@ class PitchFile(Model):
     taper_mm: float = Field(default=0.0, ge=0.0)
 
 
+class TravelProfile(Model):
+    """Spread the Δa where the axis has been working instead of linearly from the fixed
+    end (a screw warm only where the nut runs): the travel swept over each stretch, spread
+    along the screw by ``spread_mm`` (about √(κτ): 100 mm for steel in air), older travel
+    fading per ``memory_mm`` travelled since. Displacement (Δa) sources only."""
+
+    spread_mm: float = Field(default=100.0, gt=0.0, le=10_000.0)
+    memory_mm: float = Field(default=100_000.0, gt=0.0)
+    bin_mm: float = Field(default=5.0, gt=0.0, le=100.0)
+
+
 class AxisThermal(Model):
     source: str
     length_mm: Positive
@@ -302,6 +313,8 @@ class AxisThermal(Model):
     #: temperature sensor on the nut housing, heat uneven along the screw); fitted by
     #: ``compgw commission --temperature`` from a warm-up
     gain: float = Field(default=1.0, gt=0.0, le=10.0)
+    #: where the heat is, from the axis's own travel (see TravelProfile); off: linear
+    profile: TravelProfile | None = None
 
 
 class Compensation(Model):
@@ -516,6 +529,11 @@ class GatewayConfig(Model):
             if thermal is not None:
                 path = ("axes", name, "compensation", "thermal", "source")
                 _require(self.thermal_sources, thermal.source, path, "thermal_sources")
+                if thermal.profile is not None and \
+                        self.thermal_sources[thermal.source].kind != "displacement":
+                    raise ValueError(f"axes.{name}.compensation.thermal.profile: needs a "
+                                     "displacement (Δa) source; a temperature at one spot "
+                                     "does not say how much the screw grew")  # fmt: skip
         for name, src in self.thermal_sources.items():
             _require(self.buses, src.bus, ("thermal_sources", name, "bus"), "buses")
         seen: dict[int, str] = {self.status.upstream_unit: "status.upstream_unit"}

@@ -67,6 +67,7 @@ from .modbus.frames import (
     parse_request,
     unpack_int32,
 )
+from .thermal_travel import TravelHistory
 from .triggers import COIL_WRITES, TriggerShadow, writes_trigger
 
 log = logging.getLogger(__name__)
@@ -142,6 +143,8 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
         #: called after axis state changed (a commit, a homing): the state file's hook
         self.on_state_change: Callable[[], None] = _nothing
         self._axes: dict[str, _AxisRuntime] = {}
+        #: the swept travel of axes whose thermal stage has a profile (thermal.profile)
+        self._travel: dict[str, tuple[object, TravelHistory]] = {}
         self.setup = Setup.build(config, chain)
         self._adopt_axes(config)
 
@@ -157,6 +160,16 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
                 state = AxisState(MotionState(axis.home_direction))
                 state.enabled = axis.compensation.enabled
                 self._axes[name] = _AxisRuntime(state)
+        travel = {}
+        for name, axis in config.axes.items():
+            th = axis.compensation.thermal
+            if th is None or th.profile is None:
+                continue
+            key = (th.origin_mm, th.length_mm, th.profile, tuple(axis.travel_mm))
+            kept = self._travel.get(name)  # the same screw, the same history
+            travel[name] = kept if kept is not None and kept[0] == key else \
+                (key, TravelHistory(th, th.profile, tuple(axis.travel_mm)))  # type: ignore[arg-type]  # fmt: skip
+        self._travel = travel
 
     def axis_state(self, name: str) -> AxisState:
         return self._axes[name].state
@@ -296,9 +309,22 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
         runtime.status_word = word
         runtime.status_at_s = time.monotonic()
 
-    def _delta_a(self, name: str) -> float:
+    def _delta_a(self, name: str, at_pulses: float | None = None) -> float:
+        """Δa for axis ``name``; with a travel profile, the Δa for the place
+        ``at_pulses``."""
         value = self.delta_a_mm(name)
-        return 0.0 if value is None else value
+        if value is None:
+            return 0.0
+        travel = self._travel.get(name)
+        if travel is None or at_pulses is None:
+            return value
+        return travel[1].delta_a_mm(value, at_pulses * self.setup.config.axes[name].pulse_mm)
+
+    def _swept(self, name: str, to_pulses: float) -> None:
+        """Axis ``name`` is sent to ``to_pulses``: its travel profile counts the stretch."""
+        travel = self._travel.get(name)
+        if travel is not None:
+            travel[1].move_to(to_pulses * self.setup.config.axes[name].pulse_mm)
 
 
 def _nothing() -> None:

@@ -416,6 +416,38 @@ def test_correction_above_the_cap_is_refused_and_nothing_sent(tmp_path: Path):
     run(body())
 
 
+def test_a_travel_profile_puts_the_growth_where_the_axis_worked(tmp_path: Path):
+    """thermal.profile: after the axis has cycled over 100..300 mm, a Δa of 0.08 mm is the
+    growth of that stretch: 60 mm (below it, next to the fixed end at 0) grows nothing and
+    600 mm (beyond it) the whole Δa, where the linear spread would give 6 and 60 µm."""
+
+    def thermal(data):
+        data["thermal_sources"] = {
+            "x_ref": {"bus": "line1", "unit": 10, "register": {"address": 1, "words": 2},
+                      "scale_mm": 1e-6}
+        }
+        data["axes"]["X"]["compensation"]["thermal"] = {
+            "source": "x_ref", "length_mm": 800, "profile": {"spread_mm": 10}}
+
+    async def body():
+        async with rig(tmp_path, thermal, {}) as r:
+            master, direct, app = r["master"], r["direct"], r["app"]
+            app.gateway.delta_a_mm = lambda axis: 0.08 if axis == "X" else None
+            await move(master, 1, 60_000)  # before any travel: the linear spread
+            assert await read32(direct, 1, TARGET) == round(60_000 * 800 / 800.08)
+            for _ in range(6):
+                await move(master, 1, 100_000)
+                await move(master, 1, 300_000)
+            await move(master, 1, 60_000)
+            assert await read32(direct, 1, TARGET) == 60_000
+            await move(master, 1, 600_000)  # all 0.08 mm of growth below it
+            assert await read32(direct, 1, TARGET) == 600_000 - 80
+            # feedback reads back the nominal target through the same profile
+            assert await read32(master, 1, FEEDBACK) == 600_000
+
+    run(body())
+
+
 def test_bus_unavailable_is_0x0a(tmp_path: Path):
     def dead_bus(data):
         with socket.socket() as probe:  # a loopback port nobody listens on

@@ -73,3 +73,36 @@ class ThermalStage:
         return self.origin_mm + (command_mm - self.origin_mm) * (
             self.length_mm + delta_a_mm
         ) / self.length_mm
+
+
+# -- where the heat is: a growth profile from the axis's own travel -----------------------
+def travel_weights(swept: ArrayLike, bin_mm: float, spread_mm: float) -> NDArray[np.float64]:
+    """Heat weight per bin: the travel swept over each bin, spread along the screw by a
+    Gaussian of ``spread_mm`` (conduction over a thermal time constant, about √(κτ))."""
+    s = np.asarray(swept, dtype=np.float64)
+    half = max(1, int(np.ceil(3.0 * spread_mm / bin_mm)))
+    u = np.arange(-half, half + 1) * bin_mm
+    kernel = np.exp(-0.5 * (u / spread_mm) ** 2)
+    return np.convolve(s, kernel / kernel.sum(), mode="same")
+
+
+def travel_delta_a_mm(delta_a_mm: float, at_mm: float, centres_mm: ArrayLike,
+                      weights: ArrayLike, stage: ThermalStage, toward: int) -> float:
+    """The Δa that makes the linear stage grow the screw at ``at_mm`` as much as a screw
+    warm where ``weights`` say: growth(x) = Δa · s · (W(x) − W(o)) / (W(A) − W(o)), W the
+    integral of the weights, o the fixed end (``stage.origin_mm``), A the Δa point at
+    ``stage.length_mm`` from it on the side ``toward`` (±1) of the travel. Equal weights
+    give back ``delta_a_mm``; so do no weights at all and a place at the fixed end."""
+    x = np.asarray(centres_mm, dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64)
+    lever = at_mm - stage.origin_mm
+    if abs(lever) < 1.0 or w.size < 2 or not np.any(w > 0):
+        return delta_a_mm
+    cum = np.concatenate([[0.0], np.cumsum((w[1:] + w[:-1]) / 2.0 * np.diff(x))])
+    o = float(np.interp(stage.origin_mm, x, cum))
+    a_point = stage.origin_mm + toward * stage.length_mm
+    whole = float(np.interp(a_point, x, cum)) - o
+    if abs(whole) < 1e-12:
+        return delta_a_mm
+    fraction = toward * (float(np.interp(at_mm, x, cum)) - o) / whole
+    return delta_a_mm * fraction * stage.length_mm / lever

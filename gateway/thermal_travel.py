@@ -1,0 +1,59 @@
+"""Where each screw has been working: the swept travel behind ``thermal.profile``.
+
+The nut's friction heats the screw where it runs; a Δa sensor at the free end reads the
+whole elongation but not where it is. The gateway sees every target it corrects, so it
+counts the travel swept over each stretch of the screw (older travel fading per mm
+travelled since, ``memory_mm``) and hands the math (:func:`~gateway.compensation.thermal.
+travel_delta_a_mm`) the weights. Nothing here is persisted: after a restart the profile
+starts empty and the linear spread applies until the axis has moved.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .compensation.thermal import ThermalStage, travel_delta_a_mm, travel_weights
+from .config import AxisThermal, TravelProfile
+
+
+class TravelHistory:
+    """The swept travel of one axis along its screw, and the Δa it implies per place."""
+
+    def __init__(self, thermal: AxisThermal, profile: TravelProfile,
+                 travel_mm: tuple[float, float]) -> None:  # fmt: skip
+        self.profile = profile
+        self.stage = ThermalStage(thermal.length_mm, thermal.origin_mm)
+        lo, hi = travel_mm
+        self.toward = 1 if (lo + hi) / 2 >= thermal.origin_mm else -1
+        a_point = thermal.origin_mm + self.toward * thermal.length_mm
+        margin = 3.0 * profile.spread_mm + profile.bin_mm
+        start = min(lo, hi, thermal.origin_mm, a_point) - margin
+        stop = max(lo, hi, thermal.origin_mm, a_point) + margin
+        n = math.ceil((stop - start) / profile.bin_mm) + 1
+        self.centres_mm = start + profile.bin_mm * np.arange(n)
+        self.swept = np.zeros(n)
+        self.last_mm: float | None = None
+        self._weights: np.ndarray | None = None
+
+    def move_to(self, x_mm: float) -> None:
+        """The axis goes to ``x_mm``: the stretch from where it was is swept once."""
+        last, self.last_mm = self.last_mm, x_mm
+        if last is None or x_mm == last:
+            return
+        lo, hi = sorted((last, x_mm))
+        self.swept *= math.exp(-(hi - lo) / self.profile.memory_mm)
+        half = self.profile.bin_mm / 2.0
+        overlap = np.clip(np.minimum(self.centres_mm + half, hi)
+                          - np.maximum(self.centres_mm - half, lo), 0.0, None)  # fmt: skip
+        self.swept += overlap / self.profile.bin_mm
+        self._weights = None
+
+    def delta_a_mm(self, delta_a_mm: float, at_mm: float) -> float:
+        """The Δa for the linear stage at ``at_mm`` (see travel_delta_a_mm)."""
+        if self._weights is None:
+            self._weights = travel_weights(self.swept, self.profile.bin_mm,
+                                           self.profile.spread_mm)  # fmt: skip
+        return travel_delta_a_mm(delta_a_mm, at_mm, self.centres_mm, self._weights,
+                                 self.stage, self.toward)  # fmt: skip

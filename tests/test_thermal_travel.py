@@ -1,0 +1,99 @@
+"""The travel profile (compensation.thermal.profile): the Δa of a screw warm where its nut
+has worked, put where the heat is. Checked against the sim's heat equation of the screw
+(sim/heat.py, written independently) on the accuracy judge's warm-up, and by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gateway.compensation.thermal import ThermalStage, travel_delta_a_mm
+from gateway.config import AxisThermal, TravelProfile
+from gateway.thermal_travel import TravelHistory
+
+
+def test_even_weights_or_none_give_back_the_linear_spread() -> None:
+    stage = ThermalStage(1000.0, -40.0)
+    x = np.linspace(-400.0, 1400.0, 361)
+    for at in (0.0, 333.0, 960.0):
+        assert travel_delta_a_mm(0.02, at, x, np.ones_like(x), stage, 1) == pytest.approx(0.02)
+        assert travel_delta_a_mm(0.02, at, x, np.zeros_like(x), stage, 1) == 0.02
+    # fixed at the high end, the travel below it: the same
+    high = ThermalStage(1000.0, 1040.0)
+    assert travel_delta_a_mm(0.02, 100.0, x, np.ones_like(x), high, -1) == pytest.approx(0.02)
+
+
+def test_heat_in_one_zone_by_hand() -> None:
+    """Weights 1 on 200..400 mm only, fixed end at 0, Δa point at 1000: the growth is 0 up
+    to 200, Δa at 400 and beyond; at 300 half of it."""
+    stage = ThermalStage(1000.0, 0.0)
+    x = np.arange(-100.0, 1100.0 + 1e-9, 1.0)
+    w = ((x >= 200) & (x <= 400)).astype(float)
+    da = 0.03
+
+    def growth(at: float) -> float:
+        return travel_delta_a_mm(da, at, x, w, stage, 1) * (at - 0.0) / 1000.0
+
+    assert growth(100.0) == pytest.approx(0.0, abs=1e-6)
+    assert growth(300.0) == pytest.approx(da / 2, rel=0.01)
+    assert growth(800.0) == pytest.approx(da, rel=0.01)
+
+
+def _judge_warmup(rng: np.random.Generator) -> tuple[float, float]:
+    """One random screw cycled over 40 % of its travel for 30 min (as bench/evaluate.py):
+    largest error at 5 places of the linear spread and of the travel profile (µm)."""
+    from sim.config_truth import ScrewHeat
+    from sim.heat import ScrewHeatModel
+
+    travel = float(rng.choice(np.arange(300, 1001, 50)))
+    nut, speed = float(rng.uniform(30, 60)), float(rng.uniform(50, 200))
+    screw = (-nut, travel + nut)
+    fixed, free = screw if rng.random() < 0.75 else screw[::-1]
+    model = ScrewHeatModel(ScrewHeat(lead_mm=10.0, drag_torque_Nm=0.02, diameter_mm=16.0,
+                                     nut_length_mm=nut, h_W_m2K=float(rng.uniform(10, 25)),
+                                     screw_mm=screw, fixed_end_mm=fixed), (0.0, travel))
+    thermal = AxisThermal(source="x", length_mm=abs(free - fixed), origin_mm=fixed,
+                          profile=TravelProfile())  # fmt: skip
+    history = TravelHistory(thermal, thermal.profile, (0.0, travel))  # type: ignore[arg-type]
+    z0 = float(rng.uniform(0, 0.6 * travel))
+    t_s, pos = 0.0, z0
+    history.move_to(pos)
+    while t_s < 1800.0:
+        to = z0 + 0.4 * travel if pos == z0 else z0
+        dt = abs(to - pos) / speed
+        model.add_move(t_s, t_s + dt, pos, to, speed)
+        history.move_to(to)
+        t_s, pos = t_s + dt, to
+    da = model.growth_mm(free, t_s) * 1e3 * (1 if free > fixed else -1)  # elongation, µm
+    places = rng.uniform(2, travel - 2, 5)
+    truth = np.array([model.growth_mm(p, t_s) for p in places]) * 1e3
+    stage = ThermalStage(thermal.length_mm, fixed)
+    linear = np.array([(p - fixed) * da / thermal.length_mm for p in places])
+    profiled = np.array([(p - fixed) * history.delta_a_mm(da, p) / thermal.length_mm
+                         for p in places])  # fmt: skip
+    assert stage.length_mm > 0
+    return float(np.abs(truth - linear).max()), float(np.abs(truth - profiled).max())
+
+
+def test_the_travel_profile_follows_a_screw_warm_where_its_nut_worked() -> None:
+    rng = np.random.default_rng(23)
+    errors = np.array([_judge_warmup(rng) for _ in range(8)])
+    linear, profiled = errors[:, 0], errors[:, 1]
+    assert np.median(profiled) < 0.25 * np.median(linear), errors
+    assert profiled.max() < 3.5, errors  # µm; the linear spread leaves up to tens
+    assert linear.max() > 5.0, errors  # the case is one the linear spread gets wrong
+
+
+def test_a_profile_needs_a_displacement_source() -> None:
+    from gateway.config import GatewayConfig
+
+    data = {"upstream": {"tcp": {"port": 0}},
+            "buses": {"b": {"tcp": {"host": "127.0.0.1", "port": 1}}},
+            "thermal_sources": {"t": {"bus": "b", "unit": 3, "register": {"address": 0},
+                                      "kind": "temperature"}},
+            "axes": {"X": {"bus": "b", "unit": 1, "pulse_mm": 0.001, "travel_mm": [0, 500],
+                           "registers": {"target": {"address": 0}, "feedback": {"address": 2}},
+                           "compensation": {"thermal": {"source": "t", "length_mm": 600,
+                                                        "profile": {}}}}}}  # fmt: skip
+    with pytest.raises(ValueError, match=r"thermal\.profile: needs a displacement"):
+        GatewayConfig.model_validate(data)
