@@ -333,19 +333,39 @@ def table_step_mm(info: dict[str, Any]) -> tuple[float, float | None]:
     return float(info.get("data_spacing_mm") or 10.0) / 2.0, None
 
 
-# -- the workflows -------------------------------------------------------------------------------
-def manual(run: MachineRun) -> WorkflowResult:
-    """gateway/calibration/README.md, step by step, as a user types it."""
-    notes: list[str] = []
+#: the manual workflow's XY grid (with the pitch tables on)
+MANUAL_XY = ("--xy", "--grid", "9", "7", "--grid-runs", "3", "--overrun-mm", "1")
+
+
+def manual_iso(run: MachineRun, axis: str, low: dict[str, float]) -> list[str]:
+    """The manual workflow's ISO 230-2 identification of ``axis``: a table every quarter
+    lead, 5 runs, the other axis parked at its low end."""
+    other = next(a for a in low if a != axis)
+    step, lead = table_step_mm(run.machine["axes"][axis])
+    return ["--iso", axis, "--step-mm", f"{step:g}", "--runs", "5", "--overrun-mm", "1",
+            "--park", f"{other}={low[other]:g}", *(["--lead-mm", f"{lead:g}"] if lead else [])]
+
+
+def manual_config(run: MachineRun) -> tuple[dict[str, Any], str | None]:
+    """The manual workflow's calibrated config before any fit (its table paths, the plane,
+    the thermal source) and the thermal sensor kind."""
     full = run.base_config()
-    (run.work / "tables").mkdir(exist_ok=True)
     names = list(full["axes"])
-    low = {a: full["axes"][a]["travel_mm"][0] for a in names}
     for a in names:
         full["axes"][a]["compensation"]["pitch"] = {"file": f"tables/{a.lower()}_pitch.csv",
                                                     "interpolation": "smooth"}  # fmt: skip
     full["planar"] = {"axes": names, "model": "tables/xy_model.yaml", "commit": "on_trigger"}
-    kind = thermal_setup(run, full)
+    return full, thermal_setup(run, full)
+
+
+# -- the workflows -------------------------------------------------------------------------------
+def manual(run: MachineRun) -> WorkflowResult:
+    """gateway/calibration/README.md, step by step, as a user types it."""
+    notes: list[str] = []
+    full, kind = manual_config(run)
+    (run.work / "tables").mkdir(exist_ok=True)
+    names = list(full["axes"])
+    low = {a: full["axes"][a]["travel_mm"][0] for a in names}
     gw = run.write_config("gw.calibrated.yaml", full)
     laser = run.instrument(20)
     common = ["-c", gw, "--gateway", run.gateway, "--no-progress"]
@@ -374,13 +394,9 @@ def manual(run: MachineRun) -> WorkflowResult:
     run.cool_down()
     raws = []
     for axis in names:
-        other = next(a for a in names if a != axis)
-        step, lead = table_step_mm(run.machine["axes"][axis])
-        lead_args = ["--lead-mm", f"{lead:g}"] if lead else []
         raw = run.work / f"{axis}_id.csv"
-        run.compgw("calibrate", *common, "--iso", axis, "--step-mm", f"{step:g}", *lead_args,
-                   "--runs", "5", "--overrun-mm", "1", "--laser", laser,
-                   "--park", f"{other}={low[other]:g}", "--raw", raw)  # fmt: skip
+        run.compgw("calibrate", *common, *manual_iso(run, axis, low), "--laser", laser,
+                   "--raw", raw)  # fmt: skip
         raws.append(raw)
         targets.append(measured_targets(raw))
     run.compgw("fit", *raws, "-c", gw)
@@ -389,8 +405,8 @@ def manual(run: MachineRun) -> WorkflowResult:
     run.use(without(full, "planar"))
     run.cool_down()
     xy_raw = run.work / "xy_id.csv"
-    run.compgw("calibrate", *common, "--xy", "--grid", "9", "7", "--grid-runs", "3",
-               "--overrun-mm", "1", "--xy-device", run.instrument(21), "--raw", xy_raw)  # fmt: skip
+    run.compgw("calibrate", *common, *MANUAL_XY, "--xy-device", run.instrument(21),
+               "--raw", xy_raw)  # fmt: skip
     targets.append(measured_targets(xy_raw))
     pins = [f"{a}@{b}={low[b]:g}" for a, b in ((names[0], names[1]), (names[1], names[0]))]
     fit = json.loads(run.compgw("fit", xy_raw, "-c", gw, "--json", "--pitch-line", pins[0],
@@ -412,23 +428,16 @@ BUDGET_VS_MANUAL: float | None = None
 def manual_machine_s(run: MachineRun) -> float:
     """The machine time the manual workflow's plans take on this machine (s): what
     `compgw calibrate` prints before it moves, asked without a --raw file (so nothing runs)."""
-    full = run.base_config()
-    names = list(full["axes"])
-    full["planar"] = {"axes": names, "model": "tables/xy_model.yaml", "commit": "on_trigger"}
-    kind = thermal_setup(run, full)
+    full, kind = manual_config(run)
     gw = run.write_config("gw.estimate.yaml", full)
+    names = list(full["axes"])
     low = {a: full["axes"][a]["travel_mm"][0] for a in names}
-    asks = []
+    asks: list[list[str]] = []
     if kind == "delta_a":
         axis = next(a for a in names if "thermal" in full["axes"][a]["compensation"])
         asks.append(["--warmup", axis, "--measure-every", "2"])
-    for axis in names:
-        other = next(a for a in names if a != axis)
-        step, lead = table_step_mm(run.machine["axes"][axis])
-        asks.append(["--iso", axis, "--step-mm", f"{step:g}", "--runs", "5", "--overrun-mm",
-                     "1", "--park", f"{other}={low[other]:g}",
-                     *(["--lead-mm", f"{lead:g}"] if lead else [])])  # fmt: skip
-    asks.append(["--xy", "--grid", "9", "7", "--grid-runs", "3", "--overrun-mm", "1"])
+    asks += [manual_iso(run, axis, low) for axis in names]
+    asks.append(list(MANUAL_XY))
     total_min = 0.0
     for ask in asks:
         out = subprocess.run([*compgw_argv(), "calibrate", "-c", str(gw), *ask], cwd=run.work,

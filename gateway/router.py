@@ -144,7 +144,7 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
         self.on_state_change: Callable[[], None] = _nothing
         self._axes: dict[str, _AxisRuntime] = {}
         #: the swept travel of axes whose thermal stage has a profile (thermal.profile)
-        self._travel: dict[str, tuple[object, TravelHistory]] = {}
+        self._travel: dict[str, TravelHistory] = {}
         self.setup = Setup.build(config, chain)
         self._adopt_axes(config)
 
@@ -165,10 +165,10 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
             th = axis.compensation.thermal
             if th is None or th.profile is None:
                 continue
-            key = (th.origin_mm, th.length_mm, th.profile, tuple(axis.travel_mm))
-            kept = self._travel.get(name)  # the same screw, the same history
-            travel[name] = kept if kept is not None and kept[0] == key else \
-                (key, TravelHistory(th, th.profile, tuple(axis.travel_mm)))  # type: ignore[arg-type]  # fmt: skip
+            span = (float(axis.travel_mm[0]), float(axis.travel_mm[1]))
+            kept = self._travel.get(name)  # the same screw keeps its history
+            travel[name] = kept if kept is not None and kept.same_screw(th, span) else \
+                TravelHistory(th, th.profile, span)  # fmt: skip
         self._travel = travel
 
     def axis_state(self, name: str) -> AxisState:
@@ -318,13 +318,13 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
         travel = self._travel.get(name)
         if travel is None or at_pulses is None:
             return value
-        return travel[1].delta_a_mm(value, at_pulses * self.setup.config.axes[name].pulse_mm)
+        return travel.delta_a_mm(value, at_pulses * self.setup.config.axes[name].pulse_mm)
 
     def _swept(self, name: str, to_pulses: float) -> None:
         """Axis ``name`` is sent to ``to_pulses``: its travel profile counts the stretch."""
         travel = self._travel.get(name)
         if travel is not None:
-            travel[1].move_to(to_pulses * self.setup.config.axes[name].pulse_mm)
+            travel.move_to(to_pulses * self.setup.config.axes[name].pulse_mm)
 
 
 def _nothing() -> None:

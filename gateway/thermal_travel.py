@@ -14,7 +14,12 @@ import math
 
 import numpy as np
 
-from .compensation.thermal import ThermalStage, travel_delta_a_mm, travel_weights
+from .compensation.thermal import (
+    ThermalStage,
+    travel_delta_a_mm,
+    travel_integral,
+    travel_weights,
+)
 from .config import AxisThermal, TravelProfile
 
 
@@ -25,6 +30,7 @@ class TravelHistory:
                  travel_mm: tuple[float, float]) -> None:  # fmt: skip
         self.profile = profile
         self.stage = ThermalStage(thermal.length_mm, thermal.origin_mm)
+        self.travel_mm = tuple(travel_mm)
         lo, hi = travel_mm
         self.toward = 1 if (lo + hi) / 2 >= thermal.origin_mm else -1
         a_point = thermal.origin_mm + self.toward * thermal.length_mm
@@ -35,7 +41,12 @@ class TravelHistory:
         self.centres_mm = start + profile.bin_mm * np.arange(n)
         self.swept = np.zeros(n)
         self.last_mm: float | None = None
-        self._weights: np.ndarray | None = None
+        self._integral: np.ndarray | None = None  # W(x), made again after each move
+
+    def same_screw(self, thermal: AxisThermal, travel_mm: tuple[float, float]) -> bool:
+        """Whether a reloaded config describes the screw this history counts for."""
+        return (thermal.profile == self.profile and tuple(travel_mm) == self.travel_mm
+                and self.stage == ThermalStage(thermal.length_mm, thermal.origin_mm))
 
     def move_to(self, x_mm: float) -> None:
         """The axis goes to ``x_mm``: the stretch from where it was is swept once."""
@@ -48,12 +59,12 @@ class TravelHistory:
         overlap = np.clip(np.minimum(self.centres_mm + half, hi)
                           - np.maximum(self.centres_mm - half, lo), 0.0, None)  # fmt: skip
         self.swept += overlap / self.profile.bin_mm
-        self._weights = None
+        self._integral = None
 
     def delta_a_mm(self, delta_a_mm: float, at_mm: float) -> float:
         """The Δa for the linear stage at ``at_mm`` (see travel_delta_a_mm)."""
-        if self._weights is None:
-            self._weights = travel_weights(self.swept, self.profile.bin_mm,
-                                           self.profile.spread_mm)  # fmt: skip
-        return travel_delta_a_mm(delta_a_mm, at_mm, self.centres_mm, self._weights,
+        if self._integral is None:
+            weights = travel_weights(self.swept, self.profile.bin_mm, self.profile.spread_mm)
+            self._integral = travel_integral(self.centres_mm, weights)
+        return travel_delta_a_mm(delta_a_mm, at_mm, self.centres_mm, self._integral,
                                  self.stage, self.toward)  # fmt: skip

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gateway.compensation.thermal import ThermalStage, travel_delta_a_mm
+from gateway.compensation.thermal import ThermalStage, travel_delta_a_mm, travel_integral
 from gateway.config import AxisThermal, TravelProfile
 from gateway.thermal_travel import TravelHistory
 
@@ -15,12 +15,13 @@ from gateway.thermal_travel import TravelHistory
 def test_even_weights_or_none_give_back_the_linear_spread() -> None:
     stage = ThermalStage(1000.0, -40.0)
     x = np.linspace(-400.0, 1400.0, 361)
+    even, none = travel_integral(x, np.ones_like(x)), travel_integral(x, np.zeros_like(x))
     for at in (0.0, 333.0, 960.0):
-        assert travel_delta_a_mm(0.02, at, x, np.ones_like(x), stage, 1) == pytest.approx(0.02)
-        assert travel_delta_a_mm(0.02, at, x, np.zeros_like(x), stage, 1) == 0.02
+        assert travel_delta_a_mm(0.02, at, x, even, stage, 1) == pytest.approx(0.02)
+        assert travel_delta_a_mm(0.02, at, x, none, stage, 1) == 0.02
     # fixed at the high end, the travel below it: the same
     high = ThermalStage(1000.0, 1040.0)
-    assert travel_delta_a_mm(0.02, 100.0, x, np.ones_like(x), high, -1) == pytest.approx(0.02)
+    assert travel_delta_a_mm(0.02, 100.0, x, even, high, -1) == pytest.approx(0.02)
 
 
 def test_heat_in_one_zone_by_hand() -> None:
@@ -32,7 +33,7 @@ def test_heat_in_one_zone_by_hand() -> None:
     da = 0.03
 
     def growth(at: float) -> float:
-        return travel_delta_a_mm(da, at, x, w, stage, 1) * (at - 0.0) / 1000.0
+        return travel_delta_a_mm(da, at, x, travel_integral(x, w), stage, 1) * (at - 0.0) / 1000.0
 
     assert growth(100.0) == pytest.approx(0.0, abs=1e-6)
     assert growth(300.0) == pytest.approx(da / 2, rel=0.01)

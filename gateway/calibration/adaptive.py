@@ -51,10 +51,11 @@ def coarse_step_mm(travel_mm: Sequence[float], lead_mm: float | None = None) -> 
 
 def random_targets_mm(
     travel_mm: Sequence[float], count: int, seed: int, avoid_mm: NDArray[np.float64],
-    margin_mm: float = 2.0, clearance_mm: float = 0.2,
+    margin_mm: float = 2.0, clearance_mm: float = 0.2, period_mm: float | None = None,
 ) -> NDArray[np.float64]:  # fmt: skip
     """``count`` seeded random targets inside the travel, each at least ``clearance_mm``
-    from every position in ``avoid_mm`` (the table's points: never judged where fitted)."""
+    from every position in ``avoid_mm`` (the table's points: never judged where fitted);
+    with ``period_mm`` (a turntable's 360°) the distance is the short way round."""
     lo, hi = float(travel_mm[0]) + margin_mm, float(travel_mm[1]) - margin_mm
     rng = np.random.default_rng(seed)
     out: list[float] = []
@@ -62,7 +63,10 @@ def random_targets_mm(
         if len(out) == count:
             break
         t = round(float(rng.uniform(lo, hi)), 4)
-        if avoid_mm.size == 0 or np.min(np.abs(avoid_mm - t)) >= clearance_mm:
+        d = avoid_mm - t
+        if period_mm is not None:
+            d = (d + 0.5 * period_mm) % period_mm - 0.5 * period_mm
+        if avoid_mm.size == 0 or np.min(np.abs(d)) >= clearance_mm:
             out.append(t)
     return np.sort(np.array(out))
 
@@ -99,9 +103,10 @@ class AxisVerdict:
 
     def worst_first(self, count: int) -> AxisVerdict:
         """The verdict with only its ``count`` worst failing spans (what a budget allows)."""
-        if not self.span_worst_um or count >= len(self.failing_spans):
-            return self if count >= len(self.failing_spans) else \
-                replace(self, failing_spans=self.failing_spans[:count])  # fmt: skip
+        if count >= len(self.failing_spans):
+            return self
+        if not self.span_worst_um:  # no severities: the first ones
+            return replace(self, failing_spans=self.failing_spans[:count])
         order = np.argsort(self.span_worst_um)[::-1][:count]
         keep = sorted(int(k) for k in order)
         return replace(self, failing_spans=tuple(self.failing_spans[k] for k in keep),

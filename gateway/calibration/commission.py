@@ -352,7 +352,7 @@ class Commission(RotarySteps):
     async def _rounds(self) -> str:
         """Verify; keep the best tables; refine what misses; a refinement that does not pay
         is taken back and its axis (or the plane) settled at its best."""
-        await self.use("full" if self.tables.planar_model else "pitch")
+        await self.use(self._tables_phase)
         rounds = self.state["rounds"]
         best = self.state.setdefault("best", {})
         settled = self.state.setdefault("settled", [])
@@ -383,7 +383,7 @@ class Commission(RotarySteps):
                 rounds.append(entry)
                 self._save()
                 if restored:
-                    await self.use("full" if self.tables.planar_model else "pitch")
+                    await self.use(self._tables_phase)
                 self.say(f"round {r}: within {self.tolerance_text()} between the points")
                 return "within"
             added: dict[str, int] = {}
@@ -418,7 +418,7 @@ class Commission(RotarySteps):
             self._save()
             if not any(added.values()) and "grid" not in entry:
                 if restored:
-                    await self.use("full" if self.tables.planar_model else "pitch")
+                    await self.use(self._tables_phase)
                 if "budget" in entry:
                     self.say(f"round {r}: no refinement and the round after it fit in the "
                              "budget left")  # fmt: skip
@@ -426,8 +426,13 @@ class Commission(RotarySteps):
                 self.say(f"round {r}: nothing left to refine where it misses (repeatability "
                          "or structure below the table's resolution)")  # fmt: skip
                 return "floor"
-            await self.use("full" if self.tables.planar_model else "pitch")
+            await self.use(self._tables_phase)
         return "rounds"
+
+    @property
+    def _tables_phase(self) -> str:
+        """The config the fitted tables run in: "full" once the plane is fitted."""
+        return "full" if self.tables.planar_model else "pitch"
 
     def _table_files(self, name: str) -> list[Path]:
         """The files that hold an axis's table (or, for "XY", the planar model)."""
@@ -445,8 +450,7 @@ class Commission(RotarySteps):
         if self.s.planar is not None:
             plans.append(self.dir / "plans" / "before-xy.plan")
         # and the drift references read around each of its runs and the last config switch
-        linear = [a for a in self.s.axes if not self.config.axes[a].rotary]
-        refs_s = len(linear) * 2 * 3 * (self.s.stop_s + 2.0 / self.s.speed_mm_s)
+        refs_s = self.refs_cost_s([a for a in self.s.axes if not self.config.axes[a].rotary])
         total = 2 * refs_s
         for path in plans:
             if path.exists():
@@ -456,18 +460,22 @@ class Commission(RotarySteps):
 
     def _restore_best(self) -> None:
         """Put back the best table of every axis (and the plane's model) judged so far."""
-        keep = self.dir / "tables" / "best"
         for name in self.state.get("best", {}):
-            back = False
-            for path in self._table_files(name):
-                saved = keep / f"{name}-{path.name}"
-                if saved.exists() and (not path.exists() or
-                                       path.read_bytes() != saved.read_bytes()):
-                    atomic_write_text(path, saved.read_text())
-                    back = True
-            if back:
+            if self._put_back(name):
                 self.state["notes"].append(f"{name}: back to its best "
                                            f"(round {self.state['best'][name]['round']})")
+
+    def _put_back(self, name: str) -> bool:
+        """The best files of an axis (or "XY") copied over the current ones; True when any
+        differed."""
+        keep = self.dir / "tables" / "best"
+        changed = False
+        for path in self._table_files(name):
+            saved = keep / f"{name}-{path.name}"
+            if saved.exists() and (not path.exists() or path.read_bytes() != saved.read_bytes()):
+                atomic_write_text(path, saved.read_text())
+                changed = True
+        return changed
 
     def _keep_best(self, name: str, score: float, r: int) -> bool:
         """Record round ``r``'s verification score (µm) of an axis or the plane. A better
@@ -483,10 +491,7 @@ class Commission(RotarySteps):
                 if path.exists():
                     shutil.copyfile(path, keep / f"{name}-{path.name}")
             return True
-        for path in self._table_files(name):
-            saved = keep / f"{name}-{path.name}"
-            if saved.exists():
-                atomic_write_text(path, saved.read_text())
+        self._put_back(name)
         return False
 
     def _verify_targets(self, r: int, axis: str) -> np.ndarray:
@@ -539,11 +544,11 @@ class Commission(RotarySteps):
         four new midpoints each adds to the next verification) can measure in
         ``allowance_s``."""
         count = len(verdict.failing_spans)
+        per_target = self._verify_target_s(r, axis)
         while count > 0:
             v = verdict.worst_first(count)
             plan = self._refine_plan(r, axis, v)
             cost = 0.0 if plan is None else self.estimate_s(plan)
-            per_target = self._verify_target_s(r, axis)
             if cost + 4 * count * per_target <= allowance_s:
                 return v
             count = count * 2 // 3 if count > 3 else count - 1
@@ -587,24 +592,21 @@ class Commission(RotarySteps):
         mids = self.refine_points(axis, table, verdict)
         if mids.size == 0:
             return 0
-        config, _ = self.staged("full" if self.tables.planar_model else "pitch")
+        config, _ = self.staged(self._tables_phase)
         stage = self.table_stage(axis, table)
         cyclic_path = self.config_dir / self.tables.cyclic[axis] if axis in self.tables.cyclic \
             else None  # fmt: skip
-        model = None
         name = f"refine{r}-{axis}"
-        if cyclic_path is not None:
+        await self.step(name, lambda: self._refine_plan(r, axis, verdict), "on",  # type: ignore[arg-type,return-value]
+                        self._park(axis), whole=cyclic_path is not None)  # fmt: skip
+        if cyclic_path is not None:  # one scan per new point: a whole plan between references
             model = read_cyclic(cyclic_path)
-            await self.step(name, lambda: self._refine_plan(r, axis, verdict), "on",
-                            self._park(axis), whole=True)  # type: ignore[arg-type,return-value]  # fmt: skip
             stations = [float(s) for s in dict(read_plan(self.dir / "plans" / f"{name}.plan")
                                                .meta)["stations_mm"].split()]  # fmt: skip
             where, scans = scans_from_raw(self.raw(name), axis, model.lead_mm, stations)
             ref = adaptive.scan_refinement(table, stage, model, where, scans)
             new, new_model = ref.table, ref.cyclic
         else:
-            await self.step(name, lambda: self._refine_plan(r, axis, verdict), "on",
-                            self._park(axis))  # type: ignore[arg-type,return-value]  # fmt: skip
             dev = axis_deviations(self.raw(name), axis)
             new, new_model = adaptive.refined_table(table, stage, dev), None
         try:
@@ -638,7 +640,7 @@ class Commission(RotarySteps):
     async def _after(self) -> None:
         if not self.tables.pitch:
             return
-        await self.use("full" if self.tables.planar_model else "pitch")
+        await self.use(self._tables_phase)
         for a in self.s.axes:
             plan = read_plan(self.dir / "plans" / f"before-{a}.plan")
             await self.step(f"after-{a}", lambda p=plan: p, "on", self._park(a))

@@ -149,16 +149,9 @@ class RotarySteps(Steps):
 
     def _random_deg(self, axis: str, count: int, seed: int, avoid: NDArray[np.float64]
                     ) -> NDArray[np.float64]:  # fmt: skip
-        lo, hi = self.judge_range(axis)
-        rng = np.random.default_rng(seed)
-        out: list[float] = []
-        for _ in range(200 * count):
-            if len(out) == count:
-                break
-            t = round(float(rng.uniform(lo, hi)), 4)
-            if avoid.size == 0 or np.min(np.abs(self._offset(axis, t - avoid))) >= CLEARANCE_DEG:
-                out.append(t)
-        return np.sort(np.array(out))
+        return adaptive.random_targets_mm(
+            self.judge_range(axis), count, seed, avoid, margin_mm=0.0,
+            clearance_mm=CLEARANCE_DEG, period_mm=TURN_DEG if self._wraps(axis) else None)
 
     def _offset(self, axis: str, d: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """A difference of angles: a turntable's the shortest way round (−180…180°)."""

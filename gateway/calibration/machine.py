@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 from pymodbus.client import AsyncModbusTcpClient
 
-from ..config import Axis, GatewayConfig
+from ..config import Axis, GatewayConfig, SourceRegister
 from ..modbus.frames import pack_int32, unpack_int32
 
 #: Status bits of the sim's default (Leadshine-like) profile; override per run.
@@ -315,24 +315,20 @@ class XYDevice:
 @dataclass
 class TemperatureSensor:
     """A screw temperature sensor read as the config's thermal source reads it: its
-    register (address, table, words, word order, sign) times ``scale_c`` (°C per count)."""
+    register (decoded by the gateway's own :func:`~gateway.sensors.decode_counts`) times
+    ``scale_c`` (°C per count)."""
 
     link: Link
     unit: int
-    address: int = 0
+    register: SourceRegister
     scale_c: float = 0.01
-    words: int = 1
-    table: str = "input"
-    order: str = "hi_lo"
-    signed: bool = True
 
     async def read_c(self) -> float:
-        regs = await self.link.read(self.unit, self.address, self.words, self.table)
-        if self.words == 2:
-            counts = unpack_int32(regs, self.order, signed=self.signed)  # type: ignore[arg-type]
-        else:
-            counts = regs[0] - 0x10000 if self.signed and regs[0] & 0x8000 else regs[0]
-        return counts * self.scale_c
+        from ..sensors import decode_counts
+
+        reg = self.register
+        return decode_counts(await self.link.read(self.unit, reg.address, reg.words, reg.table),
+                             reg) * self.scale_c  # fmt: skip
 
 
 @dataclass

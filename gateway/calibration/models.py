@@ -159,6 +159,22 @@ class ThermalFit:
     points: int
 
 
+def _warmup(raw: RawData, axis: str, column: str
+            ) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:  # fmt: skip
+    """A warm-up run's reference (mm), growth there since the cold reading (mm) and its
+    sensor column, checked: the column there, 3 readings or more, all at one place."""
+    if column not in raw.extra:
+        raise TableError(f"{raw.source}: a warm-up run needs the column {column!r}")
+    rows = np.flatnonzero(np.array(raw.axis) == axis)
+    if rows.size < 3:
+        raise TableError(f"{raw.source}: axis {axis}: a warm-up run needs at least 3 readings")
+    target = raw.target_mm[rows]
+    if np.ptp(target) > 1e-6:
+        raise TableError(f"{raw.source}: axis {axis}: warm-up readings at more than one position")
+    growth = raw.actual_mm[rows] - raw.actual_mm[rows[0]]
+    return float(target[0]), growth, raw.column_mm(column)[rows]
+
+
 def thermal_fit(
     raw: RawData, axis: str, origin_mm: float = 0.0, config_length_mm: float | None = None
 ) -> ThermalFit:
@@ -167,17 +183,7 @@ def thermal_fit(
     Growth = reading − cold reading (the first row), Δa likewise from its cold value, so
     pitch error and sensor offset cancel; a fitted offset takes the cold reading's noise.
     """
-    if "delta_a_mm" not in raw.extra:
-        raise TableError(f"{raw.source}: a warm-up run needs the column 'delta_a_mm'")
-    rows = np.flatnonzero(np.array(raw.axis) == axis)
-    if rows.size < 3:
-        raise TableError(f"{raw.source}: axis {axis}: a warm-up run needs at least 3 readings")
-    delta_a = raw.column_mm("delta_a_mm")[rows]
-    target = raw.target_mm[rows]
-    if np.ptp(target) > 1e-6:
-        raise TableError(f"{raw.source}: axis {axis}: warm-up readings at more than one position")
-    ref = float(target[0])
-    growth = raw.actual_mm[rows] - raw.actual_mm[rows[0]]
+    ref, growth, delta_a = _warmup(raw, axis, "delta_a_mm")
     d_a = delta_a - delta_a[0]
     lever = ref - origin_mm
     if abs(lever) < 1e-9 or not np.any(d_a != 0):
@@ -194,7 +200,7 @@ def thermal_fit(
     return ThermalFit(axis, ref, origin_mm, float(length), gain,
                       float(np.abs(growth).max() * UM_PER_MM),
                       float(np.sqrt(np.mean(resid**2)) * UM_PER_MM),
-                      float(np.abs(resid).max() * UM_PER_MM), int(rows.size))  # fmt: skip
+                      float(np.abs(resid).max() * UM_PER_MM), int(growth.size))  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -215,19 +221,9 @@ def thermal_gain_fit(raw: RawData, axis: str, origin_mm: float, alpha_per_k: flo
     growth at the reference = offset + gain · α · (T − T_cold) · (reference − origin).
     A sensor that is not at the screw's temperature (on the nut housing, where the screw
     is not hot everywhere) reads a rise the screw's growth follows only in proportion."""
-    if "temperature_c" not in raw.extra:
-        raise TableError(f"{raw.source}: a temperature warm-up needs the column "
-                         "'temperature_c'")  # fmt: skip
-    rows = np.flatnonzero(np.array(raw.axis) == axis)
-    if rows.size < 3:
-        raise TableError(f"{raw.source}: axis {axis}: a warm-up run needs at least 3 readings")
-    target = raw.target_mm[rows]
-    if np.ptp(target) > 1e-6:
-        raise TableError(f"{raw.source}: axis {axis}: warm-up readings at more than one position")
-    temp = np.array([float(v) for v in np.array(raw.extra["temperature_c"])[rows]])
-    growth = raw.actual_mm[rows] - raw.actual_mm[rows[0]]
+    ref, growth, temp = _warmup(raw, axis, "temperature_c")
     rise = temp - temp[0]
-    predicted = alpha_per_k * rise * (float(target[0]) - origin_mm)
+    predicted = alpha_per_k * rise * (ref - origin_mm)
     if np.ptp(rise) < 0.05 or not np.any(predicted != 0):
         raise TableError(f"{raw.source}: axis {axis}: the sensor saw no temperature rise "
                          f"({np.ptp(rise):.3f} K) during the warm-up: is it on this screw?")
@@ -239,7 +235,7 @@ def thermal_gain_fit(raw: RawData, axis: str, origin_mm: float, alpha_per_k: flo
     resid = growth - offset - gain * predicted
     return ThermalGainFit(axis, float(gain), float(np.abs(growth).max() * UM_PER_MM),
                           float(np.sqrt(np.mean(resid**2)) * UM_PER_MM),
-                          float(np.ptp(rise)), int(rows.size))  # fmt: skip
+                          float(np.ptp(rise)), int(growth.size))  # fmt: skip
 
 
 def drift_um(raw: RawData, axis: str) -> NDArray[np.float64]:

@@ -68,7 +68,8 @@ class RawData:
         return f"{self.source}: line {self.lines[i]}"
 
     def column_mm(self, name: str) -> NDArray[np.float64]:
-        """An extra column parsed as numbers (errors name file and line)."""
+        """An extra column parsed as numbers (errors name file and line): millimetres for
+        ``delta_a_mm``, whatever its name says for the others (``temperature_c``)."""
         if name not in self.extra:
             raise TableError(f"{self.source}: no column {name!r}")
         return np.array(
@@ -87,7 +88,7 @@ def read_raw_csv(path: str | os.PathLike[str]) -> RawData:
     missing = [c for c in RAW_COLUMNS if c not in header]
     if missing:
         raise TableError(
-            f"{path}: line {header_line}: header lacks column(s) {', '.join(missing)} "
+            f"{path}: line {header_line}: header lacks column_mm(s) {', '.join(missing)} "
             f"(needs at least {','.join(RAW_COLUMNS)})"
         )
     if len(set(header)) != len(header) or "" in header:
@@ -197,7 +198,7 @@ class RawWriter:
             raise ValueError(f"direction {direction!r} is not + or -")
         unknown = set(extra) - set(self.columns)
         if unknown:
-            raise ValueError(f"{self.path}: no column(s) {', '.join(sorted(unknown))}")
+            raise ValueError(f"{self.path}: no column_mm(s) {', '.join(sorted(unknown))}")
         values = {
             "axis": axis,
             "run": str(int(run)),

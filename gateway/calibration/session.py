@@ -135,9 +135,8 @@ class Session:
         if thermal is None:
             raise MachineError(f"axis {plan.axes[0]}: no thermal source to warm up with")
         src = self.config.thermal_sources[thermal.source]
-        reg = src.source_register
-        sensor = TemperatureSensor(await links.get(*ep.key), ep.unit, reg.address, src.scale_c,
-                                   reg.words, reg.table, reg.order, reg.signed)  # fmt: skip
+        sensor = TemperatureSensor(await links.get(*ep.key), ep.unit, src.source_register,
+                                   src.scale_c)
 
         async def extra(_: Move) -> Mapping[str, float]:
             return {"temperature_c": await sensor.read_c()}

@@ -86,19 +86,26 @@ def travel_weights(swept: ArrayLike, bin_mm: float, spread_mm: float) -> NDArray
     return np.convolve(s, kernel / kernel.sum(), mode="same")
 
 
-def travel_delta_a_mm(delta_a_mm: float, at_mm: float, centres_mm: ArrayLike,
-                      weights: ArrayLike, stage: ThermalStage, toward: int) -> float:
-    """The Δa that makes the linear stage grow the screw at ``at_mm`` as much as a screw
-    warm where ``weights`` say: growth(x) = Δa · s · (W(x) − W(o)) / (W(A) − W(o)), W the
-    integral of the weights, o the fixed end (``stage.origin_mm``), A the Δa point at
-    ``stage.length_mm`` from it on the side ``toward`` (±1) of the travel. Equal weights
-    give back ``delta_a_mm``; so do no weights at all and a place at the fixed end."""
+def travel_integral(centres_mm: ArrayLike, weights: ArrayLike) -> NDArray[np.float64]:
+    """W(x): the integral of the heat weights along the screw, at ``centres_mm``."""
     x = np.asarray(centres_mm, dtype=np.float64)
     w = np.asarray(weights, dtype=np.float64)
+    return np.concatenate([[0.0], np.cumsum((w[1:] + w[:-1]) / 2.0 * np.diff(x))])
+
+
+def travel_delta_a_mm(delta_a_mm: float, at_mm: float, centres_mm: ArrayLike,
+                      integral: ArrayLike, stage: ThermalStage, toward: int) -> float:
+    """The Δa that makes the linear stage grow the screw at ``at_mm`` as much as a screw
+    warm where the weights say: growth(x) = Δa · s · (W(x) − W(o)) / (W(A) − W(o)), W the
+    integral of the weights (:func:`travel_integral`), o the fixed end
+    (``stage.origin_mm``), A the Δa point at ``stage.length_mm`` from it on the side
+    ``toward`` (±1) of the travel. Equal weights give back ``delta_a_mm``; so do no weights
+    at all and a place at the fixed end."""
+    x = np.asarray(centres_mm, dtype=np.float64)
+    cum = np.asarray(integral, dtype=np.float64)
     lever = at_mm - stage.origin_mm
-    if abs(lever) < 1.0 or w.size < 2 or not np.any(w > 0):
+    if abs(lever) < 1.0 or cum.size < 2 or not cum[-1] > 0:
         return delta_a_mm
-    cum = np.concatenate([[0.0], np.cumsum((w[1:] + w[:-1]) / 2.0 * np.diff(x))])
     o = float(np.interp(stage.origin_mm, x, cum))
     a_point = stage.origin_mm + toward * stage.length_mm
     whole = float(np.interp(a_point, x, cum)) - o
