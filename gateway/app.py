@@ -90,7 +90,8 @@ class GatewayApp:
         }
         self.sensors = SensorSet.from_config(config.thermal_sources, self.buses, axes=config.axes)
         self.gateway = Gateway(
-            config, chain, self.buses, delta_a_mm=self.sensors.axis_delta_a_mm
+            config, chain, self.buses, delta_a_mm=self.sensors.axis_delta_a_mm,
+            moved=self.sensors.moved,
         )
         self.status = StatusUnit(
             self.gateway,

@@ -305,8 +305,26 @@ class TravelProfile(Model):
     bin_mm: float = Field(default=5.0, gt=0.0, le=100.0)
 
 
+class MotionHeat(Model):
+    """Δa without a sensor: from the heat the axis's own motion puts into its screw
+    (:func:`~gateway.compensation.thermal.motion_heat_m`). ``delta_a_um_per_m``: Δa at
+    ``length_mm`` per metre of travel whose heat is still in the screw; ``tau_s``: how fast
+    that heat goes to the air; ``speeds_mm_s``: the axes whose moves take machine time and
+    their speed (a move lasts at least travel/speed, so time passes with the moves even
+    where the clock cannot see it; the wall clock counts pauses). Fitted by ``compgw
+    commission`` from its drift references on an axis with no sensor; the screw is taken
+    as cold when the gateway starts."""
+
+    delta_a_um_per_m: float = Field(gt=0.0, le=1000.0)
+    tau_s: float = Field(gt=0.0, le=1e6)
+    speeds_mm_s: dict[str, Positive] = Field(default_factory=dict)
+
+
 class AxisThermal(Model):
-    source: str
+    """Thermal growth: Δa from a ``source`` in thermal_sources, or from ``motion``."""
+
+    source: str | None = None
+    motion: MotionHeat | None = None
     length_mm: Positive
     origin_mm: float = 0.0
     #: Δa used = gain × the source's Δa: the screw is not at the sensor's temperature (a
@@ -315,6 +333,13 @@ class AxisThermal(Model):
     gain: float = Field(default=1.0, gt=0.0, le=10.0)
     #: where the heat is, from the axis's own travel (see TravelProfile); off: linear
     profile: TravelProfile | None = None
+
+    @model_validator(mode="after")
+    def _one_source(self) -> AxisThermal:
+        if (self.source is None) == (self.motion is None):
+            raise ValueError("thermal: give either source (a sensor in thermal_sources) or "
+                             "motion (Δa from the axis's own travel), not both or neither")
+        return self
 
 
 class Compensation(Model):
@@ -526,7 +551,11 @@ class GatewayConfig(Model):
         for name, axis in self.axes.items():
             _require(self.buses, axis.bus, ("axes", name, "bus"), "buses")
             thermal = axis.compensation.thermal
-            if thermal is not None:
+            if thermal is not None and thermal.motion is not None:
+                for other in thermal.motion.speeds_mm_s:
+                    _require(self.axes, other, ("axes", name, "compensation", "thermal",
+                                                "motion", "speeds_mm_s", other), "axes")
+            if thermal is not None and thermal.source is not None:
                 path = ("axes", name, "compensation", "thermal", "source")
                 _require(self.thermal_sources, thermal.source, path, "thermal_sources")
                 if thermal.profile is not None and \

@@ -75,6 +75,10 @@ log = logging.getLogger(__name__)
 DeltaA = Callable[[str], float | None]
 
 
+def _no_move(name: str, x_mm: float) -> None:
+    pass
+
+
 def _no_thermal(_axis: str) -> float | None:
     return None
 
@@ -134,10 +138,13 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
         buses: dict[str, Bus],
         *,
         delta_a_mm: DeltaA = _no_thermal,
+        moved: Callable[[str, float], None] = _no_move,
         status_handler: Callable[[bytes], bytes] | None = None,
     ) -> None:
         self.buses = buses
         self.delta_a_mm = delta_a_mm
+        #: told of every target sent on (axis, mm): heat from motion counts it
+        self.moved = moved
         self.status_handler = status_handler
         self.counters = GatewayCounters()
         #: called after axis state changed (a commit, a homing): the state file's hook
@@ -323,8 +330,10 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
     def _swept(self, name: str, to_pulses: float) -> None:
         """Axis ``name`` is sent to ``to_pulses``: its travel profile counts the stretch."""
         travel = self._travel.get(name)
+        x_mm = to_pulses * self.setup.config.axes[name].pulse_mm
         if travel is not None:
-            travel.move_to(to_pulses * self.setup.config.axes[name].pulse_mm)
+            travel.move_to(x_mm)
+        self.moved(name, x_mm)
 
 
 def _nothing() -> None:

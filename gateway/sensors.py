@@ -71,6 +71,7 @@ from .modbus.frames import (
     parse_read_registers_response,
     unpack_int32,
 )
+from .thermal_travel import HeatFromMotion
 
 log = logging.getLogger(__name__)
 
@@ -459,15 +460,28 @@ class SensorSet:
                  axis_thermal: Mapping[str, AxisThermal] | None = None) -> None:
         self.sensors = dict(sensors)
         self.axis_thermal: dict[str, AxisThermal] = {}
+        #: axes whose Δa comes from their own motion (thermal.motion): their screw's heat
+        self.motion: dict[str, HeatFromMotion] = {}
         self.set_axis_thermal(axis_thermal or {})
 
     def set_axis_thermal(self, axis_thermal: Mapping[str, AxisThermal]) -> None:
         """Replace the axis → (source, length) map (config reload); checked first."""
         for axis, thermal in axis_thermal.items():
-            if thermal.source not in self.sensors:
+            if thermal.source is not None and thermal.source not in self.sensors:
                 raise ValueError(f"axes.{axis}.compensation.thermal.source: "
                                  f"{thermal.source!r} is not a thermal source")
         self.axis_thermal = dict(axis_thermal)
+        motion = {}
+        for axis, thermal in axis_thermal.items():
+            if thermal.motion is not None:  # the screw's heat survives a reload
+                motion[axis] = self.motion.get(axis) or HeatFromMotion(axis, thermal.motion)
+                motion[axis].motion = thermal.motion
+        self.motion = motion
+
+    def moved(self, axis: str, x_mm: float) -> None:
+        """The gateway sent ``axis`` to ``x_mm``: axes heated by motion count it."""
+        for heat in self.motion.values():
+            heat.moved(axis, x_mm)
 
     def set_axes(self, axes: Mapping[str, Axis]) -> None:
         """:meth:`set_axis_thermal` from the config's axes (reload)."""
@@ -510,6 +524,8 @@ class SensorSet:
 
     def delta_a_mm_for(self, thermal: AxisThermal) -> float | None:
         """Δa for an axis thermal setting (its source, length and gain)."""
+        if thermal.source is None:
+            return None
         d = self.sensors[thermal.source].delta_a_mm_for(thermal.length_mm)
         return None if d is None else d * thermal.gain
 
@@ -518,6 +534,9 @@ class SensorSet:
 
         Shaped as the router's ``delta_a_mm`` callable."""
         thermal = self.axis_thermal.get(axis)
+        heat = self.motion.get(axis)
+        if heat is not None and thermal is not None:
+            return heat.delta_a_mm() * thermal.gain
         return None if thermal is None else self.delta_a_mm_for(thermal)
 
     async def run(self, stop_event: asyncio.Event) -> None:

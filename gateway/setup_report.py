@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from .compensation import Chain
-from .config import GatewayConfig, TlsRole
+from .config import AxisThermal, GatewayConfig, TlsRole
 
 
 def describe(config: GatewayConfig, chain: Chain) -> str:
@@ -103,7 +103,7 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
             )
         if stages.thermal is not None:
             parts.append(
-                f"thermal from {axis.compensation.thermal.source} "  # type: ignore[union-attr]
+                f"thermal from {_thermal_source(axis.compensation.thermal)} "  # type: ignore[arg-type]
                 f"(a = {stages.thermal.length_mm:g} mm, origin {stages.thermal.origin_mm:g} mm)"
             )
         lines.append("    compensation: " + ("; ".join(parts) if parts else "none"))
@@ -135,3 +135,11 @@ def _role(role: TlsRole) -> str:
     else:
         write = "write " + ",".join(f"0x{a:04X}-0x{b:04X}" for a, b in role.write)
     return f"units {units}, {'read' if role.read else 'no read'}, {write}"
+
+
+def _thermal_source(thermal: AxisThermal) -> str:
+    """Where an axis's Δa comes from, in words."""
+    m = thermal.motion
+    if m is None:
+        return str(thermal.source)
+    return f"its own motion ({m.delta_a_um_per_m:g} µm per m of heat, tau {m.tau_s:g} s)"

@@ -1,4 +1,5 @@
-"""Where each screw has been working: the swept travel behind ``thermal.profile``.
+"""Where each screw has been working: the swept travel behind ``thermal.profile``, and
+how warm its own motion has made it (``thermal.motion``, an axis with no sensor).
 
 The nut's friction heats the screw where it runs; a Δa sensor at the free end reads the
 whole elongation but not where it is. The gateway sees every target it corrects, so it
@@ -11,16 +12,19 @@ starts empty and the linear spread applies until the axis has moved.
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 
 import numpy as np
 
 from .compensation.thermal import (
     ThermalStage,
+    motion_heat_m,
     travel_delta_a_mm,
     travel_integral,
     travel_weights,
 )
-from .config import AxisThermal, TravelProfile
+from .config import AxisThermal, MotionHeat, TravelProfile
 
 
 class TravelHistory:
@@ -68,3 +72,41 @@ class TravelHistory:
             self._integral = travel_integral(self.centres_mm, weights)
         return travel_delta_a_mm(delta_a_mm, at_mm, self.centres_mm, self._integral,
                                  self.stage, self.toward)  # fmt: skip
+
+
+class HeatFromMotion:
+    """The heat one axis's moves have put into its screw, and the Δa it makes (no sensor).
+
+    Told of every target the gateway sends on (any axis): the axis's own travel heats the
+    screw, and each move of an axis in ``speeds_mm_s`` lasts at least its travel over that
+    speed, the time the screw cools by; the monotonic clock counts pauses. Nothing is
+    persisted: after a restart the screw is taken as cold."""
+
+    def __init__(self, axis: str, motion: MotionHeat,
+                 clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
+        self.axis = axis
+        self.motion = motion
+        self.clock = clock
+        self.heat_m = 0.0
+        self.last_mm: dict[str, float] = {}
+        self.at_s = clock()
+
+    def moved(self, axis: str, x_mm: float) -> None:
+        """``axis`` is sent to ``x_mm``: heat from this screw's travel, cooling for the time
+        the move takes (or the wall clock, whichever is longer)."""
+        now = self.clock()
+        last = self.last_mm.get(axis)
+        self.last_mm[axis] = x_mm
+        travel_mm = 0.0 if last is None else abs(x_mm - last)
+        speed = self.motion.speeds_mm_s.get(axis)
+        moving_s = travel_mm / speed if speed else 0.0
+        own_m = travel_mm / 1000.0 if axis == self.axis else 0.0
+        self.heat_m = motion_heat_m(self.heat_m, own_m, max(moving_s, now - self.at_s),
+                                    self.motion.tau_s)  # fmt: skip
+        self.at_s = now
+
+    def delta_a_mm(self) -> float:
+        """Δa now (mm): the heat, cooled for the time since the last move."""
+        idle = max(0.0, self.clock() - self.at_s)
+        heat = motion_heat_m(self.heat_m, 0.0, idle, self.motion.tau_s)
+        return self.motion.delta_a_um_per_m * heat / 1000.0

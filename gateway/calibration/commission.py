@@ -212,6 +212,7 @@ class Commission(RotarySteps):
         except (MachineError, OSError) as exc:
             where = await self.restore()
             raise CommissionAborted(f"{exc}; {where}") from exc
+        self.fit_motion_heat()
         try:
             await self._after()
         except BudgetSpent as exc:

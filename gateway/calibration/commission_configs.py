@@ -1,7 +1,8 @@
 """The configs ``compgw commission`` makes the gateway run, as pure dict transforms of the
 user's config: *identification* (no pitch, backlash, cyclic or planar stage; thermal kept,
-with the fitted length once known), *pitch* (the axes' tables and cyclic terms, no planar
-model: what the XY grid is measured with) and *full* (everything: the final config).
+with the fitted length once known, or heat from motion once fitted on an axis without
+one), *pitch* (the axes' tables and cyclic terms, no planar model: what the XY grid is
+measured with) and *full* (everything: the final config).
 
 Only sections the gateway can reload change (``axes.*.compensation`` and ``planar``);
 everything else is the user's, untouched. Table paths are relative to the config file.
@@ -25,13 +26,15 @@ class Tables:
     cyclic: dict[str, str] = field(default_factory=dict)  # axis → cyclic YAML
     thermal_length_mm: dict[str, float] = field(default_factory=dict)
     thermal_gain: dict[str, float] = field(default_factory=dict)  # temperature sources
+    #: axes with no sensor: heat from motion (their thermal section, heat_fit)
+    motion: dict[str, dict[str, Any]] = field(default_factory=dict)
     planar_model: str | None = None
     planar_axes: tuple[str, str] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {"pitch": self.pitch, "cyclic": self.cyclic,
                 "thermal_length_mm": self.thermal_length_mm,
-                "thermal_gain": self.thermal_gain,
+                "thermal_gain": self.thermal_gain, "motion": self.motion,
                 "planar_model": self.planar_model,
                 "planar_axes": list(self.planar_axes) if self.planar_axes else None}  # fmt: skip
 
@@ -41,7 +44,8 @@ class Tables:
         return cls(dict(data.get("pitch", {})), dict(data.get("cyclic", {})),
                    {k: float(v) for k, v in data.get("thermal_length_mm", {}).items()},
                    {k: float(v) for k, v in data.get("thermal_gain", {}).items()},
-                   data.get("planar_model"), tuple(axes) if axes else None)  # type: ignore[arg-type]  # fmt: skip
+                   dict(data.get("motion", {})), data.get("planar_model"),
+                   tuple(axes) if axes else None)  # type: ignore[arg-type]  # fmt: skip
 
 
 def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tables
@@ -57,6 +61,8 @@ def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tabl
         comp["enabled"] = True
         if name in tables.thermal_length_mm and comp.get("thermal"):
             comp["thermal"] = {**comp["thermal"], "length_mm": tables.thermal_length_mm[name]}
+        if name in tables.motion and not comp.get("thermal"):
+            comp["thermal"] = copy.deepcopy(tables.motion[name])
         if name in tables.thermal_gain and comp.get("thermal"):
             comp["thermal"] = {**comp["thermal"], "gain": round(tables.thermal_gain[name], 4)}
         data["axes"][name]["compensation"] = comp

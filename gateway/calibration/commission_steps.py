@@ -13,6 +13,7 @@ import hashlib
 import itertools
 import json
 import shutil
+import time
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +28,7 @@ from ..config_types import read_yaml
 from ..formats import atomic_write_text
 from . import adaptive
 from .commission_configs import HEADER, Tables, identification, with_tables
+from .heat_fit import motion_heat_fit
 from .machine import MotionSettings
 from .plans import (
     Plan,
@@ -211,6 +213,7 @@ class Steps:
         try:
             link = await links.get(self.s.gateway.host, self.s.gateway.port)
             driver = MachineDriver(link, self.config, self.s.motion)
+            driver.on_move = self._count_travel
             ins = self.s.instruments
             assert ins.laser is not None
             order = list(ins.laser_axes or self.config.axes)
@@ -354,10 +357,11 @@ class Steps:
         pending = self.state.setdefault("pending_refs", {})
         if drifting and key not in pending:
             pending[key] = self._drift_now(await self._measure_refs())
+            self._log_drift(pending[key])
             self._save()
         self.state["last_refs"] = None  # the moves change the thermal state
         session = Session(self.config, self.config_dir, self.s.gateway, self.s.instruments,
-                          self.s.motion, park or {})  # fmt: skip
+                          self.s.motion, park or {}, on_move=self._count_travel)  # fmt: skip
         if self.progress is not None:
             name = key.rsplit(".", 1)[0]
             session.progress = lambda k, n: self.progress(name, k, n)  # type: ignore[misc]
@@ -365,6 +369,7 @@ class Steps:
         entry: dict[str, Any] = {"raw": self._rel(raw)}
         if drifting:
             after = self._drift_now(await self._measure_refs())
+            self._log_drift(after)
             before = pending.pop(key)
             # an axis with thermal compensation: the gateway follows its growth (the
             # readings hold what it leaves, as they will in use); the others: taken off
@@ -373,6 +378,52 @@ class Steps:
                               if self.config.axes[a].compensation.thermal is None}  # fmt: skip
             self.state["drift_last"] = after
         return entry
+
+    def _count_travel(self, axis: str, x_mm: float) -> None:
+        """The odometer: every target commissioning writes, per axis (mm)."""
+        odo = self.state.setdefault("odometer", {"mm": {}, "at": {}})
+        last = odo["at"].get(axis)
+        if last is not None:
+            odo["mm"][axis] = odo["mm"].get(axis, 0.0) + abs(x_mm - last)
+        odo["at"][axis] = x_mm
+
+    def _log_drift(self, drift: dict[str, list[float]]) -> None:
+        """Keep the drift (mm, at both references) with the odometer and the wall clock:
+        what heat from motion is fitted to (heat_fit)."""
+        odo = self.state.get("odometer", {"mm": {}})["mm"]
+        self.state.setdefault("drift_log", []).append(
+            {"odometer_mm": {a: odo.get(a, 0.0) for a in drift}, "wall_s": time.time(),
+             "drift_mm": drift})  # fmt: skip
+
+    def fit_motion_heat(self) -> None:
+        """Heat from motion on every linear axis with no thermal setting of its own, fitted
+        to the drift references read so far (once: later drift is what it leaves)."""
+        log = self.state.get("drift_log", [])
+        for a in self.s.axes:
+            axis = self.config.axes[a]
+            key = f"motion-{a}"
+            ident = self.state.setdefault("identify", {})
+            if axis.compensation.thermal is not None or axis.rotary or key in ident:
+                continue
+            try:
+                fit = motion_heat_fit(
+                    a, {b: [e["odometer_mm"][b] / 1000.0 for e in log] for b in self.s.axes},
+                    [e["wall_s"] for e in log],
+                    [[d * 1000.0 for d in e["drift_mm"][a]] for e in log],
+                    self._ref_positions(a), dict.fromkeys(self.s.axes, self.s.speed_mm_s),
+                    self._travel(a))  # fmt: skip
+            except TableError as exc:
+                ident[key] = {"fitted": False, "why": str(exc)}
+                self.say(f"{a}: no heat-from-motion model: {exc}")
+                continue
+            self.tables.motion[a] = fit.config()
+            ident[key] = {"fitted": True, **fit.config(), "growth_max_um": fit.growth_max_um,
+                          "residual_rms_um": fit.residual_rms_um, "points": fit.points}
+            self.say(f"{a}: no thermal sensor; heat from its own motion explains the drift "
+                     f"({fit.growth_max_um:.1f} µm at most) to {fit.residual_rms_um:.2f} µm "
+                     f"RMS: Δa {fit.delta_a_um_per_m:.3g} µm per metre of heat, tau "
+                     f"{fit.tau_s:.0f} s, fixed end at {fit.origin_mm:.0f} mm")  # fmt: skip
+        self._save()
 
     def _park(self, axis: str) -> dict[str, float]:
         """Where the other plane axis stands while ``axis`` is measured: its lower end."""

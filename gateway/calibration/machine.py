@@ -23,7 +23,7 @@ own address, e.g. ``--laser 127.0.0.1:5020:20``.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 from pymodbus.client import AsyncModbusTcpClient
@@ -162,6 +162,8 @@ class MachineDriver:
         self.link = link
         self.config = config
         self.settings = settings or MotionSettings()
+        #: told of every target written (axis, mm): commissioning's odometer
+        self.on_move: Callable[[str, float], None] | None = None
 
     def axis(self, name: str) -> Axis:
         if name not in self.config.axes:
@@ -181,6 +183,8 @@ class MachineDriver:
         reg = axis.registers.target
         words = pack_int32(self.pulses(name, position_mm), reg.order)
         await self.link.write(axis.upstream, reg.address, list(words))
+        if self.on_move is not None:
+            self.on_move(name, position_mm)
 
     async def trigger(self, name: str) -> None:
         axis = self.axis(name)

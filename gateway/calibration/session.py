@@ -74,6 +74,8 @@ class Session:
     park: Mapping[str, float] = field(default_factory=dict)
     progress: ProgressFn | None = None
     dwell: Callable[[float], Awaitable[None]] | None = None
+    #: told of every target written (axis, mm)
+    on_move: Callable[[str, float], None] | None = None
 
     async def run(self, plan: Plan, raw_path: Path, compensation: str) -> RunSummary:
         """Run ``plan`` into ``raw_path`` (resuming), measuring with the right instrument."""
@@ -81,6 +83,7 @@ class Session:
         try:
             link = await links.get(self.gateway.host, self.gateway.port)
             driver = MachineDriver(link, self.config, self.motion)
+            driver.on_move = self.on_move
             measure = await self._measure_fn(plan, links)
             extra, names = None, ()
             if plan.kind == "warmup" and self.instruments.delta_a is None and \

@@ -113,3 +113,33 @@ def travel_delta_a_mm(delta_a_mm: float, at_mm: float, centres_mm: ArrayLike,
         return delta_a_mm
     fraction = toward * (float(np.interp(at_mm, x, cum)) - o) / whole
     return delta_a_mm * fraction * stage.length_mm / lever
+
+
+# -- without a sensor: the heat the axis's own motion puts into its screw -----------------
+def motion_heat_m(heat_m: float, travel_m: float, elapsed_s: float, tau_s: float) -> float:
+    """The screw's heat after ``elapsed_s`` in which its nut travelled ``travel_m``, in
+    metres of travel (m).
+
+    A ball screw warms by its nut's friction, about the same energy per metre travelled at
+    any speed, and loses heat to the air in proportion to how warm it is (time constant
+    ``tau_s``): ``heat_m`` is the travel whose heat is still in the screw. The stretch's own
+    travel is deposited evenly over it and decays with it."""
+    if travel_m < 0 or elapsed_s < 0 or tau_s <= 0:
+        raise CompensationError("motion heat: travel and time must be >= 0, tau > 0")
+    x = elapsed_s / tau_s
+    if x < 1e-9:
+        return heat_m * (1.0 - x) + travel_m
+    fade = float(np.exp(-x))
+    return heat_m * fade + travel_m * (1.0 - fade) / x
+
+
+def motion_heat_series_m(travel_m: ArrayLike, elapsed_s: ArrayLike,
+                         tau_s: float) -> NDArray[np.float64]:
+    """Heat (m of travel, see :func:`motion_heat_m`) after each of a sequence of stretches,
+    from a cold screw."""
+    out = np.empty(np.size(travel_m))
+    heat = 0.0
+    for k, (d, t) in enumerate(zip(np.ravel(travel_m), np.ravel(elapsed_s), strict=True)):
+        heat = motion_heat_m(heat, float(d), float(t), tau_s)
+        out[k] = heat
+    return out
