@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from gateway.calibration.plans import read_plan
 from gateway.calibration.rawdata import read_raw_csv
@@ -75,6 +76,13 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         check = subprocess.run([sys.executable, "-m", "gateway.cli", "check", "-c",
                                 str(rig.config)], cwd=ROOT, capture_output=True, text=True)
         assert check.returncode == 0, check.stdout + check.stderr
+        # no thermal sensor: heat from motion fitted from the drift references (or why not),
+        # and the final config carries what was fitted
+        final = yaml.safe_load(rig.config.read_text())["axes"]
+        for axis in ("X", "Y"):
+            heat = summary["identify"][f"motion-{axis}"]
+            assert heat["fitted"] == ("thermal" in final[axis]["compensation"]), heat
+            assert heat["fitted"] or f"axis {axis}" in heat["why"], heat
         report = (out / "report" / "report.html").read_text()
         assert "id='summary'" in report and "What remains" in report
         assert report.count("data:image/png;base64,") == 3  # X, Y, the XY field

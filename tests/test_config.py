@@ -178,3 +178,22 @@ def test_check_warns_when_corrections_are_rounded_to_coarse_drive_units():
     data = copy.deepcopy(BASE)
     data["axes"]["X"]["compensation"] = {}  # nothing corrected: nothing to round
     assert not [w for w in warnings(parse_config(data)) if "drive units" in w]
+
+
+@pytest.mark.parametrize(
+    ("thermal", "message"),
+    [
+        ({"length_mm": 800, "source": "x_ref",
+          "motion": {"delta_a_um_per_m": 1, "tau_s": 60}}, r"thermal: give either source"),
+        ({"length_mm": 800, "motion": {"delta_a_um_per_m": 1, "tau_s": 60,
+                                       "speeds_mm_s": {"Q": 100}}},
+         r"axes\.X\.compensation\.thermal\.motion\.speeds_mm_s\.Q: 'Q' is not one of axes"),
+        ({"length_mm": 800, "motion": {"delta_a_um_per_m": 1, "tau_s": 0}},
+         r"thermal\.motion\.tau_s"),
+    ],
+)
+def test_bad_heat_from_motion_names_the_field(thermal, message):
+    data = copy.deepcopy(BASE)
+    data["axes"]["X"].setdefault("compensation", {})["thermal"] = thermal
+    with pytest.raises(ConfigError, match=message):
+        parse_config(data)

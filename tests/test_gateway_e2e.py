@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import math
 import re
 import shutil
 import socket
@@ -443,6 +444,34 @@ def test_a_travel_profile_puts_the_growth_where_the_axis_worked(tmp_path: Path):
             await move(master, 1, 600_000)  # all 0.08 mm of growth below it
             assert await read32(direct, 1, TARGET) == 600_000 - 80
             # feedback reads back the nominal target through the same profile
+            assert await read32(master, 1, FEEDBACK) == 600_000
+
+    run(body())
+
+
+def test_heat_from_motion_shrinks_the_command_as_the_axis_works(tmp_path: Path):
+    """thermal.motion, no sensor: after ten 200 mm strokes at 100 mm/s (20 s of moves, a
+    tau of 100 s), 1.81 m of heat at 10 µm per metre is a Δa of 18.1 µm over 800 mm; the
+    target at 600 mm goes out that much shorter and the feedback reads back nominal."""
+
+    def thermal(data):
+        data["axes"]["X"]["compensation"]["thermal"] = {
+            "length_mm": 800, "motion": {"delta_a_um_per_m": 10.0, "tau_s": 100.0,
+                                         "speeds_mm_s": {"X": 100}}}
+
+    async def body():
+        async with rig(tmp_path, thermal, {}) as r:
+            master, direct = r["master"], r["direct"]
+            await move(master, 1, 100_000)
+            assert await read32(direct, 1, TARGET) == 100_000  # cold
+            for _ in range(5):
+                await move(master, 1, 300_000)
+                await move(master, 1, 100_000)
+            heat_m = 0.1 * 100.0 * (1 - math.exp(-20.0 / 100.0))  # rate · tau · (1 − e^-t/tau)
+            delta_a_mm = 10.0 * heat_m / 1000
+            await move(master, 1, 600_000)
+            want = 600_000 * 800 / (800 + delta_a_mm)
+            assert abs(await read32(direct, 1, TARGET) - want) <= 1
             assert await read32(master, 1, FEEDBACK) == 600_000
 
     run(body())

@@ -31,6 +31,9 @@ TAU_GRID_S = np.geomspace(20.0, 50_000.0, 100)
 MIN_GROWTH_UM = 3.0
 #: the model must explain this much of the drift (residual RMS over drift RMS at most)
 MAX_RESIDUAL_SHARE = 0.5
+#: a fixed end farther than this many travels off the travel is not a screw's growth (a
+#: drift that is the same everywhere: the air at the laser, a base that moves)
+FAR_ENDS = 20.0
 
 
 @dataclass(frozen=True)
@@ -108,7 +111,7 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
     origin = x0 - s0 / per_mm
     lo, hi = travel_mm
     length = max(abs(x0 - origin), abs(x1 - origin))
-    if not lo - 2 * (hi - lo) <= origin <= hi + 2 * (hi - lo):
+    if not lo - FAR_ENDS * (hi - lo) <= origin <= hi + FAR_ENDS * (hi - lo):
         raise TableError(f"axis {axis}: the drift puts the screw's fixed end at "
                          f"{origin:.0f} mm, far off the travel: not the screw's growth")
     return MotionHeatFit(axis, origin, length, per_mm * length, tau, dict(speeds_mm_s),

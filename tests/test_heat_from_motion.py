@@ -1,0 +1,135 @@
+"""thermal.motion: Δa without a sensor, from the heat an axis's own moves put into its
+screw; and its fit from commissioning's drift references (gateway/calibration/heat_fit)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gateway.calibration.heat_fit import motion_heat_fit
+from gateway.compensation.errors import TableError
+from gateway.compensation.thermal import motion_heat_m, motion_heat_series_m
+from gateway.config import AxisThermal, MotionHeat
+from gateway.sensors import SensorSet
+from gateway.thermal_travel import HeatFromMotion
+
+
+def test_steady_travel_levels_off_at_speed_times_tau_and_a_pause_cools() -> None:
+    """Travel at v for a long time: heat → v·τ (the continuous solution, not the recursion);
+    a pause of τ leaves 1/e."""
+    v_m_s, tau = 0.1, 300.0
+    strokes = 2000
+    heat = motion_heat_series_m(np.full(strokes, 0.05), np.full(strokes, 0.5), tau)
+    t = np.arange(1, strokes + 1) * 0.5
+    assert heat == pytest.approx(v_m_s * tau * (1 - np.exp(-t / tau)), rel=1e-9)
+    assert motion_heat_m(heat[-1], 0.0, tau, tau) == pytest.approx(heat[-1] / math.e)
+    with pytest.raises(Exception, match="tau > 0"):
+        motion_heat_m(0.0, 0.1, 1.0, 0.0)
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_other_axes_moves_pass_time_and_the_wall_clock_counts_pauses() -> None:
+    clock = Clock()
+    motion = MotionHeat(delta_a_um_per_m=10.0, tau_s=100.0, speeds_mm_s={"X": 100, "Y": 50})
+    heat = HeatFromMotion("X", motion, clock)
+    heat.moved("X", 0.0)
+    heat.moved("X", 500.0)  # 0.5 m in 5 s
+    h1 = 0.5 * (1 - math.exp(-0.05)) / 0.05
+    assert heat.delta_a_mm() == pytest.approx(10.0 * h1 / 1000)
+    heat.moved("Y", 0.0)
+    heat.moved("Y", 500.0)  # Y takes 10 s: X's screw cools, nothing added
+    assert heat.delta_a_mm() == pytest.approx(10.0 * h1 * math.exp(-0.1) / 1000)
+    clock.t += 100.0  # a pause of tau
+    assert heat.delta_a_mm() == pytest.approx(10.0 * h1 * math.exp(-1.1) / 1000)
+    heat.moved("Z", 1.0)  # an axis with no speed passes only the wall clock's time
+    assert heat.delta_a_mm() == pytest.approx(10.0 * h1 * math.exp(-1.1) / 1000)
+
+
+def test_a_reload_keeps_the_screws_heat_and_gain_scales_it() -> None:
+    motion = MotionHeat(delta_a_um_per_m=20.0, tau_s=1e5, speeds_mm_s={"X": 100})
+    th = AxisThermal(length_mm=600, motion=motion)
+    sensors = SensorSet({}, {"X": th})
+    sensors.moved("X", 0.0)
+    sensors.moved("X", 400.0)
+    before = sensors.axis_delta_a_mm("X")
+    assert before == pytest.approx(20.0 * 0.4 / 1000, rel=1e-4)
+    sensors.set_axis_thermal({"X": th.model_copy(update={"gain": 0.5})})
+    assert sensors.axis_delta_a_mm("X") == pytest.approx(before * 0.5, rel=1e-6)
+    assert sensors.axis_delta_a_mm("Y") is None
+
+
+def test_thermal_takes_a_source_or_motion_not_both() -> None:
+    motion = {"delta_a_um_per_m": 1.0, "tau_s": 10.0}
+    with pytest.raises(ValueError, match="either source"):
+        AxisThermal.model_validate({"length_mm": 100, "source": "s", "motion": motion})
+    with pytest.raises(ValueError, match="either source"):
+        AxisThermal.model_validate({"length_mm": 100})
+
+
+def _commissioning(rng: np.random.Generator, tau_s: float, fixed_mm: float, rise_um_per_m: float,
+                   refs: tuple[float, float], hours: float = 3.0):
+    """A lumped screw heated by X's travel, cooled by time, stepped in 0.1 s of machine time
+    (the ODE integrated by Euler, not the fit's closed form); both axes at 100 mm/s; the
+    drift read every ~200 moves at both references, with 0.1 µm of noise."""
+    dt, speed = 0.1, 100.0
+    x = {"X": 0.0, "Y": 0.0}
+    odo = {"X": 0.0, "Y": 0.0}
+    theta = 0.0  # growth per mm of lever, µm/mm
+    log_odo: dict[str, list[float]] = {"X": [], "Y": []}
+    growth: list[list[float]] = []
+    t = 0.0
+    move = 0
+    while t < hours * 3600:
+        axis = "X" if rng.random() < 0.6 else "Y"
+        to = float(rng.uniform(0, 500))
+        d = abs(to - x[axis])
+        steps = max(1, round(d / speed / dt))
+        for _ in range(steps):
+            q = rise_um_per_m * (d / 1000 / steps) / dt if axis == "X" else 0.0
+            theta += (q - theta / tau_s) * dt
+        t += steps * dt
+        odo[axis] += d
+        x[axis] = to
+        move += 1
+        if move % 200 == 0:
+            for a in odo:
+                log_odo[a].append(odo[a] / 1000)
+            growth.append([theta * (r - fixed_mm) * 1e-3 + rng.normal(0, 0.1) for r in refs])
+    return log_odo, growth
+
+
+def test_the_fit_finds_tau_the_fixed_end_and_the_heat_per_metre() -> None:
+    rng = np.random.default_rng(7)
+    refs = (26.0, 475.0)
+    for tau, fixed, rise in ((600.0, -40.0, 0.2), (1500.0, 540.0, 0.1)):
+        odo, growth = _commissioning(rng, tau, fixed, rise, refs)
+        wall = np.zeros(len(growth))  # a simulator's clock: the wall saw none of it
+        fit = motion_heat_fit("X", odo, wall, growth, refs, {"X": 100.0, "Y": 100.0}, (0, 500))
+        assert fit.tau_s == pytest.approx(tau, rel=0.12)
+        assert fit.origin_mm == pytest.approx(fixed, abs=10)
+        # Δa per metre of heat at the fit's length = rise · length (µm/mm·m → µm/m)
+        assert fit.delta_a_um_per_m / fit.length_mm * 1e3 == pytest.approx(rise, rel=0.1)
+        assert fit.residual_rms_um < 0.2
+        assert fit.config()["motion"]["speeds_mm_s"] == {"X": 100.0, "Y": 100.0}
+
+
+def test_too_little_drift_or_heat_that_never_levels_off_is_refused_by_name() -> None:
+    rng = np.random.default_rng(8)
+    refs = (26.0, 475.0)
+    odo, growth = _commissioning(rng, 600.0, -40.0, 0.002, refs)
+    with pytest.raises(TableError, match=r"axis X: the screw grew .* no heat to model"):
+        motion_heat_fit("X", odo, np.zeros(len(growth)), growth, refs, {"X": 100, "Y": 100},
+                        (0, 500))
+    odo, growth = _commissioning(rng, 1e6, -40.0, 0.2, refs, hours=1.0)
+    with pytest.raises(TableError, match=r"axis X: .* never levelled off"):
+        motion_heat_fit("X", odo, np.zeros(len(growth)), growth, refs, {"X": 100, "Y": 100},
+                        (0, 500))
