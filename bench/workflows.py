@@ -201,14 +201,27 @@ class MachineRun:
 
     def cool_down(self, seconds: int = COOL_DOWN_S) -> None:
         """Let the machine cool (the sim's clock), then wait until the gateway's thermal
-        sources read cold again (its status unit)."""
+        sources read cold again (its status unit).
+
+        Hours pass in the sim at once: the gateway's wall clock does not see them, as it
+        would in a real night, so axes with heat from motion would still be warm to it. A
+        reload without their ``thermal.motion`` and one with it again give them what the
+        hours would: a cold screw."""
         client = ModbusTcpClient("127.0.0.1", port=self.sim_port, timeout=2, retries=0)
         assert client.connect()
         try:
             client.write_register(ADVANCE_CLOCK_S, seconds, device_id=FAULTS_UNIT)
         finally:
             client.close()
-        sources = len(yaml.safe_load(self._gw_path.read_text()).get("thermal_sources") or {})  # type: ignore[union-attr]
+        config = yaml.safe_load(self._gw_path.read_text())  # type: ignore[union-attr]
+        bare = copy.deepcopy(config)
+        for ax in bare["axes"].values():
+            if ((ax.get("compensation") or {}).get("thermal") or {}).get("motion"):
+                del ax["compensation"]["thermal"]
+        if bare != config:
+            self.use(bare)
+            self.use(config)
+        sources = len(config.get("thermal_sources") or {})
         if not sources:
             return
         gw = ModbusTcpClient("127.0.0.1", port=self.gateway_port, timeout=2, retries=0)

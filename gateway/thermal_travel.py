@@ -101,12 +101,12 @@ class HeatFromMotion:
         speed = self.motion.speeds_mm_s.get(axis)
         moving_s = travel_mm / speed if speed else 0.0
         own_m = travel_mm / 1000.0 if axis == self.axis else 0.0
-        self.heat_m = motion_heat_m(self.heat_m, own_m, max(moving_s, now - self.at_s),
-                                    self.motion.tau_s)  # fmt: skip
+        self.heat_m = float(motion_heat_m(self.heat_m, own_m, max(moving_s, now - self.at_s),
+                                          self.motion.tau_s))  # fmt: skip
         self.at_s = now
 
     def delta_a_mm(self) -> float:
         """Δa now (mm): the heat, cooled for the time since the last move."""
         idle = max(0.0, self.clock() - self.at_s)
-        heat = motion_heat_m(self.heat_m, 0.0, idle, self.motion.tau_s)
+        heat = float(motion_heat_m(self.heat_m, 0.0, idle, self.motion.tau_s))
         return self.motion.delta_a_um_per_m * heat / 1000.0

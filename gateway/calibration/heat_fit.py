@@ -27,6 +27,10 @@ from ..compensation.thermal import motion_heat_series_m
 
 #: the time constants tried (s): from a thin screw in a draught to a thick one in still air
 TAU_GRID_S = np.geomspace(20.0, 50_000.0, 100)
+#: the other axes' time per metre tried, relative to the estimated speeds
+SCALE_GRID = np.geomspace(0.2, 5.0, 41)
+#: fits within this share of the best residual (sum of squares) count as as good
+LIKE_SHARE = 0.05
 #: growth (µm) below which there is nothing worth a model
 MIN_GROWTH_UM = 3.0
 #: the model must explain this much of the drift (residual RMS over drift RMS at most)
@@ -66,8 +70,10 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
                     ) -> MotionHeatFit:  # fmt: skip
     """Fit heat from motion to the growth (µm, shape (k, 2): both references) of ``axis``
     read at the odometers ``odometer_m`` (each commissioned axis's travel since the first
-    reading, m) and wall clock ``wall_s``. Raises TableError (naming the axis) when the
-    drift is too small or the model does not hold."""
+    reading, m) and wall clock ``wall_s``; ``speeds_mm_s`` the axes' speeds as estimated.
+    The other axes' speeds relative to this one's are fitted too (their moves cool this
+    screw for as long as they take). Raises TableError (naming the axis) when the drift is
+    too small or the model does not hold."""
     wall = np.asarray(wall_s, dtype=np.float64)
     odo = {a: np.asarray(v, dtype=np.float64) for a, v in odometer_m.items()}
     g = np.asarray(growth_um, dtype=np.float64).reshape(-1, 2)
@@ -80,22 +86,39 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
         raise TableError(f"axis {axis}: the screw grew {peak:.1f} µm at most while "
                          f"commissioning (under {MIN_GROWTH_UM:g}): no heat to model")
     travel = np.diff(odo[axis], prepend=0.0).clip(min=0.0)
-    moving = sum(np.diff(odo[a], prepend=0.0).clip(min=0.0) * 1000.0 / speeds_mm_s[a]
-                 for a in odo)  # fmt: skip
-    elapsed = np.maximum(moving, np.diff(wall, prepend=wall[0]).clip(min=0.0))
-    best: tuple[float, float, np.ndarray] | None = None
-    for tau in TAU_GRID_S:
-        heat = motion_heat_series_m(travel, elapsed, float(tau))
-        hh = float(heat @ heat)
-        if hh <= 0:
-            continue
-        slopes = heat @ g / hh  # growth per metre of heat at each reference
-        sse = float(((g - np.outer(heat, slopes)) ** 2).sum())
-        if best is None or sse < best[0]:
-            best = (sse, float(tau), slopes)
-    if best is None:
+    moving = {a: np.diff(v, prepend=0.0).clip(min=0.0) * 1000.0 / speeds_mm_s[a]
+              for a, v in odo.items()}  # fmt: skip
+    idle = np.diff(wall, prepend=wall[0]).clip(min=0.0)
+    # tau and each other axis's time per metre (relative to the estimate) on a grid
+    # together, the remaining axes held (coordinate descent when there are several)
+    scale = dict.fromkeys(odo, 1.0)
+    others = [a for a in odo if a != axis] or [None]
+    sse, tau, slopes = np.inf, 0.0, np.zeros(2)
+    for _ in range(1 if len(others) == 1 else 3):
+        for what in others:
+            grid = SCALE_GRID if what is not None else np.ones(1)
+            elapsed = sum(moving[a][:, None] * (grid[None, :] if a == what else scale[a])
+                          for a in odo)  # fmt: skip
+            elapsed = np.maximum(np.broadcast_to(elapsed, (n, grid.size)), idle[:, None])
+            heat = motion_heat_series_m(travel, elapsed[:, :, None], TAU_GRID_S)  # (n, S, T)
+            hh = (heat * heat).sum(axis=0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                trial = np.einsum("kst,kr->str", heat, g) / hh[:, :, None]
+                err = ((g[:, None, None, :] - heat[..., None] * trial[None]) ** 2).sum(
+                    axis=(0, 3))  # fmt: skip
+            err = np.where(hh > 0, err, np.inf)
+            # the speeds as estimated unless the drift clearly says otherwise: of the
+            # scales that fit within LIKE_SHARE of the best, the one nearest 1
+            per_scale = err.min(axis=1)
+            near = per_scale <= (1.0 + LIKE_SHARE) * per_scale.min()
+            ks = int(np.argmin(np.where(near, np.abs(np.log(grid)), np.inf)))
+            kt = int(np.argmin(err[ks]))
+            if err[ks, kt] < sse:
+                sse, tau, slopes = float(err[ks, kt]), float(TAU_GRID_S[kt]), trial[ks, kt]
+                if what is not None:
+                    scale[what] = float(grid[ks])
+    if not np.isfinite(sse):
         raise TableError(f"axis {axis}: it never moved between the drift readings")
-    sse, tau, slopes = best
     rms = float(np.sqrt(sse / g.size))
     spread = float(np.sqrt((g**2).mean()))
     if tau >= TAU_GRID_S[-1] or rms > MAX_RESIDUAL_SHARE * spread:
@@ -103,6 +126,7 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
                if tau >= TAU_GRID_S[-1] else
                f"it leaves {rms:.1f} µm RMS of {spread:.1f} µm")  # fmt: skip
         raise TableError(f"axis {axis}: heat from motion does not explain the drift: {why}")
+    speeds_mm_s = {a: speeds_mm_s[a] / scale[a] for a in odo}
     (x0, x1), (s0, s1) = refs_mm, slopes
     per_mm = (s1 - s0) / (x1 - x0)  # growth per mm of lever per metre of heat
     if per_mm <= 0:
@@ -114,5 +138,5 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
     if not lo - FAR_ENDS * (hi - lo) <= origin <= hi + FAR_ENDS * (hi - lo):
         raise TableError(f"axis {axis}: the drift puts the screw's fixed end at "
                          f"{origin:.0f} mm, far off the travel: not the screw's growth")
-    return MotionHeatFit(axis, origin, length, per_mm * length, tau, dict(speeds_mm_s),
+    return MotionHeatFit(axis, origin, length, per_mm * length, tau, speeds_mm_s,
                          peak, rms, n)  # fmt: skip

@@ -116,30 +116,37 @@ def travel_delta_a_mm(delta_a_mm: float, at_mm: float, centres_mm: ArrayLike,
 
 
 # -- without a sensor: the heat the axis's own motion puts into its screw -----------------
-def motion_heat_m(heat_m: float, travel_m: float, elapsed_s: float, tau_s: float) -> float:
+def motion_heat_m(heat_m: ArrayLike, travel_m: ArrayLike, elapsed_s: ArrayLike,
+                  tau_s: ArrayLike) -> NDArray[np.float64]:
     """The screw's heat after ``elapsed_s`` in which its nut travelled ``travel_m``, in
-    metres of travel (m).
+    metres of travel (m); elementwise over arrays.
 
     A ball screw warms by its nut's friction, about the same energy per metre travelled at
     any speed, and loses heat to the air in proportion to how warm it is (time constant
     ``tau_s``): ``heat_m`` is the travel whose heat is still in the screw. The stretch's own
     travel is deposited evenly over it and decays with it."""
-    if travel_m < 0 or elapsed_s < 0 or tau_s <= 0:
+    d = np.asarray(travel_m, dtype=np.float64)
+    t = np.asarray(elapsed_s, dtype=np.float64)
+    tau = np.asarray(tau_s, dtype=np.float64)
+    if np.any(d < 0) or np.any(t < 0) or np.any(tau <= 0):
         raise CompensationError("motion heat: travel and time must be >= 0, tau > 0")
-    x = elapsed_s / tau_s
-    if x < 1e-9:
-        return heat_m * (1.0 - x) + travel_m
-    fade = float(np.exp(-x))
-    return heat_m * fade + travel_m * (1.0 - fade) / x
+    x = t / tau
+    small = x < 1e-12
+    share = np.where(small, 1.0, -np.expm1(-x) / np.where(small, 1.0, x))  # (1 − e^-x)/x
+    return np.asarray(heat_m, dtype=np.float64) * np.exp(-x) + d * share
 
 
 def motion_heat_series_m(travel_m: ArrayLike, elapsed_s: ArrayLike,
-                         tau_s: float) -> NDArray[np.float64]:
-    """Heat (m of travel, see :func:`motion_heat_m`) after each of a sequence of stretches,
-    from a cold screw."""
-    out = np.empty(np.size(travel_m))
-    heat = 0.0
-    for k, (d, t) in enumerate(zip(np.ravel(travel_m), np.ravel(elapsed_s), strict=True)):
-        heat = motion_heat_m(heat, float(d), float(t), tau_s)
+                         tau_s: ArrayLike) -> NDArray[np.float64]:
+    """Heat (m of travel, see :func:`motion_heat_m`) after each of a sequence of stretches
+    (axis 0), from a cold screw; ``elapsed_s`` and ``tau_s`` broadcast over further axes
+    (a grid of time constants or time scales to try)."""
+    d = np.asarray(travel_m, dtype=np.float64)
+    t = np.asarray(elapsed_s, dtype=np.float64)
+    shape = np.broadcast_shapes(t.shape[1:] if t.ndim > 1 else (), np.shape(tau_s))
+    out = np.empty((d.shape[0], *shape))
+    heat = np.zeros(shape)
+    for k in range(d.shape[0]):
+        heat = motion_heat_m(heat, d[k], t[k], tau_s)
         out[k] = heat
     return out
