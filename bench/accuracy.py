@@ -103,8 +103,10 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
                 evaluate(run.machine, the_plan, run.sim_port, run.gateway_port, cool))
         out.update(phases)
         out["sensor"] = run.machine.get("thermal_sensor", "none")
-        out["sensor_axes"] = [a for a, ax in result.config["axes"].items()
-                              if "thermal" in ax.get("compensation", {})]  # fmt: skip
+        thermal = {a: ax.get("compensation", {}).get("thermal") or {}
+                   for a, ax in result.config["axes"].items()}  # fmt: skip
+        out["sensor_axes"] = [a for a, th in thermal.items() if th.get("source")]
+        out["model_axes"] = [a for a, th in thermal.items() if th.get("motion")]
         out["commands"] = len(run.commands)
         out["machine_h"] = (result.machine_time_s or run.machine_s) / 3600
         if run.manual_s is not None:
@@ -124,8 +126,10 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
     b, a = r["before"], r["after"]
     axes = list(a["axes"])
     worst = min(axes, key=lambda n: 1 - a["axes"][n]["E_um"] / b["axes"][n]["E_um"])
-    default = {"delta_a": ["X"], "temperature": axes}.get(r.get("sensor", "none"), [])
-    sensed = r.get("sensor_axes", default)
+    # the machine's sensors (machine.json), and the axes given heat from motion (none:
+    # older runs listed those as sensor axes)
+    sensed = {"delta_a": ["X"], "temperature": axes}.get(r.get("sensor", "none"), [])
+    modelled = r.get("model_axes", [n for n in r.get("sensor_axes", []) if n not in sensed])
     return {
         "E_axis": worst,  # the axis whose E fell least
         "E_before_um": b["axes"][worst]["E_um"],
@@ -141,6 +145,9 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
         "thermal_on_um": max(a["axes"][n]["thermal_um"] for n in sensed or axes),
         "thermal_unsensed_um": max([a["axes"][n]["thermal_um"] for n in axes
                                     if n not in sensed] or [0.0]),
+        # heat from motion (no sensor): its axes' drift after the warm-up, before and after
+        "model_off_um": max([b["axes"][n]["thermal_um"] for n in modelled] or [np.nan]),
+        "model_on_um": max([a["axes"][n]["thermal_um"] for n in modelled] or [np.nan]),
         "machine_h": r.get("machine_h", float("nan")),  # the workflow's plans, as estimated
         # against the manual workflow's plans on the same machine (when measured)
         "vs_manual": r.get("machine_h", float("nan")) / r.get("manual_h", float("nan")),
@@ -148,7 +155,8 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
 
 
 HEAD = (f"{'machine':<24}{'E  before':>11}{'after':>7}{'cut %':>7}{'A-R':>6}{'XY before':>10}"
-        f"{'after':>7}{'cut %':>7}{'offgrid':>8}{'therm off':>10}{'on':>6}{'mach h':>7}"
+        f"{'after':>7}{'cut %':>7}{'offgrid':>8}{'therm off':>10}{'on':>6}{'model':>7}"
+        f"{'mach h':>7}"
         f"{'×man':>6}  sensor")
 
 
@@ -158,6 +166,7 @@ def row(label: str, s: dict[str, Any], sensor: str) -> str:
             f"{s['E_cut_pct']:7.1f}"
             f"{s['A_minus_R_um']:6.2f}{s['xy_before_um']:10.1f}{s['xy_after_um']:7.2f}"
             f"{s['xy_cut_pct']:7.1f}{s['offgrid_rms_um']:8.2f}{s['thermal_off_um']:10.1f}{on}"
+            f"{s.get('model_on_um', float('nan')):7.1f}"
             f"{s.get('machine_h', float('nan')):7.2f}{s.get('vs_manual', float('nan')):6.2f}"
             f"  {sensor}")  # fmt: skip
 
@@ -175,7 +184,8 @@ def group_stats(results: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, 
             if key == "E_axis":
                 continue
             values = [r["summary"][key] for r in rows
-                      if not (key == "thermal_on_um" and r["sensor"] == "none")]  # fmt: skip
+                      if not (key == "thermal_on_um" and r["sensor"] == "none")
+                      and not np.isnan(r["summary"][key])]  # fmt: skip
             if not values:
                 continue
             stats["median"][key] = float(np.median(values))
