@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from ..compensation.errors import TableError
 from ..config import GatewayConfig
 from ..formats import atomic_write_text, read_cyclic, read_pitch_csv, write_cyclic
 from . import adaptive
@@ -240,7 +241,11 @@ class Commission(RotarySteps):
                 await self.use("warmup")
                 raw = await self.step(f"warmup-{a}", lambda a=a: self._warmup_plan(a), "off",
                                       drift=False)  # fmt: skip
-                results[f"thermal-{a}"] = self._fit_thermal(a, read_raw_csv(raw))
+                try:
+                    results[f"thermal-{a}"] = self._fit_thermal(a, read_raw_csv(raw))
+                except TableError as exc:  # the config's own setting stays
+                    results[f"thermal-{a}"] = {"fitted": False, "why": str(exc)}
+                    self.say(f"{a}: thermal setting kept as configured: {exc}")
                 await self.use("identification")  # with the length or gain
             await self.step(f"backlash-{a}", lambda a=a, t=travel: backlash_plan(a, t), "off",
                             self._park(a))  # fmt: skip
