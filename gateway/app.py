@@ -115,7 +115,8 @@ class GatewayApp:
             path = Path(config.state_file)
             if source is not None and not path.is_absolute():
                 path = Path(source).resolve().parent / path
-            self.state_store = StateStore(path, self.gateway.saved_axes)
+            self.state_store = StateStore(path, self.gateway.saved_axes,
+                                          heat=self.sensors.saved_heat)
         self.tcp: TcpServer | None = None
         self.tls: TcpServer | None = None  # Modbus/TCP Security
         self.rtu: RtuServer | None = None
@@ -140,6 +141,7 @@ class GatewayApp:
                 log.warning("bus %s is down at start; requests get 0x0A until it is back", name)
         if self.state_store is not None:
             await self.gateway.carry_on(self.state_store.load())
+            self.sensors.carry_on_heat(self.state_store.saved_heat)
             self.gateway.on_state_change = self.state_store.changed
         if len(self.sensors):
             self._sensor_task = asyncio.create_task(self.sensors.run(self._stop_sensors))

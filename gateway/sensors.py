@@ -56,7 +56,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Literal
+from typing import Any, Literal
 
 from .compensation import delta_a_from_temperature
 from .config import Axis, AxisThermal, SourceRegister, ThermalSource
@@ -477,6 +477,22 @@ class SensorSet:
                 motion[axis] = self.motion.get(axis) or HeatFromMotion(axis, thermal.motion)
                 motion[axis].motion = thermal.motion
         self.motion = motion
+
+    def saved_heat(self) -> dict[str, dict[str, float]]:
+        """Heat from motion per axis and when (epoch s), for the state file."""
+        return {axis: {"heat_m": heat.heat_now_m(), "at_epoch_s": time.time()}
+                for axis, heat in self.motion.items()}  # fmt: skip
+
+    def carry_on_heat(self, saved: Mapping[str, Any]) -> None:
+        """Take back :meth:`saved_heat` of an earlier process, cooled for the time since."""
+        for axis, entry in saved.items():
+            heat = self.motion.get(axis)
+            try:
+                if heat is not None:
+                    heat.carry_on(float(entry["heat_m"]),
+                                  time.time() - float(entry["at_epoch_s"]))  # fmt: skip
+            except (KeyError, TypeError, ValueError) as exc:
+                log.warning("axis %s: saved heat not used: %s", axis, exc)
 
     def moved(self, axis: str, x_mm: float) -> None:
         """The gateway sent ``axis`` to ``x_mm``: axes heated by motion count it."""

@@ -6,7 +6,8 @@ Lost in a restart, the next feedback reads would report the drive's raw position
 the correction) and the first move's backlash side would be a guess. The file is written
 atomically, at most every ``delay_s`` after a change (commits come in bursts), and at
 stop. A restarted gateway takes an axis's entry back only when the drive still holds that
-command in its target register (:meth:`GatewayApp.restore_state`).
+command in its target register (:meth:`GatewayApp.restore_state`). The heat of screws
+with ``thermal.motion`` is kept beside the axes (``heat``), with the time it was saved.
 """
 
 from __future__ import annotations
@@ -29,9 +30,13 @@ class StateStore:
     """``load()`` the saved axes, ``changed()`` after a commit, ``flush()`` at stop."""
 
     def __init__(self, path: str | Path, snapshot: Callable[[], dict[str, Any]],
-                 delay_s: float = 0.05) -> None:
+                 delay_s: float = 0.05, heat: Callable[[], dict[str, Any]] | None = None
+                 ) -> None:  # fmt: skip
         self.path = Path(path)
         self.snapshot = snapshot
+        #: heat from motion per axis (the screws' warmth is not the drives' to keep)
+        self.heat = heat
+        self.saved_heat: dict[str, Any] = {}
         self.delay_s = delay_s
         self._pending: asyncio.TimerHandle | None = None
         self.writes = 0
@@ -49,6 +54,8 @@ class StateStore:
         if not isinstance(axes, dict) or data.get("format") != FORMAT:
             log.warning("state file %s is not a compgw state file, starting afresh", self.path)
             return {}
+        heat = data.get("heat")
+        self.saved_heat = heat if isinstance(heat, dict) else {}
         return axes
 
     def changed(self) -> None:
@@ -62,8 +69,10 @@ class StateStore:
             self._pending.cancel()
             self._pending = None
         try:
-            atomic_write_text(self.path, json.dumps({"format": FORMAT, "axes": self.snapshot()},
-                                                    indent=1) + "\n")
+            data: dict[str, Any] = {"format": FORMAT, "axes": self.snapshot()}
+            if self.heat is not None:
+                data["heat"] = self.heat()
+            atomic_write_text(self.path, json.dumps(data, indent=1) + "\n")
             self.writes += 1
         except OSError as exc:
             log.warning("state file %s not written: %s", self.path, exc)

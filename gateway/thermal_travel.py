@@ -79,8 +79,9 @@ class HeatFromMotion:
 
     Told of every target the gateway sends on (any axis): the axis's own travel heats the
     screw, and each move of an axis in ``speeds_mm_s`` lasts at least its travel over that
-    speed, the time the screw cools by; the monotonic clock counts pauses. Nothing is
-    persisted: after a restart the screw is taken as cold."""
+    speed, the time the screw cools by; the monotonic clock counts pauses. With a
+    ``state_file`` the heat is kept across a restart (cooled for the time the gateway was
+    down); without one the screw is taken as cold."""
 
     def __init__(self, axis: str, motion: MotionHeat,
                  clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
@@ -105,8 +106,17 @@ class HeatFromMotion:
                                           self.motion.tau_s))  # fmt: skip
         self.at_s = now
 
-    def delta_a_mm(self) -> float:
-        """Δa now (mm): the heat, cooled for the time since the last move."""
+    def heat_now_m(self) -> float:
+        """The heat now (m of travel), cooled for the time since the last move."""
         idle = max(0.0, self.clock() - self.at_s)
-        heat = float(motion_heat_m(self.heat_m, 0.0, idle, self.motion.tau_s))
-        return self.motion.delta_a_um_per_m * heat / 1000.0
+        return float(motion_heat_m(self.heat_m, 0.0, idle, self.motion.tau_s))
+
+    def delta_a_mm(self) -> float:
+        """Δa now (mm)."""
+        return self.motion.delta_a_um_per_m * self.heat_now_m() / 1000.0
+
+    def carry_on(self, heat_m: float, age_s: float) -> None:
+        """Take back the heat an earlier process saved ``age_s`` ago (it cooled since)."""
+        self.heat_m = float(motion_heat_m(max(0.0, heat_m), 0.0, max(0.0, age_s),
+                                          self.motion.tau_s))  # fmt: skip
+        self.at_s = self.clock()

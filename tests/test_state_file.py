@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -106,3 +107,45 @@ def test_a_restarted_gateway_carries_on(tmp_path: Path, caplog: pytest.LogCaptur
 
     run(body())
 
+
+
+def test_heat_from_motion_outlives_a_restart_and_cools_for_the_time_it_was_down(
+        tmp_path: Path):
+    """thermal.motion on Y: the screw's heat is in the state file; a restarted gateway takes
+    it back (Δa unchanged), and one that was down for a tau takes back 1/e of it."""
+    state = tmp_path / "run" / "state.json"
+    (tmp_path / "run").mkdir()
+
+    def app_for(sim_port: int) -> GatewayApp:
+        data = base_config(sim_port)
+        data["axes"]["Y"]["compensation"]["thermal"] = {
+            "length_mm": 500, "motion": {"delta_a_um_per_m": 20.0, "tau_s": 3600.0,
+                                         "speeds_mm_s": {"Y": 100}}}
+        data["state_file"] = "run/state.json"
+        path = tmp_path / "gw.yaml"
+        path.write_text(yaml.safe_dump(data))
+        config, chain = load(path)
+        return GatewayApp(config, chain, source=str(path))
+
+    async def body():
+        async with SimServer(sim_config(), tcp_port=0, time_scale=0) as sim:
+            async with app_for(sim.tcp_port) as app:
+                master = AsyncModbusTcpClient("127.0.0.1", port=app.tcp_port, timeout=2,
+                                              retries=0)  # fmt: skip
+                assert await master.connect()
+                for target in (0, 200_000, 0, 200_000, 0):
+                    await move(master, 2, target)
+                master.close()
+                warm = app.sensors.axis_delta_a_mm("Y")
+                assert warm is not None and warm > 0.005  # 0.8 m of travel: ~16 µm
+            saved = json.loads(state.read_text())["heat"]["Y"]
+            assert saved["heat_m"] == pytest.approx(warm / 20.0 * 1000, rel=1e-3)
+            async with app_for(sim.tcp_port) as app:
+                assert app.sensors.axis_delta_a_mm("Y") == pytest.approx(warm, rel=1e-3)
+            data = json.loads(state.read_text())
+            data["heat"]["Y"]["at_epoch_s"] -= 3600.0  # down for a tau
+            state.write_text(json.dumps(data))
+            async with app_for(sim.tcp_port) as app:
+                assert app.sensors.axis_delta_a_mm("Y") == pytest.approx(warm / math.e, rel=1e-3)
+
+    run(body())
