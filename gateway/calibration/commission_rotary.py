@@ -256,7 +256,8 @@ class RotarySteps(Steps):
         linear = [a for a in self.s.axes if not self._rotary(a)]
         out = await super()._measure_refs(repeats, linear) if linear else {}
         out.update({a: [0.0, 0.0] for a in self.s.axes if a not in out})
-        self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out}
+        self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out,
+                                   "odometer_mm": self._odometer()}  # fmt: skip
         return out
 
     # -- 3. rounds -----------------------------------------------------------------------------

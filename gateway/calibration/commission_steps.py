@@ -162,11 +162,13 @@ class Steps:
                 and self.s.config_path.read_text() == text
                 and self.state.get("loaded") == digest):
             return  # loaded already, tables and all: nothing to switch
-        before = None
+        before, before_odo = None, None
         if base is not None and self.state.get("phase") == base["phase"]:
             last = self.state.get("last_refs")  # read since the last moves: the same state
-            before = last["refs"] if last and last["phase"] == base["phase"] else \
+            if not (last and last["phase"] == base["phase"]):
                 await self._measure_refs()
+                last = self.state["last_refs"]
+            before, before_odo = last["refs"], last.get("odometer_mm")
         atomic_write_text(self.s.config_path, text)
         await self.reload_fn()
         self.state["phase"] = phase
@@ -184,6 +186,8 @@ class Steps:
         self.state["drift_base"] = {"phase": phase, "refs": {
             a: [after[a][k] - drift[a][k] for k in (0, 1)] for a in self.s.axes}}
         self.state["drift_last"] = drift
+        if base is None or before is not None:  # at every switch too (the odometer when the
+            self._log_drift(drift, before_odo)  # drift was read): a warm-up is its own stretch
         self._save()
 
     def _digest(self, text: str) -> str:
@@ -236,7 +240,8 @@ class Steps:
         finally:
             links.close()
         self.state["refs_s"] = self.state.get("refs_s", 0.0) + cost
-        self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out}
+        self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out,
+                                   "odometer_mm": self._odometer()}  # fmt: skip
         return out
 
     def refs_cost_s(self, axes: Sequence[str], repeats: int = 3) -> float:
@@ -387,12 +392,19 @@ class Steps:
             odo["mm"][axis] = odo["mm"].get(axis, 0.0) + abs(x_mm - last)
         odo["at"][axis] = x_mm
 
-    def _log_drift(self, drift: dict[str, list[float]]) -> None:
-        """Keep the drift (mm, at both references) with the odometer and the wall clock:
-        what heat from motion is fitted to (heat_fit)."""
+    def _odometer(self) -> dict[str, float]:
+        """Each commissioned axis's travel so far (mm)."""
         odo = self.state.get("odometer", {"mm": {}})["mm"]
+        return {a: float(odo.get(a, 0.0)) for a in self.s.axes}
+
+    def _log_drift(self, drift: dict[str, list[float]],
+                   odometer_mm: dict[str, float] | None = None) -> None:
+        """Keep the drift (mm, at both references) with the odometer when it was read (the
+        last references' unless given) and the wall clock: what heat from motion is
+        fitted to (heat_fit)."""
+        odo = odometer_mm or (self.state.get("last_refs") or {}).get("odometer_mm")
         self.state.setdefault("drift_log", []).append(
-            {"odometer_mm": {a: odo.get(a, 0.0) for a in drift}, "wall_s": time.time(),
+            {"odometer_mm": odo or self._odometer(), "wall_s": time.time(),
              "drift_mm": drift})  # fmt: skip
 
     def fit_motion_heat(self) -> None:
@@ -407,7 +419,8 @@ class Steps:
                 continue
             try:
                 fit = motion_heat_fit(
-                    a, {b: [e["odometer_mm"][b] / 1000.0 for e in log] for b in self.s.axes},
+                    a, {b: [e["odometer_mm"].get(b, 0.0) / 1000.0 for e in log]
+                        for b in self.s.axes},
                     [e["wall_s"] for e in log],
                     [[d * 1000.0 for d in e["drift_mm"][a]] for e in log],
                     self._ref_positions(a), dict.fromkeys(self.s.axes, self.s.speed_mm_s),
