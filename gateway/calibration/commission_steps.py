@@ -427,7 +427,7 @@ class Steps:
                     self._travel(a))  # fmt: skip
             except TableError as exc:
                 ident[key] = {"fitted": False, "why": str(exc)}
-                self.say(f"{a}: no heat-from-motion model: {exc}")
+                self.say(f"no heat-from-motion model: {exc}")
                 continue
             self.tables.motion[a] = fit.config()
             ident[key] = {"fitted": True, **fit.config(), "growth_max_um": fit.growth_max_um,
