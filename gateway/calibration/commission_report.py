@@ -194,8 +194,10 @@ def _round_cell(axis: str, verdict: dict[str, Any], entry: dict[str, Any]) -> st
 
 
 def _short(value: Any) -> str:
+    """One identification result as text (a nested section, heat from motion's, inline)."""
     if isinstance(value, dict):
-        return ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}"
+        return ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else
+                         f"{k} ({_short(v)})" if isinstance(v, dict) else f"{k} {v}"
                          for k, v in value.items() if not isinstance(v, list))  # fmt: skip
     return str(value)
 
