@@ -77,6 +77,12 @@ from .plans import (
 from .rawdata import RawData, axis_deviations, read_raw_csv
 from .runner import read_raw_meta
 from .session import planar_figures
+from .thermal_shape import thermal_shape_fit
+
+#: a zone warm-up (Δa sensor) cycles over this share of the travel (fractions) ...
+ZONE = (0.3, 0.7)
+#: ... and reads these places cold and warm: inside the zone and beyond it on both sides
+ZONE_PLACES = (0.12, 0.22, 0.4, 0.5, 0.6, 0.78, 0.88)
 
 
 class Commission(RotarySteps):
@@ -146,14 +152,27 @@ class Commission(RotarySteps):
 
     def _warmup_plan(self, axis: str) -> Plan:
         """Cycling over the travel; read at the end farthest from the screw's fixed end
-        (the thermal origin), where the growth is largest against the noise."""
+        (the thermal origin), where the growth is largest against the noise. With a Δa
+        sensor, over the middle of the travel only (ZONE), the places read cold and warm
+        too: is the growth linear from the fixed end, or where the nut worked?"""
         lo, hi = self._travel(axis)
         margin = 0.05 * (hi - lo)
         th = self.config.axes[axis].compensation.thermal
         origin = th.origin_mm if th is not None else lo
         ref = hi - margin if abs(hi - origin) >= abs(lo - origin) else lo + 2 * margin
+        if self._delta_a(axis):
+            pulse = self.config.axes[axis].pulse_mm
+            return warmup_plan(axis, [lo + f * (hi - lo) for f in ZONE], self.s.speed_mm_s,
+                               self.s.warmup_s, ref, places_mm=[
+                                   round((lo + f * (hi - lo)) / pulse) * pulse
+                                   for f in ZONE_PLACES])  # fmt: skip
         return warmup_plan(axis, (lo + margin, hi - margin), self.s.speed_mm_s,
                            self.s.warmup_s, ref)  # fmt: skip
+
+    def _delta_a(self, axis: str) -> bool:
+        th = self.config.axes[axis].compensation.thermal
+        return th is not None and th.source is not None and \
+            self.config.thermal_sources[th.source].kind != "temperature"  # fmt: skip
 
     def _iso_plan(self, axis: str) -> Plan:
         lead = self.s.lead_mm.get(axis)
@@ -276,6 +295,17 @@ class Commission(RotarySteps):
                      f"{g.temperature_rise_K:.2f} K predict: thermal gain {g.gain:.3f}")
             return {"gain": g.gain, "growth_max_um": g.growth_max_um,
                     "residual_rms_um": g.residual_rms_um, "rise_K": g.temperature_rise_K}
+        plan = read_plan(self.dir / "plans" / f"warmup-{axis}.plan")
+        if dict(plan.meta).get("places_mm"):  # a zone warm-up: the shape too
+            shape = thermal_shape_fit(raw, plan, axis, th, self._travel(axis))
+            self.tables.thermal_length_mm[axis] = shape.length_mm
+            self.tables.thermal_profile[axis] = shape.profile()
+            self.say(f"{axis}: after the zone warm-up the growth ({shape.growth_max_um:.1f} µm"
+                     f" at most) is {'where the nut worked' if shape.profile() else 'linear'}"
+                     f": the linear spread leaves {shape.linear_rms_um:.2f} µm RMS, the travel "
+                     f"profile {shape.profile_rms_um:.2f}; thermal length "
+                     f"{shape.length_mm:g} mm")  # fmt: skip
+            return shape.summary()
         tf = thermal_fit(raw, axis, th.origin_mm, th.length_mm)
         self.tables.thermal_length_mm[axis] = float(tf.length_mm)
         return {"length_mm": tf.length_mm, "growth_max_um": tf.growth_max_um,

@@ -30,13 +30,16 @@ class Tables:
     motion: dict[str, dict[str, Any]] = field(default_factory=dict)
     planar_model: str | None = None
     planar_axes: tuple[str, str] | None = None
+    #: Δa axes after a zone warm-up: their thermal.profile, None for the linear spread
+    thermal_profile: dict[str, dict[str, float] | None] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         return {"pitch": self.pitch, "cyclic": self.cyclic,
                 "thermal_length_mm": self.thermal_length_mm,
                 "thermal_gain": self.thermal_gain, "motion": self.motion,
                 "planar_model": self.planar_model,
-                "planar_axes": list(self.planar_axes) if self.planar_axes else None}  # fmt: skip
+                "planar_axes": list(self.planar_axes) if self.planar_axes else None,
+                "thermal_profile": self.thermal_profile}  # fmt: skip
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> Tables:
@@ -45,7 +48,8 @@ class Tables:
                    {k: float(v) for k, v in data.get("thermal_length_mm", {}).items()},
                    {k: float(v) for k, v in data.get("thermal_gain", {}).items()},
                    dict(data.get("motion", {})), data.get("planar_model"),
-                   tuple(axes) if axes else None)  # type: ignore[arg-type]  # fmt: skip
+                   tuple(axes) if axes else None,  # type: ignore[arg-type]
+                   dict(data.get("thermal_profile", {})))  # fmt: skip
 
 
 def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tables
@@ -63,6 +67,8 @@ def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tabl
             comp["thermal"] = {**comp["thermal"], "length_mm": tables.thermal_length_mm[name]}
         if name in tables.motion and not comp.get("thermal"):
             comp["thermal"] = copy.deepcopy(tables.motion[name])
+        if name in tables.thermal_profile and comp.get("thermal"):  # the zone warm-up's
+            comp["thermal"] = {**comp["thermal"], "profile": tables.thermal_profile[name]}
         if name in tables.thermal_gain and comp.get("thermal"):
             comp["thermal"] = {**comp["thermal"], "gain": round(tables.thermal_gain[name], 4)}
         data["axes"][name]["compensation"] = comp

@@ -162,15 +162,19 @@ class ThermalFit:
 def _warmup(raw: RawData, axis: str, column: str
             ) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:  # fmt: skip
     """A warm-up run's reference (mm), growth there since the cold reading (mm) and its
-    sensor column, checked: the column there, 3 readings or more, all at one place."""
+    sensor column, checked: the column there, 3 readings or more at the reference (the
+    place read most often: a zone warm-up also surveys other places cold and warm)."""
     if column not in raw.extra:
         raise TableError(f"{raw.source}: a warm-up run needs the column {column!r}")
     rows = np.flatnonzero(np.array(raw.axis) == axis)
+    places, counts = np.unique(np.round(raw.target_mm[rows], 6), return_counts=True)
+    if places.size > 1 and np.sort(counts)[-2] >= max(3, counts.max()):
+        raise TableError(f"{raw.source}: axis {axis}: warm-up readings at more than one position")
+    if places.size:
+        rows = rows[np.round(raw.target_mm[rows], 6) == places[np.argmax(counts)]]
     if rows.size < 3:
         raise TableError(f"{raw.source}: axis {axis}: a warm-up run needs at least 3 readings")
     target = raw.target_mm[rows]
-    if np.ptp(target) > 1e-6:
-        raise TableError(f"{raw.source}: axis {axis}: warm-up readings at more than one position")
     growth = raw.actual_mm[rows] - raw.actual_mm[rows[0]]
     return float(target[0]), growth, raw.column_mm(column)[rows]
 

@@ -509,31 +509,50 @@ def warmup_plan(
     reference_mm: float,
     measure_every: int = 5,
     dwell_s: float = 1.0,
+    places_mm: Sequence[float] = (),
 ) -> Plan:
     """Repeated long moves between ``ends_mm`` at ``speed_mm_s`` for about ``duration_s``.
 
     A measuring stop at ``reference_mm`` (approached in +, from the lower end) before the
     first cycle, every ``measure_every`` cycles and after the last: the growth of the screw
-    against the Δa sensor. Run number = cycle (0 for the cold reading).
+    against the Δa sensor. Run number = cycle (0 for the cold reading). ``places_mm`` (a
+    zone warm-up, ``ends_mm`` inside the travel) are read cold and after the last cycle too,
+    each approached in + from 1 mm below: where the growth is, inside the zone and beyond.
     """
     a, b = _travel(ends_mm)
     if speed_mm_s <= 0 or duration_s <= 0 or measure_every < 1:
         raise ValueError("speed_mm_s, duration_s and measure_every must be positive")
     cycles = max(1, math.ceil(duration_s * speed_mm_s / (2 * (b - a))))
     ref = float(_round(reference_mm))
-    if not a + WARMUP_APPROACH_MM <= ref <= b:
+    if not places_mm and not a + WARMUP_APPROACH_MM <= ref <= b:
         raise ValueError(f"warm-up reference {ref:g} mm: it must lie in {a:g}..{b:g} mm and at "
                          f"least {WARMUP_APPROACH_MM:g} mm above the lower end {a:g} mm, so "
                          "every reading there is approached in + (the play taken up alike)")
-    stop = (Move(0, -1, "move", (a,), speed_mm_s), Move(0, +1, "measure", (ref,), None, dwell_s))
-    moves: list[Move] = list(stop)
+    places = sorted(float(_round(p)) for p in places_mm)
+
+    def survey(run: int) -> list[Move]:  # every place, each from 1 mm below, then back
+        out: list[Move] = []
+        for p in places:
+            out += [Move(run, -1, "move", (p - WARMUP_APPROACH_MM,), speed_mm_s),
+                    Move(run, +1, "measure", (p,), None, dwell_s)]  # fmt: skip
+        return out
+
+    def at_ref(run: int) -> list[Move]:
+        approach = [Move(run, -1, "move", (ref - WARMUP_APPROACH_MM,), speed_mm_s)] \
+            if places else []  # fmt: skip
+        return [*approach, Move(run, +1, "measure", (ref,), None, dwell_s)]
+
+    moves: list[Move] = [*survey(0), Move(0, -1, "move", (a,), speed_mm_s), *at_ref(0)]
     for k in range(1, cycles + 1):
+        if places:  # the zone is entered from its lower end every cycle
+            moves.append(Move(k, -1, "move", (a,), speed_mm_s))
         moves += [Move(k, +1, "move", (b,), speed_mm_s), Move(k, -1, "move", (a,), speed_mm_s)]
         if k % measure_every == 0 or k == cycles:
-            moves.append(Move(k, +1, "measure", (ref,), None, dwell_s))
+            moves += at_ref(k)
+    moves += survey(cycles)
     meta = _meta(kind="warmup", axis=axis, ends_mm=(a, b), speed_mm_s=speed_mm_s,
                  duration_s=duration_s, reference_mm=ref, measure_every=measure_every,
-                 cycles=cycles)  # fmt: skip
+                 cycles=cycles, places_mm=places or None)  # fmt: skip
     return Plan("warmup", (axis,), tuple(moves), meta)
 
 

@@ -1,0 +1,135 @@
+"""Where a screw grows, from a zone warm-up: linear from the fixed end, or where the nut
+has worked (``thermal.profile``), chosen by what the laser read inside and beyond the zone.
+
+A Δa sensor at the free end reads the whole elongation but not where it is. A screw that
+warms evenly (heat conducted along it faster than the nut sweeps, or a warm machine)
+grows in proportion to the distance from its fixed end; one warm only where its nut runs
+grows inside that zone and is carried rigidly beyond it. The two agree after a warm-up
+over the whole travel, so commission warms one zone and reads places inside and beyond
+it, cold and warm. Each shape predicts every reading from the same Δa change, the
+prediction for a profile computed by the gateway's own travel history
+(:class:`~gateway.thermal_travel.TravelHistory`) replaying the plan's moves; the shape
+whose prediction leaves clearly less (under half, and by more than the noise) is taken.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..compensation.errors import TableError
+from ..config import AxisThermal, TravelProfile
+from ..thermal_travel import TravelHistory
+from .plans import Plan
+from .rawdata import RawData
+
+UM_PER_MM = 1000.0
+#: spreads (mm) tried for the profile: conduction over the screw's time constant, √(κτ)
+SPREADS_MM = (50.0, 100.0, 150.0)
+#: lengths tried, as factors of the linear fit's (the profile's Δa point past the heat)
+LENGTH_FACTORS = np.geomspace(0.6, 1.6, 11)
+#: the profile must leave under this share of the linear spread's RMS ...
+PROFILE_SHARE = 0.5
+#: ... and be better by this much (µm RMS): a difference in the noise decides nothing
+NOISE_UM = 0.5
+
+
+@dataclass(frozen=True)
+class ThermalShapeFit:
+    """The growth shape a zone warm-up showed, and what each shape left (µm RMS)."""
+
+    axis: str
+    shape: str  # "linear" or "profile"
+    length_mm: float
+    spread_mm: float | None
+    linear_rms_um: float
+    profile_rms_um: float
+    growth_max_um: float
+    points: int
+
+    def profile(self) -> dict[str, float] | None:
+        """The ``thermal.profile`` section (None: linear)."""
+        return None if self.spread_mm is None else {"spread_mm": self.spread_mm}
+
+    def summary(self) -> dict[str, Any]:
+        return {"shape": self.shape, "length_mm": self.length_mm, "spread_mm": self.spread_mm,
+                "linear_rms_um": self.linear_rms_um, "profile_rms_um": self.profile_rms_um,
+                "growth_max_um": self.growth_max_um, "points": self.points}  # fmt: skip
+
+
+def _changes(raw: RawData, axis: str) -> tuple[NDArray[np.int64], NDArray[np.float64],
+                                               NDArray[np.float64], NDArray[np.float64]]:
+    """Rows of ``axis`` after the cold survey, with their place (mm), growth since the
+    cold reading at that place (mm) and Δa change since then (mm)."""
+    rows = np.flatnonzero(np.array(raw.axis) == axis)
+    place = np.round(raw.target_mm[rows], 6)
+    delta_a = raw.column_mm("delta_a_mm")[rows]
+    cold: dict[float, int] = {}
+    for k, p in enumerate(place):
+        cold.setdefault(float(p), k)
+    warm = np.array([k for k in range(rows.size) if cold[float(place[k])] != k], dtype=int)
+    if warm.size < 3 or len(cold) < 3:
+        raise TableError(f"{raw.source}: axis {axis}: a zone warm-up needs 3 places or more, "
+                         "read cold and warm")  # fmt: skip
+    first = np.array([cold[float(place[k])] for k in warm], dtype=int)
+    growth = raw.actual_mm[rows[warm]] - raw.actual_mm[rows[first]]
+    d_a = delta_a[warm] - delta_a[first]
+    return warm, place[warm], growth, d_a
+
+
+def _fractions(plan: Plan, axis: str, thermal: AxisThermal, spread_mm: float,
+               travel_mm: tuple[float, float], length_mm: float) -> NDArray[np.float64]:
+    """growth / Δa at every measured stop of ``plan`` under the travel profile, as the
+    gateway would count it had it run the plan with the profile on."""
+    th = thermal.model_copy(update={"length_mm": length_mm,
+                                    "profile": TravelProfile(spread_mm=spread_mm)})
+    assert th.profile is not None
+    history = TravelHistory(th, th.profile, travel_mm)
+    k = plan.axes.index(axis)
+    out = []
+    for move in plan.moves:
+        x = float(move.target_mm[k])
+        history.move_to(x)
+        if move.measured:
+            lever = x - th.origin_mm
+            out.append(history.delta_a_mm(1.0, x) * lever / length_mm if abs(lever) >= 1.0
+                       else 0.0)  # fmt: skip
+    return np.asarray(out)
+
+
+def thermal_shape_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
+                      travel_mm: tuple[float, float]) -> ThermalShapeFit:
+    """Linear spread or travel profile, from a zone warm-up (``plan`` as it ran: its
+    measured stops are ``raw``'s rows of ``axis`` in order)."""
+    warm, place, growth, d_a = _changes(raw, axis)
+    measured = sum(m.measured for m in plan.moves)
+    if measured != int(np.sum(np.array(raw.axis) == axis)):
+        raise TableError(f"{raw.source}: axis {axis}: {measured} stops planned, "
+                         "not the rows read: the warm-up did not run as planned")  # fmt: skip
+    if not np.any(np.abs(d_a) > 0):
+        raise TableError(f"{raw.source}: axis {axis}: no Δa change in the warm-up")
+    lever = place - thermal.origin_mm
+    # linear: growth = Δa · lever / L, least squares in 1/L
+    inv = float(np.dot(d_a * lever, growth) / np.dot(d_a * lever, d_a * lever))
+    if not inv > 0:
+        raise TableError(f"{raw.source}: axis {axis}: growth does not follow Δa (check signs)")
+    length = 1.0 / inv
+    lin_rms = float(np.sqrt(np.mean((growth - d_a * lever * inv) ** 2)))
+    best = (np.inf, length, SPREADS_MM[0])
+    for spread in SPREADS_MM:
+        for factor in LENGTH_FACTORS:
+            f = _fractions(plan, axis, thermal, spread, travel_mm, length * factor)[warm]
+            rms = float(np.sqrt(np.mean((growth - d_a * f) ** 2)))
+            if rms < best[0]:
+                best = (rms, length * factor, spread)
+    prof_rms, prof_len, spread = best
+    profile = prof_rms < PROFILE_SHARE * lin_rms and \
+        (lin_rms - prof_rms) * UM_PER_MM > NOISE_UM  # fmt: skip
+    return ThermalShapeFit(axis, "profile" if profile else "linear",
+                           float(round(prof_len if profile else length, 1)),
+                           spread if profile else None, float(lin_rms * UM_PER_MM),
+                           float(prof_rms * UM_PER_MM),
+                           float(np.abs(growth).max() * UM_PER_MM), int(warm.size))  # fmt: skip
