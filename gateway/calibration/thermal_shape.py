@@ -39,7 +39,8 @@ NOISE_UM = 0.5
 
 @dataclass(frozen=True)
 class ThermalShapeFit:
-    """The growth shape a zone warm-up showed, and what each shape left (µm RMS)."""
+    """The growth shape a zone warm-up showed, and what each shape left at the places
+    surveyed warm (µm RMS)."""
 
     axis: str
     shape: str  # "linear" or "profile"
@@ -117,12 +118,15 @@ def thermal_shape_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
     if not inv > 0:
         raise TableError(f"{raw.source}: axis {axis}: growth does not follow Δa (check signs)")
     length = 1.0 / inv
-    lin_rms = float(np.sqrt(np.mean((growth - d_a * lever * inv) ** 2)))
+    # judged on the warm survey (the reference's series, beyond the zone, cannot tell)
+    places, counts = np.unique(place, return_counts=True)
+    survey = place != places[np.argmax(counts)]
+    lin_rms = float(np.sqrt(np.mean((growth - d_a * lever * inv)[survey] ** 2)))
     best = (np.inf, length, SPREADS_MM[0])
     for spread in SPREADS_MM:
         for factor in LENGTH_FACTORS:
             f = _fractions(plan, axis, thermal, spread, travel_mm, length * factor)[warm]
-            rms = float(np.sqrt(np.mean((growth - d_a * f) ** 2)))
+            rms = float(np.sqrt(np.mean((growth - d_a * f)[survey] ** 2)))
             if rms < best[0]:
                 best = (rms, length * factor, spread)
     prof_rms, prof_len, spread = best

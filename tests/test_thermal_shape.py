@@ -1,0 +1,99 @@
+"""The zone warm-up's choice of growth shape (gateway.calibration.thermal_shape): the
+truth is the sim's 1-D heat equation of the screw (warm where its nut runs) or a screw at
+one temperature along its length, never the gateway's travel counts it is judged against."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gateway.calibration.plans import warmup_plan
+from gateway.calibration.rawdata import RawData
+from gateway.calibration.thermal_shape import thermal_shape_fit
+from gateway.compensation.errors import TableError
+from gateway.config import AxisThermal
+from sim.config_truth import ScrewHeat
+from sim.heat import ScrewHeatModel
+
+TRAVEL, SPEED, NUT = (0.0, 600.0), 100.0, 40.0
+SCREW = (-NUT, 600.0 + NUT)  # fixed at the low end, the Δa sensor at the free (high) end
+PLACES = [600 * f for f in (0.12, 0.22, 0.4, 0.5, 0.6, 0.78, 0.88)]
+
+
+def _plan():
+    return warmup_plan("X", (180.0, 420.0), SPEED, 1800.0, 570.0, places_mm=PLACES)
+
+
+def _raw(plan, growth_at, noise_um: float, seed: int) -> RawData:
+    """The plan run in machine time; ``growth_at(x, t)`` (mm) the truth; Δa read at the
+    free end. Readings carry ``noise_um`` of Gaussian noise."""
+    rng = np.random.default_rng(seed)
+    t, pos = 0.0, None
+    rows: list[tuple[int, int, float, float, float]] = []
+    for m in plan.moves:
+        x = m.target_mm[0]
+        if pos is not None and x != pos:
+            dt = abs(x - pos) / SPEED
+            growth_at.move(t, t + dt, pos, x)
+            t += dt
+        pos = x
+        if m.measured:
+            t += m.dwell_s or 0.0
+            noise = rng.normal(0.0, noise_um / 1000.0, 2)
+            rows.append((m.run, m.direction, x, x + growth_at(x, t) + noise[0],
+                         growth_at(SCREW[1], t) + noise[1] / 5))  # fmt: skip
+    run, direction, target, actual, d_a = map(np.array, zip(*rows, strict=True))
+    return RawData(("X",) * len(rows), run.astype(np.int64), direction.astype(np.int8),
+                   target, actual, {"delta_a_mm": tuple(f"{v:.7f}" for v in d_a)},
+                   tuple(range(2, 2 + len(rows))), "warmup-X.csv")  # fmt: skip
+
+
+class _NutHeat:
+    """The sim's screw: heat where the nut runs, conducted and lost to the air."""
+
+    def __init__(self) -> None:
+        self.model = ScrewHeatModel(ScrewHeat(lead_mm=5.0, drag_torque_Nm=0.06,
+                                              diameter_mm=16.0, nut_length_mm=NUT,
+                                              h_W_m2K=15.0, screw_mm=SCREW,
+                                              fixed_end_mm=SCREW[0]), TRAVEL)  # fmt: skip
+
+    def move(self, t0: float, t1: float, x0: float, x1: float) -> None:
+        self.model.add_move(t0, t1, x0, x1, SPEED)
+
+    def __call__(self, x: float, t: float) -> float:
+        return self.model.growth_mm(x, t)
+
+
+class _EvenHeat:
+    """A screw at one temperature along its length, rising to 3 K with a 600 s lag."""
+
+    def move(self, t0: float, t1: float, x0: float, x1: float) -> None:
+        pass
+
+    def __call__(self, x: float, t: float) -> float:
+        return 11.5e-6 * 3.0 * (1.0 - np.exp(-t / 600.0)) * (x - SCREW[0])
+
+
+THERMAL = AxisThermal(source="da", length_mm=600.0, origin_mm=SCREW[0])
+
+
+def test_a_screw_warm_where_its_nut_runs_gets_the_travel_profile() -> None:
+    plan = _plan()
+    fit = thermal_shape_fit(_raw(plan, _NutHeat(), 0.3, 1), plan, "X", THERMAL, TRAVEL)
+    assert fit.growth_max_um > 10.0
+    assert fit.shape == "profile" and fit.profile() is not None
+    assert fit.profile_rms_um < 0.35 * fit.linear_rms_um, fit
+
+
+def test_an_evenly_warm_screw_stays_linear_with_its_length() -> None:
+    plan = _plan()
+    fit = thermal_shape_fit(_raw(plan, _EvenHeat(), 0.3, 2), plan, "X", THERMAL, TRAVEL)
+    assert fit.shape == "linear" and fit.profile() is None, fit
+    assert fit.length_mm == pytest.approx(SCREW[1] - SCREW[0], rel=0.03)
+    assert fit.linear_rms_um < 0.6
+
+
+def test_a_warm_up_read_at_one_place_cannot_tell_the_shape() -> None:
+    plan = warmup_plan("X", (30.0, 570.0), SPEED, 600.0, 570.0)
+    with pytest.raises(TableError, match="3 places or more"):
+        thermal_shape_fit(_raw(plan, _EvenHeat(), 0.3, 3), plan, "X", THERMAL, TRAVEL)
