@@ -4,14 +4,19 @@ one temperature along its length, never the gateway's travel counts it is judged
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
+import yaml
 
+from gateway.calibration.commission_configs import Tables, identification, with_tables
 from gateway.calibration.plans import warmup_plan
 from gateway.calibration.rawdata import RawData
 from gateway.calibration.thermal_shape import thermal_shape_fit
 from gateway.compensation.errors import TableError
-from gateway.config import AxisThermal
+from gateway.config import AxisThermal, load_config
 from sim.config_truth import ScrewHeat
 from sim.heat import ScrewHeatModel
 
@@ -97,3 +102,28 @@ def test_a_warm_up_read_at_one_place_cannot_tell_the_shape() -> None:
     plan = warmup_plan("X", (30.0, 570.0), SPEED, 600.0, 570.0)
     with pytest.raises(TableError, match="3 places or more"):
         thermal_shape_fit(_raw(plan, _EvenHeat(), 0.3, 3), plan, "X", THERMAL, TRAVEL)
+
+
+def test_the_chosen_shape_reaches_the_configs_commissioning_writes(tmp_path: Path) -> None:
+    """Tables keep the choice across a resume (JSON); every config after the warm-up has
+    it, and the gateway loads it (a Δa source: example.yaml's X); linear clears it."""
+    root = Path(__file__).resolve().parents[1]
+    original = yaml.safe_load((root / "config" / "example.yaml").read_text())
+    original["axes"]["X"]["compensation"]["thermal"]["profile"] = {"spread_mm": 60.0}
+    tables = Tables(thermal_length_mm={"X": 812.5, "Y": 600.0},
+                    thermal_profile={"X": {"spread_mm": 150.0}})  # fmt: skip
+    tables = Tables.from_json(json.loads(json.dumps(tables.to_json())))
+    for data in (identification(original, ("X", "Y"), tables),
+                 with_tables(original, ("X", "Y"), tables, planar=False)):  # fmt: skip
+        path = tmp_path / "gw.yaml"
+        path.write_text(yaml.safe_dump(data))
+        for name in ("x_pitch.csv", "y_pitch.csv"):  # the example's tables beside it
+            src = root / "config" / name
+            if src.exists():
+                (tmp_path / name).write_text(src.read_text())
+        th = load_config(path).axes["X"].compensation.thermal
+        assert th is not None and th.length_mm == 812.5
+        assert th.profile is not None and th.profile.spread_mm == 150.0
+    tables.thermal_profile["X"] = None  # the warm-up said linear: the user's profile goes
+    data = identification(original, ("X", "Y"), tables)
+    assert data["axes"]["X"]["compensation"]["thermal"]["profile"] is None

@@ -6,7 +6,8 @@ command again after Ctrl-C, a crash or a power loss carries on where it stopped:
 
 1. identification config (no pitch, backlash, cyclic or planar stage) loaded; per axis a
    warm-up for the thermal length (when the axis has a thermal source and a Δa sensor is
-   given), seed 000's backlash at three places, a coarse ISO 230-2 run, the cyclic scans
+   given: over a zone, read inside and beyond it, which also chooses the linear spread or
+   the travel profile, :mod:`.thermal_shape`), seed 000's backlash at three places, a coarse ISO 230-2 run, the cyclic scans
    (when the lead is known), and the *before* verification run (random targets off the
    table); the *before* XY run when the plane is commissioned;
 2. tables fitted (the joint pitch + cyclic fit), the *pitch* config loaded, the XY grid
