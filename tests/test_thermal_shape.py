@@ -105,16 +105,17 @@ def test_a_warm_up_read_at_one_place_cannot_tell_the_shape() -> None:
 
 
 def test_the_chosen_shape_reaches_the_configs_commissioning_writes(tmp_path: Path) -> None:
-    """Tables keep the choice across a resume (JSON); every config after the warm-up has
-    it, and the gateway loads it (a Δa source: example.yaml's X); linear clears it."""
+    """Tables keep the choice across a resume (JSON); the tables' configs have it and the
+    gateway loads it (a Δa source: example.yaml's X); the identification config right
+    after the zone warm-up spreads linearly; a linear choice clears the user's profile."""
     root = Path(__file__).resolve().parents[1]
     original = yaml.safe_load((root / "config" / "example.yaml").read_text())
     original["axes"]["X"]["compensation"]["thermal"]["profile"] = {"spread_mm": 60.0}
     tables = Tables(thermal_length_mm={"X": 812.5, "Y": 600.0},
                     thermal_profile={"X": {"spread_mm": 150.0}})  # fmt: skip
     tables = Tables.from_json(json.loads(json.dumps(tables.to_json())))
-    for data in (identification(original, ("X", "Y"), tables),
-                 with_tables(original, ("X", "Y"), tables, planar=False)):  # fmt: skip
+
+    def loaded(data: dict) -> AxisThermal:
         path = tmp_path / "gw.yaml"
         path.write_text(yaml.safe_dump(data))
         for name in ("x_pitch.csv", "y_pitch.csv"):  # the example's tables beside it
@@ -123,7 +124,10 @@ def test_the_chosen_shape_reaches_the_configs_commissioning_writes(tmp_path: Pat
                 (tmp_path / name).write_text(src.read_text())
         th = load_config(path).axes["X"].compensation.thermal
         assert th is not None and th.length_mm == 812.5
-        assert th.profile is not None and th.profile.spread_mm == 150.0
+        return th
+
+    th = loaded(with_tables(original, ("X", "Y"), tables, planar=False))
+    assert th.profile is not None and th.profile.spread_mm == 150.0
+    assert loaded(identification(original, ("X", "Y"), tables)).profile is None
     tables.thermal_profile["X"] = None  # the warm-up said linear: the user's profile goes
-    data = identification(original, ("X", "Y"), tables)
-    assert data["axes"]["X"]["compensation"]["thermal"]["profile"] is None
+    assert loaded(with_tables(original, ("X", "Y"), tables, planar=False)).profile is None

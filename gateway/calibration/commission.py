@@ -4,12 +4,13 @@ The steps, each a plan run through the running gateway (readings appended and fs
 :mod:`.runner`), each recorded in ``DIR/commission.json`` once done, so running the same
 command again after Ctrl-C, a crash or a power loss carries on where it stopped:
 
-1. identification config (no pitch, backlash, cyclic or planar stage) loaded; per axis a
-   warm-up for the thermal length (when the axis has a thermal source and a Δa sensor is
-   given: over a zone, read inside and beyond it, which also chooses the linear spread or
-   the travel profile, :mod:`.thermal_shape`), seed 000's backlash at three places, a coarse ISO 230-2 run, the cyclic scans
-   (when the lead is known), and the *before* verification run (random targets off the
-   table); the *before* XY run when the plane is commissioned;
+1. identification config (no pitch, backlash, cyclic or planar stage) loaded; the
+   warm-ups first, for the thermal length (when the axis has a thermal source and a Δa
+   sensor is given: over a zone, read inside and beyond it, which also chooses the linear
+   spread or the travel profile, :mod:`.thermal_shape`); then per axis (those warmed over a
+   zone last, while its heat fades) seed 000's backlash at three places, a coarse ISO
+   230-2 run, the cyclic scans (when the lead is known), and the *before* verification run
+   (random targets off the table); the *before* XY run when the plane is commissioned;
 2. tables fitted (the joint pitch + cyclic fit), the *pitch* config loaded, the XY grid
    measured and the planar model fitted (poly or grid by cross-validation), the *full*
    config loaded;
@@ -251,11 +252,9 @@ class Commission(RotarySteps):
     async def _identify(self) -> None:
         await self.use("identification")
         results = self.state.setdefault("identify", {})
-        for a in self.s.axes:
-            if self._rotary(a):  # in degrees, with the angle instrument (commission_rotary)
-                await self.identify_rotary(a)
-                continue
-            travel = self._travel(a)
+        # the warm-ups first, the axes warmed over a zone identified last: their zone's
+        # heat fades while the others are measured
+        for a in [a for a in self.s.axes if not self._rotary(a)]:
             if self._thermal(a) and a not in self.tables.thermal_length_mm and \
                     a not in self.tables.thermal_gain:
                 await self.use("warmup")
@@ -267,6 +266,11 @@ class Commission(RotarySteps):
                     results[f"thermal-{a}"] = {"fitted": False, "why": str(exc)}
                     self.say(f"{a}: thermal setting kept as configured: {exc}")
                 await self.use("identification")  # with the length or gain
+        for a in sorted(self.s.axes, key=lambda a: a in self.tables.thermal_profile):
+            if self._rotary(a):  # in degrees, with the angle instrument (commission_rotary)
+                await self.identify_rotary(a)
+                continue
+            travel = self._travel(a)
             await self.step(f"backlash-{a}", lambda a=a, t=travel: backlash_plan(a, t), "off",
                             self._park(a))  # fmt: skip
             b = backlash_from_raw(self.raw(f"backlash-{a}"), a)

@@ -52,10 +52,13 @@ class Tables:
                    dict(data.get("thermal_profile", {})))  # fmt: skip
 
 
-def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tables
-                   ) -> dict[str, Any]:
+def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
+                   profile: bool = False) -> dict[str, Any]:  # fmt: skip
     """The user's config with the commissioned axes' pitch, backlash and cyclic stages and
-    the planar model removed; thermal kept (with the fitted length once known)."""
+    the planar model removed; thermal kept (with the fitted length once known). The zone
+    warm-up's travel profile only with ``profile`` (the tables' phases): the gateway's
+    travel history starts at the reload, after the zone it would have to know about, so
+    the identification runs use the linear spread while the zone's heat fades."""
     data = copy.deepcopy(original)
     for name in axes:
         comp = data["axes"][name].setdefault("compensation", {}) or {}
@@ -68,7 +71,8 @@ def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tabl
         if name in tables.motion and not comp.get("thermal"):
             comp["thermal"] = copy.deepcopy(tables.motion[name])
         if name in tables.thermal_profile and comp.get("thermal"):  # the zone warm-up's
-            comp["thermal"] = {**comp["thermal"], "profile": tables.thermal_profile[name]}
+            comp["thermal"] = {**comp["thermal"],
+                               "profile": tables.thermal_profile[name] if profile else None}
         if name in tables.thermal_gain and comp.get("thermal"):
             comp["thermal"] = {**comp["thermal"], "gain": round(tables.thermal_gain[name], 4)}
         data["axes"][name]["compensation"] = comp
@@ -83,7 +87,7 @@ def with_tables(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
     """Identification plus the fitted tables and cyclic terms; the planar model too when
     ``planar`` (and fitted), committed as the user's planar section says, else
     ``commit_default``."""
-    data = identification(original, axes, tables)
+    data = identification(original, axes, tables, profile=True)
     for name in axes:
         comp = data["axes"][name]["compensation"]
         if name in tables.pitch:
