@@ -206,7 +206,9 @@ class MachineRun:
         Hours pass in the sim at once: the gateway's wall clock does not see them, as it
         would in a real night, so axes with heat from motion would still be warm to it. A
         reload without their ``thermal.motion`` and one with it again give them what the
-        hours would: a cold screw."""
+        hours would: a cold screw. A travel profile that forgets in time (``memory_s``,
+        set by commission's zone warm-up) is reloaded the same way: the hours would have
+        faded its old zones."""
         client = ModbusTcpClient("127.0.0.1", port=self.sim_port, timeout=2, retries=0)
         assert client.connect()
         try:
@@ -216,7 +218,8 @@ class MachineRun:
         config = yaml.safe_load(self._gw_path.read_text())  # type: ignore[union-attr]
         bare = copy.deepcopy(config)
         for ax in bare["axes"].values():
-            if ((ax.get("compensation") or {}).get("thermal") or {}).get("motion"):
+            thermal = (ax.get("compensation") or {}).get("thermal") or {}
+            if thermal.get("motion") or (thermal.get("profile") or {}).get("memory_s"):
                 del ax["compensation"]["thermal"]
         if bare != config:
             self.use(bare)

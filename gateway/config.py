@@ -298,10 +298,13 @@ class TravelProfile(Model):
     """Spread the Δa where the axis has been working instead of linearly from the fixed
     end (a screw warm only where the nut runs): the travel swept over each stretch, spread
     along the screw by ``spread_mm`` (about √(κτ): 100 mm for steel in air), older travel
-    fading per ``memory_mm`` travelled since. Displacement (Δa) sources only."""
+    fading per ``memory_mm`` travelled since or per ``memory_s`` of the clock since (the
+    screw's cooling time constant: after a pause the heat of old moves is gone), whichever
+    fades it more. Displacement (Δa) sources only."""
 
     spread_mm: float = Field(default=100.0, gt=0.0, le=10_000.0)
     memory_mm: float = Field(default=100_000.0, gt=0.0)
+    memory_s: float | None = Field(default=None, gt=0.0, le=1e6)
     bin_mm: float = Field(default=5.0, gt=0.0, le=100.0)
 
 

@@ -4,9 +4,10 @@ how warm its own motion has made it (``thermal.motion``, an axis with no sensor)
 The nut's friction heats the screw where it runs; a Δa sensor at the free end reads the
 whole elongation but not where it is. The gateway sees every target it corrects, so it
 counts the travel swept over each stretch of the screw (older travel fading per mm
-travelled since, ``memory_mm``) and hands the math (:func:`~gateway.compensation.thermal.
-travel_delta_a_mm`) the weights. Nothing here is persisted: after a restart the profile
-starts empty and the linear spread applies until the axis has moved.
+travelled since, ``memory_mm``, or per second, ``memory_s``) and hands the math
+(:func:`~gateway.compensation.thermal.travel_delta_a_mm`) the weights. Nothing here is
+persisted: after a restart the profile starts empty and the linear spread applies until
+the axis has moved.
 """
 
 from __future__ import annotations
@@ -31,8 +32,11 @@ class TravelHistory:
     """The swept travel of one axis along its screw, and the Δa it implies per place."""
 
     def __init__(self, thermal: AxisThermal, profile: TravelProfile,
-                 travel_mm: tuple[float, float]) -> None:  # fmt: skip
+                 travel_mm: tuple[float, float],
+                 clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
         self.profile = profile
+        self.clock = clock
+        self.at_s = clock()
         self.stage = ThermalStage(thermal.length_mm, thermal.origin_mm)
         self.travel_mm = tuple(travel_mm)
         lo, hi = travel_mm
@@ -57,8 +61,13 @@ class TravelHistory:
         last, self.last_mm = self.last_mm, x_mm
         if last is None or x_mm == last:
             return
+        now = self.clock()
+        since_s, self.at_s = now - self.at_s, now
         lo, hi = sorted((last, x_mm))
-        self.swept *= math.exp(-(hi - lo) / self.profile.memory_mm)
+        fade = (hi - lo) / self.profile.memory_mm
+        if self.profile.memory_s is not None:  # a pause cools the old zones too
+            fade = max(fade, since_s / self.profile.memory_s)
+        self.swept *= math.exp(-fade)
         half = self.profile.bin_mm / 2.0
         overlap = np.clip(np.minimum(self.centres_mm + half, hi)
                           - np.maximum(self.centres_mm - half, lo), 0.0, None)  # fmt: skip

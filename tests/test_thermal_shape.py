@@ -88,6 +88,10 @@ def test_a_screw_warm_where_its_nut_runs_gets_the_travel_profile() -> None:
     assert fit.growth_max_um > 10.0
     assert fit.shape == "profile" and fit.profile() is not None
     assert fit.profile_rms_um < 0.35 * fit.linear_rms_um, fit
+    # the profile forgets as the screw cools: ρ·c·d / 4h = 963 s for this screw in air
+    assert fit.tau_s == pytest.approx(7850 * 460 * 0.016 / (4 * 15.0), rel=0.15)
+    assert fit.profile() == {"spread_mm": fit.spread_mm, "memory_s": fit.tau_s,
+                             "memory_mm": pytest.approx(SPEED * fit.tau_s, rel=0.01)}
 
 
 def test_an_evenly_warm_screw_stays_linear_with_its_length() -> None:
@@ -96,6 +100,7 @@ def test_an_evenly_warm_screw_stays_linear_with_its_length() -> None:
     assert fit.shape == "linear" and fit.profile() is None, fit
     assert fit.length_mm == pytest.approx(SCREW[1] - SCREW[0], rel=0.03)
     assert fit.linear_rms_um < 0.6
+    assert fit.tau_s == pytest.approx(600.0, rel=0.05)  # its rise
 
 
 def test_a_warm_up_read_at_one_place_cannot_tell_the_shape() -> None:

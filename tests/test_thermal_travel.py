@@ -98,3 +98,51 @@ def test_a_profile_needs_a_displacement_source() -> None:
                                                         "profile": {}}}}}}  # fmt: skip
     with pytest.raises(ValueError, match=r"thermal\.profile: needs a displacement"):
         GatewayConfig.model_validate(data)
+
+
+def test_a_pause_forgets_the_old_zone_with_memory_s() -> None:
+    """Zone A cycled 30 min, two hours' pause (the sim's screw cools), zone B cycled
+    10 min: with ``memory_s`` (the screw's cooling time constant, ρ·c·d / 4h) the profile
+    puts the Δa in zone B (0.96 µm off at most of 44 µm); without it zone A's old travel
+    still shares it (21 µm off)."""
+    from sim.config_truth import ScrewHeat
+    from sim.heat import ScrewHeatModel
+
+    travel, nut, speed, h = 800.0, 40.0, 100.0, 15.0
+    screw = (-nut, travel + nut)
+    tau_s = 7850 * 460 * 0.016 / (4 * h)  # 963 s
+    model = ScrewHeatModel(ScrewHeat(lead_mm=5.0, drag_torque_Nm=0.05, diameter_mm=16.0,
+                                     nut_length_mm=nut, h_W_m2K=h, screw_mm=screw,
+                                     fixed_end_mm=screw[0]), (0.0, travel))  # fmt: skip
+    clock = [0.0]
+    histories = {}
+    for memory_s in (None, tau_s):
+        th = AxisThermal(source="x", length_mm=screw[1] - screw[0], origin_mm=screw[0],
+                         profile=TravelProfile(memory_s=memory_s))  # fmt: skip
+        histories[memory_s] = TravelHistory(th, th.profile, (0.0, travel),  # type: ignore[arg-type]
+                                            clock=lambda: clock[0])  # fmt: skip
+
+    def cycle(z0: float, z1: float, until_s: float) -> None:
+        pos = z0
+        for hist in histories.values():
+            hist.move_to(pos)
+        while clock[0] < until_s:
+            to = z1 if pos == z0 else z0
+            dt = abs(to - pos) / speed
+            model.add_move(clock[0], clock[0] + dt, pos, to, speed)
+            clock[0] += dt
+            for hist in histories.values():
+                hist.move_to(to)
+            pos = to
+
+    cycle(50.0, 300.0, 1800.0)  # zone A
+    clock[0] += 7200.0  # the pause: nothing moves
+    cycle(500.0, 750.0, clock[0] + 600.0)  # zone B
+    da = model.growth_mm(screw[1], clock[0])
+    places = np.array([100.0, 250.0, 400.0, 600.0, 700.0])
+    truth = np.array([model.growth_mm(p, clock[0]) for p in places])
+    err = {k: float(np.abs(truth - [(p - screw[0]) * hist.delta_a_mm(da, p)
+                                   / (screw[1] - screw[0]) for p in places]).max()) * 1e3
+           for k, hist in histories.items()}  # fmt: skip
+    assert da * 1e3 > 5.0
+    assert err[tau_s] < 0.4 * err[None], err

@@ -309,7 +309,9 @@ class Commission(RotarySteps):
                      f" at most) is {'where the nut worked' if shape.profile() else 'linear'}"
                      f": the linear spread leaves {shape.linear_rms_um:.2f} µm RMS, the travel "
                      f"profile {shape.profile_rms_um:.2f}; thermal length "
-                     f"{shape.length_mm:g} mm")  # fmt: skip
+                     f"{shape.length_mm:g} mm"
+                     + (f"; the Δa rose with τ {shape.tau_s:.0f} s: old zones fade over it"
+                        if shape.profile() and shape.tau_s else ""))  # fmt: skip
             return shape.summary()
         tf = thermal_fit(raw, axis, th.origin_mm, th.length_mm)
         self.tables.thermal_length_mm[axis] = float(tf.length_mm)

@@ -10,6 +10,10 @@ it, cold and warm. Each shape predicts every reading from the same Δa change, t
 prediction for a profile computed by the gateway's own travel history
 (:class:`~gateway.thermal_travel.TravelHistory`) replaying the plan's moves; the shape
 whose prediction leaves clearly less (under half, and by more than the noise) is taken.
+
+The profile forgets old travel as the screw cools: its ``memory_s`` is the time constant of
+the Δa sensor's rise during the warm-up (constant cycling: Δa = D·(1 − e^(−t/τ))), its
+``memory_mm`` the travel at the warm-up's speed in that time.
 """
 
 from __future__ import annotations
@@ -35,6 +39,8 @@ LENGTH_FACTORS = np.geomspace(0.6, 1.6, 11)
 PROFILE_SHARE = 0.5
 #: ... and be better by this much (µm RMS): a difference in the noise decides nothing
 NOISE_UM = 0.5
+#: time constants tried for the Δa sensor's rise (s); the top one means "never levelled off"
+TAU_GRID_S = np.geomspace(60.0, 20_000.0, 160)
 
 
 @dataclass(frozen=True)
@@ -50,15 +56,53 @@ class ThermalShapeFit:
     profile_rms_um: float
     growth_max_um: float
     points: int
+    tau_s: float | None = None  # the Δa sensor's rise; None: it never levelled off
+    memory_mm: float | None = None  # travel at the warm-up's speed in tau_s
 
     def profile(self) -> dict[str, float] | None:
         """The ``thermal.profile`` section (None: linear)."""
-        return None if self.spread_mm is None else {"spread_mm": self.spread_mm}
+        if self.spread_mm is None:
+            return None
+        out = {"spread_mm": self.spread_mm}
+        if self.tau_s is not None and self.memory_mm is not None:
+            out |= {"memory_mm": self.memory_mm, "memory_s": self.tau_s}
+        return out
 
     def summary(self) -> dict[str, Any]:
         return {"shape": self.shape, "length_mm": self.length_mm, "spread_mm": self.spread_mm,
                 "linear_rms_um": self.linear_rms_um, "profile_rms_um": self.profile_rms_um,
-                "growth_max_um": self.growth_max_um, "points": self.points}  # fmt: skip
+                "growth_max_um": self.growth_max_um, "points": self.points,
+                "tau_s": self.tau_s}  # fmt: skip
+
+
+def _stop_times_s(plan: Plan, axis: str) -> NDArray[np.float64]:
+    """Machine time (s) at each measured stop of ``plan``: travel over speed, dwells."""
+    k = plan.axes.index(axis)
+    speed = float(dict(plan.meta).get("speed_mm_s", 0) or 0)
+    t, pos, out = 0.0, None, []
+    for m in plan.moves:
+        x = float(m.target_mm[k])
+        v = m.speed_mm_s or speed
+        if pos is not None and v > 0:
+            t += abs(x - pos) / v
+        pos = x
+        if m.measured:
+            t += m.dwell_s or 0.0
+            out.append(t)
+    return np.asarray(out)
+
+
+def rise_tau_s(t_s: NDArray[np.float64], delta_a: NDArray[np.float64]) -> float | None:
+    """τ of ``delta_a`` = D·(1 − e^(−t/τ)) (least squares in D per τ on TAU_GRID_S); None
+    when the best is the grid's top (the sensor never levelled off) or nothing rose."""
+    t, d = t_s - t_s[0], delta_a - delta_a[0]
+    if t.size < 4 or not np.ptp(d) > 0:
+        return None
+    basis = -np.expm1(-t[:, None] / TAU_GRID_S[None, :])  # 1 − e^(−t/τ), per τ
+    gain = (basis * d[:, None]).sum(0) / np.maximum((basis**2).sum(0), 1e-300)
+    sse = ((d[:, None] - basis * gain) ** 2).sum(0)
+    best = int(np.argmin(sse))
+    return None if best == TAU_GRID_S.size - 1 else float(TAU_GRID_S[best])
 
 
 def _changes(raw: RawData, axis: str) -> tuple[NDArray[np.int64], NDArray[np.float64],
@@ -81,14 +125,14 @@ def _changes(raw: RawData, axis: str) -> tuple[NDArray[np.int64], NDArray[np.flo
     return warm, place[warm], growth, d_a
 
 
-def _fractions(plan: Plan, axis: str, thermal: AxisThermal, spread_mm: float,
+def _fractions(plan: Plan, axis: str, thermal: AxisThermal, profile: TravelProfile,
                travel_mm: tuple[float, float], length_mm: float) -> NDArray[np.float64]:
     """growth / Δa at every measured stop of ``plan`` under the travel profile, as the
-    gateway would count it had it run the plan with the profile on."""
-    th = thermal.model_copy(update={"length_mm": length_mm,
-                                    "profile": TravelProfile(spread_mm=spread_mm)})
+    gateway would count it had it run the plan with the profile on (travel fading per
+    mm: the plan's machine time is the gateway's at time_scale 0 or in steady motion)."""
+    th = thermal.model_copy(update={"length_mm": length_mm, "profile": profile})
     assert th.profile is not None
-    history = TravelHistory(th, th.profile, travel_mm)
+    history = TravelHistory(th, th.profile, travel_mm, clock=lambda: 0.0)
     k = plan.axes.index(axis)
     out = []
     for move in plan.moves:
@@ -122,10 +166,17 @@ def thermal_shape_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
     places, counts = np.unique(place, return_counts=True)
     survey = place != places[np.argmax(counts)]
     lin_rms = float(np.sqrt(np.mean((growth - d_a * lever * inv)[survey] ** 2)))
+    rows = np.flatnonzero(np.array(raw.axis) == axis)
+    ref = np.round(raw.target_mm[rows], 6) == places[np.argmax(counts)]
+    tau = rise_tau_s(_stop_times_s(plan, axis)[ref], raw.column_mm("delta_a_mm")[rows][ref])
+    speed = float(dict(plan.meta).get("speed_mm_s", 0) or 0)
+    memory = round(speed * tau, -2) if tau is not None and speed > 0 else None
     best = (np.inf, length, SPREADS_MM[0])
     for spread in SPREADS_MM:
+        prof = TravelProfile(spread_mm=spread) if memory is None else \
+            TravelProfile(spread_mm=spread, memory_mm=memory)  # fmt: skip
         for factor in LENGTH_FACTORS:
-            f = _fractions(plan, axis, thermal, spread, travel_mm, length * factor)[warm]
+            f = _fractions(plan, axis, thermal, prof, travel_mm, length * factor)[warm]
             rms = float(np.sqrt(np.mean((growth - d_a * f)[survey] ** 2)))
             if rms < best[0]:
                 best = (rms, length * factor, spread)
@@ -136,4 +187,5 @@ def thermal_shape_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
                            float(round(prof_len if profile else length, 1)),
                            spread if profile else None, float(lin_rms * UM_PER_MM),
                            float(prof_rms * UM_PER_MM),
-                           float(np.abs(growth).max() * UM_PER_MM), int(warm.size))  # fmt: skip
+                           float(np.abs(growth).max() * UM_PER_MM), int(warm.size),
+                           None if memory is None else round(tau, 0), memory)  # fmt: skip
