@@ -15,6 +15,7 @@ from gateway.calibration.commission_configs import Tables, identification, with_
 from gateway.calibration.plans import warmup_plan
 from gateway.calibration.rawdata import RawData
 from gateway.calibration.thermal_shape import thermal_shape_fit
+from gateway.calibration.warmup_heat import warmup_heat_fit
 from gateway.compensation.errors import TableError
 from gateway.config import AxisThermal, load_config
 from sim.config_truth import ScrewHeat
@@ -136,3 +137,70 @@ def test_the_chosen_shape_reaches_the_configs_commissioning_writes(tmp_path: Pat
     assert loaded(identification(original, ("X", "Y"), tables)).profile is None
     tables.thermal_profile["X"] = None  # the warm-up said linear: the user's profile goes
     assert loaded(with_tables(original, ("X", "Y"), tables, planar=False)).profile is None
+
+
+def _raw_temperature(plan, heat: _NutHeat, spot_mm: float, seed: int) -> RawData:
+    """The plan on the nut-heated screw, with a temperature sensor at ``spot_mm`` (°C)."""
+    rng = np.random.default_rng(seed)
+    t, pos = 0.0, None
+    rows = []
+    for m in plan.moves:
+        x = m.target_mm[0]
+        if pos is not None and x != pos:
+            dt = abs(x - pos) / SPEED
+            heat.move(t, t + dt, pos, x)
+            t += dt
+        pos = x
+        if m.measured:
+            t += m.dwell_s or 0.0
+            rows.append((m.run, m.direction, x,
+                         x + heat(x, t) + rng.normal(0.0, 0.3e-3),
+                         20.0 + heat.model.temperature_rise_K(spot_mm, t)))  # fmt: skip
+    run, direction, target, actual, temp = map(np.array, zip(*rows, strict=True))
+    return RawData(("X",) * len(rows), run.astype(np.int64), direction.astype(np.int8),
+                   target, actual, {"temperature_c": tuple(f"{v:.3f}" for v in temp)},
+                   tuple(range(2, 2 + len(rows))), "warmup-X.csv")  # fmt: skip
+
+
+def test_heat_from_motion_replaces_a_sensor_beyond_the_zone() -> None:
+    """A temperature sensor at 90 mm, beyond the zone the warm-up cycles (180-420 mm): the
+    heat of the axis's own motion, where it travelled, explains the growth the sensor
+    cannot; the section it writes loads as the gateway's thermal.motion."""
+    plan = _plan()
+    th = AxisThermal(source="t", length_mm=600.0, origin_mm=SCREW[0])
+    fit = warmup_heat_fit(_raw_temperature(plan, _NutHeat(), 90.0, 4), plan, "X", th,
+                          11.5e-6, TRAVEL)  # fmt: skip
+    assert fit.replaces_sensor, fit
+    assert fit.motion_rms_um < 0.3 * fit.sensor_rms_um
+    assert fit.spread_mm is not None  # where it travelled, not linear
+    section = fit.config({"X": SPEED})
+    assert AxisThermal.model_validate(section).motion is not None
+
+
+def test_a_sensor_that_reads_the_whole_screw_is_kept() -> None:
+    """An evenly warm screw: its temperature anywhere is the whole screw's, the sensor's
+    model leaves the noise, and heat from motion does not replace it."""
+    plan = _plan()
+    even = _EvenHeat()
+    th = AxisThermal(source="t", length_mm=600.0, origin_mm=SCREW[0])
+    raw = _raw(plan, even, 0.3, 6)  # Δa column unused here; a temperature column instead
+    temp = tuple(f"{20.0 + 3.0 * (1.0 - np.exp(-t_s / 600.0)):.3f}"
+                 for t_s in _times(plan))  # fmt: skip
+    raw = RawData(raw.axis, raw.run, raw.direction, raw.target_mm, raw.actual_mm,
+                  {"temperature_c": temp}, raw.lines, raw.source)  # fmt: skip
+    fit = warmup_heat_fit(raw, plan, "X", th, 11.5e-6, TRAVEL)
+    assert fit.sensor_rms_um < 0.6 and not fit.replaces_sensor, fit
+
+
+def _times(plan) -> list[float]:
+    """Machine time at each measured stop, as _raw counts it."""
+    t, pos, out = 0.0, None, []
+    for m in plan.moves:
+        x = m.target_mm[0]
+        if pos is not None and x != pos:
+            t += abs(x - pos) / SPEED
+        pos = x
+        if m.measured:
+            t += m.dwell_s or 0.0
+            out.append(t)
+    return out

@@ -80,6 +80,7 @@ from .rawdata import RawData, axis_deviations, read_raw_csv
 from .runner import read_raw_meta
 from .session import planar_figures
 from .thermal_shape import thermal_shape_fit
+from .warmup_heat import warmup_heat_fit
 
 #: a zone warm-up (Δa sensor) cycles over this share of the travel (fractions) ...
 ZONE = (0.3, 0.7)
@@ -162,7 +163,7 @@ class Commission(RotarySteps):
         th = self.config.axes[axis].compensation.thermal
         origin = th.origin_mm if th is not None else lo
         ref = hi - margin if abs(hi - origin) >= abs(lo - origin) else lo + 2 * margin
-        if self._delta_a(axis):
+        if th is not None and th.source is not None:  # a Δa or temperature sensor
             pulse = self.config.axes[axis].pulse_mm
             return warmup_plan(axis, [lo + f * (hi - lo) for f in ZONE], self.s.speed_mm_s,
                                self.s.warmup_s, ref, places_mm=[
@@ -170,11 +171,6 @@ class Commission(RotarySteps):
                                    for f in ZONE_PLACES])  # fmt: skip
         return warmup_plan(axis, (lo + margin, hi - margin), self.s.speed_mm_s,
                            self.s.warmup_s, ref)  # fmt: skip
-
-    def _delta_a(self, axis: str) -> bool:
-        th = self.config.axes[axis].compensation.thermal
-        return th is not None and th.source is not None and \
-            self.config.thermal_sources[th.source].kind != "temperature"  # fmt: skip
 
     def _iso_plan(self, axis: str) -> Plan:
         lead = self.s.lead_mm.get(axis)
@@ -293,14 +289,17 @@ class Commission(RotarySteps):
         th = self.config.axes[axis].compensation.thermal
         assert th is not None
         src = self.config.thermal_sources[th.source]
+        plan = read_plan(self.dir / "plans" / f"warmup-{axis}.plan")
         if src.kind == "temperature":
             g = thermal_gain_fit(raw, axis, th.origin_mm, src.alpha_per_k)
             self.tables.thermal_gain[axis] = g.gain
             self.say(f"{axis}: the screw grows {g.gain:.2f}× what its sensor's "
                      f"{g.temperature_rise_K:.2f} K predict: thermal gain {g.gain:.3f}")
-            return {"gain": g.gain, "growth_max_um": g.growth_max_um,
-                    "residual_rms_um": g.residual_rms_um, "rise_K": g.temperature_rise_K}
-        plan = read_plan(self.dir / "plans" / f"warmup-{axis}.plan")
+            out = {"gain": g.gain, "growth_max_um": g.growth_max_um,
+                   "residual_rms_um": g.residual_rms_um, "rise_K": g.temperature_rise_K}
+            if dict(plan.meta).get("places_mm"):  # a zone warm-up: is motion the better model?
+                out["motion"] = self._heat_instead(axis, raw, plan, th, src.alpha_per_k)
+            return out
         if dict(plan.meta).get("places_mm"):  # a zone warm-up: the shape too
             shape = thermal_shape_fit(raw, plan, axis, th, self._travel(axis))
             self.tables.thermal_length_mm[axis] = shape.length_mm
@@ -317,6 +316,24 @@ class Commission(RotarySteps):
         self.tables.thermal_length_mm[axis] = float(tf.length_mm)
         return {"length_mm": tf.length_mm, "growth_max_um": tf.growth_max_um,
                 "residual_rms_um": tf.residual_rms_um}
+
+    def _heat_instead(self, axis: str, raw: RawData, plan: Plan, th: Any,
+                      alpha_per_k: float) -> dict[str, Any]:  # fmt: skip
+        """Heat from its own motion in place of a temperature sensor at one spot, from the
+        tables' configs on, when it explains the zone warm-up clearly better."""
+        try:
+            hf = warmup_heat_fit(raw, plan, axis, th, alpha_per_k, self._travel(axis))
+        except TableError as exc:
+            return {"fitted": False, "why": str(exc)}
+        if hf.replaces_sensor:
+            self.tables.thermal_motion[axis] = hf.config(
+                dict.fromkeys(self.s.axes, self.s.speed_mm_s))  # fmt: skip
+            self.say(f"{axis}: the heat of its own motion explains the zone warm-up "
+                     f"({hf.growth_max_um:.1f} µm) to {hf.motion_rms_um:.2f} µm RMS where the "
+                     f"sensor explains {hf.sensor_rms_um:.2f}: heat from motion (tau "
+                     f"{hf.tau_s:.0f} s{', where it travelled' if hf.spread_mm else ''}) "
+                     "replaces the sensor from the tables on")  # fmt: skip
+        return hf.summary()
 
     def _before_plan(self, axis: str) -> Plan:
         """The targets judged before and after: random, off the coarse table's points."""

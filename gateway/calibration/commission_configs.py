@@ -32,6 +32,9 @@ class Tables:
     planar_axes: tuple[str, str] | None = None
     #: Δa axes after a zone warm-up: their thermal.profile, None for the linear spread
     thermal_profile: dict[str, dict[str, float] | None] = field(default_factory=dict)
+    #: temperature axes whose zone warm-up their own motion explained better: their
+    #: thermal section (heat from motion) from the tables' configs on
+    thermal_motion: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         return {"pitch": self.pitch, "cyclic": self.cyclic,
@@ -39,7 +42,8 @@ class Tables:
                 "thermal_gain": self.thermal_gain, "motion": self.motion,
                 "planar_model": self.planar_model,
                 "planar_axes": list(self.planar_axes) if self.planar_axes else None,
-                "thermal_profile": self.thermal_profile}  # fmt: skip
+                "thermal_profile": self.thermal_profile,
+                "thermal_motion": self.thermal_motion}  # fmt: skip
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> Tables:
@@ -49,7 +53,8 @@ class Tables:
                    {k: float(v) for k, v in data.get("thermal_gain", {}).items()},
                    dict(data.get("motion", {})), data.get("planar_model"),
                    tuple(axes) if axes else None,  # type: ignore[arg-type]
-                   dict(data.get("thermal_profile", {})))  # fmt: skip
+                   dict(data.get("thermal_profile", {})),
+                   dict(data.get("thermal_motion", {})))  # fmt: skip
 
 
 def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
@@ -90,6 +95,8 @@ def with_tables(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
     data = identification(original, axes, tables, profile=True)
     for name in axes:
         comp = data["axes"][name]["compensation"]
+        if name in tables.thermal_motion:  # in place of a temperature sensor
+            comp["thermal"] = copy.deepcopy(tables.thermal_motion[name])
         if name in tables.pitch:
             comp["pitch"] = {"file": tables.pitch[name], "interpolation": "linear"}
         if name in tables.cyclic:

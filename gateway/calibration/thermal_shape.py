@@ -75,7 +75,7 @@ class ThermalShapeFit:
                 "tau_s": self.tau_s}  # fmt: skip
 
 
-def _stop_times_s(plan: Plan, axis: str) -> NDArray[np.float64]:
+def stop_times_s(plan: Plan, axis: str) -> NDArray[np.float64]:
     """Machine time (s) at each measured stop of ``plan``: travel over speed, dwells."""
     k = plan.axes.index(axis)
     speed = float(dict(plan.meta).get("speed_mm_s", 0) or 0)
@@ -105,13 +105,15 @@ def rise_tau_s(t_s: NDArray[np.float64], delta_a: NDArray[np.float64]) -> float 
     return None if best == TAU_GRID_S.size - 1 else float(TAU_GRID_S[best])
 
 
-def _changes(raw: RawData, axis: str) -> tuple[NDArray[np.int64], NDArray[np.float64],
-                                               NDArray[np.float64], NDArray[np.float64]]:
-    """Rows of ``axis`` after the cold survey, with their place (mm), growth since the
-    cold reading at that place (mm) and Δa change since then (mm)."""
+def survey_changes(raw: RawData, axis: str, column: str
+                   ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64],
+                              NDArray[np.float64], NDArray[np.float64]]:  # fmt: skip
+    """A zone warm-up's readings of ``axis`` after the cold survey: their row numbers among
+    the axis's rows, those of the cold reading at the same place, the place (mm), the
+    growth since the cold reading (mm) and the sensor ``column``'s change since then."""
     rows = np.flatnonzero(np.array(raw.axis) == axis)
     place = np.round(raw.target_mm[rows], 6)
-    delta_a = raw.column_mm("delta_a_mm")[rows]
+    sensor = raw.column_mm(column)[rows]
     cold: dict[float, int] = {}
     for k, p in enumerate(place):
         cold.setdefault(float(p), k)
@@ -121,11 +123,16 @@ def _changes(raw: RawData, axis: str) -> tuple[NDArray[np.int64], NDArray[np.flo
                          "read cold and warm")  # fmt: skip
     first = np.array([cold[float(place[k])] for k in warm], dtype=int)
     growth = raw.actual_mm[rows[warm]] - raw.actual_mm[rows[first]]
-    d_a = delta_a[warm] - delta_a[first]
-    return warm, place[warm], growth, d_a
+    return warm, first, place[warm], growth, sensor[warm] - sensor[first]
 
 
-def _fractions(plan: Plan, axis: str, thermal: AxisThermal, profile: TravelProfile,
+def survey_mask(place: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """The readings of the warm survey: all but the reference (the place read most)."""
+    places, counts = np.unique(place, return_counts=True)
+    return place != places[np.argmax(counts)]
+
+
+def profile_fractions(plan: Plan, axis: str, thermal: AxisThermal, profile: TravelProfile,
                travel_mm: tuple[float, float], length_mm: float) -> NDArray[np.float64]:
     """growth / Δa at every measured stop of ``plan`` under the travel profile, as the
     gateway would count it had it run the plan with the profile on (travel fading per
@@ -149,7 +156,7 @@ def thermal_shape_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
                       travel_mm: tuple[float, float]) -> ThermalShapeFit:
     """Linear spread or travel profile, from a zone warm-up (``plan`` as it ran: its
     measured stops are ``raw``'s rows of ``axis`` in order)."""
-    warm, place, growth, d_a = _changes(raw, axis)
+    warm, _, place, growth, d_a = survey_changes(raw, axis, "delta_a_mm")
     measured = sum(m.measured for m in plan.moves)
     if measured != int(np.sum(np.array(raw.axis) == axis)):
         raise TableError(f"{raw.source}: axis {axis}: {measured} stops planned, "
@@ -164,11 +171,11 @@ def thermal_shape_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
     length = 1.0 / inv
     # judged on the warm survey (the reference's series, beyond the zone, cannot tell)
     places, counts = np.unique(place, return_counts=True)
-    survey = place != places[np.argmax(counts)]
+    survey = survey_mask(place)
     lin_rms = float(np.sqrt(np.mean((growth - d_a * lever * inv)[survey] ** 2)))
     rows = np.flatnonzero(np.array(raw.axis) == axis)
     ref = np.round(raw.target_mm[rows], 6) == places[np.argmax(counts)]
-    tau = rise_tau_s(_stop_times_s(plan, axis)[ref], raw.column_mm("delta_a_mm")[rows][ref])
+    tau = rise_tau_s(stop_times_s(plan, axis)[ref], raw.column_mm("delta_a_mm")[rows][ref])
     speed = float(dict(plan.meta).get("speed_mm_s", 0) or 0)
     memory = round(speed * tau, -2) if tau is not None and speed > 0 else None
     best = (np.inf, length, SPREADS_MM[0])
@@ -176,7 +183,7 @@ def thermal_shape_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
         prof = TravelProfile(spread_mm=spread) if memory is None else \
             TravelProfile(spread_mm=spread, memory_mm=memory)  # fmt: skip
         for factor in LENGTH_FACTORS:
-            f = _fractions(plan, axis, thermal, prof, travel_mm, length * factor)[warm]
+            f = profile_fractions(plan, axis, thermal, prof, travel_mm, length * factor)[warm]
             rms = float(np.sqrt(np.mean((growth - d_a * f)[survey] ** 2)))
             if rms < best[0]:
                 best = (rms, length * factor, spread)
