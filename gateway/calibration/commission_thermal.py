@@ -1,0 +1,112 @@
+"""``compgw commission``'s thermal identification: the warm-up of an axis with a thermal
+source and what is fitted to it (a base of :class:`.commission.Commission`).
+
+- a Δa sensor (``--delta-a``): the thermal length; over a zone (ZONE) with places read cold
+  and warm inside and beyond it, also the linear spread or the travel profile
+  (:mod:`.thermal_shape`) and how fast old zones fade (``memory_s``);
+- a temperature source (``--temperature``): the thermal gain; over the zone, also whether
+  the heat of the axis's own motion explains the growth clearly better than the sensor at
+  one spot (:mod:`.warmup_heat`), in which case it replaces the sensor from the tables on.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..compensation.errors import TableError
+from .commission_rotary import RotarySteps
+from .models import thermal_fit, thermal_gain_fit
+from .plans import Plan, read_plan, warmup_plan
+from .rawdata import RawData
+from .thermal_shape import thermal_shape_fit
+from .warmup_heat import warmup_heat_fit
+
+#: a zone warm-up (a Δa or temperature sensor) cycles over this share of travel ...
+ZONE = (0.3, 0.7)
+#: ... and reads these places cold and warm: inside the zone and beyond it on both sides
+ZONE_PLACES = (0.12, 0.22, 0.4, 0.5, 0.6, 0.78, 0.88)
+
+
+class ThermalSteps(RotarySteps):
+    """The thermal identification: which axes warm up, the warm-up plan and its fit."""
+
+    def _thermal(self, axis: str) -> bool:
+        """A warm-up identifies this axis's thermal setting: its length from a Δa sensor
+        (--delta-a), or its gain from a temperature source (--temperature)."""
+        th = self.config.axes[axis].compensation.thermal
+        if th is None:
+            return False
+        if self.config.thermal_sources[th.source].kind == "temperature":
+            return self.s.instruments.temperature is not None
+        return self.s.instruments.delta_a is not None
+
+    def _warmup_plan(self, axis: str) -> Plan:
+        """Cycling over the travel; read at the end farthest from the screw's fixed end
+        (the thermal origin), where the growth is largest against the noise. With a Δa
+        or temperature sensor, over the middle of the travel only (ZONE), the places read
+        cold and warm too: is the growth linear from the fixed end, or where the nut
+        worked?"""
+        lo, hi = self._travel(axis)
+        margin = 0.05 * (hi - lo)
+        th = self.config.axes[axis].compensation.thermal
+        origin = th.origin_mm if th is not None else lo
+        ref = hi - margin if abs(hi - origin) >= abs(lo - origin) else lo + 2 * margin
+        if th is not None and th.source is not None:  # a Δa or temperature sensor
+            pulse = self.config.axes[axis].pulse_mm
+            return warmup_plan(axis, [lo + f * (hi - lo) for f in ZONE], self.s.speed_mm_s,
+                               self.s.warmup_s, ref, places_mm=[
+                                   round((lo + f * (hi - lo)) / pulse) * pulse
+                                   for f in ZONE_PLACES])  # fmt: skip
+        return warmup_plan(axis, (lo + margin, hi - margin), self.s.speed_mm_s,
+                           self.s.warmup_s, ref)  # fmt: skip
+
+    def _fit_thermal(self, axis: str, raw: RawData) -> dict[str, float]:
+        """The warm-up's fit: a Δa source's length, or a temperature source's gain."""
+        th = self.config.axes[axis].compensation.thermal
+        assert th is not None
+        src = self.config.thermal_sources[th.source]
+        plan = read_plan(self.dir / "plans" / f"warmup-{axis}.plan")
+        if src.kind == "temperature":
+            g = thermal_gain_fit(raw, axis, th.origin_mm, src.alpha_per_k)
+            self.tables.thermal_gain[axis] = g.gain
+            self.say(f"{axis}: the screw grows {g.gain:.2f}× what its sensor's "
+                     f"{g.temperature_rise_K:.2f} K predict: thermal gain {g.gain:.3f}")
+            out = {"gain": g.gain, "growth_max_um": g.growth_max_um,
+                   "residual_rms_um": g.residual_rms_um, "rise_K": g.temperature_rise_K}
+            if dict(plan.meta).get("places_mm"):  # a zone warm-up: is motion the better model?
+                out["motion"] = self._heat_instead(axis, raw, plan, th, src.alpha_per_k)
+            return out
+        if dict(plan.meta).get("places_mm"):  # a zone warm-up: the shape too
+            shape = thermal_shape_fit(raw, plan, axis, th, self._travel(axis))
+            self.tables.thermal_length_mm[axis] = shape.length_mm
+            self.tables.thermal_profile[axis] = shape.profile()
+            self.say(f"{axis}: after the zone warm-up the growth ({shape.growth_max_um:.1f} µm"
+                     f" at most) is {'where the nut worked' if shape.profile() else 'linear'}"
+                     f": the linear spread leaves {shape.linear_rms_um:.2f} µm RMS, the travel "
+                     f"profile {shape.profile_rms_um:.2f}; thermal length "
+                     f"{shape.length_mm:g} mm"
+                     + (f"; the Δa rose with τ {shape.tau_s:.0f} s: old zones fade over it"
+                        if shape.profile() and shape.tau_s else ""))  # fmt: skip
+            return shape.summary()
+        tf = thermal_fit(raw, axis, th.origin_mm, th.length_mm)
+        self.tables.thermal_length_mm[axis] = float(tf.length_mm)
+        return {"length_mm": tf.length_mm, "growth_max_um": tf.growth_max_um,
+                "residual_rms_um": tf.residual_rms_um}
+
+    def _heat_instead(self, axis: str, raw: RawData, plan: Plan, th: Any,
+                      alpha_per_k: float) -> dict[str, Any]:  # fmt: skip
+        """Heat from its own motion in place of a temperature sensor at one spot, from the
+        tables' configs on, when it explains the zone warm-up clearly better."""
+        try:
+            hf = warmup_heat_fit(raw, plan, axis, th, alpha_per_k, self._travel(axis))
+        except TableError as exc:
+            return {"fitted": False, "why": str(exc)}
+        if hf.replaces_sensor:
+            self.tables.thermal_motion[axis] = hf.config(
+                dict.fromkeys(self.s.axes, self.s.speed_mm_s))  # fmt: skip
+            self.say(f"{axis}: the heat of its own motion explains the zone warm-up "
+                     f"({hf.growth_max_um:.1f} µm) to {hf.motion_rms_um:.2f} µm RMS where the "
+                     f"sensor explains {hf.sensor_rms_um:.2f}: heat from motion (tau "
+                     f"{hf.tau_s:.0f} s{', where it travelled' if hf.spread_mm else ''}) "
+                     "replaces the sensor from the tables on")  # fmt: skip
+        return hf.summary()
