@@ -28,7 +28,6 @@ from .heat_fit import TAU_GRID_S
 from .plans import Plan
 from .rawdata import RawData
 from .thermal_shape import (
-    LENGTH_FACTORS,
     NOISE_UM,
     PROFILE_SHARE,
     SPREADS_MM,
@@ -139,12 +138,15 @@ def warmup_heat_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
     best = (np.inf, 0.0, length, SPREADS_MM[0])
     for spread in SPREADS_MM:
         prof = TravelProfile(spread_mm=spread, memory_mm=memory)
-        for factor in LENGTH_FACTORS:
-            f = profile_fractions(plan, axis, thermal, prof, travel_mm, length * factor)[warm]
-            c, _ = _ls(d_heat[:, j] * f, growth)
-            rms = float(np.sqrt(np.mean((growth - c * d_heat[:, j] * f)[survey] ** 2)))
-            if rms < best[0]:
-                best = (rms, c, length * factor, spread)
+        # Δa at a point past all the heat: the whole elongation, which follows the heat
+        # put in wherever the zone is (a point inside the travel would see only the share
+        # of heat between it and the fixed end, and that depends on where the axis works)
+        whole = max(abs(travel_mm[0] - o), abs(travel_mm[1] - o)) + 3.0 * spread
+        f = profile_fractions(plan, axis, thermal, prof, travel_mm, whole)[warm]
+        c, _ = _ls(d_heat[:, j] * f, growth)
+        rms = float(np.sqrt(np.mean((growth - c * d_heat[:, j] * f)[survey] ** 2)))
+        if rms < best[0]:
+            best = (rms, c, whole, spread)
     profiled = best[0] < PROFILE_SHARE * lin_rms and (lin_rms - best[0]) * UM_PER_MM > NOISE_UM
     rms, c, length_fit, spread = best if profiled else (lin_rms, c_lin, length, None)
     if not c > 0:
