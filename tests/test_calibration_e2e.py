@@ -35,8 +35,8 @@ from gateway.calibration.plans import (
     resume_index,
     snap_to_pulses,
     write_plan,
-    xy_verification_plan,
 )
+from gateway.calibration.plans_xy import xy_verification_plan
 from gateway.calibration.rawdata import read_raw_csv
 from gateway.calibration.session import planar_figures
 from gateway.cli import build_parser

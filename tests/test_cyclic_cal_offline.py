@@ -13,7 +13,8 @@ import pytest
 import yaml
 
 from gateway.calibration.cyclic_fit import Harmonic
-from gateway.calibration.plans import cyclic_plan, iso230_linear_plan
+from gateway.calibration.plans import iso230_linear_plan
+from gateway.calibration.plans_scans import cyclic_plan
 from gateway.calibration.runner import run_plan
 from gateway.cli import main
 from gateway.compensation.cyclic import CyclicModel

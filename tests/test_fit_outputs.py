@@ -14,7 +14,8 @@ from gateway.calibration.models import (
     thermal_fit,
     thermal_gain_fit,
 )
-from gateway.calibration.plans import iso230_linear_plan, warmup_plan, write_plan
+from gateway.calibration.plans import iso230_linear_plan, write_plan
+from gateway.calibration.plans_scans import warmup_plan
 from gateway.calibration.rawdata import RawWriter, read_raw_csv
 from gateway.calibration.runner import read_raw_meta, run_plan
 from gateway.cli import main

@@ -15,11 +15,10 @@ from gateway.calibration.plans import (
     iso230_targets_mm,
     read_plan,
     snap_to_pulses,
-    warmup_plan,
     write_plan,
-    xy_grid_plan,
-    xy_verification_plan,
 )
+from gateway.calibration.plans_scans import warmup_plan
+from gateway.calibration.plans_xy import xy_grid_plan, xy_verification_plan
 from gateway.calibration.rawdata import RawWriter, read_raw_csv
 from gateway.compensation.errors import TableError
 

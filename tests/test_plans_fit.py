@@ -19,12 +19,8 @@ from gateway.calibration.fit import (
     unidirectional_table,
 )
 from gateway.calibration.iso230 import iso230_axis
-from gateway.calibration.plans import (
-    iso230_linear_plan,
-    resume_index,
-    xy_grid_plan,
-    xy_verification_plan,
-)
+from gateway.calibration.plans import iso230_linear_plan, resume_index
+from gateway.calibration.plans_xy import xy_grid_plan, xy_verification_plan
 from gateway.calibration.rawdata import RawData, RawWriter, axis_deviations, read_raw_csv
 from gateway.compensation import BacklashStage, GridModel, PitchStage, PitchTable
 from gateway.compensation.errors import TableError

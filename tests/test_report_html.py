@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from gateway.calibration.iso230 import JSON_KEYS
-from gateway.calibration.plans import iso230_linear_plan, xy_grid_plan
+from gateway.calibration.plans import iso230_linear_plan
+from gateway.calibration.plans_xy import xy_grid_plan
 from gateway.calibration.rawdata import RawWriter
 from gateway.cli import main
 

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from gateway.calibration.commission_configs import Tables, identification, with_tables
-from gateway.calibration.plans import warmup_plan
+from gateway.calibration.plans_scans import warmup_plan
 from gateway.calibration.rawdata import RawData
 from gateway.calibration.thermal_shape import thermal_shape_fit
 from gateway.calibration.warmup_heat import warmup_heat_fit

@@ -23,12 +23,8 @@ from gateway.calibration.outputs import (
     save_cyclic,
     save_pitch,
 )
-from gateway.calibration.plans import (
-    cyclic_plan,
-    iso230_linear_plan,
-    targets_plan,
-    verification_targets_mm,
-)
+from gateway.calibration.plans import iso230_linear_plan, targets_plan, verification_targets_mm
+from gateway.calibration.plans_scans import cyclic_plan
 from gateway.calibration.rawdata import axis_deviations, read_raw_csv
 from gateway.calibration.report import build_cyclic_report
 from gateway.calibration.runner import read_raw_meta

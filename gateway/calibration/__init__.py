@@ -33,11 +33,10 @@ from .plans import (
     read_plan,
     resume_index,
     verification_targets_mm,
-    warmup_plan,
     write_plan,
-    xy_grid_plan,
-    xy_verification_plan,
 )
+from .plans_scans import warmup_plan
+from .plans_xy import xy_grid_plan, xy_verification_plan
 from .rawdata import (
     RAW_COLUMNS,
     AxisDeviations,

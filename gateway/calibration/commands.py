@@ -77,15 +77,9 @@ def make_plan(args: argparse.Namespace, config: GatewayConfig, verification: boo
 
 
 def _described_plan(args: argparse.Namespace, config: GatewayConfig, verification: bool):  # type: ignore[no-untyped-def]
-    from .plans import (
-        backlash_plan,
-        cyclic_plan,
-        iso230_linear_plan,
-        read_plan,
-        warmup_plan,
-        xy_grid_plan,
-        xy_verification_plan,
-    )
+    from .plans import backlash_plan, iso230_linear_plan, read_plan
+    from .plans_scans import cyclic_plan, warmup_plan
+    from .plans_xy import xy_grid_plan, xy_verification_plan
 
     def travel(axis: str) -> tuple[float, float]:
         if axis not in config.axes:

@@ -67,13 +67,12 @@ from .plans import (
     Plan,
     backlash_from_raw,
     backlash_plan,
-    cyclic_plan,
     iso230_linear_plan,
     read_plan,
     targets_plan,
-    xy_grid_plan,
-    xy_verification_plan,
 )
+from .plans_scans import cyclic_plan
+from .plans_xy import xy_grid_plan, xy_verification_plan
 from .rawdata import axis_deviations, read_raw_csv
 from .runner import read_raw_meta
 from .session import planar_figures

@@ -48,11 +48,11 @@ from .plans import (
     Plan,
     backlash_from_raw,
     backlash_plan,
-    cyclic_plan,
     iso230_targets_mm,
     read_plan,
     targets_plan,
 )
+from .plans_scans import cyclic_plan
 from .rawdata import AxisDeviations
 
 TURN_DEG = 360.0

@@ -16,7 +16,8 @@ from typing import Any
 from ..compensation.errors import TableError
 from .commission_rotary import RotarySteps
 from .models import thermal_fit, thermal_gain_fit
-from .plans import Plan, read_plan, warmup_plan
+from .plans import Plan, read_plan
+from .plans_scans import warmup_plan
 from .rawdata import RawData
 from .thermal_shape import thermal_shape_fit
 from .warmup_heat import warmup_heat_fit
