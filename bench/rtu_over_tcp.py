@@ -40,7 +40,8 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 # the gateway bench's process and frame helpers (bench/ is first on sys.path)
-from forwarding import Proc, compgw, reply_length, rtu_frame
+from forwarding import Proc, compgw
+from fwd_load import reply_length, rtu_frame
 
 UNITS = tuple(range(1, 9))
 BUSES = {"tcp": 0, "rot": 10, "rot_exact": 20}  # bus -> upstream unit offset
