@@ -96,18 +96,30 @@ class ThermalSteps(RotarySteps):
 
     def _heat_instead(self, axis: str, raw: RawData, plan: Plan, th: Any,
                       alpha_per_k: float) -> dict[str, Any]:  # fmt: skip
-        """Heat from its own motion in place of a temperature sensor at one spot, from the
-        tables' configs on, when it explains the zone warm-up clearly better."""
+        """Heat from its own motion in place of a temperature sensor at one spot, when it
+        explains the zone warm-up clearly better: kept here (``config``) and put in place
+        with the other motion models before the after-run (:meth:`motion_for_sensors`)."""
         try:
             hf = warmup_heat_fit(raw, plan, axis, th, alpha_per_k, self._travel(axis))
         except TableError as exc:
             return {"fitted": False, "why": str(exc)}
+        out = hf.summary()
         if hf.replaces_sensor:
-            self.tables.thermal_motion[axis] = hf.config(
-                dict.fromkeys(self.s.axes, self.s.speed_mm_s))  # fmt: skip
+            out["config"] = hf.config(dict.fromkeys(self.s.axes, self.s.speed_mm_s))
             self.say(f"{axis}: the heat of its own motion explains the zone warm-up "
                      f"({hf.growth_max_um:.1f} µm) to {hf.motion_rms_um:.2f} µm RMS where the "
                      f"sensor explains {hf.sensor_rms_um:.2f}: heat from motion (tau "
                      f"{hf.tau_s:.0f} s{', where it travelled' if hf.spread_mm else ''}) "
-                     "replaces the sensor from the tables on")  # fmt: skip
-        return hf.summary()
+                     "will replace the sensor in the final config")  # fmt: skip
+        return out
+
+    def motion_for_sensors(self) -> None:
+        """The heat-from-motion models that replace a temperature sensor, from the after-run
+        on. Not during the rounds: the gateway's model would start cold on a screw the
+        identification warmed, and the tables would be judged against that mismatch; the
+        sensor follows the screw as it is."""
+        for a in self.s.axes:
+            motion = self.state.get("identify", {}).get(f"thermal-{a}", {}).get("motion", {})
+            if motion.get("config") and a not in self.tables.thermal_motion:
+                self.tables.thermal_motion[a] = motion["config"]
+        self._save()
