@@ -13,7 +13,7 @@ Processes (all on 127.0.0.1, every TCP port bound as 0 and read back from the lo
   1..8) each on its own TCP bus (8 connections to sim A: 8 buses in parallel), axes R1..R8
   (upstream 11..18) on one RTU bus on sim A's pty (a single RS-485 line: transactions are
   serialised);
-- load generators: one short-lived process per measurement (this file, ``--load``),
+- load generators: one short-lived process per measurement (``fwd_load.py``),
   1 or 8 masters as asyncio tasks, each master on its own TCP connection and its own
   unit (drive); on an RTU line the masters share the one line (an asyncio lock = ideal
   arbitration on a single-master line).
@@ -86,11 +86,10 @@ from fwd_load import (
     RTU_UPSTREAM_OFFSET,
     UNITS,
     Case,
-    load_main,
 )
-from fwd_reference import reference_proxy, reference_rtu_relay
 
 ROOT = Path(__file__).resolve().parent.parent
+BENCH = ROOT / "bench"
 TABLES = ROOT / "config" / "tables"
 #: rows with the drives on the RTU line: an RTU master on the gateway's RTU server (the same
 #: master program as direct, t3.5 think time included), and a TCP master (no think time)
@@ -263,9 +262,8 @@ def _write_yaml(path: Path, data: dict) -> Path:
 
 
 def run_load(spec: dict) -> dict:
-    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--load",
-                          json.dumps(spec)], capture_output=True, text=True, cwd=ROOT,
-                         timeout=spec["time_cap"] + 60,
+    out = subprocess.run([sys.executable, str(BENCH / "fwd_load.py"), json.dumps(spec)],
+                         capture_output=True, text=True, cwd=ROOT, timeout=spec["time_cap"] + 60,
                          pass_fds=(spec["fd"],) if "fd" in spec else ())
     if out.returncode != 0:
         raise RuntimeError(f"load generator failed:\n{out.stderr[-2000:]}")
@@ -597,18 +595,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tls", action="store_true",
                     help="also rows through the gateway's Modbus/TCP Security listener (TLS, "
                          "a client certificate with a role), direct still plain TCP")
-    ap.add_argument("--load", help=argparse.SUPPRESS)
-    ap.add_argument("--proxy", type=int, help=argparse.SUPPRESS)
-    ap.add_argument("--relay", nargs=2, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
-    if a.load:
-        return load_main(a.load)
-    if a.proxy:
-        asyncio.run(reference_proxy(a.proxy))
-        return 0
-    if a.relay:
-        asyncio.run(reference_rtu_relay(*a.relay))
-        return 0
     requests = a.requests or (300 if a.quick else 2000)
     rtu8 = a.rtu8_requests or max(requests // 4, 50)
     extra = (not a.quick) if a.extra is None else a.extra
@@ -641,8 +628,9 @@ def main(argv: list[str] | None = None) -> int:
         pin = PIN_GATEWAY if a.pin else None
         socat = shutil.which("socat")
         if reference and "tcp" in transports:
-            ref = bench.procs["ref"] = Proc("ref", [sys.executable, str(Path(__file__).resolve()),
-                                                    "--proxy", str(bench.sim_port)], cpus=pin)
+            ref = bench.procs["ref"] = Proc("ref", [
+                sys.executable, str(BENCH / "fwd_reference.py"), "--proxy", str(bench.sim_port)],
+                cpus=pin)  # fmt: skip
             port = int(ref.wait_for(r"reference proxy listening on 127\.0\.0\.1:(\d+)")
                        .group(1))
             bench.run_rows(rows, "tcp", cases[:2], both, requests, gw_port=port, gw_name="ref",
@@ -660,7 +648,7 @@ def main(argv: list[str] | None = None) -> int:
         if reference and "rtu" in transports:
             with bench.main_gateway_stopped():  # the forwarders use its RTU lines
                 relay = bench.procs["relay"] = Proc("relay", [
-                    sys.executable, str(Path(__file__).resolve()), "--relay",
+                    sys.executable, str(BENCH / "fwd_reference.py"), "--relay",
                     bench.upstream_line, bench.gw_line], cpus=pin)
                 relay.wait_for(r"reference relay on")
                 bench.run_rows(rows, "rtu", cases[:2], (1,), requests, gw_name="relay",

@@ -4,6 +4,7 @@ measurement (``forwarding.py --load JSON``). No project imports: it stays lean."
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import contextlib
 import json
@@ -236,3 +237,14 @@ def load_main(spec_json: str) -> int:
     result = asyncio.run(asyncio.wait_for(run(spec), spec["time_cap"] + 30))
     sys.stdout.write(json.dumps(result))
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="bench/forwarding.py's load generator: one "
+                                 "measurement, its spec as JSON, the result as JSON on stdout")
+    ap.add_argument("spec", help="the measurement (written by forwarding.py's run_load)")
+    return load_main(ap.parse_args(argv).spec)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -4,10 +4,12 @@ machine (``forwarding.py --proxy PORT`` / ``--relay UP DOWN``). Not the product.
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import contextlib
 import os
 import signal
+import sys
 import tty
 from collections import deque
 
@@ -151,3 +153,22 @@ async def reference_rtu_relay(upstream: str, downstream: str) -> None:
     stop = asyncio.Event()
     asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, stop.set)
     await stop.wait()
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="bench/forwarding.py's CPython floors: a minimal "
+                                 "TCP proxy to the sim, or a minimal RTU relay between ptys")
+    ap.add_argument("--proxy", type=int, metavar="SIM_PORT", help="a TCP proxy to this port")
+    ap.add_argument("--relay", nargs=2, metavar=("UP", "DOWN"), help="an RTU relay")
+    a = ap.parse_args(argv)
+    if a.proxy:
+        asyncio.run(reference_proxy(a.proxy))
+    elif a.relay:
+        asyncio.run(reference_rtu_relay(*a.relay))
+    else:
+        ap.error("--proxy or --relay")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
