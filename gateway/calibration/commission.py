@@ -4,13 +4,13 @@ The steps, each a plan run through the running gateway (readings appended and fs
 :mod:`.runner`), each recorded in ``DIR/commission.json`` once done, so running the same
 command again after Ctrl-C, a crash or a power loss carries on where it stopped:
 
-1. identification config (no pitch, backlash, cyclic or planar stage) loaded; the
-   warm-ups first, for the thermal length (when the axis has a thermal source and a Δa
-   sensor is given: over a zone, read inside and beyond it, which also chooses the linear
-   spread or the travel profile, :mod:`.thermal_shape`); then per axis (those warmed over a
-   zone last, while its heat fades) seed 000's backlash at three places, a coarse ISO
-   230-2 run, the cyclic scans (when the lead is known), and the *before* verification run
-   (random targets off the table); the *before* XY run when the plane is commissioned;
+1. identification config (no pitch, backlash, cyclic or planar stage) loaded; per axis
+   with a thermal source and its sensor given, a warm-up for the thermal length (Δa) or
+   gain (temperature), over a zone read inside and beyond it (:mod:`.commission_thermal`);
+   per axis seed 000's backlash at three places, a coarse ISO 230-2 run, the cyclic scans
+   (when the lead is known), and the *before* verification run (random targets off the
+   table), ordered so that no axis is measured right after its own zone warm-up; the
+   *before* XY run when the plane is commissioned;
 2. tables fitted (the joint pitch + cyclic fit), the *pitch* config loaded, the XY grid
    measured and the planar model fitted (poly or grid by cross-validation), the *full*
    config loaded;
@@ -208,43 +208,59 @@ class Commission(ThermalSteps):
 
     # -- 1. identification ---------------------------------------------------------------
     async def _identify(self) -> None:
+        """The warm-ups and each axis's identification runs, ordered so that no axis is
+        measured right after its own zone warm-up: the first zone-warmed axis is identified
+        last, every other one before its warm-up (cold, with the configured thermal
+        setting; the drift references take what it misses). A zone's heat the sensor's
+        model cannot place (a temperature at one spot, the linear spread) then fades for
+        hours before its axis is measured, instead of going into its table."""
         await self.use("identification")
-        results = self.state.setdefault("identify", {})
-        # the warm-ups first, the axes warmed over a zone identified last: their zone's
-        # heat fades while the others are measured
-        for a in [a for a in self.s.axes if not self._rotary(a)]:
-            if self._thermal(a) and a not in self.tables.thermal_length_mm and \
-                    a not in self.tables.thermal_gain:
-                await self.use("warmup")
-                raw = await self.step(f"warmup-{a}", lambda a=a: self._warmup_plan(a), "off",
-                                      drift=False)  # fmt: skip
-                try:
-                    results[f"thermal-{a}"] = self._fit_thermal(a, read_raw_csv(raw))
-                except TableError as exc:  # the config's own setting stays
-                    results[f"thermal-{a}"] = {"fitted": False, "why": str(exc)}
-                    self.say(f"{a}: thermal setting kept as configured: {exc}")
-                await self.use("identification")  # with the length or gain
-        for a in sorted(self.s.axes, key=lambda a: a in self.tables.thermal_profile):
-            if self._rotary(a):  # in degrees, with the angle instrument (commission_rotary)
-                await self.identify_rotary(a)
-                continue
-            travel = self._travel(a)
-            await self.step(f"backlash-{a}", lambda a=a, t=travel: backlash_plan(a, t), "off",
-                            self._park(a))  # fmt: skip
-            b = backlash_from_raw(self.raw(f"backlash-{a}"), a)
-            results[f"backlash-{a}"] = {"B_um": float(b.backlash_mm * 1e3),
-                                        "places_um": [float(m * 1e3) for m in b.mean_mm]}
-            await self._find_lead(a)
-            await self.step(f"iso-{a}", lambda a=a: self._iso_plan(a), "off", self._park(a))
-            if a in self.s.lead_mm:
-                await self.step(f"cyclic-{a}", lambda a=a, t=travel: cyclic_plan(
-                    a, t, self.s.lead_mm[a]), "off", self._park(a))  # fmt: skip
-            await self.step(f"before-{a}", lambda a=a: self._before_plan(a), "off",
-                            self._park(a))  # fmt: skip
+        linear = [a for a in self.s.axes if not self._rotary(a)]
+        zoned = [a for a in linear if self._thermal(a)]
+        if zoned:
+            await self._warm_up(zoned[0])
+        for a in zoned[1:]:
+            await self._identify_axis(a)
+            await self._warm_up(a)
+        for a in [a for a in self.s.axes if a not in zoned] + zoned[:1]:
+            await self._identify_axis(a)
         if self.s.planar is not None:
             await self.step("before-xy", lambda: self._xy_check_plan(10_000 + self.s.seed,
                                                                     self.s.grid), "off")
         self._save()
+
+    async def _warm_up(self, a: str) -> None:
+        """The axis's warm-up (thermal off) and its fit; the identification config back."""
+        if a in self.tables.thermal_length_mm or a in self.tables.thermal_gain:
+            return  # fitted before an interruption
+        results = self.state.setdefault("identify", {})
+        await self.use("warmup")
+        raw = await self.step(f"warmup-{a}", lambda: self._warmup_plan(a), "off", drift=False)
+        try:
+            results[f"thermal-{a}"] = self._fit_thermal(a, read_raw_csv(raw))
+        except TableError as exc:  # the config's own setting stays
+            results[f"thermal-{a}"] = {"fitted": False, "why": str(exc)}
+            self.say(f"{a}: thermal setting kept as configured: {exc}")
+        await self.use("identification")  # with the length or gain
+
+    async def _identify_axis(self, a: str) -> None:
+        """Backlash, the lead search, the coarse ISO run, the cyclic scans and the *before*
+        run of one axis, compensation off."""
+        if self._rotary(a):  # in degrees, with the angle instrument (commission_rotary)
+            await self.identify_rotary(a)
+            return
+        results = self.state.setdefault("identify", {})
+        travel = self._travel(a)
+        await self.step(f"backlash-{a}", lambda: backlash_plan(a, travel), "off", self._park(a))
+        b = backlash_from_raw(self.raw(f"backlash-{a}"), a)
+        results[f"backlash-{a}"] = {"B_um": float(b.backlash_mm * 1e3),
+                                    "places_um": [float(m * 1e3) for m in b.mean_mm]}
+        await self._find_lead(a)
+        await self.step(f"iso-{a}", lambda: self._iso_plan(a), "off", self._park(a))
+        if a in self.s.lead_mm:
+            await self.step(f"cyclic-{a}", lambda: cyclic_plan(a, travel, self.s.lead_mm[a]),
+                            "off", self._park(a))  # fmt: skip
+        await self.step(f"before-{a}", lambda: self._before_plan(a), "off", self._park(a))
 
     def _before_plan(self, axis: str) -> Plan:
         """The targets judged before and after: random, off the coarse table's points."""
