@@ -249,7 +249,8 @@ class AxisWrites:
             self.counters.refused_travel += 1
             log.warning("%s", exc)
             raise ModbusError(str(exc), ILLEGAL_DATA_VALUE) from None
-        if not (state.enabled and homed):
+        if not (state.enabled and homed):  # sent as written, but the screw heats all the same
+            self._swept(name, nominal)
             return nominal * axis_cfg.command_scale, False
         direction = state.motion.approach(nominal).direction
         inputs = {name: AxisInput(nominal, direction, self._delta_a(name, nominal))}

@@ -477,6 +477,38 @@ def test_heat_from_motion_shrinks_the_command_as_the_axis_works(tmp_path: Path):
     run(body())
 
 
+def test_heat_from_motion_counts_the_moves_made_before_homing(tmp_path: Path):
+    """Moves sent before the drive reports homed go out as written, but they heat the
+    screw: once homed, the first corrected target is as short as all the strokes made."""
+
+    def thermal(data):
+        data["axes"]["X"]["compensation"]["thermal"] = {
+            "length_mm": 800, "motion": {"delta_a_um_per_m": 10.0, "tau_s": 100.0,
+                                         "speeds_mm_s": {"X": 100}}}
+
+    def not_homed(data):
+        data["sim"]["axes"]["X"]["homed_at_start"] = False
+
+    async def body():
+        async with rig(tmp_path, thermal, {}, sim_edit=not_homed) as r:
+            master, direct = r["master"], r["direct"]
+            await move(master, 1, 100_000)
+            for _ in range(5):
+                await move(master, 1, 300_000)
+                await move(master, 1, 100_000)
+            assert await read32(direct, 1, TARGET) == 100_000  # not homed: as written
+            assert not (await master.write_register(TRIGGER, 0x20, device_id=1)).isError()
+            rr = await master.read_holding_registers(0x1003, count=1, device_id=1)
+            assert rr.registers[0] >> 6 & 1  # homed
+            heat_m = 0.1 * 100.0 * (1 - math.exp(-20.0 / 100.0))
+            delta_a_mm = 10.0 * heat_m / 1000  # 18.1 µm; homing's wall time cools it a little
+            await move(master, 1, 600_000)
+            want = 600_000 * 800 / (800 + delta_a_mm)
+            assert abs(await read32(direct, 1, TARGET) - want) <= 3, want
+
+    run(body())
+
+
 def test_bus_unavailable_is_0x0a(tmp_path: Path):
     def dead_bus(data):
         with socket.socket() as probe:  # a loopback port nobody listens on
