@@ -96,30 +96,22 @@ class ThermalSteps(RotarySteps):
 
     def _heat_instead(self, axis: str, raw: RawData, plan: Plan, th: Any,
                       alpha_per_k: float) -> dict[str, Any]:  # fmt: skip
-        """Heat from its own motion in place of a temperature sensor at one spot, when it
-        explains the zone warm-up clearly better: kept here (``config``) and put in place
-        with the other motion models before the after-run (:meth:`motion_for_sensors`)."""
+        """Heat from its own motion in place of a temperature sensor at one spot, from the
+        identification on, when it explains the zone warm-up clearly better. The sensor's
+        gain fitted to that warm-up is then left unused: fitted to heat the sensor cannot
+        place, it would be wrong for the evenly spread heat of the identification runs.
+        (The axis is measured hours after its warm-up, :meth:`Commission._identify`: the
+        model, starting cold at the reload, meets a screw that has cooled.)"""
         try:
             hf = warmup_heat_fit(raw, plan, axis, th, alpha_per_k, self._travel(axis))
         except TableError as exc:
             return {"fitted": False, "why": str(exc)}
-        out = hf.summary()
         if hf.replaces_sensor:
-            out["config"] = hf.config(dict.fromkeys(self.s.axes, self.s.speed_mm_s))
+            self.tables.thermal_motion[axis] = hf.config(
+                dict.fromkeys(self.s.axes, self.s.speed_mm_s))  # fmt: skip
             self.say(f"{axis}: the heat of its own motion explains the zone warm-up "
                      f"({hf.growth_max_um:.1f} µm) to {hf.motion_rms_um:.2f} µm RMS where the "
                      f"sensor explains {hf.sensor_rms_um:.2f}: heat from motion (tau "
                      f"{hf.tau_s:.0f} s{', where it travelled' if hf.spread_mm else ''}) "
-                     "will replace the sensor in the final config")  # fmt: skip
-        return out
-
-    def motion_for_sensors(self) -> None:
-        """The heat-from-motion models that replace a temperature sensor, from the after-run
-        on. Not during the rounds: the gateway's model would start cold on a screw the
-        identification warmed, and the tables would be judged against that mismatch; the
-        sensor follows the screw as it is."""
-        for a in self.s.axes:
-            motion = self.state.get("identify", {}).get(f"thermal-{a}", {}).get("motion", {})
-            if motion.get("config") and a not in self.tables.thermal_motion:
-                self.tables.thermal_motion[a] = motion["config"]
-        self._save()
+                     "replaces the sensor")  # fmt: skip
+        return hf.summary()
