@@ -30,24 +30,33 @@ def _plan():
     return warmup_plan("X", (180.0, 420.0), SPEED, 1800.0, 570.0, places_mm=PLACES)
 
 
-def _raw(plan, growth_at, noise_um: float, seed: int) -> RawData:
-    """The plan run in machine time; ``growth_at(x, t)`` (mm) the truth; Δa read at the
-    free end. Readings carry ``noise_um`` of Gaussian noise."""
-    rng = np.random.default_rng(seed)
+def _stops(plan, heat):
+    """The plan run in machine time (``SPEED``, each reading's dwell), every move told to
+    ``heat`` (``heat.move(t0, t1, x0, x1)``; None: time only): (move, x_mm, t_s) per
+    measured stop."""
     t, pos = 0.0, None
-    rows: list[tuple[int, int, float, float, float]] = []
     for m in plan.moves:
         x = m.target_mm[0]
         if pos is not None and x != pos:
             dt = abs(x - pos) / SPEED
-            growth_at.move(t, t + dt, pos, x)
+            if heat is not None:
+                heat.move(t, t + dt, pos, x)
             t += dt
         pos = x
         if m.measured:
             t += m.dwell_s or 0.0
-            noise = rng.normal(0.0, noise_um / 1000.0, 2)
-            rows.append((m.run, m.direction, x, x + growth_at(x, t) + noise[0],
-                         growth_at(SCREW[1], t) + noise[1] / 5))  # fmt: skip
+            yield m, x, t
+
+
+def _raw(plan, growth_at, noise_um: float, seed: int) -> RawData:
+    """The plan run in machine time; ``growth_at(x, t)`` (mm) the truth; Δa read at the
+    free end. Readings carry ``noise_um`` of Gaussian noise."""
+    rng = np.random.default_rng(seed)
+    rows: list[tuple[int, int, float, float, float]] = []
+    for m, x, t in _stops(plan, growth_at):
+        noise = rng.normal(0.0, noise_um / 1000.0, 2)
+        rows.append((m.run, m.direction, x, x + growth_at(x, t) + noise[0],
+                     growth_at(SCREW[1], t) + noise[1] / 5))  # fmt: skip
     run, direction, target, actual, d_a = map(np.array, zip(*rows, strict=True))
     return RawData(("X",) * len(rows), run.astype(np.int64), direction.astype(np.int8),
                    target, actual, {"delta_a_mm": tuple(f"{v:.7f}" for v in d_a)},
@@ -142,20 +151,9 @@ def test_the_chosen_shape_reaches_the_configs_commissioning_writes(tmp_path: Pat
 def _raw_temperature(plan, heat: _NutHeat, spot_mm: float, seed: int) -> RawData:
     """The plan on the nut-heated screw, with a temperature sensor at ``spot_mm`` (°C)."""
     rng = np.random.default_rng(seed)
-    t, pos = 0.0, None
-    rows = []
-    for m in plan.moves:
-        x = m.target_mm[0]
-        if pos is not None and x != pos:
-            dt = abs(x - pos) / SPEED
-            heat.move(t, t + dt, pos, x)
-            t += dt
-        pos = x
-        if m.measured:
-            t += m.dwell_s or 0.0
-            rows.append((m.run, m.direction, x,
-                         x + heat(x, t) + rng.normal(0.0, 0.3e-3),
-                         20.0 + heat.model.temperature_rise_K(spot_mm, t)))  # fmt: skip
+    rows = [(m.run, m.direction, x, x + heat(x, t) + rng.normal(0.0, 0.3e-3),
+             20.0 + heat.model.temperature_rise_K(spot_mm, t))
+            for m, x, t in _stops(plan, heat)]  # fmt: skip
     run, direction, target, actual, temp = map(np.array, zip(*rows, strict=True))
     return RawData(("X",) * len(rows), run.astype(np.int64), direction.astype(np.int8),
                    target, actual, {"temperature_c": tuple(f"{v:.3f}" for v in temp)},
@@ -194,16 +192,7 @@ def test_a_sensor_that_reads_the_whole_screw_is_kept() -> None:
 
 def _times(plan) -> list[float]:
     """Machine time at each measured stop, as _raw counts it."""
-    t, pos, out = 0.0, None, []
-    for m in plan.moves:
-        x = m.target_mm[0]
-        if pos is not None and x != pos:
-            t += abs(x - pos) / SPEED
-        pos = x
-        if m.measured:
-            t += m.dwell_s or 0.0
-            out.append(t)
-    return out
+    return [t for _, _, t in _stops(plan, None)]
 
 
 def _predicted_after_zone(section: dict, zone_mm: tuple[float, float], places: list[float]
