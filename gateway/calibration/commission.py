@@ -192,6 +192,7 @@ class Commission(ThermalSteps):
             where = await self.restore()
             raise CommissionAborted(f"{exc}; {where}") from exc
         self.fit_motion_heat()
+        self.motion_for_sensors()
         try:
             await self._after()
         except BudgetSpent as exc:

@@ -60,8 +60,7 @@ class Tables:
 def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
                    profile: bool = False) -> dict[str, Any]:  # fmt: skip
     """The user's config with the commissioned axes' pitch, backlash and cyclic stages and
-    the planar model removed; thermal kept (with the fitted length or gain once known, or
-    heat from motion where it replaces a temperature sensor). The zone
+    the planar model removed; thermal kept (with the fitted length once known). The zone
     warm-up's travel profile only with ``profile`` (the tables' phases): the gateway's
     travel history starts at the reload, after the zone it would have to know about, so
     the identification runs use the linear spread while the zone's heat fades."""
@@ -81,8 +80,6 @@ def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tabl
                                "profile": tables.thermal_profile[name] if profile else None}
         if name in tables.thermal_gain and comp.get("thermal"):
             comp["thermal"] = {**comp["thermal"], "gain": round(tables.thermal_gain[name], 4)}
-        if name in tables.thermal_motion:  # heat from motion in place of a temperature sensor
-            comp["thermal"] = copy.deepcopy(tables.thermal_motion[name])
         data["axes"][name]["compensation"] = comp
     if tables.planar_axes is not None or set(axes) & set((data.get("planar") or {}).get(
             "axes", ())):  # fmt: skip
@@ -98,6 +95,8 @@ def with_tables(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
     data = identification(original, axes, tables, profile=True)
     for name in axes:
         comp = data["axes"][name]["compensation"]
+        if name in tables.thermal_motion:  # in place of a temperature sensor
+            comp["thermal"] = copy.deepcopy(tables.thermal_motion[name])
         if name in tables.pitch:
             comp["pitch"] = {"file": tables.pitch[name], "interpolation": "linear"}
         if name in tables.cyclic:

@@ -76,6 +76,11 @@ class ThermalSteps(RotarySteps):
                    "residual_rms_um": g.residual_rms_um, "rise_K": g.temperature_rise_K}
             if dict(plan.meta).get("places_mm"):  # a zone warm-up: is motion the better model?
                 out["motion"] = self._heat_instead(axis, raw, plan, th, src.alpha_per_k)
+                if out["motion"].get("config"):
+                    # a gain fitted to heat the sensor cannot place is wrong for the spread
+                    # heat of the runs until the after-run: the configured one serves there
+                    self.tables.thermal_gain[axis] = th.gain
+                    out["gain_used"] = th.gain
             return out
         if dict(plan.meta).get("places_mm"):  # a zone warm-up: the shape too
             shape = thermal_shape_fit(raw, plan, axis, th, self._travel(axis))
@@ -96,22 +101,30 @@ class ThermalSteps(RotarySteps):
 
     def _heat_instead(self, axis: str, raw: RawData, plan: Plan, th: Any,
                       alpha_per_k: float) -> dict[str, Any]:  # fmt: skip
-        """Heat from its own motion in place of a temperature sensor at one spot, from the
-        identification on, when it explains the zone warm-up clearly better. The sensor's
-        gain fitted to that warm-up is then left unused: fitted to heat the sensor cannot
-        place, it would be wrong for the evenly spread heat of the identification runs.
-        (The axis is measured hours after its warm-up, :meth:`Commission._identify`: the
-        model, starting cold at the reload, meets a screw that has cooled.)"""
+        """Heat from its own motion in place of a temperature sensor at one spot, when it
+        explains the zone warm-up clearly better: kept here (``config``) and put in place
+        with the other motion models before the after-run (:meth:`motion_for_sensors`)."""
         try:
             hf = warmup_heat_fit(raw, plan, axis, th, alpha_per_k, self._travel(axis))
         except TableError as exc:
             return {"fitted": False, "why": str(exc)}
+        out = hf.summary()
         if hf.replaces_sensor:
-            self.tables.thermal_motion[axis] = hf.config(
-                dict.fromkeys(self.s.axes, self.s.speed_mm_s))  # fmt: skip
+            out["config"] = hf.config(dict.fromkeys(self.s.axes, self.s.speed_mm_s))
             self.say(f"{axis}: the heat of its own motion explains the zone warm-up "
                      f"({hf.growth_max_um:.1f} µm) to {hf.motion_rms_um:.2f} µm RMS where the "
                      f"sensor explains {hf.sensor_rms_um:.2f}: heat from motion (tau "
                      f"{hf.tau_s:.0f} s{', where it travelled' if hf.spread_mm else ''}) "
-                     "replaces the sensor")  # fmt: skip
-        return hf.summary()
+                     "will replace the sensor in the final config")  # fmt: skip
+        return out
+
+    def motion_for_sensors(self) -> None:
+        """The heat-from-motion models that replace a temperature sensor, from the after-run
+        on. Not during the rounds: the gateway's model would start cold on a screw the
+        identification warmed, and the tables would be judged against that mismatch; the
+        sensor follows the screw as it is."""
+        for a in self.s.axes:
+            motion = self.state.get("identify", {}).get(f"thermal-{a}", {}).get("motion", {})
+            if motion.get("config") and a not in self.tables.thermal_motion:
+                self.tables.thermal_motion[a] = motion["config"]
+        self._save()
