@@ -192,11 +192,11 @@ class Commission(ThermalSteps):
             where = await self.restore()
             raise CommissionAborted(f"{exc}; {where}") from exc
         self.fit_motion_heat()
-        self.motion_for_sensors()
         try:
             await self._after()
         except BudgetSpent as exc:
             self.state["notes"].append(f"no after-run: {exc}")
+        self.motion_for_sensors()  # after the after-run: see its docstring
         if self.tables.pitch:
             await self.use("full")
         else:
