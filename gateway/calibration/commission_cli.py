@@ -122,10 +122,12 @@ async def _modbus(call: Awaitable[Any], what: str) -> Any:
     from .machine import MachineError, reraise_cancel
 
     try:
-        return await call
+        reply = await call
     except ModbusException as exc:
         reraise_cancel()
         raise MachineError(f"the gateway: {what}: {exc}") from exc
+    reraise_cancel()
+    return reply
 
 
 def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
@@ -152,7 +154,9 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
         # machine that can take seconds; a lost reply is judged by the generation after it
         client = AsyncModbusTcpClient(gateway.host, port=gateway.port, timeout=RELOAD_TIMEOUT_S,
                                       retries=1)  # fmt: skip
-        if not await client.connect():
+        connected = await client.connect()
+        reraise_cancel()
+        if not connected:
             raise MachineError(f"no gateway at {gateway.host}:{gateway.port}")
         try:
             before, _ = await _modbus(generation(client), "reading its config generation")
@@ -165,8 +169,8 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
                 try:
                     rr = await client.write_register(RELOAD_REGISTER, 1, device_id=unit)
                 except ModbusException:
-                    reraise_cancel()
                     rr = None  # the generation says whether it was taken
+                reraise_cancel()
                 if rr is not None and rr.isError() and rr.exception_code == 0x01:
                     raise MachineError("the gateway refuses to reload over Modbus: set "
                                        "status.remote_control: true, or give --reload-pid or "

@@ -74,8 +74,10 @@ class Endpoint:
 
 
 def reraise_cancel() -> None:
-    """pymodbus turns a cancelled request (Ctrl-C, SIGTERM) into ModbusIOException: a
-    cancellation it swallowed is raised again, or the interrupt would be lost."""
+    """A cancellation (Ctrl-C, SIGTERM) that pymodbus swallowed is raised again, or the
+    interrupt would be lost: pymodbus turns a cancelled request into ModbusIOException,
+    and on Python 3.11 ``asyncio.wait_for`` returns the reply when the cancel and the reply
+    arrive together. Call it after every pymodbus await, answered or not."""
     task = asyncio.current_task()
     cancelling = getattr(task, "cancelling", None)  # Python 3.11+
     if task is not None and cancelling is not None and cancelling():
@@ -90,7 +92,9 @@ class Link:
         self.client = AsyncModbusTcpClient(host, port=port, timeout=timeout_s, retries=1)
 
     async def connect(self) -> None:
-        if not await self.client.connect():
+        connected = await self.client.connect()
+        reraise_cancel()
+        if not connected:
             raise MachineError(f"cannot connect to {self.host}:{self.port}")
 
     def close(self) -> None:
@@ -102,6 +106,7 @@ class Link:
         except Exception as exc:  # pymodbus raises ModbusIOException and friends
             reraise_cancel()
             raise MachineError(f"{self.host}:{self.port}: {what}: {exc}") from exc
+        reraise_cancel()
         if reply.isError():
             raise MachineError(f"{self.host}:{self.port}: {what}: {reply}")
         return reply
