@@ -56,7 +56,21 @@ def iso230(up: np.ndarray, down: np.ndarray) -> dict[str, float]:
                       - min((mu - 2 * su).min(), (md - 2 * sd).min())),
         "R_um": float(r_i.max()), "M_um": float(mean_i.max() - mean_i.min()),
         "B_um": float(np.abs(b_i).max()),
+        # the scatter of one stop, pooled over targets and directions: what no table removes
+        "s_um": float(np.sqrt(np.mean(np.concatenate([su, sd]) ** 2))),
+        "targets": int(up.shape[0]), "runs": int(up.shape[1]),
     }  # fmt: skip
+
+
+def e_floor_um(s_um: float, targets: int, runs: int) -> float:
+    """The E (µm) a perfect correction would still read, in expectation: the range of the
+    2·targets mean deviations when each is only the scatter of ``runs`` stops (σ = s/√runs).
+    E[range of n standard normals] = ∫ 1 − Φ(x)ⁿ − (1 − Φ(x))ⁿ dx."""
+    x = np.linspace(-8.0, 8.0, 4001)
+    phi = 0.5 * (1.0 + np.vectorize(math.erf)(x / math.sqrt(2.0)))
+    n = 2 * targets
+    d_n = float(np.sum(1.0 - phi**n - (1.0 - phi) ** n) * (x[1] - x[0]))
+    return d_n * s_um / math.sqrt(runs)
 
 
 def _s32(words: Sequence[int]) -> int:
