@@ -65,8 +65,9 @@ def remains(summary: dict[str, Any]) -> list[str]:
                    "loaded.")  # fmt: skip
     elif outcome == "floor":
         out.append("The residual that misses the tolerance does not stand out of the "
-                   "machine's repeatability, or it is finer than the table can follow: more "
-                   "points would not help.")  # fmt: skip
+                   "machine's repeatability (judged with more runs per target where the budget "
+                   "allowed), or it is finer than the table can follow: more points "
+                   "would not help.")  # fmt: skip
     else:
         out.append(f"The rounds ran out before the verification met {tol:g} µm{rotary}.")
     for axis, entry in summary["axes"].items():
@@ -150,6 +151,9 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
             added += f"{', ' if added else ''}XY grid {entry['grid'][0]}×{entry['grid'][1]}"
         for name in entry.get("restored") or []:
             added += f"{', ' if added else ''}{name} back to its best (the refinement did not pay)"
+        for name, runs in (entry.get("verify_runs") or {}).items():
+            added += (f"{', ' if added else ''}{name} verified again with {runs} runs (what "
+                      "misses is within the noise of fewer)")  # fmt: skip
         rrows.append(f"<tr><td>{entry['round']}</td><td>{html.escape(axes)}</td>"
                      f"<td>{html.escape(added or entry.get('outcome', '–'))}</td>"
                      f"<td>{entry['machine_s'] / 3600:.2f}</td></tr>")  # fmt: skip

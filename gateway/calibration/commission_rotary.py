@@ -270,7 +270,7 @@ class RotarySteps(Steps):
                               ) -> NDArray[np.float64]:  # fmt: skip
         """Round ``r``'s targets: the new spans' midpoints and fresh random targets, over the
         judging range (a turntable's midpoints moved into its turn)."""
-        spans = self.state.get("spans", {}).get(axis) or None
+        spans = self.state.get("spans", {}).get(axis)  # None: all spans new
         mids = adaptive.midpoints_mm(self._circle(axis, table_mm), spans)
         if self._wraps(axis):
             lo, _ = self.judge_range(axis)
