@@ -8,7 +8,9 @@ uncalibrated config (before) and the calibrated one (after), reading the truth f
 sim's instruments and computing ISO 230-2 itself.
 
 Reported per machine and as median / worst per group (smooth, rough, real):
-E cut (worst axis), A − R after (worst axis), XY maximum vector error cut at random points,
+E cut (worst axis) and the most any correction could cut there (`max %`: 1 − E_floor / E
+before, E_floor the range a perfect correction reads from the after-run's own scatter),
+A − R after (worst axis), XY maximum vector error cut at random points,
 off-grid RMS after (random positions and short steps, worst axis), thermal change after a
 warm-up cycle with compensation (largest axis; `-` for a machine without a thermal sensor:
 then nothing can correct it and the figure shows the drift).
