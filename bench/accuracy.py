@@ -138,6 +138,7 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
     # older runs listed those as sensor axes)
     sensed = {"delta_a": ["X"], "temperature": axes}.get(r.get("sensor", "none"), [])
     modelled = r.get("model_axes", [n for n in r.get("sensor_axes", []) if n not in sensed])
+    floor = _floor(a["axes"][worst])
     return {
         "E_axis": worst,  # the axis whose E fell least
         "E_before_um": b["axes"][worst]["E_um"],
@@ -145,8 +146,8 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
         "E_cut_pct": 100 * (1 - a["axes"][worst]["E_um"] / b["axes"][worst]["E_um"]),
         # the most any correction could cut on that axis: E after a perfect one is the range
         # of its mean deviations' scatter (the after-run's own pooled s; nan for older runs)
-        "E_floor_um": _floor(a["axes"][worst]),
-        "E_cut_max_pct": 100 * (1 - _floor(a["axes"][worst]) / b["axes"][worst]["E_um"]),
+        "E_floor_um": floor,
+        "E_cut_max_pct": 100 * (1 - floor / b["axes"][worst]["E_um"]),
         "A_minus_R_um": max(a["axes"][n]["A_um"] - a["axes"][n]["R_um"] for n in axes),
         "R_um": max(a["axes"][n]["R_um"] for n in axes),
         "xy_before_um": b["xy"]["max_um"], "xy_after_um": a["xy"]["max_um"],

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 from pymodbus.client import AsyncModbusTcpClient
+from scipy.special import ndtr
 
 TARGET, TRIGGER, STATUS = 0x6201, 0x6002, 0x1003
 MOVING_BIT, IN_POSITION_BIT, ALARM_BIT = 2, 4, 0
@@ -67,7 +68,7 @@ def e_floor_um(s_um: float, targets: int, runs: int) -> float:
     2·targets mean deviations when each is only the scatter of ``runs`` stops (σ = s/√runs).
     E[range of n standard normals] = ∫ 1 − Φ(x)ⁿ − (1 − Φ(x))ⁿ dx."""
     x = np.linspace(-8.0, 8.0, 4001)
-    phi = 0.5 * (1.0 + np.vectorize(math.erf)(x / math.sqrt(2.0)))
+    phi = ndtr(x)
     n = 2 * targets
     d_n = float(np.sum(1.0 - phi**n - (1.0 - phi) ** n) * (x[1] - x[0]))
     return d_n * s_um / math.sqrt(runs)
