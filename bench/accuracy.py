@@ -77,7 +77,8 @@ def ablate(sim_yaml: Path, without: list[str]) -> None:
 
 
 def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed: int,
-                without: list[str] | None = None) -> dict[str, Any]:  # fmt: skip
+                without: list[str] | None = None, judge_repeats: int = 1
+                ) -> dict[str, Any]:  # fmt: skip
     """Generate, calibrate and evaluate one machine; a dict of its figures (or its error)."""
     t0 = time.monotonic()
     mdir = root / label
@@ -104,6 +105,11 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
             phases[phase] = asyncio.run(
                 evaluate(run.machine, the_plan, run.sim_port, run.gateway_port, cool))
         out.update(phases)
+        # the judge again on the same tables and targets (fresh stops, a cool-down first):
+        # how much of a figure's run-to-run spread is the judge's own
+        out["after_repeats"] = [phases["after"]] + [
+            asyncio.run(evaluate(run.machine, the_plan, run.sim_port, run.gateway_port, cool))
+            for _ in range(judge_repeats - 1)]  # fmt: skip
         out["sensor"] = run.machine.get("thermal_sensor", "none")
         thermal = {a: ax.get("compensation", {}).get("thermal") or {}
                    for a, ax in result.config["axes"].items()}  # fmt: skip
@@ -207,6 +213,25 @@ def group_stats(results: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, 
     return out
 
 
+def print_repeats(results: list[dict[str, Any]], say: Any = print) -> None:
+    """E cut and A − R of every judging of the same calibration (``--judge-repeats``)."""
+    rows = [r for r in results if len(r.get("after_repeats", [])) > 1]
+    if not rows:
+        return
+    say("\nthe judge again on the same tables (E cut % / A − R µm per judging):")
+    for r in rows:
+        figs = [summary({**r, "after": a}) for a in r["after_repeats"]]
+        say(f"{r['machine']:<24}" + "  ".join(f"{f['E_cut_pct']:5.1f} / {f['A_minus_R_um']:4.2f}"
+                                              for f in figs))  # fmt: skip
+    for group in ("smooth", "rough", "real"):
+        grp = [r for r in rows if r["group"] == group]
+        if grp:
+            n = min(len(r["after_repeats"]) for r in grp)
+            med = [np.median([summary({**r, "after": r["after_repeats"][k]})["A_minus_R_um"]
+                              for r in grp]) for k in range(n)]  # fmt: skip
+            say(f"{group + ' median A − R':<24}" + "  ".join(f"{m:4.2f}" for m in med))
+
+
 def print_table(data: dict[str, Any]) -> int:
     """The table of a saved ``--json`` output (figures recomputed from the raw phases)."""
     print(HEAD)
@@ -217,6 +242,7 @@ def print_table(data: dict[str, Any]) -> int:
             continue
         r["summary"] = summary(r)
         print(row(r["machine"], r["summary"], r["sensor"]))
+    print_repeats(results)
     print()
     for group, st in group_stats(results).items():
         for which in ("median", "worst"):
@@ -251,6 +277,9 @@ def main() -> int:
     parser.add_argument("--thermal-profile", action="store_true",
                         help="Δa axes get compensation.thermal.profile (the Δa spread where "
                              "the axis has travelled)")
+    parser.add_argument("--judge-repeats", type=int, default=1, metavar="N",
+                        help="judge the calibrated machine N times (same targets, a cool-down "
+                             "before each): the judge's own spread of E cut and A − R")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--table", type=Path, metavar="JSON",
                         help="print the table of an earlier run's --json output and exit")
@@ -275,7 +304,8 @@ def main() -> int:
     say(f"{len(machines)} machines, workflow {args.workflow}, {args.jobs} job(s)")
     say(HEAD)
     with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        futures = [pool.submit(run_machine, label, gen, args.workflow, root, args.seed, without)
+        futures = [pool.submit(run_machine, label, gen, args.workflow, root, args.seed, without,
+                               args.judge_repeats)
                    for label, gen in machines]  # fmt: skip
         for fut in futures:
             r = fut.result()
@@ -291,6 +321,7 @@ def main() -> int:
     for group, st in stats.items():
         for which in ("median", "worst"):
             say(row(f"{group} {which}", st[which], "any"))
+    print_repeats(results, say)
     say(f"wall time {wall / 60:.1f} min; machine files in {root}")
     if args.json:
         print(json.dumps({"workflow": args.workflow, "without": without,
