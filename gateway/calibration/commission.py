@@ -41,16 +41,15 @@ import numpy as np
 
 from ..compensation.errors import TableError
 from ..config import GatewayConfig
-from ..formats import atomic_write_text, read_cyclic, read_pitch_csv, write_cyclic
+from ..formats import atomic_write_text, read_pitch_csv
 from . import adaptive
+from .commission_refine import RefineSteps
 from .commission_steps import (
     BudgetSpent,
     CommissionAborted,
     _parts,
     _plain,
 )
-from .commission_thermal import ThermalSteps
-from .cyclic_fit import scans_from_raw
 from .fit import planar_measurement
 from .iso230 import iso230_axis
 from .machine import MachineError
@@ -81,7 +80,7 @@ from .session import planar_figures
 MAX_VERIFY_RUNS = 8
 
 
-class Commission(ThermalSteps):
+class Commission(RefineSteps):
     """One commissioning: the plans, the order of the steps, the fits and the rounds."""
 
     # -- the whole thing -----------------------------------------------------------------
@@ -384,6 +383,10 @@ class Commission(ThermalSteps):
             allowance_s = self._refine_allowance_s(r, len(refining) + plane)
             trimmed = []
             for a in refining:
+                if self._sweeps(r, a, allowance_s):
+                    added[a] = await self._sweep_axis(r, a)
+                    entry.setdefault("swept", []).append(a)
+                    continue
                 v = self._affordable(r, a, verdicts[a], allowance_s)
                 if len(v.failing_spans) < len(verdicts[a].failing_spans):
                     trimmed.append(f"{a} {len(v.failing_spans)} of "
@@ -410,7 +413,8 @@ class Commission(ThermalSteps):
                 entry["verify_runs"] = more_runs
             rounds.append(entry)
             self._save()
-            if not any(added.values()) and "grid" not in entry and not more_runs:
+            if not any(added.values()) and "grid" not in entry and not more_runs \
+                    and "swept" not in entry:
                 if restored:
                     await self.use(self._tables_phase)
                 if "budget" in entry:
@@ -551,109 +555,6 @@ class Commission(ThermalSteps):
         assert self.s.planar is not None
         return planar_figures(self.raw(name), self.s.planar)
 
-    def _refine_allowance_s(self, r: int, sharing: int) -> float:
-        """Machine time (s) each of ``sharing`` refinements may take: what the budget has
-        left once the next round's verification (this round's again) and the after-run
-        are kept, shared evenly."""
-        verify_s = sum(self.state["steps"][name]["machine_s"] for name in self.state["steps"]
-                       if name.startswith(f"verify{r}-"))  # fmt: skip
-        left = self.s.budget_s - self.used_s - self.reserve_s() - verify_s
-        return max(0.0, left) / max(1, sharing)
-
-    def _affordable(self, r: int, axis: str, verdict: adaptive.AxisVerdict,
-                    allowance_s: float) -> adaptive.AxisVerdict:
-        """``verdict`` with as many of its worst failing spans as a refinement (and the
-        four new midpoints each adds to the next verification) can measure in
-        ``allowance_s``."""
-        count = len(verdict.failing_spans)
-        per_target = self._verify_target_s(r, axis)
-        while count > 0:
-            v = verdict.worst_first(count)
-            plan = self._refine_plan(r, axis, v)
-            cost = 0.0 if plan is None else self.estimate_s(plan)
-            if cost + 4 * count * per_target <= allowance_s:
-                return v
-            count = count * 2 // 3 if count > 3 else count - 1
-        return verdict.worst_first(0)
-
-    def _verify_target_s(self, r: int, axis: str) -> float:
-        """Machine time (s) one more verification target of ``axis`` costs (this round's)."""
-        path = self.dir / "plans" / f"verify{r}-{axis}.plan"
-        if not path.exists():
-            return 0.0
-        targets = max(1, len(np.unique(read_plan(path).targets_mm(axis))))
-        return self._verify_s(r, axis) / targets
-
-    def _verify_s(self, r: int, axis: str) -> float:
-        """Machine time (s) of round ``r``'s verification of ``axis`` (0 before it)."""
-        path = self.dir / "plans" / f"verify{r}-{axis}.plan"
-        return self.estimate_s(read_plan(path)) if path.exists() else 0.0
-
-    def _refine_plan(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> Plan | None:
-        """The refinement's plan for ``verdict``'s failing spans (None: no point to add)."""
-        table = read_pitch_csv(self.config_dir / self.tables.pitch[axis])
-        mids = self.refine_points(axis, table, verdict)
-        if mids.size == 0:
-            return None
-        if axis in self.tables.cyclic:
-            lead = read_cyclic(self.config_dir / self.tables.cyclic[axis]).lead_mm
-            half = 0.5 * adaptive.SCAN_LEADS * lead + 1.0
-            lo, hi = self._travel(axis)
-            stations = np.unique(np.round(np.clip(mids, lo + half, hi - half), 4))
-            return self._snap(cyclic_plan(axis, (lo, hi), lead, stations.tolist(),
-                                          per_lead=adaptive.SCAN_PER_LEAD,
-                                          leads=adaptive.SCAN_LEADS, kind="refine-scan"))
-        return self._snap(targets_plan(axis, self._travel(axis), mids, self.verify_runs(axis),
-                                       kind="iso230-refine", round=r))  # fmt: skip
-
-    async def _refine_axis(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> int:
-        """New table points in the failing spans (each cut in ``REFINE_PARTS``); their values
-        from the residual measured there with the table on. With a cyclic term, each new
-        point is a short scan over a whole lead: its mean gives the point (no cyclic term
-        aliased into it) and its harmonics a new cyclic station. Returns the points added."""
-        from .outputs import check_cyclic, check_pitch, write_table
-
-        path = self.config_dir / self.tables.pitch[axis]
-        table = read_pitch_csv(path)
-        mids = self.refine_points(axis, table, verdict)
-        if mids.size == 0:
-            return 0
-        config, _ = self.staged(self._tables_phase)
-        stage = self.table_stage(axis, table)
-        cyclic_path = self.config_dir / self.tables.cyclic[axis] if axis in self.tables.cyclic \
-            else None  # fmt: skip
-        name = f"refine{r}-{axis}"
-        await self.step(name, lambda: self._refine_plan(r, axis, verdict), "on",  # type: ignore[arg-type,return-value]
-                        self._park(axis), whole=cyclic_path is not None)  # fmt: skip
-        if cyclic_path is not None:  # one scan per new point: a whole plan between references
-            model = read_cyclic(cyclic_path)
-            stations = [float(s) for s in dict(read_plan(self.dir / "plans" / f"{name}.plan")
-                                               .meta)["stations_mm"].split()]  # fmt: skip
-            where, scans = scans_from_raw(self.raw(name), axis, model.lead_mm, stations)
-            ref = adaptive.scan_refinement(table, stage, model, where, scans)
-            new, new_model = ref.table, ref.cyclic
-        else:
-            dev = axis_deviations(self.raw(name), axis)
-            new, new_model = adaptive.refined_table(table, stage, dev), None
-        try:
-            check_pitch(new, config, axis)
-            if new_model is not None:
-                check_cyclic(new_model, config, axis)
-        except Exception as exc:  # a refinement the gateway would refuse: keep the table
-            self.state["notes"].append(f"{axis}: refinement {r} not applied: {exc}")
-            return 0
-        write_table(path, "csv", new, f"compgw commission: refined in round {r}")
-        if new_model is not None and cyclic_path is not None:
-            write_cyclic(cyclic_path, new_model, {"fitted": "compgw commission: refined in "
-                                                  f"round {r}"})  # fmt: skip
-        added = int(new.position_mm.size - table.position_mm.size)
-        x = new.position_mm
-        self.state.setdefault("spans", {})[axis] = [
-            int(i) for i in range(x.size - 1)
-            if np.any(np.isclose(x[i], mids, atol=1e-3)) or np.any(np.isclose(x[i + 1], mids,
-                                                                              atol=1e-3))]
-        return added
-
     async def _refine_plane(self, r: int) -> tuple[int, int]:
         grid = adaptive.denser_grid(*tuple(self.state.get("grid", self.s.grid)))
         await self.step(f"refine{r}-xy", lambda: self._grid_plan(grid, runs=1), "on")
@@ -661,6 +562,7 @@ class Commission(ThermalSteps):
         self._fit_plane(config, f"refine{r}-xy", residual=True)
         self.state["grid"] = list(grid)
         return grid
+
 
     # -- 4. after ------------------------------------------------------------------------
     async def _after(self) -> None:

@@ -146,7 +146,9 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
                          for k, v in entry["axes"].items())  # fmt: skip
         if entry.get("xy"):
             axes += f"; XY max {entry['xy']['max_um']:.2f}"
-        added = ", ".join(f"{k} +{n} points" for k, n in (entry.get("added") or {}).items())
+        swept = entry.get("swept") or []
+        added = ", ".join(f"{k} swept over its travel (+{n} points)" if k in swept else
+                          f"{k} +{n} points" for k, n in (entry.get("added") or {}).items())
         if entry.get("grid"):
             added += f"{', ' if added else ''}XY grid {entry['grid'][0]}×{entry['grid'][1]}"
         for name in entry.get("restored") or []:
@@ -159,7 +161,10 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
                      f"<td>{entry['machine_s'] / 3600:.2f}</td></tr>")  # fmt: skip
     parts.append("<h2>Rounds: what each refinement bought</h2><p>Each round is judged at "
                  "targets never used to fit (the new spans' midpoints and fresh random "
-                 "targets); where the residual stands out, the span gets a new point.</p>"
+                 "targets); where the residual stands out, the span gets a new point (the first "
+                 "time an axis misses, if the budget allows, a sweep of its whole travel "
+                 "gives it a point every lead and the cyclic term a station every few "
+                 "leads).</p>"
                  f"<table id='rounds'><tr><th>round</th><th>verification ({round_units})</th>"
                  "<th>then</th><th>machine h so far</th></tr>" + "".join(rrows) + "</table>")
     ident = summary.get("identify", {})

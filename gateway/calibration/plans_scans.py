@@ -161,3 +161,27 @@ def cyclic_plan(
         leads=float(leads), takeup_mm=float(takeup_mm),
     )  # fmt: skip
     return Plan(kind, (axis,), tuple(moves), meta)
+
+
+# -- the whole travel, densely (commissioning's sweep) -------------------------------------
+def sweep_plan(axis: str, travel_mm: Sequence[float], targets_mm: Sequence[float],
+               piece_mm: float = 120.0, overrun_mm: float = 1.0) -> Plan:  # fmt: skip
+    """Commissioning's sweep: ``targets_mm`` (dense, over the whole travel) cut into pieces
+    about ``piece_mm`` long; each piece one run, its targets measured going up (+) from an
+    overrun point below it, then going down (−) from one above. Short runs keep each
+    between its own drift references, and a resume loses at most one piece."""
+    lo, hi = _travel(travel_mm)
+    targets = _round(np.sort(np.asarray(targets_mm, dtype=np.float64)))
+    if targets.size < 2 or targets[0] < lo or targets[-1] > hi:
+        raise ValueError(f"a sweep needs ≥ 2 targets in the travel {lo:g}..{hi:g} mm")
+    pieces = max(1, round(float(targets[-1] - targets[0]) / piece_mm))
+    moves: list[Move] = []
+    for j, chunk in enumerate(np.array_split(targets, pieces), start=1):
+        below = float(_round(max(lo, chunk[0] - overrun_mm)))
+        above = float(_round(min(hi, chunk[-1] + overrun_mm)))
+        moves.append(Move(j, -1, "overrun", (below,)))
+        moves += [Move(j, +1, "measure", (float(t),)) for t in chunk]
+        moves.append(Move(j, +1, "overrun", (above,)))
+        moves += [Move(j, -1, "measure", (float(t),)) for t in chunk[::-1]]
+    return Plan("sweep", (axis,), tuple(moves),
+                _meta(kind="sweep", axis=axis, travel_mm=(lo, hi), pieces=pieces))

@@ -1,0 +1,201 @@
+"""``compgw commission``'s refinements (a base of :class:`.commission.Commission`): what a
+round may spend, the new table points in failing spans (short scans where there is a
+cyclic term) and, once per axis, the sweep of the whole travel (:mod:`.sweep`).
+
+An axis that misses its tolerance is swept first, when the budget affords it: one reading
+every eighth of a lead over the whole travel, each way, gives the table a point every lead
+(at most 5 mm) and the cyclic term a station every few leads, each held as smooth as
+cross-validation says the readings allow. Spans that still miss after it are refined one
+by one. A sweep that does not pay is taken back like any refinement.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..formats import read_cyclic, read_pitch_csv, write_cyclic
+from . import adaptive
+from .commission_thermal import ThermalSteps
+from .cyclic_fit import scans_from_raw
+from .plans import Plan, read_plan, targets_plan
+from .plans_scans import cyclic_plan, sweep_plan
+from .rawdata import axis_deviations
+from .sweep import fit_sweep, sweep_refinement, sweep_targets_mm
+
+#: a sweep's pieces, each between its own drift references (mm)
+SWEEP_PIECE_MM = 120.0
+
+
+class RefineSteps(ThermalSteps):
+    """What a round refines, and how: new points in failing spans, or the sweep."""
+
+    def _refine_allowance_s(self, r: int, sharing: int) -> float:
+        """Machine time (s) each of ``sharing`` refinements may take: what the budget has
+        left once the next round's verification (this round's again) and the after-run
+        are kept, shared evenly."""
+        verify_s = sum(self.state["steps"][name]["machine_s"] for name in self.state["steps"]
+                       if name.startswith(f"verify{r}-"))  # fmt: skip
+        left = self.s.budget_s - self.used_s - self.reserve_s() - verify_s
+        return max(0.0, left) / max(1, sharing)
+
+    def _affordable(self, r: int, axis: str, verdict: adaptive.AxisVerdict,
+                    allowance_s: float) -> adaptive.AxisVerdict:
+        """``verdict`` with as many of its worst failing spans as a refinement (and the
+        four new midpoints each adds to the next verification) can measure in
+        ``allowance_s``."""
+        count = len(verdict.failing_spans)
+        per_target = self._verify_target_s(r, axis)
+        while count > 0:
+            v = verdict.worst_first(count)
+            plan = self._refine_plan(r, axis, v)
+            cost = 0.0 if plan is None else self.estimate_s(plan)
+            if cost + 4 * count * per_target <= allowance_s:
+                return v
+            count = count * 2 // 3 if count > 3 else count - 1
+        return verdict.worst_first(0)
+
+    def _verify_target_s(self, r: int, axis: str) -> float:
+        """Machine time (s) one more verification target of ``axis`` costs (this round's)."""
+        path = self.dir / "plans" / f"verify{r}-{axis}.plan"
+        if not path.exists():
+            return 0.0
+        targets = max(1, len(np.unique(read_plan(path).targets_mm(axis))))
+        return self._verify_s(r, axis) / targets
+
+    def _verify_s(self, r: int, axis: str) -> float:
+        """Machine time (s) of round ``r``'s verification of ``axis`` (0 before it)."""
+        path = self.dir / "plans" / f"verify{r}-{axis}.plan"
+        return self.estimate_s(read_plan(path)) if path.exists() else 0.0
+
+    def _refine_plan(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> Plan | None:
+        """The refinement's plan for ``verdict``'s failing spans (None: no point to add)."""
+        table = read_pitch_csv(self.config_dir / self.tables.pitch[axis])
+        mids = self.refine_points(axis, table, verdict)
+        if mids.size == 0:
+            return None
+        if axis in self.tables.cyclic:
+            lead = read_cyclic(self.config_dir / self.tables.cyclic[axis]).lead_mm
+            half = 0.5 * adaptive.SCAN_LEADS * lead + 1.0
+            lo, hi = self._travel(axis)
+            stations = np.unique(np.round(np.clip(mids, lo + half, hi - half), 4))
+            return self._snap(cyclic_plan(axis, (lo, hi), lead, stations.tolist(),
+                                          per_lead=adaptive.SCAN_PER_LEAD,
+                                          leads=adaptive.SCAN_LEADS, kind="refine-scan"))
+        return self._snap(targets_plan(axis, self._travel(axis), mids, self.verify_runs(axis),
+                                       kind="iso230-refine", round=r))  # fmt: skip
+
+    async def _refine_axis(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> int:
+        """New table points in the failing spans (each cut in ``REFINE_PARTS``); their values
+        from the residual measured there with the table on. With a cyclic term, each new
+        point is a short scan over a whole lead: its mean gives the point (no cyclic term
+        aliased into it) and its harmonics a new cyclic station. Returns the points added."""
+        from .outputs import check_cyclic, check_pitch, write_table
+
+        path = self.config_dir / self.tables.pitch[axis]
+        table = read_pitch_csv(path)
+        mids = self.refine_points(axis, table, verdict)
+        if mids.size == 0:
+            return 0
+        config, _ = self.staged(self._tables_phase)
+        stage = self.table_stage(axis, table)
+        cyclic_path = self.config_dir / self.tables.cyclic[axis] if axis in self.tables.cyclic \
+            else None  # fmt: skip
+        name = f"refine{r}-{axis}"
+        await self.step(name, lambda: self._refine_plan(r, axis, verdict), "on",  # type: ignore[arg-type,return-value]
+                        self._park(axis), whole=cyclic_path is not None)  # fmt: skip
+        if cyclic_path is not None:  # one scan per new point: a whole plan between references
+            model = read_cyclic(cyclic_path)
+            stations = [float(s) for s in dict(read_plan(self.dir / "plans" / f"{name}.plan")
+                                               .meta)["stations_mm"].split()]  # fmt: skip
+            where, scans = scans_from_raw(self.raw(name), axis, model.lead_mm, stations)
+            ref = adaptive.scan_refinement(table, stage, model, where, scans)
+            new, new_model = ref.table, ref.cyclic
+        else:
+            dev = axis_deviations(self.raw(name), axis)
+            new, new_model = adaptive.refined_table(table, stage, dev), None
+        try:
+            check_pitch(new, config, axis)
+            if new_model is not None:
+                check_cyclic(new_model, config, axis)
+        except Exception as exc:  # a refinement the gateway would refuse: keep the table
+            self.state["notes"].append(f"{axis}: refinement {r} not applied: {exc}")
+            return 0
+        write_table(path, "csv", new, f"compgw commission: refined in round {r}")
+        if new_model is not None and cyclic_path is not None:
+            write_cyclic(cyclic_path, new_model, {"fitted": "compgw commission: refined in "
+                                                  f"round {r}"})  # fmt: skip
+        added = int(new.position_mm.size - table.position_mm.size)
+        x = new.position_mm
+        self.state.setdefault("spans", {})[axis] = [
+            int(i) for i in range(x.size - 1)
+            if np.any(np.isclose(x[i], mids, atol=1e-3)) or np.any(np.isclose(x[i + 1], mids,
+                                                                              atol=1e-3))]
+        return added
+
+
+    # -- the sweep -------------------------------------------------------------------------
+    def _lead_of(self, axis: str) -> float | None:
+        """The lead of an axis's cyclic term (mm), or None without one."""
+        if axis not in self.tables.cyclic:
+            return None
+        return read_cyclic(self.config_dir / self.tables.cyclic[axis]).lead_mm
+
+    def _sweep_plan(self, axis: str) -> Plan:
+        travel = self._travel(axis)
+        return self._snap(sweep_plan(axis, travel, sweep_targets_mm(travel, self._lead_of(axis)),
+                                     piece_mm=SWEEP_PIECE_MM))  # fmt: skip
+
+    def _sweeps(self, r: int, axis: str, allowance_s: float) -> bool:
+        """Whether round ``r`` sweeps ``axis``: a linear axis not swept yet, whose sweep and
+        the next round's random targets fit in ``allowance_s``."""
+        if self._rotary(axis) or axis in self.state.get("swept", []):
+            return False
+        random_s = adaptive.RANDOM_TARGETS * self._verify_target_s(r, axis)
+        return self.estimate_s(self._sweep_plan(axis)) + random_s <= allowance_s
+
+    async def _sweep_axis(self, r: int, axis: str) -> int:
+        """Sweep ``axis`` with its table and cyclic term on and fold the fit into both;
+        returns the table points added."""
+        from .outputs import check_cyclic, check_pitch, write_table
+
+        self.state.setdefault("swept", []).append(axis)
+        path = self.config_dir / self.tables.pitch[axis]
+        table = read_pitch_csv(path)
+        cyclic_path = self.config_dir / self.tables.cyclic[axis] if axis in self.tables.cyclic \
+            else None  # fmt: skip
+        model = read_cyclic(cyclic_path) if cyclic_path is not None else None
+        name = f"sweep{r}-{axis}"
+        await self.step(name, lambda: self._sweep_plan(axis), "on", self._park(axis))
+        raw = self.raw(name)
+        rows = np.array([a == axis for a in raw.axis])
+        fit = fit_sweep(raw.target_mm[rows], raw.deviation_mm[rows], raw.direction[rows],
+                        model.lead_mm if model else None, model.origin_mm if model else 0.0)
+        ref = sweep_refinement(table, self.table_stage(axis, table), model, fit)
+        record: dict[str, Any] = {
+            "round": r, "readings": int(rows.sum()), "knots": int(fit.knot_mm.size),
+            "stations": int(fit.station_mm.size), "harmonics": int(fit.sin_mm.shape[1]),
+            "residual_rms_um": fit.residual_rms_um, "level_ptp_um": fit.level_ptp_um,
+            "lambdas": list(fit.lambdas)}  # fmt: skip
+        self.state.setdefault("identify", {})[f"sweep-{axis}"] = record
+        config, _ = self.staged(self._tables_phase)
+        try:
+            check_pitch(ref.table, config, axis)
+            if ref.cyclic is not None:
+                check_cyclic(ref.cyclic, config, axis)
+        except Exception as exc:  # a refinement the gateway would refuse: keep the table
+            self.state["notes"].append(f"{axis}: sweep {r} not applied: {exc}")
+            return 0
+        write_table(path, "csv", ref.table, f"compgw commission: swept in round {r}")
+        if ref.cyclic is not None and cyclic_path is not None:
+            write_cyclic(cyclic_path, ref.cyclic, {"fitted": "compgw commission: swept in "
+                                                   f"round {r}"})  # fmt: skip
+        self.state.setdefault("spans", {})[axis] = []  # judged at random targets next
+        self.say(f"round {r}: {axis}: swept ({record['readings']} readings): a level "
+                 f"{fit.level_ptp_um:.2f} µm peak to peak every "
+                 f"{float(np.diff(fit.knot_mm).mean()):.2f} mm"
+                 + (f", {record['harmonics']} harmonics at {record['stations']} stations"
+                    if record["harmonics"] else "")
+                 + f"; {fit.residual_rms_um:.2f} µm RMS left in the readings")  # fmt: skip
+        return int(ref.table.position_mm.size - table.position_mm.size)

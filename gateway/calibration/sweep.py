@@ -1,0 +1,218 @@
+"""One dense sweep of the whole travel, folded into the table and the cyclic model (pure).
+
+A rough screw's error has structure no coarse table and three cyclic stations capture: a
+waviness of a few centimetres and a once-per-turn term (with harmonics) whose amplitude
+and phase change along the travel. Refining span by span follows it only where the
+verification happened to land, a short scan per point. One sweep measures it everywhere
+instead: one reading every ``SWEEP_STEP_LEADS`` of a lead (the phases walk, so harmonics
+1-4 are resolved), up the whole travel and down again, with the table and cyclic term on.
+Its residual is fitted as
+
+    r(x, ±) = L(x) ∓ D(x)/2 + Σ_k a_k(x)·sin(kθ) + b_k(x)·cos(kθ)
+
+with L (the level) and D (the lost motion's change) piecewise linear between knots every
+``knot_mm`` (the table's own interpolation, so the gateway reproduces it exactly) and the
+amplitudes piecewise linear between stations (the cyclic stage's own interpolation). Each
+part is held smooth by a second-difference penalty whose weight is chosen by generalised
+cross-validation, so a sweep of noise adds nothing and a wavy screw is followed. Positions
+and deviations are mm unless the name says µm.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..compensation import PitchStage, PitchTable
+from ..compensation.cyclic import CyclicModel
+
+#: a reading every this many leads: 8.33 per lead, the phase moving 0.12 turn per step
+SWEEP_STEP_LEADS = 0.12
+#: the step (mm) of an axis without a known lead
+SWEEP_STEP_MM = 1.0
+#: the level's knots: every lead, at most this far apart (mm)
+LEVEL_KNOT_MM = 5.0
+#: the amplitudes' stations: at least this many leads apart, about this many over the travel
+STATION_LEADS = 4.0
+STATIONS = 17
+#: harmonics of the lead fitted (a rough screw shows up to the 4th)
+SWEEP_HARMONICS = 4
+#: the penalty weights tried, relative to the data's own weight per knot
+_LAMBDAS = tuple(10.0 ** e for e in np.arange(-3.0, 5.01, 1.0))
+
+
+def sweep_step_mm(lead_mm: float | None) -> float:
+    """The distance between readings of a sweep (mm)."""
+    return SWEEP_STEP_LEADS * lead_mm if lead_mm else SWEEP_STEP_MM
+
+
+def sweep_targets_mm(travel_mm: Sequence[float], lead_mm: float | None,
+                     margin_mm: float = 2.0) -> NDArray[np.float64]:  # fmt: skip
+    """The sweep's targets over the travel less ``margin_mm`` at each end."""
+    lo, hi = float(travel_mm[0]) + margin_mm, float(travel_mm[1]) - margin_mm
+    step = sweep_step_mm(lead_mm)
+    n = max(2, math.floor((hi - lo) / step) + 1)
+    return np.round(lo + step * np.arange(n), 4)
+
+
+def knots_mm(lo_mm: float, hi_mm: float, spacing_mm: float) -> NDArray[np.float64]:
+    """Evenly spaced knots from ``lo_mm`` to ``hi_mm``, about ``spacing_mm`` apart."""
+    n = max(2, math.ceil((hi_mm - lo_mm) / spacing_mm) + 1)
+    return np.round(np.linspace(lo_mm, hi_mm, n), 4)
+
+
+def _hats(x: NDArray[np.float64], knots: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Design columns of piecewise-linear interpolation between ``knots`` (held outside)."""
+    xc = np.clip(x, knots[0], knots[-1])
+    i = np.clip(np.searchsorted(knots, xc, side="right") - 1, 0, knots.size - 2)
+    w = (xc - knots[i]) / (knots[i + 1] - knots[i])
+    out = np.zeros((x.size, knots.size))
+    rows = np.arange(x.size)
+    out[rows, i] = 1.0 - w
+    out[rows, i + 1] += w
+    return out
+
+
+def _second_diff(n: int) -> NDArray[np.float64]:
+    """The (n−2) × n second-difference matrix (no penalty on a line)."""
+    if n < 3:
+        return np.zeros((0, n))
+    d = np.zeros((n - 2, n))
+    idx = np.arange(n - 2)
+    d[idx, idx], d[idx, idx + 1], d[idx, idx + 2] = 1.0, -2.0, 1.0
+    return d
+
+
+@dataclass(frozen=True)
+class SweepFit:
+    """What a sweep's residual holds (mm): the level per direction at the knots, the
+    harmonic amplitudes at the stations."""
+
+    knot_mm: NDArray[np.float64]
+    up_mm: NDArray[np.float64]
+    down_mm: NDArray[np.float64]
+    station_mm: NDArray[np.float64]
+    sin_mm: NDArray[np.float64]  # (stations, K); K = 0 without a lead
+    cos_mm: NDArray[np.float64]
+    lead_mm: float | None
+    origin_mm: float
+    #: penalty weights chosen (level, lost motion, amplitudes), relative
+    lambdas: tuple[float, float, float]
+    #: RMS of the readings about the fit, and of the fit's level (µm)
+    residual_rms_um: float
+    level_ptp_um: float
+
+    def level_mm(self, x_mm: NDArray[np.float64], direction: int) -> NDArray[np.float64]:
+        return np.interp(x_mm, self.knot_mm, self.up_mm if direction > 0 else self.down_mm)
+
+
+def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
+              direction: NDArray[np.int64], lead_mm: float | None, origin_mm: float = 0.0,
+              harmonics: int = SWEEP_HARMONICS) -> SweepFit:  # fmt: skip
+    """Fit a sweep's residual (see the module's docstring); the three penalty weights by
+    generalised cross-validation, one at a time over a grid, twice round."""
+    x = np.asarray(x_mm, dtype=np.float64)
+    y = np.asarray(deviation_mm, dtype=np.float64) * 1e3  # µm: a well-scaled system
+    s = np.where(np.asarray(direction) < 0, 0.5, -0.5)  # −D/2 going up, +D/2 down
+    lo, hi = float(np.min(x)), float(np.max(x))
+    k = harmonics if lead_mm else 0
+    knot_spacing = min(lead_mm, LEVEL_KNOT_MM) if lead_mm else LEVEL_KNOT_MM
+    kn = knots_mm(lo, hi, knot_spacing)
+    h = _hats(x, kn)
+    blocks = [h, h * s[:, None]]
+    if k:
+        spacing = max(STATION_LEADS * lead_mm, (hi - lo) / (STATIONS - 1))  # type: ignore[operator]
+        st = knots_mm(lo, hi, spacing)
+        g = _hats(x, st)
+        theta = 2 * np.pi * (x - origin_mm) / lead_mm  # type: ignore[operator]
+        for j in range(1, k + 1):
+            blocks += [g * np.sin(j * theta)[:, None], g * np.cos(j * theta)[:, None]]
+    else:
+        st = np.array([lo, hi])
+    design = np.hstack(blocks)
+    sizes = [kn.size, kn.size] + [st.size] * (2 * k)
+    xtx, xty = design.T @ design, design.T @ y
+    # each part's penalty, scaled to the data's weight per parameter of that part
+    pens = []
+    start = 0
+    for part, n in enumerate(sizes):
+        d = _second_diff(n)
+        p = np.zeros_like(xtx)
+        block = slice(start, start + n)
+        weight = float(np.trace(xtx[block, block])) / n
+        p[block, block] = weight * (d.T @ d)
+        pens.append((0 if part == 0 else 1 if part == 1 else 2, p))
+        start += n
+    groups = [sum((p for g_, p in pens if g_ == gi), np.zeros_like(xtx)) for gi in range(3)]
+    ridge = 1e-9 * float(np.trace(xtx)) / xtx.shape[0] * np.eye(xtx.shape[0])
+
+    def solve(lams: Sequence[float]) -> tuple[float, NDArray[np.float64], float]:
+        a = xtx + ridge + sum(lam * g_ for lam, g_ in zip(lams, groups))
+        beta = np.linalg.solve(a, xty)
+        edf = float(np.trace(np.linalg.solve(a, xtx)))
+        rss = float(np.sum((y - design @ beta) ** 2))
+        gcv = y.size * rss / max(y.size - edf, 1.0) ** 2
+        return gcv, beta, rss
+
+    lams = [1.0, 1.0, 1.0]
+    best = solve(lams)
+    for _ in range(2):
+        for gi in range(3 if k else 2):
+            for lam in _LAMBDAS:
+                trial = list(lams)
+                trial[gi] = lam
+                got = solve(trial)
+                if got[0] < best[0]:
+                    best, lams = got, trial
+    beta = best[1]
+    level, lost = beta[: kn.size], beta[kn.size : 2 * kn.size]
+    amps = beta[2 * kn.size :].reshape(2 * k, st.size) if k else np.zeros((0, st.size))
+    sin = amps[0::2].T * 1e-3 if k else np.zeros((st.size, 0))
+    cos = amps[1::2].T * 1e-3 if k else np.zeros((st.size, 0))
+    return SweepFit(kn, (level - 0.5 * lost) * 1e-3, (level + 0.5 * lost) * 1e-3, st,
+                    sin, cos, lead_mm, origin_mm, (lams[0], lams[1], lams[2]),
+                    math.sqrt(best[2] / y.size), float(np.ptp(level)))  # fmt: skip
+
+
+@dataclass(frozen=True)
+class SweepRefinement:
+    table: PitchTable
+    cyclic: CyclicModel | None
+    fit: SweepFit
+
+
+def sweep_refinement(table: PitchTable, stage: PitchStage, cyclic: CyclicModel | None,
+                     fit: SweepFit, min_spacing_mm: float = 0.5) -> SweepRefinement:  # fmt: skip
+    """``table`` (and ``cyclic``) with the sweep's fit added: the table gets the level's
+    knots (those at least ``min_spacing_mm`` from its own points) and every point the
+    level there; the cyclic model is resampled at the sweep's stations with the fitted
+    amplitudes added (harmonics it lacked start from zero)."""
+    x = table.position_mm
+    new = np.array([p for p in fit.knot_mm if np.min(np.abs(x - p)) >= min_spacing_mm])
+    pos = np.sort(np.concatenate([x, new]))
+    own_up = stage.inverse(pos, np.ones(pos.size, dtype=np.int64)) - pos
+    own_dn = stage.inverse(pos, -np.ones(pos.size, dtype=np.int64)) - pos
+    fwd = own_up + fit.level_mm(pos, +1)
+    rev = own_dn + fit.level_mm(pos, -1)
+    if table.reverse_mm is None:  # a one-direction table: the mean of both
+        fwd, rev_out = 0.5 * (fwd + rev), None
+    else:
+        rev_out = rev
+    new_table = PitchTable(pos, fwd, rev_out, table.rotary, table.source)
+    model = cyclic
+    if cyclic is not None and fit.sin_mm.shape[1]:
+        k = max(cyclic.harmonics, fit.sin_mm.shape[1])
+        a0, b0 = cyclic.amplitudes_mm(fit.station_mm)
+        a = np.zeros((fit.station_mm.size, k))
+        b = np.zeros_like(a)
+        a[:, : a0.shape[1]] += a0
+        b[:, : b0.shape[1]] += b0
+        a[:, : fit.sin_mm.shape[1]] += fit.sin_mm
+        b[:, : fit.cos_mm.shape[1]] += fit.cos_mm
+        model = CyclicModel(cyclic.lead_mm, fit.station_mm, a, b, cyclic.origin_mm,
+                            cyclic.source)  # fmt: skip
+    return SweepRefinement(new_table, model, fit)
