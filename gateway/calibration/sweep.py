@@ -42,7 +42,7 @@ STATIONS = 17
 #: harmonics of the lead fitted (a rough screw shows up to the 4th)
 SWEEP_HARMONICS = 4
 #: the penalty weights tried, relative to the data's own weight per knot
-_LAMBDAS = tuple(10.0 ** e for e in np.arange(-3.0, 5.01, 1.0))
+_LAMBDAS = tuple(10.0 ** e for e in np.arange(-3.0, 7.01, 1.0))
 
 
 def sweep_step_mm(lead_mm: float | None) -> float:
@@ -113,8 +113,9 @@ class SweepFit:
 def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
               direction: NDArray[np.int64], lead_mm: float | None, origin_mm: float = 0.0,
               harmonics: int = SWEEP_HARMONICS) -> SweepFit:  # fmt: skip
-    """Fit a sweep's residual (see the module's docstring); the three penalty weights by
-    generalised cross-validation, one at a time over a grid, twice round."""
+    """Fit a sweep's residual (see the module's docstring). The number of harmonics (up to
+    ``harmonics``) and the three penalty weights are those of the smallest generalised
+    cross-validation score: a harmonic the readings do not show is not added."""
     x = np.asarray(x_mm, dtype=np.float64)
     y = np.asarray(deviation_mm, dtype=np.float64) * 1e3  # µm: a well-scaled system
     s = np.where(np.asarray(direction) < 0, 0.5, -0.5)  # −D/2 going up, +D/2 down
@@ -135,39 +136,46 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
         st = np.array([lo, hi])
     design = np.hstack(blocks)
     sizes = [kn.size, kn.size] + [st.size] * (2 * k)
-    xtx, xty = design.T @ design, design.T @ y
     # each part's penalty, scaled to the data's weight per parameter of that part
-    pens = []
+    xtx_all = design.T @ design
+    groups_all = [np.zeros_like(xtx_all) for _ in range(3)]
     start = 0
     for part, n in enumerate(sizes):
         d = _second_diff(n)
-        p = np.zeros_like(xtx)
         block = slice(start, start + n)
-        weight = float(np.trace(xtx[block, block])) / n
-        p[block, block] = weight * (d.T @ d)
-        pens.append((0 if part == 0 else 1 if part == 1 else 2, p))
+        weight = float(np.trace(xtx_all[block, block])) / n
+        groups_all[min(part, 2)][block, block] = weight * (d.T @ d)
         start += n
-    groups = [sum((p for g_, p in pens if g_ == gi), np.zeros_like(xtx)) for gi in range(3)]
-    ridge = 1e-9 * float(np.trace(xtx)) / xtx.shape[0] * np.eye(xtx.shape[0])
 
-    def solve(lams: Sequence[float]) -> tuple[float, NDArray[np.float64], float]:
-        a = xtx + ridge + sum(lam * g_ for lam, g_ in zip(lams, groups))
-        beta = np.linalg.solve(a, xty)
+    def solve(kk: int, lams: Sequence[float]) -> tuple[float, NDArray[np.float64], float]:
+        cols = slice(0, 2 * kn.size + 2 * kk * st.size)
+        xtx = xtx_all[cols, cols]
+        a = xtx + sum(lam * g_[cols, cols] for lam, g_ in zip(lams, groups_all))
+        a = a + 1e-9 * float(np.trace(xtx)) / xtx.shape[0] * np.eye(xtx.shape[0])
+        beta = np.linalg.solve(a, design[:, cols].T @ y)
         edf = float(np.trace(np.linalg.solve(a, xtx)))
-        rss = float(np.sum((y - design @ beta) ** 2))
-        gcv = y.size * rss / max(y.size - edf, 1.0) ** 2
-        return gcv, beta, rss
+        rss = float(np.sum((y - design[:, cols] @ beta) ** 2))
+        return y.size * rss / max(y.size - edf, 1.0) ** 2, beta, rss
 
-    lams = [1.0, 1.0, 1.0]
-    best = solve(lams)
-    for _ in range(2):
-        for gi in range(3 if k else 2):
-            for lam in _LAMBDAS:
-                trial = list(lams)
-                trial[gi] = lam
-                got = solve(trial)
-                if got[0] < best[0]:
-                    best, lams = got, trial
+    # the harmonics (0..k) and the three weights: the smallest GCV, each weight searched
+    # over the grid in turn (twice round without harmonics, then once from the weights of
+    # one harmonic fewer)
+    lams, chosen = [1.0, 1.0, 1.0], 0
+    best = solve(0, lams)
+    for kk in range(k + 1):
+        here_lams = list(lams)
+        here = solve(kk, here_lams)
+        for _ in range(1 if kk else 2):
+            for gi in (2, 0, 1) if kk else (0, 1):
+                for lam in _LAMBDAS:
+                    trial = list(here_lams)
+                    trial[gi] = lam
+                    got = solve(kk, trial)
+                    if got[0] < here[0]:
+                        here, here_lams = got, trial
+        if here[0] < best[0] or kk == 0:
+            best, lams, chosen = here, here_lams, kk
+    k = chosen
     beta = best[1]
     level, lost = beta[: kn.size], beta[kn.size : 2 * kn.size]
     amps = beta[2 * kn.size :].reshape(2 * k, st.size) if k else np.zeros((0, st.size))

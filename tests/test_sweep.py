@@ -1,0 +1,118 @@
+"""Commissioning's sweep (gateway/calibration/sweep.py, plans_scans.sweep_plan), checked
+against a truth drawn here: a wavy screw whose once-per-turn term changes along the travel
+is followed between the readings, and a sweep of noise adds next to nothing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gateway.calibration.plans_scans import sweep_plan
+from gateway.calibration.sweep import fit_sweep, sweep_refinement, sweep_targets_mm
+from gateway.compensation import PitchStage, PitchTable
+from gateway.compensation.cyclic import CyclicModel
+
+LEAD_MM = 5.0
+TRAVEL_MM = (0.0, 500.0)
+
+
+def _truth_um(x: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Slope, waviness (22, 37, 61 mm), play 5 → 8 µm, a 1 → 3 µm once-per-turn term whose
+    phase drifts 40° over the travel, and a 0.5 µm second harmonic."""
+    t = x / TRAVEL_MM[1]
+    wave = 1.5 * np.sin(2 * np.pi * x / 22 + 1) + 1.2 * np.sin(2 * np.pi * x / 37) \
+        + 1.0 * np.sin(2 * np.pi * x / 61 + 2)  # fmt: skip
+    play = 5.0 + 3.0 * t
+    theta = 2 * np.pi * x / LEAD_MM
+    cyc = (1.0 + 2.0 * t) * np.sin(theta + np.deg2rad(40) * t) + 0.5 * np.cos(2 * theta)
+    return 12.0 * t + wave + play * (direction < 0) + cyc
+
+
+def _model() -> tuple[PitchTable, CyclicModel]:
+    """What the coarse identification gave: the slope and the mean play at 21 points, a
+    constant 1 µm once-per-turn term."""
+    pos = np.linspace(*TRAVEL_MM, 21)
+    fwd = 12e-3 * pos / TRAVEL_MM[1]
+    table = PitchTable(pos, fwd, fwd + 6.5e-3)
+    cyclic = CyclicModel(LEAD_MM, np.array([0.0, 500.0]), np.array([[1e-3], [1e-3]]),
+                         np.zeros((2, 1)))  # fmt: skip
+    return table, cyclic
+
+
+def _corrected_um(table: PitchTable, cyclic: CyclicModel, x: np.ndarray,
+                  direction: np.ndarray) -> np.ndarray:  # fmt: skip
+    """The error the model says the axis has (µm), table and cyclic term."""
+    col = np.where(direction > 0, np.interp(x, table.position_mm, table.forward_mm),
+                   np.interp(x, table.position_mm, table.reverse_mm))  # fmt: skip
+    return (col + cyclic.error_mm(x)) * 1e3
+
+
+def _sweep(residual_um, noise_um: float, seed: int):  # type: ignore[no-untyped-def]
+    """Readings of a sweep: every target up, then down, the residual plus noise (mm)."""
+    rng = np.random.default_rng(seed)
+    x = sweep_targets_mm(TRAVEL_MM, LEAD_MM)
+    xs = np.concatenate([x, x[::-1]])
+    dirs = np.concatenate([np.ones(x.size, dtype=np.int64), -np.ones(x.size, dtype=np.int64)])
+    return xs, (residual_um(xs, dirs) + rng.normal(0, noise_um, xs.size)) * 1e-3, dirs
+
+
+def test_a_sweep_follows_waviness_and_a_cyclic_term_that_changes_along_the_travel() -> None:
+    table, cyclic = _model()
+
+    def residual_um(x: np.ndarray, d: np.ndarray) -> np.ndarray:
+        return _truth_um(x, d) - _corrected_um(table, cyclic, x, d)
+
+    xs, dev_mm, dirs = _sweep(residual_um, 0.5, seed=3)
+    fit = fit_sweep(xs, dev_mm, dirs, LEAD_MM, cyclic.origin_mm)
+    got = sweep_refinement(table, PitchStage(table, "linear"), cyclic, fit)
+    assert got.cyclic is not None and got.table.reverse_mm is not None
+    # judged between the readings: random places, never a sweep target
+    rng = np.random.default_rng(99)
+    judge = np.sort(rng.uniform(5, 495, 400))
+    for d in (1, -1):
+        dd = np.full(judge.size, d)
+        before = residual_um(judge, dd)
+        after = _truth_um(judge, dd) - _corrected_um(got.table, got.cyclic, judge, dd)
+        assert np.ptp(before) > 9.0
+        assert np.ptp(after) < 2.2, (d, np.ptp(before), np.ptp(after))
+        assert np.sqrt(np.mean((after - after.mean()) ** 2)) < 0.45
+    # the table reproduces its old self where it had points (plus the level found there)
+    old = np.isin(got.table.position_mm, table.position_mm)
+    assert old.sum() == table.position_mm.size
+    assert got.table.position_mm.size > 90  # a point every lead over 500 mm
+    assert got.cyclic.harmonics >= 2 and np.all(np.diff(got.cyclic.station_mm) >= LEAD_MM)
+
+
+def test_a_sweep_of_noise_adds_next_to_nothing() -> None:
+    """An axis already right: the readings are noise (1 µm, a stick-slip axis). The fit is
+    held smooth by cross-validation, so the correction it adds stays well under the noise."""
+    table, cyclic = _model()
+    xs, dev_mm, dirs = _sweep(lambda x, d: np.zeros(x.size), 1.0, seed=5)
+    fit = fit_sweep(xs, dev_mm, dirs, LEAD_MM, cyclic.origin_mm)
+    got = sweep_refinement(table, PitchStage(table, "linear"), cyclic, fit)
+    assert got.cyclic is not None
+    x = np.linspace(3, 497, 2000)
+    for d in (1, -1):
+        dd = np.full(x.size, d)
+        added = _corrected_um(got.table, got.cyclic, x, dd) - _corrected_um(table, cyclic, x, dd)
+        assert np.ptp(added) < 1.0, (d, np.ptp(added), fit.lambdas)
+
+
+def test_the_sweep_plan_measures_every_target_each_way_piece_by_piece() -> None:
+    targets = sweep_targets_mm(TRAVEL_MM, LEAD_MM)
+    assert targets[0] == pytest.approx(2.0) and targets[-1] <= 498.0
+    assert np.allclose(np.diff(targets), 0.12 * LEAD_MM)
+    plan = sweep_plan("X", TRAVEL_MM, targets, piece_mm=120.0)
+    runs = sorted({m.run for m in plan.moves})
+    assert runs == [1, 2, 3, 4]
+    for j in runs:
+        moves = [m for m in plan.moves if m.run == j]
+        up = [m.target_mm[0] for m in moves if m.measured and m.direction > 0]
+        down = [m.target_mm[0] for m in moves if m.measured and m.direction < 0]
+        assert up == sorted(up) and down == sorted(up, reverse=True)
+        # each way approached from beyond the piece: the play taken up the same way
+        assert moves[0].direction < 0 and not moves[0].measured and moves[0].target_mm[0] < up[0]
+    measured = sorted(m.target_mm[0] for m in plan.moves if m.measured and m.direction > 0)
+    np.testing.assert_allclose(measured, targets)
+    with pytest.raises(ValueError, match="travel"):
+        sweep_plan("X", TRAVEL_MM, [1.0, 600.0])
