@@ -16,9 +16,11 @@ command again after Ctrl-C, a crash or a power loss carries on where it stopped:
    config loaded;
 3. rounds of verification at targets never used for fitting (the new spans' midpoints and
    fresh random targets): judged by ISO 230-2 E (XY: maximum vector error) against the
-   tolerance; where the residual stands out of the repeatability the span gets its
-   midpoint as a new table point (its value: the table's own plus the residual), a
-   failing plane a denser grid; until within tolerance, out of rounds, or out of budget;
+   tolerance; an axis that misses is swept once over its whole travel (:mod:`.sweep`,
+   :mod:`.commission_refine`) when the budget allows; after that, where the residual
+   stands out of the repeatability the span gets new table points (their values: the
+   table's own plus the residual), a failing plane a denser grid; until within tolerance,
+   out of rounds, or out of budget;
 4. the *before* targets measured again with everything on (before / after on the same
    points), the full config left loaded, the report written.
 
@@ -383,8 +385,9 @@ class Commission(RefineSteps):
             allowance_s = self._refine_allowance_s(r, len(refining) + plane)
             trimmed = []
             for a in refining:
-                if self._sweeps(r, a, allowance_s):
-                    added[a] = await self._sweep_axis(r, a)
+                coarser = self._sweeps(r, a, allowance_s)
+                if coarser is not None:
+                    added[a] = await self._sweep_axis(r, a, coarser)
                     entry.setdefault("swept", []).append(a)
                     continue
                 v = self._affordable(r, a, verdicts[a], allowance_s)

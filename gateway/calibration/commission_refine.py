@@ -15,14 +15,21 @@ from typing import Any
 
 import numpy as np
 
-from ..formats import read_cyclic, read_pitch_csv, write_cyclic
+from ..formats import atomic_write_text, read_cyclic, read_pitch_csv, write_cyclic
 from . import adaptive
 from .commission_thermal import ThermalSteps
 from .cyclic_fit import scans_from_raw
 from .plans import Plan, read_plan, targets_plan
 from .plans_scans import cyclic_plan, sweep_plan
 from .rawdata import axis_deviations
-from .sweep import fit_sweep, sweep_refinement, sweep_targets_mm
+from .sweep import (
+    SWEEP_STEPS_LEADS,
+    fit_sweep,
+    harmonics_for_step,
+    sweep_refinement,
+    sweep_step_mm,
+    sweep_targets_mm,
+)
 
 #: a sweep's pieces, each between its own drift references (mm)
 SWEEP_PIECE_MM = 120.0
@@ -142,36 +149,56 @@ class RefineSteps(ThermalSteps):
             return None
         return read_cyclic(self.config_dir / self.tables.cyclic[axis]).lead_mm
 
-    def _sweep_plan(self, axis: str) -> Plan:
+    def _sweep_plan(self, axis: str, coarser: int) -> Plan:
         travel = self._travel(axis)
-        return self._snap(sweep_plan(axis, travel, sweep_targets_mm(travel, self._lead_of(axis)),
-                                     piece_mm=SWEEP_PIECE_MM))  # fmt: skip
+        targets = sweep_targets_mm(travel, self._lead_of(axis), coarser=coarser)
+        return self._snap(sweep_plan(axis, travel, targets, piece_mm=SWEEP_PIECE_MM))
 
-    def _sweeps(self, r: int, axis: str, allowance_s: float) -> bool:
-        """Whether round ``r`` sweeps ``axis``: a linear axis not swept yet, whose sweep and
-        the next round's random targets fit in ``allowance_s``."""
+    def _sweeps(self, r: int, axis: str, allowance_s: float) -> int | None:
+        """How coarse round ``r``'s sweep of ``axis`` is (an index into the steps; None: no
+        sweep): a linear axis not swept yet, the densest step whose sweep and the next
+        round's random targets fit in ``allowance_s``; a sweep begun before an
+        interruption carries on as it was."""
         if self._rotary(axis) or axis in self.state.get("swept", []):
-            return False
+            return None
+        begun = self.state.get("sweeping", {}).get(axis)
+        if begun is not None:
+            return int(begun)
         random_s = adaptive.RANDOM_TARGETS * self._verify_target_s(r, axis)
-        return self.estimate_s(self._sweep_plan(axis)) + random_s <= allowance_s
+        for coarser in range(len(SWEEP_STEPS_LEADS)):
+            if self.estimate_s(self._sweep_plan(axis, coarser)) + random_s <= allowance_s:
+                return coarser
+        return None
 
-    async def _sweep_axis(self, r: int, axis: str) -> int:
+    async def _sweep_axis(self, r: int, axis: str, coarser: int) -> int:
         """Sweep ``axis`` with its table and cyclic term on and fold the fit into both;
         returns the table points added."""
         from .outputs import check_cyclic, check_pitch, write_table
 
-        self.state.setdefault("swept", []).append(axis)
         path = self.config_dir / self.tables.pitch[axis]
-        table = read_pitch_csv(path)
         cyclic_path = self.config_dir / self.tables.cyclic[axis] if axis in self.tables.cyclic \
             else None  # fmt: skip
-        model = read_cyclic(cyclic_path) if cyclic_path is not None else None
+        # the fold starts from the files as they were before the sweep (kept aside once):
+        # a resume after the new table was written folds the same readings the same way
+        keep = self.dir / "tables" / f"sweep{r}-{axis}"
+        keep.mkdir(parents=True, exist_ok=True)
+        for f in (path, cyclic_path):
+            if f is not None and not (keep / f.name).exists():
+                atomic_write_text(keep / f.name, f.read_text())
+        self.state.setdefault("sweeping", {})[axis] = coarser
+        self._save()
+        table = read_pitch_csv(keep / path.name)
+        model = read_cyclic(keep / cyclic_path.name) if cyclic_path is not None else None
         name = f"sweep{r}-{axis}"
-        await self.step(name, lambda: self._sweep_plan(axis), "on", self._park(axis))
+        await self.step(name, lambda: self._sweep_plan(axis, coarser), "on", self._park(axis))
+        self.state["swept"] = [*self.state.get("swept", []), axis]
+        self.state["sweeping"].pop(axis, None)
         raw = self.raw(name)
         rows = np.array([a == axis for a in raw.axis])
+        lead = model.lead_mm if model else None
         fit = fit_sweep(raw.target_mm[rows], raw.deviation_mm[rows], raw.direction[rows],
-                        model.lead_mm if model else None, model.origin_mm if model else 0.0)
+                        lead, model.origin_mm if model else 0.0,
+                        harmonics_for_step(sweep_step_mm(lead, coarser), lead))  # fmt: skip
         ref = sweep_refinement(table, self.table_stage(axis, table), model, fit)
         record: dict[str, Any] = {
             "round": r, "readings": int(rows.sum()), "knots": int(fit.knot_mm.size),

@@ -30,10 +30,13 @@ from numpy.typing import NDArray
 from ..compensation import PitchStage, PitchTable
 from ..compensation.cyclic import CyclicModel
 
-#: a reading every this many leads: 8.33 per lead, the phase moving 0.12 turn per step
+#: a reading every this many leads: 8.33 per lead, the phase moving 0.12 turn per step;
+#: coarser steps where the budget is short (harmonics up to ``harmonics_for_step``)
 SWEEP_STEP_LEADS = 0.12
-#: the step (mm) of an axis without a known lead
+SWEEP_STEPS_LEADS = (0.12, 0.16, 0.24)
+#: the step (mm) of an axis without a known lead, and what the budget may make of it
 SWEEP_STEP_MM = 1.0
+SWEEP_STEPS_MM = (1.0, 1.5, 2.5)
 #: the level's knots: every lead, at most this far apart (mm)
 LEVEL_KNOT_MM = 5.0
 #: the amplitudes' stations: at least this many leads apart, about this many over the travel
@@ -45,16 +48,27 @@ SWEEP_HARMONICS = 4
 _LAMBDAS = tuple(10.0 ** e for e in np.arange(-3.0, 7.01, 1.0))
 
 
-def sweep_step_mm(lead_mm: float | None) -> float:
-    """The distance between readings of a sweep (mm)."""
-    return SWEEP_STEP_LEADS * lead_mm if lead_mm else SWEEP_STEP_MM
+def sweep_step_mm(lead_mm: float | None, coarser: int = 0) -> float:
+    """The distance between readings of a sweep (mm): the densest, or ``coarser`` steps
+    down ``SWEEP_STEPS_LEADS`` (``SWEEP_STEPS_MM`` without a lead)."""
+    if lead_mm:
+        return SWEEP_STEPS_LEADS[coarser] * lead_mm
+    return SWEEP_STEPS_MM[coarser]
+
+
+def harmonics_for_step(step_mm: float, lead_mm: float | None) -> int:
+    """The harmonics a sweep with readings ``step_mm`` apart resolves: their phase must
+    move clearly less than half a turn per reading (0.12 lead: 4; 0.16: 3; 0.24: 2)."""
+    if not lead_mm:
+        return 0
+    return max(0, min(SWEEP_HARMONICS, math.floor(0.5 * lead_mm / step_mm - 0.05)))
 
 
 def sweep_targets_mm(travel_mm: Sequence[float], lead_mm: float | None,
-                     margin_mm: float = 2.0) -> NDArray[np.float64]:  # fmt: skip
+                     margin_mm: float = 2.0, coarser: int = 0) -> NDArray[np.float64]:  # fmt: skip
     """The sweep's targets over the travel less ``margin_mm`` at each end."""
     lo, hi = float(travel_mm[0]) + margin_mm, float(travel_mm[1]) - margin_mm
-    step = sweep_step_mm(lead_mm)
+    step = sweep_step_mm(lead_mm, coarser)
     n = max(2, math.floor((hi - lo) / step) + 1)
     return np.round(lo + step * np.arange(n), 4)
 
