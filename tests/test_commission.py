@@ -145,6 +145,40 @@ def test_commission_resumes_after_a_kill(template: Path, tmp_path: Path) -> None
         assert json.loads((out / "summary.json").read_text())["axes"]["X"]["after"]
 
 
+def test_a_sweep_killed_half_way_carries_on(template: Path, tmp_path: Path) -> None:
+    """SIGKILL while X's sweep is measuring (a power loss): the same command carries on
+    from the last reading (none taken twice) and folds the sweep once, from the table as
+    it was before it."""
+    with running(template, tmp_path / "m") as rig:
+        state = rig.dir / "commission" / "commission.json"
+        raw = rig.dir / "commission" / "raw" / "sweep1-X.csv"
+        first = rig.commission("--tolerance-um", "1")
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if raw.exists() and raw.read_text().count("\n") > 40:
+                break
+            assert first.popen.poll() is None, first.text()
+            time.sleep(0.005)
+        first.kill()
+        before = json.loads(state.read_text())
+        assert before["sweeping"] == {"X": 0} and "sweep1-X" not in before["steps"]
+        taken = len(read_raw_csv(raw))
+        second = rig.commission("--tolerance-um", "1")
+        assert second.popen.wait(timeout=300) in (0, 1), second.text()
+        out = rig.dir / "commission"
+        after = json.loads(state.read_text())
+        plan = read_plan(out / "plans" / "sweep1-X.plan")
+        parts = after["steps"]["sweep1-X"]["parts"]
+        rows = sum(len(read_raw_csv(rig.dir / part["raw"])) for part in parts)
+        assert rows > taken
+        assert rows == sum(m.measured for m in plan.moves)
+        assert "X" in after["swept"] and not after["sweeping"]
+        assert after["identify"]["sweep-X"]["readings"] == rows
+        # folded from the files kept before the sweep, which the fold never touched
+        kept = out / "tables" / "sweep1-X" / "x_pitch.csv"
+        assert kept.exists() and "swept" not in kept.read_text()
+
+
 def test_an_abort_leaves_the_gateway_on_your_config(template: Path, tmp_path: Path) -> None:
     """Ctrl-C mid-run: exit 3, your config back in the file and loaded by the gateway (its
     config generation moved on), the message says so; running again resumes."""

@@ -514,6 +514,8 @@ class Commission(RefineSteps):
         keep = self.dir / "tables" / "best"
         keep.mkdir(parents=True, exist_ok=True)
         old = best.get(name)
+        if old is not None and old["round"] == r:  # this round again, resumed: as it was
+            return True
         if old is None or score < old["score"] - max(0.1 * old["score"], 0.2):
             best[name] = {"score": score, "round": r}
             for path in self._table_files(name):
