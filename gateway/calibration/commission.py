@@ -382,15 +382,20 @@ class Commission(RefineSteps):
             refining = [a for a in verdicts
                         if not good[a] and a not in settled and a not in more_runs]
             plane = "XY" in scores and not good["XY"] and "XY" not in settled
-            allowance_s = self._refine_allowance_s(r, len(refining) + plane)
+            # what the round may spend, shared in turn (the worst axis first, the plane
+            # last): each takes an equal share of what is left, a sweep as much as leaves
+            # half an equal share for each one after it
+            claimants = len(refining) + plane
+            keep_s = 0.5 * self._refine_allowance_s(r, claimants)
             trimmed = []
-            for a in refining:
-                coarser = self._sweeps(r, a, allowance_s)
+            for i, a in enumerate(sorted(refining, key=lambda n: -verdicts[n].E_um)):
+                pool_s = self._refine_allowance_s(r, 1)
+                coarser = self._sweeps(r, a, pool_s - (claimants - i - 1) * keep_s)
                 if coarser is not None:
                     added[a] = await self._sweep_axis(r, a, coarser)
                     entry.setdefault("swept", []).append(a)
                     continue
-                v = self._affordable(r, a, verdicts[a], allowance_s)
+                v = self._affordable(r, a, verdicts[a], pool_s / (claimants - i))
                 if len(v.failing_spans) < len(verdicts[a].failing_spans):
                     trimmed.append(f"{a} {len(v.failing_spans)} of "
                                    f"{len(verdicts[a].failing_spans)} spans")
@@ -401,8 +406,9 @@ class Commission(RefineSteps):
                 entry["budget"] = trimmed
                 self.say(f"round {r}: the budget allows the worst spans only: "
                          + ", ".join(trimmed))  # fmt: skip
-            if plane and self.estimate_s(self._grid_plan(adaptive.denser_grid(*tuple(
-                    self.state.get("grid", self.s.grid))), runs=1)) > allowance_s:
+            denser = adaptive.denser_grid(*tuple(self.state.get("grid", self.s.grid)))
+            if plane and self.estimate_s(self._grid_plan(denser, runs=1)) \
+                    > self._refine_allowance_s(r, 1):
                 settled.append("XY")  # a denser grid does not fit in what is left
                 entry.setdefault("budget", []).append("XY: no denser grid")
             elif plane:
