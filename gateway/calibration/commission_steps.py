@@ -26,6 +26,7 @@ from ..compensation.errors import TableError
 from ..config import GatewayConfig, load_config
 from ..config_types import read_yaml
 from ..formats import atomic_write_text
+from ..tables import build_chain
 from . import adaptive
 from .commission_configs import HEADER, Tables, identification, with_tables
 from .heat_fit import motion_heat_fit
@@ -183,12 +184,42 @@ class Steps:
             else:
                 drift = {a: [before[a][k] - base["refs"][a][k] for k in (0, 1)]
                          for a in self.s.axes}  # fmt: skip
-        self.state["drift_base"] = {"phase": phase, "refs": {
-            a: [after[a][k] - drift[a][k] for k in (0, 1)] for a in self.s.axes}}
+        new_base = {a: [after[a][k] - drift[a][k] for k in (0, 1)] for a in self.s.axes}
+        # where the new config changes an axis's tables only, the jump at its references is
+        # what the two configs command there: the "after" reading would also hold the heat
+        # of the "before" reading's own travel, and every switch would hide that much drift
+        commands, old = self._ref_commands(), self.state.get("ref_commands") or {}
+        if base is not None and before is not None:
+            for a, new in commands.items():
+                was = old.get(a)
+                if was is not None and was["thermal"] == new["thermal"]:
+                    new_base[a] = [base["refs"][a][k] + new["mm"][k] - was["mm"][k]
+                                   for k in (0, 1)]  # fmt: skip
+        self.state["ref_commands"] = commands
+        self.state["drift_base"] = {"phase": phase, "refs": new_base}
         self.state["drift_last"] = drift
         if base is None or before is not None:  # at every switch too (the odometer when the
             self._log_drift(drift, before_odo)  # drift was read): a warm-up is its own stretch
         self._save()
+
+    def _ref_commands(self) -> dict[str, dict[str, Any]]:
+        """Per linear axis, what the gateway's config (as loaded) commands at its two drift
+        references (mm; approached in +, the other plane axis parked, no thermal growth),
+        and its thermal setting: the stage a switch cannot be computed across."""
+        cfg = load_config(self.s.config_path)
+        chain = build_chain(cfg, self.config_dir)
+        out: dict[str, dict[str, Any]] = {}
+        for a in self.s.axes:
+            if cfg.axes[a].rotary:
+                continue
+            where = {o: [round(x / cfg.axes[o].pulse_mm)] for o, x in self._park(a).items()}
+            mm = []
+            for x in self._ref_positions(a):
+                pulses = {**where, a: [round(x / cfg.axes[a].pulse_mm)]}
+                cmd = chain.command_mm_batch(pulses, dict.fromkeys(pulses, 1))
+                mm.append(float(cmd[a][0]))
+            out[a] = {"mm": mm, "thermal": repr(cfg.axes[a].compensation.thermal)}
+        return out
 
     def _digest(self, text: str) -> str:
         """What the gateway loads: the config text and every table file it names (a
