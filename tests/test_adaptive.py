@@ -112,6 +112,29 @@ def test_drift_is_taken_off_by_position_and_progress() -> None:
     np.testing.assert_allclose(raw.deviation_mm, expected)
 
 
+def test_a_table_switch_keeps_the_drift_the_reading_after_it_would_hide() -> None:
+    """A screw warming 0.5 / 2 µm at the references per reading of them. Cold base 0 / 0;
+    just before a switch the references read 1 / 4 µm of drift; the new table commands
+    +3 / −5 µm there. The reading after the switch holds one more reading's heat: 1.5 + 3 /
+    6 − 5. Re-linked from that reading the drift after the switch would read 1 / 4 again
+    (the heat hidden); carried by the commands it reads 1.5 / 6. A switch of the thermal
+    setting (Y here) cannot be computed: read, as before."""
+    base = {"X": [0.0, 0.0], "Y": [0.0, 0.0]}
+    before = {"X": [1e-3, 4e-3], "Y": [1e-3, 4e-3]}
+    drift = {a: [before[a][k] - base[a][k] for k in (0, 1)] for a in before}
+    after = {"X": [1.5e-3 + 3e-3, 6e-3 - 5e-3], "Y": [1.5e-3 + 3e-3, 6e-3 - 5e-3]}
+    old = {"X": {"mm": [10.0, 90.0], "thermal": "None"},
+           "Y": {"mm": [10.0, 90.0], "thermal": "None"}}
+    new = {"X": {"mm": [10.003, 89.995], "thermal": "None"},
+           "Y": {"mm": [10.003, 89.995], "thermal": "ThermalComp(length_mm=500)"}}
+    got = adaptive.relinked_base(base, after, drift, old, new)
+    now = {a: [after[a][k] - got[a][k] for k in (0, 1)] for a in got}  # drift read after
+    np.testing.assert_allclose(now["X"], [1.5e-3, 6e-3], atol=1e-12)
+    np.testing.assert_allclose(now["Y"], [1e-3, 4e-3], atol=1e-12)  # the heat hidden: read
+    first = adaptive.relinked_base(None, after, {a: [0.0, 0.0] for a in after}, {}, new)
+    assert first == after  # the first config: the cold base is what it reads
+
+
 def test_a_refinement_scan_gives_the_point_its_mean_and_the_cyclic_term_a_station() -> None:
     """Truth: a wavy screw whose once-per-turn amplitude grows along the travel. The model
     on: a flat table and a constant 1 µm cyclic term. A one-lead scan at 130 mm (residual

@@ -282,6 +282,30 @@ class Drift:
         return cls((v[0], v[1]), (v[2], v[3]), (v[4], v[5]))
 
 
+def relinked_base(
+    base: dict[str, list[float]] | None, after: dict[str, list[float]],
+    drift: dict[str, list[float]], old_commands: dict[str, dict], new_commands: dict[str, dict],
+) -> dict[str, list[float]]:  # fmt: skip
+    """The drift base (mm at each axis's two references) once a new config is loaded, so
+    that drift keeps counting from the start across it.
+
+    Read: ``after`` the switch, with ``drift`` known just before it. Then the base is
+    ``after − drift``, but the reading after the switch also holds the heat of the travel
+    between the two readings, and that much drift is lost at every switch. Where the two
+    configs differ in an axis's tables only (the same ``thermal`` in ``old_commands`` and
+    ``new_commands``, each axis's commands in mm at its references), the base moves by what
+    they command differently there instead: computed, no heat in it. ``base`` None: the
+    first config, or a broken chain (read)."""
+    out = {a: [after[a][k] - drift[a][k] for k in (0, 1)] for a in after}
+    if base is None:
+        return out
+    for a, new in new_commands.items():
+        was = old_commands.get(a)
+        if a in base and was is not None and was["thermal"] == new["thermal"]:
+            out[a] = [base[a][k] + new["mm"][k] - was["mm"][k] for k in (0, 1)]
+    return out
+
+
 def drift_corrected(raw: RawData, drifts: dict[str, Drift]) -> RawData:
     """``raw`` with each reading's drift taken off (a row's progress through its run is its
     measured move's place among them all; one row per plan axis and move)."""

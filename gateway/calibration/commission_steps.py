@@ -184,17 +184,10 @@ class Steps:
             else:
                 drift = {a: [before[a][k] - base["refs"][a][k] for k in (0, 1)]
                          for a in self.s.axes}  # fmt: skip
-        new_base = {a: [after[a][k] - drift[a][k] for k in (0, 1)] for a in self.s.axes}
-        # where the new config changes an axis's tables only, the jump at its references is
-        # what the two configs command there: the "after" reading would also hold the heat
-        # of the "before" reading's own travel, and every switch would hide that much drift
-        commands, old = self._ref_commands(), self.state.get("ref_commands") or {}
-        if base is not None and before is not None:
-            for a, new in commands.items():
-                was = old.get(a)
-                if was is not None and was["thermal"] == new["thermal"]:
-                    new_base[a] = [base["refs"][a][k] + new["mm"][k] - was["mm"][k]
-                                   for k in (0, 1)]  # fmt: skip
+        commands = self._ref_commands()
+        new_base = adaptive.relinked_base(
+            None if base is None or before is None else base["refs"], after, drift,
+            self.state.get("ref_commands") or {}, commands)  # fmt: skip
         self.state["ref_commands"] = commands
         self.state["drift_base"] = {"phase": phase, "refs": new_base}
         self.state["drift_last"] = drift
