@@ -44,7 +44,9 @@ class RefineSteps(ThermalSteps):
         are kept, shared evenly."""
         verify_s = sum(self.state["steps"][name]["machine_s"] for name in self.state["steps"]
                        if name.startswith(f"verify{r}-"))  # fmt: skip
-        left = self.s.budget_s - self.used_s - self.reserve_s() - verify_s
+        # and the drift references read around the config switch that loads the new tables
+        switch_s = 2 * self.refs_cost_s([a for a in self.s.axes if not self.config.axes[a].rotary])
+        left = self.s.budget_s - self.used_s - self.reserve_s() - verify_s - switch_s
         return max(0.0, left) / max(1, sharing)
 
     def _affordable(self, r: int, axis: str, verdict: adaptive.AxisVerdict,
@@ -57,7 +59,7 @@ class RefineSteps(ThermalSteps):
         while count > 0:
             v = verdict.worst_first(count)
             plan = self._refine_plan(r, axis, v)
-            cost = 0.0 if plan is None else self.estimate_s(plan)
+            cost = 0.0 if plan is None else self.step_cost_s(plan, whole=axis in self.tables.cyclic)
             if cost + 4 * count * per_target <= allowance_s:
                 return v
             count = count * 2 // 3 if count > 3 else count - 1
@@ -166,7 +168,7 @@ class RefineSteps(ThermalSteps):
             return int(begun)
         random_s = adaptive.RANDOM_TARGETS * self._verify_target_s(r, axis)
         for coarser in range(len(SWEEP_STEPS_LEADS)):
-            if self.estimate_s(self._sweep_plan(axis, coarser)) + random_s <= allowance_s:
+            if self.step_cost_s(self._sweep_plan(axis, coarser)) + random_s <= allowance_s:
                 return coarser
         return None
 

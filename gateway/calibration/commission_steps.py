@@ -328,6 +328,14 @@ class Steps:
     def estimate_s(self, plan: Plan) -> float:
         return plan_time_s(plan, self.s.speed_mm_s, self.s.stop_s)
 
+    def step_cost_s(self, plan: Plan, drift: bool = True, whole: bool = False) -> float:
+        """Machine time (s) of running ``plan`` as a step: its moves, and the drift
+        references read before and after each of its runs (see :meth:`step`)."""
+        parts = 1 if whole else len(_parts(plan))
+        refs = [a for a in self.s.axes if not self.config.axes[a].rotary]
+        drifting = drift and "drift_base" in self.state
+        return self.estimate_s(plan) + (2 * parts * self.refs_cost_s(refs) if drifting else 0.0)
+
     def reserve_s(self) -> float:
         """Machine time kept back from every step for the steps that must end the job."""
         return 0.0
@@ -355,7 +363,7 @@ class Steps:
             write_plan(plan_path, plan)
         cost_s = self.estimate_s(plan)
         reserve_s = 0.0 if name.startswith("after") else self.reserve_s()
-        if self.used_s + cost_s + reserve_s > self.s.budget_s:
+        if self.used_s + self.step_cost_s(plan, drift, whole) + reserve_s > self.s.budget_s:
             left_s = max(0.0, self.s.budget_s - self.used_s - reserve_s)
             raise BudgetSpent(f"{name} needs {cost_s / 60:.1f} min of machine time, "
                               f"{left_s / 60:.1f} min left"
