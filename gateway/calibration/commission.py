@@ -574,7 +574,6 @@ class Commission(RefineSteps):
         self.state["grid"] = list(grid)
         return grid
 
-
     # -- 4. after ------------------------------------------------------------------------
     async def _after(self) -> None:
         if not self.tables.pitch:

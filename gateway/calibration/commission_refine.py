@@ -15,6 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from ..compensation import PitchTable
+from ..compensation.cyclic import CyclicModel
+from ..config import GatewayConfig
 from ..formats import atomic_write_text, read_cyclic, read_pitch_csv, write_cyclic
 from . import adaptive
 from .commission_thermal import ThermalSteps
@@ -100,8 +103,6 @@ class RefineSteps(ThermalSteps):
         from the residual measured there with the table on. With a cyclic term, each new
         point is a short scan over a whole lead: its mean gives the point (no cyclic term
         aliased into it) and its harmonics a new cyclic station. Returns the points added."""
-        from .outputs import check_cyclic, check_pitch, write_table
-
         path = self.config_dir / self.tables.pitch[axis]
         table = read_pitch_csv(path)
         mids = self.refine_points(axis, table, verdict)
@@ -124,17 +125,8 @@ class RefineSteps(ThermalSteps):
         else:
             dev = axis_deviations(self.raw(name), axis)
             new, new_model = adaptive.refined_table(table, stage, dev), None
-        try:
-            check_pitch(new, config, axis)
-            if new_model is not None:
-                check_cyclic(new_model, config, axis)
-        except Exception as exc:  # a refinement the gateway would refuse: keep the table
-            self.state["notes"].append(f"{axis}: refinement {r} not applied: {exc}")
+        if not self._write_tables(axis, config, new, new_model, f"refined in round {r}"):
             return 0
-        write_table(path, "csv", new, f"compgw commission: refined in round {r}")
-        if new_model is not None and cyclic_path is not None:
-            write_cyclic(cyclic_path, new_model, {"fitted": "compgw commission: refined in "
-                                                  f"round {r}"})  # fmt: skip
         added = int(new.position_mm.size - table.position_mm.size)
         x = new.position_mm
         self.state.setdefault("spans", {})[axis] = [
@@ -143,6 +135,25 @@ class RefineSteps(ThermalSteps):
                                                                               atol=1e-3))]
         return added
 
+    def _write_tables(self, axis: str, config: GatewayConfig, table: PitchTable,
+                      cyclic: CyclicModel | None, what: str) -> bool:  # fmt: skip
+        """Write an axis's refined table (and cyclic term) over its files, once the gateway
+        would take them; False (a note, the files kept) when it would refuse them."""
+        from .outputs import check_cyclic, check_pitch, write_table
+
+        try:
+            check_pitch(table, config, axis)
+            if cyclic is not None:
+                check_cyclic(cyclic, config, axis)
+        except Exception as exc:  # a refinement the gateway would refuse: keep the table
+            self.state["notes"].append(f"{axis}: {what}: not applied: {exc}")
+            return False
+        write_table(self.config_dir / self.tables.pitch[axis], "csv", table,
+                    f"compgw commission: {what}")  # fmt: skip
+        if cyclic is not None and axis in self.tables.cyclic:
+            write_cyclic(self.config_dir / self.tables.cyclic[axis], cyclic,
+                         {"fitted": f"compgw commission: {what}"})  # fmt: skip
+        return True
 
     # -- the sweep -------------------------------------------------------------------------
     def _lead_of(self, axis: str) -> float | None:
@@ -175,8 +186,6 @@ class RefineSteps(ThermalSteps):
     async def _sweep_axis(self, r: int, axis: str, coarser: int) -> int:
         """Sweep ``axis`` with its table and cyclic term on and fold the fit into both;
         returns the table points added."""
-        from .outputs import check_cyclic, check_pitch, write_table
-
         path = self.config_dir / self.tables.pitch[axis]
         cyclic_path = self.config_dir / self.tables.cyclic[axis] if axis in self.tables.cyclic \
             else None  # fmt: skip
@@ -209,17 +218,8 @@ class RefineSteps(ThermalSteps):
             "lambdas": list(fit.lambdas)}  # fmt: skip
         self.state.setdefault("identify", {})[f"sweep-{axis}"] = record
         config, _ = self.staged(self._tables_phase)
-        try:
-            check_pitch(ref.table, config, axis)
-            if ref.cyclic is not None:
-                check_cyclic(ref.cyclic, config, axis)
-        except Exception as exc:  # a refinement the gateway would refuse: keep the table
-            self.state["notes"].append(f"{axis}: sweep {r} not applied: {exc}")
+        if not self._write_tables(axis, config, ref.table, ref.cyclic, f"swept in round {r}"):
             return 0
-        write_table(path, "csv", ref.table, f"compgw commission: swept in round {r}")
-        if ref.cyclic is not None and cyclic_path is not None:
-            write_cyclic(cyclic_path, ref.cyclic, {"fitted": "compgw commission: swept in "
-                                                   f"round {r}"})  # fmt: skip
         self.state.setdefault("spans", {})[axis] = []  # judged at random targets next
         self.say(f"round {r}: {axis}: swept ({record['readings']} readings): a level "
                  f"{fit.level_ptp_um:.2f} µm peak to peak every "
