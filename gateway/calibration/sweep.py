@@ -4,7 +4,7 @@ A rough screw's error has structure no coarse table and three cyclic stations ca
 waviness of a few centimetres and a once-per-turn term (with harmonics) whose amplitude
 and phase change along the travel. Refining span by span follows it only where the
 verification happened to land, a short scan per point. One sweep measures it everywhere
-instead: one reading every ``SWEEP_STEP_LEADS`` of a lead (the phases walk, so harmonics
+instead: one reading every 0.12 lead (``SWEEP_STEPS_LEADS``; the phases walk, so harmonics
 1-4 are resolved), up the whole travel and down again, with the table and cyclic term on.
 Its residual is fitted as
 
@@ -29,13 +29,12 @@ from numpy.typing import NDArray
 
 from ..compensation import PitchStage, PitchTable
 from ..compensation.cyclic import CyclicModel
+from .adaptive import MIN_SPACING_MM
 
 #: a reading every this many leads: 8.33 per lead, the phase moving 0.12 turn per step;
 #: coarser steps where the budget is short (harmonics up to ``harmonics_for_step``)
-SWEEP_STEP_LEADS = 0.12
 SWEEP_STEPS_LEADS = (0.12, 0.16, 0.24)
 #: the step (mm) of an axis without a known lead, and what the budget may make of it
-SWEEP_STEP_MM = 1.0
 SWEEP_STEPS_MM = (1.0, 1.5, 2.5)
 #: the level's knots: every lead, at most this far apart (mm)
 LEVEL_KNOT_MM = 5.0
@@ -89,16 +88,6 @@ def _hats(x: NDArray[np.float64], knots: NDArray[np.float64]) -> NDArray[np.floa
     out[rows, i] = 1.0 - w
     out[rows, i + 1] += w
     return out
-
-
-def _second_diff(n: int) -> NDArray[np.float64]:
-    """The (n−2) × n second-difference matrix (no penalty on a line)."""
-    if n < 3:
-        return np.zeros((0, n))
-    d = np.zeros((n - 2, n))
-    idx = np.arange(n - 2)
-    d[idx, idx], d[idx, idx + 1], d[idx, idx + 2] = 1.0, -2.0, 1.0
-    return d
 
 
 @dataclass(frozen=True)
@@ -155,7 +144,7 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
     groups_all = [np.zeros_like(xtx_all) for _ in range(3)]
     start = 0
     for part, n in enumerate(sizes):
-        d = _second_diff(n)
+        d = np.diff(np.eye(n), 2, axis=0)  # second differences: no penalty on a line
         block = slice(start, start + n)
         weight = float(np.trace(xtx_all[block, block])) / n
         groups_all[min(part, 2)][block, block] = weight * (d.T @ d)
@@ -207,8 +196,10 @@ class SweepRefinement:
     fit: SweepFit
 
 
-def sweep_refinement(table: PitchTable, stage: PitchStage, cyclic: CyclicModel | None,
-                     fit: SweepFit, min_spacing_mm: float = 0.5) -> SweepRefinement:  # fmt: skip
+def sweep_refinement(
+    table: PitchTable, stage: PitchStage, cyclic: CyclicModel | None, fit: SweepFit,
+    min_spacing_mm: float = MIN_SPACING_MM,
+) -> SweepRefinement:  # fmt: skip
     """``table`` (and ``cyclic``) with the sweep's fit added: the table gets the level's
     knots (those at least ``min_spacing_mm`` from its own points) and every point the
     level there; the cyclic model is resampled at the sweep's stations with the fitted
