@@ -14,6 +14,7 @@ from scipy.interpolate import CloughTocher2DInterpolator
 from ..compensation import GridModel, PlanarMeasurement, PolyModel
 from ..compensation.errors import TableError
 from ..compensation.planar import PlanarModel
+from .grid_smooth import MIN_LINES, smooth_grid
 from .rawdata import RawData
 
 UM_PER_MM = 1000.0
@@ -68,6 +69,8 @@ class PlanarChoice:
 
 def choose_planar_model(meas: PlanarMeasurement, kind: str = "auto") -> PlanarChoice:
     """Grid (bicubic) or polynomial (degree by LOO), whichever predicts left-out points best.
+    A full grid is smoothed first, as much as its own leave-one-out says (the points then
+    hold the smoothed values: what the model file is made of).
 
     ``kind`` ``grid`` or ``poly`` forces the family. Scores are the RMS of the vector error
     of leave-one-out predictions; residuals are those of the chosen model at the points.
@@ -82,10 +85,15 @@ def choose_planar_model(meas: PlanarMeasurement, kind: str = "auto") -> PlanarCh
         for d, s in sorted(poly.loo_rms_mm.items()):
             scores[f"poly{d}"] = s * UM_PER_MM
         models["poly"] = poly
+    grid_points = pts
     if kind in ("auto", "grid"):
         try:
-            grid = GridModel.from_measurement(pts)
-            scores["grid"] = float(np.sqrt(np.mean(_grid_loo_mm(pts) ** 2))) * UM_PER_MM
+            smoothed = _smoothed_grid(pts)
+            if smoothed is not None:
+                grid, grid_points, loo_mm = smoothed
+            else:
+                grid, loo_mm = GridModel.from_measurement(pts), _grid_loo_mm(pts)
+            scores["grid"] = float(np.sqrt(np.mean(loo_mm**2))) * UM_PER_MM
             models["grid"] = grid
         except (TableError, ValueError) as exc:
             if kind == "grid":
@@ -98,7 +106,33 @@ def choose_planar_model(meas: PlanarMeasurement, kind: str = "auto") -> PlanarCh
     resid = np.hypot(*(model.error_mm(pts.command_mm) - pts.error_mm).T) * UM_PER_MM
     degree = getattr(model, "degree", None)
     return PlanarChoice(model, best, degree, scores, float(np.sqrt(np.mean(resid**2))),
-                        float(resid.max()), pts)  # fmt: skip
+                        float(resid.max()), grid_points if best == "grid" else pts)  # fmt: skip
+
+
+def _smoothed_grid(
+    pts: PlanarMeasurement,
+) -> tuple[GridModel, PlanarMeasurement, NDArray[np.float64]] | None:
+    """A full rectilinear grid (at least MIN_LINES each way) smoothed per component
+    (:mod:`.grid_smooth`): the cubic grid through the smoothed values, those values as
+    points (what the model file holds) and each node's leave-one-out vector error (mm).
+    None for scattered points or a coarser grid."""
+    cmd, err = pts.command_mm, pts.error_mm
+    xs, ys = np.unique(cmd[:, 0]), np.unique(cmd[:, 1])
+    if xs.size < MIN_LINES or ys.size < MIN_LINES or cmd.shape[0] != xs.size * ys.size:
+        return None
+    ix, iy = np.searchsorted(xs, cmd[:, 0]), np.searchsorted(ys, cmd[:, 1])
+    grid = np.full((2, ys.size, xs.size), np.nan)
+    for k in range(2):
+        grid[k, iy, ix] = err[:, k]
+    if not np.all(np.isfinite(grid)):
+        return None
+    fits = [smooth_grid(grid[k]) for k in range(2)]
+    model = GridModel(xs, ys, fits[0].values, fits[1].values, "cubic", pts.source)
+    gx, gy = np.meshgrid(xs, ys)
+    nodes = np.column_stack([gx.ravel(), gy.ravel()])
+    values = np.column_stack([f.values.ravel() for f in fits])
+    loo = np.hypot(fits[0].loo, fits[1].loo)[iy, ix]
+    return model, PlanarMeasurement(nodes, nodes + values, pts.source), loo
 
 
 def _subdivided(lines: NDArray[np.float64], parts: int) -> NDArray[np.float64]:

@@ -1,0 +1,82 @@
+"""The XY grid smoothed by its own leave-one-out: the field kept, the stops' scatter not
+followed (what one axis sees along a grid line with the other parked)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gateway.calibration.grid_smooth import smooth_grid
+from gateway.calibration.models import choose_planar_model
+from gateway.compensation import GridModel, PlanarMeasurement
+
+
+def _field_mm(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """A guide-like field over 500 × 400 mm: waves of 250 and 160 mm, a sag, a twist (µm
+    sizes), as (ex, ey) in mm."""
+    tx, ty = x / 500.0, y / 400.0
+    ex = (3.0 * np.sin(2 * np.pi * x / 250.0 + 0.4) * (0.5 + ty)
+          + 4.0 * np.sin(np.pi * tx) * np.sin(np.pi * ty) + 2.0 * tx * ty)
+    ey = 2.5 * np.sin(2 * np.pi * y / 160.0 + 1.1) * (1.0 - 0.5 * tx) + 3.0 * np.sin(np.pi * tx)
+    return np.stack([ex, ey], axis=-1) * 1e-3
+
+
+def _grid(nx: int, ny: int, sigma_um: float, seed: int) -> PlanarMeasurement:
+    xs, ys = np.linspace(2, 498, nx), np.linspace(2, 398, ny)
+    pts = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+    rng = np.random.default_rng(seed)
+    err = _field_mm(pts[:, 0], pts[:, 1]) + rng.normal(0, sigma_um * 1e-3, pts.shape)
+    return PlanarMeasurement(pts, pts + err, "test grid")
+
+
+def _along_x_ptp_um(model, y_mm: float) -> float:
+    """Peak to peak of the X error left along a line at ``y_mm`` (µm): what an X run with Y
+    parked there reads beyond a constant."""
+    x = np.linspace(5, 495, 400)
+    p = np.stack([x, np.full_like(x, y_mm)], axis=-1)
+    left = _field_mm(x, p[:, 1])[:, 0] - model.error_mm(p)[:, 0]
+    return float(np.ptp(left) * 1e3)
+
+
+def test_a_noisy_grid_is_smoothed_and_the_field_kept() -> None:
+    """25 × 17 stops with 0.6 µm of scatter each: the cubic grid through them leaves over
+    1.8 µm peak to peak along lines of X; the smoothed one under 1.2 µm, at every park."""
+    meas = _grid(25, 17, 0.6, seed=5)
+    choice = choose_planar_model(meas, "grid")
+    raw = GridModel.from_measurement(meas)
+    parks = (60.0, 150.0, 230.0, 330.0)
+    through = [_along_x_ptp_um(raw, y) for y in parks]
+    smoothed = [_along_x_ptp_um(choice.model, y) for y in parks]
+    assert min(through) > 1.8
+    assert max(smoothed) < 1.2
+    # the model file is made of the points: they are the smoothed values, not the stops
+    again = GridModel.from_measurement(choice.points)
+    probe = np.array([[123.0, 77.0], [401.0, 311.0]])
+    np.testing.assert_allclose(again.error_mm(probe), choice.model.error_mm(probe), atol=1e-9)
+
+
+def test_a_clean_grid_is_not_smoothed_away() -> None:
+    """No scatter: the smoothing chosen leaves the field to within 0.15 µm anywhere."""
+    choice = choose_planar_model(_grid(25, 17, 0.0, seed=1), "grid")
+    rng = np.random.default_rng(2)
+    p = np.column_stack([rng.uniform(5, 495, 300), rng.uniform(5, 395, 300)])
+    worst_um = np.abs(choice.model.error_mm(p) - _field_mm(p[:, 0], p[:, 1])).max() * 1e3
+    assert worst_um < 0.15
+
+
+def test_scatter_alone_is_mostly_taken_out() -> None:
+    """A flat field read with 1 µm of scatter: what is kept is a fraction of it, and the
+    leave-one-out residuals say how large the scatter is."""
+    rng = np.random.default_rng(9)
+    z = rng.normal(0.0, 1.0, (17, 25))
+    got = smooth_grid(z)
+    assert np.std(got.values) < 0.3
+    assert np.sqrt(np.mean(got.loo**2)) == pytest.approx(1.0, abs=0.15)
+    assert got.lambda_x > 1.0 and got.lambda_y > 1.0
+
+
+def test_a_grid_too_coarse_to_smooth_along_is_kept_as_measured() -> None:
+    """Three lines each way: no second difference to judge by; the grid passes through."""
+    z = np.arange(9.0).reshape(3, 3) ** 2
+    got = smooth_grid(z)
+    np.testing.assert_array_equal(got.values, z)
