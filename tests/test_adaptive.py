@@ -175,3 +175,15 @@ def test_a_refinement_scan_gives_the_point_its_mean_and_the_cyclic_term_a_statio
     assert got.cyclic.sin_mm[j, 0] * 1e3 == pytest.approx(amp_um(np.array([centre]))[0],
                                                           abs=0.1)  # fmt: skip
     assert got.cyclic.station_mm.tolist() == [0.0, centre, 200.0]  # the old ones kept
+
+
+def test_an_axis_refinement_must_pay_a_denser_plane_grid_must_not_lose() -> None:
+    """An axis's refinement replaces the best table only when clearly better (10 %, at
+    least 0.2 µm); the plane's denser, smoothed grid stays unless clearly worse: the same
+    0.17 µm better (rough-0's plane, 1.03 → 0.86 µm, put back before) or 0.1 µm worse."""
+    assert not adaptive.keeps_refinement(0.86, 1.03)
+    assert adaptive.keeps_refinement(0.80, 1.03)
+    assert adaptive.keeps_refinement(0.86, 1.03, plane=True)
+    assert adaptive.keeps_refinement(1.13, 1.03, plane=True)
+    assert not adaptive.keeps_refinement(1.30, 1.03, plane=True)
+    assert not adaptive.keeps_refinement(6.9, 6.19, plane=True)  # worse by over 10 %

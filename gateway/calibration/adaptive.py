@@ -156,6 +156,18 @@ def judge_axis(dev: AxisDeviations, table_mm: NDArray[np.float64], tolerance_um:
                        tuple(spans), tolerance_um, tuple(worst[s] for s in spans))  # fmt: skip
 
 
+def keeps_refinement(score_um: float, best_um: float, plane: bool = False) -> bool:
+    """Whether a refinement that verifies at ``score_um`` replaces the best so far
+    (``best_um``). An axis's must be better by 10 %, at least 0.2 µm: less is the
+    verification's own scatter, and the older table stays. The plane's refinement is a
+    denser grid of readings smoothed by their own scatter (:mod:`.grid_smooth`), more
+    readings of the same field: it stays unless it is worse by that margin (its score,
+    the largest error at a few random points read once, moves that much between
+    readings)."""
+    margin = max(0.1 * best_um, 0.2)
+    return score_um <= best_um + margin if plane else score_um < best_um - margin
+
+
 def refined_table(table: PitchTable, stage: PitchStage, dev: AxisDeviations) -> PitchTable:
     """``table`` with a new point at each target of ``dev`` (measured with ``stage`` on):
     the table's value there plus the mean residual, per direction. Targets closer than

@@ -513,16 +513,16 @@ class Commission(RefineSteps):
         return changed
 
     def _keep_best(self, name: str, score: float, r: int) -> bool:
-        """Record round ``r``'s verification score (µm) of an axis or the plane. A better
-        score than the best so far (by 10 %, at least 0.2 µm) makes the current table the
-        best (copied aside); else the best is put back. False when it was put back."""
+        """Record round ``r``'s verification score (µm) of an axis or the plane. A score
+        that :func:`.adaptive.keeps_refinement` keeps makes the current table the best
+        (copied aside); else the best is put back. False when it was put back."""
         best = self.state["best"]
         keep = self.dir / "tables" / "best"
         keep.mkdir(parents=True, exist_ok=True)
         old = best.get(name)
         if old is not None and old["round"] == r:  # this round again, resumed: as it was
             return True
-        if old is None or score < old["score"] - max(0.1 * old["score"], 0.2):
+        if old is None or adaptive.keeps_refinement(score, old["score"], plane=name == "XY"):
             best[name] = {"score": score, "round": r}
             for path in self._table_files(name):
                 if path.exists():
