@@ -13,7 +13,7 @@ from scipy.interpolate import CloughTocher2DInterpolator
 
 from ..compensation import GridModel, PlanarMeasurement, PolyModel
 from ..compensation.errors import TableError
-from ..compensation.planar import PlanarModel
+from ..compensation.planar import PARSIMONY, PlanarModel
 from .grid_smooth import MIN_LINES, smooth_grid
 from .rawdata import RawData
 
@@ -99,7 +99,8 @@ def choose_planar_model(meas: PlanarMeasurement, kind: str = "auto") -> PlanarCh
             if kind == "grid":
                 raise TableError(f"{meas.source}: grid model: {exc}") from None
     poly_score = scores.get(f"poly{models['poly'].degree}", np.inf) if "poly" in models else np.inf
-    best = "grid" if scores.get("grid", np.inf) <= poly_score else "poly"
+    # the polynomial (fewer terms) unless the grid predicts clearly better
+    best = "grid" if scores.get("grid", np.inf) * (1.0 + PARSIMONY) < poly_score else "poly"
     if best not in models:
         best = next(iter(models))
     model = models[best]

@@ -34,6 +34,8 @@ FIELD_TOLERANCE_MM = 1e-6
 #: unique perturbation and the command iteration may not converge.
 MAX_FIELD_SLOPE = 0.1
 MAX_POLY_DEGREE = 6
+#: a simpler model whose leave-one-out RMS is within this share of the best is preferred
+PARSIMONY = 0.05
 _MAX_FIELD_NODES = 1 << 21
 
 
@@ -203,7 +205,9 @@ class PolyModel(PlanarModel):
     def fit(
         cls, meas: PlanarMeasurement, degree: int | None = None, max_degree: int = MAX_POLY_DEGREE
     ) -> PolyModel:
-        """Least-squares fit; ``degree=None`` picks the degree with the lowest LOO RMS."""
+        """Least-squares fit; ``degree=None`` picks the lowest degree whose LOO RMS is
+        within :data:`PARSIMONY` of the lowest (a higher degree that predicts no better
+        than that only follows the points' scatter)."""
         lower, upper = meas.bounds_mm
         if np.any(upper - lower <= 0):
             raise TableError(f"{meas.source}: planar points must span an area, not a line")
@@ -238,7 +242,8 @@ class PolyModel(PlanarModel):
             fits[d] = coef
         if not fits:
             raise TableError(f"{meas.source}: too few points for a polynomial model ({n})")
-        best = min(fits, key=lambda d: (scores[d], d))
+        least = min(scores[d] for d in fits)
+        best = min(d for d in fits if scores[d] <= least * (1.0 + PARSIMONY))
         return cls(best, lower, upper, fits[best], scores)
 
 
