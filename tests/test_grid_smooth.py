@@ -82,11 +82,10 @@ def test_a_grid_too_coarse_to_smooth_along_is_kept_as_measured() -> None:
     np.testing.assert_array_equal(got.values, z)
 
 
-def test_a_polynomial_field_gets_its_degree_not_the_scatter_s() -> None:
+def test_a_polynomial_field_gets_its_own_degree_not_one_for_the_scatter() -> None:
     """A degree-2 field (squareness, bows, a twist: a smooth machine's) read at 13 × 9
-    stops with 0.3 µm of scatter: the degree chosen is 2 for every seed, and the poly family
-    over the grid (higher degrees and the grid predict left-out stops no better than
-    within the scatter)."""
+    stops with 0.3 µm of scatter: degree 2 and the polynomial, for every seed (higher
+    degrees and the grid predict left-out stops no better, within the scatter)."""
     xs, ys = np.linspace(2, 498, 13), np.linspace(2, 398, 9)
     pts = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
     tx, ty = pts[:, 0] / 500.0, pts[:, 1] / 400.0

@@ -117,22 +117,16 @@ def _smoothed_grid(
     (:mod:`.grid_smooth`): the cubic grid through the smoothed values, those values as
     points (what the model file holds) and each node's leave-one-out vector error (mm).
     None for scattered points or a coarser grid."""
-    cmd, err = pts.command_mm, pts.error_mm
-    xs, ys = np.unique(cmd[:, 0]), np.unique(cmd[:, 1])
-    if xs.size < MIN_LINES or ys.size < MIN_LINES or cmd.shape[0] != xs.size * ys.size:
+    xs, ys = (np.unique(pts.command_mm[:, k]) for k in range(2))
+    if xs.size < MIN_LINES or ys.size < MIN_LINES or len(pts.command_mm) != xs.size * ys.size:
         return None
-    ix, iy = np.searchsorted(xs, cmd[:, 0]), np.searchsorted(ys, cmd[:, 1])
-    grid = np.full((2, ys.size, xs.size), np.nan)
-    for k in range(2):
-        grid[k, iy, ix] = err[:, k]
-    if not np.all(np.isfinite(grid)):
-        return None
-    fits = [smooth_grid(grid[k]) for k in range(2)]
+    read = GridModel.from_measurement(pts)  # a full grid: its nodes as read
+    fits = [smooth_grid(values) for values in (read.ex_mm, read.ey_mm)]
     model = GridModel(xs, ys, fits[0].values, fits[1].values, "cubic", pts.source)
     gx, gy = np.meshgrid(xs, ys)
     nodes = np.column_stack([gx.ravel(), gy.ravel()])
     values = np.column_stack([f.values.ravel() for f in fits])
-    loo = np.hypot(fits[0].loo, fits[1].loo)[iy, ix]
+    loo = np.hypot(fits[0].loo, fits[1].loo).ravel()
     return model, PlanarMeasurement(nodes, nodes + values, pts.source), loo
 
 
