@@ -48,7 +48,7 @@ class RefineSteps(ThermalSteps):
         verify_s = sum(self.state["steps"][name]["machine_s"] for name in self.state["steps"]
                        if name.startswith(f"verify{r}-"))  # fmt: skip
         # and the drift references read around the config switch that loads the new tables
-        switch_s = 2 * self.refs_cost_s([a for a in self.s.axes if not self.config.axes[a].rotary])
+        switch_s = 2 * self.refs_cost_s(self.ref_axes())
         left = self.s.budget_s - self.used_s - self.reserve_s() - verify_s - switch_s
         return max(0.0, left) / max(1, sharing)
 

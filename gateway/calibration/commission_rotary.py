@@ -253,7 +253,7 @@ class RotarySteps(Steps):
                             ) -> dict[str, list[float]]:  # fmt: skip
         """The laser's drift references of the linear axes; a rotary axis's are zero (the
         laser sees no angle: its readings are taken as they are)."""
-        linear = [a for a in self.s.axes if not self._rotary(a)]
+        linear = self.ref_axes()
         out = await super()._measure_refs(repeats, linear) if linear else {}
         out.update({a: [0.0, 0.0] for a in self.s.axes if a not in out})
         self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out,

@@ -202,9 +202,7 @@ class Steps:
         cfg = load_config(self.s.config_path)
         chain = build_chain(cfg, self.config_dir)
         out: dict[str, dict[str, Any]] = {}
-        for a in self.s.axes:
-            if cfg.axes[a].rotary:
-                continue
+        for a in self.ref_axes():
             where = {o: [round(x / cfg.axes[o].pulse_mm)] for o, x in self._park(a).items()}
             mm = []
             for x in self._ref_positions(a):
@@ -328,13 +326,17 @@ class Steps:
     def estimate_s(self, plan: Plan) -> float:
         return plan_time_s(plan, self.s.speed_mm_s, self.s.stop_s)
 
+    def ref_axes(self) -> list[str]:
+        """The axes the drift references read: the linear ones (the laser sees no angle)."""
+        return [a for a in self.s.axes if not self.config.axes[a].rotary]
+
     def step_cost_s(self, plan: Plan, drift: bool = True, whole: bool = False) -> float:
         """Machine time (s) of running ``plan`` as a step: its moves, and the drift
         references read before and after each of its runs (see :meth:`step`)."""
         parts = 1 if whole else len(_parts(plan))
-        refs = [a for a in self.s.axes if not self.config.axes[a].rotary]
         drifting = drift and "drift_base" in self.state
-        return self.estimate_s(plan) + (2 * parts * self.refs_cost_s(refs) if drifting else 0.0)
+        return self.estimate_s(plan) + (
+            2 * parts * self.refs_cost_s(self.ref_axes()) if drifting else 0.0)
 
     def reserve_s(self) -> float:
         """Machine time kept back from every step for the steps that must end the job."""
