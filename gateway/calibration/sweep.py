@@ -14,7 +14,10 @@ with L (the level) and D (the lost motion's change) piecewise linear between kno
 ``knot_mm`` (the table's own interpolation, so the gateway reproduces it exactly) and the
 amplitudes piecewise linear between stations (the cyclic stage's own interpolation). Each
 part is held smooth by a second-difference penalty whose weight is chosen by generalised
-cross-validation, so a sweep of noise adds nothing and a wavy screw is followed. Positions
+cross-validation, so a sweep of noise adds nothing and a wavy screw is followed. The fit is
+robust: a stick-slip axis stops short now and then (a one-sided tail of up to a few µm),
+and those readings are weighted down (Tukey's biweight) instead of bending the table; how
+often the axis stops short, on average, is put back as a constant per direction. Positions
 and deviations are mm unless the name says µm.
 """
 
@@ -45,6 +48,19 @@ STATIONS = 17
 SWEEP_HARMONICS = 4
 #: the penalty weights tried, relative to the data's own weight per knot
 _LAMBDAS = tuple(10.0 ** e for e in np.arange(-3.0, 7.01, 1.0))
+#: reweighting passes of the robust fit, and Tukey's biweight constant (in robust sigmas)
+ROBUST_ITERATIONS = 6
+BIWEIGHT_C = 4.685
+
+
+def _biweight(e: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Tukey's biweight of residuals ``e`` (any unit), their scale from the median absolute
+    deviation: 1 at zero, falling to 0 at ``BIWEIGHT_C`` robust sigmas."""
+    scale = 1.4826 * float(np.median(np.abs(e)))
+    if scale <= 0:
+        return np.ones_like(e)
+    u = e / (BIWEIGHT_C * scale)
+    return np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
 
 
 def sweep_step_mm(lead_mm: float | None, coarser: int = 0) -> float:
@@ -105,7 +121,7 @@ class SweepFit:
     origin_mm: float
     #: penalty weights chosen (level, lost motion, amplitudes), relative
     lambdas: tuple[float, float, float]
-    #: RMS of the readings about the fit, and of the fit's level (µm)
+    #: RMS of the readings about the fit (robust weights applied), the fit's level range (µm)
     residual_rms_um: float
     level_ptp_um: float
 
@@ -115,7 +131,7 @@ class SweepFit:
 
 def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
               direction: NDArray[np.int64], lead_mm: float | None, origin_mm: float = 0.0,
-              harmonics: int = SWEEP_HARMONICS) -> SweepFit:  # fmt: skip
+              harmonics: int = SWEEP_HARMONICS, robust: bool = True) -> SweepFit:  # fmt: skip
     """Fit a sweep's residual (see the module's docstring). The number of harmonics (up to
     ``harmonics``) and the three penalty weights are those of the smallest generalised
     cross-validation score: a harmonic the readings do not show is not added."""
@@ -150,37 +166,75 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
         groups_all[min(part, 2)][block, block] = weight * (d.T @ d)
         start += n
 
-    def solve(kk: int, lams: Sequence[float]) -> tuple[float, NDArray[np.float64], float]:
+    def normal(w: NDArray[np.float64] | None) -> tuple[NDArray[np.float64], ...]:
+        """The weighted normal equations' matrix and right side, all columns."""
+        dw = design if w is None else design * w[:, None]
+        return (xtx_all if w is None else dw.T @ design), dw.T @ y
+
+    Fit = tuple[float, NDArray[np.float64], float]  # (GCV score, coefficients, RSS)
+
+    def solve(kk: int, lams: Sequence[float], w: NDArray[np.float64] | None,
+              eqs: tuple[NDArray[np.float64], ...]) -> Fit:  # fmt: skip
         cols = slice(0, 2 * kn.size + 2 * kk * st.size)
-        xtx = xtx_all[cols, cols]
+        xtx = eqs[0][cols, cols]
         a = xtx + sum(lam * g_[cols, cols] for lam, g_ in zip(lams, groups_all))
         a = a + 1e-9 * float(np.trace(xtx)) / xtx.shape[0] * np.eye(xtx.shape[0])
-        beta = np.linalg.solve(a, design[:, cols].T @ y)
+        beta = np.linalg.solve(a, eqs[1][cols])
         edf = float(np.trace(np.linalg.solve(a, xtx)))
-        rss = float(np.sum((y - design[:, cols] @ beta) ** 2))
+        e = y - design[:, cols] @ beta
+        rss = float(np.sum(e * e if w is None else w * e * e))
         return y.size * rss / max(y.size - edf, 1.0) ** 2, beta, rss
 
-    # the harmonics (0..k) and the three weights: the smallest GCV, each weight searched
-    # over the grid in turn (twice round without harmonics, then once from the weights of
-    # one harmonic fewer)
-    lams, chosen = [1.0, 1.0, 1.0], 0
-    best = solve(0, lams)
-    for kk in range(k + 1):
-        here_lams = list(lams)
-        here = solve(kk, here_lams)
-        for _ in range(1 if kk else 2):
-            for gi in (2, 0, 1) if kk else (0, 1):
-                for lam in _LAMBDAS:
-                    trial = list(here_lams)
-                    trial[gi] = lam
-                    got = solve(kk, trial)
-                    if got[0] < here[0]:
-                        here, here_lams = got, trial
-        if here[0] < best[0] or kk == 0:
-            best, lams, chosen = here, here_lams, kk
+    def search(w: NDArray[np.float64] | None, lams: list[float], ks: Sequence[int]
+               ) -> tuple[Fit, list[float], int]:  # fmt: skip
+        """Of the harmonics ``ks``, and the three weights, those of the smallest GCV, each
+        weight searched over the grid in turn (twice round without harmonics, then once
+        from the weights of one harmonic fewer)."""
+        eqs = normal(w)
+        best, chosen = solve(ks[0], lams, w, eqs), ks[0]
+        for kk in ks:
+            here_lams = list(lams)
+            here = solve(kk, here_lams, w, eqs)
+            for _ in range(1 if kk else 2):
+                for gi in (2, 0, 1) if kk else (0, 1):
+                    for lam in _LAMBDAS:
+                        trial = list(here_lams)
+                        trial[gi] = lam
+                        got = solve(kk, trial, w, eqs)
+                        if got[0] < here[0]:
+                            here, here_lams = got, trial
+            if here[0] < best[0] or kk == ks[0]:
+                best, lams, chosen = here, here_lams, kk
+        return best, lams, chosen
+
+    best, lams, chosen = search(None, [1.0, 1.0, 1.0], range(k + 1))
+    w = None
+    if robust:
+        # stick-slip stops short, now and then, by up to a few µm: a heavy one-sided tail
+        # that least squares follows. Tukey's biweight on the residual (scale from its
+        # median absolute deviation) takes those stops out. The weights are found with the
+        # least-squares smoothing, then the smoothing is chosen again with them (the
+        # harmonics stay those least squares chose)
+        beta = best[1]
+        cols = beta.size
+        for _ in range(ROBUST_ITERATIONS):
+            e = y - design[:, :cols] @ beta
+            for way in (s < 0, s > 0):  # centred per direction: the tail is one-sided
+                e[way] -= np.median(e[way])
+            w = _biweight(e)
+            eqs = normal(w)
+            beta = solve(chosen, lams, w, eqs)[1]
+        best, lams, chosen = search(w, lams, [chosen])
     k = chosen
     beta = best[1]
-    level, lost = beta[: kn.size], beta[kn.size : 2 * kn.size]
+    level, lost = beta[: kn.size].copy(), beta[kn.size : 2 * kn.size].copy()
+    if w is not None:
+        # what was left out is the machine too (a stop that sticks is a stop it makes):
+        # each direction's mean residual goes back into its level, a constant per direction
+        e = y - design[:, : 2 * kn.size + 2 * k * st.size] @ beta
+        up, down = float(np.mean(e[s < 0])), float(np.mean(e[s > 0]))
+        level += 0.5 * (up + down)
+        lost += down - up
     amps = beta[2 * kn.size :].reshape(2 * k, st.size) if k else np.zeros((0, st.size))
     sin = amps[0::2].T * 1e-3 if k else np.zeros((st.size, 0))
     cos = amps[1::2].T * 1e-3 if k else np.zeros((st.size, 0))
