@@ -239,6 +239,9 @@ class Commission(RefineSteps):
             return  # fitted before an interruption
         results = self.state.setdefault("identify", {})
         await self.use("warmup")
+        # the travel so far (the drift log's odometers): heat still fading in the warm-up
+        self.state.setdefault("warmup_log", {}).setdefault(
+            a, len(self.state.get("drift_log", [])))
         raw = await self.step(f"warmup-{a}", lambda: self._warmup_plan(a), "off", drift=False)
         try:
             results[f"thermal-{a}"] = self._fit_thermal(a, read_raw_csv(raw))

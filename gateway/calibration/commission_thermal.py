@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from ..compensation.errors import TableError
 from .commission_rotary import RotarySteps
 from .models import thermal_fit, thermal_gain_fit
@@ -105,7 +107,8 @@ class ThermalSteps(RotarySteps):
         explains the zone warm-up clearly better: kept here (``config``) and put in place
         with the other motion models before the after-run (:meth:`motion_for_sensors`)."""
         try:
-            hf = warmup_heat_fit(raw, plan, axis, th, alpha_per_k, self._travel(axis))
+            hf = warmup_heat_fit(raw, plan, axis, th, alpha_per_k, self._travel(axis),
+                                 *self._travel_before_warmup(axis))  # fmt: skip
         except TableError as exc:
             return {"fitted": False, "why": str(exc)}
         out = hf.summary()
@@ -117,6 +120,20 @@ class ThermalSteps(RotarySteps):
                      f"{hf.tau_s:.0f} s{', where it travelled' if hf.spread_mm else ''}) "
                      "will replace the sensor in the final config")  # fmt: skip
         return out
+
+    def _travel_before_warmup(self, axis: str) -> tuple[np.ndarray, np.ndarray]:
+        """The axis's travel (m) and the machine time (s) between drift readings from the
+        start of commissioning to its warm-up: each axis's travel at the commissioning
+        speed, or the wall clock where that is longer (a pause cools too), as the gateway's
+        heat from motion counts time."""
+        log = self.state.get("drift_log", [])[: self.state.get("warmup_log", {}).get(axis, 0)]
+        if len(log) < 2:
+            return np.zeros(0), np.zeros(0)
+        odo = {b: np.array([e["odometer_mm"].get(b, 0.0) for e in log]) for b in self.s.axes}
+        moving_s = sum(np.diff(v).clip(min=0.0) / self.s.speed_mm_s for v in odo.values())
+        wall_s = np.diff([e["wall_s"] for e in log]).clip(min=0.0)
+        travel_m = np.diff(odo[axis]).clip(min=0.0) / 1000.0
+        return travel_m, np.maximum(moving_s, wall_s)
 
     def motion_for_sensors(self) -> None:
         """The heat-from-motion models that replace a temperature sensor, in the final

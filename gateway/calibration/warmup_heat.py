@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ..compensation.errors import TableError
 from ..compensation.thermal import motion_heat_series_m
@@ -105,10 +105,18 @@ def _ls(design: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[float, flo
 
 
 def warmup_heat_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
-                    alpha_per_k: float, travel_mm: tuple[float, float]
+                    alpha_per_k: float, travel_mm: tuple[float, float],
+                    prior_m: ArrayLike = (), prior_s: ArrayLike = ()
                     ) -> WarmupHeatFit:  # fmt: skip
     """Heat from motion (τ, Δa per metre, linear or profiled) fitted to a zone warm-up with
-    a temperature column, and the temperature model's residual at the same places."""
+    a temperature column, and the temperature model's residual at the same places.
+
+    ``prior_m``, ``prior_s``: the axis's travel (m) and the time it took (s), stretch by
+    stretch, since the screw was last cold and before the warm-up began (the commissioning's
+    own runs). That heat is still going out of the screw while the warm-up puts more in,
+    so the growth read is less than the warm-up's own heat makes: left out, the fitted Δa
+    per metre came out 15-20 % short (rough-1 Y, 29 m of travel before a 200 m warm-up).
+    It spreads over the travel the runs covered: linear from the fixed end."""
     warm, first, place, growth, d_temp = survey_changes(raw, axis, "temperature_c")
     if sum(m.measured for m in plan.moves) != int(np.sum(np.array(raw.axis) == axis)):
         raise TableError(f"{raw.source}: axis {axis}: the warm-up did not run as planned")
@@ -121,18 +129,30 @@ def warmup_heat_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
                                        ** 2)))  # fmt: skip
     # heat in metres of travel at every stop, per τ; a reading's change since its cold one
     d_m, t_s = _own_travel(plan, axis)
+    before_m = np.asarray(prior_m, dtype=np.float64).reshape(-1)
+    before_s = np.asarray(prior_s, dtype=np.float64).reshape(-1)
+    if before_m.size != before_s.size:
+        raise TableError(f"axis {axis}: prior travel and times differ in length")
+    n0 = before_m.size
+    series = motion_heat_series_m(np.concatenate([before_m, d_m]),
+                                  np.concatenate([before_s, t_s])[:, None]
+                                  * np.ones(TAU_GRID_S.size), TAU_GRID_S)  # fmt: skip
+    # the warm-up's own heat, and what the heat from before adds (it only fades: < 0)
     heat = motion_heat_series_m(d_m, t_s[:, None] * np.ones(TAU_GRID_S.size), TAU_GRID_S)
+    fading = series[n0:] - heat
     d_heat = heat[warm] - heat[first]  # (readings, τ)
+    d_fade = fading[warm] - fading[first]
     length = float(thermal.length_mm)
-    sse = [_ls(d_heat[:, j] * lever / length, growth)[1] for j in range(TAU_GRID_S.size)]
+    sse = [_ls((d_heat[:, j] + d_fade[:, j]) * lever / length, growth)[1]
+           for j in range(TAU_GRID_S.size)]  # fmt: skip
     j = int(np.argmin(sse))
     if j == TAU_GRID_S.size - 1 or not np.ptp(growth) * UM_PER_MM >= 3.0:
         raise TableError(f"{raw.source}: axis {axis}: the warm-up's growth does not level "
                          "off or is under 3 µm: no heat-from-motion model")  # fmt: skip
     tau = float(TAU_GRID_S[j])
-    c_lin, _ = _ls(d_heat[:, j] * lever / length, growth)
-    lin_rms = float(np.sqrt(np.mean((growth - c_lin * d_heat[:, j] * lever / length)[survey]
-                                    ** 2)))  # fmt: skip
+    lin = (d_heat[:, j] + d_fade[:, j]) * lever / length
+    c_lin, _ = _ls(lin, growth)
+    lin_rms = float(np.sqrt(np.mean((growth - c_lin * lin)[survey] ** 2)))
     speed = float(dict(plan.meta).get("speed_mm_s", 0) or 0)
     memory = round(max(speed, 1.0) * tau, -2)
     best = (np.inf, 0.0, length, SPREADS_MM[0])
@@ -143,8 +163,9 @@ def warmup_heat_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
         # of heat between it and the fixed end, and that depends on where the axis works)
         whole = max(abs(travel_mm[0] - o), abs(travel_mm[1] - o)) + 3.0 * spread
         f = profile_fractions(plan, axis, thermal, prof, travel_mm, whole)[warm]
-        c, _ = _ls(d_heat[:, j] * f, growth)
-        rms = float(np.sqrt(np.mean((growth - c * d_heat[:, j] * f)[survey] ** 2)))
+        model = d_heat[:, j] * f + d_fade[:, j] * lever / whole
+        c, _ = _ls(model, growth)
+        rms = float(np.sqrt(np.mean((growth - c * model)[survey] ** 2)))
         if rms < best[0]:
             best = (rms, c, whole, spread)
     profiled = best[0] < PROFILE_SHARE * lin_rms and (lin_rms - best[0]) * UM_PER_MM > NOISE_UM
