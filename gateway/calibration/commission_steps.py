@@ -29,7 +29,6 @@ from ..formats import atomic_write_text
 from ..tables import build_chain
 from . import adaptive
 from .commission_configs import HEADER, Tables, identification, with_tables
-from .drift_shape import SweptHeat
 from .heat_fit import motion_heat_fit
 from .machine import MotionSettings
 from .plans import (
@@ -102,16 +101,10 @@ class Steps:
         for axis, lead in self.state.get("leads", {}).items():  # found by a lead search
             if lead and axis not in self.s.lead_mm:
                 self.s.lead_mm[axis] = float(lead)
-        # where each screw has been worked: the shape of its drift between the references
-        kept = self.state.get("swept_heat", {})
-        self.swept: dict[str, SweptHeat] = {
-            a: SweptHeat.from_json(kept[a]) if a in kept else
-            SweptHeat.for_travel(self._travel(a)) for a in self.ref_axes()}  # fmt: skip
 
     # -- state ---------------------------------------------------------------------------
     def _save(self) -> None:
         self.state["tables"] = self.tables.to_json()
-        self.state["swept_heat"] = {a: h.to_json() for a, h in self.swept.items()}
         self.dir.mkdir(parents=True, exist_ok=True)
         atomic_write_text(self.state_path, json.dumps(self.state, indent=1, default=_plain))
 
@@ -401,10 +394,8 @@ class Steps:
                         park: dict[str, float] | None, drifting: bool) -> dict[str, Any]:
         """One run of a step (its own raw file), the drift references read around it."""
         pending = self.state.setdefault("pending_refs", {})
-        shapes = self.state.setdefault("pending_shapes", {})
         if drifting and key not in pending:
             pending[key] = self._drift_now(await self._measure_refs())
-            shapes[key] = {a: h.shape() for a, h in self.swept.items()}
             self._log_drift(pending[key])
             self._save()
         self.state["last_refs"] = None  # the moves change the thermal state
@@ -419,17 +410,11 @@ class Steps:
             after = self._drift_now(await self._measure_refs())
             self._log_drift(after)
             before = pending.pop(key)
-            shape_before = shapes.pop(key, {})
             # an axis with thermal compensation: the gateway follows its growth (the
-            # readings hold what it leaves, as they will in use); the others: taken off,
-            # along where the screw was worked
-            entry["drift"] = {
-                a: adaptive.Drift(self._ref_positions(a), tuple(before[a]), tuple(after[a]),
-                                  self._travel(a), tuple(shape_before.get(a, ())),
-                                  tuple(self.swept[a].shape()) if a in self.swept else ()
-                                  ).to_json()
-                for a in self.s.axes
-                if self.config.axes[a].compensation.thermal is None}  # fmt: skip
+            # readings hold what it leaves, as they will in use); the others: taken off
+            entry["drift"] = {a: [*self._ref_positions(a), *before[a], *after[a]]
+                              for a in self.s.axes
+                              if self.config.axes[a].compensation.thermal is None}  # fmt: skip
             self.state["drift_last"] = after
         return entry
 
@@ -440,8 +425,6 @@ class Steps:
         if last is not None:
             odo["mm"][axis] = odo["mm"].get(axis, 0.0) + abs(x_mm - last)
         odo["at"][axis] = x_mm
-        if axis in self.swept:
-            self.swept[axis].move_to(x_mm)
 
     def _odometer(self) -> dict[str, float]:
         """Each commissioned axis's travel so far (mm)."""
