@@ -218,6 +218,7 @@ class Commission(RefineSteps):
         setting; the drift references take what it misses). A zone's heat the sensor's
         model cannot place (a temperature at one spot, the linear spread) then fades for
         hours before its axis is measured, instead of going into its table."""
+        await self.read_start_temperatures()
         await self.use("identification")
         linear = [a for a in self.s.axes if not self._rotary(a)]
         zoned = [a for a in linear if self._thermal(a)]

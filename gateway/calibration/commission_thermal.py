@@ -11,6 +11,7 @@ source and what is fitted to it (a base of :class:`.commission.Commission`).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -135,15 +136,62 @@ class ThermalSteps(RotarySteps):
         travel_m = np.diff(odo[axis]).clip(min=0.0) / 1000.0
         return travel_m, np.maximum(moving_s, wall_s)
 
+    async def read_start_temperatures(self) -> None:
+        """Each temperature-source axis's sensor as commissioning begins (°C, once): what
+        its compensation commanded at the cold start (:func:`start_growth_mm`)."""
+        ep = self.s.instruments.temperature
+        kept = self.state.setdefault("start_temperature_c", {})
+        axes = [a for a in self.s.axes if a not in kept and self._source_kind(a) == "temperature"]
+        if ep is None or not axes:
+            return
+        from .machine import Links, TemperatureSensor
+
+        links = Links()
+        try:
+            for a in axes:
+                th = self.config.axes[a].compensation.thermal
+                assert th is not None and th.source is not None
+                src = self.config.thermal_sources[th.source]
+                sensor = TemperatureSensor(await links.get(*ep.key), ep.unit,
+                                           src.source_register, src.scale_c)  # fmt: skip
+                kept[a] = await sensor.read_c()
+        finally:
+            links.close()
+        self._save()
+
+    def _source_kind(self, axis: str) -> str | None:
+        th = self.config.axes[axis].compensation.thermal
+        if th is None or th.source is None:
+            return None
+        return self.config.thermal_sources[th.source].kind
+
+    def _start_growth_mm(self, axis: str, x_mm: np.ndarray) -> np.ndarray:
+        """What the sensor's compensation took for growth at ``x_mm`` at the cold start (mm,
+        the config's own thermal setting; zero at its reference temperature)."""
+        th = self.config.axes[axis].compensation.thermal
+        t0 = self.state.get("start_temperature_c", {}).get(axis)
+        if th is None or th.source is None or t0 is None:
+            return np.zeros_like(x_mm)
+        src = self.config.thermal_sources[th.source]
+        return start_growth_mm(x_mm, th.origin_mm, th.length_mm, th.gain, src.alpha_per_k,
+                               float(t0), src.reference_c)  # fmt: skip
+
     def motion_for_sensors(self) -> None:
         """The heat-from-motion models that replace a temperature sensor, in the final
         config. Not in the runs before: the model starts cold at a reload, on a screw the
         commissioning has warmed, so the rounds would judge the tables against that
         mismatch and the after-run would report it (rough-9 X: E 22 µm there, 2.7 µm in a
-        judge after a cool-down); those runs keep the sensor."""
+        judge after a cool-down); those runs keep the sensor.
+
+        The tables were measured with the sensor's compensation on, which at the cold start
+        already took the screw for grown by the sensor's distance from its reference
+        temperature; the tables hold that much less. Heat from motion starts at zero, so
+        that growth goes back into the table (once: the table as it was is kept in the
+        state until it is written)."""
         for a in self.s.axes:
             motion = self.state.get("identify", {}).get(f"thermal-{a}", {}).get("motion", {})
             if motion.get("config") and a not in self.tables.thermal_motion:
+                self._add_start_growth(a)
                 self.tables.thermal_motion[a] = motion["config"]
                 note = (f"{a}: heat from motion replaces the temperature sensor in the final "
                         "config; the after-run ran with the sensor (the model starts cold: "
@@ -151,3 +199,53 @@ class ThermalSteps(RotarySteps):
                 self.state["notes"].append(note)
                 self.say(note)
         self._save()
+
+    def _add_start_growth(self, axis: str) -> None:
+        """Put the sensor's cold-start growth back into ``axis``'s table (see
+        :meth:`motion_for_sensors`); resumable: the table as it was is kept until written."""
+        from ..formats import read_pitch_csv
+        from .outputs import write_table
+
+        if axis not in self.tables.pitch:
+            return
+        path = self.config_dir / self.tables.pitch[axis]
+        pending = self.state.setdefault("start_growth", {})
+        if pending.get(axis, {}).get("written"):
+            return
+        if axis not in pending:
+            table = read_pitch_csv(path)
+            pending[axis] = {"position_mm": table.position_mm.tolist(),
+                             "forward_mm": table.forward_mm.tolist(),
+                             "reverse_mm": None if table.reverse_mm is None else
+                             table.reverse_mm.tolist()}  # fmt: skip
+            self._save()
+        old = pending[axis]
+        x = np.asarray(old["position_mm"], dtype=np.float64)
+        grown = self._start_growth_mm(axis, x)
+        if not np.any(grown):
+            pending[axis]["written"] = True
+            return
+        table = read_pitch_csv(path)
+        fwd = np.asarray(old["forward_mm"]) + grown
+        rev = None if old["reverse_mm"] is None else np.asarray(old["reverse_mm"]) + grown
+        write_table(path, "csv", replace(table, position_mm=x, forward_mm=fwd, reverse_mm=rev),
+                    "compgw commission: the sensor's cold-start growth put back")  # fmt: skip
+        pending[axis]["written"] = True
+        note = (f"{axis}: {1e3 * float(np.abs(grown).max()):.2f} µm at most put back into the "
+                f"table: the sensor's compensation at the cold start "
+                f"({self.state['start_temperature_c'][axis]:.2f} °C), which heat from motion "
+                "does not apply")  # fmt: skip
+        self.state["notes"].append(note)
+        self.say(note)
+
+
+def start_growth_mm(x_mm: np.ndarray, origin_mm: float, length_mm: float, gain: float,
+                    alpha_per_k: float, temperature_c: float, reference_c: float
+                    ) -> np.ndarray:  # fmt: skip
+    """The growth (mm) a temperature source's compensation takes at ``x_mm``: the gateway's
+    own thermal stage at Δa = gain · α · a · (T − T_ref), moved off the fixed end."""
+    from ..compensation.thermal import ThermalStage, delta_a_from_temperature
+
+    da = gain * delta_a_from_temperature(alpha_per_k, length_mm, temperature_c, reference_c)
+    x = np.asarray(x_mm, dtype=np.float64)
+    return ThermalStage(length_mm, origin_mm).inverse(x, da) - x
