@@ -61,25 +61,42 @@ def test_the_cold_start_growth_put_back_lands_the_cold_machine_on_its_targets() 
                                       REFERENCE_C, REFERENCE_C))  # fmt: skip
 
 
-def test_the_table_gets_it_once_even_across_a_resume(tmp_path: Path) -> None:
-    """ThermalSteps._add_start_growth on a table file: added, noted, and not again when the
-    step runs a second time (a resume after it was written)."""
-    path = tmp_path / "x_pitch.csv"
-    table = _measured_table()
-    write_pitch_csv(path, table)
+def _steps(tmp_path: Path, cap_mm: float) -> types.SimpleNamespace:
+    """Just what ThermalSteps._add_start_growth reads: the config's thermal setting and
+    source, the axis's correction cap, the table file, the state."""
     th = types.SimpleNamespace(source="t", origin_mm=ORIGIN_MM, length_mm=LENGTH_MM, gain=1.0)
+    comp = types.SimpleNamespace(thermal=th, pitch_file=None, max_correction_mm=cap_mm)
     steps = types.SimpleNamespace(
         config_dir=tmp_path, tables=Tables(pitch={"X": "x_pitch.csv"}), say=lambda _: None,
         state={"start_temperature_c": {"X": START_C}, "notes": []}, _save=lambda: None,
         config=types.SimpleNamespace(
-            axes={"X": types.SimpleNamespace(compensation=types.SimpleNamespace(thermal=th))},
+            axes={"X": types.SimpleNamespace(compensation=comp, wraps=False)},
             thermal_sources={"t": types.SimpleNamespace(kind="temperature", alpha_per_k=ALPHA,
                                                         reference_c=REFERENCE_C)}))  # fmt: skip
     for name in ("_start_growth_mm", "_add_start_growth"):
         setattr(steps, name, types.MethodType(getattr(ThermalSteps, name), steps))
+    write_pitch_csv(tmp_path / "x_pitch.csv", _measured_table())
+    return steps
+
+
+def test_the_table_gets_it_once_even_across_a_resume(tmp_path: Path) -> None:
+    """ThermalSteps._add_start_growth on a table file: added, noted, and not again when the
+    step runs a second time (a resume after it was written)."""
+    steps = _steps(tmp_path, 0.2)
     steps._add_start_growth("X")
-    once = read_pitch_csv(path)
+    once = read_pitch_csv(tmp_path / "x_pitch.csv")
     assert _landing_error_um(once) < 0.3
     assert "cold start" in steps.state["notes"][0]
     steps._add_start_growth("X")  # again: the state says it was written
-    np.testing.assert_allclose(read_pitch_csv(path).forward_mm, once.forward_mm)
+    np.testing.assert_allclose(read_pitch_csv(tmp_path / "x_pitch.csv").forward_mm,
+                               once.forward_mm)  # fmt: skip
+
+
+def test_what_the_gateway_would_refuse_is_not_written(tmp_path: Path) -> None:
+    """Past the axis's correction cap the table stays as it was, and the note says why."""
+    steps = _steps(tmp_path, 0.012)
+    before = read_pitch_csv(tmp_path / "x_pitch.csv")
+    steps._add_start_growth("X")
+    np.testing.assert_allclose(read_pitch_csv(tmp_path / "x_pitch.csv").forward_mm,
+                               before.forward_mm)  # fmt: skip
+    assert "not put back" in steps.state["notes"][0]

@@ -203,8 +203,9 @@ class ThermalSteps(RotarySteps):
     def _add_start_growth(self, axis: str) -> None:
         """Put the sensor's cold-start growth back into ``axis``'s table (see
         :meth:`motion_for_sensors`); resumable: the table as it was is kept until written."""
+        from ..compensation.errors import CompensationError
         from ..formats import read_pitch_csv
-        from .outputs import write_table
+        from .outputs import check_pitch, write_table
 
         if axis not in self.tables.pitch:
             return
@@ -228,9 +229,16 @@ class ThermalSteps(RotarySteps):
         table = read_pitch_csv(path)
         fwd = np.asarray(old["forward_mm"]) + grown
         rev = None if old["reverse_mm"] is None else np.asarray(old["reverse_mm"]) + grown
-        write_table(path, "csv", replace(table, position_mm=x, forward_mm=fwd, reverse_mm=rev),
-                    "compgw commission: the sensor's cold-start growth put back")  # fmt: skip
+        new = replace(table, position_mm=x, forward_mm=fwd, reverse_mm=rev)
         pending[axis]["written"] = True
+        try:  # what the gateway would refuse (the correction cap) stays out, said so
+            check_pitch(new, self.config, axis)
+        except (TableError, CompensationError) as exc:
+            self.state["notes"].append(f"{axis}: the sensor's cold-start growth not put back: "
+                                       f"{exc}")  # fmt: skip
+            return
+        write_table(path, "csv", new, "compgw commission: the sensor's cold-start growth "
+                    "put back")  # fmt: skip
         note = (f"{axis}: {1e3 * float(np.abs(grown).max()):.2f} µm at most put back into the "
                 f"table: the sensor's compensation at the cold start "
                 f"({self.state['start_temperature_c'][axis]:.2f} °C), which heat from motion "
