@@ -16,7 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from ..compensation.errors import TableError
+from ..compensation.errors import CompensationError, TableError
+from ..compensation.thermal import ThermalStage, delta_a_from_temperature
+from ..formats import read_pitch_csv
 from .commission_rotary import RotarySteps
 from .models import thermal_fit, thermal_gain_fit
 from .plans import Plan, read_plan
@@ -203,8 +205,6 @@ class ThermalSteps(RotarySteps):
     def _add_start_growth(self, axis: str) -> None:
         """Put the sensor's cold-start growth back into ``axis``'s table (see
         :meth:`motion_for_sensors`); resumable: the table as it was is kept until written."""
-        from ..compensation.errors import CompensationError
-        from ..formats import read_pitch_csv
         from .outputs import check_pitch, write_table
 
         if axis not in self.tables.pitch:
@@ -252,8 +252,6 @@ def start_growth_mm(x_mm: np.ndarray, origin_mm: float, length_mm: float, gain: 
                     ) -> np.ndarray:  # fmt: skip
     """The growth (mm) a temperature source's compensation takes at ``x_mm``: the gateway's
     own thermal stage at Δa = gain · α · a · (T − T_ref), moved off the fixed end."""
-    from ..compensation.thermal import ThermalStage, delta_a_from_temperature
-
     da = gain * delta_a_from_temperature(alpha_per_k, length_mm, temperature_c, reference_c)
     x = np.asarray(x_mm, dtype=np.float64)
     return ThermalStage(length_mm, origin_mm).inverse(x, da) - x
