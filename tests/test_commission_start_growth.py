@@ -100,3 +100,22 @@ def test_what_the_gateway_would_refuse_is_not_written(tmp_path: Path) -> None:
     np.testing.assert_allclose(read_pitch_csv(tmp_path / "x_pitch.csv").forward_mm,
                                before.forward_mm)  # fmt: skip
     assert "not put back" in steps.state["notes"][0]
+
+
+def test_a_resume_past_the_start_reads_no_start_temperature() -> None:
+    """A commissioning resumed after its first drift references (an older state file, or
+    one that lost the reading): the sensor now reads a warmed machine, so nothing is read
+    and nothing will be put back (no Modbus here: an attempt would fail the test)."""
+    import asyncio
+
+    th = types.SimpleNamespace(source="t")
+    steps = types.SimpleNamespace(
+        s=types.SimpleNamespace(axes=("X",), instruments=types.SimpleNamespace(
+            temperature=types.SimpleNamespace(key=("127.0.0.1", 9), unit=23))),
+        state={"drift_base": {"phase": "identification", "refs": {}}},
+        config=types.SimpleNamespace(
+            axes={"X": types.SimpleNamespace(compensation=types.SimpleNamespace(thermal=th))},
+            thermal_sources={"t": types.SimpleNamespace(kind="temperature")}))  # fmt: skip
+    steps._source_kind = types.MethodType(ThermalSteps._source_kind, steps)
+    asyncio.run(ThermalSteps.read_start_temperatures(steps))  # type: ignore[arg-type]
+    assert steps.state["start_temperature_c"] == {}

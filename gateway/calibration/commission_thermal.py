@@ -140,11 +140,12 @@ class ThermalSteps(RotarySteps):
 
     async def read_start_temperatures(self) -> None:
         """Each temperature-source axis's sensor as commissioning begins (°C, once): what
-        its compensation commanded at the cold start (:func:`start_growth_mm`)."""
+        its compensation commanded at the cold start (:func:`start_growth_mm`). Not on a
+        resume past the start (the machine has moved: no longer the start's reading)."""
         ep = self.s.instruments.temperature
         kept = self.state.setdefault("start_temperature_c", {})
         axes = [a for a in self.s.axes if a not in kept and self._source_kind(a) == "temperature"]
-        if ep is None or not axes:
+        if ep is None or not axes or "drift_base" in self.state:
             return
         from .machine import Links, TemperatureSensor
 
