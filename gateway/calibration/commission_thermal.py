@@ -224,7 +224,7 @@ class ThermalSteps(RotarySteps):
         old = pending[axis]
         x = np.asarray(old["position_mm"], dtype=np.float64)
         grown = self._start_growth_mm(axis, x)
-        if not np.any(grown):
+        if not float(np.abs(grown).max(initial=0.0)) >= 1e-6:  # under a nanometre: none
             pending[axis]["written"] = True
             return
         table = read_pitch_csv(path)
