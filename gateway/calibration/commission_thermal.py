@@ -39,10 +39,10 @@ class ThermalSteps(RotarySteps):
     def _thermal(self, axis: str) -> bool:
         """A warm-up identifies this axis's thermal setting: its length from a Δa sensor
         (--delta-a), or its gain from a temperature source (--temperature)."""
-        th = self.config.axes[axis].compensation.thermal
-        if th is None:
+        kind = self._source_kind(axis)
+        if kind is None:  # none, or heat from motion: no sensor to warm up with
             return False
-        if self.config.thermal_sources[th.source].kind == "temperature":
+        if kind == "temperature":
             return self.s.instruments.temperature is not None
         return self.s.instruments.delta_a is not None
 
@@ -155,8 +155,7 @@ class ThermalSteps(RotarySteps):
                 th = self.config.axes[a].compensation.thermal
                 assert th is not None and th.source is not None
                 src = self.config.thermal_sources[th.source]
-                sensor = TemperatureSensor(await links.get(*ep.key), ep.unit,
-                                           src.source_register, src.scale_c)  # fmt: skip
+                sensor = TemperatureSensor.of_source(await links.get(*ep.key), ep.unit, src)
                 kept[a] = await sensor.read_c()
         finally:
             links.close()

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 from pymodbus.client import AsyncModbusTcpClient
 
-from ..config import Axis, GatewayConfig, SourceRegister
+from ..config import Axis, GatewayConfig, SourceRegister, ThermalSource
 from ..modbus.frames import pack_int32, unpack_int32
 
 #: Status bits of the sim's default (Leadshine-like) profile; override per run.
@@ -331,6 +331,11 @@ class TemperatureSensor:
     unit: int
     register: SourceRegister
     scale_c: float = 0.01
+
+    @classmethod
+    def of_source(cls, link: Link, unit: int, source: ThermalSource) -> TemperatureSensor:
+        """The sensor of a config's temperature source (its register and scale)."""
+        return cls(link, unit, source.source_register, source.scale_c)
 
     async def read_c(self) -> float:
         from ..sensors import decode_counts

@@ -138,8 +138,7 @@ class Session:
         if thermal is None:
             raise MachineError(f"axis {plan.axes[0]}: no thermal source to warm up with")
         src = self.config.thermal_sources[thermal.source]
-        sensor = TemperatureSensor(await links.get(*ep.key), ep.unit, src.source_register,
-                                   src.scale_c)
+        sensor = TemperatureSensor.of_source(await links.get(*ep.key), ep.unit, src)
 
         async def extra(_: Move) -> Mapping[str, float]:
             return {"temperature_c": await sensor.read_c()}

@@ -133,13 +133,13 @@ def warmup_heat_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
     before_s = np.asarray(prior_s, dtype=np.float64).reshape(-1)
     if before_m.size != before_s.size:
         raise TableError(f"axis {axis}: prior travel and times differ in length")
-    n0 = before_m.size
-    series = motion_heat_series_m(np.concatenate([before_m, d_m]),
-                                  np.concatenate([before_s, t_s])[:, None]
-                                  * np.ones(TAU_GRID_S.size), TAU_GRID_S)  # fmt: skip
-    # the warm-up's own heat, and what the heat from before adds (it only fades: < 0)
+    # the warm-up's own heat, and the heat from before: at its start, then only fading
     heat = motion_heat_series_m(d_m, t_s[:, None] * np.ones(TAU_GRID_S.size), TAU_GRID_S)
-    fading = series[n0:] - heat
+    start = np.zeros(TAU_GRID_S.size)
+    if before_m.size:
+        start = motion_heat_series_m(before_m, before_s[:, None] * np.ones(TAU_GRID_S.size),
+                                     TAU_GRID_S)[-1]  # fmt: skip
+    fading = start[None, :] * np.exp(-np.cumsum(t_s)[:, None] / TAU_GRID_S[None, :])
     d_heat = heat[warm] - heat[first]  # (readings, τ)
     d_fade = fading[warm] - fading[first]
     length = float(thermal.length_mm)
