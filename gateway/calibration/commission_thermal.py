@@ -162,6 +162,8 @@ class ThermalSteps(RotarySteps):
         self._save()
 
     def _source_kind(self, axis: str) -> str | None:
+        """The kind of the axis's thermal source ("temperature", "displacement"), or None: no
+        thermal setting, or heat from motion (no sensor)."""
         th = self.config.axes[axis].compensation.thermal
         if th is None or th.source is None:
             return None

@@ -185,12 +185,13 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
         rss = float(np.sum(e * e if w is None else w * e * e))
         return y.size * rss / max(y.size - edf, 1.0) ** 2, beta, rss
 
-    def search(w: NDArray[np.float64] | None, lams: list[float], ks: Sequence[int]
+    def search(w: NDArray[np.float64] | None, lams: list[float], ks: Sequence[int],
+               eqs: tuple[NDArray[np.float64], ...] | None = None
                ) -> tuple[Fit, list[float], int]:  # fmt: skip
         """Of the harmonics ``ks``, and the three weights, those of the smallest GCV, each
         weight searched over the grid in turn (twice round without harmonics, then once
-        from the weights of one harmonic fewer)."""
-        eqs = normal(w)
+        from the weights of one harmonic fewer). ``eqs``: ``normal(w)`` when built."""
+        eqs = normal(w) if eqs is None else eqs
         best, chosen = solve(ks[0], lams, w, eqs), ks[0]
         for kk in ks:
             here_lams = list(lams)
@@ -224,7 +225,7 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
             w = _biweight(e)
             eqs = normal(w)
             beta = solve(chosen, lams, w, eqs)[1]
-        best, lams, chosen = search(w, lams, [chosen])
+        best, lams, chosen = search(w, lams, [chosen], eqs)
     k = chosen
     beta = best[1]
     level, lost = beta[: kn.size].copy(), beta[kn.size : 2 * kn.size].copy()
