@@ -9,7 +9,8 @@ sim's instruments and computing ISO 230-2 itself.
 
 Reported per machine and as median / worst per group (smooth, rough, real):
 E cut (worst axis) and the most any correction could cut there (`max %`: 1 − E_floor / E
-before, E_floor the range a perfect correction reads from the after-run's own scatter),
+before, E_floor the range a perfect correction reads from the after-run's own scatter and
+the drive's finest step),
 A − R after (worst axis), XY maximum vector error cut at random points,
 off-grid RMS after (random positions and short steps, worst axis), thermal change after a
 warm-up cycle with compensation (largest axis; `-` for a machine without a thermal sensor:
@@ -132,7 +133,7 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
 def _floor(fig: dict[str, Any]) -> float:
     if "s_um" not in fig:
         return float("nan")
-    return e_floor_um(fig["s_um"], fig["targets"], fig["runs"])
+    return e_floor_um(fig["s_um"], fig["targets"], fig["runs"], fig.get("step_um", 0.0))
 
 
 def summary(r: dict[str, Any]) -> dict[str, float]:

@@ -63,15 +63,29 @@ def iso230(up: np.ndarray, down: np.ndarray) -> dict[str, float]:
     }  # fmt: skip
 
 
-def e_floor_um(s_um: float, targets: int, runs: int) -> float:
+def e_floor_um(s_um: float, targets: int, runs: int, step_um: float = 0.0) -> float:
     """The E (µm) a perfect correction would still read, in expectation: the range of the
-    2·targets mean deviations when each is only the scatter of ``runs`` stops (σ = s/√runs).
-    E[range of n standard normals] = ∫ 1 − Φ(x)ⁿ − (1 − Φ(x))ⁿ dx."""
-    x = np.linspace(-8.0, 8.0, 4001)
-    phi = ndtr(x)
+    2·targets mean deviations when each is the scatter of ``runs`` stops (σ = s/√runs) plus
+    where the drive's finest step lets it stop (``step_um``: a correction lands within
+    ±step/2 of the target, the same at every run, so the runs do not average it out).
+    E[range of n draws of CDF F] = ∫ 1 − Fⁿ − (1 − F)ⁿ dx; F of a normal plus a uniform is
+    σ/q · [G((x + q/2)/σ) − G((x − q/2)/σ)], G(u) = uΦ(u) + φ(u)."""
+    sigma, q = s_um / math.sqrt(runs), max(0.0, step_um)
+    width = 8.0 * sigma + q
+    if width <= 0.0:
+        return 0.0
+    x = np.linspace(-width, width, 8001)
+    if q <= 1e-9 * width:
+        cdf = ndtr(x / sigma)
+    elif sigma <= 1e-9 * width:
+        cdf = np.clip((x + q / 2) / q, 0.0, 1.0)
+    else:
+        def g(u: np.ndarray) -> np.ndarray:
+            return u * ndtr(u) + np.exp(-u * u / 2) / math.sqrt(2 * math.pi)
+
+        cdf = sigma / q * (g((x + q / 2) / sigma) - g((x - q / 2) / sigma))
     n = 2 * targets
-    d_n = float(np.sum(1.0 - phi**n - (1.0 - phi) ** n) * (x[1] - x[0]))
-    return d_n * s_um / math.sqrt(runs)
+    return float(np.sum(1.0 - cdf**n - (1.0 - cdf) ** n) * (x[1] - x[0]))
 
 
 def _s32(words: Sequence[int]) -> int:
@@ -281,6 +295,9 @@ async def evaluate(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: 
             p = the_plan["axes"][name]
             await m.move(p["park"])
             fig = await _iso_runs(m, name, p)
+            # the drive's finest step (µm): where a perfect correction can stop
+            fig["step_um"] = 1000.0 * axes[name].pulse_mm / machine["axes"][name].get(
+                "command_scale", 1)  # fmt: skip
             fig["offgrid_rms_um"] = await _offgrid_rms(m, name, p)
             out["axes"][name] = fig
         errs = []

@@ -65,3 +65,21 @@ def test_e_floor_is_the_e_of_pure_scatter():
     # and the pooled scatter the judge reports recovers σ
     f = ev.iso230(rng.normal(0, sigma, (200, runs)), rng.normal(0, sigma, (200, runs)))
     assert f["s_um"] == pytest.approx(sigma, rel=0.05)
+
+
+def test_e_floor_counts_the_drives_finest_step():
+    """A perfect correction still stops within ±step/2 of each target, the same way at every
+    run: the floor of scatter plus step is the mean E of seeded runs holding both, and of a
+    step alone the range of 2m uniform draws, step·(2m − 1)/(2m + 1)."""
+    ev = evaluator()
+    rng = np.random.default_rng(231)
+    sigma, m, runs, step = 0.2, 11, 5, 0.5
+    es = []
+    for _ in range(4000):
+        q_up, q_down = rng.uniform(-step / 2, step / 2, (2, m, 1))
+        es.append(ev.iso230(rng.normal(0, sigma, (m, runs)) + q_up,
+                            rng.normal(0, sigma, (m, runs)) + q_down)["E_um"])
+    assert ev.e_floor_um(sigma, m, runs, step) == pytest.approx(np.mean(es), rel=0.02)
+    assert ev.e_floor_um(sigma, m, runs, step) > ev.e_floor_um(sigma, m, runs) + 0.2
+    assert ev.e_floor_um(0.0, m, runs, step) == pytest.approx(step * (2 * m - 1) / (2 * m + 1),
+                                                              rel=1e-3)

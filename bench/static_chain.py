@@ -1,0 +1,134 @@
+"""What a calibrated config leaves on a kept machine with no heat and no scatter: the static
+part of the judge's E, split from the heat and noise of its runs.
+
+For a machine kept by ``bench/accuracy.py --keep DIR``: the sim's own truth (its ``Machine``
+driven directly, no Modbus) with repeatability, stick-slip, settling and heat taken out,
+commanded through the gateway's chain of the calibrated config (``work/gw.yaml``, no thermal
+stage). Per axis, at random parks of the other plane axis: the ISO 230-2 bidirectional
+deviations at random targets, approached ↑ from below and ↓ from above as the judge does
+(so partial take-up and lost motion count), their range (E) and the range of their means
+(M); and the same along the pitch line (the other axis at its lower end, where the tables
+were measured).
+
+    python bench/static_chain.py /tmp/keep/rough-0 [--parks 10] [--targets 12]
+
+A diagnostic: it imports both ``sim`` and ``gateway`` (the judge does not).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from gateway.config import load_config as load_gateway_config
+from gateway.tables import build_chain
+from sim.config import parse_config
+from sim.machine import Machine
+
+
+def quiet_sim(sim_yaml: Path) -> Machine:
+    """The machine's truth without scatter, stick-slip, settling or heat."""
+    data = yaml.safe_load(sim_yaml.read_text())
+    for errs in data["sim"]["machine"].values():
+        errs["repeatability_um"] = 0.0
+        for key in ("stick_slip", "settling", "heat", "thermal"):
+            errs.pop(key, None)
+    cfg = parse_config(data, sim_yaml.parent)
+    return Machine(cfg.sim, base_dir=str(sim_yaml.parent))
+
+
+class Rig:
+    """The quiet machine commanded through a gateway chain (no thermal stage)."""
+
+    def __init__(self, machine: Machine, chain: Any, gw: Any) -> None:
+        self.m, self.chain, self.gw = machine, chain, gw
+        self.now_s = 0.0
+        self.at_mm = {n: float(a.cfg.travel_mm[0]) for n, a in machine.axes.items()}
+
+    def go(self, target_mm: dict[str, float]) -> None:
+        """Move every named axis to its nominal target (in turn), corrected by the chain as
+        the gateway corrects it (the partner's nominal target for the plane, the direction
+        of approach, the drive's whole units)."""
+        for name, x in target_mm.items():
+            ax = self.gw.axes[name]
+            nominal = {a: [round(v / self.gw.axes[a].pulse_mm)] for a, v in
+                       {**self.at_mm, **target_mm}.items()}  # fmt: skip
+            sim_pulse = self.m.axes[name].cfg.pulse_mm
+            direction = {a: [1] for a in nominal}
+            direction[name] = [1 if x >= self.at_mm[name] else -1]
+            cmd = self.chain.command_mm_batch(nominal, direction)[name][0]
+            units = round(cmd / ax.pulse_mm * ax.command_scale)  # what the gateway sends
+            pulses = round(units * ax.pulse_mm / ax.command_scale / sim_pulse)
+            self.now_s += self.m.begin_move(name, pulses, 50.0, self.now_s) + 0.5
+            self.m.update(self.now_s)
+            self.at_mm[name] = x
+
+    def start(self) -> None:
+        """Every axis to its lower end (approached + from where the drive stands)."""
+        for n, x in list(self.at_mm.items()):
+            self.go({n: x})
+
+    def deviation_um(self, name: str, x_mm: float) -> float:
+        return (self.m.table_mm(name, self.now_s) - x_mm) * 1000.0
+
+
+def axis_static(rig: Rig, name: str, other: str | None, park: float | None,
+                targets: np.ndarray) -> dict[str, float]:  # fmt: skip
+    """E and M (µm) of one axis at ``targets``, ↑ then ↓, the other axis at ``park``."""
+    if other is not None and park is not None:
+        rig.go({other: park})
+    lo, hi = rig.m.axes[name].cfg.travel_mm
+    up, down = [], []
+    rig.go({name: max(lo, targets[0] - 2.0)})
+    for t in targets:
+        rig.go({name: float(t)})
+        up.append(rig.deviation_um(name, float(t)))
+    rig.go({name: min(hi, targets[-1] + 2.0)})
+    for t in targets[::-1]:
+        rig.go({name: float(t)})
+        down.append(rig.deviation_um(name, float(t)))
+    u, d = np.array(up), np.array(down[::-1])
+    both = np.concatenate([u, d])
+    mean = (u + d) / 2
+    return {"E": float(np.ptp(both)), "M": float(np.ptp(mean)), "B": float(np.abs(u - d).max())}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("machine", type=Path, help="a machine directory kept by accuracy.py")
+    parser.add_argument("--config", type=Path, help="gateway config (default work/gw.yaml)")
+    parser.add_argument("--parks", type=int, default=10)
+    parser.add_argument("--targets", type=int, default=12)
+    parser.add_argument("--seed", type=int, default=7)
+    args = parser.parse_args()
+    gw_path = args.config or args.machine / "work" / "gw.yaml"
+    gw = load_gateway_config(gw_path)
+    chain = build_chain(gw, gw_path.parent)
+    rig = Rig(quiet_sim(args.machine / "sim.yaml"), chain, gw)
+    rig.start()
+    rng = np.random.default_rng(args.seed)
+    names = list(rig.m.axes)
+    for name in names:
+        others = [a for a in names if a != name]
+        other = others[0] if others else None
+        lo, hi = rig.m.axes[name].cfg.travel_mm
+        olo, ohi = (rig.m.axes[other].cfg.travel_mm if other else (0.0, 0.0))
+        line = [axis_static(rig, name, other, olo,
+                            np.sort(rng.uniform(lo + 3, hi - 3, args.targets)))
+                for _ in range(args.parks)]  # fmt: skip
+        parked = [axis_static(rig, name, other, float(rng.uniform(olo + 1, ohi - 1)),
+                              np.sort(rng.uniform(lo + 3, hi - 3, args.targets)))
+                  for _ in range(args.parks)]  # fmt: skip
+        med = {k: np.median([r[k] for r in line]) for k in ("E", "M", "B")}
+        pmed = {k: np.median([r[k] for r in parked]) for k in ("E", "M", "B")}
+        print(f"{args.machine.name} {name}: on the pitch line E {med['E']:.2f} M {med['M']:.2f}"
+              f" B {med['B']:.2f} µm; at random parks E {pmed['E']:.2f} M {pmed['M']:.2f} "
+              f"B {pmed['B']:.2f} µm (medians of {args.parks})")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
