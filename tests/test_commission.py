@@ -5,6 +5,7 @@ config, and a budget too small ending with an honest report."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import signal
 import subprocess
@@ -97,6 +98,13 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         assert min(ups) <= TRAVEL_MM[0] + 2.001 and max(ups) >= TRAVEL_MM[1] - 2 - 0.12 * lead
         record = state["identify"]["sweep-X"]
         assert record["readings"] == 2 * len(ups) and record["knots"] >= 10, record
+        # one run's after-reading of the drift references is the next run's before-reading
+        # (read again, the same state would differ by the references' own scatter)
+        pairs = [(run, nxt) for step in state["steps"].values()
+                 for run, nxt in itertools.pairwise(step.get("parts") or [])]  # fmt: skip
+        assert len(pairs) >= 3, state["steps"].keys()
+        for run, nxt in pairs:
+            assert nxt["drift"]["X"][2:4] == run["drift"]["X"][4:6], (run, nxt)
         # an axis whose residual hid in the noise of 2 runs per target (X: its floor above
         # the 1 µm asked) was judged again with twice the runs before it settled
         doubled = [(e["round"], a, n) for e in state["rounds"]

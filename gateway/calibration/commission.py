@@ -494,7 +494,7 @@ class Commission(RefineSteps):
         for path in plans:
             if path.exists():
                 plan = read_plan(path)
-                total += self.estimate_s(plan) + 2 * refs_s * len(_parts(plan))
+                total += self.estimate_s(plan) + refs_s * (len(_parts(plan)) + 1)
         return total
 
     def _restore_best(self) -> None:

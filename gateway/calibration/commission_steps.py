@@ -262,9 +262,23 @@ class Steps:
         finally:
             links.close()
         self.state["refs_s"] = self.state.get("refs_s", 0.0) + cost
+        self._refs_read_here = True
         self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out,
                                    "odometer_mm": self._odometer()}  # fmt: skip
         return out
+
+    def _refs_unmoved(self) -> dict[str, list[float]] | None:
+        """The drift references read last (mm), when this process read them and nothing has
+        moved since, in the same config: a run's after-reading is then the next run's
+        before-reading (the same thermal state: reading it again costs machine time and
+        adds its own scatter). None otherwise (and after a resume: the machine may have
+        been moved by hand)."""
+        last = self.state.get("last_refs")
+        if not (last and getattr(self, "_refs_read_here", False)):
+            return None
+        if last["phase"] != self.state.get("phase") or last.get("odometer_mm") != self._odometer():
+            return None
+        return last["refs"]
 
     def refs_cost_s(self, axes: Sequence[str], repeats: int = 3) -> float:
         """Machine time (s) of one reading of the drift references of ``axes``: two places,
@@ -332,11 +346,12 @@ class Steps:
 
     def step_cost_s(self, plan: Plan, drift: bool = True, whole: bool = False) -> float:
         """Machine time (s) of running ``plan`` as a step: its moves, and the drift
-        references read before and after each of its runs (see :meth:`step`)."""
+        references read before and after each of its runs (see :meth:`step`; one run's
+        after-reading is the next one's before-reading)."""
         parts = 1 if whole else len(_parts(plan))
         drifting = drift and "drift_base" in self.state
         return self.estimate_s(plan) + (
-            2 * parts * self.refs_cost_s(self.ref_axes()) if drifting else 0.0)
+            (parts + 1) * self.refs_cost_s(self.ref_axes()) if drifting else 0.0)
 
     def reserve_s(self) -> float:
         """Machine time kept back from every step for the steps that must end the job."""
@@ -395,8 +410,10 @@ class Steps:
         """One run of a step (its own raw file), the drift references read around it."""
         pending = self.state.setdefault("pending_refs", {})
         if drifting and key not in pending:
-            pending[key] = self._drift_now(await self._measure_refs())
-            self._log_drift(pending[key])
+            unmoved = self._refs_unmoved()  # the last run's after-reading, when it serves
+            pending[key] = self._drift_now(unmoved or await self._measure_refs())
+            if unmoved is None:
+                self._log_drift(pending[key])
             self._save()
         self.state["last_refs"] = None  # the moves change the thermal state
         session = Session(self.config, self.config_dir, self.s.gateway, self.s.instruments,
