@@ -135,6 +135,41 @@ def test_a_table_switch_keeps_the_drift_the_reading_after_it_would_hide() -> Non
     assert first == after  # the first config: the cold base is what it reads
 
 
+def test_a_switch_across_a_temperature_sensor_is_computed_at_its_reading() -> None:
+    """A temperature-source axis whose sensor correction is switched off (a warm-up) and on
+    again: each switch moves the base by what the sensor's stage commands at the references
+    at the sensor's reading then (the gateway's own ThermalStage at Δa = gain·α·a·(T − T_ref)),
+    so the drift keeps meaning what the sensor's config leaves, however warm the screw is at
+    the switch. Without the reading it is read, as before."""
+    from gateway.compensation.thermal import ThermalStage, delta_a_from_temperature
+
+    origin, length, gain, alpha, ref_c, t_c = -40.0, 640.0, 1.2, 11.5e-6, 20.0, 24.0
+    refs = [31.0, 570.0]
+    sensor = {"mm": refs, "thermal": "ThermalComp(temperature)",
+              "sensor": [origin, length, gain, alpha, ref_c]}  # fmt: skip
+    off = {"mm": refs, "thermal": "None"}
+    da = gain * delta_a_from_temperature(alpha, length, t_c, ref_c)
+    stage = ThermalStage(length, origin)
+    s_mm = [stage.forward_scalar(x, da) - x for x in refs]  # what the sensor commands
+    assert min(abs(v) for v in s_mm) > 2e-3  # tens of µm: a switch would hide it all
+    base = {"X": [0.0, 0.0]}
+    drift = {"X": [1e-3, 4e-3]}
+    # the same thermal state on both sides of the switch: the sensor's correction gone
+    after = {"X": [drift["X"][k] - s_mm[k] for k in (0, 1)]}
+    got = adaptive.relinked_base(base, after, drift, {"X": sensor}, {"X": off}, {"X": t_c})
+    now = [after["X"][k] - got["X"][k] for k in (0, 1)]
+    # what the sensor's config would read: the drift before the switch, nothing hidden
+    np.testing.assert_allclose(now, drift["X"], atol=1e-12)
+    # and on again: the sensor's correction back, the drift still what it was
+    on_again = {"X": [after["X"][k] + s_mm[k] for k in (0, 1)]}
+    back = adaptive.relinked_base(got, on_again, {"X": now}, {"X": off}, {"X": sensor},
+                                  {"X": t_c})  # fmt: skip
+    np.testing.assert_allclose([on_again["X"][k] - back["X"][k] for k in (0, 1)], drift["X"],
+                               atol=1e-12)  # fmt: skip
+    read = adaptive.relinked_base(base, after, drift, {"X": sensor}, {"X": off})
+    np.testing.assert_allclose(read["X"], [after["X"][k] - drift["X"][k] for k in (0, 1)])
+
+
 def test_a_refinement_scan_gives_the_point_its_mean_and_the_cyclic_term_a_station() -> None:
     """Truth: a wavy screw whose once-per-turn amplitude grows along the travel. The model
     on: a flat table and a constant 1 µm cyclic term. A one-lead scan at 130 mm (residual

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from ..compensation import PitchStage, PitchTable
 from ..compensation.cyclic import CyclicModel
+from ..compensation.thermal import ThermalStage, delta_a_from_temperature
 from .cyclic_fit import StationScan
 from .iso230 import iso230_axis
 from .rawdata import AxisDeviations, RawData
@@ -297,6 +298,7 @@ class Drift:
 def relinked_base(
     base: dict[str, list[float]] | None, after: dict[str, list[float]],
     drift: dict[str, list[float]], old_commands: dict[str, dict], new_commands: dict[str, dict],
+    temperature_c: dict[str, float] | None = None,
 ) -> dict[str, list[float]]:  # fmt: skip
     """The drift base (mm at each axis's two references) once a new config is loaded, so
     that drift keeps counting from the start across it.
@@ -306,16 +308,43 @@ def relinked_base(
     between the two readings, and that much drift is lost at every switch. Where the two
     configs differ in an axis's tables only (the same ``thermal`` in ``old_commands`` and
     ``new_commands``, each axis's commands in mm at its references), the base moves by what
-    they command differently there instead: computed, no heat in it. ``base`` None: the
-    first config, or a broken chain (read)."""
+    they command differently there instead: computed, no heat in it. So it does where the
+    thermal setting changes but both sides are computable: none, or a temperature source
+    (``sensor``: origin, length, gain, α, reference) at the sensor's reading at the switch
+    (``temperature_c``): switched off and on again at the same temperature, the sensor's
+    config gets back the base it had. ``base`` None: the first config, or a broken chain
+    (read)."""
     out = {a: [after[a][k] - drift[a][k] for k in (0, 1)] for a in after}
     if base is None:
         return out
+    temps = temperature_c or {}
     for a, new in new_commands.items():
         was = old_commands.get(a)
-        if a in base and was is not None and was["thermal"] == new["thermal"]:
+        if a not in base or was is None:
+            continue
+        if was["thermal"] == new["thermal"]:
             out[a] = [base[a][k] + new["mm"][k] - was["mm"][k] for k in (0, 1)]
+            continue
+        old_t, new_t = _thermal_mm(was, temps.get(a)), _thermal_mm(new, temps.get(a))
+        if old_t is not None and new_t is not None:
+            out[a] = [base[a][k] + new["mm"][k] + new_t[k] - was["mm"][k] - old_t[k]
+                      for k in (0, 1)]  # fmt: skip
     return out
+
+
+def _thermal_mm(commands: dict, temperature_c: float | None) -> list[float] | None:
+    """What a config's thermal stage adds to the commands at the references (mm): nothing
+    without one, a temperature source's correction at ``temperature_c``; None where it
+    cannot be computed (a Δa or heat from motion: the gateway's own state)."""
+    if commands["thermal"] == "None":
+        return [0.0, 0.0]
+    sensor = commands.get("sensor")
+    if sensor is None or temperature_c is None:
+        return None
+    origin, length, gain, alpha, reference = sensor
+    da = gain * delta_a_from_temperature(alpha, length, temperature_c, reference)
+    stage = ThermalStage(length, origin)
+    return [stage.forward_scalar(x, da) - x for x in commands["mm"]]
 
 
 def drift_corrected(raw: RawData, drifts: dict[str, Drift]) -> RawData:

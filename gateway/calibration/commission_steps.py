@@ -185,9 +185,14 @@ class Steps:
                 drift = {a: [before[a][k] - base["refs"][a][k] for k in (0, 1)]
                          for a in self.s.axes}  # fmt: skip
         commands = self._ref_commands()
+        old = self.state.get("ref_commands") or {}
+        sensed = [a for a in commands if commands[a].get("sensor") or
+                  (old.get(a) or {}).get("sensor")]  # fmt: skip
+        temps = await self._read_temperatures(sensed) if base is not None and sensed else {}
+        temps = self._switch_temperatures(old, commands, temps)
         new_base = adaptive.relinked_base(
-            None if base is None or before is None else base["refs"], after, drift,
-            self.state.get("ref_commands") or {}, commands)  # fmt: skip
+            None if base is None or before is None else base["refs"], after, drift, old,
+            commands, temps)  # fmt: skip
         self.state["ref_commands"] = commands
         self.state["drift_base"] = {"phase": phase, "refs": new_base}
         self.state["drift_last"] = drift
@@ -198,7 +203,9 @@ class Steps:
     def _ref_commands(self) -> dict[str, dict[str, Any]]:
         """Per linear axis, what the gateway's config (as loaded) commands at its two drift
         references (mm; approached in +, the other plane axis parked, no thermal growth),
-        and its thermal setting: the stage a switch cannot be computed across."""
+        and its thermal setting: the stage a switch cannot be computed across, unless it
+        is a temperature source (``sensor``: its correction is computed at the sensor's
+        reading, see :func:`.adaptive.relinked_base`)."""
         cfg = load_config(self.s.config_path)
         chain = build_chain(cfg, self.config_dir)
         out: dict[str, dict[str, Any]] = {}
@@ -209,8 +216,37 @@ class Steps:
                 pulses = {**where, a: [round(x / cfg.axes[a].pulse_mm)]}
                 cmd = chain.command_mm_batch(pulses, dict.fromkeys(pulses, 1))
                 mm.append(float(cmd[a][0]))
-            out[a] = {"mm": mm, "thermal": repr(cfg.axes[a].compensation.thermal)}
+            th = cfg.axes[a].compensation.thermal
+            out[a] = {"mm": mm, "thermal": repr(th)}
+            src = None if th is None or th.source is None else cfg.thermal_sources[th.source]
+            if src is not None and src.kind == "temperature" and th.profile is None:
+                out[a]["sensor"] = [th.origin_mm, th.length_mm, th.gain, src.alpha_per_k,
+                                    src.reference_c]  # fmt: skip
         return out
+
+    def _switch_temperatures(self, old: dict[str, dict], new: dict[str, dict],
+                             now_c: dict[str, float]) -> dict[str, float]:
+        """The temperature (°C) each axis's sensor correction is computed at across a switch.
+        Switched off: the reading now, kept. Switched on again: the one it was switched off
+        at (or the cold start's, for a base read with it off): the readings in between
+        held the growth itself, and the sensor's config must get back the base it had, or
+        the correction's change while it was off would stay in every later drift."""
+        kept = self.state.setdefault("thermal_ref_c", dict(self.state.get(
+            "start_temperature_c", {})))  # fmt: skip
+        out = dict(now_c)
+        for a, cmd in new.items():
+            had = (old.get(a) or {}).get("sensor") is not None
+            has = cmd.get("sensor") is not None
+            if had and not has and a in now_c:
+                kept[a] = now_c[a]
+            elif has and not had and a in kept and (old.get(a) or {}).get("thermal") == "None":
+                out[a] = kept[a]
+        return out
+
+    async def _read_temperatures(self, axes: Sequence[str], strict: bool = False
+                                 ) -> dict[str, float]:  # fmt: skip
+        """The temperature sensors of ``axes`` now (°C) (commission_thermal); none here."""
+        return {}
 
     def _digest(self, text: str) -> str:
         """What the gateway loads: the config text and every table file it names (a
@@ -304,7 +340,8 @@ class Steps:
         datas = []
         for part in parts:
             data = read_raw_csv(self.config_dir / part["raw"])
-            stored = part.get("drift")
+            stored = {a: v for a, v in (part.get("drift") or {}).items()
+                      if self.drift_taken_off(a)}  # fmt: skip
             if stored:
                 data = adaptive.drift_corrected(
                     data, {a: adaptive.Drift.from_json(v) for a, v in stored.items()})
@@ -427,13 +464,24 @@ class Steps:
             after = self._drift_now(await self._measure_refs())
             self._log_drift(after)
             before = pending.pop(key)
-            # an axis with thermal compensation: the gateway follows its growth (the
-            # readings hold what it leaves, as they will in use); the others: taken off
+            # kept for every axis; taken off where :meth:`drift_taken_off` says
             entry["drift"] = {a: [*self._ref_positions(a), *before[a], *after[a]]
-                              for a in self.s.axes
-                              if self.config.axes[a].compensation.thermal is None}  # fmt: skip
+                              for a in self.ref_axes()}  # fmt: skip
             self.state["drift_last"] = after
         return entry
+
+    def drift_taken_off(self, axis: str) -> bool:
+        """Whether ``axis``'s readings have the drift references' drift taken off: an axis
+        with no thermal setting (heat from motion, fitted here, leaves what the references
+        read), or one whose temperature sensor heat from motion replaces (the sensor's
+        linear correction cannot follow a screw warm where its nut works, and the final
+        config will not run it: what the references read across every switch is what the
+        sensor's config leaves, see :func:`.adaptive.relinked_base`). An axis that keeps
+        its sensor keeps what its compensation leaves, as it will in use."""
+        if self.config.axes[axis].compensation.thermal is None:
+            return True
+        motion = self.state.get("identify", {}).get(f"thermal-{axis}", {}).get("motion", {})
+        return bool(motion.get("config"))
 
     def _count_travel(self, axis: str, x_mm: float) -> None:
         """The odometer: every target commissioning writes, per axis (mm)."""
