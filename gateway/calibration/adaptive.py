@@ -310,10 +310,11 @@ def relinked_base(
     ``new_commands``, each axis's commands in mm at its references), the base moves by what
     they command differently there instead: computed, no heat in it. So it does where the
     thermal setting changes but both sides are computable: none, or a temperature source
-    (``sensor``: origin, length, gain, α, reference) at the sensor's reading at the switch
-    (``temperature_c``): switched off and on again at the same temperature, the sensor's
-    config gets back the base it had. ``base`` None: the first config, or a broken chain
-    (read)."""
+    (``sensor``: origin, length, gain, α, reference), at the sensor's reading as
+    commissioning began (``temperature_c``): each config's base is then what it would have
+    read on the cold machine, so the drift under a config without thermal compensation is
+    the growth itself, and under the sensor's what its correction leaves of it beyond the
+    cold start's. ``base`` None: the first config, or a broken chain (read)."""
     out = {a: [after[a][k] - drift[a][k] for k in (0, 1)] for a in after}
     if base is None:
         return out

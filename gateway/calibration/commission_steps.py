@@ -185,14 +185,10 @@ class Steps:
                 drift = {a: [before[a][k] - base["refs"][a][k] for k in (0, 1)]
                          for a in self.s.axes}  # fmt: skip
         commands = self._ref_commands()
-        old = self.state.get("ref_commands") or {}
-        sensed = [a for a in commands if commands[a].get("sensor") or
-                  (old.get(a) or {}).get("sensor")]  # fmt: skip
-        temps = await self._read_temperatures(sensed) if base is not None and sensed else {}
-        temps = self._switch_temperatures(old, commands, temps)
         new_base = adaptive.relinked_base(
-            None if base is None or before is None else base["refs"], after, drift, old,
-            commands, temps)  # fmt: skip
+            None if base is None or before is None else base["refs"], after, drift,
+            self.state.get("ref_commands") or {}, commands,
+            self.state.get("start_temperature_c"))  # fmt: skip
         self.state["ref_commands"] = commands
         self.state["drift_base"] = {"phase": phase, "refs": new_base}
         self.state["drift_last"] = drift
@@ -223,30 +219,6 @@ class Steps:
                 out[a]["sensor"] = [th.origin_mm, th.length_mm, th.gain, src.alpha_per_k,
                                     src.reference_c]  # fmt: skip
         return out
-
-    def _switch_temperatures(self, old: dict[str, dict], new: dict[str, dict],
-                             now_c: dict[str, float]) -> dict[str, float]:
-        """The temperature (°C) each axis's sensor correction is computed at across a switch.
-        Switched off: the reading now, kept. Switched on again: the one it was switched off
-        at (or the cold start's, for a base read with it off): the readings in between
-        held the growth itself, and the sensor's config must get back the base it had, or
-        the correction's change while it was off would stay in every later drift."""
-        kept = self.state.setdefault("thermal_ref_c", dict(self.state.get(
-            "start_temperature_c", {})))  # fmt: skip
-        out = dict(now_c)
-        for a, cmd in new.items():
-            had = (old.get(a) or {}).get("sensor") is not None
-            has = cmd.get("sensor") is not None
-            if had and not has and a in now_c:
-                kept[a] = now_c[a]
-            elif has and not had and a in kept and (old.get(a) or {}).get("thermal") == "None":
-                out[a] = kept[a]
-        return out
-
-    async def _read_temperatures(self, axes: Sequence[str], strict: bool = False
-                                 ) -> dict[str, float]:  # fmt: skip
-        """The temperature sensors of ``axes`` now (°C) (commission_thermal); none here."""
-        return {}
 
     def _digest(self, text: str) -> str:
         """What the gateway loads: the config text and every table file it names (a

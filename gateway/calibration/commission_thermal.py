@@ -11,7 +11,6 @@ source and what is fitted to it (a base of :class:`.commission.Commission`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -21,7 +20,6 @@ from ..compensation.errors import CompensationError, TableError
 from ..compensation.thermal import ThermalStage, delta_a_from_temperature
 from ..formats import read_pitch_csv
 from .commission_rotary import RotarySteps
-from .machine import MachineError
 from .models import thermal_fit, thermal_gain_fit
 from .plans import Plan, read_plan
 from .plans_scans import warmup_plan
@@ -142,44 +140,28 @@ class ThermalSteps(RotarySteps):
 
     async def read_start_temperatures(self) -> None:
         """Each temperature-source axis's sensor as commissioning begins (°C, once): what
-        its compensation commanded at the cold start (:func:`start_growth_mm`). Not on a
-        resume past the start (the machine has moved: no longer the start's reading)."""
+        its compensation commanded at the cold start (:func:`start_growth_mm`), and the
+        temperature a switch across its setting is computed at (see
+        :func:`.adaptive.relinked_base`). Not on a resume past the start (the machine has
+        moved: no longer the start's reading)."""
+        ep = self.s.instruments.temperature
         kept = self.state.setdefault("start_temperature_c", {})
         axes = [a for a in self.s.axes if a not in kept and self._source_kind(a) == "temperature"]
-        if not axes or "drift_base" in self.state:
+        if ep is None or not axes or "drift_base" in self.state:
             return
-        kept.update(await self._read_temperatures(axes, strict=True))
-        self._save()
-
-    async def _read_temperatures(self, axes: Sequence[str], strict: bool = False
-                                 ) -> dict[str, float]:  # fmt: skip
-        """The temperature sensors of ``axes`` now (°C): those with a temperature source
-        and ``--temperature`` given. Unless ``strict``, a sensor that cannot be read is left
-        out (a switch across its thermal setting is then read, not computed)."""
-        ep = self.s.instruments.temperature
-        axes = [a for a in axes if self._source_kind(a) == "temperature"]
-        if ep is None or not axes:
-            return {}
         from .machine import Links, TemperatureSensor
 
-        out: dict[str, float] = {}
         links = Links()
         try:
             for a in axes:
                 th = self.config.axes[a].compensation.thermal
                 assert th is not None and th.source is not None
                 src = self.config.thermal_sources[th.source]
-                try:
-                    sensor = TemperatureSensor.of_source(await links.get(*ep.key), ep.unit, src)
-                    out[a] = await sensor.read_c()
-                except (MachineError, OSError, TimeoutError) as exc:
-                    if strict:
-                        raise
-                    self.say(f"{a}: temperature sensor not read ({exc}): the drift references "
-                             "are read across this switch")  # fmt: skip
+                sensor = TemperatureSensor.of_source(await links.get(*ep.key), ep.unit, src)
+                kept[a] = await sensor.read_c()
         finally:
             links.close()
-        return out
+        self._save()
 
     def _source_kind(self, axis: str) -> str | None:
         """The kind of the axis's thermal source ("temperature", "displacement"), or None: no
