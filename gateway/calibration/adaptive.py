@@ -24,6 +24,7 @@ from ..compensation import PitchStage, PitchTable
 from ..compensation.cyclic import CyclicModel
 from ..compensation.thermal import ThermalStage, delta_a_from_temperature
 from .cyclic_fit import StationScan
+from .drift_shape import shaped_drift_mm
 from .iso230 import iso230_axis
 from .rawdata import AxisDeviations, RawData
 
@@ -272,26 +273,45 @@ def denser_grid(nx: int, ny: int, limit: int = 33) -> tuple[int, int]:
 @dataclass(frozen=True)
 class Drift:
     """How far an axis's deviation has drifted since commissioning began (mm), measured at
-    two reference positions ``x_mm`` just before and just after a run; linear in position
-    between (and beyond) them, linear in the run's progress."""
+    two reference positions ``x_mm`` just before and just after a run; linear in the run's
+    progress. Between (and beyond) the references: linear in position, or along the heat
+    shape W read before and after the run (:mod:`.drift_shape`, places over
+    ``travel_mm``) where one was kept."""
 
     x_mm: tuple[float, float]
     before_mm: tuple[float, float]
     after_mm: tuple[float, float]
+    travel_mm: tuple[float, float] | None = None
+    shape_before: tuple[float, ...] = ()
+    shape_after: tuple[float, ...] = ()
 
     def at(self, x_mm: NDArray[np.float64], fraction: NDArray[np.float64]
            ) -> NDArray[np.float64]:
         """Drift (mm) at positions ``x_mm`` a ``fraction`` (0..1) through the run."""
-        lo = self.before_mm[0] + (self.after_mm[0] - self.before_mm[0]) * fraction
-        hi = self.before_mm[1] + (self.after_mm[1] - self.before_mm[1]) * fraction
+        x = np.asarray(x_mm, dtype=np.float64)
+        f = np.asarray(fraction, dtype=np.float64)
+        if self.travel_mm is not None and self.shape_before and self.shape_after:
+            b = shaped_drift_mm(x, self.x_mm, self.before_mm, self.travel_mm,
+                                self.shape_before)  # fmt: skip
+            a = shaped_drift_mm(x, self.x_mm, self.after_mm, self.travel_mm, self.shape_after)
+            return b + (a - b) * f
+        lo = self.before_mm[0] + (self.after_mm[0] - self.before_mm[0]) * f
+        hi = self.before_mm[1] + (self.after_mm[1] - self.before_mm[1]) * f
         x0, x1 = self.x_mm
-        return lo + (hi - lo) * (np.asarray(x_mm) - x0) / (x1 - x0)
+        return lo + (hi - lo) * (x - x0) / (x1 - x0)
 
     def to_json(self) -> list[float]:
-        return [*self.x_mm, *self.before_mm, *self.after_mm]
+        out = [*self.x_mm, *self.before_mm, *self.after_mm]
+        if self.travel_mm is not None and self.shape_before and self.shape_after:
+            out += [*self.travel_mm, *self.shape_before, *self.shape_after]
+        return out
 
     @classmethod
     def from_json(cls, v: Sequence[float]) -> Drift:
+        if len(v) > 8:
+            k = (len(v) - 8) // 2
+            return cls((v[0], v[1]), (v[2], v[3]), (v[4], v[5]), (v[6], v[7]),
+                       tuple(v[8 : 8 + k]), tuple(v[8 + k : 8 + 2 * k]))  # fmt: skip
         return cls((v[0], v[1]), (v[2], v[3]), (v[4], v[5]))
 
 
@@ -326,14 +346,14 @@ def relinked_base(
         if was["thermal"] == new["thermal"]:
             out[a] = [base[a][k] + new["mm"][k] - was["mm"][k] for k in (0, 1)]
             continue
-        old_t, new_t = _thermal_mm(was, temps.get(a)), _thermal_mm(new, temps.get(a))
+        old_t, new_t = thermal_mm(was, temps.get(a)), thermal_mm(new, temps.get(a))
         if old_t is not None and new_t is not None:
             out[a] = [base[a][k] + new["mm"][k] + new_t[k] - was["mm"][k] - old_t[k]
                       for k in (0, 1)]  # fmt: skip
     return out
 
 
-def _thermal_mm(commands: dict, temperature_c: float | None) -> list[float] | None:
+def thermal_mm(commands: dict, temperature_c: float | None) -> list[float] | None:
     """What a config's thermal stage adds to the commands at the references (mm): nothing
     without one, a temperature source's correction at ``temperature_c``; None where it
     cannot be computed (a Δa or heat from motion: the gateway's own state)."""

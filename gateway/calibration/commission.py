@@ -582,6 +582,7 @@ class Commission(RefineSteps):
     async def _after(self) -> None:
         if not self.tables.pitch:
             return
+        self.tables.sensor_off.clear()  # the after-run with the sensors (motion_for_sensors)
         await self.use(self._tables_phase)
         for a in self.s.axes:
             plan = read_plan(self.dir / "plans" / f"before-{a}.plan")

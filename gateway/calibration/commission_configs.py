@@ -35,6 +35,9 @@ class Tables:
     #: temperature axes whose zone warm-up their own motion explained better: their
     #: thermal section (heat from motion) from the tables' configs on
     thermal_motion: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: temperature axes measured without their sensor until the after-run: heat from motion
+    #: spread where it travelled replaces it, and their drift follows that shape
+    sensor_off: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         return {"pitch": self.pitch, "cyclic": self.cyclic,
@@ -43,7 +46,7 @@ class Tables:
                 "planar_model": self.planar_model,
                 "planar_axes": list(self.planar_axes) if self.planar_axes else None,
                 "thermal_profile": self.thermal_profile,
-                "thermal_motion": self.thermal_motion}  # fmt: skip
+                "thermal_motion": self.thermal_motion, "sensor_off": self.sensor_off}  # fmt: skip
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> Tables:
@@ -54,7 +57,8 @@ class Tables:
                    dict(data.get("motion", {})), data.get("planar_model"),
                    tuple(axes) if axes else None,  # type: ignore[arg-type]
                    dict(data.get("thermal_profile", {})),
-                   dict(data.get("thermal_motion", {})))  # fmt: skip
+                   dict(data.get("thermal_motion", {})),
+                   list(data.get("sensor_off", [])))  # fmt: skip
 
 
 def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
@@ -80,6 +84,8 @@ def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tabl
                                "profile": tables.thermal_profile[name] if profile else None}
         if name in tables.thermal_gain and comp.get("thermal"):
             comp["thermal"] = {**comp["thermal"], "gain": round(tables.thermal_gain[name], 4)}
+        if name in tables.sensor_off:
+            comp.pop("thermal", None)
         data["axes"][name]["compensation"] = comp
     if tables.planar_axes is not None or set(axes) & set((data.get("planar") or {}).get(
             "axes", ())):  # fmt: skip

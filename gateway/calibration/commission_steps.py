@@ -9,6 +9,7 @@ own file and reloaded; :meth:`Steps.restore` puts the user's back.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import itertools
 import json
@@ -29,6 +30,7 @@ from ..formats import atomic_write_text
 from ..tables import build_chain
 from . import adaptive
 from .commission_configs import HEADER, Tables, identification, with_tables
+from .drift_shape import SweptHeat
 from .heat_fit import motion_heat_fit
 from .machine import MotionSettings
 from .plans import (
@@ -45,6 +47,11 @@ STATE = "commission.json"
 Say = Callable[[str], None]
 Reload = Callable[[], Awaitable[None]]
 
+
+
+#: how fast the swept travel behind a drift shape fades (s of machine time): a screw's
+#: thermal time constant (the bench's warm-ups fit 960-1130 s)
+MEMORY_S = 1000.0
 
 
 class BudgetSpent(Exception):
@@ -101,10 +108,16 @@ class Steps:
         for axis, lead in self.state.get("leads", {}).items():  # found by a lead search
             if lead and axis not in self.s.lead_mm:
                 self.s.lead_mm[axis] = float(lead)
+        # where each screw has been worked: the shape of its drift between the references
+        kept = self.state.get("swept_heat", {})
+        self.swept: dict[str, SweptHeat] = {
+            a: SweptHeat.from_json(kept[a]) if a in kept else
+            SweptHeat.for_travel(self._travel(a), MEMORY_S) for a in self.ref_axes()}  # fmt: skip
 
     # -- state ---------------------------------------------------------------------------
     def _save(self) -> None:
         self.state["tables"] = self.tables.to_json()
+        self.state["swept_heat"] = {a: h.to_json() for a, h in self.swept.items()}
         self.dir.mkdir(parents=True, exist_ok=True)
         atomic_write_text(self.state_path, json.dumps(self.state, indent=1, default=_plain))
 
@@ -312,11 +325,18 @@ class Steps:
         datas = []
         for part in parts:
             data = read_raw_csv(self.config_dir / part["raw"])
-            stored = {a: v for a, v in (part.get("drift") or {}).items()
+            drifts = {a: adaptive.Drift.from_json(v) for a, v in (part.get("drift") or {}).items()
                       if self.drift_taken_off(a)}  # fmt: skip
-            if stored:
-                data = adaptive.drift_corrected(
-                    data, {a: adaptive.Drift.from_json(v) for a, v in stored.items()})
+            for a, cold in (part.get("cold_mm") or {}).items():
+                if a in drifts and self.drift_spread_mm(a) is not None:
+                    # measured with the sensor on, its axis's tables without it: what the
+                    # sensor commanded at the cold start is taken off too
+                    d = drifts[a]
+                    drifts[a] = dataclasses.replace(
+                        d, before_mm=(d.before_mm[0] + cold[0], d.before_mm[1] + cold[1]),
+                        after_mm=(d.after_mm[0] + cold[0], d.after_mm[1] + cold[1]))
+            if drifts:
+                data = adaptive.drift_corrected(data, drifts)
             datas.append(data)
         return concat_raw(datas)
 
@@ -418,9 +438,11 @@ class Steps:
                         park: dict[str, float] | None, drifting: bool) -> dict[str, Any]:
         """One run of a step (its own raw file), the drift references read around it."""
         pending = self.state.setdefault("pending_refs", {})
+        shapes = self.state.setdefault("pending_shapes", {})
         if drifting and key not in pending:
             unmoved = self._refs_unmoved()  # the last run's after-reading, when it serves
             pending[key] = self._drift_now(unmoved or await self._measure_refs())
+            shapes[key] = self._drift_shapes()
             if unmoved is None:
                 self._log_drift(pending[key])
             self._save()
@@ -436,9 +458,21 @@ class Steps:
             after = self._drift_now(await self._measure_refs())
             self._log_drift(after)
             before = pending.pop(key)
-            # kept for every axis; taken off where :meth:`drift_taken_off` says
-            entry["drift"] = {a: [*self._ref_positions(a), *before[a], *after[a]]
-                              for a in self.ref_axes()}  # fmt: skip
+            shape_before, shape_after = shapes.pop(key, {}), self._drift_shapes()
+            # kept for every axis (taken off where :meth:`drift_taken_off` says), along the
+            # heat shape where :meth:`drift_spread_mm` says the screw is warm where it works
+            loaded = self.state.get("ref_commands") or {}
+            start_c = self.state.get("start_temperature_c") or {}
+            cold = {a: adaptive.thermal_mm(loaded[a], start_c.get(a)) for a in loaded
+                    if loaded[a].get("sensor") and a in start_c}  # fmt: skip
+            if cold:  # what the sensor commands at the references at the cold start
+                entry["cold_mm"] = cold
+            entry["drift"] = {
+                a: adaptive.Drift(
+                    self._ref_positions(a), tuple(before[a]), tuple(after[a]),
+                    self._travel(a) if a in shape_before and a in shape_after else None,
+                    tuple(shape_before.get(a, ())), tuple(shape_after.get(a, ()))).to_json()
+                for a in self.ref_axes()}  # fmt: skip
             self.state["drift_last"] = after
         return entry
 
@@ -455,13 +489,40 @@ class Steps:
         motion = self.state.get("identify", {}).get(f"thermal-{axis}", {}).get("motion", {})
         return bool(motion.get("config"))
 
+    def drift_spread_mm(self, axis: str) -> float | None:
+        """How far the heat of ``axis``'s moves spreads along its screw (mm), where its zone
+        warm-up showed the screw warm where its nut works (heat from motion, spread where it
+        travelled, replaced its temperature sensor); None: the drift is taken as linear
+        between the references (an evenly warm screw, or nothing measured to tell)."""
+        motion = self.state.get("identify", {}).get(f"thermal-{axis}", {}).get("motion", {})
+        spread = (motion.get("config") or {}).get("profile", {}) or {}
+        return float(spread["spread_mm"]) if spread.get("spread_mm") else None
+
+    def _drift_shapes(self) -> dict[str, list[float]]:
+        """The heat shape W of each axis whose drift follows it: a spread known, and no
+        thermal compensation in the loaded config (the drift is then the growth itself)."""
+        out = {}
+        loaded = self.state.get("ref_commands") or {}
+        for a, heat in self.swept.items():
+            spread = self.drift_spread_mm(a)
+            if spread is not None and (loaded.get(a) or {}).get("thermal") == "None":
+                out[a] = heat.shape(spread)
+        return out
+
     def _count_travel(self, axis: str, x_mm: float) -> None:
-        """The odometer: every target commissioning writes, per axis (mm)."""
+        """The odometer: every target commissioning writes, per axis (mm); and where each
+        screw was worked, the machine time taken as the move's travel at the
+        commissioning speed and a stop."""
         odo = self.state.setdefault("odometer", {"mm": {}, "at": {}})
         last = odo["at"].get(axis)
         if last is not None:
             odo["mm"][axis] = odo["mm"].get(axis, 0.0) + abs(x_mm - last)
         odo["at"][axis] = x_mm
+        seconds = (0.0 if last is None else abs(x_mm - last) / self.s.speed_mm_s) + self.s.stop_s
+        for heat in self.swept.values():
+            heat.elapse(seconds)
+        if axis in self.swept:
+            self.swept[axis].move_to(x_mm)
 
     def _odometer(self) -> dict[str, float]:
         """Each commissioned axis's travel so far (mm)."""

@@ -117,6 +117,10 @@ class ThermalSteps(RotarySteps):
         out = hf.summary()
         if hf.replaces_sensor:
             out["config"] = hf.config(dict.fromkeys(self.s.axes, self.s.speed_mm_s))
+            if hf.spread_mm and axis not in self.tables.sensor_off:
+                # warm where it works: measured with the sensor off until the after-run, so
+                # the drift its references read is the growth, taken off along that shape
+                self.tables.sensor_off.append(axis)
             self.say(f"{axis}: the heat of its own motion explains the zone warm-up "
                      f"({hf.growth_max_um:.1f} µm) to {hf.motion_rms_um:.2f} µm RMS where the "
                      f"sensor explains {hf.sensor_rms_um:.2f}: heat from motion (tau "
@@ -197,7 +201,8 @@ class ThermalSteps(RotarySteps):
         for a in self.s.axes:
             motion = self.state.get("identify", {}).get(f"thermal-{a}", {}).get("motion", {})
             if motion.get("config") and a not in self.tables.thermal_motion:
-                self._add_start_growth(a)
+                if self.drift_spread_mm(a) is None:  # else its readings lost it (raw)
+                    self._add_start_growth(a)
                 self.tables.thermal_motion[a] = motion["config"]
                 note = (f"{a}: heat from motion replaces the temperature sensor in the final "
                         "config; the after-run ran with the sensor (the model starts cold: "
