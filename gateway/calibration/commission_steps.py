@@ -100,6 +100,7 @@ class Steps:
         self.config_dir = settings.config_path.resolve().parent
         self.state_path = self.dir / STATE
         self.state: dict[str, Any] = {"version": 1, "steps": {}, "rounds": [], "notes": []}
+        self._refs_read_here = False  # the drift references read by this process yet
         if self.state_path.exists():
             self.state = json.loads(self.state_path.read_text())
         self.original_path = self.dir / "original.yaml"
@@ -295,7 +296,7 @@ class Steps:
         adds its own scatter). None otherwise (and after a resume: the machine may have
         been moved by hand)."""
         last = self.state.get("last_refs")
-        if not (last and getattr(self, "_refs_read_here", False)):
+        if not (last and self._refs_read_here):
             return None
         if last["phase"] != self.state.get("phase") or last.get("odometer_mm") != self._odometer():
             return None
