@@ -191,13 +191,16 @@ class ThermalSteps(RotarySteps):
         config. Not in the runs before: the model starts cold at a reload, on a screw the
         commissioning has warmed, so the rounds would judge the tables against that
         mismatch and the after-run would report it (rough-9 X: E 22 µm there, 2.7 µm in a
-        judge after a cool-down); those runs keep the sensor.
+        judge after a cool-down); those runs keep the sensor, or run without it where the
+        heat was spread where the axis travelled (``Tables.sensor_off``: their drift is
+        then the growth, taken off along that shape), and the after-run keeps it.
 
-        The tables were measured with the sensor's compensation on, which at the cold start
-        already took the screw for grown by the sensor's distance from its reference
-        temperature; the tables hold that much less. Heat from motion starts at zero, so
-        that growth goes back into the table (once: the table as it was is kept in the
-        state until it is written)."""
+        Tables measured with the sensor's compensation on, which at the cold start already
+        took the screw for grown by the sensor's distance from its reference temperature,
+        hold that much less. Heat from motion starts at zero, so that growth goes back into
+        the table (once: the table as it was is kept in the state until it is written);
+        where the axis ran without its sensor, its readings taken with it lost that growth
+        with their drift (:meth:`raw`) instead."""
         for a in self.s.axes:
             motion = self.state.get("identify", {}).get(f"thermal-{a}", {}).get("motion", {})
             if motion.get("config") and a not in self.tables.thermal_motion:
