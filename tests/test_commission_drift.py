@@ -1,0 +1,94 @@
+"""The drift commissioning takes off an axis whose temperature sensor heat from motion
+replaces (gateway.calibration.commission_steps.Steps.raw, adaptive.relinked_base): runs
+read with the sensor on and runs read with it off must both come back to the cold
+machine's own error, whatever the screw's temperature then. Built as the gateway reads:
+the sensor's correction moves where the axis lands, the screw grows from its fixed end."""
+
+from __future__ import annotations
+
+import types
+from pathlib import Path
+
+import numpy as np
+
+from gateway.calibration import adaptive
+from gateway.calibration.commission_steps import Steps
+from gateway.calibration.rawdata import RawWriter
+from gateway.compensation.thermal import ThermalStage, delta_a_from_temperature
+
+REFS = (31.0, 570.0)
+ORIGIN, LENGTH, GAIN, ALPHA, REF_C, START_C = -40.0, 640.0, 1.0, 11.5e-6, 20.0, 23.0
+SENSOR = [ORIGIN, LENGTH, GAIN, ALPHA, REF_C]
+
+
+def _error_mm(x: np.ndarray) -> np.ndarray:
+    """The cold machine's own error (mm)."""
+    return 6e-3 * x / 600.0 + 2e-3 * np.sin(x / 50.0)
+
+
+def _sensor_mm(x: np.ndarray, t_c: float) -> np.ndarray:
+    """What the sensor's correction moves the axis by at ``t_c`` (the gateway's stage)."""
+    da = GAIN * delta_a_from_temperature(ALPHA, LENGTH, t_c, REF_C)
+    return ThermalStage(LENGTH, ORIGIN).forward(x, da) - x
+
+
+def _growth_mm(x: np.ndarray, scale: float) -> np.ndarray:
+    return scale * 1e-5 * (x - ORIGIN)
+
+
+def _run(path: Path, x: np.ndarray, sensor_c: float | None, scale: float) -> None:
+    """One run read at ``x``: the screw grown by ``scale``, the sensor on at ``sensor_c``."""
+    read = x + _error_mm(x) + _growth_mm(x, scale)
+    if sensor_c is not None:
+        read = read + _sensor_mm(x, sensor_c)
+    with RawWriter(path, []) as w:
+        for t, a in zip(x, read):
+            w.append("X", 1, "+", float(t), float(a))
+
+
+def test_runs_with_the_sensor_on_and_off_both_come_back_to_the_cold_machine(tmp_path: Path):
+    refs = np.array(REFS)
+    x = np.linspace(10.0, 590.0, 30)
+    on = {"mm": list(REFS), "thermal": "ThermalComp(temperature)", "sensor": SENSOR}
+    off = {"mm": list(REFS), "thermal": "None"}
+    # the cold start, sensor on: the first base is what the references read then
+    base0 = {"X": list(_error_mm(refs) + _sensor_mm(refs, START_C))}
+    # a warm-up later the sensor is switched off at 27 °C with 30 µm/m grown: computed
+    after = {"X": list(_error_mm(refs) + _growth_mm(refs, 3.0))}
+    drift = {"X": list(_growth_mm(refs, 3.0) + _sensor_mm(refs, 27.0) - _sensor_mm(refs,
+                                                                                   START_C))}
+    base_off = adaptive.relinked_base(base0, after, drift, {"X": on}, {"X": off},
+                                      {"X": START_C})  # fmt: skip
+    # under the config without the sensor the drift is the growth itself
+    np.testing.assert_allclose(np.array(after["X"]) - base_off["X"], _growth_mm(refs, 3.0),
+                               atol=1e-12)  # fmt: skip
+
+    def refs_drift(scale: float, sensor_c: float | None, base: list[float]) -> list[float]:
+        read = _error_mm(refs) + _growth_mm(refs, scale)
+        if sensor_c is not None:
+            read = read + _sensor_mm(refs, sensor_c)
+        return list(read - np.array(base))
+
+    _run(tmp_path / "on.csv", x, 25.0, 1.0)  # sensor on, 25 °C, 10 µm/m (1 → 1.5 over it)
+    _run(tmp_path / "off.csv", x, None, 2.0)  # sensor off, 20 µm/m
+    parts = [
+        {"raw": "on.csv", "cold_mm": {"X": list(_sensor_mm(refs, START_C))},
+         "drift": {"X": [*REFS, *refs_drift(1.0, 25.0, base0["X"]),
+                         *refs_drift(1.0, 25.0, base0["X"])]}},
+        {"raw": "off.csv",
+         "drift": {"X": [*REFS, *refs_drift(2.0, None, base_off["X"]),
+                         *refs_drift(2.0, None, base_off["X"])]}},
+    ]  # fmt: skip
+    for spread, left in ((150.0, 0.0), (None, 1.0)):
+        fake = types.SimpleNamespace(
+            state={"steps": {"s": {"parts": parts}}}, config_dir=tmp_path, dir=tmp_path,
+            drift_taken_off=lambda a: True, drift_spread_mm=lambda a, s=spread: s,
+            _rel=lambda p: str(p))  # fmt: skip
+        data = Steps.raw(fake, "s")  # type: ignore[arg-type]
+        got = data.deviation_mm.reshape(2, -1)
+        # off: the cold machine's error; on: the same where its sensor goes (a spread
+        # known), else less what the sensor took at the cold start (put back later)
+        np.testing.assert_allclose(got[1], _error_mm(x), atol=1e-9)
+        np.testing.assert_allclose(got[0], _error_mm(x) + left * _sensor_mm(x, START_C),
+                                   atol=1e-9)  # fmt: skip
+    assert np.abs(_sensor_mm(x, START_C)).max() > 5e-3  # the start's 3 K: tens of µm
