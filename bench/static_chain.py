@@ -37,6 +37,8 @@ def quiet_sim(sim_yaml: Path) -> Machine:
         errs["repeatability_um"] = 0.0
         for key in ("stick_slip", "settling", "heat", "thermal"):
             errs.pop(key, None)
+    for sensor in ("delta_a", "temperature"):  # they read the heat taken out
+        (data["sim"].get("instruments") or {}).pop(sensor, None)
     cfg = parse_config(data, sim_yaml.parent)
     return Machine(cfg.sim, base_dir=str(sim_yaml.parent))
 
