@@ -23,6 +23,7 @@ from .compensation.thermal import (
     motion_heat_m,
     travel_delta_a_mm,
     travel_integral,
+    travel_swept,
     travel_weights,
 )
 from .config import AxisThermal, MotionHeat, TravelProfile
@@ -63,15 +64,11 @@ class TravelHistory:
             return
         now = self.clock()
         since_s, self.at_s = now - self.at_s, now
-        lo, hi = sorted((last, x_mm))
-        fade = (hi - lo) / self.profile.memory_mm
+        fade = abs(x_mm - last) / self.profile.memory_mm
         if self.profile.memory_s is not None:  # a pause cools the old zones too
             fade = max(fade, since_s / self.profile.memory_s)
         self.swept *= math.exp(-fade)
-        half = self.profile.bin_mm / 2.0
-        overlap = np.clip(np.minimum(self.centres_mm + half, hi)
-                          - np.maximum(self.centres_mm - half, lo), 0.0, None)  # fmt: skip
-        self.swept += overlap / self.profile.bin_mm
+        self.swept += travel_swept(self.centres_mm, self.profile.bin_mm, last, x_mm)
         self._integral = None
 
     def delta_a_mm(self, delta_a_mm: float, at_mm: float) -> float:

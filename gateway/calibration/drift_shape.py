@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..compensation.thermal import travel_integral, travel_weights
+from ..compensation.thermal import travel_integral, travel_swept, travel_weights
 
 #: bins of the swept travel (mm)
 BIN_MM = 5.0
@@ -74,11 +74,7 @@ class SweptHeat:
         last, self.last_mm = self.last_mm, float(x_mm)
         if last is None or x_mm == last:
             return
-        lo, hi = sorted((last, float(x_mm)))
-        c = self.centres_mm
-        half = BIN_MM / 2.0
-        self.swept += np.clip(np.minimum(c + half, hi) - np.maximum(c - half, lo), 0.0,
-                              None) / BIN_MM  # fmt: skip
+        self.swept += travel_swept(self.centres_mm, BIN_MM, last, float(x_mm))
 
     def shape(self, spread_mm: float) -> list[float]:
         """W (the integral of the heat weights, any scale) at the ``SAMPLES`` places."""

@@ -76,6 +76,16 @@ class ThermalStage:
 
 
 # -- where the heat is: a growth profile from the axis's own travel -----------------------
+def travel_swept(centres_mm: ArrayLike, bin_mm: float, from_mm: float, to_mm: float
+                 ) -> NDArray[np.float64]:  # fmt: skip
+    """How much of each bin (centred at ``centres_mm``, ``bin_mm`` wide) one move from
+    ``from_mm`` to ``to_mm`` sweeps: 1 for a bin crossed whole, a share at the ends."""
+    c = np.asarray(centres_mm, dtype=np.float64)
+    lo, hi = sorted((from_mm, to_mm))
+    half = bin_mm / 2.0
+    return np.clip(np.minimum(c + half, hi) - np.maximum(c - half, lo), 0.0, None) / bin_mm
+
+
 def travel_weights(swept: ArrayLike, bin_mm: float, spread_mm: float) -> NDArray[np.float64]:
     """Heat weight per bin: the travel swept over each bin, spread along the screw by a
     Gaussian of ``spread_mm`` (conduction over a thermal time constant, about √(κτ))."""
