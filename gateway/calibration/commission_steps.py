@@ -487,17 +487,21 @@ class Steps:
         its sensor keeps what its compensation leaves, as it will in use."""
         if self.config.axes[axis].compensation.thermal is None:
             return True
-        motion = self.state.get("identify", {}).get(f"thermal-{axis}", {}).get("motion", {})
-        return bool(motion.get("config"))
+        return self.replacing_motion(axis) is not None
 
     def drift_spread_mm(self, axis: str) -> float | None:
         """How far the heat of ``axis``'s moves spreads along its screw (mm), where its zone
         warm-up showed the screw warm where its nut works (heat from motion, spread where it
         travelled, replaced its temperature sensor); None: the drift is taken as linear
         between the references (an evenly warm screw, or nothing measured to tell)."""
-        motion = self.state.get("identify", {}).get(f"thermal-{axis}", {}).get("motion", {})
-        spread = (motion.get("config") or {}).get("profile", {}) or {}
+        spread = (self.replacing_motion(axis) or {}).get("profile") or {}
         return float(spread["spread_mm"]) if spread.get("spread_mm") else None
+
+    def replacing_motion(self, axis: str) -> dict[str, Any] | None:
+        """The heat-from-motion thermal section that replaces ``axis``'s temperature sensor
+        (its zone warm-up's fit, :mod:`.warmup_heat`), or None."""
+        ident = self.state.get("identify", {}).get(f"thermal-{axis}", {})
+        return (ident.get("motion") or {}).get("config") or None
 
     def _drift_shapes(self) -> dict[str, list[float]]:
         """The heat shape W of each axis whose drift follows it: a spread known, and no

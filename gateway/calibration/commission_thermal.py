@@ -202,11 +202,11 @@ class ThermalSteps(RotarySteps):
         where the axis ran without its sensor, its readings taken with it lost that growth
         with their drift (:meth:`raw`) instead."""
         for a in self.s.axes:
-            motion = self.state.get("identify", {}).get(f"thermal-{a}", {}).get("motion", {})
-            if motion.get("config") and a not in self.tables.thermal_motion:
+            motion = self.replacing_motion(a)
+            if motion is not None and a not in self.tables.thermal_motion:
                 if self.drift_spread_mm(a) is None:  # else its readings lost it (raw)
                     self._add_start_growth(a)
-                self.tables.thermal_motion[a] = motion["config"]
+                self.tables.thermal_motion[a] = motion
                 note = (f"{a}: heat from motion replaces the temperature sensor in the final "
                         "config; the after-run ran with the sensor (the model starts cold: "
                         "on a warm machine it under-corrects until the screw has cooled)")
