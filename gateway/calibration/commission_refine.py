@@ -209,7 +209,9 @@ class RefineSteps(ThermalSteps):
         lead = model.lead_mm if model else None
         fit = fit_sweep(raw.target_mm[rows], raw.deviation_mm[rows], raw.direction[rows],
                         lead, model.origin_mm if model else 0.0,
-                        harmonics_for_step(sweep_step_mm(lead, coarser), lead))  # fmt: skip
+                        harmonics_for_step(sweep_step_mm(lead, coarser), lead),
+                        table_mm=table.position_mm,
+                        stations_mm=model.station_mm if model else ())  # fmt: skip
         ref = sweep_refinement(table, self.table_stage(axis, table), model, fit)
         record: dict[str, Any] = {
             "round": r, "readings": int(rows.sum()), "knots": int(fit.knot_mm.size),

@@ -28,7 +28,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ..compensation import PitchStage, PitchTable
 from ..compensation.cyclic import CyclicModel
@@ -39,8 +39,11 @@ from .adaptive import MIN_SPACING_MM
 SWEEP_STEPS_LEADS = (0.12, 0.16, 0.24)
 #: the step (mm) of an axis without a known lead, and what the budget may make of it
 SWEEP_STEPS_MM = (1.0, 1.5, 2.5)
-#: the level's knots: every lead, at most this far apart (mm)
+#: the level's knots: one per target read, at most this far apart (mm) and at most this
+#: many over the travel (the fit's cost grows as their cube); the smoothing penalty, chosen
+#: by cross-validation, decides how much of that resolution the readings support
 LEVEL_KNOT_MM = 5.0
+LEVEL_KNOTS_MAX = 200
 #: the amplitudes' stations: at least this many leads apart, about this many over the travel
 STATION_LEADS = 4.0
 STATIONS = 17
@@ -94,6 +97,33 @@ def knots_mm(lo_mm: float, hi_mm: float, spacing_mm: float) -> NDArray[np.float6
     return np.round(np.linspace(lo_mm, hi_mm, n), 4)
 
 
+def merged_mm(own_mm: NDArray[np.float64], kept_mm: ArrayLike, gap_mm: float
+              ) -> NDArray[np.float64]:  # fmt: skip
+    """``kept_mm`` (every one) and those of ``own_mm`` at least ``gap_mm`` from all of them,
+    sorted: the break points of a piecewise-linear fit that is added to a piecewise-linear
+    function breaking at ``kept_mm``, so that the sum breaks only where both are known."""
+    kept = np.unique(np.round(np.asarray(kept_mm, dtype=np.float64).reshape(-1), 4))
+    if kept.size == 0:
+        return own_mm
+    far = np.array([np.min(np.abs(kept - p)) >= gap_mm for p in own_mm], dtype=bool)
+    return np.unique(np.concatenate([kept, own_mm[far]]))
+
+
+def _curvature(t: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Second divided differences over the break points ``t`` (scaled to their mean
+    spacing: ``[1, -2, 1]`` where they are even), the smoothing penalty's rows."""
+    n = t.size
+    d = np.zeros((max(0, n - 2), n))
+    if n < 3:
+        return d
+    h = np.diff(t)
+    mean = float(np.mean(h))
+    for i in range(n - 2):
+        d[i, i], d[i, i + 2] = mean / h[i], mean / h[i + 1]
+        d[i, i + 1] = -(d[i, i] + d[i, i + 2])
+    return d
+
+
 def _hats(x: NDArray[np.float64], knots: NDArray[np.float64]) -> NDArray[np.float64]:
     """Design columns of piecewise-linear interpolation between ``knots`` (held outside)."""
     xc = np.clip(x, knots[0], knots[-1])
@@ -131,22 +161,30 @@ class SweepFit:
 
 def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
               direction: NDArray[np.int64], lead_mm: float | None, origin_mm: float = 0.0,
-              harmonics: int = SWEEP_HARMONICS, robust: bool = True) -> SweepFit:  # fmt: skip
+              harmonics: int = SWEEP_HARMONICS, robust: bool = True,
+              table_mm: ArrayLike = (), stations_mm: ArrayLike = ()) -> SweepFit:  # fmt: skip
     """Fit a sweep's residual (see the module's docstring). The number of harmonics (up to
     ``harmonics``) and the three penalty weights are those of the smallest generalised
-    cross-validation score: a harmonic the readings do not show is not added."""
+    cross-validation score: a harmonic the readings do not show is not added.
+
+    ``table_mm`` and ``stations_mm``: the points of the table and the stations of the
+    cyclic term the sweep was read with. The level breaks at every table point and the
+    amplitudes at every station too, so the fit added to them is exactly what the gateway
+    then interpolates (:func:`sweep_refinement`), between the readings as at them."""
     x = np.asarray(x_mm, dtype=np.float64)
     y = np.asarray(deviation_mm, dtype=np.float64) * 1e3  # µm: a well-scaled system
     s = np.where(np.asarray(direction) < 0, 0.5, -0.5)  # −D/2 going up, +D/2 down
     lo, hi = float(np.min(x)), float(np.max(x))
     k = harmonics if lead_mm else 0
-    knot_spacing = min(lead_mm, LEVEL_KNOT_MM) if lead_mm else LEVEL_KNOT_MM
-    kn = knots_mm(lo, hi, knot_spacing)
+    targets = np.unique(np.round(x, 4))
+    step = float(np.median(np.diff(targets))) if targets.size > 1 else LEVEL_KNOT_MM
+    knot_spacing = min(LEVEL_KNOT_MM, max(step, (hi - lo) / (LEVEL_KNOTS_MAX - 1)))
+    kn = merged_mm(knots_mm(lo, hi, knot_spacing), table_mm, MIN_SPACING_MM)
     h = _hats(x, kn)
     blocks = [h, h * s[:, None]]
     if k:
         spacing = max(STATION_LEADS * lead_mm, (hi - lo) / (STATIONS - 1))  # type: ignore[operator]
-        st = knots_mm(lo, hi, spacing)
+        st = merged_mm(knots_mm(lo, hi, spacing), stations_mm, lead_mm)  # type: ignore[arg-type]
         g = _hats(x, st)
         theta = 2 * np.pi * (x - origin_mm) / lead_mm  # type: ignore[operator]
         for j in range(1, k + 1):
@@ -159,8 +197,8 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
     xtx_all = design.T @ design
     groups_all = [np.zeros_like(xtx_all) for _ in range(3)]
     start = 0
-    for part, n in enumerate(sizes):
-        d = np.diff(np.eye(n), 2, axis=0)  # second differences: no penalty on a line
+    for part, (n, t) in enumerate(zip(sizes, [kn, kn] + [st] * (2 * k))):
+        d = _curvature(t)  # no penalty on a line
         block = slice(start, start + n)
         weight = float(np.trace(xtx_all[block, block])) / n
         groups_all[min(part, 2)][block, block] = weight * (d.T @ d)
@@ -256,12 +294,15 @@ def sweep_refinement(
     min_spacing_mm: float = MIN_SPACING_MM,
 ) -> SweepRefinement:  # fmt: skip
     """``table`` (and ``cyclic``) with the sweep's fit added: the table gets the level's
-    knots (those at least ``min_spacing_mm`` from its own points) and every point the
-    level there; the cyclic model is resampled at the sweep's stations with the fitted
-    amplitudes added (harmonics it lacked start from zero)."""
+    knots and every point the level there; the cyclic model gets the sweep's stations,
+    each with the fitted amplitudes added (harmonics it lacked start from zero). Exact when
+    the fit broke at the table's points and the model's stations (``fit_sweep``'s
+    ``table_mm``, ``stations_mm``); else the knots within ``min_spacing_mm`` of a table
+    point are left out."""
     x = table.position_mm
-    new = np.array([p for p in fit.knot_mm if np.min(np.abs(x - p)) >= min_spacing_mm])
-    pos = np.sort(np.concatenate([x, new]))
+    new = np.array([p for p in fit.knot_mm if np.min(np.abs(x - p)) >= min_spacing_mm
+                    or np.any(np.isclose(p, x, atol=1e-4))])  # fmt: skip
+    pos = np.unique(np.round(np.concatenate([x, new]), 4))
     own_up = stage.inverse(pos, np.ones(pos.size, dtype=np.int64)) - pos
     own_dn = stage.inverse(pos, -np.ones(pos.size, dtype=np.int64)) - pos
     fwd = own_up + fit.level_mm(pos, +1)
