@@ -210,7 +210,7 @@ class RefineSteps(ThermalSteps):
         fit = fit_sweep(raw.target_mm[rows], raw.deviation_mm[rows], raw.direction[rows],
                         lead, model.origin_mm if model else 0.0,
                         harmonics_for_step(sweep_step_mm(lead, coarser), lead),
-                        table_mm=table.position_mm,
+                        table=table,
                         stations_mm=model.station_mm if model else ())  # fmt: skip
         ref = sweep_refinement(table, self.table_stage(axis, table), model, fit)
         record: dict[str, Any] = {

@@ -162,15 +162,19 @@ class SweepFit:
 def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
               direction: NDArray[np.int64], lead_mm: float | None, origin_mm: float = 0.0,
               harmonics: int = SWEEP_HARMONICS, robust: bool = True,
-              table_mm: ArrayLike = (), stations_mm: ArrayLike = ()) -> SweepFit:  # fmt: skip
+              table: PitchTable | None = None, stations_mm: ArrayLike = ()
+              ) -> SweepFit:  # fmt: skip
     """Fit a sweep's residual (see the module's docstring). The number of harmonics (up to
     ``harmonics``) and the three penalty weights are those of the smallest generalised
     cross-validation score: a harmonic the readings do not show is not added.
 
-    ``table_mm`` and ``stations_mm``: the points of the table and the stations of the
-    cyclic term the sweep was read with. The level breaks at every table point and the
-    amplitudes at every station too, so the fit added to them is exactly what the gateway
-    then interpolates (:func:`sweep_refinement`), between the readings as at them."""
+    ``table`` and ``stations_mm``: the table and the stations of the cyclic term the sweep
+    was read with. The level breaks at every table point and the amplitudes at every
+    station too, so the fit added to them is exactly what the gateway then interpolates
+    (:func:`sweep_refinement`), between the readings as at them. The smoothing penalty is
+    on the table the fold makes (the table's own points plus the level): the sweep reads
+    the whole error every step, so the noise of the fewer readings the table's points came
+    from is smoothed out with its own, as far as cross-validation says the sweep allows."""
     x = np.asarray(x_mm, dtype=np.float64)
     y = np.asarray(deviation_mm, dtype=np.float64) * 1e3  # µm: a well-scaled system
     s = np.where(np.asarray(direction) < 0, 0.5, -0.5)  # −D/2 going up, +D/2 down
@@ -179,7 +183,8 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
     targets = np.unique(np.round(x, 4))
     step = float(np.median(np.diff(targets))) if targets.size > 1 else LEVEL_KNOT_MM
     knot_spacing = min(LEVEL_KNOT_MM, max(step, (hi - lo) / (LEVEL_KNOTS_MAX - 1)))
-    kn = merged_mm(knots_mm(lo, hi, knot_spacing), table_mm, MIN_SPACING_MM)
+    kn = merged_mm(knots_mm(lo, hi, knot_spacing),
+                   () if table is None else table.position_mm, MIN_SPACING_MM)  # fmt: skip
     h = _hats(x, kn)
     blocks = [h, h * s[:, None]]
     if k:
@@ -204,6 +209,16 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
         groups_all[min(part, 2)][block, block] = weight * (d.T @ d)
         start += n
 
+    # the table as it was, at the knots (µm): the penalty holds it plus the level smooth
+    prior = np.zeros(design.shape[1])
+    if table is not None:
+        fwd = np.interp(kn, table.position_mm, table.forward_mm) * 1e3
+        rev = fwd if table.reverse_mm is None else \
+            np.interp(kn, table.position_mm, table.reverse_mm) * 1e3  # fmt: skip
+        prior[: kn.size] = 0.5 * (fwd + rev)
+        prior[kn.size : 2 * kn.size] = rev - fwd
+    pulls = [g_ @ prior for g_ in groups_all]
+
     def normal(w: NDArray[np.float64] | None) -> tuple[NDArray[np.float64], ...]:
         """The weighted normal equations' matrix and right side, all columns."""
         dw = design if w is None else design * w[:, None]
@@ -217,7 +232,8 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
         xtx = eqs[0][cols, cols]
         a = xtx + sum(lam * g_[cols, cols] for lam, g_ in zip(lams, groups_all))
         a = a + 1e-9 * float(np.trace(xtx)) / xtx.shape[0] * np.eye(xtx.shape[0])
-        beta = np.linalg.solve(a, eqs[1][cols])
+        rhs = eqs[1][cols] - sum(lam * p[cols] for lam, p in zip(lams, pulls))
+        beta = np.linalg.solve(a, rhs)
         edf = float(np.trace(np.linalg.solve(a, xtx)))
         e = y - design[:, cols] @ beta
         rss = float(np.sum(e * e if w is None else w * e * e))
