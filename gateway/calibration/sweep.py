@@ -10,11 +10,14 @@ Its residual is fitted as
 
     r(x, ±) = L(x) ∓ D(x)/2 + Σ_k a_k(x)·sin(kθ) + b_k(x)·cos(kθ)
 
-with L (the level) and D (the lost motion's change) piecewise linear between knots every
-``knot_mm`` (the table's own interpolation, so the gateway reproduces it exactly) and the
-amplitudes piecewise linear between stations (the cyclic stage's own interpolation). Each
-part is held smooth by a second-difference penalty whose weight is chosen by generalised
-cross-validation, so a sweep of noise adds nothing and a wavy screw is followed. The fit is
+with L (the level) and D (the lost motion's change) piecewise linear between knots at
+every target read and at the table's own points (the table's own interpolation, so the
+gateway reproduces the sum exactly, between the readings too) and the amplitudes
+piecewise linear between stations that include the cyclic term's own (its own
+interpolation). Each part is held smooth by a second-difference penalty whose weight is
+chosen by generalised cross-validation, so a sweep of noise adds nothing and a wavy screw
+is followed; the level's penalty is on the table the fold makes (the old points plus L),
+so the noise of the identification's fewer readings is smoothed with the sweep's. The fit is
 robust: a stick-slip axis stops short now and then (a one-sided tail of up to a few µm),
 and those readings are weighted down (Tukey's biweight) instead of bending the table; how
 often the axis stops short, on average, is put back as a constant per direction. Positions
