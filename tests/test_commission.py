@@ -85,7 +85,7 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
             assert heat["fitted"] == ("thermal" in final[axis]["compensation"]), heat
             assert heat["fitted"] or f"axis {axis}" in heat["why"], heat
         # X missed in round 1: swept once over its whole travel, both ways, a reading every
-        # 0.12 lead, the table given a point every lead (at most 5 mm)
+        # 0.12 lead, the table given a point at every target read
         state = json.loads((out / "commission.json").read_text())
         swept = [e["round"] for e in state["rounds"] if "X" in e.get("swept", [])]
         assert swept == [1], state["rounds"]

@@ -3,8 +3,8 @@ round may spend, the new table points in failing spans (short scans where there 
 cyclic term) and, once per axis, the sweep of the whole travel (:mod:`.sweep`).
 
 An axis that misses its tolerance is swept first, when the budget affords it: one reading
-every eighth of a lead over the whole travel, each way, gives the table a point every lead
-(at most 5 mm) and the cyclic term a station every few leads, each held as smooth as
+every eighth of a lead over the whole travel, each way, gives the table a point at every
+target read and the cyclic term a station every few leads, each held as smooth as
 cross-validation says the readings allow. Spans that still miss after it are refined one
 by one. A sweep that does not pay is taken back like any refinement.
 """

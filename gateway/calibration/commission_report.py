@@ -163,8 +163,8 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
                  "targets never used to fit (the new spans' midpoints and fresh random "
                  "targets); where the residual stands out, the span gets a new point (the first "
                  "time an axis misses, if the budget allows, a sweep of its whole travel "
-                 "gives it a point every lead and the cyclic term a station every few "
-                 "leads).</p>"
+                 "gives it a point at every target read and the cyclic term a station every "
+                 "few leads).</p>"
                  f"<table id='rounds'><tr><th>round</th><th>verification ({round_units})</th>"
                  "<th>then</th><th>machine h so far</th></tr>" + "".join(rrows) + "</table>")
     ident = summary.get("identify", {})
