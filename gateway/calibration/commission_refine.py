@@ -217,7 +217,7 @@ class RefineSteps(ThermalSteps):
             "round": r, "readings": int(rows.sum()), "knots": int(fit.knot_mm.size),
             "stations": int(fit.station_mm.size), "harmonics": int(fit.sin_mm.shape[1]),
             "residual_rms_um": fit.residual_rms_um, "level_ptp_um": fit.level_ptp_um,
-            "lambdas": list(fit.lambdas)}  # fmt: skip
+            "lambdas": list(fit.lambdas), "hold": fit.hold}  # fmt: skip
         self.state.setdefault("identify", {})[f"sweep-{axis}"] = record
         config, _ = self.staged(self._tables_phase)
         if not self._write_tables(axis, config, ref.table, ref.cyclic, f"swept in round {r}"):

@@ -17,7 +17,9 @@ piecewise linear between stations that include the cyclic term's own (its own
 interpolation). Each part is held smooth by a second-difference penalty whose weight is
 chosen by generalised cross-validation, so a sweep of noise adds nothing and a wavy screw
 is followed; the level's penalty is on the table the fold makes (the old points plus L),
-so the noise of the identification's fewer readings is smoothed with the sweep's. The fit is
+so the noise of the identification's fewer readings is smoothed with the sweep's, and the
+change is held to the table as it was by a fourth weight (0 for not at all): how much the
+table's own points are worth against the sweep's readings, cross-validation decides. The fit is
 robust: a stick-slip axis stops short now and then (a one-sided tail of up to a few µm),
 and those readings are weighted down (Tukey's biweight) instead of bending the table; how
 often the axis stops short, on average, is put back as a constant per direction. Positions
@@ -54,6 +56,8 @@ STATIONS = 17
 SWEEP_HARMONICS = 4
 #: the penalty weights tried, relative to the data's own weight per knot
 _LAMBDAS = tuple(10.0 ** e for e in np.arange(-3.0, 7.01, 1.0))
+#: the weights tried for holding the change to the table as it was (0: not at all)
+_RIDGES = (0.0, *(10.0 ** e for e in np.arange(-3.0, 3.01, 0.5)))
 #: reweighting passes of the robust fit, and Tukey's biweight constant (in robust sigmas)
 ROBUST_ITERATIONS = 6
 BIWEIGHT_C = 4.685
@@ -157,6 +161,8 @@ class SweepFit:
     #: RMS of the readings about the fit (robust weights applied), the fit's level range (µm)
     residual_rms_um: float
     level_ptp_um: float
+    #: how firmly the change was held to the table it was read with (relative; 0: not)
+    hold: float = 0.0
 
     def level_mm(self, x_mm: NDArray[np.float64], direction: int) -> NDArray[np.float64]:
         return np.interp(x_mm, self.knot_mm, self.up_mm if direction > 0 else self.down_mm)
@@ -177,7 +183,9 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
     (:func:`sweep_refinement`), between the readings as at them. The smoothing penalty is
     on the table the fold makes (the table's own points plus the level): the sweep reads
     the whole error every step, so the noise of the fewer readings the table's points came
-    from is smoothed out with its own, as far as cross-validation says the sweep allows."""
+    from is smoothed out with its own, as far as cross-validation says the sweep allows;
+    and a ridge holds the level to the table as it was (its weight ``hold`` chosen the same
+    way, 0 among the choices), so what those readings knew is weighed, not dropped."""
     x = np.asarray(x_mm, dtype=np.float64)
     y = np.asarray(deviation_mm, dtype=np.float64) * 1e3  # µm: a well-scaled system
     s = np.where(np.asarray(direction) < 0, 0.5, -0.5)  # −D/2 going up, +D/2 down
@@ -203,13 +211,15 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
     sizes = [kn.size, kn.size] + [st.size] * (2 * k)
     # each part's penalty, scaled to the data's weight per parameter of that part
     xtx_all = design.T @ design
-    groups_all = [np.zeros_like(xtx_all) for _ in range(3)]
+    groups_all = [np.zeros_like(xtx_all) for _ in range(4)]
     start = 0
     for part, (n, t) in enumerate(zip(sizes, [kn, kn] + [st] * (2 * k))):
         d = _curvature(t)  # no penalty on a line
         block = slice(start, start + n)
         weight = float(np.trace(xtx_all[block, block])) / n
         groups_all[min(part, 2)][block, block] = weight * (d.T @ d)
+        if part < 2 and table is not None:  # the change itself, towards the table as it was
+            groups_all[3][block, block] = weight * np.eye(n)
         start += n
 
     # the table as it was, at the knots (µm): the penalty holds it plus the level smooth
@@ -220,7 +230,7 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
             np.interp(kn, table.position_mm, table.reverse_mm) * 1e3  # fmt: skip
         prior[: kn.size] = 0.5 * (fwd + rev)
         prior[kn.size : 2 * kn.size] = rev - fwd
-    pulls = [g_ @ prior for g_ in groups_all]
+    pulls = [g_ @ prior for g_ in groups_all[:3]] + [np.zeros_like(prior)]
 
     def normal(w: NDArray[np.float64] | None) -> tuple[NDArray[np.float64], ...]:
         """The weighted normal equations' matrix and right side, all columns."""
@@ -254,8 +264,8 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
             here_lams = list(lams)
             here = solve(kk, here_lams, w, eqs)
             for _ in range(1 if kk else 2):
-                for gi in (2, 0, 1) if kk else (0, 1):
-                    for lam in _LAMBDAS:
+                for gi in ((2, 0, 1) if kk else (0, 1)) + ((3,) if table is not None else ()):
+                    for lam in (_RIDGES if gi == 3 else _LAMBDAS):
                         trial = list(here_lams)
                         trial[gi] = lam
                         got = solve(kk, trial, w, eqs)
@@ -265,7 +275,7 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
                 best, lams, chosen = here, here_lams, kk
         return best, lams, chosen
 
-    best, lams, chosen = search(None, [1.0, 1.0, 1.0], range(k + 1))
+    best, lams, chosen = search(None, [1.0, 1.0, 1.0, 0.0], range(k + 1))
     w = None
     if robust:
         # stick-slip stops short, now and then, by up to a few µm: a heavy one-sided tail
@@ -298,7 +308,8 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
     cos = amps[1::2].T * 1e-3 if k else np.zeros((st.size, 0))
     return SweepFit(kn, (level - 0.5 * lost) * 1e-3, (level + 0.5 * lost) * 1e-3, st,
                     sin, cos, lead_mm, origin_mm, (lams[0], lams[1], lams[2]),
-                    math.sqrt(best[2] / y.size), float(np.ptp(level)))  # fmt: skip
+                    math.sqrt(best[2] / y.size), float(np.ptp(level)),
+                    float(lams[3]))  # fmt: skip
 
 
 @dataclass(frozen=True)
