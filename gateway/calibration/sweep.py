@@ -174,7 +174,7 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
               table: PitchTable | None = None, stations_mm: ArrayLike = ()
               ) -> SweepFit:  # fmt: skip
     """Fit a sweep's residual (see the module's docstring). The number of harmonics (up to
-    ``harmonics``) and the three penalty weights are those of the smallest generalised
+    ``harmonics``) and the four penalty weights are those of the smallest generalised
     cross-validation score: a harmonic the readings do not show is not added.
 
     ``table`` and ``stations_mm``: the table and the stations of the cyclic term the sweep
