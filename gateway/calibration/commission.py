@@ -49,7 +49,6 @@ from .commission_refine import RefineSteps
 from .commission_steps import (
     BudgetSpent,
     CommissionAborted,
-    _parts,
     _plain,
 )
 from .fit import planar_measurement
@@ -490,12 +489,11 @@ class Commission(RefineSteps):
         if self.s.planar is not None:
             plans.append(self.dir / "plans" / "before-xy.plan")
         # and the drift references read around each of its runs and the last config switch
-        refs_s = self.refs_cost_s([a for a in self.s.axes if not self.config.axes[a].rotary])
-        total = 2 * refs_s
+        total = 2 * self.refs_cost_s(self.ref_axes())
         for path in plans:
             if path.exists():
                 plan = read_plan(path)
-                total += self.estimate_s(plan) + refs_s * (len(_parts(plan)) + 1)
+                total += self.estimate_s(plan) + self.refs_around_s(plan)
         return total
 
     def _restore_best(self) -> None:

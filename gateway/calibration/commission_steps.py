@@ -374,14 +374,18 @@ class Steps:
         """The axes the drift references read: the linear ones (the laser sees no angle)."""
         return [a for a in self.s.axes if not self.config.axes[a].rotary]
 
+    def refs_around_s(self, plan: Plan, whole: bool = False) -> float:
+        """Machine time (s) of the drift references read around ``plan``'s runs (around
+        the whole plan with ``whole``): before the first and after each, one run's
+        after-reading being the next one's before-reading."""
+        parts = 1 if whole else len(_parts(plan))
+        return (parts + 1) * self.refs_cost_s(self.ref_axes())
+
     def step_cost_s(self, plan: Plan, drift: bool = True, whole: bool = False) -> float:
         """Machine time (s) of running ``plan`` as a step: its moves, and the drift
-        references read before and after each of its runs (see :meth:`step`; one run's
-        after-reading is the next one's before-reading)."""
-        parts = 1 if whole else len(_parts(plan))
+        references read around its runs once drift is counted (see :meth:`step`)."""
         drifting = drift and "drift_base" in self.state
-        return self.estimate_s(plan) + (
-            (parts + 1) * self.refs_cost_s(self.ref_axes()) if drifting else 0.0)
+        return self.estimate_s(plan) + (self.refs_around_s(plan, whole) if drifting else 0.0)
 
     def reserve_s(self) -> float:
         """Machine time kept back from every step for the steps that must end the job."""
