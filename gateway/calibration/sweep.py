@@ -321,18 +321,13 @@ class SweepRefinement:
 
 def sweep_refinement(
     table: PitchTable, stage: PitchStage, cyclic: CyclicModel | None, fit: SweepFit,
-    min_spacing_mm: float = MIN_SPACING_MM,
 ) -> SweepRefinement:  # fmt: skip
     """``table`` (and ``cyclic``) with the sweep's fit added: the table gets the level's
     knots and every point the level there; the cyclic model gets the sweep's stations,
-    each with the fitted amplitudes added (harmonics it lacked start from zero). Exact when
-    the fit broke at the table's points and the model's stations (``fit_sweep``'s
-    ``table_mm``, ``stations_mm``); else the knots within ``min_spacing_mm`` of a table
-    point are left out."""
-    x = table.position_mm
-    new = np.array([p for p in fit.knot_mm if np.min(np.abs(x - p)) >= min_spacing_mm
-                    or np.any(np.isclose(p, x, atol=1e-4))])  # fmt: skip
-    pos = np.unique(np.round(np.concatenate([x, new]), 4))
+    each with the fitted amplitudes added (harmonics it lacked start from zero). Exact
+    between the points too when the fit broke at the table's points and the model's
+    stations (``fit_sweep``'s ``table`` and ``stations_mm``)."""
+    pos = np.unique(np.round(np.concatenate([table.position_mm, fit.knot_mm]), 4))
     own_up = stage.inverse(pos, np.ones(pos.size, dtype=np.int64)) - pos
     own_dn = stage.inverse(pos, -np.ones(pos.size, dtype=np.int64)) - pos
     fwd = own_up + fit.level_mm(pos, +1)
