@@ -19,7 +19,7 @@ from gateway.calibration.plans_scans import warmup_plan
 from gateway.calibration.rawdata import RawWriter, read_raw_csv
 from gateway.calibration.runner import read_raw_meta, run_plan
 from gateway.cli import main
-from gateway.compensation import PlanarMeasurement
+from gateway.compensation import GridModel, PlanarMeasurement
 from gateway.compensation.errors import TableError
 from gateway.formats import read_pitch_csv
 
@@ -268,3 +268,65 @@ def test_smooth_reversal_halves_the_table_noise_variance():
     err_smooth = np.std(smooth.forward_mm - e)
     assert err_smooth < 0.8 * err_plain
     np.testing.assert_allclose(smooth.reverse_mm - smooth.forward_mm, rev, atol=2e-4)
+
+
+def _grid_points(xs, ys):
+    gx, gy = np.meshgrid(xs, ys)
+    return np.column_stack([gx.ravel(), gy.ravel()])
+
+
+def test_pin_reaches_a_pitch_line_just_outside_the_grid():
+    """The grid starts 2 mm above X's pitch line: pinned to the grid's edge instead of the
+    line, a machine out of square by 640 µrad keeps 1.3 µm of X error everywhere."""
+    cmd = _grid_points(np.linspace(2, 898, 25), np.linspace(2, 148, 17))
+    gamma = 6.4e-4  # X error per mm of Y (squareness), zero on X's pitch line Y = 0
+    err = np.column_stack([gamma * cmd[:, 1], np.zeros(len(cmd))])
+    choice = choose_planar_model(PlanarMeasurement(cmd, cmd + err))
+    nodes = tuple(np.unique(cmd[:, k]) for k in range(2))
+    pinned = pinned_measurement(choice.model, ("X", "Y"), {"X": 0.0}, nodes=nodes)
+    model = GridModel.from_measurement(pinned)
+    pts = np.random.default_rng(4).uniform((0, 0), (900, 148), (200, 2))  # to the top line
+    miss_um = np.abs(model.error_mm(pts)[:, 0] - gamma * pts[:, 1]) * 1e3
+    assert miss_um.max() < 0.05, miss_um.max()
+
+
+def _wavy_mm(p):
+    """A plate-like field: waves of 90-160 mm, 3 µm each, on both components (mm)."""
+    x, y = p[:, 0], p[:, 1]
+    return 3e-3 * np.column_stack([np.sin(x / 25.0 + 1.0) * np.cos(y / 20.0),
+                                   np.cos(x / 18.0) * np.sin(y / 26.0 + 0.5)])
+
+
+def test_pin_fades_within_a_node_step_of_the_line():
+    """A wavy field read on a 25 × 17 grid with 1 µm of scatter, against the truth relative
+    to the pitch lines (X's at Y = 0, Y's at X = 0): taking the model's value on the line off
+    everywhere adds its scatter to every point; faded within a node step, it does not."""
+    xs, ys = np.linspace(2, 448, 25), np.linspace(2, 448, 17)
+    cmd = _grid_points(xs, ys)
+
+    def relative(p):  # the field less its value on each component's pitch line
+        on_x, on_y = p.copy(), p.copy()
+        on_x[:, 1], on_y[:, 0] = 0.0, 0.0
+        return _wavy_mm(p) - np.column_stack([_wavy_mm(on_x)[:, 0], _wavy_mm(on_y)[:, 1]])
+
+    pts = np.random.default_rng(5).uniform(3, 447, (400, 2))
+    truth = relative(pts)
+    rms_fade, rms_full = [], []
+    for seed in range(3):
+        read = relative(cmd) + np.random.default_rng(seed).normal(0.0, 1e-3, cmd.shape)
+        choice = choose_planar_model(PlanarMeasurement(cmd, cmd + read))
+        assert choice.kind == "grid"
+        pinned = GridModel.from_measurement(pinned_measurement(
+            choice.model, ("X", "Y"), {"X": 0.0, "Y": 0.0}, nodes=(xs, ys)))
+        on_line = pinned.error_mm(np.column_stack([pts[:, 0], np.zeros(len(pts))]))
+        assert np.abs(on_line[:, 0]).max() < 1e-9  # X's own table rules its line
+        raw = choice.model.error_mm(pts)
+        far = (pts[:, 1] > 3 * np.diff(ys)[0]) & (pts[:, 0] > 3 * np.diff(xs)[0])
+        assert np.abs(pinned.error_mm(pts)[far] - raw[far]).max() < 2e-6  # mm: nothing off
+        line_x, line_y = pts.copy(), pts.copy()
+        line_x[:, 1], line_y[:, 0] = 2.0, 2.0  # the grid's edge lines, next to the pitch lines
+        full = raw - np.column_stack([choice.model.error_mm(line_x)[:, 0],
+                                      choice.model.error_mm(line_y)[:, 1]])
+        for out, model in ((rms_fade, pinned.error_mm(pts)), (rms_full, full)):
+            out.append(float(np.sqrt(np.mean(np.sum((model - truth) ** 2, axis=1)))) * 1e3)
+    assert np.mean(rms_fade) < 0.8 * np.mean(rms_full), (rms_fade, rms_full)

@@ -136,6 +136,34 @@ def _subdivided(lines: NDArray[np.float64], parts: int) -> NDArray[np.float64]:
     return np.concatenate([inner, lines[-1:]])
 
 
+#: how far the pin reaches from a pitch line, in node steps of the grid away from it
+PIN_FADE_STEPS = 1.0
+#: the run over which a model's edge slope is taken for its continuation to a line (mm)
+EDGE_SLOPE_MM = 0.5
+
+
+def _continued(
+    model: PlanarModel, points: NDArray[np.float64], lower: NDArray[np.float64],
+    upper: NDArray[np.float64], reach: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """The model at ``points`` (mm), continued past its grid [lower, upper] along its edge
+    slope for at most ``reach`` (mm per axis), held beyond that. A model holds its edge
+    value outside the grid: a pitch line 2 mm below the grid's first line would be pinned
+    to that line's values, and the plane left off by the slope over 2 mm everywhere (1.3 µm
+    on a machine 640 µrad out of square, smooth-2)."""
+    inside = np.clip(points, lower, upper)
+    edge = model.error_mm(inside)
+    out = edge.copy()
+    for k in range(2):
+        past = np.clip(points[:, k] - inside[:, k], -reach[k], reach[k])
+        if not past.any():
+            continue
+        back = inside.copy()
+        back[:, k] -= np.sign(past) * EDGE_SLOPE_MM
+        out += (edge - model.error_mm(back)) * (np.abs(past) / EDGE_SLOPE_MM)[:, None]
+    return out
+
+
 def pinned_measurement(
     model: PlanarModel,
     axes: tuple[str, str],
@@ -147,22 +175,39 @@ def pinned_measurement(
 
     ``lines``: axis → where the *other* axis stood while that axis's table was measured
     (``{"X": 0.0}``: X's table at Y = 0). Along that line the pitch table already holds the
-    axis's error and the planar model should add nothing there; a least-squares fit adds
-    its edge wiggle instead, so that axis's component is replaced by
-    ``E(x, y) − E(x, y0)`` (for Y: ``E(x, y) − E(x0, y)``). Returned as grid points (the
-    measured grid lines subdivided ``subdivide`` times) for a cubic grid model.
+    axis's error and the planar model should add nothing there (a least-squares fit adds
+    its edge wiggle instead), so the model's value on the line is taken off that axis's
+    component, ``E(x, y) − f(y − y0) E(x, y0)``, with a fade ``f(d) = exp(−(d/s)²)``, ``s``
+    PIN_FADE_STEPS node steps away from the line. Near the line the model's error is the
+    error it has on the line (the same readings made both) and taking it off costs nothing;
+    a few steps away the two errors are independent, and taking the line's off everywhere
+    added its noise to every point (vector error √2 larger: 1.3-1.5 against 0.84-1.04 µm
+    RMS on the SDSS plates' 25 × 17 grids with 1 µm of scatter). A line up to one node step
+    outside the grid is reached by continuing the model along its edge slope. Returned as
+    grid points (the measured grid lines, and the pitch lines, subdivided ``subdivide``
+    times) for a cubic grid model.
     """
     if nodes is None:
         nodes = model.nodes_hint_mm()
-    gx, gy = (_subdivided(n, subdivide) for n in nodes)
+    lower = np.array([float(np.min(n)) for n in nodes])
+    upper = np.array([float(np.max(n)) for n in nodes])
+    step = np.array([float(np.median(np.diff(n))) if len(n) > 1 else 0.0 for n in nodes])
+    reach = [np.asarray(n, dtype=np.float64) for n in nodes]
+    for k, name in enumerate(axes):
+        j = 1 - k  # the direction away from this axis's line
+        if name in lines and lower[j] - step[j] <= lines[name] <= upper[j] + step[j]:
+            reach[j] = np.union1d(reach[j], [lines[name]])
+    gx, gy = (_subdivided(n, subdivide) for n in reach)
     mesh = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
-    err = model.error_mm(mesh)
+    err = _continued(model, mesh, lower, upper, step)
     for k, name in enumerate(axes):
         if name not in lines:
             continue
+        j = 1 - k
         line = mesh.copy()
-        line[:, 1 - k] = lines[name]
-        err[:, k] -= model.error_mm(line)[:, k]
+        line[:, j] = lines[name]
+        d = (mesh[:, j] - lines[name]) / max(PIN_FADE_STEPS * step[j], 1e-9)
+        err[:, k] -= np.exp(-(d**2)) * _continued(model, line, lower, upper, step)[:, k]
     return PlanarMeasurement(mesh, mesh + err, source=f"{model.kind} model pinned to pitch lines")
 
 
