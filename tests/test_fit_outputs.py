@@ -270,6 +270,49 @@ def test_smooth_reversal_halves_the_table_noise_variance():
     np.testing.assert_allclose(smooth.reverse_mm - smooth.forward_mm, rev, atol=2e-4)
 
 
+def _iso_deviations(rev_mm, seed, s_mm=4.5e-4, runs=3):
+    """21 targets over 900 mm, ``runs`` runs each way, scatter ``s_mm``: a screw error
+    plus the reversal ``rev_mm(x)`` moving down."""
+    from gateway.calibration.rawdata import AxisDeviations
+
+    rng = np.random.default_rng(seed)
+    x = np.linspace(10.0, 890.0, 21)
+    e = e_true(x)
+    up = e[:, None] + rng.normal(0, s_mm, (x.size, runs))
+    down = (e + rev_mm(x))[:, None] + rng.normal(0, s_mm, (x.size, runs))
+    return AxisDeviations("X", x, np.arange(1, runs + 1), up, down)
+
+
+def test_reversal_per_point_only_where_the_scatter_cannot_explain_it():
+    """Smooth play (1.3-1.5 µm, 0.45 µm of scatter: smooth-2 Y) stays a curve, and the curve
+    is nearer the truth than per point; a worn zone (4 µm more play over 60 mm) goes per
+    point; one run each way (no scatter to weigh) stays a curve."""
+    from gateway.calibration.fit import (
+        bidirectional_table,
+        bidirectional_table_smooth_reversal,
+        choose_reversal,
+    )
+
+    def smooth(x):
+        return 1.3e-3 + 2.5e-4 * np.sin(x / 300.0)
+
+    def worn(x):
+        return smooth(x) + 4e-3 * (np.abs(x - 450.0) < 30.0)
+
+    for seed in range(6):
+        dev = _iso_deviations(smooth, seed)
+        choice = choose_reversal(dev)
+        assert not choice.per_point, (seed, choice)
+        assert choice.scatter_um == pytest.approx(0.45, abs=0.1)
+        truth = smooth(dev.target_mm)
+        miss = [np.abs(t.reverse_mm - t.forward_mm - truth).max()
+                for t in (bidirectional_table_smooth_reversal(dev), bidirectional_table(dev))]
+        assert miss[0] < miss[1], (seed, miss)
+        assert choose_reversal(_iso_deviations(worn, seed)).per_point, seed
+    one = choose_reversal(_iso_deviations(worn, 0, runs=1))
+    assert not one.per_point and np.isnan(one.ratio)
+
+
 def _grid_points(xs, ys):
     gx, gy = np.meshgrid(xs, ys)
     return np.column_stack([gx.ravel(), gy.ravel()])

@@ -461,9 +461,9 @@ def fit(args: argparse.Namespace) -> int:
             if kind == "pitch":
                 raw = read_raw_csv(path)
                 for a in raw.axes:
-                    degree = None if args.reversal == "per-point" else args.reversal_degree
                     r = fit_pitch(raw, config, config_dir, a, mode=args.mode, residual=residual,
-                                  backlash_mm=backlash.get(a), reversal_degree=degree)  # fmt: skip
+                                  backlash_mm=backlash.get(a), reversal=args.reversal,
+                                  reversal_degree=args.reversal_degree)  # fmt: skip
                     netted = a in cyclic and not residual
                     if netted:
                         r = net_pitch(r, cyclic[a], config)
@@ -475,6 +475,10 @@ def fit(args: argparse.Namespace) -> int:
                                  points=int(r.table.position_mm.size))  # fmt: skip
                     if r.backlash_mm is not None:
                         entry["backlash_mm"] = r.backlash_mm
+                    if r.reversal is not None:
+                        entry["reversal"] = {"per_point": r.reversal.per_point,
+                                             "ratio": r.reversal.ratio,
+                                             "scatter_um": r.reversal.scatter_um}  # fmt: skip
                     entry.update(_rotary_entry(r, config, a))
             elif kind == "planar":
                 if config.planar is None:
@@ -587,6 +591,13 @@ def format_fit(report: dict[str, Any], dry_run: bool = False) -> str:
             lines.append(f"{name}: {verb} {entry['table']} ({entry['mode']}, "
                          f"{entry['points']} points{', folded' if entry['folded'] else ''}"
                          f"{net})")
+        if "reversal" in entry:
+            rv = entry["reversal"]
+            why = "" if rv["ratio"] != rv["ratio"] else (
+                f": a curve misses the points' reversals by {rv['ratio']:.2f}× what the "
+                f"readings' scatter ({rv['scatter_um']:.2f} µm) alone leaves")
+            lines.append(f"{name}: reversal {'per point' if rv['per_point'] else 'as a curve'}"
+                         f"{why}")
         if "linkage" in entry:
             lk = entry["linkage"]
             fitted = ", ".join(f"{k} {lk['values'][k]:.6g}" for k in lk["fitted"])
@@ -623,14 +634,16 @@ def _add_fit(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("-c", "--config", required=True, help="gateway YAML config")
     p.add_argument("--mode", choices=["auto", "bidirectional", "unidirectional"], default="auto",
                    help="pitch tables (auto: unidirectional if the axis has backlash_mm)")
-    p.add_argument("--reversal", choices=["smooth", "per-point"], default="smooth",
+    p.add_argument("--reversal", choices=["auto", "smooth", "per-point"], default="auto",
                    help="bidirectional tables: reversal as a polynomial in position (both "
-                        "directions' readings serve every point) or per point")
+                        "directions' readings serve every point), per point (a worn zone), or "
+                        "whichever the readings' own scatter says predicts better (auto)")
     p.add_argument("--reversal-degree", type=int, default=2)
     p.add_argument("--planar-model", choices=["auto", "grid", "poly"], default="auto")
     p.add_argument("--pitch-line", dest="pitch_lines", action="append", metavar="A@B=MM",
                    help="X@Y=0: X's table was measured with Y at 0; the planar model is "
-                        "pinned to zero there (repeat per axis)")
+                        "pinned to zero there, the pin fading within a grid step (repeat per "
+                        "axis)")
     p.add_argument("--harmonics", type=int, metavar="K",
                    help="cyclic runs: fit K harmonics (default: 0..3 by cross-validation)")
     p.add_argument("--residual", action="store_true",

@@ -301,16 +301,15 @@ class Commission(RefineSteps):
                 model = cr.model
                 self.state.setdefault("identify", {})[f"cyclic-{a}"] = {
                     "harmonics": cr.fit.harmonics, "peak_um": cr.model.peak_mm() * 1e3}
-            places = self.state.get("identify", {}).get(f"backlash-{a}", {}).get("places_um")
-            uneven = bool(places) and bool(max(places) - min(places)
-                                           > 0.3 * max(max(places), 1e-9))  # fmt: skip
-            # the reversal as a smooth curve (both directions' readings serve every point),
-            # unless seed 000's three places show play that varies (a worn zone): per point
+            # the reversal per point or as a curve, by what the ISO runs' own scatter says
+            # each would leave (a worn zone of the nut: per point)
             r = fit_pitch(self.raw(f"iso-{a}"), config, self.config_dir, a,
-                          mode="bidirectional", reversal_degree=None if uneven else 2)  # fmt: skip
+                          mode="bidirectional", reversal="auto")  # fmt: skip
             r = self.rotary_fitted(a, r)
-            self.state.setdefault("identify", {})[f"reversal-{a}"] = {
-                "per_point": uneven}
+            if r.reversal is not None:
+                self.state.setdefault("identify", {})[f"reversal-{a}"] = {
+                    "per_point": r.reversal.per_point, "ratio": r.reversal.ratio,
+                    "scatter_um": r.reversal.scatter_um}  # fmt: skip
             if model is not None:
                 r = net_pitch(r, model, config)
             save_pitch(r, "compgw commission: coarse ISO 230-2 run" +

@@ -38,9 +38,11 @@ from ..formats.planar_file import load_planar_model
 from .cyclic_fit import CyclicFit, fit_cyclic, net_of_cyclic, scans_from_raw
 from .fit import (
     TURN_DEG,
+    ReversalChoice,
     as_axis_table,
     bidirectional_table,
     bidirectional_table_smooth_reversal,
+    choose_reversal,
     fold_backlash,
     fold_residual,
     unidirectional_table,
@@ -68,6 +70,8 @@ class PitchResult:
     linkage_path: Path | None = None
     #: rotary axes: the interpolation with the smallest leave-one-out RMS, and the scores
     interpolation_cv: tuple[str, dict[str, float]] | None = None
+    #: a bidirectional table's reversal: per point or a curve, and why
+    reversal: ReversalChoice | None = None
 
 
 def pitch_spec(config: GatewayConfig, axis: str) -> PitchFile | None:
@@ -113,7 +117,8 @@ def fit_pitch(
     mode: str = "auto",
     residual: bool = False,
     backlash_mm: float | None = None,
-    reversal_degree: int | None = 2,
+    reversal: str = "auto",
+    reversal_degree: int = 2,
 ) -> PitchResult:
     """Table of ``axis`` from an identification run, or folded with a residual run.
 
@@ -122,8 +127,10 @@ def fit_pitch(
     ``residual``: ``raw`` was measured with the current table applied (the calibration plan
     re-run with compensation on): the table is folded (seed 001). ``backlash_mm``: a value
     measured by the backlash plan, used instead of the ISO reversal B̄.
-    ``reversal_degree``: bidirectional tables take the reversal as a polynomial of this
-    degree in position (:func:`.fit.bidirectional_table_smooth_reversal`); ``None``: per point.
+    ``reversal``: bidirectional tables take the reversal as a polynomial of
+    ``reversal_degree`` in position (``smooth``,
+    :func:`.fit.bidirectional_table_smooth_reversal`), ``per-point``, or whichever the
+    readings' scatter says predicts better (``auto``, :func:`.fit.choose_reversal`).
     Rotary axes: the table in degrees (a turntable's modulo 360), its interpolation scored
     by cross-validation; a swing axis with ``compensation.linkage``: the linkage fitted first
     (from the file's values) and the table made of what it leaves.
@@ -155,11 +162,16 @@ def fit_pitch(
         kind = "bidirectional" if current.bidirectional else "unidirectional"
         result = PitchResult(axis, path, table, lash, kind, True, fmt)
     elif mode == "bidirectional":
-        if reversal_degree is None:
+        if reversal not in ("auto", "smooth", "per-point"):
+            raise TableError(f"reversal {reversal!r} is not auto, smooth or per-point")
+        choice = choose_reversal(dev, reversal_degree)
+        if reversal != "auto":
+            choice = replace(choice, per_point=reversal == "per-point")
+        if choice.per_point:
             table = bidirectional_table(dev, str(path))
         else:
             table = bidirectional_table_smooth_reversal(dev, reversal_degree, str(path))
-        result = PitchResult(axis, path, table, None, mode, False, fmt)
+        result = PitchResult(axis, path, table, None, mode, False, fmt, reversal=choice)
     else:
         uni = unidirectional_table(dev, str(path))
         lash = backlash_mm if backlash_mm is not None else uni.backlash_mm
@@ -275,7 +287,8 @@ def save_planar(result: PlanarResult, comment: str = "") -> None:
     head.append(f"# chosen by leave-one-out cross-validation (RMS µm: {scores})")
     if choice.pinned:
         head.append(f"# the {choice.pinned} model pinned to zero along the pitch tables' "
-                    "lines, as a cubic grid of its values")  # fmt: skip
+                    "lines (fading within a grid step of them), as a cubic grid of its "
+                    "values")  # fmt: skip
     head.append(f"# residual at the points: RMS {choice.residual_rms_um:.3f} µm, "
                 f"max {choice.residual_max_um:.3f} µm")  # fmt: skip
     atomic_write_text(result.model_path, "\n".join(head) + "\n" + yaml.safe_dump(spec))
