@@ -88,6 +88,20 @@ def e_floor_um(s_um: float, targets: int, runs: int, step_um: float = 0.0) -> fl
     return float(np.sum(1.0 - cdf**n - (1.0 - cdf) ** n) * (x[1] - x[0]))
 
 
+def xy_floor_um(s_um: Sequence[float], points: int) -> float:
+    """The maximum vector error (µm) a perfect correction would still read, in expectation,
+    at ``points`` XY stops whose two axes scatter by ``s_um`` (σx, σy): E[max of n |v|] =
+    ∫ 1 − F(r)ⁿ dr, F(r) = P(|v| ≤ r) = ∫ φx(x) · P(|y| ≤ √(r² − x²)) dx over |x| ≤ r."""
+    sx, sy = (max(float(s), 1e-9) for s in s_um)
+    r = np.linspace(0.0, 9.0 * max(sx, sy), 1201)
+    t = np.linspace(-1.0, 1.0, 801)  # x = r·t
+    x = r[:, None] * t[None, :]
+    inner = 2.0 * ndtr(np.sqrt(np.clip(r[:, None] ** 2 - x**2, 0.0, None)) / sy) - 1.0
+    dens = np.exp(-0.5 * (x / sx) ** 2) / (sx * math.sqrt(2 * math.pi))
+    cdf = np.clip(np.trapezoid(dens * inner, x, axis=1), 0.0, 1.0)
+    return float(np.trapezoid(1.0 - cdf**points, r))
+
+
 def _s32(words: Sequence[int]) -> int:
     raw = (words[0] << 16) | words[1]
     return raw - (1 << 32) if raw & 0x80000000 else raw
@@ -306,7 +320,8 @@ async def evaluate(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: 
             tx, ty = await m.xy_mm()
             ax, ay = axes[names[0]], axes[names[1]]
             errs.append(math.hypot(tx - _snap(x, ax.pulse_mm), ty - _snap(y, ay.pulse_mm)) * 1e3)
-        out["xy"] = {"max_um": float(max(errs)), "rms_um": float(np.sqrt(np.mean(np.square(errs))))}
+        out["xy"] = {"max_um": float(max(errs)), "rms_um": float(np.sqrt(np.mean(np.square(errs)))),
+                     "points": len(errs)}  # fmt: skip
         if cool is not None:  # last: the warm-ups heat the machine
             for name in names:
                 p = the_plan["axes"][name]
