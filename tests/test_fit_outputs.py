@@ -114,6 +114,11 @@ def test_planar_choice_by_cross_validation_and_pinning():
     assert np.abs(pinned.error_mm[on_y_line, 1]).max() < 1e-12
     # squareness stays: X error grows with Y along the Y line
     assert pinned.error_mm[on_y_line, 0].max() > 0.08
+    # a polynomial's error is global: its value on the line is taken off everywhere
+    on_line = pinned.command_mm.copy()
+    on_line[:, 1] = 0.0
+    full = choice.model.error_mm(pinned.command_mm)[:, 0] - choice.model.error_mm(on_line)[:, 0]
+    np.testing.assert_allclose(pinned.error_mm[:, 0], full, atol=1e-12)
 
 
 def write_config(tmp_path, cap_mm=0.05):

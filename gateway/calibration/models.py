@@ -182,7 +182,11 @@ def pinned_measurement(
     error it has on the line (the same readings made both) and taking it off costs nothing;
     a few steps away the two errors are independent, and taking the line's off everywhere
     added its noise to every point (vector error √2 larger: 1.3-1.5 against 0.84-1.04 µm
-    RMS on the SDSS plates' 25 × 17 grids with 1 µm of scatter). A line up to one node step
+    RMS on the SDSS plates' 25 × 17 grids with 1 µm of scatter). That holds for a smoothed
+    grid, whose error is local; a polynomial's terms span the plane, its error on the line
+    is its error everywhere, and the line's value is taken off everywhere (no fade: on
+    rough-2 a degree-6 fit faded left a ±5 µm wave in x on every line but the pitch
+    line). A line up to one node step
     outside the grid is reached by continuing the model along its edge slope. Returned as
     grid points (the measured grid lines, and the pitch lines, subdivided ``subdivide``
     times) for a cubic grid model.
@@ -207,7 +211,8 @@ def pinned_measurement(
         line = mesh.copy()
         line[:, j] = lines[name]
         d = (mesh[:, j] - lines[name]) / max(PIN_FADE_STEPS * step[j], 1e-9)
-        err[:, k] -= np.exp(-(d**2)) * _continued(model, line, lower, upper, step)[:, k]
+        fade = np.exp(-(d**2)) if model.kind == "grid" else 1.0
+        err[:, k] -= fade * _continued(model, line, lower, upper, step)[:, k]
     return PlanarMeasurement(mesh, mesh + err, source=f"{model.kind} model pinned to pitch lines")
 
 
