@@ -32,6 +32,7 @@ estimate (:func:`.plans.plan_time_s`): the same yardstick for any workflow.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import shutil
@@ -43,7 +44,7 @@ import numpy as np
 
 from ..compensation.errors import TableError
 from ..config import GatewayConfig
-from ..formats import atomic_write_text, read_pitch_csv
+from ..formats import atomic_write_text, read_pitch_csv, read_planar_csv, write_planar_csv
 from . import adaptive
 from .commission_refine import RefineSteps
 from .commission_steps import (
@@ -63,6 +64,7 @@ from .outputs import (
     save_pitch,
     save_planar,
 )
+from .plane_frame import FRAME_FILE, frame_of, read_frame, reframed, table_deviation_mm, write_frame
 from .plans import (
     Plan,
     backlash_from_raw,
@@ -331,15 +333,42 @@ class Commission(RefineSteps):
         await self.use("full")
 
     def _fit_plane(self, config: GatewayConfig, name: str, residual: bool) -> None:
+        """The plane from grid run ``name`` (read with the tables on disk loaded), and its
+        frame: those tables' values at the grid's nodes, where the model is faded."""
         assert self.s.planar is not None
         meas = planar_measurement(self.raw(name), self.s.planar)
         ax, ay = self.s.planar
         lines = {ax: self._park(ax)[ay], ay: self._park(ay)[ax]}
         res = fit_planar(meas, config, self.config_dir, "auto", residual, lines)
         save_planar(res, "compgw commission")
+        frame_path = res.model_path.parent / FRAME_FILE
+        if res.choice.pinned is not None and res.choice.pinned.startswith("grid"):
+            nodes = (np.unique(meas.command_mm[:, 0]), np.unique(meas.command_mm[:, 1]))
+            write_frame(frame_path, frame_of(config, self.config_dir, self.s.planar, nodes,
+                                             lines))  # fmt: skip
+        else:
+            frame_path.unlink(missing_ok=True)  # pinned without a fade: tables cancel
         self.state.setdefault("planar_fits", []).append(
             {"kind": res.choice.kind, "pinned": res.choice.pinned,
              "loo_rms_um": res.choice.loo_rms_um, "residual": residual})  # fmt: skip
+
+    def before_load(self, phase: str) -> None:
+        """The plane re-expressed against the tables it is about to run with, where it is
+        faded and they changed since it was fitted (:mod:`.plane_frame`)."""
+        if phase != "full" or self.s.planar is None or not self.tables.planar_model:
+            return
+        model = self.config_dir / self.tables.planar_model
+        frame = read_frame(model.parent / FRAME_FILE)
+        if frame is None:
+            return
+        config, _ = self.staged("pitch")
+        now = {a: table_deviation_mm(config, self.config_dir, a, frame.nodes_mm[a])
+               for a in self.s.planar}  # fmt: skip
+        if all(np.array_equal(now[a], frame.table_mm[a]) for a in self.s.planar):
+            return
+        points = model.parent / "xy_points.csv"
+        write_planar_csv(points, reframed(read_planar_csv(points), frame, self.s.planar, now))
+        write_frame(model.parent / FRAME_FILE, dataclasses.replace(frame, table_mm=now))
 
     # -- 3. verification rounds ----------------------------------------------------------
     async def _rounds(self) -> str:
@@ -476,7 +505,7 @@ class Commission(RefineSteps):
         """The files that hold an axis's table (or, for "XY", the planar model)."""
         if name == "XY":
             model = self.config_dir / str(self.tables.planar_model)
-            return [model, model.parent / "xy_points.csv"]
+            return [model, model.parent / "xy_points.csv", model.parent / FRAME_FILE]
         files = [self.config_dir / self.tables.pitch[name]]
         if name in self.tables.cyclic:  # refinement scans add cyclic stations too
             files.append(self.config_dir / self.tables.cyclic[name])
@@ -512,6 +541,9 @@ class Commission(RefineSteps):
             if saved.exists() and (not path.exists() or path.read_bytes() != saved.read_bytes()):
                 atomic_write_text(path, saved.read_text())
                 changed = True
+            elif not saved.exists() and path.name == FRAME_FILE and path.exists():
+                path.unlink()  # the best plane was pinned without a fade: it has no frame
+                changed = True
         return changed
 
     def _keep_best(self, name: str, score: float, r: int, rms: float | None = None) -> bool:
@@ -537,6 +569,8 @@ class Commission(RefineSteps):
             for path in self._table_files(name):
                 if path.exists():
                     shutil.copyfile(path, keep / f"{name}-{path.name}")
+                else:  # (a plane without a frame): no older copy stands in for it
+                    (keep / f"{name}-{path.name}").unlink(missing_ok=True)
             return True
         self._put_back(name)
         return False
@@ -578,6 +612,8 @@ class Commission(RefineSteps):
 
     async def _refine_plane(self, r: int) -> tuple[int, int]:
         grid = adaptive.denser_grid(*tuple(self.state.get("grid", self.s.grid)))
+        if not self.done(f"refine{r}-xy"):  # the round's new tables loaded: the frame read
+            await self.use(self._tables_phase)
         await self.step(f"refine{r}-xy", lambda: self._grid_plan(grid, runs=1), "on")
         config, _ = self.staged("full")
         self._fit_plane(config, f"refine{r}-xy", residual=True)

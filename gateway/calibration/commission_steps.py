@@ -156,6 +156,10 @@ class Steps:
         return with_tables(original, self.s.axes, self.tables, planar=phase == "full",
                            commit_default="on_trigger" if both else "immediate")
 
+    def before_load(self, phase: str) -> None:
+        """Bring the phase's files in line with each other before the gateway loads them
+        (nothing here; the commissioning re-expresses its plane, :mod:`.plane_frame`)."""
+
     def staged(self, phase: str) -> tuple[GatewayConfig, Path]:
         """The phase's config written under DIR/configs (for the fits' paths and checks)."""
         path = self.dir / "configs" / f"{phase}.yaml"
@@ -170,6 +174,7 @@ class Steps:
         thermal state): what they read differently is the new config, not drift, so the
         drift since the start stays known across configs."""
         base = self.state.get("drift_base")
+        self.before_load(phase)
         text = HEADER.format(phase=phase, original=self._rel(self.original_path))
         text += yaml.safe_dump(self.phase_config(phase), sort_keys=False)
         digest = self._digest(text)

@@ -142,6 +142,17 @@ PIN_FADE_STEPS = 1.0
 EDGE_SLOPE_MM = 0.5
 
 
+def pin_fade(kind: str, distance_mm: NDArray[np.float64] | float, step_mm: float
+             ) -> NDArray[np.float64]:  # fmt: skip
+    """How much of a model's value on a pitch line is taken off ``distance_mm`` from it: a
+    smoothed grid's error is local, exp(−(d/s)²) with ``s`` PIN_FADE_STEPS node steps; a
+    polynomial's is global, 1 everywhere (see :func:`pinned_measurement`)."""
+    d = np.asarray(distance_mm, dtype=np.float64)
+    if kind != "grid":
+        return np.ones_like(d)
+    return np.exp(-((d / max(PIN_FADE_STEPS * step_mm, 1e-9)) ** 2))
+
+
 def _continued(
     model: PlanarModel, points: NDArray[np.float64], lower: NDArray[np.float64],
     upper: NDArray[np.float64], reach: NDArray[np.float64],
@@ -210,8 +221,7 @@ def pinned_measurement(
         j = 1 - k
         line = mesh.copy()
         line[:, j] = lines[name]
-        d = (mesh[:, j] - lines[name]) / max(PIN_FADE_STEPS * step[j], 1e-9)
-        fade = np.exp(-(d**2)) if model.kind == "grid" else 1.0
+        fade = pin_fade(model.kind, mesh[:, j] - lines[name], float(step[j]))
         err[:, k] -= fade * _continued(model, line, lower, upper, step)[:, k]
     return PlanarMeasurement(mesh, mesh + err, source=f"{model.kind} model pinned to pitch lines")
 

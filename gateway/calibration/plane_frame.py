@@ -1,0 +1,111 @@
+"""The tables a faded planar model was fitted against, and the model re-expressed when they
+change.
+
+An XY grid is read with the pitch tables on, so a grid model holds what the tables left:
+M = T − A_fit (per component: X's error less X's table, which depends on x only). Pinned
+with a fade (:func:`.models.pinned_measurement`), the model keeps M far from the pitch
+lines, the tables' own error at the grid's resolution included. When a table changes
+afterwards by Δ = A_now − A_fit (a sweep, a refinement, a table put back), the model far
+from the line would undo the change there; pinned without a fade (a polynomial) Δ cancels
+and nothing is needed. So the tables' values at the grid's nodes are kept beside the
+model (the *frame*, ``xy_frame.json``), and before the model runs with other tables it is
+re-expressed: each component less (1 − fade) · S(Δ), S(Δ) the cubic through Δ at the
+grid's nodes (what the grid would have read of it), the fade the pin's own.
+
+Pure functions on arrays and one small file; the tables' values come from the gateway's
+own chain (:func:`table_deviation_mm`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.interpolate import CubicSpline
+
+from ..compensation import PlanarMeasurement
+from ..config import GatewayConfig
+from ..state_store import atomic_write_text
+from ..tables import build_axis
+from .models import pin_fade
+
+#: the frame's file, beside the model's points
+FRAME_FILE = "xy_frame.json"
+
+
+@dataclass(frozen=True)
+class PlaneFrame:
+    """Per plane axis (mm): where the other axis stood for its table (``line_mm``), the
+    grid's node step away from that line (``step_mm``, the fade's scale), the grid's
+    nodes along the axis (``nodes_mm``) and the deviation the tables applied there when the
+    grid was read (``table_mm``)."""
+
+    line_mm: dict[str, float]
+    step_mm: dict[str, float]
+    nodes_mm: dict[str, NDArray[np.float64]]
+    table_mm: dict[str, NDArray[np.float64]]
+
+    def to_json(self) -> str:
+        return json.dumps({
+            "line_mm": self.line_mm, "step_mm": self.step_mm,
+            "nodes_mm": {a: v.tolist() for a, v in self.nodes_mm.items()},
+            "table_mm": {a: v.tolist() for a, v in self.table_mm.items()},
+        }, indent=1)  # fmt: skip
+
+    @classmethod
+    def from_json(cls, text: str) -> PlaneFrame:
+        d = json.loads(text)
+        arrays = {k: {a: np.asarray(v, dtype=np.float64) for a, v in d[k].items()}
+                  for k in ("nodes_mm", "table_mm")}  # fmt: skip
+        return cls(dict(d["line_mm"]), dict(d["step_mm"]), arrays["nodes_mm"],
+                   arrays["table_mm"])  # fmt: skip
+
+
+def table_deviation_mm(config: GatewayConfig, config_dir: Path, axis: str,
+                       positions_mm: NDArray[np.float64]) -> NDArray[np.float64]:  # fmt: skip
+    """The deviation (mm, actual − commanded) ``config``'s own stages of ``axis`` take off
+    at ``positions_mm`` approached in + (pitch, cyclic, backlash; no plane, no heat)."""
+    chain = build_axis(axis, config.axes[axis], config_dir)
+    x = np.asarray(positions_mm, dtype=np.float64)
+    return x - chain.command_mm(x, 1, 0.0)
+
+
+def frame_of(config: GatewayConfig, config_dir: Path, axes: tuple[str, str],
+             nodes_mm: tuple[NDArray[np.float64], NDArray[np.float64]],
+             lines_mm: dict[str, float]) -> PlaneFrame:  # fmt: skip
+    """The frame of a grid read on ``nodes_mm`` (x, y) with ``config``'s tables on."""
+    nodes = {axes[0]: np.asarray(nodes_mm[0], np.float64),
+             axes[1]: np.asarray(nodes_mm[1], np.float64)}  # fmt: skip
+    step = {a: float(np.median(np.diff(nodes[b]))) if nodes[b].size > 1 else 0.0
+            for a, b in (axes, axes[::-1])}  # fmt: skip
+    table = {a: table_deviation_mm(config, config_dir, a, nodes[a]) for a in axes}
+    return PlaneFrame({a: float(lines_mm[a]) for a in axes}, step, nodes, table)
+
+
+def reframed(points: PlanarMeasurement, frame: PlaneFrame, axes: tuple[str, str],
+             table_now_mm: dict[str, NDArray[np.float64]]) -> PlanarMeasurement:  # fmt: skip
+    """A faded model's points re-expressed against tables that now take off
+    ``table_now_mm`` at the frame's nodes: each component less (1 − fade) · S(Δ)."""
+    err = points.error_mm.copy()
+    for k, a in enumerate(axes):
+        delta = np.asarray(table_now_mm[a], np.float64) - frame.table_mm[a]
+        nodes = frame.nodes_mm[a]
+        if nodes.size < 2 or not np.any(delta):
+            continue
+        smooth = CubicSpline(nodes, delta) if nodes.size > 2 else (
+            lambda x, n=nodes, d=delta: np.interp(x, n, d))  # fmt: skip
+        along = np.clip(points.command_mm[:, k], nodes[0], nodes[-1])
+        away = points.command_mm[:, 1 - k] - frame.line_mm[a]
+        err[:, k] -= (1.0 - pin_fade("grid", away, frame.step_mm[a])) * smooth(along)
+    return PlanarMeasurement(points.command_mm, points.command_mm + err, points.source)
+
+
+def write_frame(path: Path, frame: PlaneFrame) -> None:
+    atomic_write_text(path, frame.to_json() + "\n")
+
+
+def read_frame(path: Path) -> PlaneFrame | None:
+    return PlaneFrame.from_json(path.read_text()) if path.exists() else None
