@@ -83,3 +83,30 @@ def test_a_table_change_is_kept_off_the_line_and_the_grid_reading_kept(tmp_path)
     # no change, no re-expression
     same = reframed(points, frame, ("X", "Y"), frame.table_mm)
     np.testing.assert_array_equal(same.error_mm, points.error_mm)
+
+
+def test_reframe_plane_rewrites_the_points_once_per_change(tmp_path):
+    """What `compgw fit`, the iteration's fold and the commissioning call after a table is
+    written: the points re-expressed and the frame moved to the new tables; nothing when
+    the tables are the frame's or there is no frame (a plane pinned without a fade)."""
+    from gateway.calibration.plane_frame import FRAME_FILE, reframe_plane
+    from gateway.formats import read_planar_csv, write_planar_csv
+
+    xs, ys = np.linspace(2, 448, 13), np.linspace(2, 448, 9)
+    gx, gy = np.meshgrid(xs, ys)
+    cmd = np.column_stack([gx.ravel(), gy.ravel()])
+    points_path = tmp_path / "tables" / "xy_points.csv"
+    config = _config(tmp_path, 3.0)
+    write_planar_csv(points_path, PlanarMeasurement(cmd, cmd.copy()))
+    assert not reframe_plane(config, tmp_path, points_path, ("X", "Y"))  # no frame
+    write_frame(tmp_path / "tables" / FRAME_FILE,
+                frame_of(config, tmp_path, ("X", "Y"), (xs, ys), {"X": 0.0, "Y": 0.0}))
+    assert not reframe_plane(config, tmp_path, points_path, ("X", "Y"))  # same tables
+    config = _config(tmp_path, 1.0)  # X's bow 3 → 1 µm, written over the same file
+    assert reframe_plane(config, tmp_path, points_path, ("X", "Y"))
+    err_um = read_planar_csv(points_path).error_mm * 1e3
+    far = cmd[:, 1] > 200
+    np.testing.assert_allclose(err_um[far, 0], 2.0 * np.sin(np.pi * cmd[far, 0] / 450),
+                               atol=2e-3)  # fmt: skip
+    assert np.abs(err_um[:, 1]).max() < 1e-9  # Y's table did not change
+    assert not reframe_plane(config, tmp_path, points_path, ("X", "Y"))  # done once

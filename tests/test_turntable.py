@@ -126,7 +126,8 @@ async def turntable_run(tmp_path: Path) -> None:
 def test_seed_000_backlash_plan_in_angle(tmp_path: Path, capsys):
     """`--backlash C` on a rotary axis: 1° take-up, 1° on and back, both ends and the
     middle; `compgw fit` reports B in arcseconds: the turntable's 12" play."""
-    from gateway.calibration.commands import fit, make_plan
+    from gateway.calibration.commands import make_plan
+    from gateway.calibration.commands_fit import fit
     from gateway.cli import build_parser
 
     async def body() -> None:

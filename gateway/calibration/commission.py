@@ -32,7 +32,6 @@ estimate (:func:`.plans.plan_time_s`): the same yardstick for any workflow.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import shutil
@@ -44,7 +43,7 @@ import numpy as np
 
 from ..compensation.errors import TableError
 from ..config import GatewayConfig
-from ..formats import atomic_write_text, read_pitch_csv, read_planar_csv, write_planar_csv
+from ..formats import atomic_write_text, read_pitch_csv
 from . import adaptive
 from .commission_refine import RefineSteps
 from .commission_steps import (
@@ -64,7 +63,7 @@ from .outputs import (
     save_pitch,
     save_planar,
 )
-from .plane_frame import FRAME_FILE, frame_of, read_frame, reframed, table_deviation_mm, write_frame
+from .plane_frame import FRAME_FILE, fitted_frame, reframe_plane, save_frame
 from .plans import (
     Plan,
     backlash_from_raw,
@@ -341,13 +340,8 @@ class Commission(RefineSteps):
         lines = {ax: self._park(ax)[ay], ay: self._park(ay)[ax]}
         res = fit_planar(meas, config, self.config_dir, "auto", residual, lines)
         save_planar(res, "compgw commission")
-        frame_path = res.model_path.parent / FRAME_FILE
-        if res.choice.pinned is not None and res.choice.pinned.startswith("grid"):
-            nodes = (np.unique(meas.command_mm[:, 0]), np.unique(meas.command_mm[:, 1]))
-            write_frame(frame_path, frame_of(config, self.config_dir, self.s.planar, nodes,
-                                             lines))  # fmt: skip
-        else:
-            frame_path.unlink(missing_ok=True)  # pinned without a fade: tables cancel
+        save_frame(res.points_path, fitted_frame(res.choice.pinned, meas, config,
+                                                 self.config_dir, self.s.planar, lines))
         self.state.setdefault("planar_fits", []).append(
             {"kind": res.choice.kind, "pinned": res.choice.pinned,
              "loo_rms_um": res.choice.loo_rms_um, "residual": residual})  # fmt: skip
@@ -358,17 +352,8 @@ class Commission(RefineSteps):
         if phase != "full" or self.s.planar is None or not self.tables.planar_model:
             return
         model = self.config_dir / self.tables.planar_model
-        frame = read_frame(model.parent / FRAME_FILE)
-        if frame is None:
-            return
         config, _ = self.staged("pitch")
-        now = {a: table_deviation_mm(config, self.config_dir, a, frame.nodes_mm[a])
-               for a in self.s.planar}  # fmt: skip
-        if all(np.array_equal(now[a], frame.table_mm[a]) for a in self.s.planar):
-            return
-        points = model.parent / "xy_points.csv"
-        write_planar_csv(points, reframed(read_planar_csv(points), frame, self.s.planar, now))
-        write_frame(model.parent / FRAME_FILE, dataclasses.replace(frame, table_mm=now))
+        reframe_plane(config, self.config_dir, model.parent / "xy_points.csv", self.s.planar)
 
     # -- 3. verification rounds ----------------------------------------------------------
     async def _rounds(self) -> str:

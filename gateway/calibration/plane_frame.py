@@ -19,7 +19,7 @@ own chain (:func:`table_deviation_mm`).
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +28,7 @@ from scipy.interpolate import CubicSpline
 
 from ..compensation import PlanarMeasurement
 from ..config import GatewayConfig
-from ..state_store import atomic_write_text
+from ..formats import atomic_write_text, read_planar_csv, write_planar_csv
 from ..tables import build_axis
 from .models import pin_fade
 
@@ -85,6 +85,27 @@ def frame_of(config: GatewayConfig, config_dir: Path, axes: tuple[str, str],
     return PlaneFrame({a: float(lines_mm[a]) for a in axes}, step, nodes, table)
 
 
+def fitted_frame(pinned: str | None, meas: PlanarMeasurement, config: GatewayConfig,
+                 config_dir: Path, axes: tuple[str, str],
+                 lines_mm: dict[str, float] | None) -> PlaneFrame | None:  # fmt: skip
+    """The frame of a plane just fitted from ``meas`` (read with ``config``'s tables as
+    they are on disk), or None when it needs none: not pinned, or pinned without a fade
+    (``pinned``: the family pinned, :attr:`.models.PlanarChoice.pinned`)."""
+    if not lines_mm or pinned is None or not pinned.startswith("grid"):
+        return None
+    nodes = (np.unique(meas.command_mm[:, 0]), np.unique(meas.command_mm[:, 1]))
+    return frame_of(config, config_dir, axes, nodes, lines_mm)
+
+
+def save_frame(points_path: Path, frame: PlaneFrame | None) -> None:
+    """The frame beside the plane's points, or none there (a stale one removed)."""
+    path = points_path.parent / FRAME_FILE
+    if frame is None:
+        path.unlink(missing_ok=True)
+    else:
+        write_frame(path, frame)
+
+
 def reframed(points: PlanarMeasurement, frame: PlaneFrame, axes: tuple[str, str],
              table_now_mm: dict[str, NDArray[np.float64]]) -> PlanarMeasurement:  # fmt: skip
     """A faded model's points re-expressed against tables that now take off
@@ -101,6 +122,23 @@ def reframed(points: PlanarMeasurement, frame: PlaneFrame, axes: tuple[str, str]
         away = points.command_mm[:, 1 - k] - frame.line_mm[a]
         err[:, k] -= (1.0 - pin_fade("grid", away, frame.step_mm[a])) * smooth(along)
     return PlanarMeasurement(points.command_mm, points.command_mm + err, points.source)
+
+
+def reframe_plane(config: GatewayConfig, config_dir: Path, points_path: Path,
+                  axes: tuple[str, str]) -> bool:  # fmt: skip
+    """The plane's points (``points_path``, its frame beside it) re-expressed against the
+    tables ``config`` names as they are on disk now; False when there is no frame or the
+    tables did not change."""
+    frame_path = points_path.parent / FRAME_FILE
+    frame = read_frame(frame_path)
+    if frame is None:
+        return False
+    now = {a: table_deviation_mm(config, config_dir, a, frame.nodes_mm[a]) for a in axes}
+    if all(np.array_equal(now[a], frame.table_mm[a]) for a in axes):
+        return False
+    write_planar_csv(points_path, reframed(read_planar_csv(points_path), frame, axes, now))
+    write_frame(frame_path, replace(frame, table_mm=now))
+    return True
 
 
 def write_frame(path: Path, frame: PlaneFrame) -> None:

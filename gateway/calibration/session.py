@@ -36,7 +36,15 @@ from .machine import (
     XYDevice,
     nearest_turn_deg,
 )
-from .outputs import fit_pitch, fit_planar, residual_figures, save_pitch, save_planar
+from .outputs import (
+    fit_pitch,
+    fit_planar,
+    planar_paths,
+    residual_figures,
+    save_pitch,
+    save_planar,
+)
+from .plane_frame import reframe_plane, save_frame
 from .plans import Move, Plan
 from .rawdata import RawData, read_raw_csv
 from .runner import ProgressFn, RunSummary, run_plan
@@ -233,6 +241,7 @@ def fold_round(session: Session, plan: Plan, raw_path: Path, comment: str) -> li
         meas = planar_measurement(raw, tuple(plan.axes))  # type: ignore[arg-type]
         res = fit_planar(meas, session.config, session.config_dir, residual=True)
         save_planar(res, comment)
+        save_frame(res.points_path, None)  # folded unpinned: no fade to keep in line
         out.append(f"planar model {res.choice.kind} written to {res.model_path}")
         return out
     for a in plan.axes:
@@ -242,6 +251,11 @@ def fold_round(session: Session, plan: Plan, raw_path: Path, comment: str) -> li
         if res.backlash_mm is not None:
             line += f"; set axes.{a}.compensation.backlash_mm: {res.backlash_mm:.6g}"
         out.append(line)
+    planar = session.config.planar
+    if planar is not None:
+        points = planar_paths(session.config, session.config_dir)[1]
+        if reframe_plane(session.config, session.config_dir, points, tuple(planar.axes)):  # type: ignore[arg-type]
+            out.append(f"planar model re-expressed against the folded tables ({points})")
     return out
 
 
