@@ -110,3 +110,49 @@ def test_reframe_plane_rewrites_the_points_once_per_change(tmp_path):
                                atol=2e-3)  # fmt: skip
     assert np.abs(err_um[:, 1]).max() < 1e-9  # Y's table did not change
     assert not reframe_plane(config, tmp_path, points_path, ("X", "Y"))  # done once
+
+
+def test_compgw_fit_keeps_a_faded_plane_in_line_with_a_table_it_writes(tmp_path, capsys):
+    """`compgw fit xy.csv --pitch-line …` writes a smoothed grid pinned with a fade and its
+    frame; `compgw fit X_on.csv --residual` then folds 1 µm into X's table, and the plane
+    gives that 1 µm back off X's pitch line (where the table alone rules, nothing moves)."""
+    from gateway.calibration.plane_frame import FRAME_FILE
+    from gateway.calibration.rawdata import RawWriter
+    from gateway.cli import main
+    from gateway.formats import read_planar_csv
+
+    _config(tmp_path, 3.0)
+    data = yaml.safe_load((tmp_path / "gw.yaml").read_text())
+    data["planar"] = {"axes": ["X", "Y"], "model": "tables/xy_model.yaml"}
+    (tmp_path / "gw.yaml").write_text(yaml.safe_dump(data))
+    xs, ys = np.linspace(2, 448, 25), np.linspace(2, 448, 17)
+    rng = np.random.default_rng(3)
+    with RawWriter(tmp_path / "xy.csv", ["x_mm", "y_mm"]) as w:
+        for x, y in ((x, y) for y in ys for x in xs):
+            wave = 3e-3 * np.array([np.sin(x / 25.0) * np.sin(y / 20.0),
+                                    np.cos(x / 18.0) * np.sin(y / 26.0)])  # zero on the lines
+            got = np.array([x, y]) + wave + rng.normal(0, 2e-4, 2)
+            for axis, target, actual in (("X", x, got[0]), ("Y", y, got[1])):
+                w.append(axis, 1, "+", target, float(actual), x_mm=float(x), y_mm=float(y))
+    gw = str(tmp_path / "gw.yaml")
+    assert main(["fit", str(tmp_path / "xy.csv"), "-c", gw, "--pitch-line", "X@Y=0",
+                 "--pitch-line", "Y@X=0"]) == 0  # fmt: skip
+    points = tmp_path / "tables" / "xy_points.csv"
+    assert (tmp_path / "tables" / FRAME_FILE).exists(), capsys.readouterr().out
+    before = read_planar_csv(points)
+    with RawWriter(tmp_path / "x_on.csv") as w:  # X with its table on: 1 µm long everywhere
+        for run in (1, 2):
+            for sign, targets in (("+", np.arange(0, 451, 10.0)), ("-", np.arange(450, -1, -10.0))):
+                for t in targets:
+                    w.append("X", run, sign, float(t), float(t) + 1e-3)
+    capsys.readouterr()
+    assert main(["fit", str(tmp_path / "x_on.csv"), "-c", gw, "--residual"]) == 0
+    assert "re-expressed" in capsys.readouterr().out
+    after = read_planar_csv(points)
+    np.testing.assert_array_equal(after.command_mm, before.command_mm)
+    shift_um = (after.error_mm - before.error_mm) * 1e3
+    far = before.command_mm[:, 1] > 100.0
+    on_line = before.command_mm[:, 1] == 0.0
+    np.testing.assert_allclose(shift_um[far, 0], -1.0, atol=1e-6)
+    assert np.abs(shift_um[on_line, 0]).max() < 1e-9
+    assert np.abs(shift_um[:, 1]).max() < 1e-9  # Y's table did not change
