@@ -49,6 +49,11 @@ Reload = Callable[[], Awaitable[None]]
 
 
 
+#: readings of each drift reference per reading (their mean is the reference)
+REF_REPEATS = 3
+#: the drift is taken off an axis whose references vary by more than this many times what
+#: their own scatter gives (see :meth:`Steps.drift_stands_out`)
+DRIFT_RATIO = 2.0
 #: how fast the swept travel behind a drift shape fades (s of machine time): a screw's
 #: thermal time constant (the bench's warm-ups fit 960-1130 s)
 MEMORY_S = 1000.0
@@ -253,7 +258,7 @@ class Steps:
         return (round((lo + 0.05 * (hi - lo) + 1.0) / pulse) * pulse,
                 round((hi - 0.05 * (hi - lo)) / pulse) * pulse)
 
-    async def _measure_refs(self, repeats: int = 3, axes: Sequence[str] | None = None
+    async def _measure_refs(self, repeats: int = REF_REPEATS, axes: Sequence[str] | None = None
                             ) -> dict[str, list[float]]:  # fmt: skip
         """Deviation (mm) of each commissioned axis (or of ``axes``) at its two drift
         references, the mean of ``repeats`` approaches in + from 1 mm below (the other plane
@@ -307,7 +312,7 @@ class Steps:
             return None
         return last["refs"]
 
-    def refs_cost_s(self, axes: Sequence[str], repeats: int = 3) -> float:
+    def refs_cost_s(self, axes: Sequence[str], repeats: int = REF_REPEATS) -> float:
         """Machine time (s) of one reading of the drift references of ``axes``: two places,
         ``repeats`` approaches each from 1 mm below."""
         return len(axes) * 2 * repeats * (self.s.stop_s + 2.0 / self.s.speed_mm_s)
@@ -495,8 +500,24 @@ class Steps:
         sensor's config leaves, see :func:`.adaptive.relinked_base`). An axis that keeps
         its sensor keeps what its compensation leaves, as it will in use."""
         if self.config.axes[axis].compensation.thermal is None:
-            return True
+            return self.drift_stands_out(axis)
         return self.replacing_motion(axis) is not None
+
+    def drift_stands_out(self, axis: str) -> bool:
+        """Whether the drift references of ``axis`` have varied by more than their own
+        scatter: the variance of their readings since commissioning began over the variance
+        of one (the axis's ISO scatter s over REF_REPEATS) above DRIFT_RATIO. A drift that is
+        only the references' scatter, taken off, adds it to every run: an offset and a tilt
+        per run, and a reversal between a sweep's two passes (0.6-1.1 µm on slit-11361 X
+        and slit-11360-iso X, machines with no heat, 1.2-1.3 µm of scatter). Before the ISO
+        runs give s: taken off."""
+        s_um = (self.state.get("identify", {}).get(f"reversal-{axis}") or {}).get("scatter_um")
+        log = [e["drift_mm"][axis] for e in self.state.get("drift_log") or []
+               if axis in e.get("drift_mm", {})]  # fmt: skip
+        if s_um is None or not np.isfinite(s_um) or s_um <= 0 or len(log) < 3:
+            return True
+        spread_um2 = float(np.mean(np.var(np.asarray(log) * 1e3, axis=0)))
+        return spread_um2 > DRIFT_RATIO * s_um**2 / REF_REPEATS
 
     def drift_spread_mm(self, axis: str) -> float | None:
         """How far the heat of ``axis``'s moves spreads along its screw (mm), where its zone
