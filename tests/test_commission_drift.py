@@ -92,3 +92,21 @@ def test_runs_with_the_sensor_on_and_off_both_come_back_to_the_cold_machine(tmp_
         np.testing.assert_allclose(got[0], _error_mm(x) + left * _sensor_mm(x, START_C),
                                    atol=1e-9)  # fmt: skip
     assert np.abs(_sensor_mm(x, START_C)).max() > 5e-3  # the start's 3 K: tens of µm
+
+
+def test_drift_taken_off_only_where_the_references_vary_beyond_their_scatter():
+    """References that only scatter (a machine with no heat, 1.2 µm of scatter, 70 readings
+    of 3) are not taken off its runs; 4 µm of growth over commissioning among the same
+    scatter is; before the ISO runs give the scatter, the drift is taken off."""
+    s_um = 1.2
+    noise_um = np.random.default_rng(0).normal(0.0, s_um / np.sqrt(3), (70, 2))
+
+    def fake(log_um, scatter=True):  # type: ignore[no-untyped-def]
+        ident = {"reversal-X": {"scatter_um": s_um}} if scatter else {}
+        log = [{"drift_mm": {"X": list(row * 1e-3)}} for row in log_um]
+        return types.SimpleNamespace(state={"identify": ident, "drift_log": log})
+
+    assert not Steps.drift_stands_out(fake(noise_um), "X")  # type: ignore[arg-type]
+    growth_um = noise_um + np.linspace(0.0, 4.0, 70)[:, None]
+    assert Steps.drift_stands_out(fake(growth_um), "X")  # type: ignore[arg-type]
+    assert Steps.drift_stands_out(fake(noise_um, scatter=False), "X")  # type: ignore[arg-type]
