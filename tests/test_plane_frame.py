@@ -87,9 +87,9 @@ def test_a_table_change_is_kept_off_the_line_and_the_grid_reading_kept(tmp_path)
 
 def test_reframe_plane_rewrites_the_points_once_per_change(tmp_path):
     """What `compgw fit`, the iteration's fold and the commissioning call after a table is
-    written: the points re-expressed and the frame moved to the new tables; nothing when
-    the tables are the frame's or there is no frame (a plane pinned without a fade)."""
-    from gateway.calibration.plane_frame import FRAME_FILE, reframe_plane
+    written: the points re-expressed against the new tables; nothing when the points are
+    that already or there is no frame (a plane pinned without a fade)."""
+    from gateway.calibration.plane_frame import reframe_plane, save_frame
     from gateway.formats import read_planar_csv, write_planar_csv
 
     xs, ys = np.linspace(2, 448, 13), np.linspace(2, 448, 9)
@@ -99,8 +99,8 @@ def test_reframe_plane_rewrites_the_points_once_per_change(tmp_path):
     config = _config(tmp_path, 3.0)
     write_planar_csv(points_path, PlanarMeasurement(cmd, cmd.copy()))
     assert not reframe_plane(config, tmp_path, points_path, ("X", "Y"))  # no frame
-    write_frame(tmp_path / "tables" / FRAME_FILE,
-                frame_of(config, tmp_path, ("X", "Y"), (xs, ys), {"X": 0.0, "Y": 0.0}))
+    save_frame(points_path,
+               frame_of(config, tmp_path, ("X", "Y"), (xs, ys), {"X": 0.0, "Y": 0.0}))
     assert not reframe_plane(config, tmp_path, points_path, ("X", "Y"))  # same tables
     config = _config(tmp_path, 1.0)  # X's bow 3 → 1 µm, written over the same file
     assert reframe_plane(config, tmp_path, points_path, ("X", "Y"))
@@ -110,6 +110,11 @@ def test_reframe_plane_rewrites_the_points_once_per_change(tmp_path):
                                atol=2e-3)  # fmt: skip
     assert np.abs(err_um[:, 1]).max() < 1e-9  # Y's table did not change
     assert not reframe_plane(config, tmp_path, points_path, ("X", "Y"))  # done once
+    # always from the points as fitted: a table put back puts the plane back too, and an
+    # interrupted re-expression is simply done again
+    config = _config(tmp_path, 3.0)
+    assert reframe_plane(config, tmp_path, points_path, ("X", "Y"))
+    np.testing.assert_allclose(read_planar_csv(points_path).error_mm, 0.0, atol=1e-12)
 
 
 def test_compgw_fit_keeps_a_faded_plane_in_line_with_a_table_it_writes(tmp_path, capsys):

@@ -63,7 +63,7 @@ from .outputs import (
     save_pitch,
     save_planar,
 )
-from .plane_frame import FRAME_FILE, fitted_frame, reframe_plane, save_frame
+from .plane_frame import FITTED_FILE, FRAME_FILE, fitted_frame, reframe_plane, save_frame
 from .plans import (
     Plan,
     backlash_from_raw,
@@ -490,7 +490,8 @@ class Commission(RefineSteps):
         """The files that hold an axis's table (or, for "XY", the planar model)."""
         if name == "XY":
             model = self.config_dir / str(self.tables.planar_model)
-            return [model, model.parent / "xy_points.csv", model.parent / FRAME_FILE]
+            return [model, model.parent / "xy_points.csv", model.parent / FRAME_FILE,
+                    model.parent / FITTED_FILE]
         files = [self.config_dir / self.tables.pitch[name]]
         if name in self.tables.cyclic:  # refinement scans add cyclic stations too
             files.append(self.config_dir / self.tables.cyclic[name])
@@ -526,7 +527,8 @@ class Commission(RefineSteps):
             if saved.exists() and (not path.exists() or path.read_bytes() != saved.read_bytes()):
                 atomic_write_text(path, saved.read_text())
                 changed = True
-            elif not saved.exists() and path.name == FRAME_FILE and path.exists():
+            elif not saved.exists() and path.name in (FRAME_FILE, FITTED_FILE) \
+                    and path.exists():  # fmt: skip
                 path.unlink()  # the best plane was pinned without a fade: it has no frame
                 changed = True
         return changed

@@ -8,9 +8,11 @@ lines, the tables' own error at the grid's resolution included. When a table cha
 afterwards by Δ = A_now − A_fit (a sweep, a refinement, a table put back), the model far
 from the line would undo the change there; pinned without a fade (a polynomial) Δ cancels
 and nothing is needed. So the tables' values at the grid's nodes are kept beside the
-model (the *frame*, ``xy_frame.json``), and before the model runs with other tables it is
-re-expressed: each component less (1 − fade) · S(Δ), S(Δ) the cubic through Δ at the
-grid's nodes (what the grid would have read of it), the fade the pin's own.
+model (the *frame*, ``xy_frame.json``, with the points as fitted, ``xy_points_fitted.csv``),
+and before the model runs with other tables it is re-expressed: the fitted points, each
+component less (1 − fade) · S(Δ), S(Δ) the cubic through Δ at the grid's nodes (what the
+grid would have read of it), the fade the pin's own. Always from the fitted points, never
+from the last re-expression: an interrupted write is simply done again.
 
 Pure functions on arrays and one small file; the tables' values come from the gateway's
 own chain (:func:`table_deviation_mm`).
@@ -19,7 +21,7 @@ own chain (:func:`table_deviation_mm`).
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,12 +30,14 @@ from scipy.interpolate import CubicSpline
 
 from ..compensation import PlanarMeasurement
 from ..config import GatewayConfig
-from ..formats import atomic_write_text, read_planar_csv, write_planar_csv
+from ..formats import atomic_write_text, read_planar_csv
+from ..formats.planar_file import planar_csv_text
 from ..tables import build_axis
 from .models import pin_fade
 
-#: the frame's file, beside the model's points
+#: the frame's file, and the points as fitted, beside the model's points
 FRAME_FILE = "xy_frame.json"
+FITTED_FILE = "xy_points_fitted.csv"
 
 
 @dataclass(frozen=True)
@@ -98,11 +102,14 @@ def fitted_frame(pinned: str | None, meas: PlanarMeasurement, config: GatewayCon
 
 
 def save_frame(points_path: Path, frame: PlaneFrame | None) -> None:
-    """The frame beside the plane's points, or none there (a stale one removed)."""
-    path = points_path.parent / FRAME_FILE
+    """The frame and a copy of the points just fitted beside them, or neither there (stale
+    ones removed)."""
+    path, fitted = points_path.parent / FRAME_FILE, points_path.parent / FITTED_FILE
     if frame is None:
         path.unlink(missing_ok=True)
+        fitted.unlink(missing_ok=True)
     else:
+        atomic_write_text(fitted, points_path.read_text())
         write_frame(path, frame)
 
 
@@ -126,18 +133,18 @@ def reframed(points: PlanarMeasurement, frame: PlaneFrame, axes: tuple[str, str]
 
 def reframe_plane(config: GatewayConfig, config_dir: Path, points_path: Path,
                   axes: tuple[str, str]) -> bool:  # fmt: skip
-    """The plane's points (``points_path``, its frame beside it) re-expressed against the
-    tables ``config`` names as they are on disk now; False when there is no frame or the
-    tables did not change."""
-    frame_path = points_path.parent / FRAME_FILE
-    frame = read_frame(frame_path)
-    if frame is None:
+    """The plane's points (``points_path``) made the fitted points re-expressed against
+    the tables ``config`` names as they are on disk now; False when there is no frame or
+    the points are that already."""
+    frame = read_frame(points_path.parent / FRAME_FILE)
+    fitted = points_path.parent / FITTED_FILE
+    if frame is None or not fitted.exists():
         return False
     now = {a: table_deviation_mm(config, config_dir, a, frame.nodes_mm[a]) for a in axes}
-    if all(np.array_equal(now[a], frame.table_mm[a]) for a in axes):
+    text = planar_csv_text(reframed(read_planar_csv(fitted), frame, axes, now))
+    if points_path.exists() and points_path.read_text() == text:
         return False
-    write_planar_csv(points_path, reframed(read_planar_csv(points_path), frame, axes, now))
-    write_frame(frame_path, replace(frame, table_mm=now))
+    atomic_write_text(points_path, text)
     return True
 
 

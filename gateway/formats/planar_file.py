@@ -55,14 +55,18 @@ def read_planar_csv(path: str | os.PathLike[str]) -> PlanarMeasurement:
     return PlanarMeasurement(cmd, cmd + data[:, 2:] * 1e-3, source=str(path), lines=tuple(lines))
 
 
-def write_planar_csv(path: str | os.PathLike[str], meas: PlanarMeasurement) -> None:
+def planar_csv_text(meas: PlanarMeasurement) -> str:
+    """The points CSV's text (what :func:`write_planar_csv` writes)."""
     dev = meas.error_mm * 1e3
     body = "".join(
         f"{fmt(x, POS)},{fmt(y, POS)},{fmt(dx, DEV)},{fmt(dy, DEV)}\n"
         for (x, y), (dx, dy) in zip(meas.command_mm, dev)
     )
-    head = "# deviation actual - commanded (um)\n" + ",".join(_HEADER) + "\n"
-    atomic_write_text(path, head + body)
+    return "# deviation actual - commanded (um)\n" + ",".join(_HEADER) + "\n" + body
+
+
+def write_planar_csv(path: str | os.PathLike[str], meas: PlanarMeasurement) -> None:
+    atomic_write_text(path, planar_csv_text(meas))
 
 
 def load_planar_model(path: str | os.PathLike[str]) -> PlanarModel:
