@@ -196,11 +196,11 @@ def pinned_measurement(
     RMS on the SDSS plates' 25 × 17 grids with 1 µm of scatter). That holds for a smoothed
     grid, whose error is local; a polynomial's terms span the plane, its error on the line
     is its error everywhere, and the line's value is taken off everywhere (no fade: on
-    rough-2 a degree-6 fit faded left a ±5 µm wave in x on every line but the pitch
-    line). A line up to one node step
-    outside the grid is reached by continuing the model along its edge slope. Returned as
-    grid points (the measured grid lines, and the pitch lines, subdivided ``subdivide``
-    times) for a cubic grid model.
+    rough-2 a degree-6 fit faded left a ±5 µm wave in x on every line but the pitch line).
+    A line up to one node step outside the grid is reached by continuing the model along
+    its edge slope. Returned as grid points (the measured grid lines, and the pitch lines,
+    subdivided ``subdivide`` times) for a cubic grid model. A faded model keeps what the
+    tables it was read with left; :mod:`.plane_frame` keeps it in line when they change.
     """
     if nodes is None:
         nodes = model.nodes_hint_mm()
