@@ -134,8 +134,7 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         # fitted points re-expressed against the final tables (this machine's last plane is
         # a smoothed grid: pinned with a fade, it has a frame)
         assert (out / "tables" / FRAME_FILE).exists(), state["planar_fits"]
-        assert not reframe_plane(load_config(rig.config), rig.config.parent,
-                                 out / "tables" / "xy_points.csv", ("X", "Y"))  # fmt: skip
+        assert not reframe_plane(load_config(rig.config), rig.config.parent)
 
 
 def test_commission_resumes_after_a_kill(template: Path, tmp_path: Path) -> None:

@@ -22,7 +22,8 @@ AXIS = {"bus": "line1", "pulse_mm": 0.001, "travel_mm": [0, 450],
 
 
 def _config(tmp_path, bow_um):
-    """X and Y with pitch tables: X's a bow of ``bow_um`` over its travel, Y's flat."""
+    """X and Y with pitch tables (X's a bow of ``bow_um`` over its travel, Y's flat) and a
+    plane (``tables/xy_model.yaml``, its points beside it)."""
     (tmp_path / "tables").mkdir(exist_ok=True)
     x = np.linspace(0, 450, 46)
     for name, values in (("x", bow_um * np.sin(np.pi * x / 450)), ("y", 0.0 * x)):
@@ -32,7 +33,8 @@ def _config(tmp_path, bow_um):
                 "compensation": {"pitch": f"tables/{n.lower()}.csv", "max_correction_mm": 0.1}}
             for k, n in enumerate("XY")}  # fmt: skip
     data = {"upstream": {"tcp": {"port": 0}}, "axes": axes,
-            "buses": {"line1": {"tcp": {"host": "127.0.0.1", "port": 1}}}}  # fmt: skip
+            "buses": {"line1": {"tcp": {"host": "127.0.0.1", "port": 1}}},
+            "planar": {"axes": ["X", "Y"], "model": "tables/xy_model.yaml"}}  # fmt: skip
     path = tmp_path / "gw.yaml"
     path.write_text(yaml.safe_dump(data))
     return load_config(path)
@@ -98,22 +100,22 @@ def test_reframe_plane_rewrites_the_points_once_per_change(tmp_path):
     points_path = tmp_path / "tables" / "xy_points.csv"
     config = _config(tmp_path, 3.0)
     write_planar_csv(points_path, PlanarMeasurement(cmd, cmd.copy()))
-    assert not reframe_plane(config, tmp_path, points_path, ("X", "Y"))  # no frame
+    assert not reframe_plane(config, tmp_path)  # no frame
     save_frame(points_path,
                frame_of(config, tmp_path, ("X", "Y"), (xs, ys), {"X": 0.0, "Y": 0.0}))
-    assert not reframe_plane(config, tmp_path, points_path, ("X", "Y"))  # same tables
+    assert not reframe_plane(config, tmp_path)  # same tables
     config = _config(tmp_path, 1.0)  # X's bow 3 → 1 µm, written over the same file
-    assert reframe_plane(config, tmp_path, points_path, ("X", "Y"))
+    assert reframe_plane(config, tmp_path)
     err_um = read_planar_csv(points_path).error_mm * 1e3
     far = cmd[:, 1] > 200
     np.testing.assert_allclose(err_um[far, 0], 2.0 * np.sin(np.pi * cmd[far, 0] / 450),
                                atol=2e-3)  # fmt: skip
     assert np.abs(err_um[:, 1]).max() < 1e-9  # Y's table did not change
-    assert not reframe_plane(config, tmp_path, points_path, ("X", "Y"))  # done once
+    assert not reframe_plane(config, tmp_path)  # done once
     # always from the points as fitted: a table put back puts the plane back too, and an
     # interrupted re-expression is simply done again
     config = _config(tmp_path, 3.0)
-    assert reframe_plane(config, tmp_path, points_path, ("X", "Y"))
+    assert reframe_plane(config, tmp_path)
     np.testing.assert_allclose(read_planar_csv(points_path).error_mm, 0.0, atol=1e-12)
 
 
@@ -127,9 +129,6 @@ def test_compgw_fit_keeps_a_faded_plane_in_line_with_a_table_it_writes(tmp_path,
     from gateway.formats import read_planar_csv
 
     _config(tmp_path, 3.0)
-    data = yaml.safe_load((tmp_path / "gw.yaml").read_text())
-    data["planar"] = {"axes": ["X", "Y"], "model": "tables/xy_model.yaml"}
-    (tmp_path / "gw.yaml").write_text(yaml.safe_dump(data))
     xs, ys = np.linspace(2, 448, 25), np.linspace(2, 448, 17)
     rng = np.random.default_rng(3)
     with RawWriter(tmp_path / "xy.csv", ["x_mm", "y_mm"]) as w:

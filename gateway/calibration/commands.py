@@ -18,9 +18,8 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 from ..compensation.errors import CompensationError, TableError
-from ..config import ConfigError, GatewayConfig, load_config
-
-EXIT_OK, EXIT_BAD_INPUT, EXIT_USAGE, EXIT_RUNTIME = 0, 1, 2, 3
+from ..config import ConfigError, GatewayConfig
+from .cli_common import EXIT_BAD_INPUT, EXIT_OK, EXIT_RUNTIME, err, load
 
 CALIBRATE_HELP = """\
 Run a calibration plan through a running gateway and append the readings to a raw CSV.
@@ -40,12 +39,6 @@ Instrument register maps: see gateway/calibration/machine.py (as the sim's laser
 and Δa sensor)."""
 
 
-def _err(cmd: str, message: object) -> None:
-    print(f"compgw {cmd}: {message}", file=sys.stderr)
-
-
-def _load(cmd: str, path: str) -> tuple[GatewayConfig, Path]:
-    return load_config(path), Path(path).resolve().parent
 
 
 # -- calibrate ----------------------------------------------------------------------------------
@@ -185,7 +178,7 @@ def calibrate(
     from .session import iterate as iterate_rounds
 
     try:
-        config, config_dir = _load("calibrate", args.config)
+        config, config_dir = load(args.config)
         if args.identify_config:
             from ..formats import atomic_write_text
 
@@ -236,7 +229,7 @@ def calibrate(
             park,
         )  # fmt: skip
     except (ConfigError, TableError, CompensationError, ValueError, OSError) as exc:
-        _err("calibrate", exc)
+        err("calibrate", exc)
         return EXIT_BAD_INPUT
 
     async def body() -> int:
@@ -268,7 +261,7 @@ def calibrate(
             if not within(last.judged, args.tolerance_um):
                 where = "between the calibration targets" if vplan is not None else \
                     "at the calibration targets"
-                _err("calibrate", f"tolerance {args.tolerance_um:g} µm not met {where}: "
+                err("calibrate", f"tolerance {args.tolerance_um:g} µm not met {where}: "
                      f"{format_figures(last.judged)}")  # fmt: skip
                 return EXIT_BAD_INPUT
             return EXIT_OK
@@ -276,14 +269,14 @@ def calibrate(
     try:
         return asyncio.run(body())
     except KeyboardInterrupt:
-        _err("calibrate", f"interrupted; every reading so far is in {args.raw}: run the same "
+        err("calibrate", f"interrupted; every reading so far is in {args.raw}: run the same "
              "command again to resume")  # fmt: skip
         return EXIT_RUNTIME
     except (TableError, CompensationError, ConfigError) as exc:
-        _err("calibrate", exc)
+        err("calibrate", exc)
         return EXIT_BAD_INPUT
     except (MachineError, OSError, subprocess.CalledProcessError) as exc:
-        _err("calibrate", exc)
+        err("calibrate", exc)
         return EXIT_RUNTIME
 
 

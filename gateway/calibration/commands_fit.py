@@ -10,23 +10,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from ..compensation.errors import CompensationError, TableError
-from ..config import ConfigError, GatewayConfig, load_config
-
-EXIT_OK, EXIT_BAD_INPUT = 0, 1
-
-
-def _err(cmd: str, message: object) -> None:
-    print(f"compgw {cmd}: {message}", file=sys.stderr)
-
-
-def _load(cmd: str, path: str) -> tuple[GatewayConfig, Path]:
-    return load_config(path), Path(path).resolve().parent
+from ..config import ConfigError, GatewayConfig
+from .cli_common import EXIT_BAD_INPUT, EXIT_OK, err, load
 
 
 def raw_kind(path: str) -> str:
@@ -65,7 +55,6 @@ def fit(args: argparse.Namespace) -> int:
         fit_pitch,
         fit_planar,
         net_pitch,
-        planar_paths,
         save_cyclic,
         save_pitch,
         save_planar,
@@ -77,7 +66,7 @@ def fit(args: argparse.Namespace) -> int:
 
     report: dict[str, Any] = {}
     try:
-        config, config_dir = _load("fit", args.config)
+        config, config_dir = load(args.config)
         kinds = {path: raw_kind(path) for path in args.raw}
         backlash: dict[str, float] = {}
         for path, kind in kinds.items():
@@ -182,12 +171,10 @@ def fit(args: argparse.Namespace) -> int:
         if not args.dry_run:
             for save in pending:
                 save()
-            if config.planar is not None and reframe_plane(
-                    config, config_dir, planar_paths(config, config_dir)[1],
-                    tuple(config.planar.axes)):  # type: ignore[arg-type]
+            if reframe_plane(config, config_dir):
                 report.setdefault("planar", {})["reframed"] = True
     except (ConfigError, TableError, CompensationError, ValueError) as exc:
-        _err("fit", exc)
+        err("fit", exc)
         return EXIT_BAD_INPUT
     if args.json:
         print(json.dumps(report, indent=2))

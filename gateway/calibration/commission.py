@@ -349,11 +349,8 @@ class Commission(RefineSteps):
     def before_load(self, phase: str) -> None:
         """The plane re-expressed against the tables it is about to run with, where it is
         faded and they changed since it was fitted (:mod:`.plane_frame`)."""
-        if phase != "full" or self.s.planar is None or not self.tables.planar_model:
-            return
-        model = self.config_dir / self.tables.planar_model
-        config, _ = self.staged("pitch")
-        reframe_plane(config, self.config_dir, model.parent / "xy_points.csv", self.s.planar)
+        if phase == "full":
+            reframe_plane(self.staged("full")[0], self.config_dir)
 
     # -- 3. verification rounds ----------------------------------------------------------
     async def _rounds(self) -> str:
@@ -518,8 +515,9 @@ class Commission(RefineSteps):
                                            f"(round {self.state['best'][name]['round']})")
 
     def _put_back(self, name: str) -> bool:
-        """The best files of an axis (or "XY") copied over the current ones; True when any
-        differed."""
+        """The best files of an axis (or "XY") as they were: copied over the current ones,
+        and one that did not exist then removed (a plane's frame, where the best plane was
+        pinned without a fade); True when any differed."""
         keep = self.dir / "tables" / "best"
         changed = False
         for path in self._table_files(name):
@@ -527,9 +525,8 @@ class Commission(RefineSteps):
             if saved.exists() and (not path.exists() or path.read_bytes() != saved.read_bytes()):
                 atomic_write_text(path, saved.read_text())
                 changed = True
-            elif not saved.exists() and path.name in (FRAME_FILE, FITTED_FILE) \
-                    and path.exists():  # fmt: skip
-                path.unlink()  # the best plane was pinned without a fade: it has no frame
+            elif not saved.exists() and path.exists():
+                path.unlink()
                 changed = True
         return changed
 

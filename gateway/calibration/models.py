@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import CloughTocher2DInterpolator
 
 from ..compensation import GridModel, PlanarMeasurement, PolyModel
@@ -142,13 +142,25 @@ PIN_FADE_STEPS = 1.0
 EDGE_SLOPE_MM = 0.5
 
 
+def node_step_mm(nodes_mm: ArrayLike) -> float:
+    """A grid's step along one direction (mm): the median spacing of its lines (0 for one)."""
+    n = np.asarray(nodes_mm, dtype=np.float64)
+    return float(np.median(np.diff(n))) if n.size > 1 else 0.0
+
+
+def pin_fades(kind: str) -> bool:
+    """Whether a model of family ``kind`` is pinned with a fade: a smoothed grid (its error
+    is local), not a polynomial (its error is global)."""
+    return kind == "grid"
+
+
 def pin_fade(kind: str, distance_mm: NDArray[np.float64] | float, step_mm: float
              ) -> NDArray[np.float64]:  # fmt: skip
-    """How much of a model's value on a pitch line is taken off ``distance_mm`` from it: a
-    smoothed grid's error is local, exp(−(d/s)²) with ``s`` PIN_FADE_STEPS node steps; a
-    polynomial's is global, 1 everywhere (see :func:`pinned_measurement`)."""
+    """How much of a model's value on a pitch line is taken off ``distance_mm`` from it:
+    exp(−(d/s)²) with ``s`` PIN_FADE_STEPS node steps where it fades (:func:`pin_fades`), 1
+    everywhere where it does not (see :func:`pinned_measurement`)."""
     d = np.asarray(distance_mm, dtype=np.float64)
-    if kind != "grid":
+    if not pin_fades(kind):
         return np.ones_like(d)
     return np.exp(-((d / max(PIN_FADE_STEPS * step_mm, 1e-9)) ** 2))
 
@@ -206,7 +218,7 @@ def pinned_measurement(
         nodes = model.nodes_hint_mm()
     lower = np.array([float(np.min(n)) for n in nodes])
     upper = np.array([float(np.max(n)) for n in nodes])
-    step = np.array([float(np.median(np.diff(n))) if len(n) > 1 else 0.0 for n in nodes])
+    step = np.array([node_step_mm(n) for n in nodes])
     reach = [np.asarray(n, dtype=np.float64) for n in nodes]
     for k, name in enumerate(axes):
         j = 1 - k  # the direction away from this axis's line

@@ -33,7 +33,8 @@ from ..config import GatewayConfig
 from ..formats import atomic_write_text, read_planar_csv
 from ..formats.planar_file import planar_csv_text
 from ..tables import build_axis
-from .models import pin_fade
+from .models import node_step_mm, pin_fade, pin_fades
+from .outputs import planar_paths
 
 #: the frame's file, and the points as fitted, beside the model's points
 FRAME_FILE = "xy_frame.json"
@@ -43,18 +44,22 @@ FITTED_FILE = "xy_points_fitted.csv"
 @dataclass(frozen=True)
 class PlaneFrame:
     """Per plane axis (mm): where the other axis stood for its table (``line_mm``), the
-    grid's node step away from that line (``step_mm``, the fade's scale), the grid's
-    nodes along the axis (``nodes_mm``) and the deviation the tables applied there when the
-    grid was read (``table_mm``)."""
+    grid's nodes along the axis (``nodes_mm``) and the deviation the tables applied there
+    when the grid was read (``table_mm``)."""
 
     line_mm: dict[str, float]
-    step_mm: dict[str, float]
     nodes_mm: dict[str, NDArray[np.float64]]
     table_mm: dict[str, NDArray[np.float64]]
 
+    def step_mm(self, axis: str) -> float:
+        """The grid's node step away from ``axis``'s line (the fade's scale): the other
+        axis's."""
+        other = next(a for a in self.nodes_mm if a != axis)
+        return node_step_mm(self.nodes_mm[other])
+
     def to_json(self) -> str:
         return json.dumps({
-            "line_mm": self.line_mm, "step_mm": self.step_mm,
+            "line_mm": self.line_mm,
             "nodes_mm": {a: v.tolist() for a, v in self.nodes_mm.items()},
             "table_mm": {a: v.tolist() for a, v in self.table_mm.items()},
         }, indent=1)  # fmt: skip
@@ -64,8 +69,7 @@ class PlaneFrame:
         d = json.loads(text)
         arrays = {k: {a: np.asarray(v, dtype=np.float64) for a, v in d[k].items()}
                   for k in ("nodes_mm", "table_mm")}  # fmt: skip
-        return cls(dict(d["line_mm"]), dict(d["step_mm"]), arrays["nodes_mm"],
-                   arrays["table_mm"])  # fmt: skip
+        return cls(dict(d["line_mm"]), arrays["nodes_mm"], arrays["table_mm"])
 
 
 def table_deviation_mm(config: GatewayConfig, config_dir: Path, axis: str,
@@ -83,10 +87,8 @@ def frame_of(config: GatewayConfig, config_dir: Path, axes: tuple[str, str],
     """The frame of a grid read on ``nodes_mm`` (x, y) with ``config``'s tables on."""
     nodes = {axes[0]: np.asarray(nodes_mm[0], np.float64),
              axes[1]: np.asarray(nodes_mm[1], np.float64)}  # fmt: skip
-    step = {a: float(np.median(np.diff(nodes[b]))) if nodes[b].size > 1 else 0.0
-            for a, b in (axes, axes[::-1])}  # fmt: skip
     table = {a: table_deviation_mm(config, config_dir, a, nodes[a]) for a in axes}
-    return PlaneFrame({a: float(lines_mm[a]) for a in axes}, step, nodes, table)
+    return PlaneFrame({a: float(lines_mm[a]) for a in axes}, nodes, table)
 
 
 def fitted_frame(pinned: str | None, meas: PlanarMeasurement, config: GatewayConfig,
@@ -95,7 +97,7 @@ def fitted_frame(pinned: str | None, meas: PlanarMeasurement, config: GatewayCon
     """The frame of a plane just fitted from ``meas`` (read with ``config``'s tables as
     they are on disk), or None when it needs none: not pinned, or pinned without a fade
     (``pinned``: the family pinned, :attr:`.models.PlanarChoice.pinned`)."""
-    if not lines_mm or pinned is None or not pinned.startswith("grid"):
+    if not lines_mm or pinned is None or not pin_fades(pinned.split()[0]):
         return None
     nodes = (np.unique(meas.command_mm[:, 0]), np.unique(meas.command_mm[:, 1]))
     return frame_of(config, config_dir, axes, nodes, lines_mm)
@@ -127,19 +129,23 @@ def reframed(points: PlanarMeasurement, frame: PlaneFrame, axes: tuple[str, str]
             lambda x, n=nodes, d=delta: np.interp(x, n, d))  # fmt: skip
         along = np.clip(points.command_mm[:, k], nodes[0], nodes[-1])
         away = points.command_mm[:, 1 - k] - frame.line_mm[a]
-        err[:, k] -= (1.0 - pin_fade("grid", away, frame.step_mm[a])) * smooth(along)
+        err[:, k] -= (1.0 - pin_fade("grid", away, frame.step_mm(a))) * smooth(along)
     return PlanarMeasurement(points.command_mm, points.command_mm + err, points.source)
 
 
-def reframe_plane(config: GatewayConfig, config_dir: Path, points_path: Path,
-                  axes: tuple[str, str]) -> bool:  # fmt: skip
-    """The plane's points (``points_path``) made the fitted points re-expressed against
-    the tables ``config`` names as they are on disk now; False when there is no frame or
-    the points are that already."""
+def reframe_plane(config: GatewayConfig, config_dir: Path) -> bool:
+    """``config``'s plane made its fitted points re-expressed against the tables
+    ``config`` names as they are on disk now (what every writer of a table calls after
+    it); False when the config has no plane, the plane no frame, or its points are that
+    already."""
+    if config.planar is None:
+        return False
+    points_path = planar_paths(config, config_dir)[1]
     frame = read_frame(points_path.parent / FRAME_FILE)
     fitted = points_path.parent / FITTED_FILE
     if frame is None or not fitted.exists():
         return False
+    axes: tuple[str, str] = tuple(config.planar.axes)  # type: ignore[assignment]
     now = {a: table_deviation_mm(config, config_dir, a, frame.nodes_mm[a]) for a in axes}
     text = planar_csv_text(reframed(read_planar_csv(fitted), frame, axes, now))
     if points_path.exists() and points_path.read_text() == text:

@@ -39,7 +39,6 @@ from .machine import (
 from .outputs import (
     fit_pitch,
     fit_planar,
-    planar_paths,
     residual_figures,
     save_pitch,
     save_planar,
@@ -251,11 +250,8 @@ def fold_round(session: Session, plan: Plan, raw_path: Path, comment: str) -> li
         if res.backlash_mm is not None:
             line += f"; set axes.{a}.compensation.backlash_mm: {res.backlash_mm:.6g}"
         out.append(line)
-    planar = session.config.planar
-    if planar is not None:
-        points = planar_paths(session.config, session.config_dir)[1]
-        if reframe_plane(session.config, session.config_dir, points, tuple(planar.axes)):  # type: ignore[arg-type]
-            out.append(f"planar model re-expressed against the folded tables ({points})")
+    if reframe_plane(session.config, session.config_dir):
+        out.append("planar model re-expressed against the folded tables")
     return out
 
 
