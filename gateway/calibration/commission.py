@@ -36,6 +36,7 @@ import json
 import math
 import shutil
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +56,7 @@ from .fit import planar_measurement
 from .iso230 import iso230_axis
 from .machine import MachineError
 from .outputs import (
+    check_pitch,
     fit_cyclic_raw,
     fit_pitch,
     fit_planar,
@@ -313,6 +315,8 @@ class Commission(RefineSteps):
                     "scatter_um": r.reversal.scatter_um}  # fmt: skip
             if model is not None:
                 r = net_pitch(r, model, config)
+            r = replace(r, table=self.smoothed(a, r.table))
+            check_pitch(r.table, config, a)
             save_pitch(r, "compgw commission: coarse ISO 230-2 run" +
                        (", net of the cyclic term" if model is not None else ""))  # fmt: skip
             self.state.setdefault("spans", {})[a] = None  # every span is new: all verified

@@ -22,6 +22,7 @@ from ..formats import atomic_write_text, read_cyclic, read_pitch_csv, write_cycl
 from . import adaptive
 from .commission_thermal import ThermalSteps
 from .cyclic_fit import scans_from_raw
+from .fit import smoothed_table
 from .plans import Plan, read_plan, targets_plan
 from .plans_scans import cyclic_plan, sweep_plan
 from .rawdata import axis_deviations
@@ -135,12 +136,24 @@ class RefineSteps(ThermalSteps):
                                                                               atol=1e-3))]
         return added
 
+    def smoothed(self, axis: str, table: PitchTable) -> PitchTable:
+        """A linear axis's table smoothed as much as its own leave-one-out says
+        (:func:`.fit.smoothed_table`), what it changed kept in the state; a rotary axis's
+        as it is (its interpolation is chosen by leave-one-out instead)."""
+        if self._rotary(axis):
+            return table
+        fit = smoothed_table(table)
+        self.state.setdefault("smoothed", {})[axis] = {
+            "lambdas": list(fit.lambdas), "change_rms_um": fit.change_rms_mm * 1e3}
+        return fit.table
+
     def _write_tables(self, axis: str, config: GatewayConfig, table: PitchTable,
                       cyclic: CyclicModel | None, what: str) -> bool:  # fmt: skip
         """Write an axis's refined table (and cyclic term) over its files, once the gateway
         would take them; False (a note, the files kept) when it would refuse them."""
         from .outputs import check_cyclic, check_pitch, write_table
 
+        table = self.smoothed(axis, table)
         try:
             check_pitch(table, config, axis)
             if cyclic is not None:

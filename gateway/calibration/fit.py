@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from ..compensation import PitchTable, PlanarMeasurement
 from ..compensation.errors import TableError
+from .grid_smooth import smooth_line
 from .rawdata import TARGET_TOLERANCE_MM, AxisDeviations, RawData
 
 TableDirection = Literal["mean", "forward", "reverse"]
@@ -216,6 +217,32 @@ def fold_residual(table: PitchTable, residual: PitchTable) -> PitchTable:
         pos.copy(), fold(table.forward_mm, r_fwd), reverse, table.rotary, table.source,
         table.lines,
     )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class SmoothedTable:
+    """A table smoothed by :func:`smoothed_table`, the weight chosen per column (forward,
+    reverse) and the RMS change of its points (table units: mm, or degrees)."""
+
+    table: PitchTable
+    lambdas: tuple[float, ...]
+    change_rms_mm: float
+
+
+def smoothed_table(table: PitchTable) -> SmoothedTable:
+    """Each column of a pitch table smoothed as much as its own leave-one-out says
+    (:func:`.grid_smooth.smooth_line`). A table's points are means of a few noisy stops
+    (ISO runs, verification runs): where the scatter is large against the step between
+    points, straight lines through them add their noise to the correction between them,
+    and the judge's random targets see it. A table whose points predict each other well
+    (a dense sweep, a smooth screw) is all but unchanged."""
+    cols = [table.forward_mm] + ([table.reverse_mm] if table.reverse_mm is not None else [])
+    fits = [smooth_line(table.position_mm, c) for c in cols]
+    change = np.concatenate([f.values - c for f, c in zip(fits, cols)])
+    out = PitchTable(table.position_mm.copy(), fits[0].values,
+                     fits[1].values if len(fits) > 1 else None, table.rotary, table.source,
+                     table.lines)  # fmt: skip
+    return SmoothedTable(out, tuple(f.lam for f in fits), float(np.sqrt(np.mean(change**2))))
 
 
 def fold_backlash(backlash_mm: float, residual_reversal_mean_mm: float) -> float:

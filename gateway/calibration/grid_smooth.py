@@ -1,5 +1,5 @@
-"""A measured error grid, smoothed as much as its own scatter says: penalised least squares
-with the smoothing chosen by exact leave-one-out.
+"""A measured error grid (or a pitch table's line of points), smoothed as much as its own
+scatter says: penalised least squares with the smoothing chosen by exact leave-one-out.
 
 Every node of an XY grid is one stop of two axes, read once or twice: it holds the
 positioning scatter of that stop (0.3-1 µm on a rough machine) as well as the field. A
@@ -15,7 +15,9 @@ For values Z on ny × nx nodes the smoothed F minimises
 (D second differences along the grid lines, in node steps). The penalty is separable, so
 in the eigenvectors of the two 1-D penalties the fit is a division, and the diagonal of
 its hat matrix (hence every leave-one-out residual, r / (1 − h)) is two small matrix
-products. Pure: arrays in, arrays out.
+products. A pitch table is the same on one line whose points are not evenly spaced
+(:func:`smooth_line`: second divided differences, in mean steps). Pure: arrays in, arrays
+out.
 """
 
 from __future__ import annotations
@@ -43,12 +45,24 @@ class SmoothedGrid:
     loo: NDArray[np.float64]
 
 
-def _penalty_eig(n: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Eigenvalues and eigenvectors of DᵀD, D the second differences of ``n`` values
-    (no penalty, identity vectors, for fewer than MIN_LINES)."""
+def _penalty_eig(n: int, x: NDArray[np.float64] | None = None
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:  # fmt: skip
+    """Eigenvalues and eigenvectors of DᵀD, D the second differences of ``n`` values (at
+    positions ``x``: divided differences times the mean step squared, so evenly spaced
+    points give the plain ones); no penalty, identity vectors, for fewer than MIN_LINES."""
     if n < MIN_LINES:
         return np.zeros(n), np.eye(n)
-    d = np.diff(np.eye(n), n=2, axis=0)
+    if x is None:
+        d = np.diff(np.eye(n), n=2, axis=0)
+    else:
+        h = np.diff(x)
+        a, b = h[:-1], h[1:]
+        rows = np.arange(n - 2)
+        d = np.zeros((n - 2, n))
+        d[rows, rows] = 2.0 / (a * (a + b))
+        d[rows, rows + 1] = -2.0 / (a * b)
+        d[rows, rows + 2] = 2.0 / (b * (a + b))
+        d *= float(np.mean(h)) ** 2
     e, u = np.linalg.eigh(d.T @ d)
     return np.clip(e, 0.0, None), u
 
@@ -81,3 +95,39 @@ def smooth_grid(values: ArrayLike) -> SmoothedGrid:
         return SmoothedGrid(z.copy(), 0.0, 0.0, np.full_like(z, np.nan))
     _, lx, ly, fit, loo = best
     return SmoothedGrid(fit, lx, ly, loo)
+
+
+@dataclass(frozen=True)
+class SmoothedLine:
+    """Values along one line of points, smoothed (``values``, same units as given), the
+    weight chosen (0: the points kept as they are) and each point's leave-one-out residual."""
+
+    values: NDArray[np.float64]
+    lam: float
+    loo: NDArray[np.float64]
+
+
+def smooth_line(x: ArrayLike, values: ArrayLike) -> SmoothedLine:
+    """``values`` at strictly increasing positions ``x`` smoothed by the weight whose
+    leave-one-out residuals have the least mean square (the lightest weight tried all but
+    passes through the points). Fewer than MIN_LINES points: returned as they are."""
+    pos = np.asarray(x, dtype=np.float64)
+    z = np.asarray(values, dtype=np.float64)
+    if z.ndim != 1 or pos.shape != z.shape:
+        raise ValueError("smooth_line: x and values must be 1-D and the same length")
+    if z.size < MIN_LINES:
+        return SmoothedLine(z.copy(), 0.0, np.full_like(z, np.nan))
+    if not np.all(np.diff(pos) > 0):
+        raise ValueError("smooth_line: positions must be strictly increasing")
+    e, u = _penalty_eig(z.size, pos)
+    zt, u2 = u.T @ z, u**2
+    best: tuple[float, float, NDArray[np.float64], NDArray[np.float64]] | None = None
+    for lam in LAMBDAS[1:]:
+        w = 1.0 / (1.0 + lam * e)
+        fit = u @ (w * zt)
+        loo = (z - fit) / np.maximum(1.0 - u2 @ w, 1e-9)
+        score = float(np.mean(loo**2))
+        if best is None or score < best[0]:
+            best = (score, float(lam), fit, loo)
+    assert best is not None
+    return SmoothedLine(best[2], best[1], best[3])
