@@ -95,3 +95,61 @@ def test_a_polynomial_field_gets_its_own_degree_not_one_for_the_scatter() -> Non
         noise = np.random.default_rng(seed).normal(0, 0.3e-3, pts.shape)
         choice = choose_planar_model(PlanarMeasurement(pts, pts + field_mm + noise, "t"))
         assert (choice.kind, choice.degree) == ("poly", 2), choice.loo_rms_um
+
+
+# -- a pitch table's line of points --------------------------------------------------------
+def _screw_mm(x: np.ndarray) -> np.ndarray:
+    """A screw's slow error over 400 mm (µm sizes, as mm): a bow and a 90 mm wave."""
+    return (8.0 * np.sin(np.pi * x / 400.0) + 3.0 * np.sin(2 * np.pi * x / 90.0)) * 1e-3
+
+
+def _miss_um(x: np.ndarray, values: np.ndarray, truth) -> float:
+    """RMS (µm) of straight lines through the points against ``truth`` between them."""
+    between = np.linspace(x[0] + 0.5, x[-1] - 0.5, 997)
+    return float(np.sqrt(np.mean((np.interp(between, x, values) - truth(between)) ** 2)) * 1e3)
+
+
+def test_table_of_noisy_means_is_smoothed_closer_to_the_screw() -> None:
+    """45 points, each a mean with 0.5 µm of standard error: smoothed, the correction
+    between them is nearer the screw than straight lines through the points (seeded
+    draws, every one), and the table says how much it moved."""
+    from gateway.calibration.fit import smoothed_table
+    from gateway.compensation import PitchTable
+
+    x = np.linspace(0, 400, 45)
+    ratios = []
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        fwd = _screw_mm(x) + rng.normal(0, 0.5e-3, x.size)
+        rev = _screw_mm(x) - 4e-3 + rng.normal(0, 0.5e-3, x.size)
+        got = smoothed_table(PitchTable(x, fwd, rev), 0.5e-3)
+        for smooth, raw, offset in ((got.table.forward_mm, fwd, 0.0),
+                                    (got.table.reverse_mm, rev, 4e-3)):  # fmt: skip
+            ratios.append(_miss_um(x, smooth + offset, _screw_mm)
+                          / _miss_um(x, raw + offset, _screw_mm))  # fmt: skip
+        assert 0.1e-3 < got.change_rms_mm < 0.5e-3 and all(lam > 0 for lam in got.lambdas)
+    assert max(ratios) < 1.0 and np.mean(ratios) < 0.85
+
+
+def test_points_apart_by_more_than_their_errors_are_kept() -> None:
+    """A wave of 23 mm read every 9 mm (2.6 points a period) to 0.05 µm: what changes from
+    point to point is the screw, not the scatter, and the line is kept as it is; so is a
+    point given no error (a fit's knot) in a noisy line, and a line of three points."""
+    from gateway.calibration.grid_smooth import smooth_line
+
+    def rough(x: np.ndarray) -> np.ndarray:
+        return _screw_mm(x) + 1.5e-3 * np.sin(2 * np.pi * x / 23.0 + 1.0)
+
+    x = np.linspace(0, 400, 45)
+    z = rough(x) + np.random.default_rng(1).normal(0, 0.05e-3, x.size)
+    got = smooth_line(x, z, 0.05e-3)
+    assert np.abs(got.values - z).max() < 0.03e-3
+    noisy = _screw_mm(x) + np.random.default_rng(2).normal(0, 1e-3, x.size)
+    sigma = np.full(x.size, 1e-3)
+    sigma[20] = 0.0
+    kept = smooth_line(x, noisy, sigma)
+    assert kept.lam > 0 and abs(kept.values[20] - noisy[20]) < 0.05e-3
+    few = smooth_line(x[:3], _screw_mm(x[:3]), 1e-3)
+    assert np.array_equal(few.values, _screw_mm(x[:3])) and few.lam == 0.0
+    with pytest.raises(ValueError, match="strictly increasing"):
+        smooth_line(x[::-1], _screw_mm(x), 1e-3)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ..compensation import PitchTable, PlanarMeasurement
 from ..compensation.errors import TableError
@@ -229,15 +229,15 @@ class SmoothedTable:
     change_rms_mm: float
 
 
-def smoothed_table(table: PitchTable) -> SmoothedTable:
-    """Each column of a pitch table smoothed as much as its own leave-one-out says
-    (:func:`.grid_smooth.smooth_line`). A table's points are means of a few noisy stops
-    (ISO runs, verification runs): where the scatter is large against the step between
-    points, straight lines through them add their noise to the correction between them,
-    and the judge's random targets see it. A table whose points predict each other well
-    (a dense sweep, a smooth screw) is all but unchanged."""
+def smoothed_table(table: PitchTable, sigma_mm: ArrayLike) -> SmoothedTable:
+    """Each column of a pitch table smoothed by the standard errors ``sigma_mm`` of its
+    points (one per point, 0 for a point to keep; :func:`.grid_smooth.smooth_line`). A
+    table's points are means of a few stops: where their scatter is large against what
+    changes from one point to the next, straight lines through them carry that scatter
+    between the points, where the judge's random targets see it. Points that differ by
+    more than their errors are kept."""
     cols = [table.forward_mm] + ([table.reverse_mm] if table.reverse_mm is not None else [])
-    fits = [smooth_line(table.position_mm, c) for c in cols]
+    fits = [smooth_line(table.position_mm, c, sigma_mm) for c in cols]
     change = np.concatenate([f.values - c for f, c in zip(fits, cols)])
     out = PitchTable(table.position_mm.copy(), fits[0].values,
                      fits[1].values if len(fits) > 1 else None, table.rotary, table.source,
