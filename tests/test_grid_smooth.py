@@ -112,7 +112,7 @@ def _miss_um(x: np.ndarray, values: np.ndarray, truth) -> float:
 def test_table_of_noisy_means_is_smoothed_closer_to_the_screw() -> None:
     """45 points, each a mean with 0.5 µm of standard error: smoothed, the correction
     between them is nearer the screw than straight lines through the points (seeded
-    draws, every one), and the table says how much it moved."""
+    draws, every one, by 10 % or more on average), moved by no more than the cap."""
     from gateway.calibration.fit import smoothed_table
     from gateway.compensation import PitchTable
 
@@ -127,28 +127,24 @@ def test_table_of_noisy_means_is_smoothed_closer_to_the_screw() -> None:
                                     (got.table.reverse_mm, rev, 4e-3)):  # fmt: skip
             ratios.append(_miss_um(x, smooth + offset, _screw_mm)
                           / _miss_um(x, raw + offset, _screw_mm))  # fmt: skip
-        assert 0.1e-3 < got.change_rms_mm < 0.5e-3 and all(lam > 0 for lam in got.lambdas)
-    assert max(ratios) < 1.0 and np.mean(ratios) < 0.85
+        assert got.change_rms_mm <= 0.5e-3 and all(lam > 0 for lam in got.lambdas)
+    assert max(ratios) < 1.0 and np.mean(ratios) < 0.9
 
 
-def test_points_apart_by_more_than_their_errors_are_kept() -> None:
-    """A wave of 23 mm read every 9 mm (2.6 points a period) to 0.05 µm: what changes from
-    point to point is the screw, not the scatter, and the line is kept as it is; so is a
-    point given no error (a fit's knot) in a noisy line, and a line of three points."""
+def test_points_apart_by_more_than_their_scatter_are_kept() -> None:
+    """A sparse table of a wavy screw (15 points on 400 mm, a 90 mm wave: 3.3 points a
+    period) read to 0.1 µm: leave-one-out alone flattens the wave (each point left out is
+    two steps from the next), the cap keeps the points where they were read; a line of
+    three points is returned as it is."""
     from gateway.calibration.grid_smooth import smooth_line
 
-    def rough(x: np.ndarray) -> np.ndarray:
-        return _screw_mm(x) + 1.5e-3 * np.sin(2 * np.pi * x / 23.0 + 1.0)
-
-    x = np.linspace(0, 400, 45)
-    z = rough(x) + np.random.default_rng(1).normal(0, 0.05e-3, x.size)
-    got = smooth_line(x, z, 0.05e-3)
-    assert np.abs(got.values - z).max() < 0.03e-3
-    noisy = _screw_mm(x) + np.random.default_rng(2).normal(0, 1e-3, x.size)
-    sigma = np.full(x.size, 1e-3)
-    sigma[20] = 0.0
-    kept = smooth_line(x, noisy, sigma)
-    assert kept.lam > 0 and abs(kept.values[20] - noisy[20]) < 0.05e-3
+    x = np.linspace(0, 400, 15)
+    z = _screw_mm(x) + np.random.default_rng(1).normal(0, 0.1e-3, x.size)
+    free = smooth_line(x, z, 1.0)  # no cap to speak of: leave-one-out's own choice
+    capped = smooth_line(x, z, 0.1e-3)
+    assert _miss_um(x, free.values, _screw_mm) > 1.5 * _miss_um(x, z, _screw_mm)
+    assert capped.change_rms <= 0.1e-3
+    assert _miss_um(x, capped.values, _screw_mm) < 1.1 * _miss_um(x, z, _screw_mm)
     few = smooth_line(x[:3], _screw_mm(x[:3]), 1e-3)
     assert np.array_equal(few.values, _screw_mm(x[:3])) and few.lam == 0.0
     with pytest.raises(ValueError, match="strictly increasing"):

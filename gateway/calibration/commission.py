@@ -315,8 +315,7 @@ class Commission(RefineSteps):
                     "scatter_um": r.reversal.scatter_um}  # fmt: skip
             if model is not None:
                 r = net_pitch(r, model, config)
-            self.state.setdefault("node_runs", {})[a] = {}
-            r = replace(r, table=self.smoothed(a, r.table, self.s.runs))
+            r = replace(r, table=self.smoothed(a, r.table))
             check_pitch(r.table, config, a)
             save_pitch(r, "compgw commission: coarse ISO 230-2 run" +
                        (", net of the cyclic term" if model is not None else ""))  # fmt: skip

@@ -11,6 +11,7 @@ by one. A sweep that does not pay is taken back like any refinement.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -126,8 +127,7 @@ class RefineSteps(ThermalSteps):
         else:
             dev = axis_deviations(self.raw(name), axis)
             new, new_model = adaptive.refined_table(table, stage, dev), None
-        runs = None if cyclic_path is not None else self.verify_runs(axis)
-        if not self._write_tables(axis, config, new, new_model, f"refined in round {r}", runs):
+        if not self._write_tables(axis, config, new, new_model, f"refined in round {r}"):
             return 0
         added = int(new.position_mm.size - table.position_mm.size)
         x = new.position_mm
@@ -137,37 +137,27 @@ class RefineSteps(ThermalSteps):
                                                                               atol=1e-3))]
         return added
 
-    def smoothed(self, axis: str, table: PitchTable, new_runs: int | None) -> PitchTable:
-        """A linear axis's table smoothed by its points' standard errors (the ISO runs'
-        scatter over √ the runs each point is the mean of; :func:`.fit.smoothed_table`),
-        what it changed kept in the state. Points new to the table are means of
-        ``new_runs`` stops (None: not a mean of stops, a fit's knot or a scan's mean: kept
-        as they are); a rotary axis's table is returned as it is (its interpolation is
-        chosen by leave-one-out instead)."""
+    def smoothed(self, axis: str, table: PitchTable) -> PitchTable:
+        """A linear axis's table smoothed as much as its own leave-one-out says, its points
+        moved by no more than the standard error of an ISO point (the ISO runs' scatter
+        over √runs; :func:`.fit.smoothed_table`), what it changed kept in the state; a
+        rotary axis's as it is (its interpolation is chosen by leave-one-out instead)."""
         scatter = self.state.get("identify", {}).get(f"reversal-{axis}", {}).get("scatter_um")
         if self._rotary(axis) or not scatter:
             return table
-        runs = self.state.setdefault("node_runs", {}).setdefault(axis, {})
-        keys = [f"{x:.4f}" for x in table.position_mm]
-        for k in keys:
-            runs.setdefault(k, new_runs or 0)
-        n = np.array([runs[k] for k in keys], dtype=np.float64)
-        sigma_mm = np.where(n > 0, scatter * 1e-3 / np.sqrt(np.maximum(n, 1.0)), 0.0)
-        fit = smoothed_table(table, sigma_mm)
+        fit = smoothed_table(table, scatter * 1e-3 / math.sqrt(self.s.runs))
         self.state.setdefault("smoothed", {})[axis] = {
             "lambdas": list(fit.lambdas), "change_rms_um": fit.change_rms_mm * 1e3}
         return fit.table
 
     def _write_tables(self, axis: str, config: GatewayConfig, table: PitchTable,
-                      cyclic: CyclicModel | None, what: str, new_runs: int | None = None
-                      ) -> bool:  # fmt: skip
-        """Write an axis's refined table (and cyclic term) over its files, smoothed by its
-        points' errors (:meth:`smoothed`, the new points means of ``new_runs`` stops),
-        once the gateway would take them; False (a note, the files kept) when it would
-        refuse them."""
+                      cyclic: CyclicModel | None, what: str) -> bool:  # fmt: skip
+        """Write an axis's refined table (and cyclic term) over its files, smoothed
+        (:meth:`smoothed`), once the gateway would take them; False (a note, the files
+        kept) when it would refuse them."""
         from .outputs import check_cyclic, check_pitch, write_table
 
-        table = self.smoothed(axis, table, new_runs)
+        table = self.smoothed(axis, table)
         try:
             check_pitch(table, config, axis)
             if cyclic is not None:
@@ -247,7 +237,6 @@ class RefineSteps(ThermalSteps):
             "lambdas": list(fit.lambdas), "hold": fit.hold}  # fmt: skip
         self.state.setdefault("identify", {})[f"sweep-{axis}"] = record
         config, _ = self.staged(self._tables_phase)
-        self.state.setdefault("node_runs", {})[axis] = {}  # the fit's own: kept as they are
         if not self._write_tables(axis, config, ref.table, ref.cyclic, f"swept in round {r}"):
             return 0
         self.state.setdefault("spans", {})[axis] = []  # judged at random targets next

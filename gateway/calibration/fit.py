@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from ..compensation import PitchTable, PlanarMeasurement
 from ..compensation.errors import TableError
@@ -229,15 +229,16 @@ class SmoothedTable:
     change_rms_mm: float
 
 
-def smoothed_table(table: PitchTable, sigma_mm: ArrayLike) -> SmoothedTable:
-    """Each column of a pitch table smoothed by the standard errors ``sigma_mm`` of its
-    points (one per point, 0 for a point to keep; :func:`.grid_smooth.smooth_line`). A
-    table's points are means of a few stops: where their scatter is large against what
-    changes from one point to the next, straight lines through them carry that scatter
-    between the points, where the judge's random targets see it. Points that differ by
-    more than their errors are kept."""
+def smoothed_table(table: PitchTable, max_change_mm: float) -> SmoothedTable:
+    """Each column of a pitch table smoothed as much as its own leave-one-out says, its
+    points moved by no more than ``max_change_mm`` RMS (the standard error of one point:
+    :func:`.grid_smooth.smooth_line`). A table's points are means of a few noisy stops (a
+    sweep's knots, a few readings each): where their scatter is large against what changes
+    from one point to the next, straight lines through them carry that scatter between the
+    points, where the judge's random targets see it. A table whose points predict each
+    other (a smooth screw read densely) is all but unchanged."""
     cols = [table.forward_mm] + ([table.reverse_mm] if table.reverse_mm is not None else [])
-    fits = [smooth_line(table.position_mm, c, sigma_mm) for c in cols]
+    fits = [smooth_line(table.position_mm, c, max_change_mm) for c in cols]
     change = np.concatenate([f.values - c for f, c in zip(fits, cols)])
     out = PitchTable(table.position_mm.copy(), fits[0].values,
                      fits[1].values if len(fits) > 1 else None, table.rotary, table.source,

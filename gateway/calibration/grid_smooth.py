@@ -15,9 +15,9 @@ For values Z on ny × nx nodes the smoothed F minimises
 (D second differences along the grid lines, in node steps). The penalty is separable, so
 in the eigenvectors of the two 1-D penalties the fit is a division, and the diagonal of
 its hat matrix (hence every leave-one-out residual, r / (1 − h)) is two small matrix
-products. A pitch table is one line of points, not evenly spaced, each a mean whose
-standard error is known (:func:`smooth_line`: second divided differences in mean steps,
-the weight chosen by the expected error at the points). Pure: arrays in, arrays out.
+products. A pitch table is one line of points, not evenly spaced (:func:`smooth_line`:
+second divided differences in mean steps, the points moved by no more than their own
+scatter allows). Pure: arrays in, arrays out.
 """
 
 from __future__ import annotations
@@ -101,47 +101,44 @@ def smooth_grid(values: ArrayLike) -> SmoothedGrid:
 
 @dataclass(frozen=True)
 class SmoothedLine:
-    """Values along one line of points, smoothed (``values``, same units as given) and the
-    weight chosen (0: the points kept as they are)."""
+    """Values along one line of points, smoothed (``values``, same units as given), the
+    weight chosen (0: the points kept as they are) and the RMS change of the points."""
 
     values: NDArray[np.float64]
     lam: float
+    change_rms: float
 
 
-def smooth_line(x: ArrayLike, values: ArrayLike, sigma: ArrayLike) -> SmoothedLine:
-    """``values`` at strictly increasing positions ``x``, each with the standard error
-    ``sigma`` (same units; 0 for a point to be kept as it is), smoothed by the weight with
-    the least expected error at the points: Stein's unbiased risk estimate (Mallows' Cp)
-    Σ (y − f)²/σ² + 2 tr H − n, with the penalised fit weighted by 1/σ². A line whose
-    points differ by more than their errors is kept (nothing says their differences are
-    noise, even where they are too far apart to say what lies between); points that
-    scatter by their errors around a smooth curve are pulled to it. Fewer than MIN_LINES
-    points, or none with an error: returned as they are."""
+def smooth_line(x: ArrayLike, values: ArrayLike, max_change_rms: float) -> SmoothedLine:
+    """``values`` at strictly increasing positions ``x`` smoothed by the weight whose
+    leave-one-out residuals have the least mean square, moving the points by no more than
+    ``max_change_rms`` (RMS, the units of the values: what the scatter of a point's own
+    readings could have put it off by). Leave-one-out alone takes a line too sparse for
+    what changes along it (a wave of a few points a period) for noise and flattens it;
+    its points differ by more than their scatter, so the cap keeps them (the heaviest
+    weight up to the one chosen that moves them no further). Fewer than MIN_LINES points,
+    or a cap of 0: returned as they are."""
     pos = np.asarray(x, dtype=np.float64)
     z = np.asarray(values, dtype=np.float64)
-    err = np.broadcast_to(np.asarray(sigma, dtype=np.float64), z.shape)
     if z.ndim != 1 or pos.shape != z.shape:
         raise ValueError("smooth_line: x and values must be 1-D and the same length")
-    if not np.all(err >= 0):
-        raise ValueError("smooth_line: sigma must be ≥ 0")
-    if z.size < MIN_LINES or not np.any(err > 0):
-        return SmoothedLine(z.copy(), 0.0)
+    if z.size < MIN_LINES or not max_change_rms > 0:
+        return SmoothedLine(z.copy(), 0.0, 0.0)
     if not np.all(np.diff(pos) > 0):
         raise ValueError("smooth_line: positions must be strictly increasing")
-    # in units of the mean error; a point without one weighs a million times more
-    scale = float(np.mean(err[err > 0]))
-    inv_sqrt_w = np.maximum(err / scale, 1e-3)  # σ_i / scale = w_i^(−1/2)
     d = _second_differences(pos)
-    k = d.T @ d * inv_sqrt_w[:, None] * inv_sqrt_w[None, :]
-    e, u = np.linalg.eigh(k)
+    e, u = np.linalg.eigh(d.T @ d)
     e = np.clip(e, 0.0, None)
-    zt = u.T @ (z / inv_sqrt_w)
-    resid = (z / inv_sqrt_w) / scale
-    best = (float(z.size), 0.0, z.copy())  # λ = 0: the points, SURE = n
+    zt, u2 = u.T @ z, u**2
+    fits = []
     for lam in LAMBDAS[1:]:
         w = 1.0 / (1.0 + lam * e)
-        g = u @ (w * zt)  # the fit in whitened units
-        sure = float(np.sum((resid - g / scale) ** 2)) + 2.0 * float(w.sum()) - z.size
-        if sure < best[0]:
-            best = (sure, float(lam), g * inv_sqrt_w)
-    return SmoothedLine(best[2], best[1])
+        fit = u @ (w * zt)
+        loo = (z - fit) / np.maximum(1.0 - u2 @ w, 1e-9)
+        fits.append((float(np.mean(loo**2)), float(lam), fit))
+    chosen = min(range(len(fits)), key=lambda i: fits[i][0])
+    for i in range(chosen, -1, -1):  # lighter weights, until within the cap
+        change = float(np.sqrt(np.mean((fits[i][2] - z) ** 2)))
+        if change <= max_change_rms:
+            return SmoothedLine(fits[i][2], fits[i][1], change)
+    return SmoothedLine(z.copy(), 0.0, 0.0)
