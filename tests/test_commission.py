@@ -100,6 +100,12 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         assert min(ups) <= TRAVEL_MM[0] + 2.001 and max(ups) >= TRAVEL_MM[1] - 2 - 0.12 * lead
         record = state["identify"]["sweep-X"]
         assert record["readings"] == 2 * len(ups) and record["knots"] >= 10, record
+        # every table written was smoothed by its own leave-one-out, its points moved by no
+        # more than an ISO point's standard error (the runs' scatter over √3)
+        for axis in ("X", "Y"):
+            smoothed = state["identify"][f"smoothed-{axis}"]
+            cap_um = state["identify"][f"reversal-{axis}"]["scatter_um"] / np.sqrt(3)
+            assert 0.0 <= smoothed["change_rms_um"] <= cap_um + 1e-9, (smoothed, cap_um)
         # one run's after-reading of the drift references is the next run's before-reading
         # (read again, the same state would differ by the references' own scatter)
         pairs = [(run, nxt) for step in state["steps"].values()

@@ -146,8 +146,9 @@ class RefineSteps(ThermalSteps):
         if self._rotary(axis) or not scatter:
             return table
         fit = smoothed_table(table, scatter * 1e-3 / math.sqrt(self.s.runs))
-        self.state.setdefault("smoothed", {})[axis] = {
-            "lambdas": list(fit.lambdas), "change_rms_um": fit.change_rms_mm * 1e3}
+        # the last write's (the report's identification list)
+        self.state.setdefault("identify", {})[f"smoothed-{axis}"] = {
+            "change_rms_um": fit.change_rms_mm * 1e3, "weight": max(fit.lambdas)}
         return fit.table
 
     def _write_tables(self, axis: str, config: GatewayConfig, table: PitchTable,
