@@ -98,7 +98,6 @@ def smooth_grid(values: ArrayLike) -> SmoothedGrid:
     return SmoothedGrid(fit, lx, ly, loo)
 
 
-
 @dataclass(frozen=True)
 class SmoothedLine:
     """Values along one line of points, smoothed (``values``, same units as given), the
