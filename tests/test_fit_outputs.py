@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 
 import numpy as np
 import pytest
@@ -378,3 +379,30 @@ def test_pin_fades_within_a_node_step_of_the_line():
         for out, model in ((rms_fade, pinned.error_mm(pts)), (rms_full, full)):
             out.append(float(np.sqrt(np.mean(np.sum((model - truth) ** 2, axis=1)))) * 1e3)
     assert np.mean(rms_fade) < 0.8 * np.mean(rms_full), (rms_fade, rms_full)
+
+
+def test_fit_smooth_moves_noisy_points_no_further_than_their_error(tmp_path, capsys):
+    """``compgw fit --smooth``: a 3-run identification with 1.5 µm of scatter per stop,
+    smoothed by its own leave-one-out: its points move by no more than the runs' scatter
+    over √3, the table between them is nearer the screw than the raw table's (the same
+    readings), and the fit says how much it moved."""
+    config = write_config(tmp_path)
+    plan = iso230_linear_plan("X", (0, 600), step_mm=20, runs=3)
+    raw = tmp_path / "x_id.csv"
+    asyncio.run(run_plan(plan, raw, *machine(noise_um=1.5, seed=4), meta={"compensation": "off"}))
+
+    def miss_um() -> float:
+        t = read_pitch_csv(tmp_path / "tables" / "x.csv")
+        between = np.linspace(t.position_mm[0] + 1, t.position_mm[-1] - 1, 2000)
+        got = np.interp(between, t.position_mm, (t.forward_mm + t.reverse_mm) / 2)
+        return float(np.sqrt(np.mean((got - e_true(between)) ** 2)) * 1e3)
+
+    assert main(["fit", str(raw), "-c", str(config)]) == 0
+    plain = miss_um()
+    capsys.readouterr()
+    assert main(["fit", str(raw), "-c", str(config), "--smooth", "--json"]) == 0
+    entry = json.loads(capsys.readouterr().out)["X"]
+    smoothed = entry["smoothed"]
+    assert 0.0 < smoothed["change_rms_um"] <= smoothed["cap_um"] + 1e-9
+    assert smoothed["cap_um"] == pytest.approx(entry["reversal"]["scatter_um"] / np.sqrt(3))
+    assert miss_um() < 0.9 * plain, (miss_um(), plain)

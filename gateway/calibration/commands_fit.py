@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -119,8 +120,11 @@ def fit(args: argparse.Namespace) -> int:
                     if netted:
                         r = net_pitch(r, cyclic[a], config)
                         comment += " net of the cyclic term (joint fit)"
-                    pending.append(lambda r=r, c=comment: save_pitch(r, c))
                     entry = report.setdefault(a, {})
+                    if args.smooth and r.reversal is not None and not residual \
+                            and not config.axes[a].rotary:
+                        r = _smoothed(r, raw, config, entry)
+                    pending.append(lambda r=r, c=comment: save_pitch(r, c))
                     entry["net_of_cyclic"] = netted
                     entry.update(table=str(r.path), mode=r.mode, folded=r.folded,
                                  points=int(r.table.position_mm.size))  # fmt: skip
@@ -201,6 +205,25 @@ def _rotary_entry(r: Any, config: GatewayConfig, axis: str) -> dict[str, Any]:
     return out
 
 
+def _smoothed(r: Any, raw: Any, config: GatewayConfig, entry: dict[str, Any]) -> Any:
+    """``--smooth``: an identification's table smoothed by its own leave-one-out, its
+    points moved by no more than their standard error (the runs' scatter over √runs, as
+    ``compgw commission`` does; :func:`.fit.smoothed_table`), checked again."""
+    from dataclasses import replace
+
+    from .fit import smoothed_table
+    from .outputs import check_pitch
+    from .rawdata import axis_deviations
+
+    dev = axis_deviations(raw, r.axis)
+    runs = max(1, len(dev.runs))  # the runs' numbers
+    cap_um = r.reversal.scatter_um / math.sqrt(runs)
+    fit = smoothed_table(r.table, cap_um * 1e-3)
+    check_pitch(fit.table, config, r.axis)
+    entry["smoothed"] = {"change_rms_um": fit.change_rms_mm * 1e3, "cap_um": cap_um}
+    return replace(r, table=fit.table)
+
+
 def _pitch_lines(items: list[str] | None) -> dict[str, float] | None:
     """``X@Y=0`` → {"X": 0.0}: X's table was measured with Y at 0."""
     if not items:
@@ -261,6 +284,11 @@ def format_fit(report: dict[str, Any], dry_run: bool = False) -> str:
                 f"readings' scatter ({rv['scatter_um']:.2f} µm) alone leaves")
             lines.append(f"{name}: reversal {'per point' if rv['per_point'] else 'as a curve'}"
                          f"{why}")
+        if "smoothed" in entry:
+            sm = entry["smoothed"]
+            lines.append(f"{name}: smoothed by its own leave-one-out: its points moved "
+                         f"{sm['change_rms_um']:.3f} µm RMS (at most {sm['cap_um']:.3f}, "
+                         "a point's standard error)")
         if "linkage" in entry:
             lk = entry["linkage"]
             fitted = ", ".join(f"{k} {lk['values'][k]:.6g}" for k in lk["fitted"])
@@ -302,6 +330,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                         "directions' readings serve every point), per point (a worn zone), or "
                         "whichever the readings' own scatter says predicts better (auto)")
     p.add_argument("--reversal-degree", type=int, default=2)
+    p.add_argument("--smooth", action="store_true",
+                   help="bidirectional identification tables: smoothed by their own "
+                        "leave-one-out, each point moved by no more than its standard error "
+                        "(the runs' scatter over √runs), as compgw commission does")
     p.add_argument("--planar-model", choices=["auto", "grid", "poly"], default="auto")
     p.add_argument("--pitch-line", dest="pitch_lines", action="append", metavar="A@B=MM",
                    help="X@Y=0: X's table was measured with Y at 0; the planar model is "
