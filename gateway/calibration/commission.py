@@ -56,7 +56,6 @@ from .fit import planar_measurement
 from .iso230 import iso230_axis
 from .machine import MachineError
 from .outputs import (
-    check_pitch,
     fit_cyclic_raw,
     fit_pitch,
     fit_planar,
@@ -315,8 +314,7 @@ class Commission(RefineSteps):
                     "scatter_um": r.reversal.scatter_um}  # fmt: skip
             if model is not None:
                 r = net_pitch(r, model, config)
-            r = replace(r, table=self.smoothed(a, r.table))
-            check_pitch(r.table, config, a)
+            r = replace(r, table=self.smoothed(a, r.table, config))
             save_pitch(r, "compgw commission: coarse ISO 230-2 run" +
                        (", net of the cyclic term" if model is not None else ""))  # fmt: skip
             self.state.setdefault("spans", {})[a] = None  # every span is new: all verified

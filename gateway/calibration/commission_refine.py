@@ -18,6 +18,7 @@ import numpy as np
 
 from ..compensation import PitchTable
 from ..compensation.cyclic import CyclicModel
+from ..compensation.errors import CompensationError
 from ..config import GatewayConfig
 from ..formats import atomic_write_text, read_cyclic, read_pitch_csv, write_cyclic
 from . import adaptive
@@ -137,15 +138,23 @@ class RefineSteps(ThermalSteps):
                                                                               atol=1e-3))]
         return added
 
-    def smoothed(self, axis: str, table: PitchTable) -> PitchTable:
+    def smoothed(self, axis: str, table: PitchTable, config: GatewayConfig) -> PitchTable:
         """A linear axis's table smoothed as much as its own leave-one-out says, its points
         moved by no more than the standard error of an ISO point (the ISO runs' scatter
-        over √runs; :func:`.fit.smoothed_table`), what it changed kept in the state; a
-        rotary axis's as it is (its interpolation is chosen by leave-one-out instead)."""
+        over √runs; :func:`.fit.smoothed_table`), what it changed kept in the state; the
+        table as it is for a rotary axis (its interpolation is chosen by leave-one-out
+        instead) or where the smoothed one would not load (the raw one is checked by the
+        caller)."""
+        from .outputs import check_pitch
+
         scatter = self.state.get("identify", {}).get(f"reversal-{axis}", {}).get("scatter_um")
         if self._rotary(axis) or not scatter:
             return table
         fit = smoothed_table(table, scatter * 1e-3 / math.sqrt(self.s.runs))
+        try:
+            check_pitch(fit.table, config, axis)
+        except CompensationError:
+            return table
         # the last write's (the report's identification list)
         self.state.setdefault("identify", {})[f"smoothed-{axis}"] = {
             "change_rms_um": fit.change_rms_mm * 1e3, "weight": max(fit.lambdas)}
@@ -158,7 +167,7 @@ class RefineSteps(ThermalSteps):
         kept) when it would refuse them."""
         from .outputs import check_cyclic, check_pitch, write_table
 
-        table = self.smoothed(axis, table)
+        table = self.smoothed(axis, table, config)
         try:
             check_pitch(table, config, axis)
             if cyclic is not None:
