@@ -104,7 +104,9 @@ def test_drift_taken_off_only_where_the_references_vary_beyond_their_scatter():
     def fake(log_um, scatter=True):  # type: ignore[no-untyped-def]
         ident = {"reversal-X": {"scatter_um": s_um}} if scatter else {}
         log = [{"drift_mm": {"X": list(row * 1e-3)}} for row in log_um]
-        return types.SimpleNamespace(state={"identify": ident, "drift_log": log})
+        me = types.SimpleNamespace(state={"identify": ident, "drift_log": log})
+        me.iso_scatter_um = lambda axis: Steps.iso_scatter_um(me, axis)  # type: ignore[arg-type]
+        return me
 
     assert not Steps.drift_stands_out(fake(noise_um), "X")  # type: ignore[arg-type]
     growth_um = noise_um + np.linspace(0.0, 4.0, 70)[:, None]

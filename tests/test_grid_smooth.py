@@ -122,7 +122,7 @@ def test_table_of_noisy_means_is_smoothed_closer_to_the_screw() -> None:
         rng = np.random.default_rng(seed)
         fwd = _screw_mm(x) + rng.normal(0, 0.5e-3, x.size)
         rev = _screw_mm(x) - 4e-3 + rng.normal(0, 0.5e-3, x.size)
-        got = smoothed_table(PitchTable(x, fwd, rev), 0.5e-3)
+        got = smoothed_table(PitchTable(x, fwd, rev), 0.5e-3, 1)
         for smooth, raw, offset in ((got.table.forward_mm, fwd, 0.0),
                                     (got.table.reverse_mm, rev, 4e-3)):  # fmt: skip
             ratios.append(_miss_um(x, smooth + offset, _screw_mm)

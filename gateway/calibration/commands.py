@@ -39,8 +39,6 @@ Instrument register maps: see gateway/calibration/machine.py (as the sim's laser
 and Δa sensor)."""
 
 
-
-
 # -- calibrate ----------------------------------------------------------------------------------
 def _floats(text: str) -> list[float]:
     return [float(v) for v in text.replace(",", " ").split()]

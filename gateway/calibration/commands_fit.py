@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -215,12 +214,10 @@ def _smoothed(r: Any, raw: Any, config: GatewayConfig, entry: dict[str, Any]) ->
     from .outputs import check_pitch
     from .rawdata import axis_deviations
 
-    dev = axis_deviations(raw, r.axis)
-    runs = max(1, len(dev.runs))  # the runs' numbers
-    cap_um = r.reversal.scatter_um / math.sqrt(runs)
-    fit = smoothed_table(r.table, cap_um * 1e-3)
+    runs = len(axis_deviations(raw, r.axis).runs)  # the runs' numbers
+    fit = smoothed_table(r.table, r.reversal.scatter_um * 1e-3, runs)
     check_pitch(fit.table, config, r.axis)
-    entry["smoothed"] = {"change_rms_um": fit.change_rms_mm * 1e3, "cap_um": cap_um}
+    entry["smoothed"] = {"change_rms_um": fit.change_rms_mm * 1e3, "cap_um": fit.cap_mm * 1e3}
     return replace(r, table=fit.table)
 
 

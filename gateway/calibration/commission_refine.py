@@ -11,7 +11,6 @@ by one. A sweep that does not pay is taken back like any refinement.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -147,10 +146,10 @@ class RefineSteps(ThermalSteps):
         caller)."""
         from .outputs import check_pitch
 
-        scatter = self.state.get("identify", {}).get(f"reversal-{axis}", {}).get("scatter_um")
-        if self._rotary(axis) or not scatter:
+        scatter = self.iso_scatter_um(axis)
+        if self._rotary(axis) or scatter is None:
             return table
-        fit = smoothed_table(table, scatter * 1e-3 / math.sqrt(self.s.runs))
+        fit = smoothed_table(table, scatter * 1e-3, self.s.runs)
         try:
             check_pitch(fit.table, config, axis)
         except CompensationError:

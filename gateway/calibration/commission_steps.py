@@ -47,8 +47,6 @@ STATE = "commission.json"
 Say = Callable[[str], None]
 Reload = Callable[[], Awaitable[None]]
 
-
-
 #: readings of each drift reference per reading (their mean is the reference)
 REF_REPEATS = 3
 #: the drift is taken off an axis whose references vary by more than this many times what
@@ -503,6 +501,12 @@ class Steps:
             return self.drift_stands_out(axis)
         return self.replacing_motion(axis) is not None
 
+    def iso_scatter_um(self, axis: str) -> float | None:
+        """The scatter of one stop of ``axis`` (µm): the ISO runs' pooled standard deviation,
+        as the reversal's choice measured it; None before the ISO runs are fitted."""
+        s_um = (self.state.get("identify", {}).get(f"reversal-{axis}") or {}).get("scatter_um")
+        return float(s_um) if s_um is not None and np.isfinite(s_um) and s_um > 0 else None
+
     def drift_stands_out(self, axis: str) -> bool:
         """Whether the drift references of ``axis`` have varied by more than their own
         scatter: the variance of their readings since commissioning began over the variance
@@ -511,10 +515,10 @@ class Steps:
         per run, and a reversal between a sweep's two passes (0.6-1.1 µm on slit-11361 X
         and slit-11360-iso X, machines with no heat, 1.2-1.3 µm of scatter). Before the ISO
         runs give s: taken off."""
-        s_um = (self.state.get("identify", {}).get(f"reversal-{axis}") or {}).get("scatter_um")
+        s_um = self.iso_scatter_um(axis)
         log = [e["drift_mm"][axis] for e in self.state.get("drift_log") or []
                if axis in e.get("drift_mm", {})]  # fmt: skip
-        if s_um is None or not np.isfinite(s_um) or s_um <= 0 or len(log) < 3:
+        if s_um is None or len(log) < 3:
             return True
         spread_um2 = float(np.mean(np.var(np.asarray(log) * 1e3, axis=0)))
         return spread_um2 > DRIFT_RATIO * s_um**2 / REF_REPEATS

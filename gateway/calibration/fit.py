@@ -11,6 +11,7 @@ table).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -222,28 +223,33 @@ def fold_residual(table: PitchTable, residual: PitchTable) -> PitchTable:
 @dataclass(frozen=True)
 class SmoothedTable:
     """A table smoothed by :func:`smoothed_table`, the weight chosen per column (forward,
-    reverse) and the RMS change of its points (table units: mm, or degrees)."""
+    reverse), the RMS change of its points and the most it was allowed (one point's
+    standard error; table units: mm, or degrees)."""
 
     table: PitchTable
     lambdas: tuple[float, ...]
     change_rms_mm: float
+    cap_mm: float
 
 
-def smoothed_table(table: PitchTable, max_change_mm: float) -> SmoothedTable:
+def smoothed_table(table: PitchTable, scatter_mm: float, runs: int) -> SmoothedTable:
     """Each column of a pitch table smoothed as much as its own leave-one-out says, its
-    points moved by no more than ``max_change_mm`` RMS (the standard error of one point:
-    :func:`.grid_smooth.smooth_line`). A table's points are means of a few noisy stops (a
+    points moved by no more than the standard error of one point, the mean of ``runs``
+    stops that scatter by ``scatter_mm`` (RMS, :func:`.grid_smooth.smooth_line`; table
+    units, mm or degrees). A table's points are means of a few noisy stops (a
     sweep's knots, a few readings each): where their scatter is large against what changes
     from one point to the next, straight lines through them carry that scatter between the
     points, where the judge's random targets see it. A table whose points predict each
     other (a smooth screw read densely) is all but unchanged."""
     cols = [table.forward_mm] + ([table.reverse_mm] if table.reverse_mm is not None else [])
-    fits = [smooth_line(table.position_mm, c, max_change_mm) for c in cols]
+    cap = scatter_mm / math.sqrt(max(1, runs))
+    fits = [smooth_line(table.position_mm, c, cap) for c in cols]
     change = np.concatenate([f.values - c for f, c in zip(fits, cols)])
     out = PitchTable(table.position_mm.copy(), fits[0].values,
                      fits[1].values if len(fits) > 1 else None, table.rotary, table.source,
                      table.lines)  # fmt: skip
-    return SmoothedTable(out, tuple(f.lam for f in fits), float(np.sqrt(np.mean(change**2))))
+    return SmoothedTable(out, tuple(f.lam for f in fits), float(np.sqrt(np.mean(change**2))),
+                         cap)  # fmt: skip
 
 
 def fold_backlash(backlash_mm: float, residual_reversal_mean_mm: float) -> float:
