@@ -13,7 +13,6 @@ a concern apart from the routing and from the writes (:mod:`gateway.axis_writes`
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from .axis import overlap
@@ -34,15 +33,15 @@ from .modbus.frames import (
     parse_read_registers_response,
     unpack_int32,
 )
+from .router_state import Finish
 from .triggers import writes_trigger
 
 if TYPE_CHECKING:
-    from .router import GatewayCounters, Setup, _AxisRuntime
+    from .router_state import AxisRuntime, GatewayCounters, Setup
 
 # the router's logger (this code was split from it): log settings keep working
 log = logging.getLogger("gateway.router")
 
-Finish = Callable[[bytes], bytes]  # the drive's reply -> the reply to the master
 
 #: read plans kept per setup (the cache is emptied when full: a master reading ever
 #: new ranges costs a recomputation, never memory)
@@ -54,7 +53,7 @@ class AxisReads:
 
     buses: dict[str, Bus]
     counters: GatewayCounters
-    _axes: dict[str, _AxisRuntime]
+    _axes: dict[str, AxisRuntime]
 
     if TYPE_CHECKING:  # provided by the Gateway
         def _saw_status(self, name: str, word: int) -> None: ...

@@ -36,7 +36,7 @@ from .modbus.frames import (
 from .triggers import COIL_WRITES, Verdict, judge, writes_trigger
 
 if TYPE_CHECKING:
-    from .router import GatewayCounters, Setup, _AxisRuntime
+    from .router_state import AxisRuntime, GatewayCounters, Setup
 
 # the router's logger (this code was split from it): log settings keep working
 log = logging.getLogger("gateway.router")
@@ -49,7 +49,7 @@ class AxisWrites:
 
     buses: dict[str, Bus]
     counters: GatewayCounters
-    _axes: dict[str, _AxisRuntime]
+    _axes: dict[str, AxisRuntime]
     on_state_change: Callable[[], None]
 
     if TYPE_CHECKING:  # provided by the Gateway
@@ -134,7 +134,7 @@ class AxisWrites:
             if is_exception(reply):
                 raise ModbusError(f"axis {name}: drive refused a register block", reply[1])
 
-    def _judge(self, runtime: _AxisRuntime, axis: Axis, req: Request) -> Verdict:
+    def _judge(self, runtime: AxisRuntime, axis: Axis, req: Request) -> Verdict:
         """What this write of the trigger does (the shadow to take once the drive has it)."""
         rule = axis.registers.trigger
         assert rule is not None

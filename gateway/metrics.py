@@ -24,7 +24,7 @@ import contextlib
 import logging
 import time
 from collections.abc import Awaitable, Callable, Iterator
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, Histogram
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
@@ -34,7 +34,11 @@ from prometheus_client.registry import Collector
 from .modbus.frames import SERVER_DEVICE_FAILURE, ModbusError
 
 if TYPE_CHECKING:
-    from .app import GatewayApp
+    from .modbus.downstream import Bus
+    from .modbus.security import WriteGuard
+    from .modbus.upstream import RtuServer, TcpServer
+    from .router import Gateway
+    from .sensors import SensorSet
 
 log = logging.getLogger(__name__)
 
@@ -128,10 +132,23 @@ def _line_families(prefix: str, label: str, what: str
                                 "had none (the line is kept open)", labels=[label]))
 
 
+class AppState(Protocol):
+    """What the metrics read from the running gateway (``gateway.app.GatewayApp`` has it):
+    named here, so that the app imports the metrics and not the other way round."""
+
+    buses: dict[str, Bus]
+    gateway: Gateway
+    sensors: SensorSet
+    write_guard: WriteGuard
+    tcp: TcpServer | None
+    tls: TcpServer | None
+    rtu: RtuServer | None
+
+
 class StateCollector(Collector):
     """Gauges and counters read from the running app at scrape time."""
 
-    def __init__(self, app: GatewayApp) -> None:
+    def __init__(self, app: AppState) -> None:
         self.app = app
 
     def collect(self) -> Iterator[Metric]:
@@ -301,7 +318,7 @@ class MetricsServer:
                 await asyncio.wait_for(writer.wait_closed(), 1.0)
 
 
-def build(app: GatewayApp) -> tuple[CollectorRegistry, RequestMetrics]:
+def build(app: AppState) -> tuple[CollectorRegistry, RequestMetrics]:
     """A registry holding the request metrics and the app's state collector."""
     registry = CollectorRegistry(auto_describe=False)
     request_metrics = RequestMetrics(registry)

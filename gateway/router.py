@@ -44,10 +44,9 @@ import logging
 import struct
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
 
 from .axis import AxisState, overlap
-from .axis_reads import AxisReads, Finish, _finishing
+from .axis_reads import AxisReads, _finishing
 from .axis_writes import AxisWrites
 from .compensation import Chain, MotionState
 from .config import Axis, GatewayConfig
@@ -67,8 +66,9 @@ from .modbus.frames import (
     parse_request,
     unpack_int32,
 )
+from .router_state import AxisRuntime, GatewayCounters, Setup
 from .thermal_travel import TravelHistory
-from .triggers import COIL_WRITES, TriggerShadow, writes_trigger
+from .triggers import COIL_WRITES, writes_trigger
 
 log = logging.getLogger(__name__)
 
@@ -81,51 +81,6 @@ def _no_move(name: str, x_mm: float) -> None:
 
 def _no_thermal(_axis: str) -> float | None:
     return None
-
-
-@dataclass(frozen=True)
-class Setup:
-    """One consistent view of config + chain; swapped whole on reload, between requests."""
-
-    config: GatewayConfig
-    chain: Chain
-    axis_by_unit: dict[int, str]
-    #: (axis, FC, start, count) -> what _read_plan gives for it (it depends on nothing else)
-    read_plans: dict[tuple[str, int, int, int], tuple[bytes, Finish | None]] = field(
-        default_factory=dict, compare=False, repr=False)
-
-    @classmethod
-    def build(cls, config: GatewayConfig, chain: Chain) -> Setup:
-        return cls(config, chain, {axis.upstream: name for name, axis in config.axes.items()})
-
-    def hold_until_trigger(self, axis: str) -> bool:
-        planar = self.config.planar
-        return planar is not None and planar.commit == "on_trigger" and axis in planar.axes
-
-    def planar_partner(self, axis: str) -> str | None:
-        return self.chain.partner(axis)
-
-
-@dataclass
-class GatewayCounters:
-    """Monotonic counters for the status unit and metrics."""
-
-    commits: int = 0
-    broadcasts: int = 0  # unit-0 writes handled
-    broadcasts_expanded: int = 0  # of those, sent as corrected unicast writes (a target)
-    refused_travel: int = 0
-    refused_correction: int = 0
-    feedback_reads: int = 0
-
-
-@dataclass
-class _AxisRuntime:
-    state: AxisState
-    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
-    trigger: TriggerShadow = field(default_factory=TriggerShadow)
-    status_word: int | None = None  # the drive's status word, as last read
-    status_at_s: float = -1e9  # when (monotonic)
-    last_correction_mm: float = 0.0
 
 
 class Gateway(AxisReads, AxisWrites, Broadcasts):
@@ -149,7 +104,7 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
         self.counters = GatewayCounters()
         #: called after axis state changed (a commit, a homing): the state file's hook
         self.on_state_change: Callable[[], None] = _nothing
-        self._axes: dict[str, _AxisRuntime] = {}
+        self._axes: dict[str, AxisRuntime] = {}
         #: the swept travel of axes whose thermal stage has a profile (thermal.profile)
         self._travel: dict[str, TravelHistory] = {}
         self.setup = Setup.build(config, chain)
@@ -166,7 +121,7 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
             if name not in self._axes:
                 state = AxisState(MotionState(axis.home_direction))
                 state.enabled = axis.compensation.enabled
-                self._axes[name] = _AxisRuntime(state)
+                self._axes[name] = AxisRuntime(state)
         travel = {}
         for name, axis in config.axes.items():
             th = axis.compensation.thermal

@@ -1,7 +1,7 @@
 """What the calibration subcommands share: exit codes, the one-line error, the config.
 
-:mod:`.commands` (calibrate, report, export) and :mod:`.commands_fit` (fit) both use these;
-neither imports the other.
+:mod:`.commands` (calibrate, report, export), :mod:`.commands_fit` (fit) and
+:mod:`.commission_cli` (commission) use these; none imports another.
 """
 
 from __future__ import annotations
@@ -22,3 +22,24 @@ def err(cmd: str, message: object) -> None:
 def load(path: str) -> tuple[GatewayConfig, Path]:
     """The config and the directory its relative paths start from."""
     return load_config(path), Path(path).resolve().parent
+
+
+def progress_bar(enabled: bool):  # type: ignore[no-untyped-def]
+    """A rich progress bar (moves, ETA) as a ``progress(done, total)`` callable + context."""
+    import contextlib
+
+    if not enabled:
+        return contextlib.nullcontext(None)
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                        TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
+                        transient=False)  # fmt: skip
+    return progress

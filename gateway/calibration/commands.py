@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..compensation.errors import CompensationError, TableError
 from ..config import ConfigError, GatewayConfig
-from .cli_common import EXIT_BAD_INPUT, EXIT_OK, EXIT_RUNTIME, err, load
+from .cli_common import EXIT_BAD_INPUT, EXIT_OK, EXIT_RUNTIME, err, load, progress_bar
 
 CALIBRATE_HELP = """\
 Run a calibration plan through a running gateway and append the readings to a raw CSV.
@@ -129,27 +129,6 @@ def _inset(travel: tuple[float, float], margin: float) -> tuple[float, float]:
     return travel[0] + margin, travel[1] - margin
 
 
-def _progress_bar(enabled: bool):  # type: ignore[no-untyped-def]
-    """A rich progress bar (moves, ETA) as a ``progress(done, total)`` callable + context."""
-    import contextlib
-
-    if not enabled:
-        return contextlib.nullcontext(None)
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
-    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                        TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(),
-                        transient=False)  # fmt: skip
-    return progress
-
-
 def _reload_fn(args: argparse.Namespace) -> Callable[[], Awaitable[None]]:
     async def reload() -> None:
         if args.reload_pid:
@@ -231,7 +210,7 @@ def calibrate(
         return EXIT_BAD_INPUT
 
     async def body() -> int:
-        bar = _progress_bar((not args.no_progress and sys.stderr.isatty()) or args.progress)
+        bar = progress_bar((not args.no_progress and sys.stderr.isatty()) or args.progress)
         with bar as progress:
             task = None
             if progress is not None:

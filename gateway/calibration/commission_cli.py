@@ -16,6 +16,7 @@ from typing import Any
 
 from ..compensation.errors import CompensationError, TableError
 from ..config import ConfigError, GatewayConfig, load_config
+from .cli_common import progress_bar
 
 EXIT_OK, EXIT_NOT_MET, EXIT_USAGE, EXIT_RUNTIME = 0, 1, 2, 3
 
@@ -252,9 +253,7 @@ def main(args: argparse.Namespace) -> int:
         return EXIT_OK
 
     async def body() -> dict:  # type: ignore[type-arg]
-        from .commands import _progress_bar
-
-        bar = _progress_bar((not args.no_progress and sys.stderr.isatty()) or args.progress)
+        bar = progress_bar((not args.no_progress and sys.stderr.isatty()) or args.progress)
         with bar as progress:
             if progress is not None:
                 tasks: dict[str, object] = {}

@@ -43,7 +43,7 @@ from .frames import (
 )
 
 if TYPE_CHECKING:
-    from ..router import GatewayCounters, Setup, _AxisRuntime
+    from ..router_state import AxisRuntime, GatewayCounters, Setup
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +58,7 @@ class Broadcasts:
 
     buses: dict[str, Bus]
     counters: GatewayCounters
-    _axes: dict[str, _AxisRuntime]
+    _axes: dict[str, AxisRuntime]
     on_state_change: Callable[[], None]
 
     if TYPE_CHECKING:  # provided by the Gateway
