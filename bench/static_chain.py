@@ -12,6 +12,7 @@ were measured).
 
     python bench/static_chain.py /tmp/keep/rough-0 [--parks 10] [--targets 12]
                                  [--bow-step-mm 2]
+    python bench/static_chain.py /tmp/keep        # every machine kept, and sums per group
 
 A diagnostic: it imports both ``sim`` and ``gateway`` (the judge does not).
 """
@@ -120,9 +121,47 @@ def axis_bow_um(rig: Rig, name: str, other: str | None, park: float | None,
     return float(np.ptp(fit(targets)))
 
 
+def machine_static(machine: Path, config: Path | None, parks: int, targets: int, seed: int,
+                   bow_step_mm: float) -> dict[str, dict[str, float]]:  # fmt: skip
+    """Per axis of one kept machine: E on the pitch line, E at random parks (medians of
+    ``parks``) and, with ``bow_step_mm``, the bow (µm); printed as it goes."""
+    gw_path = config or machine / "work" / "gw.yaml"
+    gw = load_gateway_config(gw_path)
+    chain = build_chain(gw, gw_path.parent)
+    rig = Rig(quiet_sim(machine / "sim.yaml"), chain, gw)
+    rig.start()
+    rng = np.random.default_rng(seed)
+    names = list(rig.m.axes)
+    out: dict[str, dict[str, float]] = {}
+    for name in names:
+        others = [a for a in names if a != name]
+        other = others[0] if others else None
+        lo, hi = rig.m.axes[name].cfg.travel_mm
+        olo, ohi = (rig.m.axes[other].cfg.travel_mm if other else (0.0, 0.0))
+        line = [axis_static(rig, name, other, olo,
+                            np.sort(rng.uniform(lo + 3, hi - 3, targets)))
+                for _ in range(parks)]  # fmt: skip
+        parked = [axis_static(rig, name, other, float(rng.uniform(olo + 1, ohi - 1)),
+                              np.sort(rng.uniform(lo + 3, hi - 3, targets)))
+                  for _ in range(parks)]  # fmt: skip
+        med = {k: np.median([r[k] for r in line]) for k in ("E", "M", "B")}
+        pmed = {k: np.median([r[k] for r in parked]) for k in ("E", "M", "B")}
+        out[name] = {"line": float(med["E"]), "parks": float(pmed["E"])}
+        bow = ""
+        if bow_step_mm > 0:
+            out[name]["bow"] = axis_bow_um(rig, name, other, olo, bow_step_mm)
+            bow = f"; bow {out[name]['bow']:.2f} µm"
+        print(f"{machine.name} {name}: on the pitch line E {med['E']:.2f} M {med['M']:.2f}"
+              f" B {med['B']:.2f} µm; at random parks E {pmed['E']:.2f} M {pmed['M']:.2f} "
+              f"B {pmed['B']:.2f} µm (medians of {parks}){bow}", flush=True)  # fmt: skip
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("machine", type=Path, help="a machine directory kept by accuracy.py")
+    parser.add_argument("machine", type=Path,
+                        help="a machine directory kept by accuracy.py, or the --keep directory "
+                             "(every machine in it, and the sums per group)")  # fmt: skip
     parser.add_argument("--config", type=Path, help="gateway config (default work/gw.yaml)")
     parser.add_argument("--parks", type=int, default=10)
     parser.add_argument("--targets", type=int, default=12)
@@ -130,31 +169,22 @@ def main() -> None:
     parser.add_argument("--bow-step-mm", type=float, default=0.0,
                         help="also the long-wave bow along the pitch line, read this often")
     args = parser.parse_args()
-    gw_path = args.config or args.machine / "work" / "gw.yaml"
-    gw = load_gateway_config(gw_path)
-    chain = build_chain(gw, gw_path.parent)
-    rig = Rig(quiet_sim(args.machine / "sim.yaml"), chain, gw)
-    rig.start()
-    rng = np.random.default_rng(args.seed)
-    names = list(rig.m.axes)
-    for name in names:
-        others = [a for a in names if a != name]
-        other = others[0] if others else None
-        lo, hi = rig.m.axes[name].cfg.travel_mm
-        olo, ohi = (rig.m.axes[other].cfg.travel_mm if other else (0.0, 0.0))
-        line = [axis_static(rig, name, other, olo,
-                            np.sort(rng.uniform(lo + 3, hi - 3, args.targets)))
-                for _ in range(args.parks)]  # fmt: skip
-        parked = [axis_static(rig, name, other, float(rng.uniform(olo + 1, ohi - 1)),
-                              np.sort(rng.uniform(lo + 3, hi - 3, args.targets)))
-                  for _ in range(args.parks)]  # fmt: skip
-        med = {k: np.median([r[k] for r in line]) for k in ("E", "M", "B")}
-        pmed = {k: np.median([r[k] for r in parked]) for k in ("E", "M", "B")}
-        bow = ("" if args.bow_step_mm <= 0 else
-               f"; bow {axis_bow_um(rig, name, other, olo, args.bow_step_mm):.2f} µm")
-        print(f"{args.machine.name} {name}: on the pitch line E {med['E']:.2f} M {med['M']:.2f}"
-              f" B {med['B']:.2f} µm; at random parks E {pmed['E']:.2f} M {pmed['M']:.2f} "
-              f"B {pmed['B']:.2f} µm (medians of {args.parks}){bow}")  # fmt: skip
+    if (args.machine / "sim.yaml").exists():
+        machine_static(args.machine, args.config, args.parks, args.targets, args.seed,
+                       args.bow_step_mm)  # fmt: skip
+        return
+    sums: dict[str, dict[str, float]] = {}
+    for machine in sorted(d for d in args.machine.iterdir() if (d / "work" / "gw.yaml").exists()):
+        group = machine.name.split("-")[0]  # smooth, rough, real
+        for axis in machine_static(machine, None, args.parks, args.targets, args.seed,
+                                   args.bow_step_mm).values():  # fmt: skip
+            into = sums.setdefault(group, {"axes": 0.0})
+            into["axes"] += 1
+            for key, value in axis.items():
+                into[key] = into.get(key, 0.0) + value
+    for group, total in sums.items():
+        figures = ", ".join(f"{k} {v:.2f}" for k, v in total.items() if k != "axes")
+        print(f"{group}: summed over {total['axes']:.0f} axes (µm): {figures}")
 
 
 if __name__ == "__main__":
