@@ -45,12 +45,14 @@ class SmoothedGrid:
     loo: NDArray[np.float64]
 
 
-def _penalty_eig(n: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Eigenvalues and eigenvectors of DᵀD, D the second differences of ``n`` values
-    (no penalty, identity vectors, for fewer than MIN_LINES)."""
+def _penalty_eig(n: int, x: NDArray[np.float64] | None = None
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:  # fmt: skip
+    """Eigenvalues and eigenvectors of DᵀD, D the second differences of ``n`` values (at
+    positions ``x``: :func:`_second_differences`); no penalty, identity vectors, for fewer
+    than MIN_LINES."""
     if n < MIN_LINES:
         return np.zeros(n), np.eye(n)
-    d = np.diff(np.eye(n), n=2, axis=0)
+    d = np.diff(np.eye(n), n=2, axis=0) if x is None else _second_differences(x)
     e, u = np.linalg.eigh(d.T @ d)
     return np.clip(e, 0.0, None), u
 
@@ -125,9 +127,7 @@ def smooth_line(x: ArrayLike, values: ArrayLike, max_change_rms: float) -> Smoot
         return SmoothedLine(z.copy(), 0.0, 0.0)
     if not np.all(np.diff(pos) > 0):
         raise ValueError("smooth_line: positions must be strictly increasing")
-    d = _second_differences(pos)
-    e, u = np.linalg.eigh(d.T @ d)
-    e = np.clip(e, 0.0, None)
+    e, u = _penalty_eig(z.size, pos)
     zt, u2 = u.T @ z, u**2
     fits = []
     for lam in LAMBDAS[1:]:
