@@ -13,6 +13,14 @@ were measured).
     python bench/static_chain.py /tmp/keep/rough-0 [--parks 10] [--targets 12]
                                  [--bow-step-mm 2]
     python bench/static_chain.py /tmp/keep        # every machine kept, and sums per group
+    python bench/static_chain.py /tmp/keep --oracle   # and what a perfect table would leave
+
+``--oracle``: per axis, the same E at random parks with that axis's pitch table, cyclic term
+and backlash replaced by one perfect table: the quiet machine's own deviation read every
+``ORACLE_STEP_MM`` along the pitch line, ↑ and ↓, through the rest of the calibrated chain.
+What it leaves is what no table can take out (the drive's step, the plane away from the
+pitch line, the lost motion's take-up); the calibrated table's E less it is what the table
+itself misses.
 
 A diagnostic: it imports both ``sim`` and ``gateway`` (the judge does not).
 """
@@ -20,12 +28,16 @@ A diagnostic: it imports both ``sim`` and ``gateway`` (the judge does not).
 from __future__ import annotations
 
 import argparse
+import copy
+import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
+from gateway.calibration.outputs import write_table
+from gateway.compensation import PitchTable
 from gateway.config import load_config as load_gateway_config
 from gateway.tables import build_chain
 from sim.config import parse_config
@@ -43,6 +55,11 @@ def quiet_sim(sim_yaml: Path) -> Machine:
         (data["sim"].get("instruments") or {}).pop(sensor, None)
     cfg = parse_config(data, sim_yaml.parent)
     return Machine(cfg.sim, base_dir=str(sim_yaml.parent))
+
+
+#: the perfect table's spacing (mm): a lead of 4 mm is read 16 times a turn (linear
+#: interpolation misses a sine of amplitude a by a·(π/16)²/2, 2 % of a)
+ORACLE_STEP_MM = 0.25
 
 
 class Rig:
@@ -121,15 +138,59 @@ def axis_bow_um(rig: Rig, name: str, other: str | None, park: float | None,
     return float(np.ptp(fit(targets)))
 
 
-def machine_static(machine: Path, config: Path | None, parks: int, targets: int, seed: int,
-                   bow_step_mm: float) -> dict[str, dict[str, float]]:  # fmt: skip
-    """Per axis of one kept machine: E on the pitch line, E at random parks (medians of
-    ``parks``) and, with ``bow_step_mm``, the bow (µm); printed as it goes."""
-    gw_path = config or machine / "work" / "gw.yaml"
+def _rig(machine: Path, gw_path: Path) -> Rig:
     gw = load_gateway_config(gw_path)
-    chain = build_chain(gw, gw_path.parent)
-    rig = Rig(quiet_sim(machine / "sim.yaml"), chain, gw)
+    rig = Rig(quiet_sim(machine / "sim.yaml"), build_chain(gw, gw_path.parent), gw)
     rig.start()
+    return rig
+
+
+Draws = list[tuple[float, np.ndarray]]
+
+
+def _parked_e(rig: Rig, name: str, other: str | None, draws: Draws) -> dict[str, float]:
+    """Medians over the ``draws`` (a park of the other axis, targets) of E, M and B (µm)."""
+    parked = [axis_static(rig, name, other, park, targets) for park, targets in draws]
+    return {k: float(np.median([r[k] for r in parked])) for k in ("E", "M", "B")}
+
+
+def oracle_e_um(machine: Path, gw_path: Path, name: str, draws: Draws) -> float:
+    """E at random parks (median, µm) of axis ``name`` with its pitch table, cyclic term and
+    backlash replaced by the quiet machine's own deviation along the pitch line."""
+    data = yaml.safe_load(gw_path.read_text())
+    bare = copy.deepcopy(data)
+    comp = bare["axes"][name].setdefault("compensation", {})
+    for key in ("pitch", "cyclic", "backlash"):
+        comp.pop(key, None)
+    # beside the config: its tables are named relative to its directory
+    bare_path = gw_path.parent / f".oracle-{name}.yaml"
+    try:
+        bare_path.write_text(yaml.safe_dump(bare, sort_keys=False))
+        rig = _rig(machine, bare_path)
+        names = list(rig.m.axes)
+        other = next((a for a in names if a != name), None)
+        lo, hi = rig.m.axes[name].cfg.travel_mm
+        olo = rig.m.axes[other].cfg.travel_mm[0] if other else None
+        x = np.linspace(lo, hi, int(np.ceil((hi - lo) / ORACLE_STEP_MM)) + 1)
+        up, down = up_and_down_um(rig, name, other, olo, x)
+        with tempfile.TemporaryDirectory() as tmp:
+            table = Path(tmp) / "oracle.csv"
+            write_table(table, "csv", PitchTable(x, up * 1e-3, down * 1e-3), "oracle")
+            comp["pitch"] = {"file": str(table), "interpolation": "linear"}
+            bare_path.write_text(yaml.safe_dump(bare, sort_keys=False))
+            return _parked_e(_rig(machine, bare_path), name, other, draws)["E"]
+    finally:
+        bare_path.unlink(missing_ok=True)
+
+
+def machine_static(machine: Path, config: Path | None, parks: int, targets: int, seed: int,
+                   bow_step_mm: float, oracle: bool = False
+                   ) -> dict[str, dict[str, float]]:  # fmt: skip
+    """Per axis of one kept machine: E on the pitch line, E at random parks (medians of
+    ``parks``), with ``bow_step_mm`` the bow, with ``oracle`` E at the same parks under a
+    perfect table (µm); printed as it goes."""
+    gw_path = config or machine / "work" / "gw.yaml"
+    rig = _rig(machine, gw_path)
     rng = np.random.default_rng(seed)
     names = list(rig.m.axes)
     out: dict[str, dict[str, float]] = {}
@@ -141,19 +202,21 @@ def machine_static(machine: Path, config: Path | None, parks: int, targets: int,
         line = [axis_static(rig, name, other, olo,
                             np.sort(rng.uniform(lo + 3, hi - 3, targets)))
                 for _ in range(parks)]  # fmt: skip
-        parked = [axis_static(rig, name, other, float(rng.uniform(olo + 1, ohi - 1)),
-                              np.sort(rng.uniform(lo + 3, hi - 3, targets)))
-                  for _ in range(parks)]  # fmt: skip
         med = {k: np.median([r[k] for r in line]) for k in ("E", "M", "B")}
-        pmed = {k: np.median([r[k] for r in parked]) for k in ("E", "M", "B")}
+        draws = [(float(rng.uniform(olo + 1, ohi - 1)),
+                   np.sort(rng.uniform(lo + 3, hi - 3, targets))) for _ in range(parks)]
+        pmed = _parked_e(rig, name, other, draws)
         out[name] = {"line": float(med["E"]), "parks": float(pmed["E"])}
-        bow = ""
+        extra = ""
         if bow_step_mm > 0:
             out[name]["bow"] = axis_bow_um(rig, name, other, olo, bow_step_mm)
-            bow = f"; bow {out[name]['bow']:.2f} µm"
+            extra += f"; bow {out[name]['bow']:.2f} µm"
+        if oracle:
+            out[name]["oracle"] = oracle_e_um(machine, gw_path, name, draws)
+            extra += f"; a perfect table {out[name]['oracle']:.2f} µm at the same parks"
         print(f"{machine.name} {name}: on the pitch line E {med['E']:.2f} M {med['M']:.2f}"
               f" B {med['B']:.2f} µm; at random parks E {pmed['E']:.2f} M {pmed['M']:.2f} "
-              f"B {pmed['B']:.2f} µm (medians of {parks}){bow}", flush=True)  # fmt: skip
+              f"B {pmed['B']:.2f} µm (medians of {parks}){extra}", flush=True)  # fmt: skip
     return out
 
 
@@ -168,16 +231,18 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=7)
     parser.add_argument("--bow-step-mm", type=float, default=0.0,
                         help="also the long-wave bow along the pitch line, read this often")
+    parser.add_argument("--oracle", action="store_true",
+                        help="also E under a perfect table at the same parks")
     args = parser.parse_args()
     if (args.machine / "sim.yaml").exists():
         machine_static(args.machine, args.config, args.parks, args.targets, args.seed,
-                       args.bow_step_mm)  # fmt: skip
+                       args.bow_step_mm, args.oracle)  # fmt: skip
         return
     sums: dict[str, dict[str, float]] = {}
     for machine in sorted(d for d in args.machine.iterdir() if (d / "work" / "gw.yaml").exists()):
         group = machine.name.split("-")[0]  # smooth, rough, real
         for axis in machine_static(machine, None, args.parks, args.targets, args.seed,
-                                   args.bow_step_mm).values():  # fmt: skip
+                                   args.bow_step_mm, args.oracle).values():  # fmt: skip
             into = sums.setdefault(group, {"axes": 0.0})
             into["axes"] += 1
             for key, value in axis.items():
