@@ -52,7 +52,6 @@ from .commission_steps import (
     CommissionAborted,
     _plain,
 )
-from .cyclic_fit import LEAD_COHERENCE_MIN, phase_coherence
 from .fit import planar_measurement
 from .iso230 import iso230_axis
 from .machine import MachineError
@@ -300,15 +299,10 @@ class Commission(RefineSteps):
                 raw_c = self.raw_paths(f"cyclic-{a}")[0]
                 cr = fit_cyclic_raw(self.raw(f"cyclic-{a}"), read_raw_meta(raw_c), config,
                                     self.config_dir, a)  # fmt: skip
-                coherence = phase_coherence(cr.model)
-                if self.state.get("leads", {}).get(a) and coherence < LEAD_COHERENCE_MIN:
-                    self._not_a_lead(a, coherence)
-                else:
-                    save_cyclic(cr, "compgw commission: dense scans")
-                    model = cr.model
-                    self.state.setdefault("identify", {})[f"cyclic-{a}"] = {
-                        "harmonics": cr.fit.harmonics, "peak_um": cr.model.peak_mm() * 1e3,
-                        "coherence": coherence}  # fmt: skip
+                save_cyclic(cr, "compgw commission: dense scans")
+                model = cr.model
+                self.state.setdefault("identify", {})[f"cyclic-{a}"] = {
+                    "harmonics": cr.fit.harmonics, "peak_um": cr.model.peak_mm() * 1e3}
             # the reversal per point or as a curve, by what the ISO runs' own scatter says
             # each would leave (a worn zone of the nut: per point)
             r = fit_pitch(self.raw(f"iso-{a}"), config, self.config_dir, a,
@@ -326,20 +320,6 @@ class Commission(RefineSteps):
             self.state.setdefault("spans", {})[a] = None  # every span is new: all verified
         self._save()
         await self.use("pitch")
-
-    def _not_a_lead(self, axis: str, coherence: float) -> None:
-        """Drop the cyclic stage of an axis whose searched lead is not a screw's turn: its
-        stations disagree in phase (:func:`.cyclic_fit.phase_coherence`). The table alone
-        follows that waviness; a cyclic term interpolated between stations that disagree
-        would add its own error between them."""
-        self.s.lead_mm.pop(axis, None)
-        self.tables.cyclic.pop(axis, None)
-        self.state.setdefault("leads", {})[axis] = 0.0
-        found = self.state.setdefault("identify", {}).setdefault(f"lead-{axis}", {})
-        found["rejected_coherence"] = coherence
-        self.say(f"{axis}: the {found.get('lead_mm', 0.0):g} mm period is not a screw's turn "
-                 f"(its phase changes along the travel: coherence {coherence:.2f} < "
-                 f"{LEAD_COHERENCE_MIN:g}): no cyclic stage, the table follows it")
 
     async def _plane(self) -> None:
         if self.s.planar is None or self.tables.planar_model is not None:

@@ -26,8 +26,6 @@ from .rawdata import RawData
 
 MAX_FIT_HARMONICS = 3
 FOLDS = 8
-#: the least phase coherence (:func:`phase_coherence`) of a screw's turn-by-turn error
-LEAD_COHERENCE_MIN = 0.8
 
 
 @dataclass(frozen=True)
@@ -152,22 +150,6 @@ def fit_cyclic(
     return CyclicFit(
         model, chosen, {k: v * 1e3 for k, v in cv.items()}, (sin_sd[order], cos_sd[order]), rms
     )
-
-
-def phase_coherence(model: CyclicModel) -> float:
-    """How far the stations of a cyclic term agree on one phasor, 0..1: |mean z| / rms |z|
-    of its largest harmonic's phasors z = b + j·a (1 at a single station).
-
-    A screw's turn-by-turn error is locked to the screw's angle: its amplitude changes along
-    the travel (wear, the nut's load), its phase little. The bench's rough screws keep
-    0.90-0.97 over their whole travel with amplitudes changing 2-4 times. A "lead" that a
-    lead search read in waviness that does not repeat flips phase from one station to the
-    next: 0.16-0.94 on the slit stages of ../shared/data/real, measured every 5 mm, whose
-    errors between those points repeat at twice their spacing."""
-    z = model.cos_mm + 1j * model.sin_mm  # (stations, harmonics)
-    k = int(np.argmax(np.sum(np.abs(z) ** 2, axis=0)))
-    power = float(np.mean(np.abs(z[:, k]) ** 2))
-    return 1.0 if power <= 0.0 else float(abs(np.mean(z[:, k])) / np.sqrt(power))
 
 
 def net_of_cyclic(
