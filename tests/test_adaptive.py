@@ -135,6 +135,42 @@ def test_a_table_switch_keeps_the_drift_the_reading_after_it_would_hide() -> Non
     assert first == after  # the first config: the cold base is what it reads
 
 
+def test_a_switch_to_a_deep_table_moves_the_axis_where_its_own_error_differs() -> None:
+    """A screw whose error climbs 400 µm over 800 mm with a 20 µm wave every 50 mm; the
+    table is that error. Switching from no table to it, the reading at a reference moves by
+    −e(x): the axis goes to x − e(x), where the error is no longer e(x). The commands'
+    difference says −e(c), half a micrometre off; the table's own model says −e(x) exactly, and
+    the drift after the switch keeps what it was before."""
+    from gateway.compensation import AxisChain, Chain
+
+    pulse = 0.0001
+    x = np.linspace(0.0, 800.0, 801)
+
+    def e_mm(p: np.ndarray) -> np.ndarray:
+        return 0.4 * p / 800.0 + 0.02 * np.sin(2 * np.pi * p / 50.0)
+
+    table = PitchTable(x, e_mm(x))
+    chain = Chain({"X": AxisChain("X", pulse, pitch=PitchStage(table))})
+    refs = [41.0, 760.0]
+    new_cmd = [float(chain.command_mm_batch({"X": [r / pulse]})["X"][0]) for r in refs]
+    old = {"X": {"mm": refs, "thermal": "None", "commands_mm": [{"X": r} for r in refs]}}
+    new = {"X": {"mm": new_cmd, "thermal": "None",
+                 "commands_mm": [{"X": c} for c in new_cmd]}}  # fmt: skip
+    moved = adaptive.reading_moved_mm(chain, "X", old["X"]["commands_mm"],
+                                      new["X"]["commands_mm"])  # fmt: skip
+    truth = [-float(e_mm(np.array(r))) for r in refs]  # the machine is its table here
+    np.testing.assert_allclose(moved, truth, atol=1e-7)
+    commanded = [c - r for c, r in zip(new_cmd, refs)]
+    assert max(abs(a - b) for a, b in zip(commanded, truth)) > 4e-4  # half a µm off
+    base, drift = {"X": [0.0, 0.0]}, {"X": [1e-3, 9e-3]}
+    after = {"X": [drift["X"][k] + truth[k] for k in (0, 1)]}  # no heat during the switch
+    got = adaptive.relinked_base(base, after, drift, old, new, None, {"X": moved})
+    np.testing.assert_allclose([after["X"][k] - got["X"][k] for k in (0, 1)], drift["X"],
+                               atol=1e-9)  # fmt: skip
+    was = adaptive.relinked_base(base, after, drift, old, new)  # the commands' difference
+    assert max(abs(after["X"][k] - was["X"][k] - drift["X"][k]) for k in (0, 1)) > 4e-4
+
+
 def test_a_switch_across_a_temperature_sensor_is_computed_at_its_reading() -> None:
     """A temperature-source axis whose sensor correction is switched off (a warm-up) and on
     again: each switch moves the base by what the sensor's stage commands at the references

@@ -14,13 +14,13 @@ unless the name says µm.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..compensation import PitchStage, PitchTable
+from ..compensation import Chain, PitchStage, PitchTable
 from ..compensation.cyclic import CyclicModel
 from ..compensation.thermal import ThermalStage, delta_a_from_temperature
 from .cyclic_fit import StationScan
@@ -318,6 +318,7 @@ def relinked_base(
     base: dict[str, list[float]] | None, after: dict[str, list[float]],
     drift: dict[str, list[float]], old_commands: dict[str, dict], new_commands: dict[str, dict],
     temperature_c: dict[str, float] | None = None,
+    moved_mm: dict[str, list[float]] | None = None,
 ) -> dict[str, list[float]]:  # fmt: skip
     """The drift base (mm at each axis's two references) once a new config is loaded, so
     that drift keeps counting from the start across it.
@@ -333,22 +334,48 @@ def relinked_base(
     commissioning began (``temperature_c``): each config's base is then what it would have
     read on the cold machine, so the drift under a config without thermal compensation is
     the growth itself, and under the sensor's what its correction leaves of it beyond the
-    cold start's. ``base`` None: the first config, or a broken chain (read)."""
+    cold start's. ``base`` None: the first config, or a broken chain (read).
+
+    ``moved_mm``: per axis, how far the new commands move the axis at its references (mm),
+    where known (:func:`reading_moved_mm`); else the commands' difference. A table hundreds
+    of µm deep sends the axis to where its own error differs from the nominal place's."""
     out = {a: [after[a][k] - drift[a][k] for k in (0, 1)] for a in after}
     if base is None:
         return out
     temps = temperature_c or {}
+    moved = moved_mm or {}
     for a, new in new_commands.items():
         was = old_commands.get(a)
         if a not in base or was is None:
             continue
+        shift = moved.get(a) or [new["mm"][k] - was["mm"][k] for k in (0, 1)]
         if was["thermal"] == new["thermal"]:
-            out[a] = [base[a][k] + new["mm"][k] - was["mm"][k] for k in (0, 1)]
+            out[a] = [base[a][k] + shift[k] for k in (0, 1)]
             continue
         old_t, new_t = thermal_mm(was, temps.get(a)), thermal_mm(new, temps.get(a))
         if old_t is not None and new_t is not None:
-            out[a] = [base[a][k] + new["mm"][k] + new_t[k] - was["mm"][k] - old_t[k]
-                      for k in (0, 1)]  # fmt: skip
+            out[a] = [base[a][k] + shift[k] + new_t[k] - old_t[k] for k in (0, 1)]
+    return out
+
+
+def reading_moved_mm(model: Chain, axis: str, old: Sequence[Mapping[str, float]],
+                     new: Sequence[Mapping[str, float]]) -> list[float]:  # fmt: skip
+    """How far a switch of commands moves ``axis`` at each reference (mm), by the error
+    model ``model`` (a chain whose tables know the axis): where the new commands put it
+    less where the old ones did, each command of every axis involved (mm, approached in
+    +) turned into the position it reaches. Not the commands' difference: a switch from no
+    tables to a table that commands 346 µm moves the axis to where its error is 1.2 µm
+    different (smooth-6 Y's far reference, where the readings moved 1.7 µm more than the
+    commands; the drift after it was that much too large, and every table measured
+    later tilted by it)."""
+    out = []
+    for before, after in zip(old, new):
+        reach = []
+        for commands in (before, after):
+            pulses = {a: [c / model.axes[a].pulse_mm] for a, c in commands.items()}
+            nominal = model.nominal_pulses_batch(pulses, {a: [1] for a in commands})
+            reach.append(float(nominal[axis][0]) * model.axes[axis].pulse_mm)
+        out.append(reach[1] - reach[0])
     return out
 
 
