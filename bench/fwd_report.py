@@ -1,8 +1,12 @@
 """bench/forwarding.py's results: the two sides of a row (direct and through the gateway),
-the printed table, the issue-4 verdicts and a profile's summary."""
+the printed table, the issue-4 verdicts and a profile's summary.
+
+    python bench/fwd_report.py PROFILE.folded [--top 22]   # a kept profile, summarised again
+"""
 
 from __future__ import annotations
 
+import argparse
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -120,3 +124,18 @@ def verdicts(rows: list[Row]) -> list[str]:
             ok = value >= limit if at_least else value <= limit
             out.append(f"  {'PASS' if ok else 'MISS'}  {tag:<24} {label:<24} {value:6.2f}")
     return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="bench/forwarding.py's profile summary, of "
+                                             "folded stacks it kept (--profile)")  # fmt: skip
+    ap.add_argument("folded", type=Path, nargs="+", help="a folded-stack file")
+    ap.add_argument("--top", type=int, default=22, help="functions listed")
+    args = ap.parse_args(argv)
+    for path in args.folded:
+        print(summarize_folded(path, args.top))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
