@@ -112,36 +112,6 @@ def test_drift_is_taken_off_by_position_and_progress() -> None:
     np.testing.assert_allclose(raw.deviation_mm, expected)
 
 
-def test_each_reference_is_read_where_the_travel_was() -> None:
-    """A screw whose growth follows its travel: 1 µm per 100 mm of travel at the far
-    reference, 0.1 at the near one. The run travels 200 mm between its first and last
-    readings (odometer 1000 → 1200). Before it the near reference was read 250 mm of travel
-    before its first reading and the far one 150 mm before; after it the near one 50 mm
-    after its last reading and the far one 150 mm after. Placed where they were read, a
-    reading anywhere in the run loses exactly its growth; read as if at the run's ends,
-    the far reference's growth is 1.5 µm too large at the end of the run."""
-    def growth_mm(odo_mm: float) -> tuple[float, float]:
-        return (0.1e-3 * odo_mm / 100.0, 1e-3 * odo_mm / 100.0)
-
-    near_b, far_b, near_a, far_a = 750.0, 850.0, 1250.0, 1350.0
-    before = (growth_mm(near_b)[0], growth_mm(far_b)[1])
-    after = (growth_mm(near_a)[0], growth_mm(far_a)[1])
-    at = adaptive.read_at((near_b, far_b), (near_a, far_a), 1000.0, 1200.0)
-    assert at == pytest.approx((-1.25, -0.75, 1.25, 1.75))
-    drift = adaptive.Drift((0.0, 100.0), before, after, read_at=at)
-    assert adaptive.Drift.from_json(drift.to_json()) == drift
-    for f in (0.0, 0.5, 1.0):
-        odo = 1000.0 + 200.0 * f
-        true = np.interp([0.0, 50.0, 100.0], [0.0, 100.0], growth_mm(odo))
-        np.testing.assert_allclose(drift.at(np.array([0.0, 50.0, 100.0]), np.full(3, f)),
-                                   true, atol=1e-12)  # fmt: skip
-    plain = adaptive.Drift((0.0, 100.0), before, after)
-    assert plain.at(np.array([100.0]), np.array([1.0]))[0] - growth_mm(1200.0)[1] \
-        == pytest.approx(1.5e-3)  # fmt: skip
-    # another axis's run (this screw did not travel): as if read at the run's ends
-    assert adaptive.read_at((1.0, 2.0), (3.0, 4.0), 1000.0, 1000.0) == (0.0, 0.0, 1.0, 1.0)
-
-
 def test_a_table_switch_keeps_the_drift_the_reading_after_it_would_hide() -> None:
     """A screw warming 0.5 / 2 µm at the references per reading of them. Cold base 0 / 0;
     just before a switch the references read 1 / 4 µm of drift; the new table commands

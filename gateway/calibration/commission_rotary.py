@@ -255,11 +255,9 @@ class RotarySteps(Steps):
         laser sees no angle: its readings are taken as they are)."""
         linear = self.ref_axes()
         out = await super()._measure_refs(repeats, linear) if linear else {}
-        read_at_mm = (self.state.get("last_refs") or {}).get("read_at_mm", {}) if linear else {}
         out.update({a: [0.0, 0.0] for a in self.s.axes if a not in out})
         self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out,
-                                   "odometer_mm": self._odometer(),
-                                   "read_at_mm": read_at_mm}  # fmt: skip
+                                   "odometer_mm": self._odometer()}  # fmt: skip
         return out
 
     # -- 3. rounds -----------------------------------------------------------------------------
