@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -276,14 +275,7 @@ class Drift:
     two reference positions ``x_mm`` just before and just after a run; linear in the run's
     progress. Between (and beyond) the references: linear in position, or along the heat
     shape W read before and after the run (:mod:`.drift_shape`, places over
-    ``travel_mm``) where one was kept.
-
-    ``read_at``: where in the run's progress each reading was taken (near before, far
-    before, near after, far after; 0 the run's first move, 1 its last), by the axis's own
-    travel. The references are read one after the other, and going from one to the other
-    warms the screw: the near one read before the run is older than the run's start by a
-    traverse and the way back, the far one read after it newer than its end by a traverse.
-    Each reference's drift is then linear between its own two readings."""
+    ``travel_mm``) where one was kept."""
 
     x_mm: tuple[float, float]
     before_mm: tuple[float, float]
@@ -291,13 +283,6 @@ class Drift:
     travel_mm: tuple[float, float] | None = None
     shape_before: tuple[float, ...] = ()
     shape_after: tuple[float, ...] = ()
-    read_at: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 1.0)
-
-    def _at_reference(self, k: int, f: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Reference ``k``'s drift (mm) a fraction ``f`` through the run."""
-        fb, fa = self.read_at[k], self.read_at[2 + k]
-        b, a = self.before_mm[k], self.after_mm[k]
-        return b + (a - b) * (f - fb) / (fa - fb) if fa > fb else b + (a - b) * f
 
     def at(self, x_mm: NDArray[np.float64], fraction: NDArray[np.float64]
            ) -> NDArray[np.float64]:
@@ -309,41 +294,24 @@ class Drift:
                                 self.shape_before)  # fmt: skip
             a = shaped_drift_mm(x, self.x_mm, self.after_mm, self.travel_mm, self.shape_after)
             return b + (a - b) * f
-        lo, hi = self._at_reference(0, f), self._at_reference(1, f)
+        lo = self.before_mm[0] + (self.after_mm[0] - self.before_mm[0]) * f
+        hi = self.before_mm[1] + (self.after_mm[1] - self.before_mm[1]) * f
         x0, x1 = self.x_mm
         return lo + (hi - lo) * (x - x0) / (x1 - x0)
 
-    def to_json(self) -> list[float] | dict[str, Any]:
+    def to_json(self) -> list[float]:
         out = [*self.x_mm, *self.before_mm, *self.after_mm]
         if self.travel_mm is not None and self.shape_before and self.shape_after:
             out += [*self.travel_mm, *self.shape_before, *self.shape_after]
-        if self.read_at == (0.0, 0.0, 1.0, 1.0):
-            return out
-        return {"drift": out, "read_at": list(self.read_at)}
+        return out
 
     @classmethod
-    def from_json(cls, v: Sequence[float] | Mapping[str, Any]) -> Drift:
-        if isinstance(v, Mapping):
-            read_at = tuple(float(f) for f in v["read_at"])
-            return replace(cls.from_json(v["drift"]), read_at=read_at)  # type: ignore[arg-type]
+    def from_json(cls, v: Sequence[float]) -> Drift:
         if len(v) > 8:
             k = (len(v) - 8) // 2
             return cls((v[0], v[1]), (v[2], v[3]), (v[4], v[5]), (v[6], v[7]),
                        tuple(v[8 : 8 + k]), tuple(v[8 + k : 8 + 2 * k]))  # fmt: skip
         return cls((v[0], v[1]), (v[2], v[3]), (v[4], v[5]))
-
-
-def read_at(before_mm: Sequence[float], after_mm: Sequence[float], start_mm: float,
-            end_mm: float) -> tuple[float, float, float, float]:
-    """Where in a run's progress its reference readings were taken (:class:`Drift`), from
-    the axis's odometer (mm of travel) at each reading (near and far, before and after)
-    and at the run's first and last moves; (0, 0, 1, 1) where the axis did not travel in
-    the run (another axis's run: its progress says nothing of this screw)."""
-    span = end_mm - start_mm
-    if not span > 0:
-        return (0.0, 0.0, 1.0, 1.0)
-    f = [(float(o) - start_mm) / span for o in (*before_mm, *after_mm)]
-    return (min(f[0], 0.0), min(f[1], 0.0), max(f[2], 1.0), max(f[3], 1.0))
 
 
 def relinked_base(

@@ -291,7 +291,6 @@ class Steps:
 
         links = Links()
         out: dict[str, list[float]] = {}
-        read_at_mm: dict[str, list[float]] = {}  # the axis's odometer at each reading
         cost = 0.0
         try:
             link = await links.get(self.s.gateway.host, self.s.gateway.port)
@@ -306,7 +305,7 @@ class Steps:
                 park = self._park(a)
                 if park:
                     await driver.move(park)
-                devs, odo = [], []
+                devs = []
                 for x in self._ref_positions(a):
                     readings = []
                     for _ in range(repeats):
@@ -314,17 +313,14 @@ class Steps:
                         await driver.move({a: x})
                         readings.append((await laser.read_mm([a]))[a] - x)
                     devs.append(float(np.mean(readings)))
-                    odo.append(self._odometer()[a])
                 out[a] = devs
-                read_at_mm[a] = odo
                 cost += self.refs_cost_s([a], repeats)
         finally:
             links.close()
         self.state["refs_s"] = self.state.get("refs_s", 0.0) + cost
         self._refs_read_here = True
         self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out,
-                                   "odometer_mm": self._odometer(),
-                                   "read_at_mm": read_at_mm}  # fmt: skip
+                                   "odometer_mm": self._odometer()}  # fmt: skip
         return out
 
     def _refs_unmoved(self) -> dict[str, list[float]] | None:
@@ -482,42 +478,25 @@ class Steps:
         """One run of a step (its own raw file), the drift references read around it."""
         pending = self.state.setdefault("pending_refs", {})
         shapes = self.state.setdefault("pending_shapes", {})
-        pending_at = self.state.setdefault("pending_read_at", {})
         if drifting and key not in pending:
             unmoved = self._refs_unmoved()  # the last run's after-reading, when it serves
             pending[key] = self._drift_now(unmoved or await self._measure_refs())
-            pending_at[key] = (self.state.get("last_refs") or {}).get("read_at_mm") or {}
             shapes[key] = self._drift_shapes()
             if unmoved is None:
                 self._log_drift(pending[key])
             self._save()
         self.state["last_refs"] = None  # the moves change the thermal state
-        odo_start = self._odometer()
-        at_start = dict((self.state.get("odometer") or {}).get("at", {}))
         session = Session(self.config, self.config_dir, self.s.gateway, self.s.instruments,
                           self.s.motion, park or {}, on_move=self._count_travel)  # fmt: skip
         if self.progress is not None:
             name = key.rsplit(".", 1)[0]
             session.progress = lambda k, n: self.progress(name, k, n)  # type: ignore[misc]
         await session.run(plan, raw, compensation)
-        odo_end = self._odometer()
         entry: dict[str, Any] = {"raw": self._rel(raw)}
         if drifting:
             after = self._drift_now(await self._measure_refs())
             self._log_drift(after)
             before = pending.pop(key)
-            read_before = pending_at.pop(key, {})
-            read_after = (self.state.get("last_refs") or {}).get("read_at_mm") or {}
-            spans = _measured_span_mm(plan, at_start)
-            read_at = {}
-            for a, (first, last, total) in spans.items():
-                if a in read_before and a in read_after and total > 0:
-                    # the plan's travel to its first and last readings, scaled to the
-                    # odometer's (the session's own approaches count too)
-                    k = (odo_end[a] - odo_start[a]) / total
-                    read_at[a] = adaptive.read_at(
-                        read_before[a], read_after[a], odo_start[a] + first * k,
-                        odo_start[a] + last * k)  # fmt: skip
             shape_before, shape_after = shapes.pop(key, {}), self._drift_shapes()
             # kept for every axis (taken off where :meth:`drift_taken_off` says), along the
             # heat shape where :meth:`drift_spread_mm` says the screw is warm where it works
@@ -531,8 +510,7 @@ class Steps:
                 a: adaptive.Drift(
                     self._ref_positions(a), tuple(before[a]), tuple(after[a]),
                     self._travel(a) if a in shape_before and a in shape_after else None,
-                    tuple(shape_before.get(a, ())), tuple(shape_after.get(a, ())),
-                    read_at.get(a, (0.0, 0.0, 1.0, 1.0))).to_json()
+                    tuple(shape_before.get(a, ())), tuple(shape_after.get(a, ()))).to_json()
                 for a in self.ref_axes()}  # fmt: skip
             self.state["drift_last"] = after
         return entry
@@ -667,27 +645,6 @@ class Steps:
     def _travel(self, axis: str) -> tuple[float, float]:
         lo, hi = self.config.axes[axis].travel_mm
         return float(lo), float(hi)
-
-
-def _measured_span_mm(plan: Plan, at_mm: dict[str, float]
-                      ) -> dict[str, tuple[float, float, float]]:  # fmt: skip
-    """Per plan axis, its travel (mm) from where it stood (``at_mm``) to the plan's first
-    and last measured moves, and in all."""
-    out = {}
-    for i, a in enumerate(plan.axes):
-        pos, cum = at_mm.get(a), 0.0
-        first = last = None
-        for move in plan.moves:
-            x = move.target_mm[i]
-            if pos is not None:
-                cum += abs(x - pos)
-            pos = x
-            if move.measured:
-                first = cum if first is None else first
-                last = cum
-        if first is not None and last is not None:
-            out[a] = (first, last, cum)
-    return out
 
 
 def _plain(value: Any) -> Any:
