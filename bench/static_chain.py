@@ -28,7 +28,6 @@ A diagnostic: it imports both ``sim`` and ``gateway`` (the judge does not).
 from __future__ import annotations
 
 import argparse
-import copy
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -149,7 +148,8 @@ Draws = list[tuple[float, np.ndarray]]
 
 
 def _parked_e(rig: Rig, name: str, other: str | None, draws: Draws) -> dict[str, float]:
-    """Medians over the ``draws`` (a park of the other axis, targets) of E, M and B (µm)."""
+    """Medians over the ``draws`` (a park of the other axis, targets; the pitch line's park
+    is its lower end) of E, M and B (µm)."""
     parked = [axis_static(rig, name, other, park, targets) for park, targets in draws]
     return {k: float(np.median([r[k] for r in parked])) for k in ("E", "M", "B")}
 
@@ -157,8 +157,7 @@ def _parked_e(rig: Rig, name: str, other: str | None, draws: Draws) -> dict[str,
 def oracle_e_um(machine: Path, gw_path: Path, name: str, draws: Draws) -> float:
     """E at random parks (median, µm) of axis ``name`` with its pitch table, cyclic term and
     backlash replaced by the quiet machine's own deviation along the pitch line."""
-    data = yaml.safe_load(gw_path.read_text())
-    bare = copy.deepcopy(data)
+    bare = yaml.safe_load(gw_path.read_text())
     comp = bare["axes"][name].setdefault("compensation", {})
     for key in ("pitch", "cyclic", "backlash"):
         comp.pop(key, None)
@@ -199,14 +198,12 @@ def machine_static(machine: Path, config: Path | None, parks: int, targets: int,
         other = others[0] if others else None
         lo, hi = rig.m.axes[name].cfg.travel_mm
         olo, ohi = (rig.m.axes[other].cfg.travel_mm if other else (0.0, 0.0))
-        line = [axis_static(rig, name, other, olo,
-                            np.sort(rng.uniform(lo + 3, hi - 3, targets)))
-                for _ in range(parks)]  # fmt: skip
-        med = {k: np.median([r[k] for r in line]) for k in ("E", "M", "B")}
+        line = [(olo, np.sort(rng.uniform(lo + 3, hi - 3, targets))) for _ in range(parks)]
+        med = _parked_e(rig, name, other, line)
         draws = [(float(rng.uniform(olo + 1, ohi - 1)),
                    np.sort(rng.uniform(lo + 3, hi - 3, targets))) for _ in range(parks)]
         pmed = _parked_e(rig, name, other, draws)
-        out[name] = {"line": float(med["E"]), "parks": float(pmed["E"])}
+        out[name] = {"line": med["E"], "parks": pmed["E"]}
         extra = ""
         if bow_step_mm > 0:
             out[name]["bow"] = axis_bow_um(rig, name, other, olo, bow_step_mm)

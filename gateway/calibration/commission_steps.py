@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from ..compensation import Chain
 from ..compensation.errors import TableError
 from ..config import GatewayConfig, load_config
 from ..config_types import read_yaml
@@ -206,12 +207,20 @@ class Steps:
             else:
                 drift = {a: [before[a][k] - base["refs"][a][k] for k in (0, 1)]
                          for a in self.s.axes}  # fmt: skip
-        commands = self._ref_commands()
+        cfg = load_config(self.s.config_path)
+        chain = build_chain(cfg, self.config_dir)
+        commands = self._ref_commands(cfg, chain)
         old_commands = self.state.get("ref_commands") or {}
+        # where the new commands put each axis at its references, by the loaded tables' own
+        # error model (an axis without tables: the commands' difference); a state saved
+        # before the commands were kept: the commands' difference
+        moved = {a: adaptive.reading_moved_mm(chain, a, old_commands[a]["commands_mm"],
+                                              now["commands_mm"])
+                 for a, now in commands.items()
+                 if "commands_mm" in (old_commands.get(a) or {})}  # fmt: skip
         new_base = adaptive.relinked_base(
             None if base is None or before is None else base["refs"], after, drift,
-            old_commands, commands, self.state.get("start_temperature_c"),
-            self._moved_mm(old_commands, commands))  # fmt: skip
+            old_commands, commands, self.state.get("start_temperature_c"), moved)  # fmt: skip
         self.state["ref_commands"] = commands
         self.state["drift_base"] = {"phase": phase, "refs": new_base}
         self.state["drift_last"] = drift
@@ -219,14 +228,13 @@ class Steps:
             self._log_drift(drift, before_odo)  # drift was read): a warm-up is its own stretch
         self._save()
 
-    def _ref_commands(self) -> dict[str, dict[str, Any]]:
-        """Per linear axis, what the gateway's config (as loaded) commands at its two drift
-        references (mm; approached in +, the other plane axis parked, no thermal growth),
-        and its thermal setting: the stage a switch cannot be computed across, unless it
-        is a temperature source (``sensor``: its correction is computed at the sensor's
-        reading, see :func:`.adaptive.relinked_base`)."""
-        cfg = load_config(self.s.config_path)
-        chain = build_chain(cfg, self.config_dir)
+    def _ref_commands(self, cfg: GatewayConfig, chain: Chain) -> dict[str, dict[str, Any]]:
+        """Per linear axis, what the gateway's config as loaded (``cfg``, its ``chain``)
+        commands at its two drift references (mm; approached in +, the other plane axis
+        parked, no thermal growth), every axis's command there, and its thermal setting:
+        the stage a switch cannot be computed across, unless it is a temperature source
+        (``sensor``: its correction is computed at the sensor's reading, see
+        :func:`.adaptive.relinked_base`)."""
         out: dict[str, dict[str, Any]] = {}
         for a in self.ref_axes():
             where = {o: [round(x / cfg.axes[o].pulse_mm)] for o, x in self._park(a).items()}
@@ -237,35 +245,11 @@ class Steps:
                 mm.append(float(cmd[a][0]))
                 every.append({o: float(c[0]) for o, c in cmd.items()})
             th = cfg.axes[a].compensation.thermal
-            # every axis's command there (the parked one's too): where a switch moves it
             out[a] = {"mm": mm, "thermal": repr(th), "commands_mm": every}
             src = None if th is None or th.source is None else cfg.thermal_sources[th.source]
             if src is not None and src.kind == "temperature" and th.profile is None:
                 out[a]["sensor"] = [th.origin_mm, th.length_mm, th.gain, src.alpha_per_k,
                                     src.reference_c]  # fmt: skip
-        return out
-
-    def _moved_mm(self, old: dict[str, dict[str, Any]], new: dict[str, dict[str, Any]]
-                  ) -> dict[str, list[float]]:  # fmt: skip
-        """How far the switch just made moves each axis at its references (mm), by the
-        loaded config's own error model (:func:`.adaptive.reading_moved_mm`): for the axes
-        whose tables it holds (pitch, cyclic, backlash or the plane's), both sides'
-        commands known. The others: the commands' difference (no tables on either side:
-        nothing moves)."""
-        cfg = load_config(self.s.config_path)
-        planar = cfg.planar.axes if cfg.planar is not None else ()
-        chain = None
-        out: dict[str, list[float]] = {}
-        for a, now in new.items():
-            was = old.get(a) or {}
-            comp = cfg.axes[a].compensation
-            tables = comp.enabled and (comp.pitch is not None or comp.cyclic is not None
-                                       or comp.backlash_mm > 0 or comp.linkage is not None)
-            if "commands_mm" not in was or not (tables or a in planar):
-                continue
-            chain = chain or build_chain(cfg, self.config_dir)
-            out[a] = adaptive.reading_moved_mm(chain, a, was["commands_mm"],
-                                               now["commands_mm"])  # fmt: skip
         return out
 
     def _digest(self, text: str) -> str:
