@@ -243,7 +243,8 @@ class RefineSteps(ThermalSteps):
             "round": r, "readings": int(rows.sum()), "knots": int(fit.knot_mm.size),
             "stations": int(fit.station_mm.size), "harmonics": int(fit.sin_mm.shape[1]),
             "residual_rms_um": fit.residual_rms_um, "level_ptp_um": fit.level_ptp_um,
-            "lambdas": list(fit.lambdas), "hold": fit.hold}  # fmt: skip
+            "lambdas": list(fit.lambdas), "hold": fit.hold,
+            "weighted_out": fit.weighted_out}  # fmt: skip
         self.state.setdefault("identify", {})[f"sweep-{axis}"] = record
         config, _ = self.staged(self._tables_phase)
         if not self._write_tables(axis, config, ref.table, ref.cyclic, f"swept in round {r}"):
@@ -254,5 +255,7 @@ class RefineSteps(ThermalSteps):
                  f"{float(np.diff(fit.knot_mm).mean()):.2f} mm"
                  + (f", {record['harmonics']} harmonics at {record['stations']} stations"
                     if record["harmonics"] else "")
-                 + f"; {fit.residual_rms_um:.2f} µm RMS left in the readings")  # fmt: skip
+                 + f"; {fit.residual_rms_um:.2f} µm RMS left in the readings"
+                 + (f", {fit.weighted_out} stops that fell short left out"
+                    if fit.weighted_out else ""))  # fmt: skip
         return int(ref.table.position_mm.size - table.position_mm.size)
