@@ -256,6 +256,6 @@ class RefineSteps(ThermalSteps):
                  + (f", {record['harmonics']} harmonics at {record['stations']} stations"
                     if record["harmonics"] else "")
                  + f"; {fit.residual_rms_um:.2f} µm RMS left in the readings"
-                 + (f", {fit.weighted_out} stops that fell short left out"
+                 + (f", {fit.weighted_out} readings left out (stops that fell short)"
                     if fit.weighted_out else ""))  # fmt: skip
         return int(ref.table.position_mm.size - table.position_mm.size)

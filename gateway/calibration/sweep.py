@@ -144,7 +144,7 @@ def _hats(x: NDArray[np.float64], knots: NDArray[np.float64]) -> NDArray[np.floa
     return out
 
 
-def _studentised(cols: NDArray[np.float64], a: NDArray[np.float64],
+def _residual_spread(cols: NDArray[np.float64], a: NDArray[np.float64],
                  w: NDArray[np.float64] | None) -> NDArray[np.float64]:  # fmt: skip
     """Each reading's residual scale (in units of the scatter), so that the biweight
     judges every reading by how far it lies from what the others say, at that distance's
@@ -302,14 +302,14 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
     w = None
     if robust:
         # stick-slip stops short, now and then, by up to a few µm: a heavy one-sided tail
-        # that least squares follows. Tukey's biweight on the studentised residual (scale
-        # from its median absolute deviation) takes those stops out. The weights are found
-        # with the least-squares smoothing, then the smoothing is chosen again with them
-        # (the harmonics stay those least squares chose)
+        # that least squares follows. Tukey's biweight on each residual over its own spread
+        # (the scale from their median absolute deviation) takes those stops out. The
+        # weights are found with the least-squares smoothing, then the smoothing is chosen
+        # again with them (the harmonics stay those least squares chose)
         beta, a = best[1], best[3]
         cols = design[:, : beta.size]
         for _ in range(ROBUST_ITERATIONS):
-            e = (y - cols @ beta) / _studentised(cols, a, w)
+            e = (y - cols @ beta) / _residual_spread(cols, a, w)
             for way in (s < 0, s > 0):  # centred per direction: the tail is one-sided
                 e[way] -= np.median(e[way])
             w = _biweight(e)
