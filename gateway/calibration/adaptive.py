@@ -368,15 +368,12 @@ def reading_moved_mm(model: Chain, axis: str, old: Sequence[Mapping[str, float]]
     different (smooth-6 Y's far reference, where the readings moved 1.7 µm more than the
     commands; the drift after it was that much too large, and every table measured
     later tilted by it)."""
-    out = []
-    for before, after in zip(old, new):
-        reach = []
-        for commands in (before, after):
-            pulses = {a: [c / model.axes[a].pulse_mm] for a, c in commands.items()}
-            nominal = model.nominal_pulses_batch(pulses, {a: [1] for a in commands})
-            reach.append(float(nominal[axis][0]) * model.axes[axis].pulse_mm)
-        out.append(reach[1] - reach[0])
-    return out
+
+    def reached_mm(commands: Sequence[Mapping[str, float]]) -> NDArray[np.float64]:
+        pulses = {a: [c[a] / model.axes[a].pulse_mm for c in commands] for a in commands[0]}
+        return model.nominal_pulses_batch(pulses)[axis] * model.axes[axis].pulse_mm
+
+    return [float(d) for d in reached_mm(new) - reached_mm(old)]
 
 
 def thermal_mm(commands: dict, temperature_c: float | None) -> list[float] | None:
