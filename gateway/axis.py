@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from .compensation import MotionState
+from .compensation import AxisChain, MotionState
 from .modbus.frames import WordOrder, unpack_int32
 
 
@@ -38,6 +38,7 @@ class AxisState:
             "last_nominal_pulses": self.last_nominal_pulses,
             "last_command_units": self.last_command_units,
             "direction": self.motion.direction,
+            "engagement": self.motion.engagement,
             "last_target_pulses": self.motion.last_target_pulses,
             "shadow": list(self.shadow),
             "applied": self.applied,
@@ -52,7 +53,9 @@ class AxisState:
         last = saved["last_target_pulses"]
         if saved["direction"] not in (1, -1):
             raise ValueError(f"direction {saved['direction']!r} is not 1 or -1")
-        motion = MotionState(int(saved["direction"]), None if last is None else int(last))
+        engagement = float(saved.get("engagement", saved["direction"]))  # older: on a flank
+        motion = MotionState(int(saved["direction"]), None if last is None else int(last),
+                             engagement)  # fmt: skip
         shadow = [int(w) & 0xFFFF for w in saved["shadow"]]
         if len(shadow) != 2:
             raise ValueError(f"shadow {saved['shadow']!r} is not two words")
@@ -77,9 +80,12 @@ class AxisState:
         """The nominal target (pulses) the shadow holds now."""
         return unpack_int32(self.shadow, order)
 
-    def committed(self, nominal_pulses: int, command_units: int) -> None:
-        """A corrected target (``command_units``, the drive's units) reached the drive."""
-        self.motion = self.motion.approach(nominal_pulses)
+    def committed(self, nominal_pulses: int, command_units: int,
+                  chain: AxisChain | None = None) -> None:  # fmt: skip
+        """A corrected target (``command_units``, the drive's units) reached the drive;
+        ``chain`` (the axis's) says how its nut crosses the play on a reversal."""
+        self.motion = (self.motion.approach(nominal_pulses) if chain is None
+                       else chain.approach(self.motion, nominal_pulses))
         self.last_nominal_pulses = nominal_pulses
         self.last_command_units = command_units
         self.shadow_known = True

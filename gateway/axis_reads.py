@@ -162,7 +162,7 @@ class AxisReads:
         state = self._axes[name].state
         if not state.applied:
             return command_pulses
-        inputs = {name: AxisInput(command_pulses, state.motion.direction,
+        inputs = {name: AxisInput(command_pulses, state.motion.engagement,
                                   self._delta_a(name, command_pulses))}
         partner = setup.planar_partner(name)
         if partner is not None:
@@ -170,7 +170,7 @@ class AxisReads:
             if other.last_command_units is not None and other.applied:
                 scale = setup.config.axes[partner].command_scale
                 inputs[partner] = AxisInput(
-                    other.last_command_units / scale, other.motion.direction,
+                    other.last_command_units / scale, other.motion.engagement,
                     self._delta_a(partner, other.last_command_units / scale),
                 )  # fmt: skip
         try:

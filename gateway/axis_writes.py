@@ -211,7 +211,7 @@ class AxisWrites:
                 values[offset : offset + 2] = words
             await self._send_block(name, axis, address, values)
             runtime = self._axes[name]
-            runtime.state.committed(nominal, command)
+            runtime.state.committed(nominal, command, setup.chain.axes[name])
             runtime.state.applied = applied
             runtime.last_correction_mm = (command / axis.command_scale - nominal) * axis.pulse_mm
             self.counters.commits += 1
@@ -252,8 +252,8 @@ class AxisWrites:
         if not (state.enabled and homed):  # sent as written, but the screw heats all the same
             self._swept(name, nominal)
             return nominal * axis_cfg.command_scale, False
-        direction = state.motion.approach(nominal).direction
-        inputs = {name: AxisInput(nominal, direction, self._delta_a(name, nominal))}
+        engagement = chain_axis.approach(state.motion, nominal).engagement
+        inputs = {name: AxisInput(nominal, engagement, self._delta_a(name, nominal))}
         partner = setup.planar_partner(name)
         if partner is not None:
             other = self._axes[partner].state
@@ -262,7 +262,7 @@ class AxisWrites:
                 other_nominal = other.nominal_target(order)
                 inputs[partner] = AxisInput(
                     other_nominal,
-                    other.motion.approach(other_nominal).direction,
+                    setup.chain.axes[partner].approach(other.motion, other_nominal).engagement,
                     self._delta_a(partner, other_nominal),
                 )
         try:

@@ -345,11 +345,22 @@ class AxisThermal(Model):
         return self
 
 
+class TakeUp(Model):
+    """How a reversal takes up the lost motion (gateway/compensation/takeup.py): the fraction
+    of it shown after the table reversed by each of ``reversal_um`` from the other flank,
+    nondecreasing and ending at 1. Fitted by ``compgw commission``; without it the whole
+    lost motion is switched at a reversal (a dead band)."""
+
+    reversal_um: list[float] = Field(min_length=2, max_length=64)
+    fraction: list[float] = Field(min_length=2, max_length=64)
+
+
 class Compensation(Model):
     pitch: str | PitchFile | None = None
     backlash_mm: float = Field(default=0.0, ge=0.0, le=1.0)
     backlash_table_direction: Literal["mean", "forward", "reverse"] = "mean"
     allow_backlash_with_bidirectional: bool = False
+    takeup: TakeUp | None = None
     thermal: AxisThermal | None = None
     cyclic: str | None = None  # the cyclic-error file (lead, harmonics at stations)
     #: a swing axis's linkage file (rocking-block geometry, the control's scale): the

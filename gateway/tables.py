@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from .compensation import (
     AxisChain,
     BacklashStage,
@@ -19,6 +21,7 @@ from .compensation import (
     PitchStage,
     PitchTable,
     PlanarStage,
+    TakeUpCurve,
     ThermalStage,
 )
 from .config import Axis, ConfigError, GatewayConfig
@@ -63,6 +66,10 @@ def build_axis(name: str, axis: Axis, base_dir: Path) -> AxisChain:
     if comp.cyclic is not None:
         period = TURN_DEG if axis.wraps else None
         cyclic = CyclicStage(read_cyclic(base_dir / comp.cyclic), axis.travel_mm, period)
+    takeup = None
+    if comp.takeup is not None:
+        takeup = TakeUpCurve(np.asarray(comp.takeup.reversal_um) / 1000.0, comp.takeup.fraction,
+                             f"axes.{name}.compensation.takeup")  # fmt: skip
     linkage = None
     if comp.linkage is not None:
         linkage = LinkageStage(read_linkage(base_dir / comp.linkage), axis.travel_mm)
@@ -78,6 +85,7 @@ def build_axis(name: str, axis: Axis, base_dir: Path) -> AxisChain:
         max_correction_mm=comp.max_correction_mm,
         allow_backlash_with_bidirectional=comp.allow_backlash_with_bidirectional,
         linkage=linkage,
+        takeup=takeup,
     )
 
 

@@ -66,6 +66,7 @@ from .outputs import (
 )
 from .plane_frame import FITTED_FILE, FRAME_FILE, fitted_frame, reframe_plane, save_frame
 from .plans import (
+    BacklashResult,
     Plan,
     backlash_from_raw,
     backlash_plan,
@@ -78,6 +79,7 @@ from .plans_xy import xy_grid_plan, xy_verification_plan
 from .rawdata import axis_deviations, read_raw_csv
 from .runner import read_raw_meta
 from .session import planar_figures
+from .takeup_fit import MIN_LOST_UM, RUNGS_MM, fit_takeup_raw, takeup_plan
 
 #: a verification's runs per target are doubled, up to this, before an axis is settled
 MAX_VERIFY_RUNS = 8
@@ -98,6 +100,7 @@ class Commission(RefineSteps):
             if self._thermal(a):
                 out.append((f"warmup-{a}", self._warmup_plan(a)))
             out.append((f"backlash-{a}", backlash_plan(a, travel)))
+            out.append((f"takeup-{a}", self._takeup_plan(a)))  # if the lost motion is not small
             out.append((f"iso-{a}", self._iso_plan(a)))
             if a in self.s.lead_mm:
                 out.append((f"cyclic-{a}", cyclic_plan(a, travel, self.s.lead_mm[a])))
@@ -264,12 +267,43 @@ class Commission(RefineSteps):
         b = backlash_from_raw(self.raw(f"backlash-{a}"), a)
         results[f"backlash-{a}"] = {"B_um": float(b.backlash_mm * 1e3),
                                     "places_um": [float(m * 1e3) for m in b.mean_mm]}
+        await self._identify_takeup(a, b)
         await self._find_lead(a)
         await self.step(f"iso-{a}", lambda: self._iso_plan(a), "off", self._park(a))
         if a in self.s.lead_mm:
             await self.step(f"cyclic-{a}", lambda: cyclic_plan(a, travel, self.s.lead_mm[a]),
                             "off", self._park(a))  # fmt: skip
         await self.step(f"before-{a}", lambda: self._before_plan(a), "off", self._park(a))
+
+    def _takeup_plan(self, axis: str) -> Plan:
+        """The reversal ladder at seed 000's three backlash places."""
+        places = backlash_plan(axis, self._travel(axis)).targets_mm(axis)
+        return takeup_plan(axis, np.unique(places), self._travel(axis))
+
+    async def _identify_takeup(self, a: str, b: BacklashResult) -> None:
+        """Whether the lost motion is taken up at once on a reversal, and if not, how."""
+        if float(b.mean_mm.max()) * 1e3 < MIN_LOST_UM:
+            return
+        await self.step(f"takeup-{a}", lambda: self._takeup_plan(a), "off", self._park(a))
+        # one reading's scatter: the backlash repeats' lost motion is two readings apart
+        noise_mm = float(np.sqrt(np.mean(b.std_mm**2) / 2.0))
+        fit = fit_takeup_raw(self.raw(f"takeup-{a}"), a, RUNGS_MM,
+                             dict(zip(map(float, b.place_mm), map(float, b.mean_mm))),
+                             noise_mm)  # fmt: skip
+        self.state.setdefault("identify", {})[f"takeup-{a}"] = {
+            "kept": fit.curve is not None, "why": fit.why, "miss_um": fit.miss_um,
+            "lost_um": fit.lost_um, "motor_um": [float(v * 1e3) for v in fit.motor_mm],
+            "table_um": [float(v * 1e3) for v in fit.table_mm],
+            "fraction": [float(v) for v in fit.fraction]}  # fmt: skip
+        section = fit.config()
+        if section is None:
+            self.tables.takeup.pop(a, None)
+            return
+        self.tables.takeup[a] = section
+        last = section["reversal_um"][-1]
+        self.say(f"{a}: the lost motion ({fit.lost_um:.1f} µm) is taken up over a reversal of "
+                 f"about {last:.0f} µm, not at once ({fit.why}): a take-up curve of "
+                 f"{len(section['fraction'])} points")  # fmt: skip
 
     def _before_plan(self, axis: str) -> Plan:
         """The targets judged before and after: random, off the coarse table's points."""

@@ -38,6 +38,8 @@ class Tables:
     #: temperature axes measured without their sensor until the after-run: heat from motion
     #: spread where it travelled replaces it, and their drift follows that shape
     sensor_off: list[str] = field(default_factory=list)
+    #: axes whose lost motion is taken up over a reversal: their compensation.takeup
+    takeup: dict[str, dict[str, list[float]]] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         return {"pitch": self.pitch, "cyclic": self.cyclic,
@@ -46,7 +48,8 @@ class Tables:
                 "planar_model": self.planar_model,
                 "planar_axes": list(self.planar_axes) if self.planar_axes else None,
                 "thermal_profile": self.thermal_profile,
-                "thermal_motion": self.thermal_motion, "sensor_off": self.sensor_off}  # fmt: skip
+                "thermal_motion": self.thermal_motion, "sensor_off": self.sensor_off,
+                "takeup": self.takeup}  # fmt: skip
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> Tables:
@@ -58,7 +61,8 @@ class Tables:
                    tuple(axes) if axes else None,  # type: ignore[arg-type]
                    dict(data.get("thermal_profile", {})),
                    dict(data.get("thermal_motion", {})),
-                   list(data.get("sensor_off", [])))  # fmt: skip
+                   list(data.get("sensor_off", [])),
+                   dict(data.get("takeup", {})))  # fmt: skip
 
 
 def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
@@ -72,7 +76,7 @@ def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tabl
     for name in axes:
         comp = data["axes"][name].setdefault("compensation", {}) or {}
         for key in ("pitch", "backlash_mm", "cyclic", "backlash_table_direction",
-                    "allow_backlash_with_bidirectional"):  # fmt: skip
+                    "allow_backlash_with_bidirectional", "takeup"):  # fmt: skip
             comp.pop(key, None)
         comp["enabled"] = True
         if name in tables.thermal_length_mm and comp.get("thermal"):
@@ -105,6 +109,8 @@ def with_tables(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
             comp["thermal"] = copy.deepcopy(tables.thermal_motion[name])
         if name in tables.pitch:
             comp["pitch"] = {"file": tables.pitch[name], "interpolation": "linear"}
+            if name in tables.takeup:  # the bidirectional table's lost motion, taken up
+                comp["takeup"] = copy.deepcopy(tables.takeup[name])
         if name in tables.cyclic:
             comp["cyclic"] = tables.cyclic[name]
     if planar and tables.planar_model is not None and tables.planar_axes is not None:

@@ -20,6 +20,7 @@ from .linkage import LinkageModel, LinkageStage
 from .monotone_map import MonotoneMap
 from .pitch import PitchStage, PitchTable
 from .planar import GridModel, PlanarMeasurement, PlanarStage, PolyModel
+from .takeup import TakeUpCurve
 from .thermal import (
     STEEL_ALPHA_PER_K,
     ThermalStage,
@@ -50,6 +51,7 @@ __all__ = [
     "PlanarStage",
     "PolyModel",
     "TableError",
+    "TakeUpCurve",
     "ThermalStage",
     "TravelError",
     "delta_a_from_temperature",

@@ -11,7 +11,8 @@ which approach the pitch table describes:
 - ``reverse``: +B moving +, 0 moving −.
 
 The direction state after homing comes from config (``home_direction``), because homing
-decides which flank of the nut is engaged.
+decides which flank of the nut is engaged. A direction between −1 and +1 is a nut part way
+across its play (:mod:`.takeup`): the offset is the same straight line in between.
 """
 
 from __future__ import annotations
@@ -46,11 +47,11 @@ class BacklashStage:
 
     def offset_mm(self, direction: ArrayLike) -> NDArray[np.float64]:
         """Command offset (mm) for the given direction(s) of motion (+1 or −1)."""
-        d = np.where(np.asarray(direction) >= 0, 1.0, -1.0)
+        d = np.clip(np.asarray(direction, dtype=np.float64), -1.0, 1.0)
         return 0.5 * self.backlash_mm * (d - _REFERENCE[self.table_direction])
 
-    def offset_scalar(self, direction: int) -> float:
-        d = 1.0 if direction >= 0 else -1.0
+    def offset_scalar(self, direction: float) -> float:
+        d = max(-1.0, min(1.0, float(direction)))
         return 0.5 * self.backlash_mm * (d - _REFERENCE[self.table_direction])
 
     def forward(self, target_mm: ArrayLike, direction: ArrayLike) -> NDArray[np.float64]:
@@ -59,10 +60,10 @@ class BacklashStage:
     def inverse(self, command_mm: ArrayLike, direction: ArrayLike) -> NDArray[np.float64]:
         return np.asarray(command_mm, dtype=np.float64) - self.offset_mm(direction)
 
-    def forward_scalar(self, target_mm: float, direction: int) -> float:
+    def forward_scalar(self, target_mm: float, direction: float) -> float:
         return target_mm + self.offset_scalar(direction)
 
-    def inverse_scalar(self, command_mm: float, direction: int) -> float:
+    def inverse_scalar(self, command_mm: float, direction: float) -> float:
         return command_mm - self.offset_scalar(direction)
 
     def max_abs_correction_mm(self) -> float:

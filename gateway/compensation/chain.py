@@ -23,10 +23,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from .backlash import BacklashStage
 from .cyclic import CyclicStage
+from .direction import MotionState
 from .errors import CompensationError, CorrectionLimitError, TableError, TravelError
 from .linkage import LinkageStage
 from .pitch import PitchStage
 from .planar import PlanarStage
+from .takeup import TakeUpCurve
 from .thermal import ThermalStage
 
 #: The planar command iteration stops when the actual position is within this many pulses.
@@ -37,10 +39,11 @@ ITERATION_TOLERANCE_PULSES = 0.01
 TRAVEL_SLACK_MM = 1e-6
 
 class AxisInput(NamedTuple):
-    """One axis's position (pulses), direction of motion (+1/−1) and screw growth Δa (mm)."""
+    """One axis's position (pulses), direction of motion (+1/−1; between: the nut's
+    engagement part way across its play, :mod:`.takeup`) and screw growth Δa (mm)."""
 
     pulses: float
-    direction: int = 1
+    direction: float = 1
     delta_a_mm: float = 0.0
 
 
@@ -73,6 +76,8 @@ class AxisChain:
     max_correction_mm: float = math.inf
     allow_backlash_with_bidirectional: bool = False
     linkage: LinkageStage | None = None
+    #: how a reversal takes the lost motion up (None: at once, the classic switch)
+    takeup: TakeUpCurve | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.pulse_mm) and self.pulse_mm > 0):
@@ -88,6 +93,12 @@ class AxisChain:
                 f"axes.{self.name}.compensation: a bidirectional pitch table already contains "
                 f"backlash; backlash_mm must be 0 (or set allow_backlash_with_bidirectional)"
             )
+        lost = (self.backlash is not None and self.backlash.backlash_mm > 0) or (
+            self.pitch is not None and self.pitch.bidirectional)
+        if self.takeup is not None and not lost:
+            raise CompensationError(
+                f"axes.{self.name}.compensation.takeup: there is no lost motion to take up "
+                "(no backlash_mm and no bidirectional pitch table)")
         if self.linkage is not None and not self.rotary:
             raise CompensationError(f"axes.{self.name}: a linkage needs a rotary (swing) axis")
         if self.rotary and self.thermal is not None:
@@ -97,6 +108,10 @@ class AxisChain:
                 f"axes.{self.name}: pitch table {self.pitch.table.source} is "
                 f"{'rotary' if self.pitch.table.rotary else 'linear'} but the axis is not"
             )
+
+    def approach(self, motion: MotionState, target_pulses: int) -> MotionState:
+        """The axis's motion state after a move to ``target_pulses`` (nominal)."""
+        return motion.approach(target_pulses, self.takeup, self.pulse_mm)
 
     # -- vectorised ---------------------------------------------------------------------
     def command_mm(
@@ -134,7 +149,7 @@ class AxisChain:
         return x
 
     # -- scalar twins -------------------------------------------------------------------
-    def command_mm_scalar(self, target_mm: float, direction: int, delta_a_mm: float) -> float:
+    def command_mm_scalar(self, target_mm: float, direction: float, delta_a_mm: float) -> float:
         x = target_mm
         if self.backlash is not None:
             x = self.backlash.forward_scalar(x, direction)
@@ -148,7 +163,7 @@ class AxisChain:
             x = self.thermal.forward_scalar(x, delta_a_mm)
         return x
 
-    def actual_mm_scalar(self, command_mm: float, direction: int, delta_a_mm: float) -> float:
+    def actual_mm_scalar(self, command_mm: float, direction: float, delta_a_mm: float) -> float:
         x = command_mm
         if self.thermal is not None:
             x = self.thermal.inverse_scalar(x, delta_a_mm)

@@ -206,30 +206,54 @@ class PitchStage:
 
     # -- stage interface ----------------------------------------------------------------
     def forward(self, target_mm: ArrayLike, direction: ArrayLike) -> NDArray[np.float64]:
-        """Command (mm) that makes the axis land on ``target_mm`` approaching in ``direction``."""
+        """Command (mm) that makes the axis land on ``target_mm`` approaching in ``direction``
+        (between −1 and +1: a nut part way across its play, the two tables blended)."""
         p = np.asarray(target_mm, dtype=np.float64)
         e_fwd = self.forward_map.error_at_actual(p)
         if not self.bidirectional:
             return p - e_fwd
         e_rev = self.reverse_map.error_at_actual(p)
-        return p - np.where(np.asarray(direction) >= 0, e_fwd, e_rev)
+        w = _forward_weight(direction)
+        c = p - (w * e_fwd + (1.0 - w) * e_rev)
+        part = (w > 0.0) & (w < 1.0)
+        if np.any(part):  # one step of c = p − E(c), E the blend at the command
+            c = np.where(part, p - self._blend_at_command(c, w), c)
+        return c
 
     def inverse(self, command_mm: ArrayLike, direction: ArrayLike) -> NDArray[np.float64]:
         """Where the axis is (mm) after commanding ``command_mm`` approaching in ``direction``."""
         c = np.asarray(command_mm, dtype=np.float64)
-        e_fwd = self.forward_map.error_at_command(c)
         if not self.bidirectional:
-            return c + e_fwd
+            return c + self.forward_map.error_at_command(c)
+        return c + self._blend_at_command(c, _forward_weight(direction))
+
+    def _blend_at_command(self, c: NDArray[np.float64], w: NDArray[np.float64]
+                          ) -> NDArray[np.float64]:  # fmt: skip
+        """Deviation (mm) at command ``c``, the forward table weighted ``w``."""
+        e_fwd = self.forward_map.error_at_command(c)
         e_rev = self.reverse_map.error_at_command(c)
-        return c + np.where(np.asarray(direction) >= 0, e_fwd, e_rev)
+        return w * e_fwd + (1.0 - w) * e_rev
 
-    def forward_scalar(self, target_mm: float, direction: int) -> float:
-        m = self.forward_map if direction >= 0 else self.reverse_map
-        return target_mm - m.error_at_actual_scalar(target_mm)
+    def forward_scalar(self, target_mm: float, direction: float) -> float:
+        if direction >= 1.0 or not self.bidirectional:
+            return target_mm - self.forward_map.error_at_actual_scalar(target_mm)
+        if direction <= -1.0:
+            return target_mm - self.reverse_map.error_at_actual_scalar(target_mm)
+        w = 0.5 * (1.0 + direction)
+        c = target_mm - (w * self.forward_map.error_at_actual_scalar(target_mm)
+                         + (1.0 - w) * self.reverse_map.error_at_actual_scalar(target_mm))
+        return target_mm - self._blend_scalar(c, w)
 
-    def inverse_scalar(self, command_mm: float, direction: int) -> float:
-        m = self.forward_map if direction >= 0 else self.reverse_map
-        return command_mm + m.error_at_command_scalar(command_mm)
+    def inverse_scalar(self, command_mm: float, direction: float) -> float:
+        if direction >= 1.0 or not self.bidirectional:
+            return command_mm + self.forward_map.error_at_command_scalar(command_mm)
+        if direction <= -1.0:
+            return command_mm + self.reverse_map.error_at_command_scalar(command_mm)
+        return command_mm + self._blend_scalar(command_mm, 0.5 * (1.0 + direction))
+
+    def _blend_scalar(self, c_mm: float, w: float) -> float:
+        return (w * self.forward_map.error_at_command_scalar(c_mm)
+                + (1.0 - w) * self.reverse_map.error_at_command_scalar(c_mm))
 
     def max_abs_correction_mm(self) -> float:
         """Largest |correction| anywhere (linear pieces: reached at a breakpoint)."""
@@ -254,6 +278,12 @@ class PitchStage:
                 f"{table.source}: {self.interpolation} interpolation overshoots to "
                 f"{worst:.6g} {table.unit}, above max_correction_mm {max_correction_mm:g}"
             )
+
+
+def _forward_weight(direction: ArrayLike) -> NDArray[np.float64]:
+    """Weight of the forward table for a direction (+1: 1, −1: 0; between: a nut part way
+    across its play, :mod:`.takeup`)."""
+    return np.clip(0.5 * (1.0 + np.asarray(direction, dtype=np.float64)), 0.0, 1.0)
 
 
 def _close_period(

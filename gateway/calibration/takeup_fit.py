@@ -1,0 +1,149 @@
+"""How a reversal takes up the lost motion: the plan that measures it and its fit.
+
+Seed 000's backlash readings give the whole lost motion L at three places: each − reading
+comes back from 5 mm further on. A nut that engages softly shows only part of L after a
+short reversal, and the gateway's full switch then overshoots by the rest. At the same
+places this plan reverses by a ladder of motor distances m (5 µm to 1.3 mm): from P
+approached in +, on to P + m, back to P. The lost motion shown, ℓ(m), is the − reading
+less the + one at the same place (pitch and cyclic errors cancel); the table reversed by
+r = m − ℓ(m). The curve the gateway uses (:class:`~gateway.compensation.TakeUpCurve`) is
+ℓ/L against r, made nondecreasing.
+
+Pure: plans and arrays in, a fit out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import isotonic_regression
+
+from ..compensation import TakeUpCurve
+from ..compensation.errors import TableError
+from .plans import Move, Plan, _meta, _round
+from .rawdata import RawData, axis_deviations
+
+#: the motor reversals tried (mm): from a few pulses to past any soft engagement we met
+RUNGS_MM = (0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.32, 0.64, 1.28)
+#: below this lost motion (µm) no reversal can miss by much: the ladder is not run
+MIN_LOST_UM = 2.0
+#: a full switch that misses by less than this (µm) at every rung keeps the switch
+MIN_MISS_UM = 1.0
+
+
+def takeup_plan(axis: str, places_mm: Sequence[float], travel_mm: Sequence[float],
+                rungs_mm: Sequence[float] = RUNGS_MM, approach_mm: float = 5.0,
+                speed_mm_s: float | None = None) -> Plan:  # fmt: skip
+    """At each of ``places_mm`` P, per rung m (run number = rung): from P − ``approach_mm``
+    to P in + (the play taken up), measure; on to P + m; back to P in −, measure."""
+    lo, hi = float(travel_mm[0]), float(travel_mm[1])
+    moves: list[Move] = []
+    for p in places_mm:
+        below = float(_round(max(lo, p - approach_mm)))
+        for k, m in enumerate(rungs_mm, start=1):
+            above = float(_round(p + m))
+            if above > hi:
+                raise ValueError(f"take-up place {p:g} mm + {m:g} mm leaves the travel")
+            moves += [Move(k, 0, "takeup", (below,), speed_mm_s),
+                      Move(k, +1, "measure", (float(p),), speed_mm_s),
+                      Move(k, +1, "away", (above,), speed_mm_s),
+                      Move(k, -1, "measure", (float(p),), speed_mm_s)]  # fmt: skip
+    meta = _meta(kind="takeup", axis=axis, travel_mm=(lo, hi),
+                 rungs_mm=tuple(float(m) for m in rungs_mm), approach_mm=approach_mm)
+    return Plan("takeup", (axis,), tuple(moves), meta)
+
+
+@dataclass(frozen=True, eq=False)
+class TakeUpFit:
+    """Per rung: motor reversal, table reversal (mean over places), fraction of the full
+    lost motion shown (mean) and its spread over places; the full lost motion (µm, mean of
+    the places); the curve (None: the full switch is right within ``MIN_MISS_UM``), the
+    largest miss of a full switch (µm) and why the curve was or was not kept."""
+
+    motor_mm: NDArray[np.float64]
+    table_mm: NDArray[np.float64]
+    fraction: NDArray[np.float64]
+    spread: NDArray[np.float64]
+    lost_um: float
+    curve: TakeUpCurve | None
+    miss_um: float
+    why: str
+
+    def config(self) -> dict[str, list[float]] | None:
+        """The ``compensation.takeup`` section (µm, 4 decimals), or None."""
+        if self.curve is None:
+            return None
+        return {"reversal_um": [round(float(r) * 1e3, 2) for r in self.curve.reversal_mm],
+                "fraction": [round(float(f), 4) for f in self.curve.fraction]}
+
+
+def fit_takeup(motor_mm: ArrayLike, lost_mm: ArrayLike, full_mm: ArrayLike,
+               noise_mm: float, approach_mm: float = 5.0) -> TakeUpFit:  # fmt: skip
+    """The take-up curve from ``lost_mm`` [place, rung] (− less + reading after a reversal
+    of ``motor_mm`` [rung]), the whole lost motion ``full_mm`` [place] and one reading's
+    scatter ``noise_mm``. Rungs whose table did not move (still in a dead band: r below
+    two scatters) say only that the fraction there is at least what they show; the rest
+    are the curve. The last point is 1: the rung that shows it, else the backlash
+    readings' ``approach_mm``."""
+    m = np.asarray(motor_mm, dtype=np.float64)
+    lost = np.atleast_2d(np.asarray(lost_mm, dtype=np.float64))
+    full = np.asarray(full_mm, dtype=np.float64).reshape(-1)
+    usable = full > max(2.0 * noise_mm, 1e-9)
+    if not usable.any():
+        return _kept(m, lost, full, "no place with a lost motion above the scatter")
+    frac = lost[usable] / full[usable, None]
+    f = np.nanmean(frac, axis=0)
+    spread = np.nanstd(frac, axis=0, ddof=1) if frac.shape[0] > 1 else np.zeros_like(f)
+    big = float(full[usable].mean())
+    r = m - np.nanmean(lost[usable], axis=0)
+    moved = r > max(2.0 * noise_mm, 1e-4)
+    if not moved.any():
+        return TakeUpFit(m, r, f, spread, big * 1e3, None, 0.0,
+                         "no rung moved the table (a dead band: the full switch is right)")
+    rr, ff = r[moved], np.clip(isotonic_regression(f[moved]).x, 0.0, 1.0)
+    keep = np.concatenate([[True], np.diff(rr) > 0])  # a table reversal once
+    rr, ff = rr[keep], ff[keep]
+    miss = float(((1.0 - ff) * big).max()) * 1e3
+    # what the rungs' own scatter allows: the fraction's spread, or one reading's twice
+    slack_um = max(MIN_MISS_UM, 2e3 * max(float(spread[moved].max()) * big, noise_mm))
+    if miss <= slack_um:
+        return TakeUpFit(m, r, f, spread, big * 1e3, None, miss,
+                         f"a full switch misses by at most {miss:.2f} µm "
+                         f"(within {slack_um:.2f} µm)")  # fmt: skip
+    if ff[-1] >= 1.0 - 2.0 * max(noise_mm / big, float(spread[moved].max())):
+        ff[-1] = 1.0
+    else:
+        rr, ff = np.append(rr, max(approach_mm - big, rr[-1] * 2)), np.append(ff, 1.0)
+    curve = TakeUpCurve(rr, np.minimum(ff, 1.0))
+    return TakeUpFit(m, r, f, spread, big * 1e3, curve, miss,
+                     f"a full switch misses by up to {miss:.1f} µm")
+
+
+def _kept(m: NDArray[np.float64], lost: NDArray[np.float64], full: NDArray[np.float64],
+          why: str) -> TakeUpFit:  # fmt: skip
+    nan = np.full(m.shape, np.nan)
+    return TakeUpFit(m, m - np.nanmean(lost, axis=0), nan, nan,
+                     float(np.mean(full)) * 1e3, None, 0.0, why)
+
+
+def fit_takeup_raw(raw: RawData, axis: str, rungs_mm: Sequence[float],
+                   full_at: dict[float, float], noise_mm: float) -> TakeUpFit:  # fmt: skip
+    """:func:`fit_takeup` from a :func:`takeup_plan`'s raw data; ``full_at`` the whole
+    lost motion (mm) at each place (seed 000's backlash readings)."""
+    dev = axis_deviations(raw, axis)
+    if dev.up_mm is None or dev.down_mm is None:
+        raise TableError(f"{dev.source}: axis {axis}: take-up needs readings in + and -")
+    lost = dev.down_mm - dev.up_mm  # [place, rung]
+    places = [float(p) for p in dev.target_mm]
+    full = []
+    for p in places:
+        near = min(full_at, key=lambda q: abs(q - p))
+        if abs(near - p) > 1e-3:
+            raise TableError(f"{dev.source}: take-up place {p:g} mm has no backlash reading")
+        full.append(full_at[near])
+    runs = [int(j) for j in dev.runs]
+    motor = np.array([rungs_mm[j - 1] for j in runs])
+    return fit_takeup(motor, lost, full, noise_mm)

@@ -1,0 +1,206 @@
+"""Lost motion taken up over a reversal (a soft nut): measured through the gateway with seed
+000's backlash places and the reversal ladder, fitted, and judged on short steps either way
+(5 µm-2 mm, as a drilling pattern moves), over real sockets against the sim; and the pure
+parts: the curve, the nut's state, the chain's blend, the config's errors.
+
+The sim's truth is its own (a quadratic engagement over the motor's reversal); the gateway
+only ever sees the laser's readings.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from gateway.app import GatewayApp
+from gateway.calibration.machine import Endpoint
+from gateway.calibration.plans import Move, Plan, backlash_from_raw, backlash_plan, snap_to_pulses
+from gateway.calibration.rawdata import read_raw_csv
+from gateway.calibration.session import Instruments, Session
+from gateway.calibration.takeup_fit import RUNGS_MM, fit_takeup, fit_takeup_raw, takeup_plan
+from gateway.compensation import (
+    AxisChain,
+    BacklashStage,
+    CompensationError,
+    MotionState,
+    PitchStage,
+    PitchTable,
+    TakeUpCurve,
+)
+from gateway.config import ConfigError, parse_config
+from gateway.tables import build_chain
+from sim.server import SimServer
+from tests.test_calibration_rig import example_config, without
+from tests.test_sim_support import config_from, example_dict
+
+LOST_UM, TAKEUP_UM = 40.0, 300.0  # the sim's soft nut: 40 µm taken up over 0.3 mm
+
+
+# ---------------------------------------------------------------------- pure parts
+
+
+def test_the_curve_and_the_nut_state_it_drives():
+    curve = TakeUpCurve([0.002, 0.05, 0.2], [0.1, 0.5, 1.0])
+    assert curve.shown(0.0) == 0.0 and curve.shown(0.001) == pytest.approx(0.1)
+    assert curve.shown(0.125) == pytest.approx(0.75) and curve.shown(5.0) == 1.0
+    assert curve.reached(0.5) == pytest.approx(0.05) and curve.reached(0.05) == 0.0
+    # from + fully engaged, 50 µm in −: half the play; 150 µm more: all of it
+    e = curve.advance(1.0, -1, 0.05)
+    assert e == pytest.approx(0.0)
+    assert curve.advance(e, -1, 0.15) == pytest.approx(-1.0)
+    # back in + from half way: it carries on from where the nut is (a hysteresis)
+    assert curve.advance(e, +1, 0.05) == pytest.approx(2 * curve.shown(0.1) - 1)
+    # moving on in the direction the nut already sits: nothing changes
+    assert curve.advance(1.0, +1, 0.3) == 1.0
+    state = MotionState(1, 1000)
+    after = state.approach(950, curve, 0.001)  # 50 µm back
+    assert after.direction == -1 and after.engagement == pytest.approx(0.0)
+    assert state.approach(950).engagement == -1.0  # no curve: the classic switch
+    assert after.approach(950, curve, 0.001).engagement == after.engagement
+
+
+@pytest.mark.parametrize("reversal, fraction, why", [
+    ([0.0], [1.0], "at least 2"),
+    ([0.0, 0.1], [0.5], "same number"),
+    ([0.1, 0.05], [0.5, 1.0], "strictly increasing"),
+    ([0.0, 0.1], [0.6, 0.5], "never decrease"),
+    ([0.0, 0.1], [0.2, 0.9], "end at 1"),
+    ([0.0, float("nan")], [0.2, 1.0], "a number"),
+])
+def test_a_bad_curve_is_refused_with_what_is_wrong(reversal, fraction, why):
+    with pytest.raises(CompensationError, match=why):
+        TakeUpCurve(reversal, fraction, "axes.X.compensation.takeup")
+
+
+def test_the_chain_blends_a_nut_part_way_and_inverts_it():
+    x = np.linspace(0.0, 100.0, 11)
+    fwd = 1e-3 * np.sin(x / 17.0)
+    table = PitchTable(x, fwd, fwd + 0.03 + 1e-4 * x)  # 30-40 µm of lost motion
+    curve = TakeUpCurve([0.01, 0.3], [0.2, 1.0])
+    chain = AxisChain("X", 0.001, pitch=PitchStage(table), takeup=curve)
+    for e in (-1.0, -0.4, 0.0, 0.7, 1.0):
+        for t in (3.3, 47.9, 91.05):
+            c = chain.command_mm_scalar(t, e, 0.0)
+            assert chain.actual_mm_scalar(c, e, 0.0) == pytest.approx(t, abs=1e-9)
+            assert float(chain.command_mm(t, e)) == pytest.approx(c, abs=1e-12)
+    # half way: the command sits half way between the two flanks' commands (to a few nm:
+    # the blend is of the deviations at one command, not of two commands)
+    t = 47.9
+    ends = [chain.command_mm_scalar(t, d, 0.0) for d in (1.0, -1.0)]
+    assert chain.command_mm_scalar(t, 0.0, 0.0) == pytest.approx(np.mean(ends), abs=1e-5)
+    # a constant backlash blends the same way
+    lash = AxisChain("X", 0.001, backlash=BacklashStage(0.02, "forward"), takeup=curve)
+    assert lash.command_mm_scalar(10.0, -0.5, 0.0) == pytest.approx(10.0 - 0.015)
+    with pytest.raises(CompensationError, match="no lost motion"):
+        AxisChain("X", 0.001, takeup=curve)
+
+
+def test_fit_keeps_the_switch_for_a_dead_band_and_a_curve_for_a_soft_nut():
+    rng = np.random.default_rng(5)
+    m = np.array(RUNGS_MM)
+    dead = np.minimum(m, 0.010)[None, :] + rng.normal(0, 3e-4, (3, m.size))
+    assert fit_takeup(m, dead, np.full(3, 0.010), 3e-4).curve is None
+    q = np.clip(m / 0.2, 0.0, 1.0)  # 25 µm over 0.2 mm of motor, in the test's own terms
+    soft = 0.025 * (3 * q**2 - 2 * q**3)[None, :] + rng.normal(0, 3e-4, (3, m.size))
+    fit = fit_takeup(m, soft, np.full(3, 0.025), 3e-4)
+    assert fit.curve is not None and fit.miss_um > 20.0
+    section = fit.config()
+    assert section is not None and section["fraction"][-1] == 1.0
+    assert all(np.diff(section["fraction"]) >= 0) and all(np.diff(section["reversal_um"]) > 0)
+
+
+def test_a_bad_takeup_section_names_the_axis(tmp_path: Path):
+    data = without(example_config(5021), "pitch", "thermal", "planar")
+    data.pop("thermal_sources", None)
+    data["axes"]["X"]["compensation"] = {
+        "backlash_mm": 0.01, "takeup": {"reversal_um": [0, 20], "fraction": [0.5, 0.9]}}
+    config = parse_config(data, "gw.yaml")
+    with pytest.raises(ConfigError, match=r"axes\.X\.compensation\.takeup.*end at 1"):
+        build_chain(config, tmp_path)
+
+
+# ---------------------------------------------------------------------- through the sim
+
+
+def soft_nut_sim() -> dict:
+    data = example_dict()
+    sim = data["sim"]
+    for axis in sim["axes"].values():
+        axis["pulse_mm"] = 0.0001  # the drive's unit under config/example.yaml's ×10
+    sim["machine"]["X"] = {"repeatability_um": 0.2, "lost_motion": {
+        "um": LOST_UM, "takeup": {"curve": "smooth", "distance_um": TAKEUP_UM}}}
+    sim["machine"]["Y"] = {"repeatability_um": 0.0}
+    sim["plane"] = {"axes": ["X", "Y"]}
+    for name in ("delta_a", "temperature"):
+        sim["instruments"].pop(name)
+    return data
+
+
+def gateway_data(sim_port: int, compensation: dict) -> dict:
+    data = without(example_config(sim_port), "pitch", "thermal", "planar")
+    data.pop("thermal_sources", None)
+    data["axes"]["X"]["compensation"] = {"max_correction_mm": 0.2, **compensation}
+    data["axes"]["Y"]["compensation"] = {"max_correction_mm": 0.2}
+    return data
+
+
+def short_steps(seed: int = 3, count: int = 80) -> Plan:
+    """Steps of 5 µm-2 mm (log-uniform) either way from 400 mm, every stop measured; the
+    first approached in + from 5 mm below (a new gateway takes the nut as on the flank of
+    its home direction, +)."""
+    rng = np.random.default_rng(seed)
+    x, moves = 400.0, [Move(0, 0, "takeup", (395.0,)), Move(0, 1, "move", (400.0,))]
+    for k in range(count):
+        step = 10 ** rng.uniform(np.log10(0.005), np.log10(2.0)) * rng.choice([-1, 1])
+        x = round(x + step, 3)
+        moves.append(Move(k + 1, 1 if step > 0 else -1, "measure", (x,)))
+    return Plan("short-steps", ("X",), tuple(moves), (("kind", "short-steps"),))
+
+
+async def run(sim_port: int, work: Path, compensation: dict, plan: Plan, raw: Path) -> None:
+    config = parse_config(gateway_data(sim_port, compensation), str(work / "gw.yaml"))
+    async with GatewayApp(config, build_chain(config, work)) as app:
+        session = Session(config, work, Endpoint("127.0.0.1", app.tcp_port, 1),
+                          Instruments(laser=Endpoint("127.0.0.1", sim_port, 20),
+                                      laser_axes=["X", "Y"]))  # fmt: skip
+        await session.run(snap_to_pulses(plan, {"X": 0.001}), raw, "on" if compensation else "off")
+
+
+async def soft_nut(work: Path) -> dict[str, float]:
+    async with SimServer(config_from(soft_nut_sim()), tcp_port=0) as sim:
+        port = sim.tcp_port
+        travel = (0.0, 800.0)
+        await run(port, work, {}, backlash_plan("X", travel), work / "backlash.csv")
+        b = backlash_from_raw(read_raw_csv(work / "backlash.csv"), "X")
+        places = np.unique(backlash_plan("X", travel).targets_mm())
+        await run(port, work, {}, takeup_plan("X", places, travel), work / "takeup.csv")
+        noise = float(np.sqrt(np.mean(b.std_mm**2) / 2))
+        fit = fit_takeup_raw(read_raw_csv(work / "takeup.csv"), "X", RUNGS_MM,
+                             dict(zip(map(float, b.place_mm), map(float, b.mean_mm))), noise)
+        section = fit.config()
+        assert section is not None, fit.why
+        switch = {"backlash_mm": round(b.backlash_mm, 4), "backlash_table_direction": "forward"}
+        out = {"lost_um": b.backlash_mm * 1e3, "miss_um": fit.miss_um}
+        for name, comp in (("switch", switch), ("curve", {**switch, "takeup": section})):
+            raw = work / f"steps-{name}.csv"
+            await run(port, work, comp, short_steps(), raw)
+            dev_um = read_raw_csv(raw).deviation_mm * 1e3
+            out[f"{name}_rms_um"] = float(np.sqrt(np.mean(dev_um**2)))
+            out[f"{name}_max_um"] = float(np.abs(dev_um).max())
+        (work / "takeup.yaml").write_text(yaml.safe_dump(copy.deepcopy(section)))
+        return out
+
+
+def test_a_soft_nut_is_measured_fitted_and_corrected_on_short_steps(tmp_path: Path):
+    out = asyncio.run(asyncio.wait_for(soft_nut(tmp_path), 120))
+    print(out)
+    assert abs(out["lost_um"] - LOST_UM) < 2.0, out
+    assert out["miss_um"] > 0.5 * LOST_UM, out  # a full switch overshoots short reversals
+    assert out["switch_rms_um"] > 8.0, out
+    assert out["curve_rms_um"] < 0.25 * out["switch_rms_um"], out
+    assert out["curve_max_um"] < 5.0, out
