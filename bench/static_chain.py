@@ -159,7 +159,7 @@ def oracle_e_um(machine: Path, gw_path: Path, name: str, draws: Draws) -> float:
     backlash replaced by the quiet machine's own deviation along the pitch line."""
     bare = yaml.safe_load(gw_path.read_text())
     comp = bare["axes"][name].setdefault("compensation", {})
-    for key in ("pitch", "cyclic", "backlash"):
+    for key in ("pitch", "cyclic", "backlash", "takeup"):  # the reversals here are long
         comp.pop(key, None)
     # beside the config: its tables are named relative to its directory
     bare_path = gw_path.parent / f".oracle-{name}.yaml"

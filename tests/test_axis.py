@@ -55,3 +55,23 @@ def test_saved_state_round_trips_and_a_bad_entry_changes_nothing():
         with pytest.raises((KeyError, TypeError, ValueError)):
             fresh.restore({**saved, key: bad})
         assert fresh.saved() == before and not fresh.shadow_known
+
+
+def test_a_nut_part_way_across_its_play_is_saved_and_older_saves_load():
+    from gateway.compensation import AxisChain, BacklashStage, TakeUpCurve
+
+    chain = AxisChain("X", 0.001, backlash=BacklashStage(0.04),
+                      takeup=TakeUpCurve([0.01, 0.3], [0.1, 1.0]))  # fmt: skip
+    state = AxisState(MotionState(1))
+    state.committed(300_000, 3_000_000, chain)
+    state.committed(299_950, 2_999_500, chain)  # 50 µm back: part of the play taken up
+    assert state.motion.direction == -1 and 0.0 < state.motion.engagement < 1.0  # 22 %
+    saved = json.loads(json.dumps(state.saved()))
+    again = AxisState(MotionState(1))
+    again.restore(saved)
+    assert again.motion == state.motion
+    older = {k: v for k, v in saved.items() if k != "engagement"}  # saved before take-up
+    again.restore(older)
+    assert again.motion.engagement == -1.0
+    with pytest.raises(ValueError, match="engagement"):
+        AxisState(MotionState(1)).restore({**saved, "engagement": 1.5})

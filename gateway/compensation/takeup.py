@@ -22,6 +22,7 @@ hysteresis, not a switch).
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -69,7 +70,13 @@ class TakeUpCurve:
         """Fraction shown after a reversal of ``reversal_mm`` from the other flank."""
         if reversal_mm <= 0.0:
             return 0.0
-        return float(np.interp(reversal_mm, self._r, self._f))
+        r, f = self._r, self._f
+        if reversal_mm <= r[0]:
+            return f[0]
+        if reversal_mm >= r[-1]:
+            return 1.0
+        i = bisect.bisect_right(r, reversal_mm)
+        return f[i - 1] + (f[i] - f[i - 1]) * (reversal_mm - r[i - 1]) / (r[i] - r[i - 1])
 
     def reached(self, fraction: float) -> float:
         """The reversal (mm) from the other flank at which ``fraction`` is shown: the
@@ -80,7 +87,7 @@ class TakeUpCurve:
         if fraction >= 1.0:
             i = f.index(1.0)
             return r[i]
-        i = int(np.searchsorted(f, fraction, side="left"))
+        i = bisect.bisect_left(f, fraction)
         f0, f1 = f[i - 1], f[i]
         return r[i - 1] + (r[i] - r[i - 1]) * (fraction - f0) / (f1 - f0)
 
