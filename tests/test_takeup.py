@@ -10,7 +10,6 @@ only ever sees the laser's readings.
 from __future__ import annotations
 
 import asyncio
-import copy
 from pathlib import Path
 
 import numpy as np
@@ -18,11 +17,13 @@ import pytest
 import yaml
 
 from gateway.app import GatewayApp
+from gateway.calibration.commands import make_plan
 from gateway.calibration.machine import Endpoint
 from gateway.calibration.plans import Move, Plan, backlash_from_raw, backlash_plan, snap_to_pulses
 from gateway.calibration.rawdata import read_raw_csv
 from gateway.calibration.session import Instruments, Session
 from gateway.calibration.takeup_fit import RUNGS_MM, fit_takeup, fit_takeup_raw, takeup_plan
+from gateway.cli import build_parser
 from gateway.compensation import (
     AxisChain,
     BacklashStage,
@@ -35,7 +36,7 @@ from gateway.compensation import (
 from gateway.config import ConfigError, parse_config
 from gateway.tables import build_chain
 from sim.server import SimServer
-from tests.test_calibration_rig import example_config, without
+from tests.test_calibration_rig import compgw, example_config, without
 from tests.test_sim_support import config_from, example_dict
 
 LOST_UM, TAKEUP_UM = 40.0, 300.0  # the sim's soft nut: 40 µm taken up over 0.3 mm
@@ -179,9 +180,7 @@ async def soft_nut(work: Path) -> dict[str, float]:
         b = backlash_from_raw(read_raw_csv(work / "backlash.csv"), "X")
         places = np.unique(backlash_plan("X", travel).targets_mm())
         await run(port, work, {}, takeup_plan("X", places, travel), work / "takeup.csv")
-        noise = float(np.sqrt(np.mean(b.std_mm**2) / 2))
-        fit = fit_takeup_raw(read_raw_csv(work / "takeup.csv"), "X", RUNGS_MM,
-                             dict(zip(map(float, b.place_mm), map(float, b.mean_mm))), noise)
+        fit = fit_takeup_raw(read_raw_csv(work / "takeup.csv"), "X", b)
         section = fit.config()
         assert section is not None, fit.why
         switch = {"backlash_mm": round(b.backlash_mm, 4), "backlash_table_direction": "forward"}
@@ -192,7 +191,17 @@ async def soft_nut(work: Path) -> dict[str, float]:
             dev_um = read_raw_csv(raw).deviation_mm * 1e3
             out[f"{name}_rms_um"] = float(np.sqrt(np.mean(dev_um**2)))
             out[f"{name}_max_um"] = float(np.abs(dev_um).max())
-        (work / "takeup.yaml").write_text(yaml.safe_dump(copy.deepcopy(section)))
+        # the same two runs through `compgw fit`, as a technician calibrating by hand would
+        gw = work / "gw.yaml"
+        gw.write_text(yaml.safe_dump(gateway_data(port, {})))
+        rc, text, err = compgw("fit", work / "backlash.csv", work / "takeup.csv", "-c", gw)
+        assert rc == 0, err
+        assert f"set axes.X.compensation.takeup: {{reversal_um: {section['reversal_um']}" in text
+        rc, _, err = compgw("fit", work / "takeup.csv", "-c", gw)
+        assert rc != 0 and "together with the axis's --backlash run" in err
+        args = build_parser().parse_args(["calibrate", "-c", str(gw), "--takeup", "X"])
+        plan = make_plan(args, parse_config(gateway_data(port, {}), str(gw)))
+        assert plan.kind == "takeup" and len(plan.moves) == 4 * 3 * len(RUNGS_MM)
         return out
 
 

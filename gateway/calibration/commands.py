@@ -69,6 +69,7 @@ def _described_plan(args: argparse.Namespace, config: GatewayConfig, verificatio
     from .plans import backlash_plan, iso230_linear_plan, read_plan
     from .plans_scans import cyclic_plan, warmup_plan
     from .plans_xy import xy_grid_plan, xy_verification_plan
+    from .takeup_fit import takeup_plan
 
     def travel(axis: str) -> tuple[float, float]:
         if axis not in config.axes:
@@ -93,6 +94,14 @@ def _described_plan(args: argparse.Namespace, config: GatewayConfig, verificatio
             return backlash_plan(args.backlash, (lo, hi), takeup_mm=1.0, away_mm=1.0,
                                  margin_mm=1.0)  # fmt: skip
         return backlash_plan(args.backlash, (lo, hi))
+    if args.takeup:
+        if verification:
+            return None
+        lo, hi = travel(args.takeup)
+        if config.axes[args.takeup].rotary:
+            raise TableError(f"--takeup {args.takeup}: a linear axis only (in mm)")
+        places = sorted(set(backlash_plan(args.takeup, (lo, hi)).targets_mm().tolist()))
+        return takeup_plan(args.takeup, places, (lo, hi))
     if args.cyclic:
         if verification:
             return None
@@ -121,8 +130,8 @@ def _described_plan(args: argparse.Namespace, config: GatewayConfig, verificatio
         ref = args.reference_mm if args.reference_mm is not None else hi - args.overrun_mm
         return warmup_plan(args.warmup, (lo, hi), args.speed_mm_s, args.duration_s, ref,
                            args.measure_every, dwell_s=args.dwell_s)  # fmt: skip
-    raise TableError("give a plan: --plan FILE, --iso AXIS, --backlash AXIS, --cyclic AXIS, "
-                     "--xy or --warmup AXIS")
+    raise TableError("give a plan: --plan FILE, --iso AXIS, --backlash AXIS, --takeup AXIS, "
+                     "--cyclic AXIS, --xy or --warmup AXIS")
 
 
 def _inset(travel: tuple[float, float], margin: float) -> tuple[float, float]:
@@ -161,8 +170,8 @@ def calibrate(
 
             atomic_write_text(args.identify_config, identify_config_text(Path(args.config)))
             print(f"identification config written to {args.identify_config}")
-            if not (args.plan or args.iso or args.backlash or args.cyclic or args.xy
-                    or args.warmup):
+            if not (args.plan or args.iso or args.backlash or args.takeup or args.cyclic
+                    or args.xy or args.warmup):
                 return EXIT_OK
         plan = make_plan(args, config)
         if args.save_plan:
@@ -268,6 +277,9 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     g.add_argument("--plan", metavar="FILE", help="a plan CSV (see gateway/calibration/plans.py)")
     g.add_argument("--iso", metavar="AXIS", help="ISO 230-2 linear test of AXIS")
     g.add_argument("--backlash", metavar="AXIS", help="seed 000 backlash procedure on AXIS")
+    g.add_argument("--takeup", metavar="AXIS",
+                   help="the reversal ladder at seed 000's places: how much of the lost "
+                        "motion a short reversal shows (fit it with the --backlash run)")
     g.add_argument("--cyclic", metavar="AXIS",
                    help="dense scans of AXIS for the once-per-lead screw error (needs "
                         "--lead-mm; issue 7)")  # fmt: skip

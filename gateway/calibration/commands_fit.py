@@ -20,12 +20,13 @@ from .cli_common import EXIT_BAD_INPUT, EXIT_OK, err, load
 
 
 def raw_kind(path: str) -> str:
-    """pitch, backlash, cyclic, planar or thermal: from the raw file's meta, else its columns."""
+    """pitch, backlash, takeup, cyclic, planar or thermal: from the raw file's meta, else its
+    columns."""
     from .rawdata import read_raw_csv
     from .runner import read_raw_meta
 
     kind = read_raw_meta(path).get("kind", "")
-    if kind in ("backlash", "cyclic"):
+    if kind in ("backlash", "cyclic", "takeup"):
         return kind
     if kind.startswith("xy"):
         return "planar"
@@ -43,7 +44,8 @@ def fit(args: argparse.Namespace) -> int:
     """``compgw fit``: raw files → the tables and values the config references.
 
     Order (whatever the order of the files): backlash runs first (their B serves the
-    unidirectional tables), then cyclic runs, then the rest. An ISO table of an axis whose
+    unidirectional tables, their lost motion per place the take-up ladder's fractions), then
+    take-up and cyclic runs, then the rest. An ISO table of an axis whose
     cyclic run is in the same call is written net of the cyclic term at its targets (the
     joint fit: the coarse points do not count the cyclic error a second time).
     """
@@ -69,18 +71,22 @@ def fit(args: argparse.Namespace) -> int:
         config, config_dir = load(args.config)
         kinds = {path: raw_kind(path) for path in args.raw}
         backlash: dict[str, float] = {}
+        places: dict[str, Any] = {}  # axis → the seed 000 result (lost motion per place)
         for path, kind in kinds.items():
             if kind == "backlash":
                 raw = read_raw_csv(path)
                 for a in raw.axes:
                     res = backlash_from_raw(raw, a)
-                    backlash[a] = res.backlash_mm
+                    backlash[a], places[a] = res.backlash_mm, res
                     angular = a in config.axes and config.axes[a].rotary
                     key, scale = ("backlash_arcsec", 3600.0) if angular else ("backlash_um", 1e3)
                     report.setdefault(a, {})[key] = res.backlash_mm * scale
                     report[a]["backlash_places"] = {
                         f"{p:g}": m * scale for p, m in zip(res.place_mm, res.mean_mm)
                     }
+        for path, kind in kinds.items():
+            if kind == "takeup":
+                _fit_takeup(path, places, report)
         pending: list[Callable[[], None]] = []
         cyclic: dict[str, Any] = {}  # axis → the cyclic model written (for the joint fit)
         for path, kind in kinds.items():
@@ -308,12 +314,36 @@ def format_fit(report: dict[str, Any], dry_run: bool = False) -> str:
         if "backlash_arcsec" in entry:
             lines.append(f"{name}: backlash (seed 000) {entry['backlash_arcsec']:.2f} arcsec "
                          f"({entry['backlash_arcsec'] / 3600:.6f} deg)")
+        if "takeup" in entry:
+            t = entry["takeup"]
+            if t["config"] is None:
+                lines.append(f"{name}: take-up: keep the switch ({t['why']})")
+            else:
+                c = t["config"]
+                lines.append(f"{name}: take-up: {t['why']}; set axes.{name}.compensation.takeup: "
+                             f"{{reversal_um: {c['reversal_um']}, fraction: {c['fraction']}}}")
         if "thermal" in entry:
             t = entry["thermal"]
             lines.append(f"{name}: thermal length_mm {t['length_mm']:.1f} (set axes.{name}."
                          f"compensation.thermal.length_mm), growth {t['growth_max_um']:.1f} µm, "
                          f"residual RMS {t['residual_rms_um']:.2f} µm")  # fmt: skip
     return "\n".join(lines)
+
+
+def _fit_takeup(path: str, places: dict[str, Any], report: dict[str, Any]) -> None:
+    """The take-up curve of each axis of a ``--takeup`` run, against the lost motion its
+    ``--backlash`` run (in the same call) read at the same places."""
+    from .rawdata import read_raw_csv
+    from .takeup_fit import fit_takeup_raw
+
+    raw = read_raw_csv(path)
+    for a in raw.axes:
+        if a not in places:
+            raise TableError(f"{path}: axis {a}: fit the take-up ladder together with the "
+                             f"axis's --backlash run (its lost motion at the same places)")
+        fit = fit_takeup_raw(raw, a, places[a])
+        report.setdefault(a, {})["takeup"] = {"config": fit.config(), "why": fit.why,
+                                              "lost_um": fit.lost_um, "miss_um": fit.miss_um}
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]

@@ -100,7 +100,7 @@ class Commission(RefineSteps):
             if self._thermal(a):
                 out.append((f"warmup-{a}", self._warmup_plan(a)))
             out.append((f"backlash-{a}", backlash_plan(a, travel)))
-            out.append((f"takeup-{a}", self._takeup_plan(a)))  # if the lost motion is not small
+            out.append((f"takeup-{a}", self._takeup_plan(a)))  # if there is lost motion
             out.append((f"iso-{a}", self._iso_plan(a)))
             if a in self.s.lead_mm:
                 out.append((f"cyclic-{a}", cyclic_plan(a, travel, self.s.lead_mm[a])))
@@ -176,6 +176,9 @@ class Commission(RefineSteps):
             total += t
             self.say(f"  {name:<14} {sum(m.measured for m in plan.moves):>5} readings "
                      f"{len(plan.moves):>5} moves {t / 60:>7.1f} min")  # fmt: skip
+        if any(a for a in self.s.axes if not self._rotary(a)):
+            self.say(f"  (takeup-*: the reversal ladder, only where the backlash test shows "
+                     f"{MIN_LOST_UM:g} µm or more of lost motion)")  # fmt: skip
         self.say(f"  then verification rounds (before, each round, after) within the budget; "
                  f"first steps: {total / 3600:.2f} h at {self.s.speed_mm_s:g} mm/s and "
                  f"{self.s.stop_s:g} s per reading")  # fmt: skip
@@ -285,11 +288,7 @@ class Commission(RefineSteps):
         if float(b.mean_mm.max()) * 1e3 < MIN_LOST_UM:
             return
         await self.step(f"takeup-{a}", lambda: self._takeup_plan(a), "off", self._park(a))
-        # one reading's scatter: the backlash repeats' lost motion is two readings apart
-        noise_mm = float(np.sqrt(np.mean(b.std_mm**2) / 2.0))
-        fit = fit_takeup_raw(self.raw(f"takeup-{a}"), a, RUNGS_MM,
-                             dict(zip(map(float, b.place_mm), map(float, b.mean_mm))),
-                             noise_mm)  # fmt: skip
+        fit = fit_takeup_raw(self.raw(f"takeup-{a}"), a, b, RUNGS_MM)
         self.state.setdefault("identify", {})[f"takeup-{a}"] = {
             "kept": fit.curve is not None, "why": fit.why, "miss_um": fit.miss_um,
             "lost_um": fit.lost_um, "motor_um": [float(v * 1e3) for v in fit.motor_mm],

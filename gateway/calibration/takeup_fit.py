@@ -23,8 +23,9 @@ from scipy.optimize import isotonic_regression
 
 from ..compensation import TakeUpCurve
 from ..compensation.errors import TableError
-from .plans import Move, Plan, _meta, _round
+from .plans import BacklashResult, Move, Plan, _meta, _round
 from .rawdata import RawData, axis_deviations
+from .runner import read_raw_meta
 
 #: the motor reversals tried (mm): from a few pulses to past any soft engagement we met
 RUNGS_MM = (0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.32, 0.64, 1.28)
@@ -129,21 +130,25 @@ def _kept(m: NDArray[np.float64], lost: NDArray[np.float64], full: NDArray[np.fl
                      float(np.mean(full)) * 1e3, None, 0.0, why)
 
 
-def fit_takeup_raw(raw: RawData, axis: str, rungs_mm: Sequence[float],
-                   full_at: dict[float, float], noise_mm: float) -> TakeUpFit:  # fmt: skip
-    """:func:`fit_takeup` from a :func:`takeup_plan`'s raw data; ``full_at`` the whole
-    lost motion (mm) at each place (seed 000's backlash readings)."""
+def fit_takeup_raw(raw: RawData, axis: str, backlash: BacklashResult,
+                   rungs_mm: Sequence[float] | None = None) -> TakeUpFit:  # fmt: skip
+    """:func:`fit_takeup` from a :func:`takeup_plan`'s raw data and seed 000's ``backlash``
+    result at the same places (the whole lost motion there; one reading's scatter from its
+    repeats, whose lost motion is two readings apart). ``rungs_mm``: the plan's (default:
+    the raw file's own ``rungs_mm``, else :data:`RUNGS_MM`)."""
     dev = axis_deviations(raw, axis)
     if dev.up_mm is None or dev.down_mm is None:
         raise TableError(f"{dev.source}: axis {axis}: take-up needs readings in + and -")
-    lost = dev.down_mm - dev.up_mm  # [place, rung]
-    places = [float(p) for p in dev.target_mm]
+    if rungs_mm is None:
+        text = read_raw_meta(raw.source).get("rungs_mm") if raw.source != "<raw>" else None
+        rungs_mm = [float(v) for v in text.split()] if text else RUNGS_MM
+    full_at = dict(zip(map(float, backlash.place_mm), map(float, backlash.mean_mm)))
     full = []
-    for p in places:
+    for p in (float(p) for p in dev.target_mm):
         near = min(full_at, key=lambda q: abs(q - p))
         if abs(near - p) > 1e-3:
             raise TableError(f"{dev.source}: take-up place {p:g} mm has no backlash reading")
         full.append(full_at[near])
-    runs = [int(j) for j in dev.runs]
-    motor = np.array([rungs_mm[j - 1] for j in runs])
-    return fit_takeup(motor, lost, full, noise_mm)
+    motor = np.array([rungs_mm[int(j) - 1] for j in dev.runs])
+    noise_mm = float(np.sqrt(np.mean(backlash.std_mm**2) / 2.0))
+    return fit_takeup(motor, dev.down_mm - dev.up_mm, full, noise_mm)
