@@ -113,6 +113,14 @@ def test_fit_keeps_the_switch_for_a_dead_band_and_a_curve_for_a_soft_nut():
     section = fit.config()
     assert section is not None and section["fraction"][-1] == 1.0
     assert all(np.diff(section["fraction"]) >= 0) and all(np.diff(section["reversal_um"]) > 0)
+    # a stop that fell short by 8 µm at one place and rung (stick-slip) moves nothing
+    short = soft.copy()
+    short[1, 4] -= 0.008
+    again = fit_takeup(m, short, np.full(3, 0.025), 3e-4)
+    assert again.curve is not None
+    np.testing.assert_allclose(again.curve.fraction, fit.curve.fraction, atol=0.05)
+    dead[2, 3] -= 0.008
+    assert fit_takeup(m, dead, np.full(3, 0.010), 3e-4).curve is None
 
 
 def test_a_bad_takeup_section_names_the_axis(tmp_path: Path):

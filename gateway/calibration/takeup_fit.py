@@ -59,8 +59,8 @@ def takeup_plan(axis: str, places_mm: Sequence[float], travel_mm: Sequence[float
 
 @dataclass(frozen=True, eq=False)
 class TakeUpFit:
-    """Per rung: motor reversal, table reversal (mean over places), fraction of the full
-    lost motion shown (mean) and its spread over places; the full lost motion (µm, mean of
+    """Per rung: motor reversal, table reversal (median over places), fraction of the full
+    lost motion shown (median) and its spread over places; the full lost motion (µm, mean of
     the places); the curve (None: the full switch is right within ``MIN_MISS_UM``), the
     largest miss of a full switch (µm) and why the curve was or was not kept."""
 
@@ -96,10 +96,11 @@ def fit_takeup(motor_mm: ArrayLike, lost_mm: ArrayLike, full_mm: ArrayLike,
     if not usable.any():
         return _kept(m, lost, full, "no place with a lost motion above the scatter")
     frac = lost[usable] / full[usable, None]
-    f = np.nanmean(frac, axis=0)
+    # the median over the places: one stop that fell short (stick-slip) does not make a dip
+    f = np.nanmedian(frac, axis=0)
     spread = np.nanstd(frac, axis=0, ddof=1) if frac.shape[0] > 1 else np.zeros_like(f)
     big = float(full[usable].mean())
-    r = m - np.nanmean(lost[usable], axis=0)
+    r = m - np.nanmedian(lost[usable], axis=0)
     moved = r > max(2.0 * noise_mm, 1e-4)
     if not moved.any():
         return TakeUpFit(m, r, f, spread, big * 1e3, None, 0.0,
