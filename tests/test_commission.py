@@ -100,6 +100,16 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         assert min(ups) <= TRAVEL_MM[0] + 2.001 and max(ups) >= TRAVEL_MM[1] - 2 - 0.12 * lead
         record = state["identify"]["sweep-X"]
         assert record["readings"] == 2 * len(ups) and record["knots"] >= 10, record
+        # a dead band (this machine's nuts): one rung of the reversal ladder, 1.5 lost
+        # motions, showed all of it; the ladder itself did not run and no curve was written
+        for axis in ("X", "Y"):
+            lost = state["identify"][f"backlash-{axis}"]["B_um"]
+            probed = f"takeup-probe-{axis}" in state["steps"]
+            assert probed == (lost >= 2.0), (axis, lost)
+            if probed:
+                assert not state["identify"][f"takeup-{axis}"]["kept"], state["identify"]
+            assert f"takeup-{axis}" not in state["steps"]
+            assert "takeup" not in final[axis]["compensation"]
         # every table written was smoothed by its own leave-one-out, its points moved by no
         # more than an ISO point's standard error (the runs' scatter over √3)
         for axis in ("X", "Y"):

@@ -10,6 +10,7 @@ only ever sees the laser's readings.
 from __future__ import annotations
 
 import asyncio
+import json
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +37,9 @@ from gateway.compensation import (
 from gateway.config import ConfigError, parse_config
 from gateway.tables import build_chain
 from sim.server import SimServer
+from tests.commission_rig import running, small_machine
 from tests.test_calibration_rig import compgw, example_config, without
+from tests.test_service_helpers import Proc
 from tests.test_sim_support import config_from, example_dict
 
 LOST_UM, TAKEUP_UM = 40.0, 300.0  # the sim's soft nut: 40 µm taken up over 0.3 mm
@@ -221,3 +224,33 @@ def test_a_soft_nut_is_measured_fitted_and_corrected_on_short_steps(tmp_path: Pa
     assert out["switch_rms_um"] > 8.0, out
     assert out["curve_rms_um"] < 0.25 * out["switch_rms_um"], out
     assert out["curve_max_um"] < 5.0, out
+
+
+def test_commission_finds_a_soft_nut_and_writes_its_curve(tmp_path: Path):
+    """`compgw commission` on the small random machine with X's lost motion (25 µm) taken
+    up over 150 µm: one rung shows less than all of it, the ladder runs, the final config
+    carries the curve; Y (a dead band under 2 µm) is left alone."""
+    template = tmp_path / "template"
+    small_machine(template, seed=7)
+    sim_path = template / "sim.yaml"
+    sim = yaml.safe_load(sim_path.read_text())
+    x = sim["sim"]["machine"]["X"]
+    x["deviation"].pop("reverse_column")  # the lost motion is the nut's, taken up softly
+    x["lost_motion"] = {"um": 25.0, "takeup": {"curve": "smooth", "distance_um": 150.0}}
+    sim_path.write_text(yaml.safe_dump(sim, sort_keys=False))
+    with running(template, tmp_path / "m") as rig:
+        lead = rig.machine["axes"]["X"]["lead_mm"]
+        proc = Proc(["-m", "gateway.cli", "commission", "-c", str(rig.config),
+                     "--gateway", f"127.0.0.1:{rig.gw_port}",
+                     "--laser", f"127.0.0.1:{rig.sim_port}:20", "--axes", "X",
+                     "--lead-mm", f"X={lead:g}", "--tolerance-um", "5", "--no-progress"])
+        rc = proc.popen.wait(timeout=300)
+        assert rc in (0, 1) and (rig.dir / "commission" / "summary.json").exists(), proc.text()
+        state = json.loads((rig.dir / "commission" / "commission.json").read_text())
+        found = state["identify"]["takeup-X"]
+        assert found["kept"] and abs(found["lost_um"] - 25.0) < 2.0, found
+        assert {"takeup-probe-X", "takeup-X"} <= set(state["steps"])
+        final = yaml.safe_load(rig.config.read_text())["axes"]["X"]["compensation"]
+        curve = final["takeup"]
+        assert curve["fraction"][-1] == 1.0 and curve["fraction"][0] < 0.3, curve
+        assert "taken up over a reversal of about" in proc.text()

@@ -45,7 +45,7 @@ class TakeUpCurve:
                  source: str = "takeup") -> None:  # fmt: skip
         r = np.array(reversal_mm, dtype=np.float64).reshape(-1)
         f = np.array(fraction, dtype=np.float64).reshape(-1)
-        where = f"{source}"
+        where = source
         if r.size < 2 or r.size != f.size:
             raise CompensationError(
                 f"{where}: reversal and fraction need the same number of points, at least 2 "
@@ -98,9 +98,3 @@ class TakeUpCurve:
         after = self.shown(self.reached(done) + distance_mm) if distance_mm > 0 else done
         after = max(done, after)
         return direction * (2.0 * after - 1.0)
-
-    def error_um(self, lost_motion_um: float, reversal_mm: ArrayLike) -> NDArray[np.float64]:
-        """What a full switch misses (µm) after each reversal from the other flank."""
-        r = np.asarray(reversal_mm, dtype=np.float64)
-        shown = np.where(r > 0, np.interp(r, self.reversal_mm, self.fraction), 0.0)
-        return lost_motion_um * (1.0 - shown)
