@@ -46,12 +46,12 @@ from ..compensation.errors import TableError
 from ..config import GatewayConfig
 from ..formats import atomic_write_text, read_pitch_csv
 from . import adaptive
-from .commission_refine import RefineSteps
 from .commission_steps import (
     BudgetSpent,
     CommissionAborted,
     _plain,
 )
+from .commission_takeup import TakeUpSteps
 from .fit import planar_measurement
 from .iso230 import iso230_axis
 from .machine import MachineError
@@ -66,7 +66,6 @@ from .outputs import (
 )
 from .plane_frame import FITTED_FILE, FRAME_FILE, fitted_frame, reframe_plane, save_frame
 from .plans import (
-    BacklashResult,
     Plan,
     backlash_from_raw,
     backlash_plan,
@@ -79,13 +78,13 @@ from .plans_xy import xy_grid_plan, xy_verification_plan
 from .rawdata import axis_deviations, read_raw_csv
 from .runner import read_raw_meta
 from .session import planar_figures
-from .takeup_fit import MIN_LOST_UM, RUNGS_MM, fit_takeup_raw, takeup_plan
+from .takeup_fit import MIN_LOST_UM
 
 #: a verification's runs per target are doubled, up to this, before an axis is settled
 MAX_VERIFY_RUNS = 8
 
 
-class Commission(RefineSteps):
+class Commission(TakeUpSteps):
     """One commissioning: the plans, the order of the steps, the fits and the rounds."""
 
     # -- the whole thing -----------------------------------------------------------------
@@ -100,7 +99,7 @@ class Commission(RefineSteps):
             if self._thermal(a):
                 out.append((f"warmup-{a}", self._warmup_plan(a)))
             out.append((f"backlash-{a}", backlash_plan(a, travel)))
-            out.append((f"takeup-{a}", self._takeup_plan(a)))  # if there is lost motion
+            out.append((f"takeup-{a}", self.takeup_plan(a)))  # if there is lost motion
             out.append((f"iso-{a}", self._iso_plan(a)))
             if a in self.s.lead_mm:
                 out.append((f"cyclic-{a}", cyclic_plan(a, travel, self.s.lead_mm[a])))
@@ -271,49 +270,13 @@ class Commission(RefineSteps):
         b = backlash_from_raw(self.raw(f"backlash-{a}"), a)
         results[f"backlash-{a}"] = {"B_um": float(b.backlash_mm * 1e3),
                                     "places_um": [float(m * 1e3) for m in b.mean_mm]}
-        await self._identify_takeup(a, b)
+        await self.identify_takeup(a, b)
         await self._find_lead(a)
         await self.step(f"iso-{a}", lambda: self._iso_plan(a), "off", self._park(a))
         if a in self.s.lead_mm:
             await self.step(f"cyclic-{a}", lambda: cyclic_plan(a, travel, self.s.lead_mm[a]),
                             "off", self._park(a))  # fmt: skip
         await self.step(f"before-{a}", lambda: self._before_plan(a), "off", self._park(a))
-
-    def _takeup_plan(self, axis: str, rungs_mm: Sequence[float] = RUNGS_MM) -> Plan:
-        """The reversal ladder (or one rung of it) at seed 000's three backlash places."""
-        places = backlash_plan(axis, self._travel(axis)).targets_mm(axis)
-        return takeup_plan(axis, np.unique(places), self._travel(axis), rungs_mm)
-
-    async def _identify_takeup(self, a: str, b: BacklashResult) -> None:
-        """Whether the lost motion is taken up at once on a reversal, and if not, how: one
-        rung first, a reversal of 1.5 lost motions (a dead band has taken it all up there;
-        a nut that engages softly over twice the play still shows 6 % less); the whole
-        ladder only where that rung shows less than the readings' scatter allows."""
-        lost_mm = float(b.mean_mm.max())
-        if lost_mm * 1e3 < MIN_LOST_UM:
-            return
-        results = self.state.setdefault("identify", {})
-        probe = (round(1.5 * lost_mm, 3),)
-        await self.step(f"takeup-probe-{a}", lambda: self._takeup_plan(a, probe), "off",
-                        self._park(a))  # fmt: skip
-        fit = fit_takeup_raw(self.raw(f"takeup-probe-{a}"), a, b, probe)
-        if fit.curve is not None:
-            await self.step(f"takeup-{a}", lambda: self._takeup_plan(a), "off", self._park(a))
-            fit = fit_takeup_raw(self.raw(f"takeup-{a}"), a, b, RUNGS_MM)
-        results[f"takeup-{a}"] = {
-            "kept": fit.curve is not None, "why": fit.why, "miss_um": fit.miss_um,
-            "lost_um": fit.lost_um, "motor_um": [float(v * 1e3) for v in fit.motor_mm],
-            "table_um": [float(v * 1e3) for v in fit.table_mm],
-            "fraction": [float(v) for v in fit.fraction]}  # fmt: skip
-        section = fit.config()
-        if section is None:
-            self.tables.takeup.pop(a, None)
-            return
-        self.tables.takeup[a] = section
-        last = section["reversal_um"][-1]
-        self.say(f"{a}: the lost motion ({fit.lost_um:.1f} µm) is taken up over a reversal of "
-                 f"about {last:.0f} µm, not at once ({fit.why}): a take-up curve of "
-                 f"{len(section['fraction'])} points")  # fmt: skip
 
     def _before_plan(self, axis: str) -> Plan:
         """The targets judged before and after: random, off the coarse table's points."""
@@ -547,6 +510,7 @@ class Commission(RefineSteps):
             plans.append(self.dir / "plans" / "before-xy.plan")
         # and the drift references read around each of its runs and the last config switch
         total = 2 * self.refs_cost_s(self.ref_axes())
+        plans += self.steps_plans()
         for path in plans:
             if path.exists():
                 plan = read_plan(path)
@@ -662,6 +626,7 @@ class Commission(RefineSteps):
         if self.s.planar is not None:
             plan = read_plan(self.dir / "plans" / "before-xy.plan")
             await self.step("after-xy", lambda: plan, "on")
+        await self.after_steps()
 
     # -- summary -------------------------------------------------------------------------
     def summary(self, outcome: str) -> dict[str, Any]:
@@ -678,6 +643,7 @@ class Commission(RefineSteps):
                     iso = iso230_axis(axis_deviations(self.raw(f"{phase}-{a}"), a))
                     entry[phase] = {"E_um": iso.E_um, "A_um": iso.A_um, "R_um": iso.R_um,
                                     "B_um": iso.B_um, "M_um": iso.M_um}  # fmt: skip
+            entry.update(self.steps_summary(a))
             if a in self.tables.pitch:
                 entry["table_points"] = int(read_pitch_csv(
                     self.config_dir / self.tables.pitch[a]).position_mm.size)

@@ -1,4 +1,4 @@
-"""How a reversal takes up the lost motion: the plan that measures it and its fit.
+"""How a reversal takes up the lost motion: the plans that measure and judge it, its fit.
 
 Seed 000's backlash readings give the whole lost motion L at three places: each − reading
 comes back from 5 mm further on. A nut that engages softly shows only part of L after a
@@ -55,6 +55,28 @@ def takeup_plan(axis: str, places_mm: Sequence[float], travel_mm: Sequence[float
     meta = _meta(kind="takeup", axis=axis, travel_mm=(lo, hi),
                  rungs_mm=tuple(float(m) for m in rungs_mm), approach_mm=approach_mm)
     return Plan("takeup", (axis,), tuple(moves), meta)
+
+
+def short_steps_plan(axis: str, travel_mm: Sequence[float], seed: int, count: int = 24,
+                     approach_mm: float = 5.0) -> Plan:  # fmt: skip
+    """Random short steps, 5 µm to 2 mm (log-uniform) either way, from a random place in the
+    middle half of the travel, every stop measured (run number = stop): where a reversal
+    takes up only part of the play, what a drilling pattern does and no ISO run does. The
+    first stop is approached in + from ``approach_mm`` below."""
+    lo, hi = float(travel_mm[0]), float(travel_mm[1])
+    rng = np.random.default_rng(seed)
+    x = float(_round(rng.uniform(lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo))))
+    moves = [Move(0, 0, "takeup", (float(_round(max(lo, x - approach_mm))),)),
+             Move(1, +1, "measure", (x,))]  # fmt: skip
+    for k in range(2, count + 1):
+        step = float(10 ** rng.uniform(np.log10(0.005), np.log10(2.0)))
+        sign = 1 if rng.random() < 0.5 else -1
+        if not lo <= x + sign * step <= hi:
+            sign = -sign
+        x = float(_round(x + sign * step))
+        moves.append(Move(k, sign, "measure", (x,)))
+    meta = _meta(kind="short-steps", axis=axis, travel_mm=(lo, hi), seed=seed, count=count)
+    return Plan("short-steps", (axis,), tuple(moves), meta)
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,0 +1,85 @@
+"""Commissioning's take-up steps: whether a reversal takes the lost motion up at once
+(seed 000's backlash places, one rung of the reversal ladder, the whole ladder where it
+shows less than all; :mod:`.takeup_fit`), and the short steps that judge the curve where
+nothing was fitted: random steps of 5 µm to 2 mm either way, before (compensation off) and
+in the after-run, at the same stops."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .commission_refine import RefineSteps
+from .plans import BacklashResult, Plan, backlash_plan, read_plan
+from .takeup_fit import MIN_LOST_UM, RUNGS_MM, fit_takeup_raw, short_steps_plan, takeup_plan
+
+
+class TakeUpSteps(RefineSteps):
+    """The take-up identification, and the short steps before and after."""
+
+    def takeup_plan(self, axis: str, rungs_mm: Sequence[float] = RUNGS_MM) -> Plan:
+        """The reversal ladder (or one rung of it) at seed 000's three backlash places."""
+        places = backlash_plan(axis, self._travel(axis)).targets_mm(axis)
+        return takeup_plan(axis, np.unique(places), self._travel(axis), rungs_mm)
+
+    async def identify_takeup(self, a: str, b: BacklashResult) -> None:
+        """Whether the lost motion is taken up at once on a reversal, and if not, how: one
+        rung first, a reversal of 1.5 lost motions (a dead band has taken it all up there;
+        a nut that engages softly over twice the play still shows 6 % less); the whole
+        ladder only where that rung shows less than the readings' scatter allows."""
+        lost_mm = float(b.mean_mm.max())
+        if lost_mm * 1e3 < MIN_LOST_UM:
+            return
+        results = self.state.setdefault("identify", {})
+        probe = (round(1.5 * lost_mm, 3),)
+        await self.step(f"takeup-probe-{a}", lambda: self.takeup_plan(a, probe), "off",
+                        self._park(a))  # fmt: skip
+        fit = fit_takeup_raw(self.raw(f"takeup-probe-{a}"), a, b, probe)
+        if fit.curve is not None:
+            await self.step(f"takeup-{a}", lambda: self.takeup_plan(a), "off", self._park(a))
+            fit = fit_takeup_raw(self.raw(f"takeup-{a}"), a, b, RUNGS_MM)
+        results[f"takeup-{a}"] = {
+            "kept": fit.curve is not None, "why": fit.why, "miss_um": fit.miss_um,
+            "lost_um": fit.lost_um, "motor_um": [float(v * 1e3) for v in fit.motor_mm],
+            "table_um": [float(v * 1e3) for v in fit.table_mm],
+            "fraction": [float(v) for v in fit.fraction]}  # fmt: skip
+        section = fit.config()
+        if section is None:
+            self.tables.takeup.pop(a, None)
+            return
+        self.tables.takeup[a] = section
+        # the short steps the curve is for, judged before (compensation off) and after
+        await self.step(f"before-steps-{a}", lambda: self.steps_plan(a), "off", self._park(a))
+        last = section["reversal_um"][-1]
+        self.say(f"{a}: the lost motion ({fit.lost_um:.1f} µm) is taken up over a reversal of "
+                 f"about {last:.0f} µm, not at once ({fit.why}): a take-up curve of "
+                 f"{len(section['fraction'])} points")  # fmt: skip
+
+    def steps_plan(self, axis: str) -> Plan:
+        """Random short steps over the middle half of the travel (seeded per run)."""
+        return short_steps_plan(axis, self._travel(axis), 2000 + self.s.seed)
+
+    def steps_plans(self) -> list[Path]:
+        """The short-step plans measured before: the after-run measures them again."""
+        return [self.dir / "plans" / f"before-steps-{a}.plan" for a in self.s.axes
+                if self.done(f"before-steps-{a}")]  # fmt: skip
+
+    async def after_steps(self) -> None:
+        """The short steps again, everything on (the after-run's config)."""
+        for a in self.s.axes:
+            if self.done(f"before-steps-{a}"):
+                plan = read_plan(self.dir / "plans" / f"before-steps-{a}.plan")
+                await self.step(f"after-steps-{a}", lambda p=plan: p, "on", self._park(a))
+
+    def steps_summary(self, axis: str) -> dict[str, Any]:
+        """RMS and largest deviation (µm) at the short steps, before and after."""
+        out: dict[str, Any] = {}
+        for phase in ("before", "after"):
+            if self.done(f"{phase}-steps-{axis}"):
+                dev_um = self.raw(f"{phase}-steps-{axis}").deviation_mm * 1e3
+                out[phase] = {"rms_um": float(np.sqrt(np.mean(dev_um**2))),
+                              "max_um": float(np.abs(dev_um).max()), "stops": int(dev_um.size)}
+        return {"short_steps": out} if out else {}
