@@ -77,9 +77,17 @@ def ablate(sim_yaml: Path, without: list[str]) -> None:
     sim_yaml.write_text(yaml.safe_dump(data, sort_keys=False))
 
 
+def reseed(sim_yaml: Path, sim_seed: int) -> None:
+    """Another draw of the machine's noise (scatter, stick-slip, the instruments): the same
+    truth, the sim's ``seed`` set to ``sim_seed``."""
+    data = yaml.safe_load(sim_yaml.read_text())
+    data["sim"]["seed"] = sim_seed
+    sim_yaml.write_text(yaml.safe_dump(data, sort_keys=False))
+
+
 def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed: int,
-                without: list[str] | None = None, judge_repeats: int = 1
-                ) -> dict[str, Any]:  # fmt: skip
+                without: list[str] | None = None, judge_repeats: int = 1,
+                sim_seed: int | None = None) -> dict[str, Any]:  # fmt: skip
     """Generate, calibrate and evaluate one machine; a dict of its figures (or its error)."""
     t0 = time.monotonic()
     mdir = root / label
@@ -88,6 +96,8 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
                    capture_output=True, text=True)  # fmt: skip
     if without:
         ablate(mdir / "sim.yaml", without)
+    if sim_seed is not None:
+        reseed(mdir / "sim.yaml", sim_seed)
     out: dict[str, Any] = {"machine": label, "group": label.split("-")[0]}
     run = None
     try:
@@ -275,6 +285,9 @@ def main() -> int:
     parser.add_argument("--keep", type=Path, help="keep every machine's files in this directory")
     parser.add_argument("--only", metavar="LABEL[,LABEL...]",
                         help="run only these machines (labels as printed, e.g. rough-3)")
+    parser.add_argument("--sim-seed", type=int, default=None, metavar="N",
+                        help="the sim's seed for every machine: another draw of its noise on "
+                             "the same truth (default: the machine's own)")
     parser.add_argument("--without", metavar="WHAT[,WHAT...]",
                         help="take structure out of every machine's truth to see what it costs: "
                              + ", ".join(ABLATIONS))
@@ -315,7 +328,7 @@ def main() -> int:
     say(HEAD)
     with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         futures = [pool.submit(run_machine, label, gen, args.workflow, root, args.seed, without,
-                               args.judge_repeats)
+                               args.judge_repeats, args.sim_seed)
                    for label, gen in machines]  # fmt: skip
         for fut in futures:
             r = fut.result()
