@@ -180,14 +180,16 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
         units = ANGULAR if _angular(summary["axes"][axis]) else LINEAR
         parts.append(f"<h2>Axis {html.escape(axis)}</h2>")
         parts.append(_figures_table(axis, iso, units))
-        steps = summary["axes"][axis].get("short_steps", {})
-        if "before" in steps and "after" in steps:
-            b, a = steps["before"], steps["after"]
-            parts.append(f"<p id='short-steps-{html.escape(axis)}'>Short steps ({a['stops']} "
+        steps = summary["axes"][axis].get("short_steps")
+        if steps:
+            switch = steps.get("switch_miss_um")
+            parts.append(f"<p id='short-steps-{html.escape(axis)}'>Short steps ({steps['stops']} "
                          "random steps of 5 µm to 2 mm either way, where a reversal takes up "
-                         "only part of the play; none a calibration point): RMS "
-                         f"{b['rms_um']:.2f} → {a['rms_um']:.2f} µm, largest "
-                         f"{b['max_um']:.2f} → {a['max_um']:.2f} µm.</p>")  # fmt: skip
+                         "only part of the play; none a calibration point), everything on: "
+                         f"RMS {steps['rms_um']:.2f} µm, largest {steps['max_um']:.2f} µm"
+                         + (f" (switching the whole lost motion at a reversal would miss by up "
+                            f"to {switch:.1f} µm after such reversals)" if switch else "")
+                         + ".</p>")  # fmt: skip
         png = plot_axis(axis, {p: (raws[p], iso[p]) for p in raws}, units)
         figures.append(Figure(f"axis-{axis}", png, f"axis {axis}: before and after, at the "
                               "same verification targets"))  # fmt: skip

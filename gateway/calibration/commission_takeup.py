@@ -1,24 +1,22 @@
 """Commissioning's take-up steps: whether a reversal takes the lost motion up at once
 (seed 000's backlash places, one rung of the reversal ladder, the whole ladder where it
 shows less than all; :mod:`.takeup_fit`), and the short steps that judge the curve where
-nothing was fitted: random steps of 5 µm to 2 mm either way, before (compensation off) and
-in the after-run, at the same stops."""
+nothing was fitted: random steps of 5 µm to 2 mm either way, in the after-run."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .commission_refine import RefineSteps
-from .plans import BacklashResult, Plan, backlash_plan, read_plan
+from .plans import BacklashResult, Plan, backlash_plan
 from .takeup_fit import MIN_LOST_UM, RUNGS_MM, fit_takeup_raw, short_steps_plan, takeup_plan
 
 
 class TakeUpSteps(RefineSteps):
-    """The take-up identification, and the short steps before and after."""
+    """The take-up identification, and the short steps of the after-run."""
 
     def takeup_plan(self, axis: str, rungs_mm: Sequence[float] = RUNGS_MM) -> Plan:
         """The reversal ladder (or one rung of it) at seed 000's three backlash places."""
@@ -51,8 +49,6 @@ class TakeUpSteps(RefineSteps):
             self.tables.takeup.pop(a, None)
             return
         self.tables.takeup[a] = section
-        # the short steps the curve is for, judged before (compensation off) and after
-        await self.step(f"before-steps-{a}", lambda: self.steps_plan(a), "off", self._park(a))
         last = section["reversal_um"][-1]
         self.say(f"{a}: the lost motion ({fit.lost_um:.1f} µm) is taken up over a reversal of "
                  f"about {last:.0f} µm, not at once ({fit.why}): a take-up curve of "
@@ -62,24 +58,25 @@ class TakeUpSteps(RefineSteps):
         """Random short steps over the middle half of the travel (seeded per run)."""
         return short_steps_plan(axis, self._travel(axis), 2000 + self.s.seed)
 
-    def steps_plans(self) -> list[Path]:
-        """The short-step plans measured before: the after-run measures them again."""
-        return [self.dir / "plans" / f"before-steps-{a}.plan" for a in self.s.axes
-                if self.done(f"before-steps-{a}")]  # fmt: skip
+    def steps_plans(self) -> list[Plan]:
+        """The short steps of the axes with a take-up curve (the after-run measures them)."""
+        return [self.steps_plan(a) for a in self.s.axes if a in self.tables.takeup]
 
     async def after_steps(self) -> None:
-        """The short steps again, everything on (the after-run's config)."""
+        """The short steps, everything on (the after-run's config), on every axis with a
+        take-up curve: the curve judged where nothing was fitted."""
         for a in self.s.axes:
-            if self.done(f"before-steps-{a}"):
-                plan = read_plan(self.dir / "plans" / f"before-steps-{a}.plan")
-                await self.step(f"after-steps-{a}", lambda p=plan: p, "on", self._park(a))
+            if a in self.tables.takeup:
+                await self.step(f"after-steps-{a}", lambda a=a: self.steps_plan(a), "on",
+                                self._park(a))  # fmt: skip
 
     def steps_summary(self, axis: str) -> dict[str, Any]:
-        """RMS and largest deviation (µm) at the short steps, before and after."""
-        out: dict[str, Any] = {}
-        for phase in ("before", "after"):
-            if self.done(f"{phase}-steps-{axis}"):
-                dev_um = self.raw(f"{phase}-steps-{axis}").deviation_mm * 1e3
-                out[phase] = {"rms_um": float(np.sqrt(np.mean(dev_um**2))),
-                              "max_um": float(np.abs(dev_um).max()), "stops": int(dev_um.size)}
-        return {"short_steps": out} if out else {}
+        """RMS and largest deviation (µm) at the short steps, and what a full switch would
+        have missed by after such reversals (the ladder's fit)."""
+        if not self.done(f"after-steps-{axis}"):
+            return {}
+        dev_um = self.raw(f"after-steps-{axis}").deviation_mm * 1e3
+        switch = self.state.get("identify", {}).get(f"takeup-{axis}", {}).get("miss_um")
+        return {"short_steps": {"rms_um": float(np.sqrt(np.mean(dev_um**2))),
+                                "max_um": float(np.abs(dev_um).max()),
+                                "stops": int(dev_um.size), "switch_miss_um": switch}}
