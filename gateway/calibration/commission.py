@@ -504,14 +504,12 @@ class Commission(TakeUpSteps):
         return files
 
     def reserve_s(self) -> float:
-        """The after-run (the before-run's targets again, the short steps of an axis with
-        a take-up curve) is kept out of the budget."""
+        """The after-run (the before-run's targets again) is kept out of the budget."""
         plans = [self.dir / "plans" / f"before-{a}.plan" for a in self.s.axes]
         if self.s.planar is not None:
             plans.append(self.dir / "plans" / "before-xy.plan")
         # and the drift references read around each of its runs and the last config switch
         total = 2 * self.refs_cost_s(self.ref_axes())
-        total += sum(self.estimate_s(p) + self.refs_around_s(p) for p in self.steps_plans())
         for path in plans:
             if path.exists():
                 plan = read_plan(path)
