@@ -20,10 +20,16 @@ import yaml
 from gateway.app import GatewayApp
 from gateway.calibration.commands import make_plan
 from gateway.calibration.machine import Endpoint
-from gateway.calibration.plans import Move, Plan, backlash_from_raw, backlash_plan, snap_to_pulses
+from gateway.calibration.plans import Plan, backlash_from_raw, backlash_plan, snap_to_pulses
 from gateway.calibration.rawdata import read_raw_csv
 from gateway.calibration.session import Instruments, Session
-from gateway.calibration.takeup_fit import RUNGS_MM, fit_takeup, fit_takeup_raw, takeup_plan
+from gateway.calibration.takeup_fit import (
+    RUNGS_MM,
+    fit_takeup,
+    fit_takeup_raw,
+    short_steps_plan,
+    takeup_plan,
+)
 from gateway.cli import build_parser
 from gateway.compensation import (
     AxisChain,
@@ -161,19 +167,6 @@ def gateway_data(sim_port: int, compensation: dict) -> dict:
     return data
 
 
-def short_steps(seed: int = 3, count: int = 80) -> Plan:
-    """Steps of 5 µm-2 mm (log-uniform) either way from 400 mm, every stop measured; the
-    first approached in + from 5 mm below (a new gateway takes the nut as on the flank of
-    its home direction, +)."""
-    rng = np.random.default_rng(seed)
-    x, moves = 400.0, [Move(0, 0, "takeup", (395.0,)), Move(0, 1, "move", (400.0,))]
-    for k in range(count):
-        step = 10 ** rng.uniform(np.log10(0.005), np.log10(2.0)) * rng.choice([-1, 1])
-        x = round(x + step, 3)
-        moves.append(Move(k + 1, 1 if step > 0 else -1, "measure", (x,)))
-    return Plan("short-steps", ("X",), tuple(moves), (("kind", "short-steps"),))
-
-
 async def run(sim_port: int, work: Path, compensation: dict, plan: Plan, raw: Path) -> None:
     config = parse_config(gateway_data(sim_port, compensation), str(work / "gw.yaml"))
     async with GatewayApp(config, build_chain(config, work)) as app:
@@ -198,7 +191,7 @@ async def soft_nut(work: Path) -> dict[str, float]:
         out = {"lost_um": b.backlash_mm * 1e3, "miss_um": fit.miss_um}
         for name, comp in (("switch", switch), ("curve", {**switch, "takeup": section})):
             raw = work / f"steps-{name}.csv"
-            await run(port, work, comp, short_steps(), raw)
+            await run(port, work, comp, short_steps_plan("X", travel, 3, count=80), raw)
             dev_um = read_raw_csv(raw).deviation_mm * 1e3
             out[f"{name}_rms_um"] = float(np.sqrt(np.mean(dev_um**2)))
             out[f"{name}_max_um"] = float(np.abs(dev_um).max())

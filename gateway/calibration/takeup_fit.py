@@ -96,7 +96,8 @@ class TakeUpFit:
     why: str
 
     def config(self) -> dict[str, list[float]] | None:
-        """The ``compensation.takeup`` section (µm, 4 decimals), or None."""
+        """The ``compensation.takeup`` section (reversals to 0.01 µm, fractions to 4
+        decimals), or None: the switch is kept."""
         if self.curve is None:
             return None
         return {"reversal_um": [round(float(r) * 1e3, 2) for r in self.curve.reversal_mm],
@@ -116,7 +117,7 @@ def fit_takeup(motor_mm: ArrayLike, lost_mm: ArrayLike, full_mm: ArrayLike,
     full = np.asarray(full_mm, dtype=np.float64).reshape(-1)
     usable = full > max(2.0 * noise_mm, 1e-9)
     if not usable.any():
-        return _kept(m, lost, full, "no place with a lost motion above the scatter")
+        return _switch_kept(m, lost, full, "no place with a lost motion above the scatter")
     frac = lost[usable] / full[usable, None]
     # the median over the places: one stop that fell short (stick-slip) does not make a dip
     f = np.nanmedian(frac, axis=0)
@@ -146,7 +147,7 @@ def fit_takeup(motor_mm: ArrayLike, lost_mm: ArrayLike, full_mm: ArrayLike,
                      f"a full switch misses by up to {miss:.1f} µm")
 
 
-def _kept(m: NDArray[np.float64], lost: NDArray[np.float64], full: NDArray[np.float64],
+def _switch_kept(m: NDArray[np.float64], lost: NDArray[np.float64], full: NDArray[np.float64],
           why: str) -> TakeUpFit:  # fmt: skip
     nan = np.full(m.shape, np.nan)
     return TakeUpFit(m, m - np.nanmean(lost, axis=0), nan, nan,
