@@ -251,5 +251,7 @@ def test_commission_finds_a_soft_nut_and_writes_its_curve(tmp_path: Path):
         summary = json.loads((rig.dir / "commission" / "summary.json").read_text())
         steps = summary["axes"]["X"]["short_steps"]
         assert steps["rms_um"] < 2.0 and steps["switch_miss_um"] > 15.0, steps
+        state = json.loads((rig.dir / "commission" / "commission.json").read_text())
+        assert len(state["steps"]["after-steps-X"]["parts"]) == 1  # references around all
         report = (rig.dir / "commission" / "report" / "report.html").read_text()
         assert "id='short-steps-X'" in report

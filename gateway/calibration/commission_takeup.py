@@ -69,8 +69,9 @@ class TakeUpSteps(RefineSteps):
             if a not in self.tables.takeup:
                 continue
             try:
+                # one stop a run: the drift references around the whole of them, not each
                 await self.step(f"after-steps-{a}", lambda a=a: self.steps_plan(a), "on",
-                                self._park(a))  # fmt: skip
+                                self._park(a), whole=True)  # fmt: skip
             except BudgetSpent as exc:
                 self.state["notes"].append(f"{a}: short steps not measured: {exc}")
                 self.say(f"{a}: short steps not measured: {exc}")
