@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean schema system-deps
+.PHONY: demo test lint bench clean schema system-deps bench-deps
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -17,13 +17,16 @@ demo: $(STAMP)
 
 # Debian tools the tests use as real peers (command:package); installed when missing and root.
 SYSTEM_TOOLS := mbpoll:mbpoll systemd-analyze:systemd chromium:chromium
-system-deps:
-	@missing=""; for pair in $(SYSTEM_TOOLS); do tool=$${pair%%:*}; pkg=$${pair#*:}; \
+# and the C byte pump bench/forwarding.py measures the gateway against in the same run
+BENCH_TOOLS := socat:socat
+system-deps bench-deps:
+	@tools="$(if $(filter bench-deps,$@),$(BENCH_TOOLS),$(SYSTEM_TOOLS))"; missing=""; \
+	for pair in $$tools; do tool=$${pair%%:*}; pkg=$${pair#*:}; \
 	  command -v $$tool >/dev/null || missing="$$missing $$pkg"; done; \
 	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	    echo "installing$$missing"; apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq$$missing >/dev/null; \
-	  else echo "note: missing$$missing: the tests that need them are skipped"; fi; \
+	  else echo "note: missing$$missing: what needs them is skipped"; fi; \
 	fi
 
 test: $(STAMP) system-deps
@@ -33,7 +36,7 @@ test: $(STAMP) system-deps
 lint: $(STAMP)
 	$(BIN)/ruff check .
 
-bench: $(STAMP)
+bench: $(STAMP) bench-deps
 	$(BIN)/python bench/engine.py
 	$(BIN)/python bench/real_data_loo.py
 
