@@ -216,7 +216,7 @@ def test_a_soft_nut_is_measured_fitted_and_corrected_on_short_steps(tmp_path: Pa
     assert out["miss_um"] > 0.5 * LOST_UM, out  # a full switch overshoots short reversals
     assert out["switch_rms_um"] > 8.0, out
     assert out["curve_rms_um"] < 0.25 * out["switch_rms_um"], out
-    assert out["curve_max_um"] < 5.0, out
+    assert out["curve_max_um"] < 3.0, out  # 1.6 µm: straight lines between the rungs 3.1
 
 
 def test_commission_finds_a_soft_nut_and_writes_its_curve(tmp_path: Path):

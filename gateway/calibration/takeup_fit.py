@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.interpolate import PchipInterpolator
 from scipy.optimize import isotonic_regression
 
 from ..compensation import TakeUpCurve
@@ -142,9 +143,24 @@ def fit_takeup(motor_mm: ArrayLike, lost_mm: ArrayLike, full_mm: ArrayLike,
         ff[-1] = 1.0
     else:
         rr, ff = np.append(rr, max(approach_mm - big, rr[-1] * 2)), np.append(ff, 1.0)
-    curve = TakeUpCurve(rr, np.minimum(ff, 1.0))
+    curve = TakeUpCurve(*_between(rr, np.minimum(ff, 1.0)))
     return TakeUpFit(m, r, f, spread, big * 1e3, curve, miss,
                      f"a full switch misses by up to {miss:.1f} µm")
+
+
+def _between(r_mm: NDArray[np.float64], f: NDArray[np.float64], sub: int = 4
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:  # fmt: skip
+    """The rungs' points with ``sub`` − 1 more between each two, on the monotone cubic
+    (PCHIP) through them: the gateway interpolates a curve linearly, and straight lines
+    between rungs a factor 2 apart miss a soft engagement's bend by up to 4 % of the lost
+    motion (0.8-1.0 µm RMS on random short steps of a 40-70 µm play; 0.25-0.34 µm so)."""
+    if r_mm.size < 3:
+        return r_mm, f
+    t = np.linspace(0.0, 1.0, sub + 1)[:-1]
+    dense = np.concatenate([(r_mm[:-1, None] + np.diff(r_mm)[:, None] * t).ravel(), r_mm[-1:]])
+    values = np.clip(PchipInterpolator(r_mm, f)(dense), 0.0, 1.0)
+    values[::sub] = f  # exact at the rungs
+    return dense, np.maximum.accumulate(values)
 
 
 def _switch_kept(m: NDArray[np.float64], lost: NDArray[np.float64], full: NDArray[np.float64],
