@@ -7,7 +7,9 @@ command again after Ctrl-C, a crash or a power loss carries on where it stopped:
 1. identification config (no pitch, backlash, cyclic or planar stage) loaded; per axis
    with a thermal source and its sensor given, a warm-up for the thermal length (Δa) or
    gain (temperature), over a zone read inside and beyond it (:mod:`.commission_thermal`);
-   per axis seed 000's backlash at three places, a coarse ISO 230-2 run, the cyclic scans
+   per axis seed 000's backlash at three places (and, where a reversal does not take the
+   lost motion up at once, the reversal ladder: :mod:`.commission_takeup`), a coarse ISO
+   230-2 run, the cyclic scans
    (when the lead is known), and the *before* verification run (random targets off the
    table), ordered so that no axis is measured right after its own zone warm-up; the
    *before* XY run when the plane is commissioned;
@@ -22,7 +24,8 @@ command again after Ctrl-C, a crash or a power loss carries on where it stopped:
    table's own plus the residual), a failing plane a denser grid; until within tolerance,
    out of rounds, or out of budget;
 4. the *before* targets measured again with everything on (before / after on the same
-   points), the full config left loaded, the report written.
+   points), then random short steps on an axis with a take-up curve in what the budget
+   has left, the full config left loaded, the report written.
 
 The gateway is made to load each config by writing it over the config file it runs and
 asking it to reload (the status unit's reload register, or SIGHUP / a command). An abort
@@ -175,7 +178,7 @@ class Commission(TakeUpSteps):
             total += t
             self.say(f"  {name:<14} {sum(m.measured for m in plan.moves):>5} readings "
                      f"{len(plan.moves):>5} moves {t / 60:>7.1f} min")  # fmt: skip
-        if any(a for a in self.s.axes if not self._rotary(a)):
+        if any(not self._rotary(a) for a in self.s.axes):
             self.say(f"  (takeup-*: the reversal ladder, only where the backlash test shows "
                      f"{MIN_LOST_UM:g} µm or more of lost motion and one rung of it, 12 moves, "
                      "shows less than all of it)")  # fmt: skip
