@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from .compensation import AxisChain, MotionState
+from .compensation import MotionState
 from .modbus.frames import WordOrder, unpack_int32
 
 
@@ -81,11 +81,12 @@ class AxisState:
         return unpack_int32(self.shadow, order)
 
     def committed(self, nominal_pulses: int, command_units: int,
-                  chain: AxisChain | None = None) -> None:  # fmt: skip
+                  motion: MotionState | None = None) -> None:  # fmt: skip
         """A corrected target (``command_units``, the drive's units) reached the drive;
-        ``chain`` (the axis's) says how its nut crosses the play on a reversal."""
-        self.motion = (self.motion.approach(nominal_pulses) if chain is None
-                       else chain.approach(self.motion, nominal_pulses))
+        ``motion``: the axis's motion state there, as the correction found it (its chain's
+        :meth:`~gateway.compensation.AxisChain.approach`; default: on the flank of the
+        move's direction)."""
+        self.motion = self.motion.approach(nominal_pulses) if motion is None else motion
         self.last_nominal_pulses = nominal_pulses
         self.last_command_units = command_units
         self.shadow_known = True

@@ -19,7 +19,13 @@ from contextlib import AbstractAsyncContextManager
 from typing import TYPE_CHECKING
 
 from .axis import overlap
-from .compensation import AxisInput, CompensationError, CorrectionLimitError, TravelError
+from .compensation import (
+    AxisInput,
+    CompensationError,
+    CorrectionLimitError,
+    MotionState,
+    TravelError,
+)
 from .config import Axis
 from .modbus.downstream import Bus
 from .modbus.frames import (
@@ -190,7 +196,7 @@ class AxisWrites:
         is computed before anything is written, so a refused target (outside travel,
         correction above the cap) sends nothing at all.
         """
-        plans: list[tuple[str, int, int, bool]] = []
+        plans: list[tuple[str, int, int, bool, MotionState]] = []
         for name in [*partners, owner]:
             state = self._axes[name].state
             if not (state.shadow_known or state.halves_written):
@@ -201,7 +207,7 @@ class AxisWrites:
                 continue
             homed = await self._homed(name, setup.config.axes[name])
             plans.append((name, nominal, *self._correct(setup, name, nominal, homed)))
-        for name, nominal, command, applied in plans:
+        for name, nominal, command, applied, motion in plans:
             axis = setup.config.axes[name]
             words = list(pack_int32(command, axis.registers.target.order))
             address, values = axis.registers.target.address, words
@@ -211,7 +217,7 @@ class AxisWrites:
                 values[offset : offset + 2] = words
             await self._send_block(name, axis, address, values)
             runtime = self._axes[name]
-            runtime.state.committed(nominal, command, setup.chain.axes[name])
+            runtime.state.committed(nominal, command, motion)
             runtime.state.applied = applied
             runtime.last_correction_mm = (command / axis.command_scale - nominal) * axis.pulse_mm
             self.counters.commits += 1
@@ -237,9 +243,11 @@ class AxisWrites:
         assert runtime.status_word is not None
         return bool(runtime.status_word >> status.homed_bit & 1)
 
-    def _correct(self, setup: Setup, name: str, nominal: int, homed: bool) -> tuple[int, bool]:
-        """Command for ``name`` in drive units (``command_scale`` per pulse) and whether
-        compensation was applied."""
+    def _correct(self, setup: Setup, name: str, nominal: int, homed: bool
+                 ) -> tuple[int, bool, MotionState]:  # fmt: skip
+        """Command for ``name`` in drive units (``command_scale`` per pulse), whether
+        compensation was applied, and the axis's motion state once it is there (found once,
+        kept at the commit)."""
         axis_cfg = setup.config.axes[name]
         state = self._axes[name].state
         chain_axis = setup.chain.axes[name]
@@ -249,11 +257,11 @@ class AxisWrites:
             self.counters.refused_travel += 1
             log.warning("%s", exc)
             raise ModbusError(str(exc), ILLEGAL_DATA_VALUE) from None
+        motion = chain_axis.approach(state.motion, nominal)  # the nut moves either way
         if not (state.enabled and homed):  # sent as written, but the screw heats all the same
             self._swept(name, nominal)
-            return nominal * axis_cfg.command_scale, False
-        engagement = chain_axis.approach(state.motion, nominal).engagement
-        inputs = {name: AxisInput(nominal, engagement, self._delta_a(name, nominal))}
+            return nominal * axis_cfg.command_scale, False, motion
+        inputs = {name: AxisInput(nominal, motion.engagement, self._delta_a(name, nominal))}
         partner = setup.planar_partner(name)
         if partner is not None:
             other = self._axes[partner].state
@@ -268,7 +276,7 @@ class AxisWrites:
         try:
             command = setup.chain.command_pulses(name, inputs, axis_cfg.command_scale)
             self._swept(name, nominal)  # after: this move heats what comes next
-            return command, True
+            return command, True, motion
         except CorrectionLimitError as exc:
             self.counters.refused_correction += 1
             log.error("%s: target refused", exc)

@@ -63,8 +63,9 @@ def test_a_nut_part_way_across_its_play_is_saved_and_older_saves_load():
     chain = AxisChain("X", 0.001, backlash=BacklashStage(0.04),
                       takeup=TakeUpCurve([0.01, 0.3], [0.1, 1.0]))  # fmt: skip
     state = AxisState(MotionState(1))
-    state.committed(300_000, 3_000_000, chain)
-    state.committed(299_950, 2_999_500, chain)  # 50 µm back: part of the play taken up
+    state.committed(300_000, 3_000_000, chain.approach(state.motion, 300_000))
+    # 50 µm back: part of the play taken up
+    state.committed(299_950, 2_999_500, chain.approach(state.motion, 299_950))
     assert state.motion.direction == -1 and 0.0 < state.motion.engagement < 1.0  # 22 %
     saved = json.loads(json.dumps(state.saved()))
     again = AxisState(MotionState(1))

@@ -182,8 +182,7 @@ async def soft_nut(work: Path) -> dict[str, float]:
         travel = (0.0, 800.0)
         await run(port, work, {}, backlash_plan("X", travel), work / "backlash.csv")
         b = backlash_from_raw(read_raw_csv(work / "backlash.csv"), "X")
-        places = np.unique(backlash_plan("X", travel).targets_mm())
-        await run(port, work, {}, takeup_plan("X", places, travel), work / "takeup.csv")
+        await run(port, work, {}, takeup_plan("X", travel), work / "takeup.csv")
         fit = fit_takeup_raw(read_raw_csv(work / "takeup.csv"), "X", b)
         section = fit.config()
         assert section is not None, fit.why

@@ -100,8 +100,7 @@ def _described_plan(args: argparse.Namespace, config: GatewayConfig, verificatio
         lo, hi = travel(args.takeup)
         if config.axes[args.takeup].rotary:
             raise TableError(f"--takeup {args.takeup}: a linear axis only (in mm)")
-        places = sorted(set(backlash_plan(args.takeup, (lo, hi)).targets_mm().tolist()))
-        return takeup_plan(args.takeup, places, (lo, hi))
+        return takeup_plan(args.takeup, (lo, hi))
     if args.cyclic:
         if verification:
             return None

@@ -81,7 +81,7 @@ from .plans_xy import xy_grid_plan, xy_verification_plan
 from .rawdata import axis_deviations, read_raw_csv
 from .runner import read_raw_meta
 from .session import planar_figures
-from .takeup_fit import MIN_LOST_UM
+from .takeup_fit import MIN_LOST_UM, takeup_plan
 
 #: a verification's runs per target are doubled, up to this, before an axis is settled
 MAX_VERIFY_RUNS = 8
@@ -102,7 +102,7 @@ class Commission(TakeUpSteps):
             if self._thermal(a):
                 out.append((f"warmup-{a}", self._warmup_plan(a)))
             out.append((f"backlash-{a}", backlash_plan(a, travel)))
-            out.append((f"takeup-{a}", self.takeup_plan(a)))  # if there is lost motion
+            out.append((f"takeup-{a}", takeup_plan(a, travel)))  # if there is lost motion
             out.append((f"iso-{a}", self._iso_plan(a)))
             if a in self.s.lead_mm:
                 out.append((f"cyclic-{a}", cyclic_plan(a, travel, self.s.lead_mm[a])))

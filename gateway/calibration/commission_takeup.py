@@ -6,24 +6,18 @@ the budget has left."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from .commission_refine import RefineSteps
 from .commission_steps import BudgetSpent
-from .plans import BacklashResult, Plan, backlash_plan
+from .plans import BacklashResult, Plan
 from .takeup_fit import MIN_LOST_UM, RUNGS_MM, fit_takeup_raw, short_steps_plan, takeup_plan
 
 
 class TakeUpSteps(RefineSteps):
     """The take-up identification, and the short steps of the after-run."""
-
-    def takeup_plan(self, axis: str, rungs_mm: Sequence[float] = RUNGS_MM) -> Plan:
-        """The reversal ladder (or one rung of it) at seed 000's three backlash places."""
-        places = backlash_plan(axis, self._travel(axis)).targets_mm(axis)
-        return takeup_plan(axis, np.unique(places), self._travel(axis), rungs_mm)
 
     async def identify_takeup(self, a: str, b: BacklashResult) -> None:
         """Whether the lost motion is taken up at once on a reversal, and if not, how: one
@@ -34,12 +28,12 @@ class TakeUpSteps(RefineSteps):
         if lost_mm * 1e3 < MIN_LOST_UM:
             return
         results = self.state.setdefault("identify", {})
-        probe = (round(1.5 * lost_mm, 3),)
-        await self.step(f"takeup-probe-{a}", lambda: self.takeup_plan(a, probe), "off",
+        probe, travel = (round(1.5 * lost_mm, 3),), self._travel(a)
+        await self.step(f"takeup-probe-{a}", lambda: takeup_plan(a, travel, probe), "off",
                         self._park(a))  # fmt: skip
         fit = fit_takeup_raw(self.raw(f"takeup-probe-{a}"), a, b, probe)
         if fit.curve is not None:
-            await self.step(f"takeup-{a}", lambda: self.takeup_plan(a), "off", self._park(a))
+            await self.step(f"takeup-{a}", lambda: takeup_plan(a, travel), "off", self._park(a))
             fit = fit_takeup_raw(self.raw(f"takeup-{a}"), a, b, RUNGS_MM)
         results[f"takeup-{a}"] = {
             "kept": fit.curve is not None, "why": fit.why, "miss_um": fit.miss_um,

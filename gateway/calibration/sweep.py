@@ -145,7 +145,7 @@ def _hats(x: NDArray[np.float64], knots: NDArray[np.float64]) -> NDArray[np.floa
 
 
 def _residual_spread(cols: NDArray[np.float64], a: NDArray[np.float64],
-                 w: NDArray[np.float64] | None) -> NDArray[np.float64]:  # fmt: skip
+                     w: NDArray[np.float64] | None) -> NDArray[np.float64]:  # fmt: skip
     """Each reading's residual scale (in units of the scatter), so that the biweight
     judges every reading by how far it lies from what the others say, at that distance's
     own spread: with g = xᵢᵀA⁻¹xᵢ (A the fit's penalised normal matrix, weights ``w``) the

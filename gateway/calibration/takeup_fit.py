@@ -24,7 +24,7 @@ from scipy.optimize import isotonic_regression
 
 from ..compensation import TakeUpCurve
 from ..compensation.errors import TableError
-from .plans import BacklashResult, Move, Plan, _meta, _round
+from .plans import BacklashResult, Move, Plan, _meta, _round, backlash_plan
 from .rawdata import RawData, axis_deviations
 from .runner import read_raw_meta
 
@@ -36,14 +36,15 @@ MIN_LOST_UM = 2.0
 MIN_MISS_UM = 1.0
 
 
-def takeup_plan(axis: str, places_mm: Sequence[float], travel_mm: Sequence[float],
-                rungs_mm: Sequence[float] = RUNGS_MM, approach_mm: float = 5.0,
-                speed_mm_s: float | None = None) -> Plan:  # fmt: skip
-    """At each of ``places_mm`` P, per rung m (run number = rung): from P − ``approach_mm``
-    to P in + (the play taken up), measure; on to P + m; back to P in −, measure."""
+def takeup_plan(axis: str, travel_mm: Sequence[float], rungs_mm: Sequence[float] = RUNGS_MM,
+                approach_mm: float = 5.0, speed_mm_s: float | None = None) -> Plan:  # fmt: skip
+    """At each of seed 000's three backlash places P (:func:`.plans.backlash_plan`'s: the
+    whole lost motion there is what each rung is a fraction of), per rung m (run number =
+    rung): from P − ``approach_mm`` to P in + (the play taken up), measure; on to P + m;
+    back to P in −, measure."""
     lo, hi = float(travel_mm[0]), float(travel_mm[1])
     moves: list[Move] = []
-    for p in places_mm:
+    for p in np.unique(backlash_plan(axis, (lo, hi)).targets_mm()):
         below = float(_round(max(lo, p - approach_mm)))
         for k, m in enumerate(rungs_mm, start=1):
             above = float(_round(p + m))
