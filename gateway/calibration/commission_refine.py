@@ -28,11 +28,11 @@ from .plans import Plan, read_plan, targets_plan
 from .plans_scans import cyclic_plan, sweep_plan
 from .rawdata import axis_deviations
 from .sweep import (
-    SWEEP_STEPS_LEADS,
     fit_sweep,
     harmonics_for_step,
     sweep_refinement,
     sweep_step_mm,
+    sweep_steps_mm,
     sweep_targets_mm,
 )
 
@@ -188,9 +188,16 @@ class RefineSteps(ThermalSteps):
             return None
         return read_cyclic(self.config_dir / self.tables.cyclic[axis]).lead_mm
 
+    def _noisy(self, axis: str) -> bool:
+        """Whether single stops of ``axis`` scatter more than its tolerance (the ISO runs'
+        pooled standard deviation): its sweep may read more densely (``NOISY_STEPS_MM``)."""
+        s_um = self.iso_scatter_um(axis)
+        return s_um is not None and s_um > self.tolerance_of(axis)
+
     def _sweep_plan(self, axis: str, coarser: int) -> Plan:
         travel = self._travel(axis)
-        targets = sweep_targets_mm(travel, self._lead_of(axis), coarser=coarser)
+        targets = sweep_targets_mm(travel, self._lead_of(axis), coarser=coarser,
+                                   noisy=self._noisy(axis))  # fmt: skip
         return self._snap(sweep_plan(axis, travel, targets, piece_mm=SWEEP_PIECE_MM))
 
     def _sweeps(self, r: int, axis: str, allowance_s: float) -> int | None:
@@ -204,7 +211,7 @@ class RefineSteps(ThermalSteps):
         if begun is not None:
             return int(begun)
         random_s = adaptive.RANDOM_TARGETS * self._verify_target_s(r, axis)
-        for coarser in range(len(SWEEP_STEPS_LEADS)):
+        for coarser in range(len(sweep_steps_mm(self._lead_of(axis), self._noisy(axis)))):
             if self.step_cost_s(self._sweep_plan(axis, coarser)) + random_s <= allowance_s:
                 return coarser
         return None
@@ -235,7 +242,8 @@ class RefineSteps(ThermalSteps):
         lead = model.lead_mm if model else None
         fit = fit_sweep(raw.target_mm[rows], raw.deviation_mm[rows], raw.direction[rows],
                         lead, model.origin_mm if model else 0.0,
-                        harmonics_for_step(sweep_step_mm(lead, coarser), lead),
+                        harmonics_for_step(sweep_step_mm(lead, coarser, self._noisy(axis)),
+                                           lead),
                         table=table,
                         stations_mm=model.station_mm if model else ())  # fmt: skip
         ref = sweep_refinement(table, self.table_stage(axis, table), model, fit)

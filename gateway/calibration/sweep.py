@@ -45,6 +45,10 @@ from .adaptive import MIN_SPACING_MM
 SWEEP_STEPS_LEADS = (0.12, 0.16, 0.24)
 #: the step (mm) of an axis without a known lead, and what the budget may make of it
 SWEEP_STEPS_MM = (1.0, 1.5, 2.5)
+#: ... and before those, for such an axis whose single stops scatter more than the
+#: tolerance: its table is a smoothed mean of the readings, whose error falls as
+#: 1/√readings, and no lead ties its step to the phase of a harmonic
+NOISY_STEPS_MM = (0.25, 0.5)
 #: the level's knots: one per target read, at most this far apart (mm) and at most this
 #: many over the travel (the fit's cost grows as their cube); the smoothing penalty, chosen
 #: by cross-validation, decides how much of that resolution the readings support
@@ -74,12 +78,19 @@ def _biweight(e: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
 
 
-def sweep_step_mm(lead_mm: float | None, coarser: int = 0) -> float:
-    """The distance between readings of a sweep (mm): the densest, or ``coarser`` steps
-    down ``SWEEP_STEPS_LEADS`` (``SWEEP_STEPS_MM`` without a lead)."""
+def sweep_steps_mm(lead_mm: float | None, noisy: bool = False) -> tuple[float, ...]:
+    """The distances between readings a sweep may take (mm), densest first:
+    ``SWEEP_STEPS_LEADS`` of the lead, else ``SWEEP_STEPS_MM``, after ``NOISY_STEPS_MM``
+    when the axis is ``noisy`` (its stops scatter more than the tolerance)."""
     if lead_mm:
-        return SWEEP_STEPS_LEADS[coarser] * lead_mm
-    return SWEEP_STEPS_MM[coarser]
+        return tuple(f * lead_mm for f in SWEEP_STEPS_LEADS)
+    return (*NOISY_STEPS_MM, *SWEEP_STEPS_MM) if noisy else SWEEP_STEPS_MM
+
+
+def sweep_step_mm(lead_mm: float | None, coarser: int = 0, noisy: bool = False) -> float:
+    """The distance between readings of a sweep (mm): the densest, or ``coarser`` steps
+    down :func:`sweep_steps_mm`."""
+    return sweep_steps_mm(lead_mm, noisy)[coarser]
 
 
 def harmonics_for_step(step_mm: float, lead_mm: float | None) -> int:
@@ -91,10 +102,11 @@ def harmonics_for_step(step_mm: float, lead_mm: float | None) -> int:
 
 
 def sweep_targets_mm(travel_mm: Sequence[float], lead_mm: float | None,
-                     margin_mm: float = 2.0, coarser: int = 0) -> NDArray[np.float64]:  # fmt: skip
+                     margin_mm: float = 2.0, coarser: int = 0,
+                     noisy: bool = False) -> NDArray[np.float64]:  # fmt: skip
     """The sweep's targets over the travel less ``margin_mm`` at each end."""
     lo, hi = float(travel_mm[0]) + margin_mm, float(travel_mm[1]) - margin_mm
-    step = sweep_step_mm(lead_mm, coarser)
+    step = sweep_step_mm(lead_mm, coarser, noisy)
     n = max(2, math.floor((hi - lo) / step) + 1)
     return np.round(lo + step * np.arange(n), 4)
 
