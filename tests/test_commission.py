@@ -97,6 +97,8 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         downs = [m.target_mm[0] for m in sweep.moves if m.measured and m.direction < 0]
         assert sorted(ups) == sorted(downs) and len(ups) == len(set(ups))
         assert np.max(np.diff(sorted(ups))) <= 0.12 * lead + 1e-3
+        assert summary["identify"]["sweep-X"]["step_mm"] == pytest.approx(0.12 * lead)
+        assert f"X: swept every {0.12 * lead:g} mm" in text, text
         assert min(ups) <= TRAVEL_MM[0] + 2.001 and max(ups) >= TRAVEL_MM[1] - 2 - 0.12 * lead
         record = state["identify"]["sweep-X"]
         assert record["readings"] == 2 * len(ups) and record["knots"] >= 10, record

@@ -240,15 +240,15 @@ class RefineSteps(ThermalSteps):
         raw = self.raw(name)
         rows = np.array([a == axis for a in raw.axis])
         lead = model.lead_mm if model else None
+        step_mm = sweep_step_mm(lead, coarser, self._noisy(axis))
         fit = fit_sweep(raw.target_mm[rows], raw.deviation_mm[rows], raw.direction[rows],
                         lead, model.origin_mm if model else 0.0,
-                        harmonics_for_step(sweep_step_mm(lead, coarser, self._noisy(axis)),
-                                           lead),
-                        table=table,
+                        harmonics_for_step(step_mm, lead), table=table,
                         stations_mm=model.station_mm if model else ())  # fmt: skip
         ref = sweep_refinement(table, self.table_stage(axis, table), model, fit)
         record: dict[str, Any] = {
-            "round": r, "readings": int(rows.sum()), "knots": int(fit.knot_mm.size),
+            "round": r, "step_mm": step_mm, "readings": int(rows.sum()),
+            "knots": int(fit.knot_mm.size),
             "stations": int(fit.station_mm.size), "harmonics": int(fit.sin_mm.shape[1]),
             "residual_rms_um": fit.residual_rms_um, "level_ptp_um": fit.level_ptp_um,
             "lambdas": list(fit.lambdas), "hold": fit.hold,
@@ -258,7 +258,10 @@ class RefineSteps(ThermalSteps):
         if not self._write_tables(axis, config, ref.table, ref.cyclic, f"swept in round {r}"):
             return 0
         self.state.setdefault("spans", {})[axis] = []  # judged at random targets next
-        self.say(f"round {r}: {axis}: swept ({record['readings']} readings): a level "
+        scatter = (f"; its stops scatter {self.iso_scatter_um(axis):.2f} µm, more than the "
+                   "tolerance: read densely" if self._noisy(axis) and not lead else "")
+        self.say(f"round {r}: {axis}: swept every {step_mm:g} mm ({record['readings']} "
+                 f"readings{scatter}): a level "
                  f"{fit.level_ptp_um:.2f} µm peak to peak every "
                  f"{float(np.diff(fit.knot_mm).mean()):.2f} mm"
                  + (f", {record['harmonics']} harmonics at {record['stations']} stations"
