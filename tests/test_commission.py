@@ -244,6 +244,28 @@ def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path:
         assert "outcome: budget" in proc.text()
 
 
+def test_a_budget_spent_in_the_identification_still_fits_what_it_measured(
+        template: Path, tmp_path: Path) -> None:  # fmt: skip
+    """A budget that covers X's identification and its before-run, not Y's: X gets the
+    table a plain ISO 230-2 calibration would give it, said to be unverified, and is
+    judged on its before-run's targets; Y gets none, and the report says so."""
+    with running(template, tmp_path / "m") as rig:
+        proc = rig.commission("--budget-h", "0.48")
+        assert proc.popen.wait(timeout=300) == 1, proc.text()
+        out = rig.dir / "commission"
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["outcome"] == "budget" and summary["machine_h"] <= 0.48
+        note = next(n for n in summary["notes"] if "identification's runs only" in n)
+        assert note.startswith("X: fitted") and "Y: not identified, no table" in note, note
+        final = yaml.safe_load(rig.config.read_text())["axes"]
+        assert "pitch" in final["X"]["compensation"] and "cyclic" in final["X"]["compensation"]
+        assert "pitch" not in final["Y"]["compensation"]
+        x = summary["axes"]["X"]
+        assert x["after"]["E_um"] < 0.5 * x["before"]["E_um"], x
+        assert "after" not in summary["axes"]["Y"]
+        assert "not identified" in (out / "report" / "report.html").read_text()
+
+
 def test_dry_run_prints_the_plan_and_moves_nothing(template: Path, tmp_path: Path) -> None:
     with running(template, tmp_path / "m") as rig:
         proc = rig.commission("--dry-run")

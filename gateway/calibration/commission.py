@@ -36,9 +36,7 @@ estimate (:func:`.plans.plan_time_s`): the same yardstick for any workflow.
 from __future__ import annotations
 
 import json
-import math
 import shutil
-from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -202,6 +200,7 @@ class Commission(TakeUpSteps):
             self.say(f"budget spent: {exc}")
             outcome = "budget"
             self._restore_best()  # a refinement not yet judged is not kept
+            await self._fit_identified()
         except (MachineError, OSError) as exc:
             where = await self.restore()
             raise CommissionAborted(f"{exc}; {where}") from exc
@@ -293,17 +292,39 @@ class Commission(TakeUpSteps):
         return read_plan(self.dir / "plans" / f"iso-{axis}.plan").targets_mm(axis)
 
     # -- 2. fit, XY ----------------------------------------------------------------------
-    async def _fit_axes(self) -> None:
-        if all(a in self.tables.pitch for a in self.s.axes):
+    async def _fit_identified(self) -> None:
+        """The budget ran out before the fit: the tables of the linear axes whose
+        identification runs were made (the ISO runs, and the cyclic scans where there is a
+        lead), as a plain ISO 230-2 calibration would fit them, and said to be unverified;
+        the other axes get none. Nothing when the tables were fitted already."""
+        if self.tables.pitch:
+            return
+        ready = [a for a in self.s.axes if not self._rotary(a) and self.done(f"iso-{a}")
+                 and (a not in self.s.lead_mm or self.done(f"cyclic-{a}"))]  # fmt: skip
+        if not ready:
+            return
+        await self._fit_axes(ready)
+        rest = [a for a in self.s.axes if a not in ready]
+        note = (f"{', '.join(ready)}: fitted from the identification's runs only, not "
+                "verified between the points (the budget ran out)"
+                + (f"; {', '.join(rest)}: not identified, no table" if rest else ""))
+        self.state["notes"].append(note)
+        self.say(note)
+        self._save()
+
+    async def _fit_axes(self, axes: list[str] | None = None) -> None:
+        """The tables from the identification runs of ``axes`` (all: the commissioned)."""
+        axes = list(self.s.axes) if axes is None else axes
+        if all(a in self.tables.pitch for a in axes):
             return
         tables_dir = self.dir / "tables"
         tables_dir.mkdir(parents=True, exist_ok=True)
-        for a in self.s.axes:
+        for a in axes:
             self.tables.pitch[a] = self._rel(tables_dir / f"{a.lower()}_pitch.csv")
             if a in self.s.lead_mm:
                 self.tables.cyclic[a] = self._rel(tables_dir / f"{a.lower()}_cyclic.yaml")
         config, _ = self.staged("pitch")
-        for a in self.s.axes:
+        for a in axes:
             model = None
             if a in self.s.lead_mm:
                 raw_c = self.raw_paths(f"cyclic-{a}")[0]
@@ -622,10 +643,11 @@ class Commission(TakeUpSteps):
             return
         self.tables.sensor_off.clear()  # the after-run with the sensors (motion_for_sensors)
         await self.use(self._tables_phase)
-        for a in self.s.axes:
-            plan = read_plan(self.dir / "plans" / f"before-{a}.plan")
-            await self.step(f"after-{a}", lambda p=plan: p, "on", self._park(a))
-        if self.s.planar is not None:
+        for a in self.s.axes:  # where the before-run was made (a budget spent may stop it)
+            if a in self.tables.pitch and self.done(f"before-{a}"):
+                plan = read_plan(self.dir / "plans" / f"before-{a}.plan")
+                await self.step(f"after-{a}", lambda p=plan: p, "on", self._park(a))
+        if self.s.planar is not None and self.done("before-xy"):
             plan = read_plan(self.dir / "plans" / "before-xy.plan")
             await self.step("after-xy", lambda: plan, "on")
         await self.after_steps()
@@ -659,20 +681,3 @@ class Commission(TakeUpSteps):
         self.rotary_summary(out)
         return out
 
-
-def parse_leads(text: str | None, axes: Sequence[str]) -> dict[str, float]:
-    """``10`` (every axis) or ``X=10,Y=5`` → {axis: lead mm}."""
-    if not text:
-        return {}
-    if "=" not in text:
-        lead = float(text)
-        if not (math.isfinite(lead) and lead > 0):
-            raise ValueError(f"--lead-mm {text!r} must be > 0")
-        return dict.fromkeys(axes, lead)
-    out = {}
-    for item in text.split(","):
-        name, _, value = item.partition("=")
-        if name.strip() not in axes:
-            raise ValueError(f"--lead-mm {item!r}: {name.strip()!r} is not a commissioned axis")
-        out[name.strip()] = float(value)
-    return out

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import math
 import os
 import shlex
 import signal
 import subprocess
 import sys
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -193,7 +194,7 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
 def main(args: argparse.Namespace) -> int:
     from pymodbus.exceptions import ModbusException
 
-    from .commission import Commission, parse_leads
+    from .commission import Commission
     from .commission_report import summary_lines
     from .commission_report import write as write_report
     from .commission_steps import CommissionAborted, Settings
@@ -306,3 +307,21 @@ async def _restore(job) -> str:  # type: ignore[no-untyped-def]
     except Exception as exc:  # never hide the first error behind a second
         return f"your config could not be put back ({exc}): copy {job.original_path} over " \
                f"{job.s.config_path}"
+
+
+def parse_leads(text: str | None, axes: Sequence[str]) -> dict[str, float]:
+    """``10`` (every axis) or ``X=10,Y=5`` → {axis: lead mm}."""
+    if not text:
+        return {}
+    if "=" not in text:
+        lead = float(text)
+        if not (math.isfinite(lead) and lead > 0):
+            raise ValueError(f"--lead-mm {text!r} must be > 0")
+        return dict.fromkeys(axes, lead)
+    out = {}
+    for item in text.split(","):
+        name, _, value = item.partition("=")
+        if name.strip() not in axes:
+            raise ValueError(f"--lead-mm {item!r}: {name.strip()!r} is not a commissioned axis")
+        out[name.strip()] = float(value)
+    return out
