@@ -25,7 +25,11 @@ command again after Ctrl-C, a crash or a power loss carries on where it stopped:
    out of rounds, or out of budget;
 4. the *before* targets measured again with everything on (before / after on the same
    points), then random short steps on an axis with a take-up curve in what the budget
-   has left, the full config left loaded, the report written.
+   has left (:mod:`.commission_after`), the full config left loaded (the user's own where
+   the plane reads worse with the tables than without), the report written.
+
+A budget spent before the fit still fits the axes whose ISO runs were made (unverified,
+said so).
 
 The gateway is made to load each config by writing it over the config file it runs and
 asking it to reload (the status unit's reload register, or SIGHUP / a command). An abort
@@ -47,14 +51,13 @@ from ..compensation.errors import TableError
 from ..config import GatewayConfig
 from ..formats import atomic_write_text, read_pitch_csv
 from . import adaptive
+from .commission_after import AfterSteps
 from .commission_steps import (
     BudgetSpent,
     CommissionAborted,
     _plain,
 )
-from .commission_takeup import TakeUpSteps
 from .fit import planar_measurement
-from .iso230 import iso230_axis
 from .machine import MachineError
 from .outputs import (
     fit_cyclic_raw,
@@ -78,14 +81,13 @@ from .plans_scans import cyclic_plan
 from .plans_xy import xy_grid_plan, xy_verification_plan
 from .rawdata import axis_deviations, read_raw_csv
 from .runner import read_raw_meta
-from .session import planar_figures
 from .takeup_fit import MIN_LOST_UM, takeup_plan
 
 #: a verification's runs per target are doubled, up to this, before an axis is settled
 MAX_VERIFY_RUNS = 8
 
 
-class Commission(TakeUpSteps):
+class Commission(AfterSteps):
     """One commissioning: the plans, the order of the steps, the fits and the rounds."""
 
     # -- the whole thing -----------------------------------------------------------------
@@ -210,7 +212,11 @@ class Commission(TakeUpSteps):
         except BudgetSpent as exc:
             self.state["notes"].append(f"no after-run: {exc}")
         self.motion_for_sensors()  # after the after-run: see its docstring
-        if self.tables.pitch:
+        worse = self.plane_worse()
+        if worse is not None:
+            self.state["notes"].append(worse)
+            self.say(worse)
+        if self.tables.pitch and worse is None:
             await self.use("full")
         else:
             self.say(await self.restore())
@@ -622,11 +628,6 @@ class Commission(TakeUpSteps):
             xy = self._xy_figures(f"verify{r}-xy")
         return verdicts, xy
 
-    def _xy_figures(self, name: str) -> dict[str, float]:
-        """Max and RMS vector error (µm) of an XY run, drift taken off."""
-        assert self.s.planar is not None
-        return planar_figures(self.raw(name), self.s.planar)
-
     async def _refine_plane(self, r: int) -> tuple[int, int]:
         grid = adaptive.denser_grid(*tuple(self.state.get("grid", self.s.grid)))
         if not self.done(f"refine{r}-xy"):  # the round's new tables loaded: the frame read
@@ -636,48 +637,3 @@ class Commission(TakeUpSteps):
         self._fit_plane(config, f"refine{r}-xy", residual=True)
         self.state["grid"] = list(grid)
         return grid
-
-    # -- 4. after ------------------------------------------------------------------------
-    async def _after(self) -> None:
-        if not self.tables.pitch:
-            return
-        self.tables.sensor_off.clear()  # the after-run with the sensors (motion_for_sensors)
-        await self.use(self._tables_phase)
-        for a in self.s.axes:  # where the before-run was made (a budget spent may stop it)
-            if a in self.tables.pitch and self.done(f"before-{a}"):
-                plan = read_plan(self.dir / "plans" / f"before-{a}.plan")
-                await self.step(f"after-{a}", lambda p=plan: p, "on", self._park(a))
-        if self.s.planar is not None and self.done("before-xy"):
-            plan = read_plan(self.dir / "plans" / "before-xy.plan")
-            await self.step("after-xy", lambda: plan, "on")
-        await self.after_steps()
-
-    # -- summary -------------------------------------------------------------------------
-    def summary(self, outcome: str) -> dict[str, Any]:
-        out: dict[str, Any] = {"outcome": outcome, "tolerance_um": self.s.tolerance_um,
-                               "machine_h": self.used_s / 3600,
-                               "budget_h": self.s.budget_s / 3600, "axes": {},
-                               "rounds": self.state["rounds"], "notes": self.state["notes"],
-                               "identify": self.state.get("identify", {}),
-                               "config": str(self.s.config_path)}  # fmt: skip
-        for a in self.s.axes:
-            entry: dict[str, Any] = {}
-            for phase in ("before", "after"):
-                if self.done(f"{phase}-{a}"):
-                    iso = iso230_axis(axis_deviations(self.raw(f"{phase}-{a}"), a))
-                    entry[phase] = {"E_um": iso.E_um, "A_um": iso.A_um, "R_um": iso.R_um,
-                                    "B_um": iso.B_um, "M_um": iso.M_um}  # fmt: skip
-            entry.update(self.steps_summary(a))
-            if a in self.tables.pitch:
-                entry["table_points"] = int(read_pitch_csv(
-                    self.config_dir / self.tables.pitch[a]).position_mm.size)
-            out["axes"][a] = entry
-        if self.s.planar is not None:
-            xy: dict[str, Any] = {}
-            for phase in ("before", "after"):
-                if self.done(f"{phase}-xy"):
-                    xy[phase] = self._xy_figures(f"{phase}-xy")
-            out["xy"] = xy
-        self.rotary_summary(out)
-        return out
-

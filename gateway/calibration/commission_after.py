@@ -1,0 +1,88 @@
+"""``compgw commission``'s end (a base of :class:`.commission.Commission`): the after-run,
+the before-run's targets again with everything on; whether the plane reads worse with the
+tables than the machine did without them (then the user's own config is kept); the
+summary the report is written from."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..formats import read_pitch_csv
+from . import adaptive
+from .commission_takeup import TakeUpSteps
+from .iso230 import iso230_axis
+from .plans import read_plan
+from .rawdata import axis_deviations
+from .session import planar_figures
+
+
+class AfterSteps(TakeUpSteps):
+    """The after-run, the plane's last word on the tables, and the summary."""
+
+    def _xy_figures(self, name: str) -> dict[str, float]:
+        """Max and RMS vector error (µm) of an XY run, drift taken off."""
+        assert self.s.planar is not None
+        return planar_figures(self.raw(name), self.s.planar)
+
+    def plane_worse(self) -> str | None:
+        """Why the tables are not left loaded: the plane read worse at the before-run's
+        random points with them than without (RMS vector error, beyond
+        :func:`.adaptive.plane_worse`'s margin). Tables fitted on their lines do that where
+        the plane was not fitted (the budget ran out before the XY grid) and it is not
+        made of the axes' own errors (sdss-1396 at 1.5 × a manual calibration's time:
+        13.5 → 23.5 µm). None: not worse, or not read."""
+        if self.s.planar is None or not (self.done("before-xy") and self.done("after-xy")):
+            return None
+        before, after = self._xy_figures("before-xy"), self._xy_figures("after-xy")
+        if not adaptive.plane_worse(before["rms_um"], after["rms_um"]):
+            return None
+        why = ("the plane was not measured, and the tables, fitted on their lines, do not "
+               "hold away from them" if self.tables.planar_model is None else
+               "the tables and plane do not hold there")  # fmt: skip
+        return (f"XY: worse with the tables than without (RMS vector error "
+                f"{before['rms_um']:.1f} → {after['rms_um']:.1f} µm at the same random "
+                f"points): {why}; your own config is kept")  # fmt: skip
+
+    async def _after(self) -> None:
+        if not self.tables.pitch:
+            return
+        self.tables.sensor_off.clear()  # the after-run with the sensors (motion_for_sensors)
+        await self.use(self._tables_phase)
+        for a in self.s.axes:  # where the before-run was made (a budget spent may stop it)
+            if a in self.tables.pitch and self.done(f"before-{a}"):
+                plan = read_plan(self.dir / "plans" / f"before-{a}.plan")
+                await self.step(f"after-{a}", lambda p=plan: p, "on", self._park(a))
+        if self.s.planar is not None and self.done("before-xy"):
+            plan = read_plan(self.dir / "plans" / "before-xy.plan")
+            await self.step("after-xy", lambda: plan, "on")
+        await self.after_steps()
+
+    # -- summary -------------------------------------------------------------------------
+    def summary(self, outcome: str) -> dict[str, Any]:
+        out: dict[str, Any] = {"outcome": outcome, "tolerance_um": self.s.tolerance_um,
+                               "machine_h": self.used_s / 3600,
+                               "budget_h": self.s.budget_s / 3600, "axes": {},
+                               "rounds": self.state["rounds"], "notes": self.state["notes"],
+                               "identify": self.state.get("identify", {}),
+                               "config": str(self.s.config_path)}  # fmt: skip
+        for a in self.s.axes:
+            entry: dict[str, Any] = {}
+            for phase in ("before", "after"):
+                if self.done(f"{phase}-{a}"):
+                    iso = iso230_axis(axis_deviations(self.raw(f"{phase}-{a}"), a))
+                    entry[phase] = {"E_um": iso.E_um, "A_um": iso.A_um, "R_um": iso.R_um,
+                                    "B_um": iso.B_um, "M_um": iso.M_um}  # fmt: skip
+            entry.update(self.steps_summary(a))
+            if a in self.tables.pitch:
+                entry["table_points"] = int(read_pitch_csv(
+                    self.config_dir / self.tables.pitch[a]).position_mm.size)
+            out["axes"][a] = entry
+        if self.s.planar is not None:
+            xy: dict[str, Any] = {}
+            for phase in ("before", "after"):
+                if self.done(f"{phase}-xy"):
+                    xy[phase] = self._xy_figures(f"{phase}-xy")
+            out["xy"] = xy
+        self.rotary_summary(out)
+        return out
+
