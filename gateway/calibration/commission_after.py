@@ -85,4 +85,3 @@ class AfterSteps(TakeUpSteps):
             out["xy"] = xy
         self.rotary_summary(out)
         return out
-
