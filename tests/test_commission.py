@@ -242,6 +242,7 @@ def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path:
         assert "budget" in (out / "report" / "report.html").read_text()
         assert rig.config.read_text() == original  # nothing fitted: your config, loaded
         assert "outcome: budget" in proc.text()
+        assert "does not hold these first steps" in proc.text()  # said before it moved
 
 
 def test_a_budget_spent_in_the_identification_still_fits_what_it_measured(

@@ -185,6 +185,11 @@ class Commission(AfterSteps):
         self.say(f"  then verification rounds (before, each round, after) within the budget; "
                  f"first steps: {total / 3600:.2f} h at {self.s.speed_mm_s:g} mm/s and "
                  f"{self.s.stop_s:g} s per reading")  # fmt: skip
+        if total > self.s.budget_s:
+            self.say(f"  the budget ({self.s.budget_s / 3600:.2f} h) does not hold these first "
+                     "steps: only the axes identified within it get tables, from those runs "
+                     f"alone and unverified; give at least {total / 3600:.2f} h, and more for "
+                     "the verification rounds")  # fmt: skip
         self.rotary_plan_lines()
         return total
 
