@@ -247,7 +247,11 @@ class Commission(AfterSteps):
         for a in zoned[1:]:
             await self._identify_axis(a)
             await self._warm_up(a)
-        for a in [a for a in self.s.axes if a not in zoned] + zoned[:1]:
+        rest = [a for a in self.s.axes if a not in zoned] + zoned[:1]
+        if not zoned and self.short():  # every axis's table first
+            for a in [a for a in rest if not self._rotary(a)]:
+                await self._identify_core(a)
+        for a in rest:
             await self._identify_axis(a)
         if self.s.planar is not None:
             await self.step("before-xy", lambda: self._xy_check_plan(10_000 + self.s.seed,
@@ -271,12 +275,30 @@ class Commission(AfterSteps):
             self.say(f"{a}: thermal setting kept as configured: {exc}")
         await self.use("identification")  # with the length or gain
 
-    async def _identify_axis(self, a: str) -> None:
-        """Backlash, the lead search, the coarse ISO run, the cyclic scans and the *before*
-        run of one axis, compensation off."""
-        if self._rotary(a):  # in degrees, with the angle instrument (commission_rotary)
-            await self.identify_rotary(a)
-            return
+    def short(self) -> bool:
+        """Whether the budget does not hold the first steps and the before- and after-runs
+        (decided once, kept in the state). Then every linear axis's backlash, lead search
+        and ISO runs come before any axis's cyclic scans and before-run, so that a budget
+        spent on the way leaves each axis a table (:meth:`_fit_identified`), not one axis
+        a verified table and the others none."""
+        if "short" not in self.state:
+            need_s = sum(self.estimate_s(p) for _, p in self.initial_plans())
+            for a in [a for a in self.s.axes if not self._rotary(a)]:
+                targets = adaptive.random_targets_mm(
+                    self._travel(a), 2 * adaptive.RANDOM_TARGETS, 1000 + self.s.seed,
+                    np.zeros(0))  # fmt: skip
+                need_s += 2 * self.estimate_s(targets_plan(a, self._travel(a), targets,
+                                                           self.s.verify_runs))  # fmt: skip
+            if self.s.planar is not None:
+                need_s += 2 * self.estimate_s(self._xy_check_plan(10_000 + self.s.seed,
+                                                                  self.s.grid))  # fmt: skip
+            self.state["short"] = bool(need_s > self.s.budget_s)
+            self._save()
+        return bool(self.state["short"])
+
+    async def _identify_core(self, a: str) -> None:
+        """What a linear axis's table needs: backlash (and the take-up), the lead search
+        and the coarse ISO run, compensation off."""
         results = self.state.setdefault("identify", {})
         travel = self._travel(a)
         await self.step(f"backlash-{a}", lambda: backlash_plan(a, travel), "off", self._park(a))
@@ -286,6 +308,15 @@ class Commission(AfterSteps):
         await self.identify_takeup(a, b)
         await self._find_lead(a)
         await self.step(f"iso-{a}", lambda: self._iso_plan(a), "off", self._park(a))
+
+    async def _identify_axis(self, a: str) -> None:
+        """Backlash, the lead search, the coarse ISO run, the cyclic scans and the *before*
+        run of one axis, compensation off."""
+        if self._rotary(a):  # in degrees, with the angle instrument (commission_rotary)
+            await self.identify_rotary(a)
+            return
+        travel = self._travel(a)
+        await self._identify_core(a)
         if a in self.s.lead_mm:
             await self.step(f"cyclic-{a}", lambda: cyclic_plan(a, travel, self.s.lead_mm[a]),
                             "off", self._park(a))  # fmt: skip
@@ -304,20 +335,22 @@ class Commission(AfterSteps):
 
     # -- 2. fit, XY ----------------------------------------------------------------------
     async def _fit_identified(self) -> None:
-        """The budget ran out before the fit: the tables of the linear axes whose
-        identification runs were made (the ISO runs, and the cyclic scans where there is a
-        lead), as a plain ISO 230-2 calibration would fit them, and said to be unverified;
-        the other axes get none. Nothing when the tables were fitted already."""
+        """The budget ran out before the fit: the tables of the linear axes whose ISO runs
+        were made (with the cyclic term where its scans were made too), as a plain ISO
+        230-2 calibration would fit them, and said to be unverified; the other axes get
+        none. Nothing when the tables were fitted already."""
         if self.tables.pitch:
             return
-        ready = [a for a in self.s.axes if not self._rotary(a) and self.done(f"iso-{a}")
-                 and (a not in self.s.lead_mm or self.done(f"cyclic-{a}"))]  # fmt: skip
+        ready = [a for a in self.s.axes if not self._rotary(a) and self.done(f"iso-{a}")]
         if not ready:
             return
         await self._fit_axes(ready)
         rest = [a for a in self.s.axes if a not in ready]
+        bare = [a for a in ready if a in self.s.lead_mm and a not in self.tables.cyclic]
         note = (f"{', '.join(ready)}: fitted from the identification's runs only, not "
                 "verified between the points (the budget ran out)"
+                + (f"; {', '.join(bare)}: no cyclic term (its scans were not made)"
+                   if bare else "")
                 + (f"; {', '.join(rest)}: not identified, no table" if rest else ""))
         self.state["notes"].append(note)
         self.say(note)
@@ -330,14 +363,15 @@ class Commission(AfterSteps):
             return
         tables_dir = self.dir / "tables"
         tables_dir.mkdir(parents=True, exist_ok=True)
+        scanned = [a for a in axes if a in self.s.lead_mm and self.done(f"cyclic-{a}")]
         for a in axes:
             self.tables.pitch[a] = self._rel(tables_dir / f"{a.lower()}_pitch.csv")
-            if a in self.s.lead_mm:
+            if a in scanned:
                 self.tables.cyclic[a] = self._rel(tables_dir / f"{a.lower()}_cyclic.yaml")
         config, _ = self.staged("pitch")
         for a in axes:
             model = None
-            if a in self.s.lead_mm:
+            if a in scanned:
                 raw_c = self.raw_paths(f"cyclic-{a}")[0]
                 cr = fit_cyclic_raw(self.raw(f"cyclic-{a}"), read_raw_meta(raw_c), config,
                                     self.config_dir, a)  # fmt: skip
