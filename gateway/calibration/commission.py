@@ -250,7 +250,7 @@ class Commission(AfterSteps):
         rest = [a for a in self.s.axes if a not in zoned] + zoned[:1]
         if not zoned and self.short():  # every axis's table first
             for a in [a for a in rest if not self._rotary(a)]:
-                await self._identify_core(a)
+                await self._identify_core(a, lead_first=False)
         for a in rest:
             await self._identify_axis(a)
         if self.s.planar is not None:
@@ -277,8 +277,8 @@ class Commission(AfterSteps):
 
     def short(self) -> bool:
         """Whether the budget does not hold the first steps and the before- and after-runs
-        (decided once, kept in the state). Then every linear axis's backlash, lead search
-        and ISO runs come before any axis's cyclic scans and before-run, so that a budget
+        (decided once, kept in the state). Then every linear axis's backlash and ISO runs
+        come before any axis's lead search, cyclic scans and before-run, so that a budget
         spent on the way leaves each axis a table (:meth:`_fit_identified`), not one axis
         a verified table and the others none."""
         if "short" not in self.state:
@@ -296,9 +296,10 @@ class Commission(AfterSteps):
             self._save()
         return bool(self.state["short"])
 
-    async def _identify_core(self, a: str) -> None:
+    async def _identify_core(self, a: str, lead_first: bool = True) -> None:
         """What a linear axis's table needs: backlash (and the take-up), the lead search
-        and the coarse ISO run, compensation off."""
+        (unless not ``lead_first``: on a short budget it comes later, with the cyclic scans
+        it is for) and the coarse ISO run, compensation off."""
         results = self.state.setdefault("identify", {})
         travel = self._travel(a)
         await self.step(f"backlash-{a}", lambda: backlash_plan(a, travel), "off", self._park(a))
@@ -306,7 +307,8 @@ class Commission(AfterSteps):
         results[f"backlash-{a}"] = {"B_um": float(b.backlash_mm * 1e3),
                                     "places_um": [float(m * 1e3) for m in b.mean_mm]}
         await self.identify_takeup(a, b)
-        await self._find_lead(a)
+        if lead_first:
+            await self._find_lead(a)
         await self.step(f"iso-{a}", lambda: self._iso_plan(a), "off", self._park(a))
 
     async def _identify_axis(self, a: str) -> None:
@@ -317,6 +319,7 @@ class Commission(AfterSteps):
             return
         travel = self._travel(a)
         await self._identify_core(a)
+        await self._find_lead(a)  # (after the ISO runs on a short budget)
         if a in self.s.lead_mm:
             await self.step(f"cyclic-{a}", lambda: cyclic_plan(a, travel, self.s.lead_mm[a]),
                             "off", self._park(a))  # fmt: skip
