@@ -28,8 +28,9 @@ command again after Ctrl-C, a crash or a power loss carries on where it stopped:
    has left (:mod:`.commission_after`), the full config left loaded (the user's own where
    the plane reads worse with the tables than without), the report written.
 
-A budget spent before the fit still fits the axes whose ISO runs were made (unverified,
-said so).
+A budget short of the first steps and the before- and after-runs takes every axis's
+backlash and ISO runs before any lead search, cyclic scan or before-run; spent before the
+fit, it still fits the axes whose ISO runs were made (unverified, said so).
 
 The gateway is made to load each config by writing it over the config file it runs and
 asking it to reload (the status unit's reload register, or SIGHUP / a command). An abort
