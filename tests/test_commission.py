@@ -269,6 +269,13 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         assert "pitch" in final["Y"]["compensation"]
         assert "cyclic" not in final["Y"]["compensation"]
         assert "unverified" in proc.text() or "not verified" in proc.text()
+        # the same command with more budget carries on: Y's scans, the fit again with both
+        # cyclic terms, the plane and the rounds
+        more = rig.commission("--budget-h", "2")
+        assert more.popen.wait(timeout=300) in (0, 1), more.text()
+        final = yaml.safe_load(rig.config.read_text())["axes"]
+        assert all("cyclic" in final[a]["compensation"] for a in ("X", "Y")), final
+        assert json.loads((out / "summary.json").read_text())["axes"]["Y"]["after"]
 
 
 def test_tables_that_make_the_plane_worse_are_not_left_loaded(tmp_path: Path) -> None:

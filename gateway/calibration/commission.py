@@ -363,11 +363,12 @@ class Commission(AfterSteps):
     async def _fit_axes(self, axes: list[str] | None = None) -> None:
         """The tables from the identification runs of ``axes`` (all: the commissioned)."""
         axes = list(self.s.axes) if axes is None else axes
-        if all(a in self.tables.pitch for a in axes):
+        scanned = [a for a in axes if a in self.s.lead_mm and self.done(f"cyclic-{a}")]
+        if all(a in self.tables.pitch for a in axes) and \
+                all(a in self.tables.cyclic for a in scanned):  # (a short budget's resumed)
             return
         tables_dir = self.dir / "tables"
         tables_dir.mkdir(parents=True, exist_ok=True)
-        scanned = [a for a in axes if a in self.s.lead_mm and self.done(f"cyclic-{a}")]
         for a in axes:
             self.tables.pitch[a] = self._rel(tables_dir / f"{a.lower()}_pitch.csv")
             if a in scanned:
