@@ -169,13 +169,6 @@ def keeps_refinement(score_um: float, best_um: float, plane: bool = False) -> bo
     return score_um <= best_um + margin if plane else score_um < best_um - margin
 
 
-def plane_worse(before_rms_um: float, after_rms_um: float) -> bool:
-    """Whether the plane reads worse with the tables than without them, at the same random
-    points (RMS vector error, µm): by more than ``keeps_refinement``'s margin (10 %, at
-    least 0.2 µm), what two readings of the same field differ by."""
-    return after_rms_um > before_rms_um + max(0.1 * before_rms_um, 0.2)
-
-
 def refined_table(table: PitchTable, stage: PitchStage, dev: AxisDeviations) -> PitchTable:
     """``table`` with a new point at each target of ``dev`` (measured with ``stage`` on):
     the table's value there plus the mean residual, per direction. Targets closer than

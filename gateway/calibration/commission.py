@@ -284,12 +284,8 @@ class Commission(AfterSteps):
         a verified table and the others none."""
         if "short" not in self.state:
             need_s = sum(self.estimate_s(p) for _, p in self.initial_plans())
-            for a in [a for a in self.s.axes if not self._rotary(a)]:
-                targets = adaptive.random_targets_mm(
-                    self._travel(a), 2 * adaptive.RANDOM_TARGETS, 1000 + self.s.seed,
-                    np.zeros(0))  # fmt: skip
-                need_s += 2 * self.estimate_s(targets_plan(a, self._travel(a), targets,
-                                                           self.s.verify_runs))  # fmt: skip
+            for a in [a for a in self.s.axes if not self._rotary(a)]:  # (no ISO runs yet)
+                need_s += 2 * self.estimate_s(self._before_plan(a, avoid_mm=np.zeros(0)))
             if self.s.planar is not None:
                 need_s += 2 * self.estimate_s(self._xy_check_plan(10_000 + self.s.seed,
                                                                   self.s.grid))  # fmt: skip
@@ -319,18 +315,18 @@ class Commission(AfterSteps):
             await self.identify_rotary(a)
             return
         travel = self._travel(a)
-        await self._identify_core(a)
-        await self._find_lead(a)  # (after the ISO runs on a short budget)
+        await self._identify_core(a)  # (its lead search after the ISO runs when short)
         if a in self.s.lead_mm:
             await self.step(f"cyclic-{a}", lambda: cyclic_plan(a, travel, self.s.lead_mm[a]),
                             "off", self._park(a))  # fmt: skip
         await self.step(f"before-{a}", lambda: self._before_plan(a), "off", self._park(a))
 
-    def _before_plan(self, axis: str) -> Plan:
-        """The targets judged before and after: random, off the coarse table's points."""
-        table = self._iso_targets(axis)
+    def _before_plan(self, axis: str, avoid_mm: np.ndarray | None = None) -> Plan:
+        """The targets judged before and after: random, off the coarse table's points
+        (``avoid_mm``, default the ISO runs' targets)."""
+        avoid = self._iso_targets(axis) if avoid_mm is None else avoid_mm
         targets = adaptive.random_targets_mm(self._travel(axis), 2 * adaptive.RANDOM_TARGETS,
-                                             1000 + self.s.seed, table)  # fmt: skip
+                                             1000 + self.s.seed, avoid)  # fmt: skip
         return targets_plan(axis, self._travel(axis), targets, self.s.verify_runs,
                             kind="iso230-verification", note="before-after")  # fmt: skip
 

@@ -26,15 +26,15 @@ class AfterSteps(TakeUpSteps):
 
     def plane_worse(self) -> str | None:
         """Why the tables are not left loaded: the plane read worse at the before-run's
-        random points with them than without (RMS vector error, beyond
-        :func:`.adaptive.plane_worse`'s margin). Tables fitted on their lines do that where
-        the plane was not fitted (the budget ran out before the XY grid) and it is not
-        made of the axes' own errors (sdss-1396 at 1.5 × a manual calibration's time:
+        random points with them than without (RMS vector error, by more than the margin
+        :func:`.adaptive.keeps_refinement` gives a plane). Tables fitted on their lines do
+        that where the plane was not fitted (the budget ran out before the XY grid) and it
+        is not made of the axes' own errors (sdss-1396 at 1.5 × a manual calibration's time:
         13.5 → 23.5 µm). None: not worse, or not read."""
         if self.s.planar is None or not (self.done("before-xy") and self.done("after-xy")):
             return None
         before, after = self._xy_figures("before-xy"), self._xy_figures("after-xy")
-        if not adaptive.plane_worse(before["rms_um"], after["rms_um"]):
+        if adaptive.keeps_refinement(after["rms_um"], before["rms_um"], plane=True):
             return None
         why = ("the plane was not measured, and the tables, fitted on their lines, do not "
                "hold away from them" if self.tables.planar_model is None else

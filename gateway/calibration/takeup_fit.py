@@ -164,8 +164,8 @@ def _between(r_mm: NDArray[np.float64], f: NDArray[np.float64], sub: int = 4
     return dense, np.maximum.accumulate(values)
 
 
-def _switch_kept(m: NDArray[np.float64], lost: NDArray[np.float64], full: NDArray[np.float64],
-          why: str) -> TakeUpFit:  # fmt: skip
+def _switch_kept(m: NDArray[np.float64], lost: NDArray[np.float64],
+                 full: NDArray[np.float64], why: str) -> TakeUpFit:  # fmt: skip
     nan = np.full(m.shape, np.nan)
     return TakeUpFit(m, m - np.nanmean(lost, axis=0), nan, nan,
                      float(np.mean(full)) * 1e3, None, 0.0, why)
