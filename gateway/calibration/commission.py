@@ -394,6 +394,7 @@ class Commission(AfterSteps):
             r = replace(r, table=self.smoothed(a, r.table, config))
             save_pitch(r, "compgw commission: coarse ISO 230-2 run" +
                        (", net of the cyclic term" if model is not None else ""))  # fmt: skip
+            self.interpolate(a, r.table)
             self.state.setdefault("spans", {})[a] = None  # every span is new: all verified
         self._save()
         await self.use("pitch")
@@ -596,9 +597,17 @@ class Commission(AfterSteps):
     def _put_back(self, name: str) -> bool:
         """The best files of an axis (or "XY") as they were: copied over the current ones,
         and one that did not exist then removed (a plane's frame, where the best plane was
-        pinned without a fade); True when any differed."""
+        pinned without a fade), and the table's interpolation then; True when any
+        differed."""
         keep = self.dir / "tables" / "best"
         changed = False
+        method = self.state.get("best", {}).get(name, {}).get("interpolation")
+        if method is not None and method != self.tables.interpolation.get(name, "linear"):
+            if method == "linear":
+                self.tables.interpolation.pop(name, None)
+            else:
+                self.tables.interpolation[name] = method
+            changed = True
         for path in self._table_files(name):
             saved = keep / f"{name}-{path.name}"
             if saved.exists() and (not path.exists() or path.read_bytes() != saved.read_bytes()):
@@ -629,6 +638,8 @@ class Commission(AfterSteps):
         if was is None or adaptive.keeps_refinement(now, was, plane=name == "XY"):
             best[name] = {"score": score, "round": r, **({"rms": rms} if rms is not None
                                                           else {})}  # fmt: skip
+            if name in self.tables.pitch and not self._rotary(name):  # and how it is read
+                best[name]["interpolation"] = self.tables.interpolation.get(name, "linear")
             for path in self._table_files(name):
                 if path.exists():
                     shutil.copyfile(path, keep / f"{name}-{path.name}")

@@ -40,6 +40,8 @@ class Tables:
     sensor_off: list[str] = field(default_factory=list)
     #: axes whose lost motion is taken up over a reversal: their compensation.takeup
     takeup: dict[str, dict[str, list[float]]] = field(default_factory=dict)
+    #: linear axes whose table is interpolated other than straight (leave-one-out chose it)
+    interpolation: dict[str, str] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         return {"pitch": self.pitch, "cyclic": self.cyclic,
@@ -49,7 +51,7 @@ class Tables:
                 "planar_axes": list(self.planar_axes) if self.planar_axes else None,
                 "thermal_profile": self.thermal_profile,
                 "thermal_motion": self.thermal_motion, "sensor_off": self.sensor_off,
-                "takeup": self.takeup}  # fmt: skip
+                "takeup": self.takeup, "interpolation": self.interpolation}  # fmt: skip
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> Tables:
@@ -62,7 +64,8 @@ class Tables:
                    dict(data.get("thermal_profile", {})),
                    dict(data.get("thermal_motion", {})),
                    list(data.get("sensor_off", [])),
-                   dict(data.get("takeup", {})))  # fmt: skip
+                   dict(data.get("takeup", {})),
+                   dict(data.get("interpolation", {})))  # fmt: skip
 
 
 def identification(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
@@ -108,7 +111,8 @@ def with_tables(original: dict[str, Any], axes: tuple[str, ...], tables: Tables,
         if name in tables.thermal_motion:  # in place of a temperature sensor
             comp["thermal"] = copy.deepcopy(tables.thermal_motion[name])
         if name in tables.pitch:
-            comp["pitch"] = {"file": tables.pitch[name], "interpolation": "linear"}
+            comp["pitch"] = {"file": tables.pitch[name],
+                             "interpolation": tables.interpolation.get(name, "linear")}
             if name in tables.takeup:  # the bidirectional table's lost motion, taken up
                 comp["takeup"] = copy.deepcopy(tables.takeup[name])
         if name in tables.cyclic:

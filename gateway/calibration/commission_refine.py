@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from ..compensation import PitchTable
+from ..compensation import PitchStage, PitchTable
 from ..compensation.cyclic import CyclicModel
 from ..compensation.errors import CompensationError
 from ..config import GatewayConfig
@@ -35,7 +35,11 @@ from .sweep import (
     sweep_steps_mm,
     sweep_targets_mm,
 )
+from .table_cv import choose_interpolation
 
+#: a table is read along a curve only where its leave-one-out misses at most this fraction
+#: of straight lines' (a near tie is noise of the points; straight lines stay local)
+CURVE_GAIN = 0.97
 #: a sweep's pieces, each between its own drift references (mm)
 SWEEP_PIECE_MM = 120.0
 
@@ -159,11 +163,41 @@ class RefineSteps(ThermalSteps):
             "change_rms_um": fit.change_rms_mm * 1e3, "weight": max(fit.lambdas)}
         return fit.table
 
+    def interpolate(self, axis: str, table: PitchTable, swept: bool = False) -> None:
+        """A linear axis's interpolation between its table's points, kept in the tables.
+        A swept table: straight lines (the sweep's level is straight between its knots,
+        so only then is its fold exact). Else each point is the mean of its own readings,
+        and the method whose leave-one-out over them misses least follows the error
+        between them (:func:`.table_cv.choose_interpolation`: on a real stage's coarse
+        table, a spline found what straight lines cut across), if by ``CURVE_GAIN``;
+        straight lines where the chosen curve would pass the correction's cap."""
+        if self._rotary(axis):
+            return
+        best, scores = "linear", {}
+        if not swept and table.position_mm.size >= 5:
+            best, scores = choose_interpolation(table)
+            if scores[best] > CURVE_GAIN * scores["linear"]:  # as good: the local one
+                best = "linear"
+        if best != "linear":
+            try:
+                PitchStage(table, best).check_cap(  # type: ignore[arg-type]
+                    self.config.axes[axis].compensation.max_correction_mm)
+            except CompensationError:
+                best = "linear"
+        if best == "linear":
+            self.tables.interpolation.pop(axis, None)
+        else:
+            self.tables.interpolation[axis] = best
+        self.state.setdefault("identify", {})[f"interpolation-{axis}"] = {
+            "method": best, "why": "swept" if swept else "leave-one-out",
+            "loo_rms_um": {k: v * 1e3 for k, v in scores.items()}}  # fmt: skip
+
     def _write_tables(self, axis: str, config: GatewayConfig, table: PitchTable,
-                      cyclic: CyclicModel | None, what: str) -> bool:  # fmt: skip
+                      cyclic: CyclicModel | None, what: str, swept: bool = False) -> bool:
         """Write an axis's refined table (and cyclic term) over its files, smoothed
-        (:meth:`smoothed`), once the gateway would take them; False (a note, the files
-        kept) when it would refuse them."""
+        (:meth:`smoothed`), once the gateway would take them, and choose its
+        interpolation (:meth:`interpolate`); False (a note, the files kept) when it would
+        refuse them."""
         from .outputs import check_cyclic, check_pitch, write_table
 
         table = self.smoothed(axis, table, config)
@@ -179,6 +213,7 @@ class RefineSteps(ThermalSteps):
         if cyclic is not None and axis in self.tables.cyclic:
             write_cyclic(self.config_dir / self.tables.cyclic[axis], cyclic,
                          {"fitted": f"compgw commission: {what}"})  # fmt: skip
+        self.interpolate(axis, table, swept)
         return True
 
     # -- the sweep -------------------------------------------------------------------------
@@ -230,6 +265,9 @@ class RefineSteps(ThermalSteps):
             if f is not None and not (keep / f.name).exists():
                 atomic_write_text(keep / f.name, f.read_text())
         self.state.setdefault("sweeping", {})[axis] = coarser
+        # the interpolation the sweep reads the table with (the fold's, on a resume too)
+        method = self.state.setdefault("sweep_interpolation", {}).setdefault(
+            axis, self.tables.interpolation.get(axis, "linear"))
         self._save()
         table = read_pitch_csv(keep / path.name)
         model = read_cyclic(keep / cyclic_path.name) if cyclic_path is not None else None
@@ -245,7 +283,7 @@ class RefineSteps(ThermalSteps):
                         lead, model.origin_mm if model else 0.0,
                         harmonics_for_step(step_mm, lead), table=table,
                         stations_mm=model.station_mm if model else ())  # fmt: skip
-        ref = sweep_refinement(table, self.table_stage(axis, table), model, fit)
+        ref = sweep_refinement(table, PitchStage(table, method), model, fit)
         record: dict[str, Any] = {
             "round": r, "step_mm": step_mm, "readings": int(rows.sum()),
             "knots": int(fit.knot_mm.size),
@@ -255,7 +293,8 @@ class RefineSteps(ThermalSteps):
             "weighted_out": fit.weighted_out}  # fmt: skip
         self.state.setdefault("identify", {})[f"sweep-{axis}"] = record
         config, _ = self.staged(self._tables_phase)
-        if not self._write_tables(axis, config, ref.table, ref.cyclic, f"swept in round {r}"):
+        if not self._write_tables(axis, config, ref.table, ref.cyclic, f"swept in round {r}",
+                                  swept=True):  # fmt: skip
             return 0
         self.state.setdefault("spans", {})[axis] = []  # judged at random targets next
         scatter = (f"; its stops scatter {self.iso_scatter_um(axis):.2f} µm, more than the "

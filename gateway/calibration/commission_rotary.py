@@ -322,7 +322,7 @@ class RotarySteps(Steps):
     def table_stage(self, axis: str, table: PitchTable) -> PitchStage:
         """The stage the gateway builds from ``table``: the chosen interpolation, the wrap."""
         if not self._rotary(axis):
-            return PitchStage(table, "linear")
+            return PitchStage(table, self.tables.interpolation.get(axis, "linear"))  # type: ignore[arg-type]
         method = self.state.get("rotary", {}).get(axis, {}).get("interpolation", "linear")
         return PitchStage(table, method, wrap=self._wraps(axis))
 
