@@ -28,9 +28,11 @@ command again after Ctrl-C, a crash or a power loss carries on where it stopped:
    has left (:mod:`.commission_after`), the full config left loaded (the user's own where
    the plane reads worse with the tables than without), the report written.
 
-A budget short of the first steps and the before- and after-runs takes every axis's
-backlash and ISO runs before any lead search, cyclic scan or before-run; spent before the
-fit, it still fits the axes whose ISO runs were made (unverified, said so).
+A budget short of the first steps and the before- and after-runs (the drift references
+around each counted) takes every axis's backlash and ISO runs before any lead search,
+cyclic scan or before-run, and the plane's grid right after them, with those tables on;
+spent before the fit, it still fits the axes whose ISO runs were made (unverified, said
+so).
 
 The gateway is made to load each config by writing it over the config file it runs and
 asking it to reload (the status unit's reload register, or SIGHUP / a command). An abort
@@ -249,15 +251,25 @@ class Commission(AfterSteps):
             await self._identify_axis(a)
             await self._warm_up(a)
         rest = [a for a in self.s.axes if a not in zoned] + zoned[:1]
-        if not zoned and self.short():  # every axis's table first
-            for a in [a for a in rest if not self._rotary(a)]:
+        if not zoned and self.short():  # every axis's table first, then the plane's grid
+            cores = [a for a in rest if not self._rotary(a)]
+            for a in cores:
                 await self._identify_core(a, lead_first=False)
+            if self.s.planar is not None and set(self.s.planar) <= set(cores):
+                await self._before_xy()  # (what the plane's check and report need)
+                await self._fit_axes(cores)
+                await self._plane()
+                await self.use("identification")  # the rest is measured without them
         for a in rest:
             await self._identify_axis(a)
+        await self._before_xy()
+        self._save()
+
+    async def _before_xy(self) -> None:
+        """The plane's random points before anything is fitted (judged again at the end)."""
         if self.s.planar is not None:
             await self.step("before-xy", lambda: self._xy_check_plan(10_000 + self.s.seed,
                                                                     self.s.grid), "off")
-        self._save()
 
     async def _warm_up(self, a: str) -> None:
         """The axis's warm-up (thermal off) and its fit; the identification config back."""
@@ -283,12 +295,13 @@ class Commission(AfterSteps):
         spent on the way leaves each axis a table (:meth:`_fit_identified`), not one axis
         a verified table and the others none."""
         if "short" not in self.state:
-            need_s = sum(self.estimate_s(p) for _, p in self.initial_plans())
+            plans = [p for _, p in self.initial_plans()]
             for a in [a for a in self.s.axes if not self._rotary(a)]:  # (no ISO runs yet)
-                need_s += 2 * self.estimate_s(self._before_plan(a, avoid_mm=np.zeros(0)))
+                plans += 2 * [self._before_plan(a, avoid_mm=np.zeros(0))]
             if self.s.planar is not None:
-                need_s += 2 * self.estimate_s(self._xy_check_plan(10_000 + self.s.seed,
-                                                                  self.s.grid))  # fmt: skip
+                plans += 2 * [self._xy_check_plan(10_000 + self.s.seed, self.s.grid)]
+            # each with the drift references read around its runs
+            need_s = sum(self.estimate_s(p) + self.refs_around_s(p) for p in plans)
             self.state["short"] = bool(need_s > self.s.budget_s)
             self._save()
         return bool(self.state["short"])
@@ -338,13 +351,19 @@ class Commission(AfterSteps):
         """The budget ran out before the fit: the tables of the linear axes whose ISO runs
         were made (with the cyclic term where its scans were made too), as a plain ISO
         230-2 calibration would fit them, and said to be unverified; the other axes get
-        none. Nothing when the tables were fitted already."""
-        if self.tables.pitch:
-            return
-        ready = [a for a in self.s.axes if not self._rotary(a) and self.done(f"iso-{a}")]
-        if not ready:
-            return
-        await self._fit_axes(ready)
+        none. Tables fitted already (a short budget fits them for the plane's grid) take
+        in the cyclic scans made since, and are said to be unverified unless a round
+        verified them."""
+        if self.tables.pitch:  # fitted already (on a short budget, for the plane's grid):
+            ready = [a for a in self.s.axes if a in self.tables.pitch]  # the scans made since
+            await self._fit_axes(ready)
+            if self.state["rounds"]:
+                return  # verified in a round
+        else:
+            ready = [a for a in self.s.axes if not self._rotary(a) and self.done(f"iso-{a}")]
+            if not ready:
+                return
+            await self._fit_axes(ready)
         rest = [a for a in self.s.axes if a not in ready]
         bare = [a for a in ready if a in self.s.lead_mm and a not in self.tables.cyclic]
         note = (f"{', '.join(ready)}: fitted from the identification's runs only, not "
