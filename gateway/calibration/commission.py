@@ -29,10 +29,11 @@ command again after Ctrl-C, a crash or a power loss carries on where it stopped:
    the plane reads worse with the tables than without), the report written.
 
 A budget short of the first steps and the before- and after-runs (the drift references
-around each counted) takes every axis's backlash and ISO runs before any lead search,
-cyclic scan or before-run, and the plane's grid right after them, with those tables on;
-spent before the fit, it still fits the axes whose ISO runs were made (unverified, said
-so).
+around each counted) takes every axis's backlash and ISO runs first, the plane's grid
+right after them (with those tables on), then the before-runs, and the lead searches and
+cyclic scans last (a plain ISO 230-2 calibration's steps first, then what judges them,
+then the extras); spent before the fit, it still fits the axes whose ISO runs were made
+(unverified, said so).
 
 The gateway is made to load each config by writing it over the config file it runs and
 asking it to reload (the status unit's reload register, or SIGHUP / a command). An abort
@@ -260,6 +261,9 @@ class Commission(AfterSteps):
                 await self._fit_axes(cores)
                 await self._plane()
                 await self.use("identification")  # the rest is measured without them
+            for a in cores:  # what the report judges them by, before any lead search
+                await self.step(f"before-{a}", lambda a=a: self._before_plan(a), "off",
+                                self._park(a))  # fmt: skip
         for a in rest:
             await self._identify_axis(a)
         await self._before_xy()
