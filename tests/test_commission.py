@@ -251,11 +251,11 @@ def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path:
 def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         template: Path, tmp_path: Path) -> None:  # fmt: skip
     """A budget short of the first steps and the before- and after-runs: every axis's ISO
-    runs, the plane's grid right after them and the before-runs come before any axis's
-    cyclic scans, so when it is spent each axis has the table a plain ISO 230-2
-    calibration would give it (with its cyclic term where the scans were made), said to
-    be unverified, the plane its model, and the report its before and after. (Axis by
-    axis, X had a verified table, Y none, and the plane none.)"""
+    runs, the plane's grid right after them, the backlash tests and the before-runs come
+    before any axis's cyclic scans, so when it is spent each axis has the table a plain
+    ISO 230-2 calibration would give it (with its cyclic term where the scans were made),
+    said to be unverified, the plane its model, and the report its before and after.
+    (Axis by axis, X had a verified table, Y none, and the plane none.)"""
     with running(template, tmp_path / "m") as rig:
         proc = rig.commission("--budget-h", "0.9")
         assert proc.popen.wait(timeout=300) == 1, proc.text()
@@ -266,7 +266,7 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         assert state["short"]
         done = list(state["steps"])
         # a plain calibration's steps, then what judges them, then the cyclic scans
-        order = ["iso-Y", "xy-grid", "before-X", "before-Y", "cyclic-X"]
+        order = ["iso-Y", "xy-grid", "backlash-Y", "before-X", "before-Y", "cyclic-X"]
         assert [done.index(s) for s in order] == sorted(done.index(s) for s in order), done
         note = next(n for n in summary["notes"] if "identification's runs only" in n)
         assert note.startswith("X, Y: fitted") and "Y: no cyclic term" in note, note
@@ -305,7 +305,7 @@ def test_tables_that_make_the_plane_worse_are_not_left_loaded(tmp_path: Path) ->
         for a, b, c, d in zip(gx.ravel(), gy.ravel(), ex.ravel(), ey.ravel())))  # fmt: skip
     with running(tmp_path / "t", tmp_path / "m") as rig:
         original = rig.config.read_text()
-        proc = rig.commission("--budget-h", "0.32")
+        proc = rig.commission("--budget-h", "0.25")
         assert proc.popen.wait(timeout=300) == 1, proc.text()
         summary = json.loads((rig.dir / "commission" / "summary.json").read_text())
         xy = summary["xy"]

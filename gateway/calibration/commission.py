@@ -29,11 +29,11 @@ command again after Ctrl-C, a crash or a power loss carries on where it stopped:
    the plane reads worse with the tables than without), the report written.
 
 A budget short of the first steps and the before- and after-runs (the drift references
-around each counted) takes every axis's backlash and ISO runs first, the plane's grid
-right after them (with those tables on), then the before-runs, and the lead searches and
-cyclic scans last (a plain ISO 230-2 calibration's steps first, then what judges them,
-then the extras); spent before the fit, it still fits the axes whose ISO runs were made
-(unverified, said so).
+around each counted) takes every axis's ISO runs first, the plane's grid right after them
+(with those tables on), then the backlash tests and the before-runs, and the lead
+searches and cyclic scans last (a plain ISO 230-2 calibration's steps first, then what
+judges them, then the extras); spent before the fit, it still fits the axes whose ISO
+runs were made (unverified, said so).
 
 The gateway is made to load each config by writing it over the config file it runs and
 asking it to reload (the status unit's reload register, or SIGHUP / a command). An abort
@@ -252,15 +252,17 @@ class Commission(AfterSteps):
             await self._identify_axis(a)
             await self._warm_up(a)
         rest = [a for a in self.s.axes if a not in zoned] + zoned[:1]
-        if not zoned and self.short():  # every axis's table first, then the plane's grid
+        if not zoned and self.short():  # a plain ISO 230-2 calibration's steps first
             cores = [a for a in rest if not self._rotary(a)]
             for a in cores:
-                await self._identify_core(a, lead_first=False)
+                await self._iso(a)
             if self.s.planar is not None and set(self.s.planar) <= set(cores):
                 await self._before_xy()  # (what the plane's check and report need)
                 await self._fit_axes(cores)
                 await self._plane()
                 await self.use("identification")  # the rest is measured without them
+            for a in cores:  # (the bidirectional tables hold the backlash meanwhile)
+                await self._backlash(a)
             for a in cores:  # what the report judges them by, before any lead search
                 await self.step(f"before-{a}", lambda a=a: self._before_plan(a), "off",
                                 self._park(a))  # fmt: skip
@@ -294,10 +296,12 @@ class Commission(AfterSteps):
 
     def short(self) -> bool:
         """Whether the budget does not hold the first steps and the before- and after-runs
-        (decided once, kept in the state). Then every linear axis's backlash and ISO runs
-        come before any axis's lead search, cyclic scans and before-run, so that a budget
-        spent on the way leaves each axis a table (:meth:`_fit_identified`), not one axis
-        a verified table and the others none."""
+        (decided once, kept in the state). Then a plain ISO 230-2 calibration's steps come
+        first (every linear axis's ISO runs, the plane's grid with their tables on), then
+        the backlash tests and the before-runs, and the lead searches and cyclic scans
+        last, so that a budget spent on the way leaves each axis a table
+        (:meth:`_fit_identified`) and the plane its model, not one axis a verified table
+        and the others none."""
         if "short" not in self.state:
             plans = [p for _, p in self.initial_plans()]
             for a in [a for a in self.s.axes if not self._rotary(a)]:  # (no ISO runs yet)
@@ -310,19 +314,17 @@ class Commission(AfterSteps):
             self._save()
         return bool(self.state["short"])
 
-    async def _identify_core(self, a: str, lead_first: bool = True) -> None:
-        """What a linear axis's table needs: backlash (and the take-up), the lead search
-        (unless not ``lead_first``: on a short budget it comes later, with the cyclic scans
-        it is for) and the coarse ISO run, compensation off."""
-        results = self.state.setdefault("identify", {})
+    async def _backlash(self, a: str) -> None:
+        """The backlash test at three places (seed 000), and the take-up where it shows
+        lost motion."""
         travel = self._travel(a)
         await self.step(f"backlash-{a}", lambda: backlash_plan(a, travel), "off", self._park(a))
         b = backlash_from_raw(self.raw(f"backlash-{a}"), a)
-        results[f"backlash-{a}"] = {"B_um": float(b.backlash_mm * 1e3),
-                                    "places_um": [float(m * 1e3) for m in b.mean_mm]}
+        self.state.setdefault("identify", {})[f"backlash-{a}"] = {
+            "B_um": float(b.backlash_mm * 1e3), "places_um": [float(m * 1e3) for m in b.mean_mm]}
         await self.identify_takeup(a, b)
-        if lead_first:
-            await self._find_lead(a)
+
+    async def _iso(self, a: str) -> None:
         await self.step(f"iso-{a}", lambda: self._iso_plan(a), "off", self._park(a))
 
     async def _identify_axis(self, a: str) -> None:
@@ -332,7 +334,9 @@ class Commission(AfterSteps):
             await self.identify_rotary(a)
             return
         travel = self._travel(a)
-        await self._identify_core(a)  # (its lead search after the ISO runs when short)
+        await self._backlash(a)  # (each done already on a short budget but the lead search)
+        await self._find_lead(a)
+        await self._iso(a)
         if a in self.s.lead_mm:
             await self.step(f"cyclic-{a}", lambda: cyclic_plan(a, travel, self.s.lead_mm[a]),
                             "off", self._park(a))  # fmt: skip
