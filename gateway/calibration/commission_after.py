@@ -76,6 +76,8 @@ class AfterSteps(TakeUpSteps):
             if a in self.tables.pitch:
                 entry["table_points"] = int(read_pitch_csv(
                     self.config_dir / self.tables.pitch[a]).position_mm.size)
+                if not self._rotary(a):  # (a rotary axis's: rotary_summary)
+                    entry["interpolation"] = self.tables.interpolation.get(a, "linear")
             out["axes"][a] = entry
         if self.s.planar is not None:
             xy: dict[str, Any] = {}
