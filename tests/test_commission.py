@@ -87,6 +87,8 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
             heat = summary["identify"][f"motion-{axis}"]
             assert heat["fitted"] == ("thermal" in final[axis]["compensation"]), heat
             assert heat["fitted"] or f"axis {axis}" in heat["why"], heat
+            # the rounds measured between the table's points: straight lines between them
+            assert final[axis]["compensation"]["pitch"]["interpolation"] == "linear"
         # X missed in round 1: swept once over its whole travel, both ways, a reading every
         # 0.12 lead, the table given a point at every target read
         state = json.loads((out / "commission.json").read_text())
@@ -274,6 +276,10 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         assert "pitch" in final["X"]["compensation"] and "cyclic" in final["X"]["compensation"]
         assert "pitch" in final["Y"]["compensation"]
         assert "cyclic" not in final["Y"]["compensation"]
+        for a in ("X", "Y"):  # no round measures between the points: leave-one-out chooses
+            chosen = state["identify"][f"interpolation-{a}"]
+            assert chosen["why"] == "leave-one-out" and len(chosen["loo_rms_um"]) == 3, chosen
+            assert final[a]["compensation"]["pitch"]["interpolation"] == chosen["method"]
         assert "planar" in yaml.safe_load(rig.config.read_text())
         xy = summary["xy"]
         assert xy["after"]["max_um"] < 0.5 * xy["before"]["max_um"], xy

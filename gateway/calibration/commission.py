@@ -203,7 +203,7 @@ class Commission(AfterSteps):
         self.original()
         try:
             await self._identify()
-            await self._fit_axes()
+            await self._fit_axes(curves=bool(self.state.get("short")))
             await self._plane()
             outcome = await self._rounds()
         except BudgetSpent as exc:
@@ -258,7 +258,7 @@ class Commission(AfterSteps):
                 await self._iso(a)
             if self.s.planar is not None and set(self.s.planar) <= set(cores):
                 await self._before_xy()  # (what the plane's check and report need)
-                await self._fit_axes(cores)
+                await self._fit_axes(cores, curves=True)
                 await self._plane()
                 await self.use("identification")  # the rest is measured without them
             for a in cores:  # (the bidirectional tables hold the backlash meanwhile)
@@ -364,14 +364,14 @@ class Commission(AfterSteps):
         verified them."""
         if self.tables.pitch:  # fitted already (on a short budget, for the plane's grid):
             ready = [a for a in self.s.axes if a in self.tables.pitch]  # the scans made since
-            await self._fit_axes(ready)
+            await self._fit_axes(ready, curves=True)
             if self.state["rounds"]:
                 return  # verified in a round
         else:
             ready = [a for a in self.s.axes if not self._rotary(a) and self.done(f"iso-{a}")]
             if not ready:
                 return
-            await self._fit_axes(ready)
+            await self._fit_axes(ready, curves=True)
         rest = [a for a in self.s.axes if a not in ready]
         bare = [a for a in ready if a in self.s.lead_mm and a not in self.tables.cyclic]
         note = (f"{', '.join(ready)}: fitted from the identification's runs only, not "
@@ -383,8 +383,10 @@ class Commission(AfterSteps):
         self.say(note)
         self._save()
 
-    async def _fit_axes(self, axes: list[str] | None = None) -> None:
-        """The tables from the identification runs of ``axes`` (all: the commissioned)."""
+    async def _fit_axes(self, axes: list[str] | None = None, curves: bool = False) -> None:
+        """The tables from the identification runs of ``axes`` (all: the commissioned),
+        read along the curve their own leave-one-out prefers with ``curves`` (tables no
+        round will measure between their points, :meth:`interpolate`)."""
         axes = list(self.s.axes) if axes is None else axes
         scanned = [a for a in axes if a in self.s.lead_mm and self.done(f"cyclic-{a}")]
         if all(a in self.tables.pitch for a in axes) and \
@@ -421,7 +423,7 @@ class Commission(AfterSteps):
             r = replace(r, table=self.smoothed(a, r.table, config))
             save_pitch(r, "compgw commission: coarse ISO 230-2 run" +
                        (", net of the cyclic term" if model is not None else ""))  # fmt: skip
-            self.interpolate(a, r.table)
+            self.interpolate(a, r.table, curves)
             self.state.setdefault("spans", {})[a] = None  # every span is new: all verified
         self._save()
         await self.use("pitch")
