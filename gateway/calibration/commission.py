@@ -431,14 +431,38 @@ class Commission(AfterSteps):
     async def _plane(self) -> None:
         if self.s.planar is None or self.tables.planar_model is not None:
             return
-        await self.step("xy-grid", lambda: self._grid_plan(self.s.grid), "on")
+        grid = self._first_grid()
+        await self.step("xy-grid", lambda: self._grid_plan(grid), "on")
         self.tables.planar_axes = self.s.planar
         self.tables.planar_model = self._rel(self.dir / "tables" / "xy_model.yaml")
         config, _ = self.staged("full")
         self._fit_plane(config, "xy-grid", residual=False)
-        self.state["grid"] = list(self.s.grid)
         self._save()
         await self.use("full")
+
+    def _first_grid(self) -> tuple[int, int]:
+        """The plane's first grid (decided once, kept in the state): the configured one;
+        on a short budget, whose rounds will not refine it, the densest of its
+        refinements (:func:`.adaptive.denser_grid`) whose run fits in what the budget has
+        left once the steps it still owes are counted: each linear axis's backlash test
+        and before- and after-runs. (At 1.5 x a manual calibration's time the sdss plates'
+        7 x 5 grid left their Y at the judge's park 13.4 µm, the manual's 9 x 7 5.3 µm.)"""
+        if "grid" not in self.state:
+            grid = self.s.grid
+            if self.state.get("short"):
+                owed = [backlash_plan(a, self._travel(a)) for a in self.s.axes
+                        if not self._rotary(a) and not self.done(f"backlash-{a}")]
+                owed += [self._before_plan(a) for a in self.s.axes if not self._rotary(a)
+                         for _ in ("before", "after")]  # fmt: skip
+                left_s = (self.s.budget_s - self.used_s - self.reserve_s()
+                          - sum(self.step_cost_s(p) for p in owed))  # fmt: skip
+                denser = adaptive.denser_grid(*grid)
+                while denser != grid and self.step_cost_s(self._grid_plan(denser)) <= left_s:
+                    grid, denser = denser, adaptive.denser_grid(*denser)
+            self.state["grid"] = list(grid)
+            self._save()
+        nx, ny = self.state["grid"]
+        return int(nx), int(ny)
 
     def _fit_plane(self, config: GatewayConfig, name: str, residual: bool) -> None:
         """The plane from grid run ``name`` (read with the tables on disk loaded), and its
