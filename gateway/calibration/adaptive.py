@@ -164,7 +164,7 @@ def keeps_refinement(score_um: float, best_um: float, plane: bool = False) -> bo
     verification's own scatter, and the older table stays. The plane's refinement is a
     denser grid of readings smoothed by their own scatter (:mod:`.grid_smooth`), more
     readings of the same field: it stays unless it is worse by that margin (its RMS
-    vector error at a few random points read once, ``Commission._keep_best``)."""
+    vector error at a few random points read once, ``BestTables._keep_best``)."""
     margin = max(0.1 * best_um, 0.2)
     return score_um <= best_um + margin if plane else score_um < best_um - margin
 

@@ -44,9 +44,7 @@ estimate (:func:`.plans.plan_time_s`): the same yardstick for any workflow.
 from __future__ import annotations
 
 import json
-import shutil
 from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -55,7 +53,7 @@ from ..compensation.errors import TableError
 from ..config import GatewayConfig
 from ..formats import atomic_write_text, read_pitch_csv
 from . import adaptive
-from .commission_after import AfterSteps
+from .commission_best import BestTables
 from .commission_steps import (
     BudgetSpent,
     CommissionAborted,
@@ -72,7 +70,7 @@ from .outputs import (
     save_pitch,
     save_planar,
 )
-from .plane_frame import FITTED_FILE, FRAME_FILE, fitted_frame, reframe_plane, save_frame
+from .plane_frame import fitted_frame, reframe_plane, save_frame
 from .plans import (
     Plan,
     backlash_from_raw,
@@ -91,7 +89,7 @@ from .takeup_fit import MIN_LOST_UM, takeup_plan
 MAX_VERIFY_RUNS = 8
 
 
-class Commission(AfterSteps):
+class Commission(BestTables):
     """One commissioning: the plans, the order of the steps, the fits and the rounds."""
 
     # -- the whole thing -----------------------------------------------------------------
@@ -616,17 +614,6 @@ class Commission(AfterSteps):
         """The config the fitted tables run in: "full" once the plane is fitted."""
         return "full" if self.tables.planar_model else "pitch"
 
-    def _table_files(self, name: str) -> list[Path]:
-        """The files that hold an axis's table (or, for "XY", the planar model)."""
-        if name == "XY":
-            model = self.config_dir / str(self.tables.planar_model)
-            return [model, model.parent / "xy_points.csv", model.parent / FRAME_FILE,
-                    model.parent / FITTED_FILE]
-        files = [self.config_dir / self.tables.pitch[name]]
-        if name in self.tables.cyclic:  # refinement scans add cyclic stations too
-            files.append(self.config_dir / self.tables.cyclic[name])
-        return files
-
     def reserve_s(self) -> float:
         """The after-run (the before-run's targets again) is kept out of the budget."""
         plans = [self.dir / "plans" / f"before-{a}.plan" for a in self.s.axes]
@@ -639,68 +626,6 @@ class Commission(AfterSteps):
                 plan = read_plan(path)
                 total += self.estimate_s(plan) + self.refs_around_s(plan)
         return total
-
-    def _restore_best(self) -> None:
-        """Put back the best table of every axis (and the plane's model) judged so far."""
-        for name in self.state.get("best", {}):
-            if self._put_back(name):
-                self.state["notes"].append(f"{name}: back to its best "
-                                           f"(round {self.state['best'][name]['round']})")
-
-    def _put_back(self, name: str) -> bool:
-        """The best files of an axis (or "XY") as they were: copied over the current ones,
-        and one that did not exist then removed (a plane's frame, where the best plane was
-        pinned without a fade), and the table's interpolation then; True when any
-        differed."""
-        keep = self.dir / "tables" / "best"
-        changed = False
-        method = self.state.get("best", {}).get(name, {}).get("interpolation")
-        if method is not None and method != self.tables.interpolation.get(name, "linear"):
-            if method == "linear":
-                self.tables.interpolation.pop(name, None)
-            else:
-                self.tables.interpolation[name] = method
-            changed = True
-        for path in self._table_files(name):
-            saved = keep / f"{name}-{path.name}"
-            if saved.exists() and (not path.exists() or path.read_bytes() != saved.read_bytes()):
-                atomic_write_text(path, saved.read_text())
-                changed = True
-            elif not saved.exists() and path.exists():
-                path.unlink()
-                changed = True
-        return changed
-
-    def _keep_best(self, name: str, score: float, r: int, rms: float | None = None) -> bool:
-        """Record round ``r``'s verification score (µm) of an axis or the plane. A score
-        that :func:`.adaptive.keeps_refinement` keeps makes the current table the best
-        (copied aside); else the best is put back. False when it was put back. The plane
-        is kept or put back on its RMS vector error (``rms``) where both rounds have one:
-        its score, the largest error at 32 points read once, moves by more than the 10 %
-        between two readings of the same field (sdss-2130: 4.83 → 5.37 µm, RMS 2.85 →
-        2.66, and its denser grid was put back for good)."""
-        best = self.state["best"]
-        keep = self.dir / "tables" / "best"
-        keep.mkdir(parents=True, exist_ok=True)
-        old = best.get(name)
-        if old is not None and old["round"] == r:  # this round again, resumed: as it was
-            return True
-        now, was = score, None if old is None else old["score"]
-        if rms is not None and old is not None and old.get("rms") is not None:
-            now, was = rms, old["rms"]
-        if was is None or adaptive.keeps_refinement(now, was, plane=name == "XY"):
-            best[name] = {"score": score, "round": r, **({"rms": rms} if rms is not None
-                                                          else {})}  # fmt: skip
-            if name in self.tables.pitch and not self._rotary(name):  # and how it is read
-                best[name]["interpolation"] = self.tables.interpolation.get(name, "linear")
-            for path in self._table_files(name):
-                if path.exists():
-                    shutil.copyfile(path, keep / f"{name}-{path.name}")
-                else:  # (a plane without a frame): no older copy stands in for it
-                    (keep / f"{name}-{path.name}").unlink(missing_ok=True)
-            return True
-        self._put_back(name)
-        return False
 
     def _verify_targets(self, r: int, axis: str) -> np.ndarray:
         table = read_pitch_csv(self.config_dir / self.tables.pitch[axis]).position_mm
