@@ -192,6 +192,11 @@ class Commission(BestTables):
                      "steps: only the axes identified within it get tables, from those runs "
                      f"alone and unverified; give at least {total / 3600:.2f} h, and more for "
                      "the verification rounds")  # fmt: skip
+        if self._first_need_s() > self.s.budget_s and not any(
+                self._thermal(a) for a in self.s.axes if not self._rotary(a)):  # fmt: skip
+            self.say("  a short budget: every axis's ISO runs and the plane's grid first, then "
+                     "the backlash tests and before-runs, the lead searches and cyclic scans "
+                     "last, as the budget allows")  # fmt: skip
         self.rotary_plan_lines()
         return total
 
@@ -301,16 +306,19 @@ class Commission(BestTables):
         (:meth:`_fit_identified`) and the plane its model, not one axis a verified table
         and the others none."""
         if "short" not in self.state:
-            plans = [p for _, p in self.initial_plans()]
-            for a in [a for a in self.s.axes if not self._rotary(a)]:  # (no ISO runs yet)
-                plans += 2 * [self._before_plan(a, avoid_mm=np.zeros(0))]
-            if self.s.planar is not None:
-                plans += 2 * [self._xy_check_plan(10_000 + self.s.seed, self.s.grid)]
-            # each with the drift references read around its runs
-            need_s = sum(self.estimate_s(p) + self.refs_around_s(p) for p in plans)
-            self.state["short"] = bool(need_s > self.s.budget_s)
+            self.state["short"] = bool(self._first_need_s() > self.s.budget_s)
             self._save()
         return bool(self.state["short"])
+
+    def _first_need_s(self) -> float:
+        """Machine time (s) of the first steps and the before- and after-runs, each with
+        the drift references read around its runs."""
+        plans = [p for _, p in self.initial_plans()]
+        for a in [a for a in self.s.axes if not self._rotary(a)]:  # (no ISO runs yet)
+            plans += 2 * [self._before_plan(a, avoid_mm=np.zeros(0))]
+        if self.s.planar is not None:
+            plans += 2 * [self._xy_check_plan(10_000 + self.s.seed, self.s.grid)]
+        return sum(self.estimate_s(p) + self.refs_around_s(p) for p in plans)
 
     async def _backlash(self, a: str) -> None:
         """The backlash test at three places (seed 000), and the take-up where it shows
