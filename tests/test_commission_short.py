@@ -1,0 +1,74 @@
+"""`compgw commission` on a short budget, on a real-data stage (`compgw sim --real-machine`):
+no round will measure between its tables' points, so each is read along the curve its own
+leave-one-out prefers; on slit-11358, whose Y falls 54 µm in 5 mm to a sharp minimum, that
+follows the error where straight lines cut across it (Y's table, noise-free at 400 random
+targets moving +: 2.41 µm RMS read straight, 0.71 µm along the spline)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from gateway.compensation import PitchStage
+from gateway.formats import read_pitch_csv
+from sim.real_machines import data_root
+from sim.truth import Curve, read_columns
+from tests.commission_rig import Rig, running
+from tests.test_service_helpers import Proc
+
+STAGE = "slit-11358"
+
+
+def _real_stage(directory: Path) -> dict:
+    proc = Proc(["-m", "gateway.cli", "sim", "--real-machine", STAGE, "--out", str(directory)])
+    assert proc.popen.wait(timeout=60) == 0, proc.text()
+    sim = yaml.safe_load((directory / "sim.yaml").read_text())
+    sim["sim"]["tcp"]["port"] = 0
+    (directory / "sim.yaml").write_text(yaml.safe_dump(sim, sort_keys=False))
+    gw = yaml.safe_load((directory / "gateway.yaml").read_text())
+    gw["upstream"]["tcp"]["port"] = 0
+    gw["status"]["remote_control"] = True
+    (directory / "gateway.yaml").write_text(yaml.safe_dump(gw, sort_keys=False))
+    return json.loads((directory / "machine.json").read_text())
+
+
+def _commission(rig: Rig, budget_h: float) -> Proc:
+    return Proc(["-m", "gateway.cli", "commission", "-c", str(rig.config),
+                 "--gateway", f"127.0.0.1:{rig.gw_port}",
+                 "--laser", f"127.0.0.1:{rig.sim_port}:20",
+                 "--xy-device", f"127.0.0.1:{rig.sim_port}:21",
+                 "--budget-h", f"{budget_h:g}", "--no-progress"])  # fmt: skip
+
+
+@pytest.mark.skipif(not (data_root() / "bifrost_slit_11358_axis2").is_dir(),
+                    reason="shared real data not present")
+def test_a_short_budget_reads_a_coarse_table_along_the_curve_it_prefers(tmp_path: Path) -> None:
+    template = tmp_path / "t"
+    _real_stage(template)
+    with running(template, tmp_path / "m") as rig:
+        proc = _commission(rig, 0.5)  # 1.5 x what the manual workflow's plans take here
+        assert proc.popen.wait(timeout=300) == 1, proc.text()  # the budget, not the tolerance
+        state = json.loads((rig.dir / "commission" / "commission.json").read_text())
+        assert state["short"] and not state["rounds"]
+        final = yaml.safe_load(rig.config.read_text())
+        chosen = state["identify"]["interpolation-Y"]
+        method = final["axes"]["Y"]["compensation"]["pitch"]["interpolation"]
+        assert chosen["why"] == "leave-one-out" and method == chosen["method"] != "linear"
+        assert chosen["loo_rms_um"][method] < 0.97 * chosen["loo_rms_um"]["linear"], chosen
+        # what the table misses of the truth between its points, noise-free, moving +
+        table = read_pitch_csv(rig.config.parent / final["axes"]["Y"]["compensation"]["pitch"]
+                               ["file"])  # fmt: skip
+        truth = read_columns(template / "truth" / "Y_deviation.csv",
+                             ["position_mm", "forward_um"])  # fmt: skip
+        curve = Curve(truth["position_mm"], truth["forward_um"] * 1e-3)
+        x = np.random.default_rng(11358).uniform(table.position_mm[0], table.position_mm[-1], 400)
+        up = np.ones(x.size, dtype=np.int64)
+        miss_um = {}
+        for how in ("linear", method):
+            miss = curve(x) - (PitchStage(table, how).inverse(x, up) - x)
+            miss_um[how] = float(np.std(miss)) * 1e3  # (an offset is the plane's, not the table's)
+        assert miss_um[method] < 0.6 * miss_um["linear"], miss_um
