@@ -322,13 +322,16 @@ class Commission(BestTables):
 
     async def _backlash(self, a: str) -> None:
         """The backlash test at three places (seed 000), and the take-up where it shows
-        lost motion."""
+        lost motion; once (a short budget's order asks for it twice)."""
+        if a in self.state.get("backlash_fitted", []):
+            return
         travel = self._travel(a)
         await self.step(f"backlash-{a}", lambda: backlash_plan(a, travel), "off", self._park(a))
         b = backlash_from_raw(self.raw(f"backlash-{a}"), a)
         self.state.setdefault("identify", {})[f"backlash-{a}"] = {
             "B_um": float(b.backlash_mm * 1e3), "places_um": [float(m * 1e3) for m in b.mean_mm]}
         await self.identify_takeup(a, b)
+        self.state.setdefault("backlash_fitted", []).append(a)
 
     async def _iso(self, a: str) -> None:
         await self.step(f"iso-{a}", lambda: self._iso_plan(a), "off", self._park(a))
