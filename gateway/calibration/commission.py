@@ -28,12 +28,12 @@ command again after Ctrl-C, a crash or a power loss carries on where it stopped:
    has left (:mod:`.commission_after`), the full config left loaded (the user's own where
    the plane reads worse with the tables than without), the report written.
 
-A budget short of the first steps and the before- and after-runs (the drift references
-around each counted) takes every axis's ISO runs first, the plane's grid right after them
-(with those tables on, as dense as the budget left allows), then the backlash tests and
-the before-runs, and the lead searches and cyclic scans last (a plain ISO 230-2
-calibration's steps first, then what judges them, then the extras); spent before the
-fit, it still fits the axes whose ISO runs were made (unverified, said so).
+A budget short of the first steps, the before- and after-runs and one round (the drift
+references around each counted) takes every axis's ISO runs first, the plane's grid
+right after them (with those tables on, as dense as the budget left allows), then the
+backlash tests and the before-runs, and the lead searches and cyclic scans last (a plain
+ISO 230-2 calibration's steps first, then what judges them, then the extras); spent
+before the fit, it still fits the axes whose ISO runs were made (unverified, said so).
 
 The gateway is made to load each config by writing it over the config file it runs and
 asking it to reload (the status unit's reload register, or SIGHUP / a command). An abort
