@@ -54,7 +54,6 @@ from ..config import GatewayConfig
 from ..formats import atomic_write_text, read_pitch_csv
 from . import adaptive
 from .commission_best import BestTables
-from .commission_refine import SWEEP_PIECE_MM
 from .commission_steps import (
     BudgetSpent,
     CommissionAborted,
@@ -80,11 +79,10 @@ from .plans import (
     read_plan,
     targets_plan,
 )
-from .plans_scans import cyclic_plan, sweep_plan
+from .plans_scans import cyclic_plan
 from .plans_xy import xy_grid_plan, xy_verification_plan
 from .rawdata import axis_deviations, read_raw_csv
 from .runner import read_raw_meta
-from .sweep import sweep_steps_mm, sweep_targets_mm
 from .takeup_fit import MIN_LOST_UM, takeup_plan
 
 #: a verification's runs per target are doubled, up to this, before an axis is settled
@@ -194,8 +192,7 @@ class Commission(BestTables):
                      "steps: only the axes identified within it get tables, from those runs "
                      f"alone and unverified; give at least {total / 3600:.2f} h, and more for "
                      "the verification rounds")  # fmt: skip
-        if self._first_need_s() > self.s.budget_s and not any(
-                self._thermal(a) for a in self.s.axes if not self._rotary(a)):  # fmt: skip
+        if not self._zoned() and self._first_need_s() > self.s.budget_s:
             self.say("  a short budget: every axis's ISO runs and the plane's grid first, then "
                      "the backlash tests and before-runs, the lead searches and cyclic scans "
                      "last, as the budget allows")  # fmt: skip
@@ -249,8 +246,7 @@ class Commission(BestTables):
         hours before its axis is measured, instead of going into its table."""
         await self.read_start_temperatures()
         await self.use("identification")
-        linear = [a for a in self.s.axes if not self._rotary(a)]
-        zoned = [a for a in linear if self._thermal(a)]
+        zoned = self._zoned()
         if zoned:
             await self._warm_up(zoned[0])
         for a in zoned[1:]:
@@ -281,6 +277,11 @@ class Commission(BestTables):
         if self.s.planar is not None:
             await self.step("before-xy", lambda: self._xy_check_plan(10_000 + self.s.seed,
                                                                     self.s.grid), "off")
+
+    def _zoned(self) -> list[str]:
+        """The linear axes with a thermal setting: each gets a zone warm-up, and the
+        identification keeps its own order (a short budget's does not apply)."""
+        return [a for a in self.s.axes if not self._rotary(a) and self._thermal(a)]
 
     async def _warm_up(self, a: str) -> None:
         """The axis's warm-up (thermal off) and its fit; the identification config back."""
@@ -324,10 +325,7 @@ class Commission(BestTables):
         plans = [p for _, p in self.initial_plans()]
         for a in [a for a in self.s.axes if not self._rotary(a)]:  # (no ISO runs yet)
             plans += 3 * [self._before_plan(a, avoid_mm=np.zeros(0))]
-            lead, travel = self.s.lead_mm.get(a), self._travel(a)
-            coarsest = len(sweep_steps_mm(lead)) - 1
-            plans.append(self._snap(sweep_plan(a, travel, sweep_targets_mm(
-                travel, lead, coarser=coarsest), piece_mm=SWEEP_PIECE_MM)))  # fmt: skip
+            plans.append(self._sweep_plan(a, -1, self.s.lead_mm.get(a), estimate=True))
         if self.s.planar is not None:
             plans += 3 * [self._xy_check_plan(10_000 + self.s.seed, self.s.grid)]
             plans.append(self._grid_plan(adaptive.denser_grid(*self.s.grid)))

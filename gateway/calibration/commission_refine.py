@@ -232,10 +232,15 @@ class RefineSteps(ThermalSteps):
         s_um = self.iso_scatter_um(axis)
         return s_um is not None and s_um > self.tolerance_of(axis)
 
-    def _sweep_plan(self, axis: str, coarser: int) -> Plan:
+    def _sweep_plan(self, axis: str, coarser: int, lead_mm: float | None = None,
+                    estimate: bool = False) -> Plan:  # fmt: skip
+        """``axis``'s sweep ``coarser`` steps down its steps (-1: the coarsest); with
+        ``estimate``, before its cyclic term and ISO runs exist (the lead ``lead_mm``,
+        not noisy)."""
         travel = self._travel(axis)
-        targets = sweep_targets_mm(travel, self._lead_of(axis), coarser=coarser,
-                                   noisy=self._noisy(axis))  # fmt: skip
+        lead = lead_mm if estimate else self._lead_of(axis)
+        targets = sweep_targets_mm(travel, lead, coarser=coarser,
+                                   noisy=not estimate and self._noisy(axis))  # fmt: skip
         return self._snap(sweep_plan(axis, travel, targets, piece_mm=SWEEP_PIECE_MM))
 
     def _sweeps(self, r: int, axis: str, allowance_s: float) -> int | None:
