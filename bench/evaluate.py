@@ -194,23 +194,28 @@ def _snap(pos: float, pulse_mm: float) -> float:
 
 def _clear_of(rng: np.random.Generator, lo: float, hi: float, avoid: np.ndarray, n: int,
               gap_mm: float, pulse_mm: float) -> np.ndarray:
-    """``n`` random positions in [lo, hi] at least ``gap_mm`` from every ``avoid`` target."""
-    out: list[float] = []
-    for _ in range(100 * n):
-        p = _snap(float(rng.uniform(lo, hi)), pulse_mm)
-        if avoid.size == 0 or np.abs(avoid - p).min() >= gap_mm:
-            out.append(p)
-            if len(out) == n:
-                return np.array(out)
-    raise RuntimeError("no random target clear of the calibration targets")
+    """The first ``n`` of a fixed pool of random positions in [lo, hi] that are at least
+    ``gap_mm`` from every ``avoid`` target: a target another workflow measured is replaced
+    by the pool's next, and the others stay where they were."""
+    pool = [_snap(float(p), pulse_mm) for p in rng.uniform(lo, hi, 100 * n)]
+    out = [p for p in pool if avoid.size == 0 or np.abs(avoid - p).min() >= gap_mm][:n]
+    if len(out) < n:
+        raise RuntimeError("no random target clear of the calibration targets")
+    return np.array(out)
 
 
 def plan(machine: dict[str, Any], avoid: dict[str, list[float]], seed: int) -> dict[str, Any]:
-    """Random targets (seeded), the same before and after calibration."""
-    rng = np.random.default_rng([seed, 230])
+    """Random targets (seeded), the same before and after calibration. Each draw has its own
+    stream, so what a workflow measured moves only the targets it hits: two workflows on
+    one machine are judged at the same parks and XY points and nearly the same targets (one
+    stream for all moved the park whenever a target was replaced: sdss-1396's E before read
+    10.4 or 8.8 µm by which workflow it judged)."""
+    def rng(*key: int) -> np.random.Generator:
+        return np.random.default_rng([seed, 230, *key])
+
     out: dict[str, Any] = {"axes": {}}
     names = list(machine["axes"])
-    for name in names:
+    for k, name in enumerate(names):
         info = machine["axes"][name]
         lo, hi = info["travel_mm"]
         pulse = info["pulse_mm"]
@@ -219,27 +224,30 @@ def plan(machine: dict[str, Any], avoid: dict[str, list[float]], seed: int) -> d
         gap = min(0.05, (hi - lo) / 2000)
         far = np.array(avoid.get(name, []))
         m = int(np.clip(round((hi - lo) / 40), 6, 15))
-        iso = np.sort(_clear_of(rng, lo + 3, hi - 3, far, m, gap, pulse))
+        iso = np.sort(_clear_of(rng(k, 0), lo + 3, hi - 3, far, m, gap, pulse))
+        walk = rng(k, 1)
         seq = []
-        pos = float(rng.uniform(lo + 2, hi - 2))
+        pos = float(walk.uniform(lo + 2, hi - 2))
         for _ in range(150):
-            if rng.random() < 0.5:
-                pos = float(rng.uniform(lo + 1, hi - 1))
+            if walk.random() < 0.5:
+                pos = float(walk.uniform(lo + 1, hi - 1))
             else:
-                pos = float(np.clip(pos + rng.choice((-1, 1)) * 10 ** rng.uniform(-2.3, 0.3),
+                pos = float(np.clip(pos + walk.choice((-1, 1)) * 10 ** walk.uniform(-2.3, 0.3),
                                     lo + 1, hi - 1))
             seq.append(_snap(pos, pulse))
         zone_len = ZONE_FRACTION * (hi - lo)
-        z0 = float(rng.uniform(lo, hi - zone_len))
+        z0 = float(rng(k, 2).uniform(lo, hi - zone_len))
+        park = _snap(rng(k, 3).uniform(olo + 1, ohi - 1), machine["axes"][other]["pulse_mm"])
         out["axes"][name] = {
-            "iso_targets": iso.tolist(), "park": {other: _snap(rng.uniform(olo + 1, ohi - 1),
-                                                              machine["axes"][other]["pulse_mm"])},
+            "iso_targets": iso.tolist(), "park": {other: park},
             "offgrid": seq, "zone": [_snap(z0, pulse), _snap(z0 + zone_len, pulse)],
-            "thermal_points": np.sort(_clear_of(rng, lo + 2, hi - 2, far, 5, gap, pulse)).tolist(),
+            "thermal_points": np.sort(_clear_of(rng(k, 4), lo + 2, hi - 2, far, 5, gap,
+                                                pulse)).tolist(),
         }  # fmt: skip
     (x0, x1), (y0, y1) = (machine["axes"][n]["travel_mm"] for n in names)
     px, py = (machine["axes"][n]["pulse_mm"] for n in names)
-    points = [(_snap(rng.uniform(x0 + 2, x1 - 2), px), _snap(rng.uniform(y0 + 2, y1 - 2), py))
+    xy = rng(len(names))
+    points = [(_snap(xy.uniform(x0 + 2, x1 - 2), px), _snap(xy.uniform(y0 + 2, y1 - 2), py))
               for _ in range(40)]  # fmt: skip
     out["xy_points"] = points
     return out

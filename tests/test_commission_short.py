@@ -2,7 +2,8 @@
 no round will measure between its tables' points, so each is read along the curve its own
 leave-one-out prefers; on slit-11358, whose Y falls 54 µm in 5 mm to a sharp minimum, that
 follows the error where straight lines cut across it (Y's table, noise-free at 400 random
-targets moving +: 2.41 µm RMS read straight, 0.71 µm along the spline)."""
+targets moving +: 2.41 µm RMS read straight, 0.71 µm along the spline). Its drift
+references only scatter, so once the ISO runs give that scatter a step's runs share them."""
 
 from __future__ import annotations
 
@@ -54,6 +55,11 @@ def test_a_short_budget_reads_a_coarse_table_along_the_curve_it_prefers(tmp_path
         assert proc.popen.wait(timeout=300) == 1, proc.text()  # the budget, not the tolerance
         state = json.loads((rig.dir / "commission" / "commission.json").read_text())
         assert state["short"] and not state["rounds"]
+        # the ISO runs (their scatter not known yet) each get their own drift references;
+        # the plane's two grid runs one pair, as this stage's references only scatter
+        steps, apart = state["steps"], state["apart"]
+        assert apart["iso-Y"] and len(steps["iso-Y"]["parts"]) == 3, apart
+        assert not apart["xy-grid"] and len(steps["xy-grid"]["parts"]) == 1, apart
         final = yaml.safe_load(rig.config.read_text())
         chosen = state["identify"]["interpolation-Y"]
         method = final["axes"]["Y"]["compensation"]["pitch"]["interpolation"]
