@@ -108,9 +108,10 @@ def test_drift_taken_off_only_where_the_references_vary_beyond_their_scatter():
 
 
 def test_runs_get_their_own_references_only_where_a_drift_can_be_taken_off():
-    """References that only scatter are read around a whole step (they watch for a drift
-    to begin); around each run while the drift stands out, while the scatter is not known
-    yet, and on an axis with a temperature sensor, whatever its references read."""
+    """On a short budget, references that only scatter are read around a whole step (they
+    watch for a drift to begin); around each run while the drift stands out, while the
+    scatter is not known yet, on an axis with a temperature sensor whatever its references
+    read, and on a long budget (a drift that stands out later is taken off run by run)."""
     s_um = 1.2
     noise_um = np.random.default_rng(1).normal(0.0, s_um / np.sqrt(3), (12, 2))
     growth_um = noise_um + np.linspace(0.0, 6.0, 12)[:, None]
@@ -118,19 +119,20 @@ def test_runs_get_their_own_references_only_where_a_drift_can_be_taken_off():
     assert Steps.runs_apart(_fake(growth_um, s_um))  # type: ignore[arg-type]
     assert Steps.runs_apart(_fake(noise_um, None))  # type: ignore[arg-type]
     assert Steps.runs_apart(_fake(noise_um, s_um, sensor=True))  # type: ignore[arg-type]
+    assert Steps.runs_apart(_fake(noise_um, s_um, short=False))  # type: ignore[arg-type]
 
 
-def _fake(log_um: np.ndarray, s_um: float | None, sensor: bool = False) -> types.SimpleNamespace:
+def _fake(log_um: np.ndarray, s_um: float | None, sensor: bool = False,
+          short: bool = True) -> types.SimpleNamespace:
     """Just what :meth:`Steps.drift_stands_out` and :meth:`Steps.runs_apart` read: axis X's
-    drift log (µm, two references per reading), its ISO scatter (None: not fitted yet) and
-    whether its compensation has a thermal section."""
+    drift log (µm, two references per reading), its ISO scatter (None: not fitted yet),
+    whether its compensation has a thermal section and whether the budget is short."""
     ident = {"reversal-X": {"scatter_um": s_um}} if s_um is not None else {}
     log = [{"drift_mm": {"X": list(row * 1e-3)}} for row in log_um]
-    thermal = types.SimpleNamespace(source="t") if sensor else None
-    me = types.SimpleNamespace(state={"identify": ident, "drift_log": log}, config=types.
-                               SimpleNamespace(axes={"X": types.SimpleNamespace(
-                                   rotary=False, compensation=types.SimpleNamespace(
-                                       thermal=thermal))}))  # fmt: skip
+    comp = types.SimpleNamespace(thermal=types.SimpleNamespace(source="t") if sensor else None)
+    axes = {"X": types.SimpleNamespace(rotary=False, compensation=comp)}
+    me = types.SimpleNamespace(state={"identify": ident, "drift_log": log, "short": short},
+                               config=types.SimpleNamespace(axes=axes))  # fmt: skip
     me.iso_scatter_um = lambda axis: Steps.iso_scatter_um(me, axis)  # type: ignore[arg-type]
     me.drift_stands_out = lambda axis: Steps.drift_stands_out(me, axis)  # type: ignore[arg-type]
     me.ref_axes = lambda: Steps.ref_axes(me)  # type: ignore[arg-type]

@@ -401,11 +401,17 @@ class Steps:
 
     def runs_apart(self) -> bool:
         """Whether a step's runs each get their own drift references, not the whole step
-        one pair: while a linear axis has a temperature sensor, or its references have
-        varied by more than their own scatter (:meth:`drift_stands_out`, so until the ISO
-        runs give that scatter). Otherwise the references only watch for a drift to begin,
-        and around every run they cost a small stage a third of a short budget (mcu1025
-        at 1.5 x a manual calibration's time: 6.1 of 17.7 minutes)."""
+        one pair. One pair only on a short budget (:meth:`short`), and only while no linear
+        axis has a temperature sensor and no axis's references have varied by more than
+        their own scatter (:meth:`drift_stands_out`, so not before the ISO runs give that
+        scatter): there the references only watch for a drift to begin, and around every
+        run they cost a small stage a third of its budget (mcu1025 at 1.5 x a manual
+        calibration's time: 6.1 of 17.7 minutes). A long budget keeps them around every
+        run: a drift that stands out only later is then taken off run by run, where one
+        pair around a whole sweep left its heat in the tables as a bow (mcu1025 at 8 h,
+        noise-free: 0.6 → 1.2 µm on X, 1.4 → 2.6 µm on Y)."""
+        if not self.state.get("short"):
+            return True
         return any(self.config.axes[a].compensation.thermal is not None
                    or self.drift_stands_out(a) for a in self.ref_axes())  # fmt: skip
 
