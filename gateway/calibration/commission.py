@@ -53,7 +53,7 @@ from ..compensation.errors import TableError
 from ..config import GatewayConfig
 from ..formats import atomic_write_text, read_pitch_csv
 from . import adaptive
-from .commission_best import BestTables
+from .commission_short import ShortBudget
 from .commission_steps import (
     BudgetSpent,
     CommissionAborted,
@@ -89,7 +89,7 @@ from .takeup_fit import MIN_LOST_UM, takeup_plan
 MAX_VERIFY_RUNS = 8
 
 
-class Commission(BestTables):
+class Commission(ShortBudget):
     """One commissioning: the plans, the order of the steps, the fits and the rounds."""
 
     # -- the whole thing -----------------------------------------------------------------
@@ -126,9 +126,24 @@ class Commission(BestTables):
                                                            ("axis", axis)))  # fmt: skip
 
     async def _find_lead(self, axis: str) -> None:
-        """The lead search of an axis whose lead was not given (--lead-mm)."""
+        """The lead search of an axis whose lead was not given (--lead-mm); not begun where
+        the budget left holds it but not the cyclic scans a lead found would call for (the
+        sdss plates at 1.5 x a manual calibration's time spent 8 of their 59 minutes on a
+        search whose scans could not have followed)."""
         leads = self.state.setdefault("leads", {})
         if axis in self.s.lead_mm or axis in leads or self.s.no_lead_search:
+            return
+        scans = cyclic_plan(axis, self._travel(axis), min(adaptive.STANDARD_LEADS_MM))
+        need_s = self.step_cost_s(self._lead_plan(axis)) + self.step_cost_s(scans)
+        left_s = self.s.budget_s - self.used_s - self.reserve_s()
+        if need_s > left_s:
+            note = (f"{axis}: no lead search: it and the cyclic scans it may call for need "
+                    f"{need_s / 60:.1f} min of machine time, {max(0.0, left_s) / 60:.1f} min "
+                    "left (--lead-mm gives the lead)")  # fmt: skip
+            if note not in self.state["notes"]:
+                self.say(note)
+                self.state["notes"].append(note)
+                self._save()
             return
         await self.step(f"lead-{axis}", lambda: self._lead_plan(axis), "off", self._park(axis))
         raw = self.raw(f"lead-{axis}")
@@ -300,37 +315,6 @@ class Commission(BestTables):
             self.say(f"{a}: thermal setting kept as configured: {exc}")
         await self.use("identification")  # with the length or gain
 
-    def short(self) -> bool:
-        """Whether the budget does not hold the first steps, the before- and after-runs and
-        one round (:meth:`_first_need_s`; decided once, kept in the state): the rounds
-        would then verify what they cannot afford to refine (at 2 x a manual calibration's
-        time sdss-1396 took the normal order, its lead searches and a round with nothing
-        added, and ended on a 7 x 5 grid: E cut −36 %, against 54 % at 1.5 x, short).
-        Then a plain ISO 230-2 calibration's steps come
-        first (every linear axis's ISO runs, the plane's grid with their tables on), then
-        the backlash tests and the before-runs, and the lead searches and cyclic scans
-        last, so that a budget spent on the way leaves each axis a table
-        (:meth:`_fit_identified`) and the plane its model, not one axis a verified table
-        and the others none."""
-        if "short" not in self.state:
-            self.state["short"] = bool(self._first_need_s() > self.s.budget_s)
-            self._save()
-        return bool(self.state["short"])
-
-    def _first_need_s(self) -> float:
-        """Machine time (s) of the first steps, the before- and after-runs and one round:
-        its verification (the before-run's size) and the least refinement it may call for
-        (each linear axis swept at its coarsest step, the plane's grid split once), each
-        with the drift references read around its runs."""
-        plans = [p for _, p in self.initial_plans()]
-        for a in [a for a in self.s.axes if not self._rotary(a)]:  # (no ISO runs yet)
-            plans += 3 * [self._before_plan(a, avoid_mm=np.zeros(0))]
-            plans.append(self._sweep_plan(a, -1, self.s.lead_mm.get(a), estimate=True))
-        if self.s.planar is not None:
-            plans += 3 * [self._xy_check_plan(10_000 + self.s.seed, self.s.grid)]
-            plans.append(self._grid_plan(adaptive.denser_grid(*self.s.grid)))
-        return sum(self.estimate_s(p) + self.refs_around_s(p) for p in plans)
-
     async def _backlash(self, a: str) -> None:
         """The backlash test at three places (seed 000), and the take-up where it shows
         lost motion; once (a short budget's order asks for it twice)."""
@@ -459,30 +443,6 @@ class Commission(BestTables):
         self._fit_plane(config, "xy-grid", residual=False)
         self._save()
         await self.use("full")
-
-    def _first_grid(self) -> tuple[int, int]:
-        """The plane's first grid (decided once, kept in the state): the configured one;
-        on a short budget, whose rounds will not refine it, the densest of its
-        refinements (:func:`.adaptive.denser_grid`) whose run fits in what the budget has
-        left once the steps it still owes are counted: each linear axis's backlash test
-        and before- and after-runs. (At 1.5 x a manual calibration's time the sdss plates'
-        7 x 5 grid left their Y at the judge's park 13.4 µm, the manual's 9 x 7 5.3 µm.)"""
-        if "grid" not in self.state:
-            grid = self.s.grid
-            if self.state.get("short"):
-                owed = [backlash_plan(a, self._travel(a)) for a in self.s.axes
-                        if not self._rotary(a) and not self.done(f"backlash-{a}")]
-                owed += [self._before_plan(a) for a in self.s.axes if not self._rotary(a)
-                         for _ in ("before", "after")]  # fmt: skip
-                left_s = (self.s.budget_s - self.used_s - self.reserve_s()
-                          - sum(self.step_cost_s(p) for p in owed))  # fmt: skip
-                denser = adaptive.denser_grid(*grid)
-                while denser != grid and self.step_cost_s(self._grid_plan(denser)) <= left_s:
-                    grid, denser = denser, adaptive.denser_grid(*denser)
-            self.state["grid"] = list(grid)
-            self._save()
-        nx, ny = self.state["grid"]
-        return int(nx), int(ny)
 
     def _fit_plane(self, config: GatewayConfig, name: str, residual: bool) -> None:
         """The plane from grid run ``name`` (read with the tables on disk loaded), and its
