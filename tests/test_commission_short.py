@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
+from gateway.calibration.commission_short import max_grid_in
 from gateway.compensation import PitchStage
 from gateway.formats import read_pitch_csv
 from sim.real_machines import data_root
@@ -78,3 +79,17 @@ def test_a_short_budget_reads_a_coarse_table_along_the_curve_it_prefers(tmp_path
             miss = curve(x) - (PitchStage(table, how).inverse(x, up) - x)
             miss_um[how] = float(np.std(miss)) * 1e3  # (an offset is the plane's, not the table's)
         assert miss_um[method] < 0.6 * miss_um["linear"], miss_um
+
+
+def test_the_first_grid_takes_every_size_the_budget_holds() -> None:
+    """A short budget's first grid: the densest of the configured grid's shape whose run
+    fits, any size between (13 x 9 and 25 x 17 are the configured 7 x 5 split once and
+    twice); the configured one when nothing denser fits."""
+    def cost(g: tuple[int, int]) -> float:  # s: two runs of 2.4 s a node
+        return 2 * 2.4 * g[0] * g[1]
+
+    assert max_grid_in((7, 5), cost, cost((13, 9))) == (13, 9)
+    assert max_grid_in((7, 5), cost, cost((17, 12)) + 1.0) == (17, 12)
+    assert max_grid_in((7, 5), cost, cost((25, 17))) == (25, 17)
+    assert max_grid_in((7, 5), cost, cost((7, 5))) == (7, 5)
+    assert max_grid_in((7, 5), cost, 1e9) == (33, 22)  # at most 33 nodes along an axis

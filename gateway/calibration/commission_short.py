@@ -5,11 +5,14 @@ round will refine.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from . import adaptive
 from .commission_best import BestTables
 from .plans import backlash_plan
+from .plans_scans import cyclic_plan
 
 
 class ShortBudget(BestTables):
@@ -48,24 +51,56 @@ class ShortBudget(BestTables):
 
     def _first_grid(self) -> tuple[int, int]:
         """The plane's first grid (decided once, kept in the state): the configured one;
-        on a short budget, whose rounds will not refine it, the densest of its
-        refinements (:func:`.adaptive.denser_grid`) whose run fits in what the budget has
-        left once the steps it still owes are counted: each linear axis's backlash test
-        and before- and after-runs. (At 1.5 x a manual calibration's time the sdss plates'
-        7 x 5 grid left their Y at the judge's park 13.4 µm, the manual's 9 x 7 5.3 µm.)"""
+        on a short budget, whose rounds will not refine it, the densest of its shape
+        (:func:`max_grid_in`) whose run fits in what the budget has left after the steps
+        that come after it and that it will still hold with the configured grid: each
+        linear axis's backlash test, then its before- and after-runs, then its cyclic
+        scans where its lead is known, as far as they fit in that order (a step that does
+        not fit ends the identification, so none after it is counted). (At 1.5 x a manual
+        calibration's time the sdss plates' 7 x 5 grid left their Y at the judge's park
+        13.4 µm, the manual's 9 x 7 5.3 µm; 13 x 9, the configured grid split once, left 8.5
+        of their 50 minutes unused.)"""
         if "grid" not in self.state:
             grid = self.s.grid
             if self.state.get("short"):
-                owed = [backlash_plan(a, self._travel(a)) for a in self.s.axes
-                        if not self._rotary(a) and not self.done(f"backlash-{a}")]
-                owed += [self._before_plan(a) for a in self.s.axes if not self._rotary(a)
-                         for _ in ("before", "after")]  # fmt: skip
-                left_s = (self.s.budget_s - self.used_s - self.reserve_s()
-                          - sum(self.step_cost_s(p) for p in owed))  # fmt: skip
-                denser = adaptive.denser_grid(*grid)
-                while denser != grid and self.step_cost_s(self._grid_plan(denser)) <= left_s:
-                    grid, denser = denser, adaptive.denser_grid(*denser)
+                def cost_s(g: tuple[int, int]) -> float:
+                    return self.step_cost_s(self._grid_plan(g))
+
+                linear = [a for a in self.s.axes if not self._rotary(a)]
+                after = [[backlash_plan(a, self._travel(a))] for a in linear
+                         if not self.done(f"backlash-{a}")]  # fmt: skip
+                after += [2 * [self._before_plan(a)] for a in linear]  # before and after
+                after += [[cyclic_plan(a, self._travel(a), self.s.lead_mm[a])] for a in linear
+                          if a in self.s.lead_mm and not self.done(f"cyclic-{a}")]  # fmt: skip
+                left_s = self.s.budget_s - self.used_s - self.reserve_s()
+                held_s = cost_s(grid)
+                for plans in after:
+                    need_s = sum(self.step_cost_s(p) for p in plans)
+                    if held_s + need_s > left_s:
+                        break
+                    held_s += need_s
+                grid = max_grid_in(grid, cost_s, left_s - held_s + cost_s(grid))
             self.state["grid"] = list(grid)
             self._save()
         nx, ny = self.state["grid"]
         return int(nx), int(ny)
+
+
+#: the most nodes a grid takes along an axis (as :func:`.adaptive.denser_grid`)
+MAX_NODES = 33
+
+
+def max_grid_in(grid: tuple[int, int], cost_s: Callable[[tuple[int, int]], float],
+                left_s: float) -> tuple[int, int]:
+    """The densest grid of ``grid``'s shape (nodes along x from its own up, along y in the
+    same proportion of cells) whose ``cost_s`` is within ``left_s``; ``grid`` itself if
+    none denser is. Every size between, not only the configured grid split in two each
+    way: a budget that holds 13 x 9 and not 25 x 17 is spent on 17 x 12."""
+    nx, ny = grid
+    best = grid
+    for kx in range(nx + 1, MAX_NODES + 1):
+        cand = (kx, min(MAX_NODES, 1 + round((ny - 1) * (kx - 1) / max(1, nx - 1))))
+        if cost_s(cand) > left_s:
+            break
+        best = cand
+    return best
