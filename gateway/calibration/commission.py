@@ -30,7 +30,8 @@ command again after Ctrl-C, a crash or a power loss carries on where it stopped:
 
 A budget short of the first steps, the before- and after-runs and one round (the drift
 references around each counted) takes every axis's ISO runs first, the plane's grid
-right after them (with those tables on, as dense as the budget left allows), then the
+right after them (with those tables on, as dense as the budget left allows:
+:mod:`.commission_short`), then the
 backlash tests and the before-runs, and the lead searches and cyclic scans last (a plain
 ISO 230-2 calibration's steps first, then what judges them, then the extras); spent
 before the fit, it still fits the axes whose ISO runs were made (unverified, said so).
