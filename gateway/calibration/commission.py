@@ -130,7 +130,7 @@ class Commission(ShortBudget):
     async def _find_lead(self, axis: str) -> None:
         """The lead search of an axis whose lead was not given (--lead-mm); not begun where
         the budget left holds it but not the cyclic scans a lead found would call for (the
-        sdss plates at 1.5 x a manual calibration's time spent 8 of their 59 minutes on a
+        sdss plates at 1.5 x a manual calibration's time spent 8 of their 61 minutes on a
         search whose scans could not have followed)."""
         leads = self.state.setdefault("leads", {})
         if axis in self.s.lead_mm or axis in leads or self.s.no_lead_search:

@@ -59,7 +59,7 @@ class ShortBudget(BestTables):
         not fit ends the identification, so none after it is counted). (At 1.5 x a manual
         calibration's time the sdss plates' 7 x 5 grid left their Y at the judge's park
         13.4 µm, the manual's 9 x 7 5.3 µm; 13 x 9, the configured grid split once, left 8.5
-        of their 50 minutes unused.)"""
+        of their 61 minutes unused.)"""
         if "grid" not in self.state:
             grid = self.s.grid
             if self.state.get("short"):
