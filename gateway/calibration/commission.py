@@ -137,7 +137,7 @@ class Commission(ShortBudget):
             return
         scans = cyclic_plan(axis, self._travel(axis), min(adaptive.STANDARD_LEADS_MM))
         need_s = self.step_cost_s(self._lead_plan(axis)) + self.step_cost_s(scans)
-        left_s = self.s.budget_s - self.used_s - self.reserve_s()
+        left_s = self.left_s()
         if need_s > left_s:
             note = (f"{axis}: no lead search: it and the cyclic scans it may call for need "
                     f"{need_s / 60:.1f} min of machine time, {max(0.0, left_s) / 60:.1f} min "
@@ -637,7 +637,7 @@ class Commission(ShortBudget):
             makes["xy"] = lambda: self._xy_check_plan(r, grid)
         if not any((self.dir / "plans" / f"verify{r}-{n}.plan").exists() for n in makes):
             need_s = sum(self.step_cost_s(make()) for make in makes.values())
-            left_s = self.s.budget_s - self.used_s - self.reserve_s()
+            left_s = self.left_s()
             if need_s > left_s:
                 raise BudgetSpent(f"round {r}'s verification needs {need_s / 60:.1f} min of "
                                   f"machine time, {max(0.0, left_s) / 60:.1f} min left")

@@ -55,7 +55,7 @@ class RefineSteps(ThermalSteps):
                        if name.startswith(f"verify{r}-"))  # fmt: skip
         # and the drift references read around the config switch that loads the new tables
         switch_s = 2 * self.refs_cost_s(self.ref_axes())
-        left = self.s.budget_s - self.used_s - self.reserve_s() - verify_s - switch_s
+        left = self.left_s() - verify_s - switch_s
         return max(0.0, left) / max(1, sharing)
 
     def _affordable(self, r: int, axis: str, verdict: adaptive.AxisVerdict,
@@ -182,12 +182,7 @@ class RefineSteps(ThermalSteps):
             best, scores = choose_interpolation(table)
             if scores[best] > CURVE_GAIN * scores["linear"]:  # as good: the local one
                 best = "linear"
-        if best != "linear":
-            try:
-                PitchStage(table, best).check_cap(  # type: ignore[arg-type]
-                    self.config.axes[axis].compensation.max_correction_mm)
-            except CompensationError:
-                best = "linear"
+        best = self.within_cap(axis, table, best)
         if best == "linear":
             self.tables.interpolation.pop(axis, None)
         else:

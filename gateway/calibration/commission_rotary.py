@@ -181,11 +181,7 @@ class RotarySteps(Steps):
         if not self._rotary(axis):
             return result
         best, scores = result.interpolation_cv or ("linear", {})
-        try:
-            PitchStage(result.table, best, wrap=self._wraps(axis)).check_cap(  # type: ignore[arg-type]
-                self.config.axes[axis].compensation.max_correction_mm)
-        except CompensationError:
-            best = "linear"
+        best = self.within_cap(axis, result.table, best)
         info: dict[str, Any] = {"interpolation": best,
                                 "loo_rms_arcsec": {k: v * ARCSEC_PER_DEG
                                                    for k, v in scores.items()}}  # fmt: skip
@@ -318,6 +314,18 @@ class RotarySteps(Steps):
         keep = [float(m) for m in mids
                 if np.min(np.abs(self._offset(axis, m - x))) >= adaptive.MIN_SPACING_MM]
         return np.unique(np.array(keep, dtype=np.float64))
+
+    def within_cap(self, axis: str, table: PitchTable, method: str) -> str:
+        """``method``, or straight lines where ``table`` read along it would pass the axis's
+        correction cap (the gateway would refuse the config)."""
+        if method == "linear":
+            return method
+        try:
+            PitchStage(table, method, wrap=self._wraps(axis)).check_cap(  # type: ignore[arg-type]
+                self.config.axes[axis].compensation.max_correction_mm)
+        except CompensationError:
+            return "linear"
+        return method
 
     def table_stage(self, axis: str, table: PitchTable) -> PitchStage:
         """The stage the gateway builds from ``table``: the chosen interpolation, the wrap."""

@@ -72,7 +72,7 @@ class ShortBudget(BestTables):
                 after += [2 * [self._before_plan(a)] for a in linear]  # before and after
                 after += [[cyclic_plan(a, self._travel(a), self.s.lead_mm[a])] for a in linear
                           if a in self.s.lead_mm and not self.done(f"cyclic-{a}")]  # fmt: skip
-                left_s = self.s.budget_s - self.used_s - self.reserve_s()
+                left_s = self.left_s()
                 held_s = cost_s(grid)
                 for plans in after:
                     need_s = sum(self.step_cost_s(p) for p in plans)

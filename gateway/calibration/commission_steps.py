@@ -425,6 +425,11 @@ class Steps:
         """Machine time kept back from every step for the steps that must end the job."""
         return 0.0
 
+    def left_s(self) -> float:
+        """Machine time (s) the budget has left for the steps before the after-run: what is
+        neither used nor kept for it (:meth:`reserve_s`); negative when overspent."""
+        return self.s.budget_s - self.used_s - self.reserve_s()
+
     def done(self, name: str) -> bool:
         return name in self.state["steps"]
 
