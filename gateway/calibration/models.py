@@ -13,7 +13,7 @@ from scipy.interpolate import CloughTocher2DInterpolator
 
 from ..compensation import GridModel, PlanarMeasurement, PolyModel
 from ..compensation.errors import TableError
-from ..compensation.planar import PARSIMONY, PlanarModel
+from ..compensation.planar import PARSIMONY, PlanarModel, poly_loo_mm
 from .grid_smooth import MIN_LINES, smooth_grid
 from .rawdata import RawData
 
@@ -32,6 +32,27 @@ def average_repeats(meas: PlanarMeasurement) -> PlanarMeasurement:
     )
     order = np.argsort(first)
     return PlanarMeasurement(meas.command_mm[first][order], actual[order], meas.source)
+
+
+#: how many standard errors the grid's leave-one-out must beat the polynomial's by, point
+#: by point (:func:`grid_clearly_better`)
+GRID_Z = 2.0
+
+
+def grid_clearly_better(grid_loo_mm: NDArray[np.float64], poly_loo_mm: NDArray[np.float64]
+                        ) -> bool:  # fmt: skip
+    """Whether the grid predicts left-out points better than the polynomial by more than
+    PARSIMONY and by more than GRID_Z standard errors of the difference, paired point by
+    point (the same points left out of each). A grid's 54 nodes of noise beat a plane by
+    6 % on mcu1025 (z 1.3), where the truth has no planar error at all: the grid put ±2 µm
+    of the nodes' scatter into Y away from the pitch line (noise-free, E at the judge's park
+    5.5 against 3.4 µm on the line). The sdss plates' grids win by z 7-9."""
+    g2, p2 = grid_loo_mm**2, poly_loo_mm**2
+    if np.sqrt(g2.mean()) * (1.0 + PARSIMONY) >= np.sqrt(p2.mean()):
+        return False
+    d = p2 - g2
+    se = float(np.std(d, ddof=1)) / np.sqrt(d.size) if d.size > 1 else np.inf
+    return bool(d.mean() > GRID_Z * se)
 
 
 def _grid_loo_mm(meas: PlanarMeasurement) -> NDArray[np.float64]:
@@ -90,18 +111,19 @@ def choose_planar_model(meas: PlanarMeasurement, kind: str = "auto") -> PlanarCh
         try:
             smoothed = _smoothed_grid(pts)
             if smoothed is not None:
-                grid, grid_points, loo_mm = smoothed
+                grid, grid_points, grid_loo = smoothed
             else:
-                grid, loo_mm = GridModel.from_measurement(pts), _grid_loo_mm(pts)
-            scores["grid"] = float(np.sqrt(np.mean(loo_mm**2))) * UM_PER_MM
+                grid, grid_loo = GridModel.from_measurement(pts), _grid_loo_mm(pts)
+            scores["grid"] = float(np.sqrt(np.mean(grid_loo**2))) * UM_PER_MM
             models["grid"] = grid
         except (TableError, ValueError) as exc:
             if kind == "grid":
                 raise TableError(f"{meas.source}: grid model: {exc}") from None
-    poly_score = scores.get(f"poly{models['poly'].degree}", np.inf) if "poly" in models else np.inf
     # the polynomial (fewer terms) unless the grid predicts clearly better
-    best = "grid" if scores.get("grid", np.inf) * (1.0 + PARSIMONY) < poly_score else "poly"
-    if best not in models:
+    if "grid" in models and "poly" in models:
+        poly_loo = np.hypot(*poly_loo_mm(pts, models["poly"].degree).T)
+        best = "grid" if grid_clearly_better(grid_loo, poly_loo) else "poly"
+    else:
         best = next(iter(models))
     model = models[best]
     resid = np.hypot(*(model.error_mm(pts.command_mm) - pts.error_mm).T) * UM_PER_MM
@@ -126,8 +148,9 @@ def _smoothed_grid(
     gx, gy = np.meshgrid(xs, ys)
     nodes = np.column_stack([gx.ravel(), gy.ravel()])
     values = np.column_stack([f.values.ravel() for f in fits])
-    loo = np.hypot(fits[0].loo, fits[1].loo).ravel()
-    return model, PlanarMeasurement(nodes, nodes + values, pts.source), loo
+    loo = np.hypot(fits[0].loo, fits[1].loo)  # (ny, nx), in the points' order below
+    ix, iy = (np.searchsorted(lines, pts.command_mm[:, k]) for k, lines in enumerate((xs, ys)))
+    return model, PlanarMeasurement(nodes, nodes + values, pts.source), loo[iy, ix]
 
 
 def _subdivided(lines: NDArray[np.float64], parts: int) -> NDArray[np.float64]:

@@ -231,20 +231,35 @@ class PolyModel(PlanarModel):
                 if degree is not None:
                     raise TableError(f"{meas.source}: points do not determine a degree-{d} fit")
                 continue
-            coef = np.linalg.solve(r, q.T @ err)
-            leverage = np.sum(q**2, axis=1)
-            resid = err - a @ coef
-            if np.any(leverage > 1 - 1e-9):
-                scores[d] = np.inf
-            else:
-                loo = resid / (1 - leverage)[:, None]
-                scores[d] = float(np.sqrt(np.mean(np.sum(loo**2, axis=1))))
+            coef, loo = _fit_loo(q, r, err)
+            scores[d] = float(np.sqrt(np.mean(np.sum(loo**2, axis=1))))
             fits[d] = coef
         if not fits:
             raise TableError(f"{meas.source}: too few points for a polynomial model ({n})")
         least = min(scores[d] for d in fits)
         best = min(d for d in fits if scores[d] <= least * (1.0 + PARSIMONY))
         return cls(best, lower, upper, fits[best], scores)
+
+
+def _fit_loo(q: NDArray[np.float64], r: NDArray[np.float64], err: NDArray[np.float64]
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:  # fmt: skip
+    """Least-squares coefficients from the QR of the design, and each point's leave-one-out
+    error (its residual over one less its leverage; inf where it alone fixes a term)."""
+    coef = np.linalg.solve(r, q.T @ err)
+    leverage = np.sum(q**2, axis=1)
+    resid = err - (q @ r) @ coef
+    with np.errstate(divide="ignore", invalid="ignore"):
+        loo = np.where((leverage > 1 - 1e-9)[:, None], np.inf,
+                       resid / (1 - leverage)[:, None])  # fmt: skip
+    return coef, loo
+
+
+def poly_loo_mm(meas: PlanarMeasurement, degree: int) -> NDArray[np.float64]:
+    """Each point's leave-one-out error (x, y; mm) of the degree-``degree`` polynomial fitted
+    to ``meas``: what it predicts there without that point, less what was read."""
+    lower, upper = meas.bounds_mm
+    q, r = np.linalg.qr(_design_matrix(meas.command_mm, lower, upper, degree))
+    return _fit_loo(q, r, meas.error_mm)[1]
 
 
 def _design_matrix(
