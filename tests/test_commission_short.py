@@ -1,9 +1,12 @@
 """`compgw commission` on a short budget, on a real-data stage (`compgw sim --real-machine`):
 no round will measure between its tables' points, so each is read along the curve its own
-leave-one-out prefers; on slit-11358, whose Y falls 54 µm in 5 mm to a sharp minimum, that
-follows the error where straight lines cut across it (Y's table, noise-free at 400 random
-targets moving +: 2.41 µm RMS read straight, 0.71 µm along the spline). Its drift
-references only scatter, so once the ISO runs give that scatter a step's runs share them."""
+leave-one-out prefers, and read at its first points' midpoints too where it misses between
+them by more than its scatter explains. On slit-11358, whose Y falls 54 µm in 5 mm to a
+sharp minimum, both axes are (Y's first table misses 38 times what its 0.3 µm scatter
+explains), and the spline follows the error where straight lines cut across it (Y's table,
+noise-free at 400 random targets moving +: 21 points 2.41 µm RMS read straight, 0.71 µm
+along the spline; 39 points 0.55 and 0.19 µm). Its drift references only scatter, so once
+the ISO runs give that scatter a step's runs share them."""
 
 from __future__ import annotations
 
@@ -61,6 +64,10 @@ def test_a_short_budget_reads_a_coarse_table_along_the_curve_it_prefers(tmp_path
         steps, apart = state["steps"], state["apart"]
         assert apart["iso-Y"] and len(steps["iso-Y"]["parts"]) == 3, apart
         assert not apart["xy-grid"] and len(steps["xy-grid"]["parts"]) == 1, apart
+        # Y's first table misses its sharp minimum between its points: read at their
+        # midpoints too, and fitted from both
+        dense = state["dense"]
+        assert dense["Y"]["measured"] and dense["Y"]["ratio"] > 10, dense
         final = yaml.safe_load(rig.config.read_text())
         chosen = state["identify"]["interpolation-Y"]
         method = final["axes"]["Y"]["compensation"]["pitch"]["interpolation"]
@@ -79,6 +86,7 @@ def test_a_short_budget_reads_a_coarse_table_along_the_curve_it_prefers(tmp_path
             miss = curve(x) - (PitchStage(table, how).inverse(x, up) - x)
             miss_um[how] = float(np.std(miss)) * 1e3  # (an offset is the plane's, not the table's)
         assert miss_um[method] < 0.6 * miss_um["linear"], miss_um
+        assert table.position_mm.size > 35 and miss_um[method] < 0.4, miss_um
 
 
 def test_the_first_grid_takes_every_size_the_budget_holds() -> None:

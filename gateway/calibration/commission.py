@@ -274,6 +274,8 @@ class Commission(ShortBudget):
             cores = [a for a in rest if not self._rotary(a)]
             for a in cores:
                 await self._iso(a)
+            for a in cores:  # where the tables miss between their points
+                await self.densify(a)
             if self.s.planar is not None and set(self.s.planar) <= set(cores):
                 await self._before_xy()  # (what the plane's check and report need)
                 await self._fit_axes(cores, curves=True)
@@ -351,14 +353,11 @@ class Commission(ShortBudget):
     def _before_plan(self, axis: str, avoid_mm: np.ndarray | None = None) -> Plan:
         """The targets judged before and after: random, off the coarse table's points
         (``avoid_mm``, default the ISO runs' targets)."""
-        avoid = self._iso_targets(axis) if avoid_mm is None else avoid_mm
+        avoid = self.iso_targets(axis) if avoid_mm is None else avoid_mm
         targets = adaptive.random_targets_mm(self._travel(axis), 2 * adaptive.RANDOM_TARGETS,
                                              1000 + self.s.seed, avoid)  # fmt: skip
         return targets_plan(axis, self._travel(axis), targets, self.s.verify_runs,
                             kind="iso230-verification", note="before-after")  # fmt: skip
-
-    def _iso_targets(self, axis: str) -> np.ndarray:
-        return read_plan(self.dir / "plans" / f"iso-{axis}.plan").targets_mm(axis)
 
     # -- 2. fit, XY ----------------------------------------------------------------------
     async def _fit_identified(self) -> None:
@@ -417,7 +416,7 @@ class Commission(ShortBudget):
                     "harmonics": cr.fit.harmonics, "peak_um": cr.model.peak_mm() * 1e3}
             # the reversal per point or as a curve, by what the ISO runs' own scatter says
             # each would leave (a worn zone of the nut: per point)
-            r = fit_pitch(self.raw(f"iso-{a}"), config, self.config_dir, a,
+            r = fit_pitch(self.iso_raw(a), config, self.config_dir, a,
                           mode="bidirectional", reversal="auto")  # fmt: skip
             r = self.rotary_fitted(a, r)
             if r.reversal is not None:
