@@ -290,7 +290,7 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
             e = summary["axes"][a]
             assert e["after"]["E_um"] < 0.5 * e["before"]["E_um"], (a, e)
         assert "unverified" in proc.text() or "not verified" in proc.text()
-        assert "a short budget: every axis's ISO runs and the plane's grid first" in proc.text()
+        assert "a short budget: every axis's ISO runs (and their midpoints" in proc.text()
         # the same command with more budget carries on: Y's scans, the fit again with both
         # cyclic terms, the plane and the rounds
         more = rig.commission("--budget-h", "2")

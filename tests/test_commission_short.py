@@ -66,8 +66,8 @@ def test_a_short_budget_reads_a_coarse_table_along_the_curve_it_prefers(tmp_path
         assert not apart["xy-grid"] and len(steps["xy-grid"]["parts"]) == 1, apart
         # Y's first table misses its sharp minimum between its points: read at their
         # midpoints too, and fitted from both
-        dense = state["dense"]
-        assert dense["Y"]["measured"] and dense["Y"]["ratio"] > 10, dense
+        dense = state["identify"]["midpoints-Y"]
+        assert dense["measured"] and dense["misses_x_scatter"] > 10, dense
         final = yaml.safe_load(rig.config.read_text())
         chosen = state["identify"]["interpolation-Y"]
         method = final["axes"]["Y"]["compensation"]["pitch"]["interpolation"]

@@ -210,7 +210,8 @@ class Commission(ShortBudget):
                      f"alone and unverified; give at least {total / 3600:.2f} h, and more for "
                      "the verification rounds")  # fmt: skip
         if not self._zoned() and self._first_need_s() > self.s.budget_s:
-            self.say("  a short budget: every axis's ISO runs and the plane's grid first, then "
+            self.say("  a short budget: every axis's ISO runs (and their midpoints where a "
+                     "table misses between its points) and the plane's grid first, then "
                      "the backlash tests and before-runs, the lead searches and cyclic scans "
                      "last, as the budget allows")  # fmt: skip
         self.rotary_plan_lines()

@@ -74,8 +74,9 @@ class ShortBudget(BestTables):
         error, which the cyclic scans read and midpoints would alias. Decided once."""
         if axis in self.s.lead_mm:
             return
-        dense = self.state.setdefault("dense", {})
-        if axis not in dense:
+        ident = self.state.setdefault("identify", {})  # (the report lists it)
+        key = f"midpoints-{axis}"
+        if key not in ident:
             ratio = between_points_ratio(axis_deviations(self.raw(f"iso-{axis}"), axis))
             need_s = self.step_cost_s(self._midpoints_plan(axis))
             keep_s = 0.0
@@ -85,17 +86,17 @@ class ShortBudget(BestTables):
                     keep_s += self.step_cost_s(self._xy_check_plan(10_000 + self.s.seed,
                                                                    self.s.grid))  # fmt: skip
             misses = ratio is not None and ratio > BETWEEN_RATIO
-            dense[axis] = {"ratio": ratio,
-                           "measured": bool(misses and self.left_s() - need_s >= keep_s)}
+            ident[key] = {"misses_x_scatter": ratio,
+                          "measured": bool(misses and self.left_s() - need_s >= keep_s)}
             if misses:
                 self.say(f"{axis}: the first table misses between its points {ratio:.1f} x "
                          "what its scatter explains: " + (
                              f"its midpoints read too ({need_s / 60:.1f} min)"
-                             if dense[axis]["measured"] else
+                             if ident[key]["measured"] else
                              f"its midpoints ({need_s / 60:.1f} min) do not fit beside the "
                              "plane's grid"))  # fmt: skip
             self._save()
-        if dense[axis]["measured"]:
+        if ident[key]["measured"]:
             await self.step(f"iso-mid-{axis}", lambda: self._midpoints_plan(axis), "off",
                             self._park(axis))  # fmt: skip
 

@@ -147,7 +147,8 @@ def _smoothed_grid(
 ) -> tuple[GridModel, PlanarMeasurement, NDArray[np.float64]] | None:
     """A full rectilinear grid (at least MIN_LINES each way) smoothed per component
     (:mod:`.grid_smooth`): the cubic grid through the smoothed values, those values as
-    points (what the model file holds) and each node's leave-one-out vector error (mm).
+    points (what the model file holds) and each point's leave-one-out vector error (mm,
+    in ``pts``' order, to be paired with another model's).
     None for scattered points or a coarser grid."""
     xs, ys = (np.unique(pts.command_mm[:, k]) for k in range(2))
     if xs.size < MIN_LINES or ys.size < MIN_LINES or len(pts.command_mm) != xs.size * ys.size:

@@ -71,8 +71,9 @@ def between_points_ratio(dev: AxisDeviations) -> float | None:
     neighbours (per direction of approach), the RMS of those misses over the RMS the means'
     own standard errors give them (s²(1/nᵢ + (1−w)²/nᵢ₋₁ + w²/nᵢ₊₁), s pooled over the runs).
     About 1 where the table follows the screw as closely as its points allow; the real-data
-    slits' tables read 10-40 (a dip of 3 µm over 2 mm between points 2.5 mm apart), the
-    sdss plates' 0.5-2. None with fewer than 3 targets or 2 runs."""
+    slits' first tables read 7-39 (slit-11358's Y, 38: a dip of 3.5 µm over 2 mm between
+    points 3.5 mm apart), the sdss plates' 1.0-2.0. None with fewer than 3 targets or 2
+    runs."""
     x = dev.target_mm
     series = [d for d in (dev.up_mm, dev.down_mm) if d is not None]
     if x.size < 3 or not series:
