@@ -176,6 +176,10 @@ class Commission(ShortBudget):
         return xy_grid_plan((x0 + 2, x1 - 2), (y0 + 2, y1 - 2), grid[0], grid[1], (ax, ay),
                             runs=runs, approach_mm=1.0, lower_mm=(x0, y0))  # fmt: skip
 
+    def _before_xy_plan(self) -> Plan:
+        """The plane's random points judged before anything is fitted and after."""
+        return self._xy_check_plan(10_000 + self.s.seed, self.s.grid)
+
     def _xy_check_plan(self, seed: int, grid: tuple[int, int]) -> Plan:
         assert self.s.planar is not None
         ax, ay = self.s.planar
@@ -295,8 +299,7 @@ class Commission(ShortBudget):
     async def _before_xy(self) -> None:
         """The plane's random points before anything is fitted (judged again at the end)."""
         if self.s.planar is not None:
-            await self.step("before-xy", lambda: self._xy_check_plan(10_000 + self.s.seed,
-                                                                    self.s.grid), "off")
+            await self.step("before-xy", self._before_xy_plan, "off")
 
     def _zoned(self) -> list[str]:
         """The linear axes with a thermal setting: each gets a zone warm-up, and the

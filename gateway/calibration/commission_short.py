@@ -52,7 +52,7 @@ class ShortBudget(BestTables):
             plans += 3 * [self._before_plan(a, avoid_mm=np.zeros(0))]
             plans.append(self._sweep_plan(a, -1, self.s.lead_mm.get(a), estimate=True))
         if self.s.planar is not None:
-            plans += 3 * [self._xy_check_plan(10_000 + self.s.seed, self.s.grid)]
+            plans += 3 * [self._before_xy_plan()]
             plans.append(self._grid_plan(adaptive.denser_grid(*self.s.grid)))
         return sum(self.estimate_s(p) + self.refs_around_s(p) for p in plans)
 
@@ -83,8 +83,7 @@ class ShortBudget(BestTables):
             if self.s.planar is not None and axis in self.s.planar:
                 keep_s = self.step_cost_s(self._grid_plan(self.s.grid))
                 if not self.done("before-xy"):
-                    keep_s += self.step_cost_s(self._xy_check_plan(10_000 + self.s.seed,
-                                                                   self.s.grid))  # fmt: skip
+                    keep_s += self.step_cost_s(self._before_xy_plan())
             misses = ratio is not None and ratio > BETWEEN_RATIO
             ident[key] = {"misses_x_scatter": ratio,
                           "measured": bool(misses and self.left_s() - need_s >= keep_s)}
@@ -100,19 +99,20 @@ class ShortBudget(BestTables):
             await self.step(f"iso-mid-{axis}", lambda: self._midpoints_plan(axis), "off",
                             self._park(axis))  # fmt: skip
 
-    def iso_raw(self, axis: str) -> RawData:
-        """The ISO runs of ``axis``: the first table's points, and its midpoints where a
+    def _iso_steps(self, axis: str) -> list[str]:
+        """The ISO steps of ``axis``: the first table's points, and its midpoints where a
         short budget read them (:meth:`densify`)."""
-        parts = [self.raw(f"iso-{axis}")]
-        if self.done(f"iso-mid-{axis}"):
-            parts.append(self.raw(f"iso-mid-{axis}"))
-        return concat_raw(parts)
+        mid = f"iso-mid-{axis}"
+        return [f"iso-{axis}"] + ([mid] if self.done(mid) else [])
+
+    def iso_raw(self, axis: str) -> RawData:
+        """The ISO runs of ``axis`` (:meth:`_iso_steps`), as one run set."""
+        return concat_raw([self.raw(n) for n in self._iso_steps(axis)])
 
     def iso_targets(self, axis: str) -> np.ndarray:
         """Every target the ISO runs of ``axis`` read (mm)."""
-        names = [f"iso-{axis}"] + ([f"iso-mid-{axis}"] if self.done(f"iso-mid-{axis}") else [])
         return np.concatenate([read_plan(self.dir / "plans" / f"{n}.plan").targets_mm(axis)
-                               for n in names])  # fmt: skip
+                               for n in self._iso_steps(axis)])  # fmt: skip
 
     def _first_grid(self) -> tuple[int, int]:
         """The plane's first grid (decided once, kept in the state): the configured one;

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from ..compensation import PitchTable, PlanarMeasurement
 from ..compensation.errors import TableError
 from .grid_smooth import smooth_line
-from .rawdata import TARGET_TOLERANCE_MM, AxisDeviations, RawData
+from .rawdata import TARGET_TOLERANCE_MM, AxisDeviations, RawData, pooled_variance
 
 TableDirection = Literal["mean", "forward", "reverse"]
 
@@ -111,13 +111,10 @@ def choose_reversal(dev: AxisDeviations, degree: int = 2) -> ReversalChoice:
         raise TableError(f"{dev.source}: axis {dev.axis}: a bidirectional table needs + and -")
     assert dev.up_mm is not None and dev.down_mm is not None
     counts = [np.sum(np.isfinite(x), axis=1) for x in (dev.up_mm, dev.down_mm)]
-    squares = sum(float(np.nansum((x - m[:, None]) ** 2))
-                  for x, m in ((dev.up_mm, up), (dev.down_mm, down)))  # fmt: skip
-    dof = int(sum(np.sum(c - 1) for c in counts))
+    s2, dof = pooled_variance(dev)
     p = min(degree + 1, dev.target_mm.size)
     if dof == 0 or dev.target_mm.size <= p:
         return ReversalChoice(dev.target_mm.size <= p, float("nan"), float("nan"))
-    s2 = squares / dof
     weight = 1.0 / (1.0 / counts[0] + 1.0 / counts[1])  # the reversal's variance is s²/weight
     x = dev.target_mm
     u = 2.0 * (x - x.min()) / max(float(np.ptp(x)), 1e-9) - 1.0

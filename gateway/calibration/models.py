@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import CloughTocher2DInterpolator
+from scipy.stats import ttest_rel
 
 from ..compensation import GridModel, PlanarMeasurement, PolyModel
 from ..compensation.errors import TableError
@@ -59,9 +60,8 @@ def grid_clearly_better(grid_loo_mm: NDArray[np.float64], poly_loo_mm: NDArray[n
         return False
     if degree > GEOMETRIC_DEGREE:
         return True
-    d = p2 - g2
-    se = float(np.std(d, ddof=1)) / np.sqrt(d.size) if d.size > 1 else np.inf
-    return bool(d.mean() > GRID_Z * se)
+    with np.errstate(divide="ignore", invalid="ignore"):  # (one point, or no spread)
+        return bool(ttest_rel(p2, g2).statistic > GRID_Z)
 
 
 def _grid_loo_mm(meas: PlanarMeasurement) -> NDArray[np.float64]:

@@ -239,6 +239,20 @@ class AxisDeviations:
     source: str = "<raw>"
 
 
+def pooled_variance(dev: AxisDeviations) -> tuple[float, int]:
+    """The readings' variance about their target's mean per direction (mm², pooled over
+    the targets and both directions) and its degrees of freedom (0: no repeat to pool)."""
+    squares, dof = 0.0, 0
+    for x in (dev.up_mm, dev.down_mm):
+        if x is None:
+            continue
+        n = np.sum(np.isfinite(x), axis=1)
+        mean = np.nansum(x, axis=1) / np.maximum(n, 1)
+        squares += float(np.nansum((x - mean[:, None]) ** 2))
+        dof += int(np.sum(np.maximum(n - 1, 0)))
+    return (squares / dof if dof else float("nan")), dof
+
+
 def _group_targets(target_mm: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
     """Distinct targets (within the tolerance) and each row's index into them."""
     order = np.argsort(target_mm, kind="stable")

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from scipy.interpolate import CubicSpline, PchipInterpolator
 
 from ..compensation import PitchTable
-from .rawdata import AxisDeviations
+from .rawdata import AxisDeviations, pooled_variance
 
 METHODS = ("linear", "smooth", "pchip")
 TURN_DEG = 360.0
@@ -82,8 +82,7 @@ def between_points_ratio(dev: AxisDeviations) -> float | None:
     if min(int(k.min()) for k in n) < 2:
         return None
     means = [np.nanmean(d, axis=1) for d in series]
-    dof = sum(float(np.sum(k - 1)) for k in n)
-    s2 = sum(float(np.nansum((d - m[:, None]) ** 2)) for d, m in zip(series, means)) / dof
+    s2, _ = pooled_variance(dev)
     w = (x[1:-1] - x[:-2]) / (x[2:] - x[:-2])
     miss2 = var = 0.0
     for m, k in zip(means, n):
