@@ -130,9 +130,9 @@ def choose_planar_model(meas: PlanarMeasurement, kind: str = "auto") -> PlanarCh
                 raise TableError(f"{meas.source}: grid model: {exc}") from None
     # the polynomial (fewer terms) unless the grid predicts clearly better
     if "grid" in models and "poly" in models:
-        degree = models["poly"].degree
-        poly_loo = np.hypot(*poly_loo_mm(pts, degree).T)
-        best = "grid" if grid_clearly_better(grid_loo, poly_loo, degree) else "poly"
+        poly_degree = models["poly"].degree
+        poly_loo = np.hypot(*poly_loo_mm(pts, poly_degree).T)
+        best = "grid" if grid_clearly_better(grid_loo, poly_loo, poly_degree) else "poly"
     else:
         best = next(iter(models))
     model = models[best]
