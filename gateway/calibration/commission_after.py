@@ -64,7 +64,8 @@ class AfterSteps(TakeUpSteps):
                                "budget_h": self.s.budget_s / 3600, "axes": {},
                                "rounds": self.state["rounds"], "notes": self.state["notes"],
                                "identify": self.state.get("identify", {}),
-                               "config": str(self.s.config_path)}  # fmt: skip
+                               "config": str(self.s.config_path),
+                               "retried": self.state.get("retried", 0)}  # fmt: skip
         for a in self.s.axes:
             entry: dict[str, Any] = {}
             for phase in ("before", "after"):

@@ -102,6 +102,10 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
     if xy.get("before") and xy.get("after"):
         b, a = xy["before"]["max_um"], xy["after"]["max_um"]
         lines.append(f"XY max vector error {b:.2f} → {a:.2f} µm ({100 * (1 - a / b):.0f} % less)")
+    if summary.get("retried"):
+        lines.append(f"{summary['retried']} Modbus requests answered only when tried again "
+                     "(exception 6 or 11: a drive or instrument slow to answer; if many, "
+                     "raise the bus's timeout_s)")
     lines.append(f"outcome: {summary['outcome']}; machine time {summary['machine_h']:.2f} h "
                  "(plan estimate); before and after at the same random targets, none a "
                  "table point")  # fmt: skip

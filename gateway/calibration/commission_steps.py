@@ -300,6 +300,7 @@ class Steps:
                 out[a] = devs
                 cost += self.refs_cost_s([a], repeats)
         finally:
+            self._retried(links.retried)
             links.close()
         self.state["refs_s"] = self.state.get("refs_s", 0.0) + cost
         self._refs_read_here = True
@@ -483,6 +484,12 @@ class Steps:
         self._save()
         return raw
 
+    def _retried(self, count: int) -> None:
+        """Count requests answered only on a later try (kept with the next save; the
+        summary and the report say how many)."""
+        if count:
+            self.state["retried"] = self.state.get("retried", 0) + count
+
     async def _run_part(self, key: str, plan: Plan, raw: Path, compensation: str,
                         park: dict[str, float] | None, drifting: bool) -> dict[str, Any]:
         """One run of a step (its own raw file), the drift references read around it."""
@@ -501,7 +508,10 @@ class Steps:
         if self.progress is not None:
             name = key.rsplit(".", 1)[0]
             session.progress = lambda k, n: self.progress(name, k, n)  # type: ignore[misc]
-        await session.run(plan, raw, compensation)
+        try:
+            await session.run(plan, raw, compensation)
+        finally:
+            self._retried(session.retried)
         entry: dict[str, Any] = {"raw": self._rel(raw)}
         if drifting:
             after = self._drift_now(await self._measure_refs())

@@ -23,8 +23,9 @@ own address, e.g. ``--laser 127.0.0.1:5020:20``.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from pymodbus.client import AsyncModbusTcpClient
 
@@ -84,12 +85,25 @@ def reraise_cancel() -> None:
         raise asyncio.CancelledError
 
 
+#: exception codes a request is tried again on: 0x06 "server device busy" and 0x0B "gateway
+#: target device failed to respond" (a drive or instrument slow to answer: under CPU load
+#: the sim behind a gateway with a 0.2 s bus timeout answered late and a commissioning
+#: aborted on one reply). Reads and register writes are idempotent, so a second try is safe:
+#: a target written twice is the same target, a trigger bit set twice is one rising edge.
+TRANSIENT_CODES = frozenset({0x06, 0x0B})
+#: tries after the first, and the pause before each (s, growing linearly)
+TRANSIENT_RETRIES = 3
+TRANSIENT_PAUSE_S = 0.05
+
+
 class Link:
     """One Modbus TCP connection, shared by every device at that host and port."""
 
     def __init__(self, host: str, port: int, timeout_s: float = 2.0) -> None:
         self.host, self.port = host, port
         self.client = AsyncModbusTcpClient(host, port=port, timeout=timeout_s, retries=1)
+        #: requests answered only on a later try (:data:`TRANSIENT_CODES`)
+        self.retried = 0
 
     async def connect(self) -> None:
         connected = await self.client.connect()
@@ -100,30 +114,43 @@ class Link:
     def close(self) -> None:
         self.client.close()
 
-    async def _ok(self, call, what: str):  # type: ignore[no-untyped-def]
-        try:
-            reply = await call
-        except Exception as exc:  # pymodbus raises ModbusIOException and friends
+    async def _ok(self, call: Callable[[], Awaitable[Any]], what: str) -> Any:
+        """The reply of ``call()``; tried again on a transient exception
+        (:data:`TRANSIENT_CODES`), a MachineError naming the request otherwise."""
+        for attempt in range(TRANSIENT_RETRIES + 1):
+            try:
+                reply = await call()
+            except Exception as exc:  # pymodbus raises ModbusIOException and friends
+                reraise_cancel()
+                raise MachineError(f"{self.host}:{self.port}: {what}: {exc}") from exc
             reraise_cancel()
-            raise MachineError(f"{self.host}:{self.port}: {what}: {exc}") from exc
-        reraise_cancel()
-        if reply.isError():
-            raise MachineError(f"{self.host}:{self.port}: {what}: {reply}")
-        return reply
+            if not reply.isError():
+                if attempt:
+                    self.retried += 1
+                return reply
+            if getattr(reply, "exception_code", None) not in TRANSIENT_CODES:
+                break
+            if attempt < TRANSIENT_RETRIES:
+                await asyncio.sleep(TRANSIENT_PAUSE_S * (attempt + 1))
+        tries = f" ({attempt + 1} tries)" if attempt else ""
+        raise MachineError(f"{self.host}:{self.port}: {what}: {reply}{tries}")
 
     async def read(self, unit: int, address: int, count: int, table: str) -> list[int]:
         fn = self.client.read_input_registers if table == "input" else (
             self.client.read_holding_registers
         )
         what = f"unit {unit} read {table} {address:#06x}+{count}"
-        return list((await self._ok(fn(address, count=count, device_id=unit), what)).registers)
+        reply = await self._ok(lambda: fn(address, count=count, device_id=unit), what)
+        return list(reply.registers)
 
     async def write(self, unit: int, address: int, values: Sequence[int]) -> None:
         what = f"unit {unit} write {address:#06x}"
         if len(values) == 1:
-            await self._ok(self.client.write_register(address, values[0], device_id=unit), what)
+            await self._ok(
+                lambda: self.client.write_register(address, values[0], device_id=unit), what)
         else:
-            await self._ok(self.client.write_registers(address, list(values), device_id=unit), what)
+            await self._ok(
+                lambda: self.client.write_registers(address, list(values), device_id=unit), what)
 
 
 class Links:
@@ -139,6 +166,11 @@ class Links:
             await link.connect()
             self._links[(host, port)] = link
         return link
+
+    @property
+    def retried(self) -> int:
+        """Requests answered only on a later try, over every link."""
+        return sum(link.retried for link in self._links.values())
 
     def close(self) -> None:
         for link in self._links.values():

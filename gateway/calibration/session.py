@@ -83,6 +83,8 @@ class Session:
     dwell: Callable[[float], Awaitable[None]] | None = None
     #: told of every target written (axis, mm)
     on_move: Callable[[str, float], None] | None = None
+    #: requests answered only on a later try (:data:`.machine.TRANSIENT_CODES`), all runs
+    retried: int = 0
 
     async def run(self, plan: Plan, raw_path: Path, compensation: str) -> RunSummary:
         """Run ``plan`` into ``raw_path`` (resuming), measuring with the right instrument."""
@@ -105,6 +107,7 @@ class Session:
                 meta={"compensation": compensation}, progress=self.progress, dwell=self.dwell,
             )  # fmt: skip
         finally:
+            self.retried += links.retried
             links.close()
 
     async def _measure_fn(self, plan: Plan, links: Links):  # type: ignore[no-untyped-def]
