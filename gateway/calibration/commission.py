@@ -162,12 +162,34 @@ class Commission(ShortBudget):
             self.say(f"{axis}: no periodic error stands out of the noise: no cyclic stage")
         self._save()
 
-    def _iso_plan(self, axis: str) -> Plan:
+    def _iso_plan(self, axis: str, runs: int | None = None) -> Plan:
         lead = self.s.lead_mm.get(axis)
         return iso230_linear_plan(axis, self._travel(axis),
                                   step_mm=adaptive.coarse_step_mm(self._travel(axis), lead),
-                                  runs=self.s.runs, overrun_mm=1.0, lead_mm=lead,
-                                  seed=self.s.seed)  # fmt: skip
+                                  runs=runs or self.iso_runs(),
+                                  overrun_mm=1.0, lead_mm=lead, seed=self.s.seed)  # fmt: skip
+
+    def _iso_runs_that_fit(self, axes: list[str]) -> None:
+        """On a short budget, before the first ISO run: the runs per target every axis's ISO
+        runs fit in (down to 2, the fewest that show a scatter), so that each axis gets a
+        table rather than the last none (decided once, kept in the state; said). With the
+        configured runs fitting, or not even 2, nothing changes."""
+        if "iso_runs" in self.state or any(self.done(f"iso-{a}") for a in axes):
+            return
+        runs = self.s.runs
+        while runs > 2 and sum(self.step_cost_s(self._iso_plan(a, runs))
+                               for a in axes) > self.left_s():  # fmt: skip
+            runs -= 1
+        fits = sum(self.step_cost_s(self._iso_plan(a, runs)) for a in axes) <= self.left_s()
+        if runs < self.s.runs and fits:
+            self.state["iso_runs"] = runs
+            note = (f"{', '.join(axes)}: {runs} ISO runs per target instead of "
+                    f"{self.s.runs}: the budget holds every axis's table only so")
+            self.state["notes"].append(note)
+            self.say(note)
+        else:
+            self.state["iso_runs"] = self.s.runs
+        self._save()
 
     def _grid_plan(self, grid: tuple[int, int], runs: int = 2) -> Plan:
         assert self.s.planar is not None
@@ -277,6 +299,7 @@ class Commission(ShortBudget):
         rest = [a for a in self.s.axes if a not in zoned] + zoned[:1]
         if not zoned and self.short():  # a plain ISO 230-2 calibration's steps first
             cores = [a for a in rest if not self._rotary(a)]
+            self._iso_runs_that_fit(cores)
             for a in cores:
                 await self._iso(a)
             for a in cores:  # where the tables miss between their points

@@ -153,7 +153,7 @@ class RefineSteps(ThermalSteps):
         scatter = self.iso_scatter_um(axis)
         if self._rotary(axis) or scatter is None:
             return table
-        fit = smoothed_table(table, scatter * 1e-3, self.s.runs)
+        fit = smoothed_table(table, scatter * 1e-3, self.iso_runs())
         try:
             check_pitch(fit.table, config, axis)
         except CompensationError:

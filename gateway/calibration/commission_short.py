@@ -60,7 +60,7 @@ class ShortBudget(BestTables):
         """The ISO 230-2 cycle at the midpoints of the first table's points."""
         first = np.unique(read_plan(self.dir / "plans" / f"iso-{axis}.plan").targets_mm(axis))
         return targets_plan(axis, self._travel(axis), (first[1:] + first[:-1]) / 2,
-                            self.s.runs, kind="iso230-linear", note="midpoints")  # fmt: skip
+                            self.iso_runs(), kind="iso230-linear", note="midpoints")  # fmt: skip
 
     async def densify(self, axis: str) -> None:
         """On a short budget, whose rounds will not sweep a table between its points: the

@@ -426,6 +426,11 @@ class Steps:
         """Machine time kept back from every step for the steps that must end the job."""
         return 0.0
 
+    def iso_runs(self) -> int:
+        """Runs per target of the ISO runs: the configured ones, or fewer where a short
+        budget holds every axis's table only so (``Commission._iso_runs_that_fit``)."""
+        return int(self.state.get("iso_runs") or self.s.runs)
+
     def left_s(self) -> float:
         """Machine time (s) the budget has left for the steps before the after-run: what is
         neither used nor kept for it (:meth:`reserve_s`); negative when overspent."""
