@@ -134,24 +134,32 @@ class Master:
         self.moves = 0
         self.settle_steps = 0
 
-    async def _ok(self, call: Any) -> Any:
-        reply = await call
-        if reply.isError():
-            raise RuntimeError(f"modbus: {reply}")
-        return reply
+    async def _ok(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
+        """The reply of ``fn(*args, **kwargs)``; asked again, up to 3 times, on exception 11
+        (the gateway's bus timed out: the sim answering late on a loaded machine, as any
+        upper computer retries), an error otherwise."""
+        for attempt in range(4):
+            reply = await fn(*args, **kwargs)
+            if not reply.isError():
+                return reply
+            if getattr(reply, "exception_code", None) != 0x0B or attempt == 3:
+                break
+            await asyncio.sleep(0.05 * (attempt + 1))
+        raise RuntimeError(f"modbus: {reply}")
 
     async def move(self, targets_mm: dict[str, float]) -> None:
         """Write every target, then every trigger, then wait until each is in position."""
         for name, pos in targets_mm.items():
             ax = self.axes[name]
             pulses = round(pos / ax.pulse_mm)
-            await self._ok(self.gw.write_registers(TARGET, _words(pulses), device_id=ax.unit))
+            await self._ok(self.gw.write_registers, TARGET, _words(pulses), device_id=ax.unit)
         for name in targets_mm:
-            await self._ok(self.gw.write_register(TRIGGER, 0x10, device_id=self.axes[name].unit))
+            await self._ok(self.gw.write_register, TRIGGER, 0x10,
+                           device_id=self.axes[name].unit)
         for name in targets_mm:
             for _ in range(10_000):
-                rr = await self._ok(self.gw.read_holding_registers(STATUS, count=1,
-                                                                   device_id=self.axes[name].unit))
+                rr = await self._ok(self.gw.read_holding_registers, STATUS, count=1,
+                                    device_id=self.axes[name].unit)
                 word = rr.registers[0]
                 if word >> ALARM_BIT & 1:
                     raise RuntimeError(f"axis {name}: alarm at {targets_mm[name]:g} mm")
@@ -165,12 +173,12 @@ class Master:
         """Read the instrument until its stable flags are all set; the registers then."""
         count = flags.stop
         for _ in range(SETTLE_MAX_STEPS):
-            rr = await self._ok(self.sim.read_input_registers(0, count=count, device_id=unit))
+            rr = await self._ok(self.sim.read_input_registers, 0, count=count, device_id=unit)
             if all(rr.registers[flags]):
                 return list(rr.registers)
             self.settle_steps += 1  # what sleeping would do: let the machine clock run
-            await self._ok(self.sim.write_register(ADVANCE_MS, SETTLE_STEP_MS,
-                                                   device_id=FAULTS_UNIT))
+            await self._ok(self.sim.write_register, ADVANCE_MS, SETTLE_STEP_MS,
+                           device_id=FAULTS_UNIT)
         raise RuntimeError("the instrument never said stable")
 
     async def laser_mm(self, name: str) -> float:
