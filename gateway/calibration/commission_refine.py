@@ -282,14 +282,10 @@ class RefineSteps(ThermalSteps):
         rows = np.array([a == axis for a in raw.axis])
         lead = model.lead_mm if model else None
         step_mm = sweep_step_mm(lead, coarser, self._noisy(axis))
-        # the ISO runs' reversal was a smooth curve: the sweep corrects it, not per point
-        chosen = self.state.get("identify", {}).get(f"reversal-{axis}") or {}
-        smooth = "per_point" in chosen and not chosen["per_point"]
         fit = fit_sweep(raw.target_mm[rows], raw.deviation_mm[rows], raw.direction[rows],
                         lead, model.origin_mm if model else 0.0,
                         harmonics_for_step(step_mm, lead), table=table,
-                        stations_mm=model.station_mm if model else (),
-                        smooth_reversal=smooth)  # fmt: skip
+                        stations_mm=model.station_mm if model else ())  # fmt: skip
         ref = sweep_refinement(table, PitchStage(table, method), model, fit)
         record: dict[str, Any] = {
             "round": r, "step_mm": step_mm, "readings": int(rows.sum()),

@@ -205,8 +205,8 @@ class SweepFit:
 def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
               direction: NDArray[np.int64], lead_mm: float | None, origin_mm: float = 0.0,
               harmonics: int = SWEEP_HARMONICS, robust: bool = True,
-              table: PitchTable | None = None, stations_mm: ArrayLike = (),
-              smooth_reversal: bool = False) -> SweepFit:  # fmt: skip
+              table: PitchTable | None = None, stations_mm: ArrayLike = ()
+              ) -> SweepFit:  # fmt: skip
     """Fit a sweep's residual (see the module's docstring). The number of harmonics (up to
     ``harmonics``) and the four penalty weights are those of the smallest generalised
     cross-validation score: a harmonic the readings do not show is not added.
@@ -219,15 +219,7 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
     the whole error every step, so the noise of the fewer readings the table's points came
     from is smoothed out with its own, as far as cross-validation says the sweep allows;
     and a ridge holds the level to the table as it was (its weight ``hold`` chosen the same
-    way, 0 among the choices), so what those readings knew is weighed, not dropped.
-
-    ``smooth_reversal``: the axis's ISO runs showed a reversal that is a smooth curve, not
-    one per point (:func:`.fit.choose_reversal`). The sweep reads each target once each
-    way, so a lost motion's change fitted per knot is mostly those readings' scatter
-    (smooth-2 Y: a reversal of 1.29-1.55 µm along the travel folded into 0.88-1.74 µm per
-    point); there the change is held to a straight line (its own curvature at the largest
-    penalty, not searched): the ISO runs' curve, its offset and slope corrected by every
-    reading of the sweep."""
+    way, 0 among the choices), so what those readings knew is weighed, not dropped."""
     x = np.asarray(x_mm, dtype=np.float64)
     y = np.asarray(deviation_mm, dtype=np.float64) * 1e3  # µm: a well-scaled system
     s = np.where(np.asarray(direction) < 0, 0.5, -0.5)  # −D/2 going up, +D/2 down
@@ -273,8 +265,6 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
         prior[: kn.size] = 0.5 * (fwd + rev)
         prior[kn.size : 2 * kn.size] = rev - fwd
     pulls = [g_ @ prior for g_ in groups_all[:3]] + [np.zeros_like(prior)]
-    if smooth_reversal:  # the change's own curvature, not the folded reversal's
-        pulls[1] = np.zeros_like(prior)
 
     def normal(w: NDArray[np.float64] | None) -> tuple[NDArray[np.float64], ...]:
         """The weighted normal equations' matrix and right side, all columns."""
@@ -309,8 +299,7 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
             here_lams = list(lams)
             here = solve(kk, here_lams, w, eqs)
             for _ in range(1 if kk else 2):
-                searched = ((2, 0, 1) if kk else (0, 1)) + ((3,) if table is not None else ())
-                for gi in [g for g in searched if not (smooth_reversal and g == 1)]:
+                for gi in ((2, 0, 1) if kk else (0, 1)) + ((3,) if table is not None else ()):
                     for lam in (_RIDGES if gi == 3 else _LAMBDAS):
                         trial = list(here_lams)
                         trial[gi] = lam
@@ -321,8 +310,7 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
                 best, lams, chosen = here, here_lams, kk
         return best, lams, chosen
 
-    first = [1.0, _LAMBDAS[-1] if smooth_reversal else 1.0, 1.0, 0.0]
-    best, lams, chosen = search(None, first, range(k + 1))
+    best, lams, chosen = search(None, [1.0, 1.0, 1.0, 0.0], range(k + 1))
     w = None
     if robust:
         # stick-slip stops short, now and then, by up to a few µm: a heavy one-sided tail
