@@ -51,7 +51,9 @@ def wait_for_steps(state: Path, count: int, proc, timeout_s: float = 60.0) -> No
 def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
     with running(template, tmp_path / "m") as rig:
         original = rig.config.read_text()
-        proc = rig.commission("--tolerance-um", "1")
+        # (1.7 h: not a short budget, round 1's sweep and round 2's doubled runs fit; the
+        # rounds after those, 0.5 h of machine time, would add nothing this test checks)
+        proc = rig.commission("--tolerance-um", "1", "--budget-h", "1.7")
         rc = proc.popen.wait(timeout=300)
         text = proc.text()
         assert rc in (0, 1), text
@@ -191,7 +193,7 @@ def test_a_sweep_killed_half_way_carries_on(template: Path, tmp_path: Path) -> N
     with running(template, tmp_path / "m") as rig:
         state = rig.dir / "commission" / "commission.json"
         raw = rig.dir / "commission" / "raw" / "sweep1-X.csv"
-        first = rig.commission("--tolerance-um", "1")
+        first = rig.commission("--tolerance-um", "1", "--budget-h", "1.7")
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
             if raw.exists() and raw.read_text().count("\n") > 40:
@@ -202,7 +204,7 @@ def test_a_sweep_killed_half_way_carries_on(template: Path, tmp_path: Path) -> N
         before = json.loads(state.read_text())
         assert before["sweeping"] == {"X": 0} and "sweep1-X" not in before["steps"]
         taken = len(read_raw_csv(raw))
-        second = rig.commission("--tolerance-um", "1")
+        second = rig.commission("--tolerance-um", "1", "--budget-h", "1.7")
         assert second.popen.wait(timeout=300) in (0, 1), second.text()
         out = rig.dir / "commission"
         after = json.loads(state.read_text())
