@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 from hypothesis import settings
@@ -26,14 +25,3 @@ def pty_pair() -> Iterator[PtyPair]:
         yield pair
     finally:
         pair.close()
-
-
-@pytest.fixture(scope="module")
-def template(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The commissioning tests' small machine (seed 7, tests/commission_rig.py), written
-    once per test module; each test copies it."""
-    from tests.commission_rig import small_machine
-
-    directory = tmp_path_factory.mktemp("machine") / "m"
-    small_machine(directory, seed=7)
-    return directory

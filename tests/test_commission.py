@@ -19,12 +19,15 @@ from gateway.calibration.models import pin_fades
 from gateway.calibration.plane_frame import FRAME_FILE, reframe_plane
 from gateway.calibration.plans import read_plan
 from gateway.config import load_config
-from tests.commission_rig import (
-    TRAVEL_MM,
-    running,
-    small_machine,
-)
+from tests.commission_rig import TRAVEL_MM, running, small_machine
 from tests.test_service_helpers import ROOT
+
+
+@pytest.fixture(scope="module")
+def template(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    directory = tmp_path_factory.mktemp("machine") / "m"
+    small_machine(directory, seed=7)
+    return directory
 
 
 def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:

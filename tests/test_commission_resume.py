@@ -10,12 +10,18 @@ import signal
 import time
 from pathlib import Path
 
+import pytest
+
 from gateway.calibration.plans import read_plan
 from gateway.calibration.rawdata import read_raw_csv
-from tests.commission_rig import (
-    running,
-    wait_for_steps,
-)
+from tests.commission_rig import running, small_machine, wait_for_steps
+
+
+@pytest.fixture(scope="module")
+def template(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    directory = tmp_path_factory.mktemp("machine") / "m"
+    small_machine(directory, seed=7)
+    return directory
 
 
 def test_commission_resumes_after_a_kill(template: Path, tmp_path: Path) -> None:
