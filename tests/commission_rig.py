@@ -8,7 +8,6 @@ from __future__ import annotations
 import contextlib
 import json
 import shutil
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -83,18 +82,3 @@ def running(template: Path, directory: Path) -> Iterator[Rig]:
         if gw is not None:
             gw.stop()
         sim.stop()
-
-
-def wait_for_steps(state: Path, count: int, proc, timeout_s: float = 60.0) -> None:  # type: ignore[no-untyped-def]
-    """Until the commissioning's state file records ``count`` steps done."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if state.exists():
-            try:
-                if len(json.loads(state.read_text())["steps"]) >= count:
-                    return
-            except (ValueError, KeyError):
-                pass  # written atomically: a partial read cannot happen, a missing key can
-        assert proc.popen.poll() is None, proc.text()
-        time.sleep(0.02)
-    raise AssertionError(f"no {count} steps in {state}")
