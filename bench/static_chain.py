@@ -182,6 +182,16 @@ def oracle_e_um(machine: Path, gw_path: Path, name: str, draws: Draws) -> float:
         bare_path.unlink(missing_ok=True)
 
 
+def _targets_mm(rng: np.random.Generator, lo_mm: float, hi_mm: float, count: int,
+                pulse_mm: float) -> np.ndarray:
+    """Random targets 3 mm inside the travel, sorted, on the drive's pulses as the judge's: a
+    target between two pulses is commanded at the nearer and read against itself
+    (smooth-7's 1 µm pulses: up to ±0.5 µm no table removes, 0.96 µm of E under a perfect
+    table)."""
+    raw = rng.uniform(lo_mm + 3, hi_mm - 3, count)
+    return np.sort(np.round(raw / pulse_mm) * pulse_mm)
+
+
 def machine_static(machine: Path, config: Path | None, parks: int, targets: int, seed: int,
                    bow_step_mm: float, oracle: bool = False
                    ) -> dict[str, dict[str, float]]:  # fmt: skip
@@ -198,17 +208,11 @@ def machine_static(machine: Path, config: Path | None, parks: int, targets: int,
         other = others[0] if others else None
         lo, hi = rig.m.axes[name].cfg.travel_mm
         olo, ohi = (rig.m.axes[other].cfg.travel_mm if other else (0.0, 0.0))
-        # on the drive's pulses, as the judge's targets: a target between two pulses is
-        # commanded at the nearer and read against itself (smooth-7's 1 µm pulses: up to
-        # ±0.5 µm that no table removes, which read as 0.96 µm of E under a perfect one)
         pulse_mm = rig.gw.axes[name].pulse_mm
-
-        def drawn(lo: float = lo, hi: float = hi, pulse_mm: float = pulse_mm) -> np.ndarray:
-            return np.sort(np.round(rng.uniform(lo + 3, hi - 3, targets) / pulse_mm) * pulse_mm)
-
-        line = [(olo, drawn()) for _ in range(parks)]
+        line = [(olo, _targets_mm(rng, lo, hi, targets, pulse_mm)) for _ in range(parks)]
         med = _parked_e(rig, name, other, line)
-        draws = [(float(rng.uniform(olo + 1, ohi - 1)), drawn()) for _ in range(parks)]
+        draws = [(float(rng.uniform(olo + 1, ohi - 1)),
+                  _targets_mm(rng, lo, hi, targets, pulse_mm)) for _ in range(parks)]
         pmed = _parked_e(rig, name, other, draws)
         out[name] = {"line": med["E"], "parks": pmed["E"]}
         extra = ""

@@ -176,12 +176,13 @@ class Commission(ShortBudget):
         configured runs fitting, or not even 2, nothing changes."""
         if "iso_runs" in self.state or any(self.done(f"iso-{a}") for a in axes):
             return
+        def fits(runs: int) -> bool:
+            return sum(self.step_cost_s(self._iso_plan(a, runs)) for a in axes) <= self.left_s()
+
         runs = self.s.runs
-        while runs > 2 and sum(self.step_cost_s(self._iso_plan(a, runs))
-                               for a in axes) > self.left_s():  # fmt: skip
+        while runs > 2 and not fits(runs):
             runs -= 1
-        fits = sum(self.step_cost_s(self._iso_plan(a, runs)) for a in axes) <= self.left_s()
-        if runs < self.s.runs and fits:
+        if runs < self.s.runs and fits(runs):
             self.state["iso_runs"] = runs
             note = (f"{', '.join(axes)}: {runs} ISO runs per target instead of "
                     f"{self.s.runs}: the budget holds every axis's table only so")
