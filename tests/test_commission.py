@@ -230,6 +230,7 @@ def test_an_abort_leaves_the_gateway_on_your_config(template: Path, tmp_path: Pa
         wait_for_steps(state, 2, proc)
         proc.signal(signal.SIGINT)
         assert proc.popen.wait(timeout=60) == 3, proc.text()
+        assert "SIGINT: stopping at the next reading" in proc.text()  # heard, and said
         assert "the gateway runs your own config again" in proc.text()
         assert rig.config.read_text() == original
         reloads = [ln for ln in rig.gw.lines if "reloaded" in ln]

@@ -19,7 +19,15 @@ from pathlib import Path
 
 from ..compensation.errors import CompensationError, TableError
 from ..config import ConfigError, GatewayConfig
-from .cli_common import EXIT_BAD_INPUT, EXIT_OK, EXIT_RUNTIME, err, load, progress_bar
+from .cli_common import (
+    EXIT_BAD_INPUT,
+    EXIT_OK,
+    EXIT_RUNTIME,
+    err,
+    load,
+    progress_bar,
+    until_stopped,
+)
 
 CALIBRATE_HELP = """\
 Run a calibration plan through a running gateway and append the readings to a raw CSV.
@@ -252,7 +260,7 @@ def calibrate(
             return EXIT_OK
 
     try:
-        return asyncio.run(body())
+        return asyncio.run(until_stopped(body()))
     except KeyboardInterrupt:
         err("calibrate", f"interrupted; every reading so far is in {args.raw}: run the same "
              "command again to resume")  # fmt: skip

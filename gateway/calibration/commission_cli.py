@@ -17,7 +17,7 @@ from typing import Any
 
 from ..compensation.errors import CompensationError, TableError
 from ..config import ConfigError, GatewayConfig, load_config
-from .cli_common import progress_bar
+from .cli_common import progress_bar, until_stopped
 
 EXIT_OK, EXIT_NOT_MET, EXIT_USAGE, EXIT_RUNTIME = 0, 1, 2, 3
 
@@ -265,16 +265,10 @@ def main(args: argparse.Namespace) -> int:
                     progress.update(tasks[name], completed=done, total=total)  # type: ignore[arg-type]
 
                 job.progress = update
-            task = asyncio.current_task()
-            loop = asyncio.get_running_loop()
-            loop.add_signal_handler(signal.SIGTERM, task.cancel)  # type: ignore[union-attr]
-            try:
-                return await job.run()
-            except asyncio.CancelledError:
-                raise KeyboardInterrupt from None
+            return await job.run()
 
     try:
-        summary = asyncio.run(body())
+        summary = asyncio.run(until_stopped(body()))
     except KeyboardInterrupt:
         where = asyncio.run(_restore(job))
         _err(f"interrupted: every reading so far is kept in {settings.out_dir}; {where}; run "
