@@ -12,6 +12,7 @@ from scipy.interpolate import Akima1DInterpolator
 
 from gateway.calibration.plans_scans import sweep_plan
 from gateway.calibration.sweep import (
+    LINE_MARGIN,
     NOISY_STEPS_MM,
     SWEEP_STEPS_MM,
     fit_sweep,
@@ -323,3 +324,45 @@ def test_a_noisy_axis_without_a_lead_is_read_more_densely_and_its_table_misses_l
             ) ** 2))))  # fmt: skip
     every_mm, dense = float(np.mean(miss[False])), float(np.mean(miss[True]))
     assert dense < 0.7 * every_mm, (every_mm, dense)
+
+
+def _play_fold_miss_um(play_um, seeds: range, line_margin: float) -> float:  # type: ignore[no-untyped-def]
+    """RMS (µm, over ``seeds``) of how far the folded table's reversal misses a truth with
+    play ``play_um(x)``: the table as 3 ISO runs gave it (a bow, the play with their
+    scatter), read by a sweep every 2.5 mm each way with 0.3 µm of scatter."""
+    travel = (0.0, 200.0)
+    pos = np.linspace(*travel, 11)
+    x = np.arange(1.0, 200.0, 2.5)
+    xs = np.concatenate([x, x[::-1]])
+    dirs = np.concatenate([np.ones(x.size, dtype=np.int64), -np.ones(x.size, dtype=np.int64)])
+    judge = np.linspace(2.0, 198.0, 393)
+    bow = lambda p: 3.0 * np.sin(np.pi * p / 200.0)  # noqa: E731
+    misses = []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        fwd = bow(pos) * 1e-3
+        iso = rng.normal(0, 0.3 / np.sqrt(3), pos.size)  # each way's mean of 3 runs
+        table = PitchTable(pos, fwd, fwd + (play_um(pos) + np.sqrt(2) * iso) * 1e-3)
+        truth = bow(xs) + play_um(xs) * (dirs < 0)
+        model = np.where(dirs > 0, np.interp(xs, pos, table.forward_mm),
+                         np.interp(xs, pos, table.reverse_mm)) * 1e3  # fmt: skip
+        dev_mm = (truth - model + rng.normal(0, 0.3, xs.size)) * 1e-3
+        fit = fit_sweep(xs, dev_mm, dirs, None, table=table, line_margin=line_margin)
+        got = sweep_refinement(table, PitchStage(table, "linear"), None, fit)
+        assert got.table.reverse_mm is not None
+        b = np.interp(judge, got.table.position_mm, got.table.reverse_mm - got.table.forward_mm)
+        misses.append(np.sqrt(np.mean((b * 1e3 - play_um(judge)) ** 2)))
+    return float(np.sqrt(np.mean(np.square(misses))))
+
+
+def test_a_play_that_changes_evenly_is_folded_as_a_line() -> None:
+    """smooth-2 Y's play runs 1.29 → 1.55 µm along its travel. One reading each way per
+    target let GCV bend the change between knots (λ 10): the folded reversal ran 0.88-1.74
+    µm. Held to a line unless bending scores a GCV 5 % lower, it follows the play; a worn
+    zone (the play up 1.2 µm over 50 mm) still bends (``line_margin`` 1e-9: always a line)."""
+    even = lambda p: 1.29 + 0.26 * p / 200.0  # noqa: E731
+    line, free = (_play_fold_miss_um(even, range(4), m) for m in (LINE_MARGIN, 0.0))
+    assert line < 0.85 * free, (line, free)  # (0.051 against 0.065)
+    worn = lambda p: 1.3 + 1.2 * np.clip((p - 75.0) / 50.0, 0.0, 1.0)  # noqa: E731
+    bends, held = (_play_fold_miss_um(worn, range(4), m) for m in (LINE_MARGIN, 1e-9))
+    assert bends < 0.85 * held, (bends, held)  # (0.10 against 0.14 held to a line)

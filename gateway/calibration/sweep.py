@@ -63,6 +63,11 @@ SWEEP_HARMONICS = 4
 _LAMBDAS = tuple(10.0 ** e for e in np.arange(-3.0, 7.01, 1.0))
 #: the weights tried for holding the change to the table as it was (0: not at all)
 _RIDGES = (0.0, *(10.0 ** e for e in np.arange(-3.0, 3.01, 0.5)))
+#: the lost motion's change is held to a straight line along the travel (the largest
+#: penalty) unless bending between knots scores a GCV this much lower (the plane's margin
+#: of grid over polynomial): the sweep reads each target once each way, so a change per
+#: knot is mostly noise unless the play really changes within the travel (a worn zone)
+LINE_MARGIN = 0.95
 #: reweighting passes of the robust fit, and Tukey's biweight constant (in robust sigmas)
 ROBUST_ITERATIONS = 6
 BIWEIGHT_C = 4.685
@@ -205,8 +210,8 @@ class SweepFit:
 def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
               direction: NDArray[np.int64], lead_mm: float | None, origin_mm: float = 0.0,
               harmonics: int = SWEEP_HARMONICS, robust: bool = True,
-              table: PitchTable | None = None, stations_mm: ArrayLike = ()
-              ) -> SweepFit:  # fmt: skip
+              table: PitchTable | None = None, stations_mm: ArrayLike = (),
+              line_margin: float = LINE_MARGIN) -> SweepFit:  # fmt: skip
     """Fit a sweep's residual (see the module's docstring). The number of harmonics (up to
     ``harmonics``) and the four penalty weights are those of the smallest generalised
     cross-validation score: a harmonic the readings do not show is not added.
@@ -288,11 +293,12 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
         return y.size * rss / max(y.size - edf, 1.0) ** 2, beta, rss, a
 
     def search(w: NDArray[np.float64] | None, lams: list[float], ks: Sequence[int],
-               eqs: tuple[NDArray[np.float64], ...] | None = None
+               eqs: tuple[NDArray[np.float64], ...] | None = None, held: int | None = None,
                ) -> tuple[Fit, list[float], int]:  # fmt: skip
         """Of the harmonics ``ks``, and the three weights, those of the smallest GCV, each
         weight searched over the grid in turn (twice round without harmonics, then once
-        from the weights of one harmonic fewer). ``eqs``: ``normal(w)`` when built."""
+        from the weights of one harmonic fewer), but weight ``held`` kept as given.
+        ``eqs``: ``normal(w)`` when built."""
         eqs = normal(w) if eqs is None else eqs
         best, chosen = solve(ks[0], lams, w, eqs), ks[0]
         for kk in ks:
@@ -300,6 +306,8 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
             here = solve(kk, here_lams, w, eqs)
             for _ in range(1 if kk else 2):
                 for gi in ((2, 0, 1) if kk else (0, 1)) + ((3,) if table is not None else ()):
+                    if gi == held:
+                        continue
                     for lam in (_RIDGES if gi == 3 else _LAMBDAS):
                         trial = list(here_lams)
                         trial[gi] = lam
@@ -328,6 +336,11 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
             eqs = normal(w)
             _, beta, _, a = solve(chosen, lams, w, eqs)
         best, lams, chosen = search(w, lams, [chosen], eqs)
+    if line_margin > 0 and lams[1] < _LAMBDAS[-1]:  # the change bends: does it pay?
+        line, line_lams, _ = search(w, [lams[0], _LAMBDAS[-1], *lams[2:]], [chosen],
+                                    None if w is None else eqs, held=1)  # fmt: skip
+        if not best[0] < line_margin * line[0]:
+            best, lams = line, line_lams
     k = chosen
     beta = best[1]
     level, lost = beta[: kn.size].copy(), beta[kn.size : 2 * kn.size].copy()
