@@ -31,6 +31,8 @@ system-deps bench-deps:
 
 test: $(STAMP) system-deps
 	$(BIN)/ruff check .
+	@# compiled once here, not by each of the suite's first few hundred processes at once
+	$(BIN)/python -m compileall -q gateway sim tests bench >/dev/null
 	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 lint: $(STAMP)
