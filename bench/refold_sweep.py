@@ -2,13 +2,14 @@
 ways, each judged by ``static_chain`` (the sim's quiet truth through the gateway's chain).
 
 For a machine kept by ``bench/accuracy.py --keep DIR`` whose commissioning swept an axis:
-the sweep's readings (drift taken off as the commissioning took it) are folded again into
-the tables kept just before the sweep, once with ``--margin`` 0 (the lost motion's change
-bends as GCV likes) and once with each given margin (``sweep.LINE_MARGIN``: a line unless
-bending scores that much lower), smoothed as the commissioning smooths; each result
-replaces that axis's table and cyclic term in the final config (``work/refold*-AXIS.yaml``)
-and is judged noise-free at random parks. The commissioning's own later rounds are left
-out on purpose: both folds are judged in the same place.
+the sweep's readings are folded again (``RefineSteps.fold_sweep``, the commissioning's own
+fold, drift taken off as it took it) into the tables kept just before the sweep, once with
+``--margin`` 0 (the lost motion's change bends as GCV likes) and once with each given margin
+(``sweep.LINE_MARGIN``: a line unless bending scores that much lower), smoothed as the
+commissioning smooths; each result replaces that axis's table and cyclic term in the final
+config (``work/refold*-AXIS.yaml``) and is judged noise-free at random parks. The
+commissioning's own later rounds are left out on purpose: both folds are judged in the
+same place.
 
     python bench/refold_sweep.py /tmp/keep/smooth-2 [/tmp/keep/rough-7 ...] [--margin 0.95]
 
@@ -29,8 +30,7 @@ from static_chain import machine_static
 from gateway.calibration.commission import Commission
 from gateway.calibration.commission_steps import Settings
 from gateway.calibration.outputs import write_table
-from gateway.calibration.sweep import LINE_MARGIN, fit_sweep, harmonics_for_step, sweep_refinement
-from gateway.compensation import PitchStage
+from gateway.calibration.sweep import LINE_MARGIN
 from gateway.formats import read_pitch_csv
 from gateway.formats.cyclic_file import read_cyclic, write_cyclic
 
@@ -62,18 +62,11 @@ def refold(machine: Path, margins: list[float], parks: int, targets: int, seed: 
         table = read_pitch_csv(keep / Path(tables["pitch"][axis]).name)
         cyclic_path = tables["cyclic"].get(axis)
         model = read_cyclic(keep / Path(cyclic_path).name) if cyclic_path else None
-        raw = job.raw(name)
-        rows = np.array([a == axis for a in raw.axis])
-        lead = model.lead_mm if model else None
         method = state.get("sweep_interpolation", {}).get(axis, "linear")
         config, _ = job.staged(job._tables_phase)
         for margin in margins:
-            fit = fit_sweep(raw.target_mm[rows], raw.deviation_mm[rows], raw.direction[rows],
-                            lead, model.origin_mm if model else 0.0,
-                            harmonics_for_step(record["step_mm"], lead), table=table,
-                            stations_mm=model.station_mm if model else (),
-                            line_margin=margin)  # fmt: skip
-            ref = sweep_refinement(table, PitchStage(table, method), model, fit)
+            ref, _ = job.fold_sweep(name, axis, table, model, method, record["step_mm"], margin)
+            fit = ref.fit
             tag = f"refold{margin:g}"
             (work / tag).mkdir(exist_ok=True)
             write_table(work / tag / f"{axis}_pitch.csv", "csv",

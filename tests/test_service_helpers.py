@@ -26,14 +26,6 @@ ROOT = Path(__file__).resolve().parent.parent
 FAULTS_UNIT = 250
 
 
-def _as_from_a_shell() -> None:
-    """In the child before exec: SIGINT at its default and not blocked, as a shell starts a
-    command (a disposition or mask left by the test worker would be inherited, and a
-    Ctrl-C test would see its signal ignored)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
-
-
 class Proc:
     """A child process whose merged stdout/stderr is collected line by line by a thread;
     :meth:`wait_line` waits (on a condition, no polling) for a line matching a pattern."""
@@ -42,7 +34,7 @@ class Proc:
         full_env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self.popen = subprocess.Popen(
             [sys.executable, *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-            text=True, cwd=ROOT, env=full_env, preexec_fn=_as_from_a_shell)
+            text=True, cwd=ROOT, env=full_env)
         self.lines: list[str] = []
         self._cond = threading.Condition()
         self._eof = False

@@ -28,6 +28,8 @@ from .plans import Plan, read_plan, targets_plan
 from .plans_scans import cyclic_plan, sweep_plan
 from .rawdata import axis_deviations
 from .sweep import (
+    LINE_MARGIN,
+    SweepRefinement,
     fit_sweep,
     harmonics_for_step,
     sweep_refinement,
@@ -254,6 +256,22 @@ class RefineSteps(ThermalSteps):
                 return coarser
         return None
 
+    def fold_sweep(self, name: str, axis: str, table: PitchTable, model: CyclicModel | None,
+                   method: str, step_mm: float, line_margin: float = LINE_MARGIN
+                   ) -> tuple[SweepRefinement, int]:  # fmt: skip
+        """Sweep step ``name``'s readings of ``axis`` (drift taken off) fitted and added to
+        the table and cyclic term it was read with (``method``: the table's interpolation);
+        not yet smoothed. Returns the refinement and the readings used."""
+        raw = self.raw(name)
+        rows = np.array([a == axis for a in raw.axis])
+        lead = model.lead_mm if model else None
+        fit = fit_sweep(raw.target_mm[rows], raw.deviation_mm[rows], raw.direction[rows],
+                        lead, model.origin_mm if model else 0.0,
+                        harmonics_for_step(step_mm, lead), table=table,
+                        stations_mm=model.station_mm if model else (),
+                        line_margin=line_margin)  # fmt: skip
+        return sweep_refinement(table, PitchStage(table, method), model, fit), int(rows.sum())
+
     async def _sweep_axis(self, r: int, axis: str, coarser: int) -> int:
         """Sweep ``axis`` with its table and cyclic term on and fold the fit into both;
         returns the table points added."""
@@ -278,17 +296,12 @@ class RefineSteps(ThermalSteps):
         await self.step(name, lambda: self._sweep_plan(axis, coarser), "on", self._park(axis))
         self.state["swept"] = [*self.state.get("swept", []), axis]
         self.state["sweeping"].pop(axis, None)
-        raw = self.raw(name)
-        rows = np.array([a == axis for a in raw.axis])
         lead = model.lead_mm if model else None
         step_mm = sweep_step_mm(lead, coarser, self._noisy(axis))
-        fit = fit_sweep(raw.target_mm[rows], raw.deviation_mm[rows], raw.direction[rows],
-                        lead, model.origin_mm if model else 0.0,
-                        harmonics_for_step(step_mm, lead), table=table,
-                        stations_mm=model.station_mm if model else ())  # fmt: skip
-        ref = sweep_refinement(table, PitchStage(table, method), model, fit)
+        ref, readings = self.fold_sweep(name, axis, table, model, method, step_mm)
+        fit = ref.fit
         record: dict[str, Any] = {
-            "round": r, "step_mm": step_mm, "readings": int(rows.sum()),
+            "round": r, "step_mm": step_mm, "readings": readings,
             "knots": int(fit.knot_mm.size),
             "stations": int(fit.station_mm.size), "harmonics": int(fit.sin_mm.shape[1]),
             "residual_rms_um": fit.residual_rms_um, "level_ptp_um": fit.level_ptp_um,

@@ -319,7 +319,7 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
         return best, lams, chosen
 
     best, lams, chosen = search(None, [1.0, 1.0, 1.0, 0.0], range(k + 1))
-    w = None
+    w, eqs = None, None
     if robust:
         # stick-slip stops short, now and then, by up to a few µm: a heavy one-sided tail
         # that least squares follows. Tukey's biweight on each residual over its own spread
@@ -337,8 +337,8 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
             _, beta, _, a = solve(chosen, lams, w, eqs)
         best, lams, chosen = search(w, lams, [chosen], eqs)
     if line_margin > 0 and lams[1] < _LAMBDAS[-1]:  # the change bends: does it pay?
-        line, line_lams, _ = search(w, [lams[0], _LAMBDAS[-1], *lams[2:]], [chosen],
-                                    None if w is None else eqs, held=1)  # fmt: skip
+        line, line_lams, _ = search(w, [lams[0], _LAMBDAS[-1], *lams[2:]], [chosen], eqs,
+                                    held=1)  # fmt: skip
         if not best[0] < line_margin * line[0]:
             best, lams = line, line_lams
     k = chosen
