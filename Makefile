@@ -33,7 +33,8 @@ test: $(STAMP) system-deps
 	$(BIN)/ruff check .
 	@# compiled once here, not by each of the suite's first few hundred processes at once
 	$(BIN)/python -m compileall -q gateway sim tests bench >/dev/null
-	$(BIN)/python -m pytest -q -n auto --dist loadfile
+	@# a worker per core, one BLAS thread each (tests/conftest.py says why)
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n auto --dist loadfile
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -96,7 +96,7 @@ def _pyplot():  # type: ignore[no-untyped-def]
 
 def _png(fig) -> bytes:  # type: ignore[no-untyped-def]
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=110)  # laid out by tight_layout: one render
     _pyplot().close(fig)
     return buf.getvalue()
 
