@@ -27,6 +27,7 @@ import argparse
 import asyncio
 import concurrent.futures
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -326,6 +327,8 @@ def main() -> int:
     say = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
     say(f"{len(machines)} machines, workflow {args.workflow}, {args.jobs} job(s)")
     say(HEAD)
+    if args.jobs > 1:  # a commissioning per core: one BLAS thread each (tests/conftest.py)
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         futures = [pool.submit(run_machine, label, gen, args.workflow, root, args.seed, without,
                                args.judge_repeats, args.sim_seed)
