@@ -1,0 +1,276 @@
+"""Commissioning's drift references: where the machine's thermal state is read between runs.
+
+Two places per linear axis, read before and after each run (and across every config switch,
+:meth:`~.commission_steps.Steps.use`), give each run's drift, which
+:meth:`~.commission_steps.Steps.raw` takes off the readings; logged with the odometer, they
+are what heat from motion is fitted to on an axis with no sensor
+(:meth:`DriftRefs.fit_motion_heat`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..compensation import Chain
+from ..compensation.errors import TableError
+from ..config import GatewayConfig
+from .commission_configs import Tables
+from .drift_shape import SweptHeat
+from .heat_fit import motion_heat_fit
+
+#: readings of each drift reference per reading (their mean is the reference)
+REF_REPEATS = 3
+#: the drift is taken off an axis whose references vary by more than this many times what
+#: their own scatter gives (see :meth:`DriftRefs.drift_stands_out`)
+DRIFT_RATIO = 2.0
+#: how fast the swept travel behind a drift shape fades (s of machine time): a screw's
+#: thermal time constant (the bench's warm-ups fit 960-1130 s)
+MEMORY_S = 1000.0
+
+
+class DriftRefs:
+    """The drift references of a commissioning (the base of
+    :class:`~.commission_steps.Steps`, whose state, config and travel they read)."""
+
+    s: Any  # commission_steps.Settings
+    state: dict[str, Any]
+    config: GatewayConfig
+    tables: Tables
+    swept: dict[str, SweptHeat]
+    dir: Path
+    say: Callable[[str], None]
+    _refs_read_here: bool
+
+    def _save(self) -> None:
+        raise NotImplementedError
+
+    def _retried(self, count: int) -> None:
+        raise NotImplementedError
+
+    def ref_axes(self) -> list[str]:
+        raise NotImplementedError
+
+    def _park(self, axis: str) -> dict[str, float]:
+        raise NotImplementedError
+
+    def _travel(self, axis: str) -> tuple[float, float]:
+        raise NotImplementedError
+
+    def _ref_commands(self, cfg: GatewayConfig, chain: Chain) -> dict[str, dict[str, Any]]:
+        """Per linear axis, what the gateway's config as loaded (``cfg``, its ``chain``)
+        commands at its two drift references (mm; approached in +, the other plane axis
+        parked, no thermal growth), every axis's command there, and its thermal setting:
+        the stage a switch cannot be computed across, unless it is a temperature source
+        (``sensor``: its correction is computed at the sensor's reading, see
+        :func:`.adaptive.relinked_base`)."""
+        out: dict[str, dict[str, Any]] = {}
+        for a in self.ref_axes():
+            where = {o: [round(x / cfg.axes[o].pulse_mm)] for o, x in self._park(a).items()}
+            mm, every = [], []
+            for x in self._ref_positions(a):
+                pulses = {**where, a: [round(x / cfg.axes[a].pulse_mm)]}
+                cmd = chain.command_mm_batch(pulses, dict.fromkeys(pulses, 1))
+                mm.append(float(cmd[a][0]))
+                every.append({o: float(c[0]) for o, c in cmd.items()})
+            th = cfg.axes[a].compensation.thermal
+            out[a] = {"mm": mm, "thermal": repr(th), "commands_mm": every}
+            src = None if th is None or th.source is None else cfg.thermal_sources[th.source]
+            if src is not None and src.kind == "temperature" and th.profile is None:
+                out[a]["sensor"] = [th.origin_mm, th.length_mm, th.gain, src.alpha_per_k,
+                                    src.reference_c]  # fmt: skip
+        return out
+
+    def _ref_positions(self, axis: str) -> tuple[float, float]:
+        lo, hi = self._travel(axis)
+        pulse = self.config.axes[axis].pulse_mm
+        return (round((lo + 0.05 * (hi - lo) + 1.0) / pulse) * pulse,
+                round((hi - 0.05 * (hi - lo)) / pulse) * pulse)
+
+    async def _measure_refs(self, repeats: int = REF_REPEATS, axes: Sequence[str] | None = None
+                            ) -> dict[str, list[float]]:  # fmt: skip
+        """Deviation (mm) of each commissioned axis (or of ``axes``) at its two drift
+        references, the mean of ``repeats`` approaches in + from 1 mm below (the other plane
+        axis parked)."""
+        from .machine import Laser, Links, MachineDriver
+
+        links = Links()
+        out: dict[str, list[float]] = {}
+        cost = 0.0
+        try:
+            link = await links.get(self.s.gateway.host, self.s.gateway.port)
+            driver = MachineDriver(link, self.config, self.s.motion)
+            driver.on_move = self._count_travel
+            ins = self.s.instruments
+            assert ins.laser is not None
+            order = list(ins.laser_axes or self.config.axes)
+            laser = Laser(await links.get(*ins.laser.key), ins.laser.unit,
+                          {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
+            for a in self.s.axes if axes is None else axes:
+                park = self._park(a)
+                if park:
+                    await driver.move(park)
+                devs = []
+                for x in self._ref_positions(a):
+                    readings = []
+                    for _ in range(repeats):
+                        await driver.move({a: x - 1.0})
+                        await driver.move({a: x})
+                        readings.append((await laser.read_mm([a]))[a] - x)
+                    devs.append(float(np.mean(readings)))
+                out[a] = devs
+                cost += self.refs_cost_s([a], repeats)
+        finally:
+            self._retried(links.retried)
+            links.close()
+        self.state["refs_s"] = self.state.get("refs_s", 0.0) + cost
+        self._refs_read_here = True
+        self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out,
+                                   "odometer_mm": self._odometer()}  # fmt: skip
+        return out
+
+    def _refs_unmoved(self) -> dict[str, list[float]] | None:
+        """The drift references read last (mm), when this process read them and nothing has
+        moved since, in the same config: a run's after-reading is then the next run's
+        before-reading (the same thermal state: reading it again costs machine time and
+        adds its own scatter). None otherwise (and after a resume: the machine may have
+        been moved by hand)."""
+        last = self.state.get("last_refs")
+        if not (last and self._refs_read_here):
+            return None
+        if last["phase"] != self.state.get("phase") or last.get("odometer_mm") != self._odometer():
+            return None
+        return last["refs"]
+
+    def refs_cost_s(self, axes: Sequence[str], repeats: int = REF_REPEATS) -> float:
+        """Machine time (s) of one reading of the drift references of ``axes``: two places,
+        ``repeats`` approaches each from 1 mm below."""
+        return len(axes) * 2 * repeats * (self.s.stop_s + 2.0 / self.s.speed_mm_s)
+
+    def _drift_now(self, refs: dict[str, list[float]]) -> dict[str, list[float]]:
+        base = self.state["drift_base"]["refs"]
+        return {a: [refs[a][k] - base[a][k] for k in (0, 1)] for a in self.s.axes}
+
+    def drift_taken_off(self, axis: str) -> bool:
+        """Whether ``axis``'s readings have the drift references' drift taken off: an axis
+        with no thermal setting (heat from motion, fitted here, leaves what the references
+        read), or one whose temperature sensor heat from motion replaces (the sensor's
+        linear correction cannot follow a screw warm where its nut works, and the final
+        config will not run it: what the references read across every switch is what the
+        sensor's config leaves, see :func:`.adaptive.relinked_base`). An axis that keeps
+        its sensor keeps what its compensation leaves, as it will in use."""
+        if self.config.axes[axis].compensation.thermal is None:
+            return self.drift_stands_out(axis)
+        return self.replacing_motion(axis) is not None
+
+    def iso_scatter_um(self, axis: str) -> float | None:
+        """The scatter of one stop of ``axis`` (µm): the ISO runs' pooled standard deviation,
+        as the reversal's choice measured it; None before the ISO runs are fitted."""
+        s_um = (self.state.get("identify", {}).get(f"reversal-{axis}") or {}).get("scatter_um")
+        return float(s_um) if s_um is not None and np.isfinite(s_um) and s_um > 0 else None
+
+    def drift_stands_out(self, axis: str) -> bool:
+        """Whether the drift references of ``axis`` have varied by more than their own
+        scatter: the variance of their readings since commissioning began over the variance
+        of one (the axis's ISO scatter s over REF_REPEATS) above DRIFT_RATIO. A drift that is
+        only the references' scatter, taken off, adds it to every run: an offset and a tilt
+        per run, and a reversal between a sweep's two passes (0.6-1.1 µm on slit-11361 X
+        and slit-11360-iso X, machines with no heat, 1.2-1.3 µm of scatter). Before the ISO
+        runs give s: taken off."""
+        s_um = self.iso_scatter_um(axis)
+        log = [e["drift_mm"][axis] for e in self.state.get("drift_log") or []
+               if axis in e.get("drift_mm", {})]  # fmt: skip
+        if s_um is None or len(log) < 3:
+            return True
+        spread_um2 = float(np.mean(np.var(np.asarray(log) * 1e3, axis=0)))
+        return spread_um2 > DRIFT_RATIO * s_um**2 / REF_REPEATS
+
+    def drift_spread_mm(self, axis: str) -> float | None:
+        """How far the heat of ``axis``'s moves spreads along its screw (mm), where its zone
+        warm-up showed the screw warm where its nut works (heat from motion, spread where it
+        travelled, replaced its temperature sensor); None: the drift is taken as linear
+        between the references (an evenly warm screw, or nothing measured to tell)."""
+        spread = (self.replacing_motion(axis) or {}).get("profile") or {}
+        return float(spread["spread_mm"]) if spread.get("spread_mm") else None
+
+    def replacing_motion(self, axis: str) -> dict[str, Any] | None:
+        """The heat-from-motion thermal section that replaces ``axis``'s temperature sensor
+        (its zone warm-up's fit, :mod:`.warmup_heat`), or None."""
+        ident = self.state.get("identify", {}).get(f"thermal-{axis}", {})
+        return (ident.get("motion") or {}).get("config") or None
+
+    def _drift_shapes(self) -> dict[str, list[float]]:
+        """The heat shape W of each axis whose drift follows it: a spread known, and no
+        thermal compensation in the loaded config (the drift is then the growth itself)."""
+        out = {}
+        loaded = self.state.get("ref_commands") or {}
+        for a, heat in self.swept.items():
+            spread = self.drift_spread_mm(a)
+            if spread is not None and (loaded.get(a) or {}).get("thermal") == "None":
+                out[a] = heat.shape(spread)
+        return out
+
+    def _count_travel(self, axis: str, x_mm: float) -> None:
+        """The odometer: every target commissioning writes, per axis (mm); and where each
+        screw was worked, the machine time taken as the move's travel at the
+        commissioning speed and a stop."""
+        odo = self.state.setdefault("odometer", {"mm": {}, "at": {}})
+        last = odo["at"].get(axis)
+        if last is not None:
+            odo["mm"][axis] = odo["mm"].get(axis, 0.0) + abs(x_mm - last)
+        odo["at"][axis] = x_mm
+        seconds = (0.0 if last is None else abs(x_mm - last) / self.s.speed_mm_s) + self.s.stop_s
+        for heat in self.swept.values():
+            heat.elapse(seconds)
+        if axis in self.swept:
+            self.swept[axis].move_to(x_mm)
+
+    def _odometer(self) -> dict[str, float]:
+        """Each commissioned axis's travel so far (mm)."""
+        odo = self.state.get("odometer", {"mm": {}})["mm"]
+        return {a: float(odo.get(a, 0.0)) for a in self.s.axes}
+
+    def _log_drift(self, drift: dict[str, list[float]],
+                   odometer_mm: dict[str, float] | None = None) -> None:
+        """Keep the drift (mm, at both references) with the odometer when it was read (the
+        last references' unless given) and the wall clock: what heat from motion is
+        fitted to (heat_fit)."""
+        odo = odometer_mm or (self.state.get("last_refs") or {}).get("odometer_mm")
+        self.state.setdefault("drift_log", []).append(
+            {"odometer_mm": odo or self._odometer(), "wall_s": time.time(),
+             "drift_mm": drift})  # fmt: skip
+
+    def fit_motion_heat(self) -> None:
+        """Heat from motion on every linear axis with no thermal setting of its own, fitted
+        to the drift references read so far (once: later drift is what it leaves)."""
+        log = self.state.get("drift_log", [])
+        for a in self.s.axes:
+            axis = self.config.axes[a]
+            key = f"motion-{a}"
+            ident = self.state.setdefault("identify", {})
+            if axis.compensation.thermal is not None or axis.rotary or key in ident:
+                continue
+            try:
+                fit = motion_heat_fit(
+                    a, {b: [e["odometer_mm"].get(b, 0.0) / 1000.0 for e in log]
+                        for b in self.s.axes},
+                    [e["wall_s"] for e in log],
+                    [[d * 1000.0 for d in e["drift_mm"][a]] for e in log],
+                    self._ref_positions(a), dict.fromkeys(self.s.axes, self.s.speed_mm_s),
+                    self._travel(a))  # fmt: skip
+            except TableError as exc:
+                ident[key] = {"fitted": False, "why": str(exc)}
+                self.say(f"no heat-from-motion model: {exc}")
+                continue
+            self.tables.motion[a] = fit.config()
+            ident[key] = {"fitted": True, **fit.config(), "growth_max_um": fit.growth_max_um,
+                          "residual_rms_um": fit.residual_rms_um, "points": fit.points}
+            self.say(f"{a}: no thermal sensor; heat from its own motion explains the drift "
+                     f"({fit.growth_max_um:.1f} µm at most) to {fit.residual_rms_um:.2f} µm "
+                     f"RMS: Δa {fit.delta_a_um_per_m:.3g} µm per metre of heat, tau "
+                     f"{fit.tau_s:.0f} s, fixed end at {fit.origin_mm:.0f} mm")  # fmt: skip
+        self._save()
