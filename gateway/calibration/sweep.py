@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
 from ..compensation import PitchStage, PitchTable
 from ..compensation.cyclic import CyclicModel
@@ -272,9 +273,12 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
     pulls = [g_ @ prior for g_ in groups_all[:3]] + [np.zeros_like(prior)]
 
     def normal(w: NDArray[np.float64] | None) -> tuple[NDArray[np.float64], ...]:
-        """The weighted normal equations' matrix and right side, all columns."""
+        """The weighted normal equations' matrix and right side, all columns, and R of
+        the weighted design's QR (RᵀR the matrix, any columns' R their columns of it)."""
         dw = design if w is None else design * w[:, None]
-        return (xtx_all if w is None else dw.T @ design), dw.T @ y
+        half = design if w is None else design * np.sqrt(w)[:, None]
+        return (xtx_all if w is None else dw.T @ design), dw.T @ y, \
+            np.linalg.qr(half, mode="r")  # fmt: skip
 
     # (GCV score, coefficients, RSS, the penalised normal matrix)
     Fit = tuple[float, NDArray[np.float64], float, NDArray[np.float64]]
@@ -286,8 +290,15 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
         a = xtx + sum(lam * g_[cols, cols] for lam, g_ in zip(lams, groups_all))
         a = a + 1e-9 * float(np.trace(xtx)) / xtx.shape[0] * np.eye(xtx.shape[0])
         rhs = eqs[1][cols] - sum(lam * p[cols] for lam, p in zip(lams, pulls))
-        beta = np.linalg.solve(a, rhs)
-        edf = float(np.trace(np.linalg.solve(a, xtx)))
+        try:  # A = LLᵀ: the coefficients, and tr(A⁻¹XᵀX) = ‖L⁻¹Rᵀ‖² (a third of the work
+            # of solving for A⁻¹XᵀX, and this runs a few hundred times a fit)
+            low = cho_factor(a, lower=True, check_finite=False)
+            beta = cho_solve(low, rhs, check_finite=False)
+            z = solve_triangular(low[0], eqs[2][:, cols].T, lower=True, check_finite=False)
+            edf = float(np.sum(z * z))
+        except np.linalg.LinAlgError:  # not positive definite in floating point
+            beta = np.linalg.solve(a, rhs)
+            edf = float(np.trace(np.linalg.solve(a, xtx)))
         e = y - design[:, cols] @ beta
         rss = float(np.sum(e * e if w is None else w * e * e))
         return y.size * rss / max(y.size - edf, 1.0) ** 2, beta, rss, a
