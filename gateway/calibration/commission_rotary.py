@@ -37,8 +37,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..compensation import PitchStage, PitchTable
-from ..compensation.errors import CompensationError, TableError
+from ..compensation import PitchTable
+from ..compensation.errors import TableError
 from ..config_types import read_yaml
 from . import adaptive
 from .commission_steps import Steps
@@ -70,12 +70,6 @@ class RotarySteps(Steps):
     calls; on a linear axis each does what the linear code did)."""
 
     # -- which axes, where -----------------------------------------------------------------
-    def _rotary(self, axis: str) -> bool:
-        return axis in self.config.axes and self.config.axes[axis].rotary
-
-    def _wraps(self, axis: str) -> bool:
-        return axis in self.config.axes and self.config.axes[axis].wraps
-
     def table_range(self, axis: str) -> tuple[float, float]:
         """Where the coarse run measures (deg): a turntable's one turn (0…360° when the
         travel leaves room to approach it from both sides), a swing axis's travel less the
@@ -314,25 +308,6 @@ class RotarySteps(Steps):
         keep = [float(m) for m in mids
                 if np.min(np.abs(self._offset(axis, m - x))) >= adaptive.MIN_SPACING_MM]
         return np.unique(np.array(keep, dtype=np.float64))
-
-    def within_cap(self, axis: str, table: PitchTable, method: str) -> str:
-        """``method``, or straight lines where ``table`` read along it would pass the axis's
-        correction cap (the gateway would refuse the config)."""
-        if method == "linear":
-            return method
-        try:
-            PitchStage(table, method, wrap=self._wraps(axis)).check_cap(  # type: ignore[arg-type]
-                self.config.axes[axis].compensation.max_correction_mm)
-        except CompensationError:
-            return "linear"
-        return method
-
-    def table_stage(self, axis: str, table: PitchTable) -> PitchStage:
-        """The stage the gateway builds from ``table``: the chosen interpolation, the wrap."""
-        if not self._rotary(axis):
-            return PitchStage(table, self.tables.interpolation.get(axis, "linear"))  # type: ignore[arg-type]
-        method = self.state.get("rotary", {}).get(axis, {}).get("interpolation", "linear")
-        return PitchStage(table, method, wrap=self._wraps(axis))
 
     # -- plan and summary ------------------------------------------------------------------------
     def rotary_plan_lines(self) -> None:

@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ..compensation.errors import TableError
+from ..compensation import PitchStage, PitchTable
+from ..compensation.errors import CompensationError, TableError
 from ..config import GatewayConfig, load_config
 from ..config_types import read_yaml
 from ..formats import atomic_write_text
@@ -437,6 +438,32 @@ class Steps(DriftRefs):
                 for a in self.ref_axes()}  # fmt: skip
             self.state["drift_last"] = after
         return entry
+
+    # -- axes and tables ------------------------------------------------------------------
+    def _rotary(self, axis: str) -> bool:
+        return axis in self.config.axes and self.config.axes[axis].rotary
+
+    def _wraps(self, axis: str) -> bool:
+        return axis in self.config.axes and self.config.axes[axis].wraps
+
+    def within_cap(self, axis: str, table: PitchTable, method: str) -> str:
+        """``method``, or straight lines where ``table`` read along it would pass the axis's
+        correction cap (the gateway would refuse the config)."""
+        if method == "linear":
+            return method
+        try:
+            PitchStage(table, method, wrap=self._wraps(axis)).check_cap(  # type: ignore[arg-type]
+                self.config.axes[axis].compensation.max_correction_mm)
+        except CompensationError:
+            return "linear"
+        return method
+
+    def table_stage(self, axis: str, table: PitchTable) -> PitchStage:
+        """The stage the gateway builds from ``table``: the chosen interpolation, the wrap."""
+        if not self._rotary(axis):
+            return PitchStage(table, self.tables.interpolation.get(axis, "linear"))  # type: ignore[arg-type]
+        method = self.state.get("rotary", {}).get(axis, {}).get("interpolation", "linear")
+        return PitchStage(table, method, wrap=self._wraps(axis))
 
     def _park(self, axis: str) -> dict[str, float]:
         """Where the other plane axis stands while ``axis`` is measured: its lower end."""
