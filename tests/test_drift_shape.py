@@ -90,3 +90,55 @@ def test_a_drift_without_shapes_is_the_straight_line() -> None:
     w = tuple(cold.shape(SPREAD_MM))
     flat = Drift(REFS, (0.0, 0.0), (1e-3, 5e-3), TRAVEL, w, w)
     np.testing.assert_allclose(flat.at(x, np.ones(x.size)), expected)
+
+
+def _probes(growth, swept: SweptHeat, screw: ScrewHeatModel, scatter_um: float,
+            seed: int = 5) -> list:  # type: ignore[no-untyped-def]
+    """Middle readings beside the references while zones of the travel are worked in turn
+    (a config switch every third reading), each read with ``scatter_um`` of noise; the
+    truth ``growth(x_mm, t_s)`` (mm), the moves told to ``screw`` and ``swept``."""
+    from gateway.calibration.drift_shape import PROBE_SPREADS_MM, MidProbe
+
+    rng = np.random.default_rng(seed)
+    x3 = (*REFS, 0.5 * (REFS[0] + REFS[1]))
+    zones = [(0.0, 600.0), (60.0, 250.0), (300.0, 580.0), (0.0, 600.0), (400.0, 600.0),
+             (100.0, 300.0)] * 2  # fmt: skip
+    out, t = [], 0.0
+    for k, zone in enumerate(zones):
+        t = _work(screw, swept, zone, t, 400.0)
+        g = [growth(x, t) for x in x3]
+        noise = rng.normal(0.0, scatter_um * 1e-3, 3) * (1.0, 1.0, 1.0)
+        w = {s: tuple(float(v) for v in np.interp(x3, sample_mm(TRAVEL), swept.shape(s)))
+             for s in PROBE_SPREADS_MM}  # fmt: skip
+        # the tables differ from one config to the next: the middle's own offset changes
+        offset = 0.01 * (k // 3)
+        out.append(MidProbe(f"config{k // 3}", x3, (g[0] + noise[0] / 3**0.5,
+                                                   g[1] + noise[1] / 3**0.5),
+                            offset + g[2] + noise[2], w))  # fmt: skip
+    return out
+
+
+def test_middle_readings_tell_a_screw_warm_where_it_works_from_an_evenly_warm_one() -> None:
+    """A screw warm where its nut works (the sim's): its middle readings beside the
+    references choose a heat shape, which predicts the middle's drift several times better
+    than the straight line. An evenly warm screw (growth linear from its fixed end) keeps
+    the line, and so does one whose growth is within the readings' scatter."""
+    from gateway.calibration.drift_shape import choose_spread
+
+    screw = _screw()
+    probes = _probes(screw.growth_mm, SweptHeat.for_travel(TRAVEL, MEMORY_S), screw, 0.3)
+    chosen = choose_spread(probes, 0.3)
+    assert chosen is not None and chosen.pairs == 8, chosen
+    assert chosen.spread_mm is not None, chosen.summary()
+    assert chosen.sse_um2[chosen.spread_mm] < 0.25 * chosen.sse_um2[None], chosen.summary()
+
+    def even(x: float, t: float) -> float:  # one temperature, rising and levelling off
+        return 2e-5 * (1 - np.exp(-t / 1500.0)) * (x + 40.0)
+
+    # the same zones worked (the travel counted as uneven), the screw evenly warm
+    line = choose_spread(_probes(even, SweptHeat.for_travel(TRAVEL, MEMORY_S), _screw(), 0.3),
+                         0.3)  # fmt: skip
+    assert line is not None and line.spread_mm is None, line.summary()
+    quiet = choose_spread(_probes(lambda x, t: 1e-4 * even(x, t),
+                                  SweptHeat.for_travel(TRAVEL, MEMORY_S), _screw(), 0.3), 0.3)
+    assert quiet is not None and quiet.spread_mm is None, quiet.summary()

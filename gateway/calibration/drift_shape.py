@@ -113,3 +113,92 @@ def shaped_drift_mm(x_mm: ArrayLike, refs_mm: tuple[float, float],
     if not abs(span) > 1e-6 * max(1e-12, float(np.abs(w).max())):
         return d0 + (d1 - d0) * (x - refs_mm[0]) / (refs_mm[1] - refs_mm[0])
     return d0 + (d1 - d0) * (np.interp(x, xs, w) - w0) / span
+
+
+#: the heat spreads (mm) tried for a screw with no sensor: where its nut's heat goes, as the
+#: gateway's travel profile spreads it (a steel screw's √(k·d / 4h): 45-320 mm from a thin
+#: screw in a draught to a thick one in still air)
+PROBE_SPREADS_MM = (50.0, 100.0, 150.0, 200.0, 300.0)
+#: pairs of middle readings (in the same config) before a shape is chosen
+PROBE_PAIRS_MIN = 4
+#: a shape is taken when it leaves at most this share of the straight line's misfit
+PROBE_SHARE = 0.5
+
+
+@dataclass(frozen=True)
+class MidProbe:
+    """One reading of an axis's middle place (``mid_mm``: deviation there, mm) beside its
+    drift references' drift (``drift_mm``, mm at ``refs_mm``), with W at the two
+    references and the middle for each tried spread (``w``, spread → (w₁, w₂, w_m))."""
+
+    stretch: str  # the config it was read in: pairs are only read within one
+    x_mm: tuple[float, float, float]  # the two references and the middle
+    drift_mm: tuple[float, float]
+    mid_mm: float
+    w: dict[float, tuple[float, float, float]]
+
+    def predicted_mm(self, spread: float | None) -> float:
+        """The middle's drift by the straight line (``spread`` None) or along W."""
+        x1, x2, xm = self.x_mm
+        d1, d2 = self.drift_mm
+        if spread is not None and spread in self.w:
+            w1, w2, wm = self.w[spread]
+            if abs(w2 - w1) > 1e-9 * max(1e-12, abs(w1), abs(w2), abs(wm)):
+                return d1 + (d2 - d1) * (wm - w1) / (w2 - w1)
+        return d1 + (d2 - d1) * (xm - x1) / (x2 - x1)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"stretch": self.stretch, "x_mm": list(self.x_mm),
+                "drift_mm": list(self.drift_mm), "mid_mm": self.mid_mm,
+                "w": {f"{s:g}": [float(f"{v:.7g}") for v in w] for s, w in self.w.items()}}
+
+    @classmethod
+    def from_json(cls, v: dict[str, Any]) -> MidProbe:
+        return cls(str(v["stretch"]), tuple(v["x_mm"]), tuple(v["drift_mm"]),  # type: ignore[arg-type]
+                   float(v["mid_mm"]), {float(s): tuple(w) for s, w in v["w"].items()})  # type: ignore[misc]
+
+
+@dataclass(frozen=True)
+class SpreadChoice:
+    """A screw's heat spread as its middle readings chose it (None: the straight line), the
+    misfit of each candidate (µm², over ``pairs`` pairs) and what the readings' own scatter
+    gives."""
+
+    spread_mm: float | None
+    sse_um2: dict[float | None, float]
+    noise_um2: float
+    pairs: int
+
+    def summary(self) -> dict[str, Any]:
+        return {"spread_mm": self.spread_mm, "pairs": self.pairs,
+                "misfit_um2": {("line" if s is None else f"{s:g}"): round(v, 3)
+                               for s, v in self.sse_um2.items()},
+                "noise_um2": round(self.noise_um2, 3)}  # fmt: skip
+
+
+def choose_spread(probes: list[MidProbe], scatter_um: float) -> SpreadChoice | None:
+    """Whether the middle readings say the screw grows along W (and which spread) or as a
+    straight line between its references. Each reading after the first of its config is
+    paired with that first (the table the same: what the middle moved by is its drift);
+    the candidate whose predicted change misses the measured one least is taken over the
+    line when it leaves at most PROBE_SHARE of the line's misfit and the line's misfit
+    stands out of what two readings' scatter (``scatter_um`` each) give. None: fewer than
+    PROBE_PAIRS_MIN pairs."""
+    firsts: dict[str, MidProbe] = {}
+    pairs: list[tuple[MidProbe, MidProbe]] = []
+    for p in probes:
+        if p.stretch in firsts:
+            pairs.append((firsts[p.stretch], p))
+        else:
+            firsts[p.stretch] = p
+    if len(pairs) < PROBE_PAIRS_MIN:
+        return None
+    sse: dict[float | None, float] = {}
+    for cand in (None, *PROBE_SPREADS_MM):
+        err = [(b.mid_mm - a.mid_mm) - (b.predicted_mm(cand) - a.predicted_mm(cand))
+               for a, b in pairs]  # fmt: skip
+        sse[cand] = float(np.sum(np.square(err))) * 1e6
+    noise = 2.0 * scatter_um**2 * len(pairs)
+    best = min(PROBE_SPREADS_MM, key=lambda s: sse[s])
+    shaped = sse[best] <= PROBE_SHARE * sse[None] and sse[None] - sse[best] > noise
+    return SpreadChoice(best if shaped else None, sse, noise, len(pairs))
