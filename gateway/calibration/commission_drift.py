@@ -45,8 +45,6 @@ PROBE_GROWTH_UM = 3.0
 PROBES_MAX = 16
 #: machine time (s) the budget must have left for a middle reading
 PROBE_LEFT_S = 900.0
-#: drift (mm, at either reference) from which a run keeps W for every tried spread
-SHAPED_FROM_MM = 1e-3
 
 
 class DriftRefs:
@@ -295,7 +293,7 @@ class DriftRefs:
         for a, heat in self.swept.items():
             if (self.config.axes[a].compensation.thermal is None
                     and (loaded.get(a) or {}).get("thermal") == "None"):
-                out[a] = {f"{s:g}": [float(f"{v:.5g}") for v in heat.shape(s)]
+                out[a] = {f"{s:g}": [float(f"{v:.7g}") for v in heat.shape(s)]
                           for s in PROBE_SPREADS_MM}  # fmt: skip
         return out
 

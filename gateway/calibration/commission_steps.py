@@ -30,7 +30,7 @@ from ..formats import atomic_write_text
 from ..tables import build_chain
 from . import adaptive
 from .commission_configs import HEADER, Tables, identification, with_tables
-from .commission_drift import MEMORY_S, SHAPED_FROM_MM, DriftRefs
+from .commission_drift import MEMORY_S, DriftRefs
 from .drift_shape import SweptHeat
 from .machine import MotionSettings
 from .plans import (
@@ -434,10 +434,8 @@ class Steps(DriftRefs):
             before = pending.pop(key)
             shape_before, shape_after = shapes.pop(key, {}), self._drift_shapes()
             tried_before, tried_after = tried.pop(key, {}), self._candidate_shapes()
-            # (where the drift is a micrometre or more: below, a shape changes nothing)
             both = {a: {k: [w, tried_after[a][k]] for k, w in c.items() if k in tried_after[a]}
-                    for a, c in tried_before.items() if a in tried_after
-                    and max(map(abs, (*before[a], *after[a]))) >= SHAPED_FROM_MM}  # fmt: skip
+                    for a, c in tried_before.items() if a in tried_after}  # fmt: skip
             if both:  # each tried spread's W before and after (see :meth:`raw`)
                 entry["shapes_c"] = both
             # kept for every axis (taken off where :meth:`drift_taken_off` says), along the
