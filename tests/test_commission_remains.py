@@ -27,9 +27,3 @@ def test_a_screw_that_barely_warmed_gets_no_such_sentence() -> None:
     small = {"motion-X": {"fitted": True, "growth_max_um": WARM_SCREW_UM - 0.5}}
     assert not any("grew by up to" in s for s in remains(_summary(small)))
     assert not any("grew by up to" in s for s in remains(_summary({})))
-
-
-def test_a_screw_whose_middle_told_its_shape_gets_no_such_sentence() -> None:
-    told = {"motion-X": {"fitted": True, "growth_max_um": 35.0, "residual_rms_um": 0.6},
-            "heat-shape-X": {"spread_mm": 100.0, "pairs": 9}}
-    assert not any("grew by up to" in s for s in remains(_summary(told)))

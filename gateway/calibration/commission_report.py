@@ -59,11 +59,11 @@ BOW_SHARE = (0.07, 0.17)
 
 
 def warm_screw(axis: str, growth_um: float, residual_um: float | None) -> str:
-    """What a screw that grew ``growth_um`` while its tables were read may have kept of it,
-    where too few readings of its middle told its shape (:mod:`.drift_shape`): the drift
-    references read the growth at two places, and between them it is taken as even. A
-    screw warm where its nut works grows unevenly: on the bench's rough screws (heat along
-    the screw, no sensor) the tables kept a bow of ``BOW_SHARE`` of the growth."""
+    """What a screw that grew ``growth_um`` while its tables were read may have kept of it:
+    the drift references read the growth at two places only, and between them it is taken
+    as even along the screw. A screw warm where its nut works grows unevenly: on the
+    bench's rough screws (heat along the screw, no sensor) the tables kept a bow of
+    ``BOW_SHARE`` of the growth."""
     fit = f" (heat from its own motion follows it to {residual_um:.2f} µm RMS at the drift " \
         "references)" if residual_um is not None else ""  # fmt: skip
     return (f"Axis {axis}: its screw grew by up to {growth_um:.1f} µm while its tables were "
@@ -104,11 +104,8 @@ def remains(summary: dict[str, Any]) -> list[str]:
             out.append(f"Axis {axis}: A {a:.2f}{u} of which R (repeatability, ±2s of single "
                        f"approaches) {r:.2f}{u}, which no table removes; the systematic part "
                        f"E is {e:.2f}{u}.")  # fmt: skip
-        ident = summary.get("identify") or {}
-        heat = ident.get(f"motion-{axis}") or {}
-        # (unless its middle readings told its shape: then the drift went along it)
-        if heat.get("fitted") and heat.get("growth_max_um", 0.0) >= WARM_SCREW_UM and \
-                f"heat-shape-{axis}" not in ident:  # fmt: skip
+        heat = (summary.get("identify") or {}).get(f"motion-{axis}") or {}
+        if heat.get("fitted") and heat.get("growth_max_um", 0.0) >= WARM_SCREW_UM:
             out.append(warm_screw(axis, heat["growth_max_um"], heat.get("residual_rms_um")))
     out += [str(n) for n in summary.get("notes", [])]
     return out
