@@ -20,14 +20,7 @@ from ..compensation import Chain
 from ..compensation.errors import TableError
 from ..config import GatewayConfig
 from .commission_configs import Tables
-from .drift_shape import (
-    PROBE_SPREADS_MM,
-    MidProbe,
-    SpreadChoice,
-    SweptHeat,
-    choose_spread,
-    sample_mm,
-)
+from .drift_shape import SweptHeat
 from .heat_fit import motion_heat_fit
 
 #: readings of each drift reference per reading (their mean is the reference)
@@ -38,13 +31,6 @@ DRIFT_RATIO = 2.0
 #: how fast the swept travel behind a drift shape fades (s of machine time): a screw's
 #: thermal time constant (the bench's warm-ups fit 960-1130 s)
 MEMORY_S = 1000.0
-#: growth (µm, at either reference) from which an axis with no sensor has its middle read
-#: beside its references: where the screw is warm enough for its shape to show
-PROBE_GROWTH_UM = 3.0
-#: middle readings per axis at most (one approach each, beside a reading of the references)
-PROBES_MAX = 16
-#: machine time (s) the budget must have left for a middle reading
-PROBE_LEFT_S = 900.0
 
 
 class DriftRefs:
@@ -105,57 +91,11 @@ class DriftRefs:
         return (round((lo + 0.05 * (hi - lo) + 1.0) / pulse) * pulse,
                 round((hi - 0.05 * (hi - lo)) / pulse) * pulse)
 
-    def _mid_position(self, axis: str) -> float:
-        """The middle of an axis's two references, on its pulses: where a screw warm only
-        where its nut works grows most unlike a straight line between them."""
-        x1, x2 = self._ref_positions(axis)
-        pulse = self.config.axes[axis].pulse_mm
-        return round(0.5 * (x1 + x2) / pulse) * pulse
-
-    def _probing(self, axis: str, refs_mm: Sequence[float]) -> bool:
-        """Whether to read ``axis``'s middle beside its references just read (``refs_mm``):
-        a linear axis with no thermal setting of yours or loaded (its drift is its growth),
-        drift counted in the config loaded, PROBE_GROWTH_UM of it at either reference, fewer
-        than PROBES_MAX middle readings so far, and the budget not nearly spent."""
-        base = self.state.get("drift_base")
-        loaded = (self.state.get("ref_commands") or {}).get(axis) or {}
-        if (self.config.axes[axis].rotary or self.config.axes[axis].compensation.thermal
-                is not None or loaded.get("thermal") != "None" or base is None
-                or base["phase"] != self.state.get("phase") or axis not in base["refs"]):
-            return False
-        if sum(1 for p in self.state.get("mid_log", []) if p["axis"] == axis) >= PROBES_MAX:
-            return False
-        if self.s.budget_s - self.used_s < PROBE_LEFT_S:
-            return False
-        grown = max(abs(r - b) for r, b in zip(refs_mm, base["refs"][axis]))
-        return grown * 1e3 >= PROBE_GROWTH_UM
-
-    def _log_probe(self, axis: str, refs_mm: Sequence[float], mid_mm: float) -> None:
-        """Keep a middle reading with the references' drift and W at the three places for
-        each tried spread (see :class:`.drift_shape.MidProbe`)."""
-        base = self.state["drift_base"]["refs"][axis]
-        x1, x2 = self._ref_positions(axis)
-        xm = self._mid_position(axis)
-        heat = self.swept[axis]
-        xs = sample_mm(heat.travel_mm)
-        w = {s: tuple(float(v) for v in np.interp((x1, x2, xm), xs, heat.shape(s)))
-             for s in PROBE_SPREADS_MM}  # fmt: skip
-        probe = MidProbe(str(self.state.get("loaded")), (x1, x2, xm),
-                         (refs_mm[0] - base[0], refs_mm[1] - base[1]), mid_mm, w)  # type: ignore[arg-type]
-        self.state.setdefault("mid_log", []).append({"axis": axis, **probe.to_json()})
-
-    def probed_spread(self, axis: str) -> SpreadChoice | None:
-        """What ``axis``'s middle readings say of its screw's shape (None: too few)."""
-        log = [MidProbe.from_json(p) for p in self.state.get("mid_log", []) if p["axis"] == axis]
-        s_um = self.iso_scatter_um(axis)
-        return None if s_um is None or not log else choose_spread(log, s_um)
-
-    async def _measure_refs(self, repeats: int = REF_REPEATS, axes: Sequence[str] | None = None,
-                            probe: bool = False) -> dict[str, list[float]]:  # fmt: skip
+    async def _measure_refs(self, repeats: int = REF_REPEATS, axes: Sequence[str] | None = None
+                            ) -> dict[str, list[float]]:  # fmt: skip
         """Deviation (mm) of each commissioned axis (or of ``axes``) at its two drift
         references, the mean of ``repeats`` approaches in + from 1 mm below (the other plane
-        axis parked). With ``probe``, an axis whose screw's shape is still to be told
-        (:meth:`_probing`) has its middle read too, once (:meth:`probed_spread`)."""
+        axis parked)."""
         from .machine import Laser, Links, MachineDriver
 
         links = Links()
@@ -184,13 +124,6 @@ class DriftRefs:
                     devs.append(float(np.mean(readings)))
                 out[a] = devs
                 cost += self.refs_cost_s([a], repeats)
-                if probe and self._probing(a, devs):
-                    xm = self._mid_position(a)
-                    await driver.move({a: xm - 1.0})
-                    await driver.move({a: xm})
-                    mid = (await laser.read_mm([a]))[a] - xm
-                    self._log_probe(a, devs, mid)
-                    cost += self.s.stop_s + 2.0 / self.s.speed_mm_s
         finally:
             self._retried(links.retried)
             links.close()
@@ -262,10 +195,7 @@ class DriftRefs:
         travelled, replaced its temperature sensor); None: the drift is taken as linear
         between the references (an evenly warm screw, or nothing measured to tell)."""
         spread = (self.replacing_motion(axis) or {}).get("profile") or {}
-        if spread.get("spread_mm"):
-            return float(spread["spread_mm"])
-        chosen = self.probed_spread(axis)
-        return None if chosen is None else chosen.spread_mm
+        return float(spread["spread_mm"]) if spread.get("spread_mm") else None
 
     def replacing_motion(self, axis: str) -> dict[str, Any] | None:
         """The heat-from-motion thermal section that replaces ``axis``'s temperature sensor
@@ -279,22 +209,9 @@ class DriftRefs:
         out = {}
         loaded = self.state.get("ref_commands") or {}
         for a, heat in self.swept.items():
-            spread = ((self.replacing_motion(a) or {}).get("profile") or {}).get("spread_mm")
-            if spread and (loaded.get(a) or {}).get("thermal") == "None":
-                out[a] = heat.shape(float(spread))
-        return out
-
-    def _candidate_shapes(self) -> dict[str, dict[str, list[float]]]:
-        """W for each tried spread (PROBE_SPREADS_MM) of each axis whose middle readings
-        may yet choose one: kept with every run, so that the shape chosen later is taken
-        off the runs read before it was known (:meth:`raw`)."""
-        out = {}
-        loaded = self.state.get("ref_commands") or {}
-        for a, heat in self.swept.items():
-            if (self.config.axes[a].compensation.thermal is None
-                    and (loaded.get(a) or {}).get("thermal") == "None"):
-                out[a] = {f"{s:g}": [float(f"{v:.7g}") for v in heat.shape(s)]
-                          for s in PROBE_SPREADS_MM}  # fmt: skip
+            spread = self.drift_spread_mm(a)
+            if spread is not None and (loaded.get(a) or {}).get("thermal") == "None":
+                out[a] = heat.shape(spread)
         return out
 
     def _count_travel(self, axis: str, x_mm: float) -> None:
@@ -335,15 +252,6 @@ class DriftRefs:
             axis = self.config.axes[a]
             key = f"motion-{a}"
             ident = self.state.setdefault("identify", {})
-            chosen = self.probed_spread(a)
-            if chosen is not None and f"heat-shape-{a}" not in ident:
-                ident[f"heat-shape-{a}"] = chosen.summary()
-                self.say(f"{a}: its middle, read beside its drift references "
-                         f"{chosen.pairs} times, says the screw grows "
-                         + ("evenly between them (their straight line kept)"
-                            if chosen.spread_mm is None else
-                            f"where its nut works (heat spread over {chosen.spread_mm:g} mm):"
-                            " the drift was taken off along that shape"))  # fmt: skip
             if axis.compensation.thermal is not None or axis.rotary or key in ident:
                 continue
             try:

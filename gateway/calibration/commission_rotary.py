@@ -239,12 +239,12 @@ class RotarySteps(Steps):
         return data
 
     # -- drift references: linear axes only ----------------------------------------------------
-    async def _measure_refs(self, repeats: int = 3, axes: Sequence[str] | None = None,
-                            probe: bool = False) -> dict[str, list[float]]:  # fmt: skip
+    async def _measure_refs(self, repeats: int = 3, axes: Sequence[str] | None = None
+                            ) -> dict[str, list[float]]:  # fmt: skip
         """The laser's drift references of the linear axes; a rotary axis's are zero (the
         laser sees no angle: its readings are taken as they are)."""
         linear = self.ref_axes()
-        out = await super()._measure_refs(repeats, linear, probe) if linear else {}
+        out = await super()._measure_refs(repeats, linear) if linear else {}
         out.update({a: [0.0, 0.0] for a in self.s.axes if a not in out})
         self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out,
                                    "odometer_mm": self._odometer()}  # fmt: skip

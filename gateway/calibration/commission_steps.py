@@ -246,15 +246,6 @@ class Steps(DriftRefs):
             data = read_raw_csv(self.config_dir / part["raw"])
             drifts = {a: adaptive.Drift.from_json(v) for a, v in (part.get("drift") or {}).items()
                       if self.drift_taken_off(a)}  # fmt: skip
-            for a, tried in (part.get("shapes_c") or {}).items():
-                # a screw with no sensor whose middle readings chose a shape: along it
-                spread = self.drift_spread_mm(a) if a in drifts else None
-                if spread is not None and f"{spread:g}" in tried and \
-                        drifts[a].travel_mm is None:  # fmt: skip
-                    w_before, w_after = tried[f"{spread:g}"]
-                    drifts[a] = dataclasses.replace(drifts[a], travel_mm=self._travel(a),
-                                                    shape_before=tuple(w_before),
-                                                    shape_after=tuple(w_after))  # fmt: skip
             for a, cold in (part.get("cold_mm") or {}).items():
                 if a in drifts and self.drift_spread_mm(a) is not None:
                     # measured with the sensor on, its axis's tables without it: what the
@@ -408,12 +399,10 @@ class Steps(DriftRefs):
         """One run of a step (its own raw file), the drift references read around it."""
         pending = self.state.setdefault("pending_refs", {})
         shapes = self.state.setdefault("pending_shapes", {})
-        tried = self.state.setdefault("pending_shapes_c", {})
         if drifting and key not in pending:
             unmoved = self._refs_unmoved()  # the last run's after-reading, when it serves
-            pending[key] = self._drift_now(unmoved or await self._measure_refs(probe=True))
+            pending[key] = self._drift_now(unmoved or await self._measure_refs())
             shapes[key] = self._drift_shapes()
-            tried[key] = self._candidate_shapes()
             if unmoved is None:
                 self._log_drift(pending[key])
             self._save()
@@ -429,15 +418,10 @@ class Steps(DriftRefs):
             self._retried(session.retried)
         entry: dict[str, Any] = {"raw": self._rel(raw)}
         if drifting:
-            after = self._drift_now(await self._measure_refs(probe=True))
+            after = self._drift_now(await self._measure_refs())
             self._log_drift(after)
             before = pending.pop(key)
             shape_before, shape_after = shapes.pop(key, {}), self._drift_shapes()
-            tried_before, tried_after = tried.pop(key, {}), self._candidate_shapes()
-            both = {a: {k: [w, tried_after[a][k]] for k, w in c.items() if k in tried_after[a]}
-                    for a, c in tried_before.items() if a in tried_after}  # fmt: skip
-            if both:  # each tried spread's W before and after (see :meth:`raw`)
-                entry["shapes_c"] = both
             # kept for every axis (taken off where :meth:`drift_taken_off` says), along the
             # heat shape where :meth:`drift_spread_mm` says the screw is warm where it works
             loaded = self.state.get("ref_commands") or {}
