@@ -52,25 +52,21 @@ def _cut(before: float | None, after: float | None) -> str:
 #: growth (µm) of a screw with no sensor, read while commissioning, from which the report
 #: says what heat taken off as even along the screw may have left in its table
 WARM_SCREW_UM = 10.0
-#: the bow such tables kept, as a share of the growth: the bench's rough screws with no
-#: sensor, noise-free along the pitch line (rough-2 X 2.5 µm of 35, rough-5 X 1.7 of 11,
-#: rough-6 Y 2.1 of 12)
-BOW_SHARE = (0.07, 0.17)
 
 
 def warm_screw(axis: str, growth_um: float, residual_um: float | None) -> str:
     """What a screw that grew ``growth_um`` while its tables were read may have kept of it:
     the drift references read the growth at two places only, and between them it is taken
     as even along the screw. A screw warm where its nut works grows unevenly: on the
-    bench's rough screws (heat along the screw, no sensor) the tables kept a bow of
-    ``BOW_SHARE`` of the growth."""
+    bench's rough screws (heat along the screw, no sensor) the tables kept a bow of about
+    7 % of the growth (rough-2 X: 2.5 µm, 35 µm grown)."""
     fit = f" (heat from its own motion follows it to {residual_um:.2f} µm RMS at the drift " \
         "references)" if residual_um is not None else ""  # fmt: skip
     return (f"Axis {axis}: its screw grew by up to {growth_um:.1f} µm while its tables were "
             f"read{fit}. The references read the growth at two places and it is taken as "
             "even between them; a screw warm only where its nut works grows unevenly, which can "
-            f"leave a bow of {BOW_SHARE[0] * growth_um:.1f}-{BOW_SHARE[1] * growth_um:.1f} µm "
-            "in the table (it grows with the heat the commissioning's own moves put in).")
+            f"leave a bow of up to about {0.07 * growth_um:.1f} µm in the table (it grows with "
+            "the heat the commissioning's own moves put in).")
 
 
 def remains(summary: dict[str, Any]) -> list[str]:
