@@ -49,26 +49,6 @@ def _cut(before: float | None, after: float | None) -> str:
     return f"{100 * (1 - after / before):.0f} %"
 
 
-#: growth (µm) of a screw with no sensor, read while commissioning, from which the report
-#: says what heat taken off as even along the screw may have left in its table
-WARM_SCREW_UM = 10.0
-
-
-def warm_screw(axis: str, growth_um: float, residual_um: float | None) -> str:
-    """What a screw that grew ``growth_um`` while its tables were read may have kept of it:
-    the drift references read the growth at two places only, and between them it is taken
-    as even along the screw. A screw warm where its nut works grows unevenly: on the
-    bench's rough screws (heat along the screw, no sensor) the tables kept a bow of about
-    7 % of the growth (rough-2 X: 2.5 µm, 35 µm grown)."""
-    fit = f" (heat from its own motion follows it to {residual_um:.2f} µm RMS at the drift " \
-        "references)" if residual_um is not None else ""  # fmt: skip
-    return (f"Axis {axis}: its screw grew by up to {growth_um:.1f} µm while its tables were "
-            f"read{fit}. The references read the growth at two places and it is taken as "
-            "even between them; a screw warm only where its nut works grows unevenly, which can "
-            f"leave a bow of up to about {0.07 * growth_um:.1f} µm in the table (it grows with "
-            "the heat the commissioning's own moves put in).")
-
-
 def remains(summary: dict[str, Any]) -> list[str]:
     """Sentences on what remains after commissioning, and why."""
     out = []
@@ -100,9 +80,6 @@ def remains(summary: dict[str, Any]) -> list[str]:
             out.append(f"Axis {axis}: A {a:.2f}{u} of which R (repeatability, ±2s of single "
                        f"approaches) {r:.2f}{u}, which no table removes; the systematic part "
                        f"E is {e:.2f}{u}.")  # fmt: skip
-        heat = (summary.get("identify") or {}).get(f"motion-{axis}") or {}
-        if heat.get("fitted") and heat.get("growth_max_um", 0.0) >= WARM_SCREW_UM:
-            out.append(warm_screw(axis, heat["growth_max_um"], heat.get("residual_rms_um")))
     out += [str(n) for n in summary.get("notes", [])]
     return out
 
