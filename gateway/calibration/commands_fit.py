@@ -138,7 +138,9 @@ def fit(args: argparse.Namespace) -> int:
                     if r.reversal is not None:
                         entry["reversal"] = {"per_point": r.reversal.per_point,
                                              "ratio": r.reversal.ratio,
-                                             "scatter_um": r.reversal.scatter_um}  # fmt: skip
+                                             "scatter_um": r.reversal.scatter_um,
+                                             "smoothed": r.reversal.reversal_mm is not None,
+                                             "edf": r.reversal.edf}  # fmt: skip
                     entry.update(_rotary_entry(r, config, a))
             elif kind == "planar":
                 if config.planar is None:
@@ -285,8 +287,9 @@ def format_fit(report: dict[str, Any], dry_run: bool = False) -> str:
             why = "" if rv["ratio"] != rv["ratio"] else (
                 f": a curve misses the points' reversals by {rv['ratio']:.2f}× what the "
                 f"readings' scatter ({rv['scatter_um']:.2f} µm) alone leaves")
-            lines.append(f"{name}: reversal {'per point' if rv['per_point'] else 'as a curve'}"
-                         f"{why}")
+            how = "per point" if rv["per_point"] else (
+                f"smoothed ({rv['edf']:.1f} parameters)" if rv.get("smoothed") else "as a curve")
+            lines.append(f"{name}: reversal {how}{why}")
         if "smoothed" in entry:
             sm = entry["smoothed"]
             lines.append(f"{name}: smoothed by its own leave-one-out: its points moved "

@@ -450,7 +450,8 @@ class Commission(ShortBudget):
             if r.reversal is not None:
                 self.state.setdefault("identify", {})[f"reversal-{a}"] = {
                     "per_point": r.reversal.per_point, "ratio": r.reversal.ratio,
-                    "scatter_um": r.reversal.scatter_um}  # fmt: skip
+                    "scatter_um": r.reversal.scatter_um,
+                    "smoothed": r.reversal.reversal_mm is not None, "edf": r.reversal.edf}
             if model is not None:
                 r = net_pitch(r, model, config)
             r = replace(r, table=self.smoothed(a, r.table, config))

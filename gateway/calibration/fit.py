@@ -12,6 +12,7 @@ table).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -80,31 +81,60 @@ def bidirectional_table_smooth_reversal(
 PER_POINT_RATIO = 2.0
 
 
+#: the penalty weights tried for a smoothed reversal (relative: the penalty's differences are
+#: scaled to the mean spacing), 0 (per point) first; the heaviest is the polynomial's
+REVERSAL_LAMBDAS = (0.0, *(10.0 ** e for e in np.arange(-4.0, 8.51, 0.5)))
+
+
 @dataclass(frozen=True)
 class ReversalChoice:
-    """Whether a bidirectional table takes its reversal per point or as a curve, and why.
+    """How a bidirectional table takes its reversal (per point, smoothed, or as a
+    polynomial), and why.
 
-    ``ratio``: the curve's weighted misfit per degree of freedom over the variance the
-    readings' own scatter gives a point's reversal (1: the curve misses by the scatter
-    alone); ``scatter_um``: the pooled standard deviation of the readings (µm).
+    ``ratio``: the polynomial's weighted misfit per degree of freedom over the variance the
+    readings' own scatter gives a point's reversal (1: it misses by the scatter alone);
+    ``scatter_um``: the pooled standard deviation of the readings (µm); ``reversal_mm``:
+    the smoothed reversal at the targets where the smoothing chose one (None: per point, or
+    the polynomial), ``edf`` its effective number of parameters.
     """
 
     per_point: bool
     ratio: float
     scatter_um: float
+    reversal_mm: tuple[float, ...] | None = None
+    edf: float = float("nan")
+
+
+def _difference_penalty(x: NDArray[np.float64], order: int) -> NDArray[np.float64]:
+    """DᵀD of ``order``-th divided differences at positions ``x``, scaled by the mean
+    spacing to the order (dimensionless: a polynomial of degree order − 1 costs nothing)."""
+    h = float(np.mean(np.diff(x)))
+    rows = np.zeros((x.size - order, x.size))
+    for i in range(x.size - order):
+        xs = x[i : i + order + 1]
+        for j in range(order + 1):
+            rows[i, i + j] = math.factorial(order) * h**order / np.prod(
+                [xs[j] - xs[k] for k in range(order + 1) if k != j])  # fmt: skip
+    return rows.T @ rows
 
 
 def choose_reversal(dev: AxisDeviations, degree: int = 2) -> ReversalChoice:
-    """Per-point reversal or a polynomial of ``degree`` in position, by the expected error
-    of each (Mallows' Cp, what leave-one-out cross-validation estimates for a linear fit).
+    """The reversal per point, smoothed, or a polynomial of ``degree`` in position, by the
+    expected error of each (Mallows' Cp, what leave-one-out cross-validation estimates for
+    a linear fit).
 
     A point's reversal r_i = x̄↓ − x̄↑ has the variance v_i = s²(1/n↑ + 1/n↓) of its readings'
     scatter s. Per point, the table carries that variance at every one of the n points;
-    the curve carries p/n of it and the misfit it cannot follow. The curve wins while its
-    misfit Σ(r − fit)²/v_i is under 2(n − p): a ratio of 2 to the scatter's. Seed 000's
-    three backlash places cannot say this: they differ by their own scatter (1 µm places
-    on a table with 0.2 µm of varying play made per-point tables of noise on smooth-2 Y,
-    smooth-7 X and the SDSS plates). One run (no scatter to weigh): the curve.
+    a fit with p effective parameters carries p/n of it and the misfit it cannot follow:
+    Cp = Σ(r − fit)²/v_i + 2p. The fits tried are a penalised smoothing of the points
+    (their (degree + 1)-th differences weighed by each of REVERSAL_LAMBDAS): weight 0 is
+    the points themselves, the heaviest the polynomial. Between them, a reversal that
+    changes along the travel more than a polynomial can follow but less than the points'
+    own scatter (mcu1025, slit-11360-iso X: the polynomial's ratio 1.6-1.9, its misses up
+    to 7 µm) gets a curve through it. Seed 000's three backlash places cannot say this:
+    they differ by their own scatter (1 µm places on a table with 0.2 µm of varying play
+    made per-point tables of noise on smooth-2 Y, smooth-7 X and the SDSS plates). One run
+    (no scatter to weigh): the polynomial.
     """
     up, down = _means_mm(dev)
     if up is None or down is None:
@@ -122,7 +152,39 @@ def choose_reversal(dev: AxisDeviations, degree: int = 2) -> ReversalChoice:
     coef = np.polynomial.legendre.legfit(u, r, p - 1, w=np.sqrt(weight))
     misfit = float(np.sum(weight * (r - np.polynomial.legendre.legval(u, coef)) ** 2))
     ratio = misfit / (x.size - p) / max(s2, 1e-30)
-    return ReversalChoice(ratio > PER_POINT_RATIO, ratio, 1e3 * float(np.sqrt(s2)))
+    scatter_um = 1e3 * float(np.sqrt(s2))
+    if x.size <= p + 1:  # no room between the points and the polynomial
+        return ReversalChoice(ratio > PER_POINT_RATIO, ratio, scatter_um)
+    penalty, w = _difference_penalty(x, p), np.diag(weight)
+    scale = float(np.trace(w)) / x.size
+    best = (misfit / max(s2, 1e-30) + 2.0 * p, math.inf, None, float(p))  # the polynomial
+    for lam in REVERSAL_LAMBDAS:
+        hat = np.linalg.solve(w + lam * scale * penalty, w)
+        fit = hat @ r
+        edf = float(np.trace(hat))
+        cp = float(np.sum(weight * (r - fit) ** 2)) / max(s2, 1e-30) + 2.0 * edf
+        if cp < best[0]:
+            best = (cp, lam, fit, edf)
+    _, lam, fit, edf = best
+    if fit is None:
+        return ReversalChoice(False, ratio, scatter_um, None, edf)
+    if lam == 0.0:
+        return ReversalChoice(True, ratio, scatter_um, None, edf)
+    return ReversalChoice(False, ratio, scatter_um, tuple(float(v) for v in fit), edf)
+
+
+def bidirectional_table_reversal(dev: AxisDeviations, reversal_mm: Sequence[float],
+                                 source: str | None = None) -> PitchTable:  # fmt: skip
+    """Bidirectional table with the reversal (reverse − forward) given at each target (a
+    smoothed one, :func:`choose_reversal`): the pitch error the mean of the forward values
+    and the reverse values less the reversal, as :func:`bidirectional_table_smooth_reversal`."""
+    up, down = _means_mm(dev)
+    if up is None or down is None:
+        raise TableError(f"{dev.source}: axis {dev.axis}: a bidirectional table needs + and -")
+    reversal = np.asarray(reversal_mm, dtype=np.float64)
+    pitch = 0.5 * (up + down - reversal)
+    return PitchTable(dev.target_mm.copy(), pitch, pitch + reversal,
+                      source=source or f"{dev.source}:{dev.axis}")  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)

@@ -41,6 +41,7 @@ from .fit import (
     ReversalChoice,
     as_axis_table,
     bidirectional_table,
+    bidirectional_table_reversal,
     bidirectional_table_smooth_reversal,
     choose_reversal,
     fold_backlash,
@@ -166,9 +167,11 @@ def fit_pitch(
             raise TableError(f"reversal {reversal!r} is not auto, smooth or per-point")
         choice = choose_reversal(dev, reversal_degree)
         if reversal != "auto":
-            choice = replace(choice, per_point=reversal == "per-point")
+            choice = replace(choice, per_point=reversal == "per-point", reversal_mm=None)
         if choice.per_point:
             table = bidirectional_table(dev, str(path))
+        elif choice.reversal_mm is not None:  # smoothed between the two
+            table = bidirectional_table_reversal(dev, choice.reversal_mm, str(path))
         else:
             table = bidirectional_table_smooth_reversal(dev, reversal_degree, str(path))
         result = PitchResult(axis, path, table, None, mode, False, fmt, reversal=choice)
