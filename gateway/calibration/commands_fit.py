@@ -358,7 +358,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--reversal", choices=["auto", "smooth", "per-point"], default="auto",
                    help="bidirectional tables: reversal as a polynomial in position (both "
                         "directions' readings serve every point), per point (a worn zone), or "
-                        "whichever the readings' own scatter says predicts better (auto)")
+                        "whichever of those or a curve through the points between them the "
+                        "readings' own scatter says predicts best (auto, Mallows' Cp)")
     p.add_argument("--reversal-degree", type=int, default=2)
     p.add_argument("--smooth", action="store_true",
                    help="bidirectional identification tables: smoothed by their own "
