@@ -71,10 +71,7 @@ def bidirectional_table_smooth_reversal(
     u = 2.0 * (x - x.min()) / span - 1.0
     deg = max(0, min(degree, x.size - 1))
     coef = np.polynomial.legendre.legfit(u, down - up, deg)
-    reversal = np.polynomial.legendre.legval(u, coef)
-    pitch = 0.5 * (up + down - reversal)
-    name = source or f"{dev.source}:{dev.axis}"
-    return PitchTable(x.copy(), pitch, pitch + reversal, source=name)
+    return bidirectional_table_reversal(dev, np.polynomial.legendre.legval(u, coef), source)
 
 
 #: per point when the smooth reversal's misfit is this many times what the scatter leaves
@@ -176,8 +173,8 @@ def choose_reversal(dev: AxisDeviations, degree: int = 2) -> ReversalChoice:
 def bidirectional_table_reversal(dev: AxisDeviations, reversal_mm: Sequence[float],
                                  source: str | None = None) -> PitchTable:  # fmt: skip
     """Bidirectional table with the reversal (reverse − forward) given at each target (a
-    smoothed one, :func:`choose_reversal`): the pitch error the mean of the forward values
-    and the reverse values less the reversal, as :func:`bidirectional_table_smooth_reversal`."""
+    smoothed one, :func:`choose_reversal`, or a polynomial): the pitch error the mean of the
+    forward values and the reverse values less the reversal."""
     up, down = _means_mm(dev)
     if up is None or down is None:
         raise TableError(f"{dev.source}: axis {dev.axis}: a bidirectional table needs + and -")
