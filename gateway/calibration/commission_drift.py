@@ -47,19 +47,28 @@ class DriftRefs:
     _refs_read_here: bool
 
     def _save(self) -> None:
-        raise NotImplementedError
+        raise NotImplementedError  # Steps: the state file
 
     def _retried(self, count: int) -> None:
-        raise NotImplementedError
+        """Count requests answered only on a later try (kept with the next save; the
+        summary and the report say how many)."""
+        if count:
+            self.state["retried"] = self.state.get("retried", 0) + count
 
     def ref_axes(self) -> list[str]:
-        raise NotImplementedError
+        """The axes the drift references read: the linear ones (the laser sees no angle)."""
+        return [a for a in self.s.axes if not self.config.axes[a].rotary]
 
     def _park(self, axis: str) -> dict[str, float]:
-        raise NotImplementedError
+        """Where the other plane axis stands while ``axis`` is measured: its lower end."""
+        if self.s.planar is None or axis not in self.s.planar:
+            return {}
+        other = self.s.planar[1] if axis == self.s.planar[0] else self.s.planar[0]
+        return {other: float(self.config.axes[other].travel_mm[0])}
 
     def _travel(self, axis: str) -> tuple[float, float]:
-        raise NotImplementedError
+        lo, hi = self.config.axes[axis].travel_mm
+        return float(lo), float(hi)
 
     def _ref_commands(self, cfg: GatewayConfig, chain: Chain) -> dict[str, dict[str, Any]]:
         """Per linear axis, what the gateway's config as loaded (``cfg``, its ``chain``)

@@ -288,10 +288,6 @@ class Steps(DriftRefs):
     def estimate_s(self, plan: Plan) -> float:
         return plan_time_s(plan, self.s.speed_mm_s, self.s.stop_s)
 
-    def ref_axes(self) -> list[str]:
-        """The axes the drift references read: the linear ones (the laser sees no angle)."""
-        return [a for a in self.s.axes if not self.config.axes[a].rotary]
-
     def refs_around_s(self, plan: Plan, whole: bool = False) -> float:
         """Machine time (s) of the drift references read around ``plan``'s runs (around
         the whole plan with ``whole``): before the first and after each, one run's
@@ -388,12 +384,6 @@ class Steps(DriftRefs):
         self._save()
         return raw
 
-    def _retried(self, count: int) -> None:
-        """Count requests answered only on a later try (kept with the next save; the
-        summary and the report say how many)."""
-        if count:
-            self.state["retried"] = self.state.get("retried", 0) + count
-
     async def _run_part(self, key: str, plan: Plan, raw: Path, compensation: str,
                         park: dict[str, float] | None, drifting: bool) -> dict[str, Any]:
         """One run of a step (its own raw file), the drift references read around it."""
@@ -464,17 +454,6 @@ class Steps(DriftRefs):
             return PitchStage(table, self.tables.interpolation.get(axis, "linear"))  # type: ignore[arg-type]
         method = self.state.get("rotary", {}).get(axis, {}).get("interpolation", "linear")
         return PitchStage(table, method, wrap=self._wraps(axis))
-
-    def _park(self, axis: str) -> dict[str, float]:
-        """Where the other plane axis stands while ``axis`` is measured: its lower end."""
-        if self.s.planar is None or axis not in self.s.planar:
-            return {}
-        other = self.s.planar[1] if axis == self.s.planar[0] else self.s.planar[0]
-        return {other: float(self.config.axes[other].travel_mm[0])}
-
-    def _travel(self, axis: str) -> tuple[float, float]:
-        lo, hi = self.config.axes[axis].travel_mm
-        return float(lo), float(hi)
 
 
 def _plain(value: Any) -> Any:
