@@ -107,6 +107,28 @@ def test_drift_taken_off_only_where_the_references_vary_beyond_their_scatter():
     assert Steps.drift_stands_out(_fake(noise_um, None), "X")  # type: ignore[arg-type]
 
 
+def test_the_references_own_readings_give_their_scatter_before_the_iso_runs():
+    """The drift references' back-to-back readings give the scatter before any ISO run is
+    fitted: references that only scatter are then not taken off the first fit (which the
+    tables of a short budget keep), growth among the same scatter is; one reading (fewer
+    than MIN_REF_DOF degrees of freedom) is not enough to tell."""
+    rng = np.random.default_rng(2)
+    s_um = 1.2
+    noise_um = rng.normal(0.0, s_um / np.sqrt(3), (12, 2))
+    growth_um = noise_um + np.linspace(0.0, 6.0, 12)[:, None]
+    quiet, warming, once = (_fake(log, None) for log in (noise_um, growth_um, noise_um))
+    for me in (quiet, warming):
+        for _ in range(3):  # three readings of both references, 3 stops each
+            for _ in range(2):
+                Steps._pool_ref_scatter(me, "X", list(rng.normal(0.0, s_um, 3) * 1e-3))  # type: ignore[arg-type]
+    Steps._pool_ref_scatter(once, "X", [0.0, 1e-3, 2e-3])  # type: ignore[arg-type]
+    assert 0.6 * s_um < Steps.ref_scatter_um(quiet, "X") < 1.6 * s_um  # type: ignore[arg-type,operator]
+    assert not Steps.drift_stands_out(quiet, "X")  # type: ignore[arg-type]
+    assert Steps.drift_stands_out(warming, "X")  # type: ignore[arg-type]
+    assert Steps.ref_scatter_um(once, "X") is None  # type: ignore[arg-type]
+    assert Steps.drift_stands_out(once, "X")  # type: ignore[arg-type]
+
+
 def test_runs_get_their_own_references_only_where_a_drift_can_be_taken_off():
     """On a short budget, references that only scatter are read around a whole step (they
     watch for a drift to begin); around each run while the drift stands out, while the
@@ -134,6 +156,7 @@ def _fake(log_um: np.ndarray, s_um: float | None, sensor: bool = False,
     me = types.SimpleNamespace(state={"identify": ident, "drift_log": log, "short": short},
                                config=types.SimpleNamespace(axes=axes))  # fmt: skip
     me.iso_scatter_um = lambda axis: Steps.iso_scatter_um(me, axis)  # type: ignore[arg-type]
+    me.ref_scatter_um = lambda axis: Steps.ref_scatter_um(me, axis)  # type: ignore[arg-type]
     me.drift_stands_out = lambda axis: Steps.drift_stands_out(me, axis)  # type: ignore[arg-type]
     me.ref_axes = lambda: Steps.ref_axes(me)  # type: ignore[arg-type]
     me.s = types.SimpleNamespace(axes=("X",))

@@ -28,6 +28,9 @@ REF_REPEATS = 3
 #: the drift is taken off an axis whose references vary by more than this many times what
 #: their own scatter gives (see :meth:`DriftRefs.drift_stands_out`)
 DRIFT_RATIO = 2.0
+#: degrees of freedom the drift references' own scatter needs before it is used (one
+#: reading of an axis's two references, REF_REPEATS each, gives 2 · (REF_REPEATS − 1))
+MIN_REF_DOF = 4
 #: how fast the swept travel behind a drift shape fades (s of machine time): a screw's
 #: thermal time constant (the bench's warm-ups fit 960-1130 s)
 MEMORY_S = 1000.0
@@ -131,6 +134,7 @@ class DriftRefs:
                         await driver.move({a: x})
                         readings.append((await laser.read_mm([a]))[a] - x)
                     devs.append(float(np.mean(readings)))
+                    self._pool_ref_scatter(a, readings)
                 out[a] = devs
                 cost += self.refs_cost_s([a], repeats)
         finally:
@@ -176,6 +180,24 @@ class DriftRefs:
             return self.drift_stands_out(axis)
         return self.replacing_motion(axis) is not None
 
+    def _pool_ref_scatter(self, axis: str, readings_mm: Sequence[float]) -> None:
+        """Pool the scatter of one drift reference's back-to-back readings (kept in the
+        state as the sum of squares about their mean, mm², and its degrees of freedom)."""
+        if len(readings_mm) < 2:
+            return
+        pooled = self.state.setdefault("ref_scatter", {}).setdefault(axis, [0.0, 0])
+        r = np.asarray(readings_mm, dtype=np.float64)
+        pooled[0] += float(np.sum((r - r.mean()) ** 2))
+        pooled[1] += r.size - 1
+
+    def ref_scatter_um(self, axis: str) -> float | None:
+        """The scatter of one stop at the drift references of ``axis`` (µm), pooled over
+        their back-to-back readings (no drift between them); None before MIN_REF_DOF."""
+        squares_mm2, dof = (self.state.get("ref_scatter") or {}).get(axis, (0.0, 0))
+        if dof < MIN_REF_DOF or not squares_mm2 > 0:
+            return None
+        return 1e3 * float(np.sqrt(squares_mm2 / dof))
+
     def iso_scatter_um(self, axis: str) -> float | None:
         """The scatter of one stop of ``axis`` (µm): the ISO runs' pooled standard deviation,
         as the reversal's choice measured it; None before the ISO runs are fitted."""
@@ -185,12 +207,16 @@ class DriftRefs:
     def drift_stands_out(self, axis: str) -> bool:
         """Whether the drift references of ``axis`` have varied by more than their own
         scatter: the variance of their readings since commissioning began over the variance
-        of one (the axis's ISO scatter s over REF_REPEATS) above DRIFT_RATIO. A drift that is
-        only the references' scatter, taken off, adds it to every run: an offset and a tilt
-        per run, and a reversal between a sweep's two passes (0.6-1.1 µm on slit-11361 X
-        and slit-11360-iso X, machines with no heat, 1.2-1.3 µm of scatter). Before the ISO
-        runs give s: taken off."""
-        s_um = self.iso_scatter_um(axis)
+        of one (s² over REF_REPEATS, s the scatter of their own back-to-back readings,
+        :meth:`ref_scatter_um`, else the axis's ISO scatter) above DRIFT_RATIO. A drift that
+        is only the references' scatter, taken off, adds it to every run: an offset and a
+        tilt per run, and a reversal between a sweep's two passes (0.6-1.1 µm on slit-11361
+        X and slit-11360-iso X, machines with no heat, 1.2-1.3 µm of scatter). The ISO
+        scatter alone came too late: it is known once the ISO runs are fitted, so their
+        first fit always took the drift off, and on a short budget, which fits them once,
+        the tables kept it (mcu1025 Y: a tilt of ±1.2 µm over 41 mm, RMS at the points 1.33
+        against 1.06 µm without). No scatter known yet: taken off."""
+        s_um = self.ref_scatter_um(axis) or self.iso_scatter_um(axis)
         log = [e["drift_mm"][axis] for e in self.state.get("drift_log") or []
                if axis in e.get("drift_mm", {})]  # fmt: skip
         if s_um is None or len(log) < 3:
