@@ -94,6 +94,13 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         # X missed in round 1: swept once over its whole travel, both ways, a reading every
         # 0.12 lead, the table given a point at every target read
         state = json.loads((out / "commission.json").read_text())
+        # the drift references' own back-to-back readings give their scatter: that of the
+        # ISO runs' stops, within what a few dozen readings can tell
+        for axis in ("X", "Y"):
+            squares_mm2, dof = state["ref_scatter"][axis]
+            ref_um = 1e3 * (squares_mm2 / dof) ** 0.5
+            iso_um = state["identify"][f"reversal-{axis}"]["scatter_um"]
+            assert dof >= 8 and 0.4 * iso_um < ref_um < 2.5 * iso_um, (axis, ref_um, iso_um)
         swept = [e["round"] for e in state["rounds"] if "X" in e.get("swept", [])]
         assert swept == [1], state["rounds"]
         sweep = read_plan(out / "plans" / "sweep1-X.plan")
