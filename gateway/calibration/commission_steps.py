@@ -299,8 +299,8 @@ class Steps(DriftRefs):
         """Whether a step's runs each get their own drift references, not the whole step
         one pair. One pair only on a short budget (:meth:`short`), and only while no linear
         axis has a temperature sensor and no axis's references have varied by more than
-        their own scatter (:meth:`drift_stands_out`, so not before the ISO runs give that
-        scatter): there the references only watch for a drift to begin, and around every
+        their own scatter (:meth:`drift_stands_out`, so not before they have been read three
+        times): there the references only watch for a drift to begin, and around every
         run they cost a small stage a third of its budget (mcu1025 at 1.5 x a manual
         calibration's time: 6.1 of 17.7 minutes). A long budget keeps them around every
         run: a drift that stands out only later is then taken off run by run, where one
