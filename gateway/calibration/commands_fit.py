@@ -136,11 +136,7 @@ def fit(args: argparse.Namespace) -> int:
                     if r.backlash_mm is not None:
                         entry["backlash_mm"] = r.backlash_mm
                     if r.reversal is not None:
-                        entry["reversal"] = {"per_point": r.reversal.per_point,
-                                             "ratio": r.reversal.ratio,
-                                             "scatter_um": r.reversal.scatter_um,
-                                             "smoothed": r.reversal.reversal_mm is not None,
-                                             "edf": r.reversal.edf}  # fmt: skip
+                        entry["reversal"] = r.reversal.summary()
                     entry.update(_rotary_entry(r, config, a))
             elif kind == "planar":
                 if config.planar is None:

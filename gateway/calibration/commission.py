@@ -448,10 +448,7 @@ class Commission(ShortBudget):
                           mode="bidirectional", reversal="auto")  # fmt: skip
             r = self.rotary_fitted(a, r)
             if r.reversal is not None:
-                self.state.setdefault("identify", {})[f"reversal-{a}"] = {
-                    "per_point": r.reversal.per_point, "ratio": r.reversal.ratio,
-                    "scatter_um": r.reversal.scatter_um,
-                    "smoothed": r.reversal.reversal_mm is not None, "edf": r.reversal.edf}
+                self.state.setdefault("identify", {})[f"reversal-{a}"] = r.reversal.summary()
             if model is not None:
                 r = net_pitch(r, model, config)
             r = replace(r, table=self.smoothed(a, r.table, config))

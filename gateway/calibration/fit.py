@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from ..compensation import PitchTable, PlanarMeasurement
 from ..compensation.errors import TableError
-from .grid_smooth import smooth_line
+from .grid_smooth import divided_differences, smooth_line
 from .rawdata import TARGET_TOLERANCE_MM, AxisDeviations, RawData, pooled_variance
 
 TableDirection = Literal["mean", "forward", "reverse"]
@@ -43,11 +43,18 @@ def _means_mm(dev: AxisDeviations) -> tuple[NDArray[np.float64] | None, ...]:
     return tuple(out)
 
 
-def bidirectional_table(dev: AxisDeviations, source: str | None = None) -> PitchTable:
-    """Bidirectional pitch table: mean deviation per target and direction (positions = targets)."""
+def _both_means_mm(dev: AxisDeviations) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The mean deviation per target moving + and moving − (mm); a TableError naming the
+    axis where one direction was never measured."""
     up, down = _means_mm(dev)
     if up is None or down is None:
         raise TableError(f"{dev.source}: axis {dev.axis}: a bidirectional table needs + and -")
+    return up, down
+
+
+def bidirectional_table(dev: AxisDeviations, source: str | None = None) -> PitchTable:
+    """Bidirectional pitch table: mean deviation per target and direction (positions = targets)."""
+    up, down = _both_means_mm(dev)
     return PitchTable(dev.target_mm.copy(), up, down, source=source or f"{dev.source}:{dev.axis}")
 
 
@@ -63,9 +70,7 @@ def bidirectional_table_smooth_reversal(
     :func:`bidirectional_table`, for no extra measuring. Use the per-point table when the
     reversal has local structure (a worn spot of the nut).
     """
-    up, down = _means_mm(dev)
-    if up is None or down is None:
-        raise TableError(f"{dev.source}: axis {dev.axis}: a bidirectional table needs + and -")
+    up, down = _both_means_mm(dev)
     x = dev.target_mm
     span = max(float(np.ptp(x)), 1e-9)
     u = 2.0 * (x - x.min()) / span - 1.0
@@ -101,18 +106,10 @@ class ReversalChoice:
     reversal_mm: tuple[float, ...] | None = None
     edf: float = float("nan")
 
-
-def _difference_penalty(x: NDArray[np.float64], order: int) -> NDArray[np.float64]:
-    """DᵀD of ``order``-th divided differences at positions ``x``, scaled by the mean
-    spacing to the order (dimensionless: a polynomial of degree order − 1 costs nothing)."""
-    h = float(np.mean(np.diff(x)))
-    rows = np.zeros((x.size - order, x.size))
-    for i in range(x.size - order):
-        xs = x[i : i + order + 1]
-        for j in range(order + 1):
-            rows[i, i + j] = math.factorial(order) * h**order / np.prod(
-                [xs[j] - xs[k] for k in range(order + 1) if k != j])  # fmt: skip
-    return rows.T @ rows
+    def summary(self) -> dict[str, float | bool]:
+        """What the report, the commissioning's state and ``compgw fit`` say of it."""
+        return {"per_point": self.per_point, "ratio": self.ratio, "scatter_um": self.scatter_um,
+                "smoothed": self.reversal_mm is not None, "edf": self.edf}
 
 
 def choose_reversal(dev: AxisDeviations, degree: int = 2) -> ReversalChoice:
@@ -133,9 +130,7 @@ def choose_reversal(dev: AxisDeviations, degree: int = 2) -> ReversalChoice:
     made per-point tables of noise on smooth-2 Y, smooth-7 X and the SDSS plates). One run
     (no scatter to weigh): the polynomial.
     """
-    up, down = _means_mm(dev)
-    if up is None or down is None:
-        raise TableError(f"{dev.source}: axis {dev.axis}: a bidirectional table needs + and -")
+    up, down = _both_means_mm(dev)
     assert dev.up_mm is not None and dev.down_mm is not None
     counts = [np.sum(np.isfinite(x), axis=1) for x in (dev.up_mm, dev.down_mm)]
     s2, dof = pooled_variance(dev)
@@ -152,7 +147,8 @@ def choose_reversal(dev: AxisDeviations, degree: int = 2) -> ReversalChoice:
     scatter_um = 1e3 * float(np.sqrt(s2))
     if x.size <= p + 1:  # no room between the points and the polynomial
         return ReversalChoice(ratio > PER_POINT_RATIO, ratio, scatter_um)
-    penalty, w = _difference_penalty(x, p), np.diag(weight)
+    d = divided_differences(x, p)
+    penalty, w = d.T @ d, np.diag(weight)
     scale = float(np.trace(w)) / x.size
     best = (misfit / max(s2, 1e-30) + 2.0 * p, math.inf, None, float(p))  # the polynomial
     for lam in REVERSAL_LAMBDAS:
@@ -175,9 +171,7 @@ def bidirectional_table_reversal(dev: AxisDeviations, reversal_mm: Sequence[floa
     """Bidirectional table with the reversal (reverse − forward) given at each target (a
     smoothed one, :func:`choose_reversal`, or a polynomial): the pitch error the mean of the
     forward values and the reverse values less the reversal."""
-    up, down = _means_mm(dev)
-    if up is None or down is None:
-        raise TableError(f"{dev.source}: axis {dev.axis}: a bidirectional table needs + and -")
+    up, down = _both_means_mm(dev)
     reversal = np.asarray(reversal_mm, dtype=np.float64)
     pitch = 0.5 * (up + down - reversal)
     return PitchTable(dev.target_mm.copy(), pitch, pitch + reversal,

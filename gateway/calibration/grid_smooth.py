@@ -22,6 +22,7 @@ scatter allows). Pure: arrays in, arrays out.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,26 +49,27 @@ class SmoothedGrid:
 def _penalty_eig(n: int, x: NDArray[np.float64] | None = None
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:  # fmt: skip
     """Eigenvalues and eigenvectors of DᵀD, D the second differences of ``n`` values (at
-    positions ``x``: :func:`_second_differences`); no penalty, identity vectors, for fewer
+    positions ``x``: :func:`divided_differences`); no penalty, identity vectors, for fewer
     than MIN_LINES."""
     if n < MIN_LINES:
         return np.zeros(n), np.eye(n)
-    d = np.diff(np.eye(n), n=2, axis=0) if x is None else _second_differences(x)
+    d = np.diff(np.eye(n), n=2, axis=0) if x is None else divided_differences(x, 2)
     e, u = np.linalg.eigh(d.T @ d)
     return np.clip(e, 0.0, None), u
 
 
-def _second_differences(x: NDArray[np.float64]) -> NDArray[np.float64]:
-    """D: the second divided differences at positions ``x`` times the mean step squared
-    (evenly spaced points: the plain second differences)."""
-    h = np.diff(x)
-    a, b = h[:-1], h[1:]
-    rows = np.arange(x.size - 2)
-    d = np.zeros((x.size - 2, x.size))
-    d[rows, rows] = 2.0 / (a * (a + b))
-    d[rows, rows + 1] = -2.0 / (a * b)
-    d[rows, rows + 2] = 2.0 / (b * (a + b))
-    return d * float(np.mean(h)) ** 2
+def divided_differences(x: NDArray[np.float64], order: int) -> NDArray[np.float64]:
+    """D: the ``order``-th divided differences at positions ``x`` times order! and the mean
+    step to the order (dimensionless; evenly spaced points: the plain differences, and a
+    polynomial of degree order − 1 costs nothing)."""
+    h = float(np.mean(np.diff(x)))
+    d = np.zeros((x.size - order, x.size))
+    for i in range(x.size - order):
+        xs = x[i : i + order + 1]
+        for j in range(order + 1):
+            d[i, i + j] = math.factorial(order) * h**order / np.prod(
+                [xs[j] - xs[k] for k in range(order + 1) if k != j])  # fmt: skip
+    return d
 
 
 def smooth_grid(values: ArrayLike) -> SmoothedGrid:
