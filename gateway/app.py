@@ -101,6 +101,7 @@ class GatewayApp:
         self.gateway.status_handler = self.status.handle
         if source is not None:
             self.status.reloader = self.reload_file
+        self._reload_lock = asyncio.Lock()
         self.write_guard = WriteGuard(lambda: self.config.write_protect)
         self.handler = self.write_guard.wrap(self.gateway.handle)
         self.fast_handler = self.write_guard.wrap_fast(self.gateway.handle_fast)
@@ -219,21 +220,25 @@ class GatewayApp:
         self.gateway.reload(config, chain)
         self.config = config
 
-    def reload_file(self) -> str | None:
+    async def reload_file(self) -> str | None:
         """Load the config file again (``source``) and swap to it; None when taken, else
         the one-line reason it was refused (the old config stays). SIGHUP and the status
-        unit's reload register both come here."""
+        unit's reload register both come here. The file is read and its tables built in a
+        worker thread (a fine plane grid takes up to a second), so the masters' requests
+        are answered meanwhile; the swap itself happens on the loop, between two of them.
+        Reloads queue behind each other."""
         assert self.source is not None
-        try:
-            new_config, new_chain = load(self.source)
-            self.reload(new_config, new_chain)
-        except ConfigError as exc:
-            log.error("reload refused, old config kept: %s", exc)
-            self.status.reloaded(str(exc))
-            return str(exc)
-        log.info("reloaded %s", self.source)
-        self.status.reloaded(None)
-        return None
+        async with self._reload_lock:
+            try:
+                new_config, new_chain = await asyncio.to_thread(load, self.source)
+                self.reload(new_config, new_chain)
+            except ConfigError as exc:
+                log.error("reload refused, old config kept: %s", exc)
+                self.status.reloaded(str(exc))
+                return str(exc)
+            log.info("reloaded %s", self.source)
+            self.status.reloaded(None)
+            return None
 
     async def __aenter__(self) -> GatewayApp:
         await self.start()
@@ -289,12 +294,19 @@ async def serve(path: str | Path, *, stop: asyncio.Event | None = None,
     stop = stop if stop is not None else asyncio.Event()
     loop = asyncio.get_running_loop()
 
-    def do_reload() -> None:
+    async def reload_and_notify() -> None:
         notifier.reloading()
-        if app.reload_file() is not None:
+        if await app.reload_file() is not None:
             notifier.ready(f"reload refused, old config kept; {app.describe()}")
             return
         notifier.ready(app.describe())
+
+    reloads: set[asyncio.Task[None]] = set()  # held until done (the loop keeps weak refs)
+
+    def do_reload() -> None:
+        task = asyncio.ensure_future(reload_and_notify())
+        reloads.add(task)
+        task.add_done_callback(reloads.discard)
 
     loop.add_signal_handler(signal.SIGTERM, stop.set)
     loop.add_signal_handler(signal.SIGINT, stop.set)

@@ -43,7 +43,7 @@ import asyncio
 import logging
 import struct
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Awaitable, Callable, Iterable
 
 from .axis import AxisState, overlap
 from .axis_reads import AxisReads, _finishing
@@ -94,7 +94,7 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
         *,
         delta_a_mm: DeltaA = _no_thermal,
         moved: Callable[[str, float], None] = _no_move,
-        status_handler: Callable[[bytes], bytes] | None = None,
+        status_handler: Callable[[bytes], Awaitable[bytes]] | None = None,
     ) -> None:
         self.buses = buses
         self.delta_a_mm = delta_a_mm
@@ -190,7 +190,7 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
         if route is not None:
             return await self.buses[route.bus].transact(route.unit, pdu)
         if unit_id == setup.config.status.upstream_unit and self.status_handler is not None:
-            return self.status_handler(pdu)
+            return await self.status_handler(pdu)
         raise ModbusError(f"unit {unit_id} is not routed", GATEWAY_PATH_UNAVAILABLE)
 
     def handle_fast(self, unit_id: int, pdu: bytes, done: Done) -> bool:

@@ -37,7 +37,7 @@ off or make the gateway reload.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 
 from .modbus.frames import (
     ILLEGAL_DATA_ADDRESS,
@@ -68,7 +68,7 @@ RELOAD_REGISTER = 100
 GENERATION_REGISTER = 11
 
 #: reloads the config file; returns None when the new config was taken, else why not
-Reloader = Callable[[], str | None]
+Reloader = Callable[[], Awaitable[str | None]]
 
 
 def _u32(value: int) -> list[int]:
@@ -145,7 +145,7 @@ class StatusUnit:
         if refused is None:
             self.generation += 1
 
-    def handle(self, pdu: bytes) -> bytes:
+    async def handle(self, pdu: bytes) -> bytes:
         try:
             req = parse_request(pdu)
         except FrameError as exc:
@@ -161,10 +161,10 @@ class StatusUnit:
                 raise ModbusError("beyond the status map", ILLEGAL_DATA_ADDRESS)
             return build_read_registers_response(req.function, image[start : start + count])
         if req.function in (WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_REGISTERS):
-            return self._control(req)
+            return await self._control(req)
         raise ModbusError(f"FC{req.function:02d} not served by the status unit", ILLEGAL_FUNCTION)
 
-    def _control(self, req) -> bytes:  # type: ignore[no-untyped-def]
+    async def _control(self, req) -> bytes:  # type: ignore[no-untyped-def]
         config = self.gateway.setup.config
         if not config.status.remote_control:
             log.warning("status unit: control write refused (status.remote_control is false)")
@@ -172,7 +172,7 @@ class StatusUnit:
         names = list(config.axes)
         start = req.write_address or 0
         if start == RELOAD_REGISTER and req.write_count == 1:
-            return self._reload(req)
+            return await self._reload(req)
         if start + req.write_count > len(names):
             raise ModbusError("no such axis", ILLEGAL_DATA_ADDRESS)
         if any(v not in (0, 1) for v in req.values):
@@ -187,13 +187,13 @@ class StatusUnit:
         return response_for_write(req)
 
 
-    def _reload(self, req) -> bytes:  # type: ignore[no-untyped-def]
+    async def _reload(self, req) -> bytes:  # type: ignore[no-untyped-def]
         if req.values[0] != 1:
             raise ModbusError("write 1 to reload", ILLEGAL_DATA_VALUE)
         if self.reloader is None:
             raise ModbusError("this gateway has no config file to reload", ILLEGAL_FUNCTION)
         log.warning("config reload requested over Modbus (status unit)")
-        refused = self.reloader()
+        refused = await self.reloader()
         if refused is not None:
             raise ModbusError(f"reload refused: {refused}", SERVER_DEVICE_FAILURE)
         return response_for_write(req)

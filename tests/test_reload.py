@@ -4,11 +4,13 @@ two moves, an invalid one is refused with a log line and the old tables stay; ax
 
 from __future__ import annotations
 
+import asyncio
 import signal
 from pathlib import Path
 
+import numpy as np
 import yaml
-from pymodbus.client import ModbusTcpClient
+from pymodbus.client import AsyncModbusTcpClient, ModbusTcpClient
 
 from gateway.app import load
 from gateway.compensation import AxisInput
@@ -141,5 +143,62 @@ def test_reload_over_modbus_with_remote_control(tmp_path: Path) -> None:
             assert not (await master.write_register(RELOAD_REGISTER, 1, device_id=247)).isError()
             rr = await master.write_register(RELOAD_REGISTER, 1, device_id=247)
             assert rr.isError() and rr.exception_code == 0x01  # now off
+
+    run(body())
+
+
+def _fine_plane(nodes: int = 41) -> str:
+    """A plane's grid file (points on X 0-800, Y 0-600 mm) wavy enough that its build
+    resamples it to about a million nodes: a reload of it takes a while."""
+    x, y = np.linspace(0, 800, nodes), np.linspace(0, 600, nodes)
+    rows = [f"{a:g},{b:g},{20 * np.sin(a / 37.0) * np.cos(b / 29.0):.4f},"
+            f"{15 * np.cos(a / 31.0) * np.sin(b / 23.0):.4f}" for a in x for b in y]
+    return "x_mm,y_mm,dx_um,dy_um\n" + "\n".join(rows) + "\n"
+
+
+def test_a_reload_does_not_stop_the_traffic(tmp_path: Path) -> None:
+    """While the status unit's reload builds a config whose plane is a fine grid (read and
+    built beside the loop), another master's reads of an axis keep being answered; the
+    reload is taken and the register answers when it is done."""
+    def edit(data: dict) -> None:
+        data["status"] = {"upstream_unit": 247, "remote_control": True}
+
+    async def body() -> None:
+        async with rig(tmp_path, edit, {"xy.csv": _fine_plane(),
+                                        "xy.yaml": "points: xy.csv\nmodel: grid\n"}) as r:
+            master, path = r["master"], r["config_path"]
+            data = yaml.safe_load(path.read_text())
+            data["planar"] = {"axes": ["X", "Y"], "model": "xy.yaml", "commit": "on_trigger"}
+            path.write_text(yaml.safe_dump(data))
+            other = AsyncModbusTcpClient("127.0.0.1", port=r["app"].tcp_port, timeout=5, retries=0)
+            assert await other.connect()
+            answered = 0
+            done = asyncio.Event()
+
+            async def poll() -> None:
+                nonlocal answered
+                for _ in range(100_000):  # bounded; ends with the reload
+                    if done.is_set():
+                        return
+                    rr = await other.read_holding_registers(0x602A, count=2, device_id=1)
+                    assert not rr.isError(), rr
+                    answered += 1
+
+            poller = asyncio.create_task(poll())
+            try:
+                while answered < 5:  # the poller runs
+                    await asyncio.sleep(0)
+                before = answered
+                rr = await master.write_register(RELOAD_REGISTER, 1, device_id=247)
+                during = answered - before
+                done.set()
+                await poller
+            finally:
+                done.set()
+                other.close()
+            assert not rr.isError(), rr
+            gen = await master.read_input_registers(GENERATION_REGISTER, count=3, device_id=247)
+            assert gen.registers[:3] == [0, 2, 0], gen.registers  # taken, not refused
+            assert during >= 5, f"{during} reads answered while the reload ran"
 
     run(body())

@@ -60,7 +60,7 @@ async def live(say: Any = print) -> dict[str, Any]:
             async with GatewayApp(config, chain, source=str(path)) as app:
 
                 async def reload() -> None:
-                    refused = app.reload_file()
+                    refused = await app.reload_file()
                     if refused is not None:
                         raise RuntimeError(f"the gateway refused the config: {refused}")
 
