@@ -198,7 +198,7 @@ class GatewayApp:
         for bus in self.buses.values():
             await bus.close()
         if self.state_store is not None:
-            self.state_store.flush()
+            await self.state_store.close()
 
     def reload(self, config: GatewayConfig, chain: Chain) -> None:
         """Swap tables and per-axis settings between transactions.
