@@ -20,6 +20,7 @@ import asyncio
 import contextlib
 import logging
 import signal
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -229,6 +230,7 @@ class GatewayApp:
         Reloads queue behind each other."""
         assert self.source is not None
         async with self._reload_lock:
+            began_s = time.monotonic()
             try:
                 new_config, new_chain = await asyncio.to_thread(load, self.source)
                 self.reload(new_config, new_chain)
@@ -236,7 +238,8 @@ class GatewayApp:
                 log.error("reload refused, old config kept: %s", exc)
                 self.status.reloaded(str(exc))
                 return str(exc)
-            log.info("reloaded %s", self.source)
+            log.info("reloaded %s (read and built in %.2f s)", self.source,
+                     time.monotonic() - began_s)
             self.status.reloaded(None)
             return None
 

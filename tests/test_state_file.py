@@ -8,6 +8,8 @@ import contextlib
 import json
 import logging
 import math
+import threading
+import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -107,6 +109,44 @@ def test_a_restarted_gateway_carries_on(tmp_path: Path, caplog: pytest.LogCaptur
 
     run(body())
 
+
+
+def test_a_slow_disk_does_not_hold_the_requests(tmp_path: Path,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """The state file's write (its fsync: tens of ms on an SD card, here made to take
+    0.3 s) goes on beside the loop: reads are answered while it lasts, moves made during
+    it are written after it, and the file at stop holds the last of them."""
+    from gateway import state_store
+
+    writing = threading.Event()
+    real_write = state_store.atomic_write_text
+
+    def slow_write(path: Path, text: str) -> None:
+        writing.set()
+        try:
+            time.sleep(0.3)  # the disk, not the test's timing: nothing waits on it
+            real_write(path, text)
+        finally:
+            writing.clear()
+
+    monkeypatch.setattr(state_store, "atomic_write_text", slow_write)
+
+    async def body():
+        async with SimServer(sim_config(), tcp_port=0, time_scale=0) as sim:
+            async with gateway(tmp_path, sim.tcp_port) as (_app, master):
+                await move(master, 1, 300_000)  # a commit: a write soon
+                await wait_for_condition(writing.is_set)
+                answered = 0
+                while writing.is_set() and answered < 10_000:  # bounded
+                    await read32(master, 1, FEEDBACK)
+                    answered += 1
+                assert answered >= 5, f"{answered} reads answered during a write"
+                await move(master, 1, 310_000)
+                await move(master, 1, 320_000)
+            saved = json.loads((tmp_path / "run" / "state.json").read_text())["axes"]
+            assert saved["X"]["last_nominal_pulses"] == 320_000
+
+    run(body())
 
 
 def test_heat_from_motion_outlives_a_restart_and_cools_for_the_time_it_was_down(
