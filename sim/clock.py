@@ -32,7 +32,3 @@ class MachineClock:
         if seconds < 0:
             raise ValueError("the clock only moves forward")
         self._offset_s += seconds
-
-    def wall_delay_s(self, machine_s: float) -> float:
-        """Wall seconds that ``machine_s`` of machine time take (0 when instant)."""
-        return machine_s * self.time_scale

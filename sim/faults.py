@@ -52,11 +52,6 @@ class UnitFault:
     delay_ms: int = 0
     exception_code: int = 0
 
-    @property
-    def active(self) -> bool:
-        """True when replies are anything but prompt and normal."""
-        return self.mode != MODE_NORMAL or self.delay_ms > 0
-
 
 class FaultControl:
     """Fault table for every unit plus the control block unit (a :class:`RegisterUnit`)."""

@@ -103,20 +103,6 @@ class PitchTable:
             raise TableError(f"{self.point(i)}: rotary table positions must lie in "
                              "-360..360 deg")  # fmt: skip
 
-    @classmethod
-    def equally_spaced(
-        cls,
-        start_mm: float,
-        step_mm: float,
-        forward_mm: ArrayLike,
-        reverse_mm: ArrayLike | None = None,
-        **kwargs: object,
-    ) -> PitchTable:
-        """A table whose points start at ``start_mm`` every ``step_mm``."""
-        fwd = np.asarray(forward_mm, dtype=np.float64)
-        pos = start_mm + step_mm * np.arange(fwd.size)
-        return cls(pos, fwd, None if reverse_mm is None else np.asarray(reverse_mm), **kwargs)
-
 
 @dataclass(frozen=True, eq=False)
 class PitchStage:
