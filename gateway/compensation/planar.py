@@ -184,8 +184,8 @@ class GridModel(PlanarModel):
     def error_on_grid_mm(self, gx_mm: NDArray[np.float64], gy_mm: NDArray[np.float64]
                          ) -> NDArray[np.float64]:  # fmt: skip
         """As :meth:`PlanarModel.error_on_grid_mm`, the splines evaluated on the grid's
-        lines rather than node by node (a reload's resampling of a 15 × 10 grid: 1.5 s →
-        a few ms, the event loop held that long)."""
+        lines rather than node by node (a plate's 15 × 10 grid, resampled to 961 × 641
+        nodes: its build 1.49 → 0.37 s)."""
         x = np.clip(np.asarray(gx_mm, np.float64), self.lower_mm[0], self.upper_mm[0])
         y = np.clip(np.asarray(gy_mm, np.float64), self.lower_mm[1], self.upper_mm[1])
         return np.stack([s(x, y, grid=True).T for s in self._splines], axis=-1)
