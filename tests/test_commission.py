@@ -282,8 +282,8 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         order = ["iso-Y", "xy-grid", "backlash-Y", "before-X", "before-Y", "cyclic-X"]
         assert [done.index(s) for s in order] == sorted(done.index(s) for s in order), done
         # no round will refine the plane: its first grid is as dense as the budget allows
-        nx, ny = state["grid"]  # (the configured 7 x 5's shape, denser)
-        assert nx > 7 and ny == 1 + round(4 * (nx - 1) / 6), state["grid"]
+        nx, ny = state["grid"]  # (a square plane's 7 x 7, denser)
+        assert nx > 7 and ny == nx, state["grid"]
         note = next(n for n in summary["notes"] if "identification's runs only" in n)
         assert note.startswith("X, Y: fitted") and "Y: no cyclic term" in note, note
         final = yaml.safe_load(rig.config.read_text())["axes"]

@@ -53,7 +53,7 @@ class ShortBudget(BestTables):
             plans.append(self._sweep_plan(a, -1, self.s.lead_mm.get(a), estimate=True))
         if self.s.planar is not None:
             plans += 3 * [self._before_xy_plan()]
-            plans.append(self._grid_plan(adaptive.denser_grid(*self.s.grid)))
+            plans.append(self._grid_plan(adaptive.denser_grid(*self.plane_grid())))
         return sum(self.estimate_s(p) + self.refs_around_s(p) for p in plans)
 
     def _midpoints_plan(self, axis: str) -> Plan:
@@ -81,7 +81,7 @@ class ShortBudget(BestTables):
             need_s = self.step_cost_s(self._midpoints_plan(axis))
             keep_s = 0.0
             if self.s.planar is not None and axis in self.s.planar:
-                keep_s = self.step_cost_s(self._grid_plan(self.s.grid))
+                keep_s = self.step_cost_s(self._grid_plan(self.plane_grid()))
                 if not self.done("before-xy"):
                     keep_s += self.step_cost_s(self._before_xy_plan())
             misses = ratio is not None and ratio > BETWEEN_RATIO
@@ -115,10 +115,10 @@ class ShortBudget(BestTables):
                                for n in self._iso_steps(axis)])  # fmt: skip
 
     def _first_grid(self) -> tuple[int, int]:
-        """The plane's first grid (decided once, kept in the state): the configured one;
+        """The plane's first grid (decided once, kept in the state): :meth:`plane_grid`;
         on a short budget, whose rounds will not refine it, the densest of its shape
         (:func:`max_grid_in`) whose run fits in what the budget has left after the steps
-        that come after it and that it will still hold with the configured grid: each
+        that come after it and that it will still hold with that grid: each
         linear axis's backlash test, then its before- and after-runs, then its cyclic
         scans where its lead is known, as far as they fit in that order (a step that does
         not fit ends the identification, so none after it is counted). (At 1.5 x a manual
@@ -126,7 +126,7 @@ class ShortBudget(BestTables):
         13.4 µm, the manual's 9 x 7 5.3 µm; 13 x 9, the configured grid split once, left 8.5
         of their 61 minutes unused.)"""
         if "grid" not in self.state:
-            grid = self.s.grid
+            grid = self.plane_grid()
             if self.state.get("short"):
                 def cost_s(g: tuple[int, int]) -> float:
                     return self.step_cost_s(self._grid_plan(g))
