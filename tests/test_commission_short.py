@@ -18,7 +18,7 @@ import pytest
 import yaml
 
 from gateway.calibration.commission_short import max_grid_in
-from gateway.calibration.plans_xy import plane_grid
+from gateway.calibration.plans_xy import even_grid
 from gateway.compensation import PitchStage
 from gateway.formats import read_pitch_csv
 from sim.real_machines import data_root
@@ -107,11 +107,11 @@ def test_the_first_grid_takes_every_size_the_budget_holds() -> None:
     assert max_grid_in((7, 5), cost, 1e9) == (33, 22)  # at most 33 nodes along an axis
 
 
-def test_the_first_grid_keeps_its_cells_about_square() -> None:
-    """7 nodes along the longer travel, along the shorter as many as keep the cells about
-    square, never fewer than 5."""
-    assert plane_grid(800, 600) == (7, 5)
-    assert plane_grid(900, 150) == (7, 5)  # a narrow plane: 5 across
-    assert plane_grid(1000, 800) == (7, 6)
-    assert plane_grid(450, 450) == (7, 7)
-    assert plane_grid(600, 800) == (5, 7)  # the longer travel is Y
+def test_a_short_budget_grid_keeps_its_cells_about_square() -> None:
+    """The shape a short budget's grid is made densest in: 7 nodes along the longer
+    travel, along the shorter as many as keep the cells about square, never fewer than 5."""
+    assert even_grid(800, 600) == (7, 5)
+    assert even_grid(900, 150) == (7, 5)  # a narrow plane: 5 across
+    assert even_grid(1000, 800) == (7, 6)
+    assert even_grid(450, 450) == (7, 7)
+    assert even_grid(600, 800) == (5, 7)  # the longer travel is Y

@@ -113,7 +113,7 @@ class Commission(ShortBudget):
             elif not self.s.no_lead_search:
                 out.append((f"lead-{a}", self._lead_plan(a)))
         if self.s.planar is not None:
-            out.append(("xy-grid", self._grid_plan(self.plane_grid())))
+            out.append(("xy-grid", self._grid_plan(self.s.grid)))
         return [(n, self._snap(p)) for n, p in out]
 
     def _lead_plan(self, axis: str) -> Plan:
@@ -201,7 +201,7 @@ class Commission(ShortBudget):
 
     def _before_xy_plan(self) -> Plan:
         """The plane's random points judged before anything is fitted and after."""
-        return self._xy_check_plan(10_000 + self.s.seed, self.plane_grid())
+        return self._xy_check_plan(10_000 + self.s.seed, self.s.grid)
 
     def _xy_check_plan(self, seed: int, grid: tuple[int, int]) -> Plan:
         assert self.s.planar is not None
@@ -560,7 +560,7 @@ class Commission(ShortBudget):
                 entry["budget"] = trimmed
                 self.say(f"round {r}: the budget allows the worst spans only: "
                          + ", ".join(trimmed))  # fmt: skip
-            denser = adaptive.denser_grid(*tuple(self.state.get("grid", self.plane_grid())))
+            denser = adaptive.denser_grid(*tuple(self.state.get("grid", self.s.grid)))
             if plane and self.estimate_s(self._grid_plan(denser, runs=1)) \
                     > self._refine_allowance_s(r, 1):
                 settled.append("XY")  # a denser grid does not fit in what is left
@@ -658,7 +658,7 @@ class Commission(ShortBudget):
                                          round=r))
             for a in self.s.axes if a not in settled}  # (settled: nothing new to judge)
         if self.s.planar is not None and "XY" not in settled:
-            grid = tuple(self.state.get("grid", self.plane_grid()))
+            grid = tuple(self.state.get("grid", self.s.grid))
             makes["xy"] = lambda: self._xy_check_plan(r, grid)
         if not any((self.dir / "plans" / f"verify{r}-{n}.plan").exists() for n in makes):
             need_s = sum(self.step_cost_s(make()) for make in makes.values())
@@ -679,7 +679,7 @@ class Commission(ShortBudget):
         return verdicts, xy
 
     async def _refine_plane(self, r: int) -> tuple[int, int]:
-        grid = adaptive.denser_grid(*tuple(self.state.get("grid", self.plane_grid())))
+        grid = adaptive.denser_grid(*tuple(self.state.get("grid", self.s.grid)))
         if not self.done(f"refine{r}-xy"):  # the round's new tables loaded: the frame read
             await self.use(self._tables_phase)
         await self.step(f"refine{r}-xy", lambda: self._grid_plan(grid, runs=1), "on")

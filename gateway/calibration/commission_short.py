@@ -14,6 +14,7 @@ from .commission_best import BestTables
 from .commission_steps import concat_raw
 from .plans import Plan, backlash_plan, read_plan, targets_plan
 from .plans_scans import cyclic_plan
+from .plans_xy import even_grid
 from .rawdata import RawData, axis_deviations
 from .table_cv import between_points_ratio
 
@@ -53,7 +54,7 @@ class ShortBudget(BestTables):
             plans.append(self._sweep_plan(a, -1, self.s.lead_mm.get(a), estimate=True))
         if self.s.planar is not None:
             plans += 3 * [self._before_xy_plan()]
-            plans.append(self._grid_plan(adaptive.denser_grid(*self.plane_grid())))
+            plans.append(self._grid_plan(adaptive.denser_grid(*self.s.grid)))
         return sum(self.estimate_s(p) + self.refs_around_s(p) for p in plans)
 
     def _midpoints_plan(self, axis: str) -> Plan:
@@ -81,7 +82,7 @@ class ShortBudget(BestTables):
             need_s = self.step_cost_s(self._midpoints_plan(axis))
             keep_s = 0.0
             if self.s.planar is not None and axis in self.s.planar:
-                keep_s = self.step_cost_s(self._grid_plan(self.plane_grid()))
+                keep_s = self.step_cost_s(self._grid_plan(self.s.grid))
                 if not self.done("before-xy"):
                     keep_s += self.step_cost_s(self._before_xy_plan())
             misses = ratio is not None and ratio > BETWEEN_RATIO
@@ -115,10 +116,11 @@ class ShortBudget(BestTables):
                                for n in self._iso_steps(axis)])  # fmt: skip
 
     def _first_grid(self) -> tuple[int, int]:
-        """The plane's first grid (decided once, kept in the state): :meth:`plane_grid`;
-        on a short budget, whose rounds will not refine it, the densest of its shape
-        (:func:`max_grid_in`) whose run fits in what the budget has left after the steps
-        that come after it and that it will still hold with that grid: each
+        """The plane's first grid (decided once, kept in the state): the configured one;
+        on a short budget, whose rounds will not refine it, the densest whose cells are
+        about square (the shape of :func:`.plans_xy.even_grid`, :func:`max_grid_in`)
+        whose run fits in what the budget has left after the steps that come after it and
+        that it will still hold with the configured grid: each
         linear axis's backlash test, then its before- and after-runs, then its cyclic
         scans where its lead is known, as far as they fit in that order (a step that does
         not fit ends the identification, so none after it is counted). (At 1.5 x a manual
@@ -126,7 +128,7 @@ class ShortBudget(BestTables):
         13.4 µm, the manual's 9 x 7 5.3 µm; 13 x 9, the configured grid split once, left 8.5
         of their 61 minutes unused.)"""
         if "grid" not in self.state:
-            grid = self.plane_grid()
+            grid = self.s.grid
             if self.state.get("short"):
                 def cost_s(g: tuple[int, int]) -> float:
                     return self.step_cost_s(self._grid_plan(g))
@@ -144,7 +146,11 @@ class ShortBudget(BestTables):
                     if held_s + need_s > left_s:
                         break
                     held_s += need_s
-                grid = max_grid_in(grid, cost_s, left_s - held_s + cost_s(grid))
+                ax, ay = self.s.planar or ("X", "Y")
+                (x0, x1), (y0, y1) = self._travel(ax), self._travel(ay)
+                even, room_s = even_grid(x1 - x0, y1 - y0), left_s - held_s + cost_s(grid)
+                if cost_s(even) <= room_s:  # else the configured grid, as it was held
+                    grid = max_grid_in(even, cost_s, room_s)
             self.state["grid"] = list(grid)
             self._save()
         nx, ny = self.state["grid"]

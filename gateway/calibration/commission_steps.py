@@ -40,7 +40,6 @@ from .plans import (
     snap_to_pulses,
     write_plan,
 )
-from .plans_xy import plane_grid
 from .rawdata import RawData, read_raw_csv
 from .session import Instruments, Session
 
@@ -78,7 +77,7 @@ class Settings:
     runs: int = 3  # coarse ISO runs
     verify_runs: int = 2
     warmup_s: float = 1800.0
-    grid: tuple[int, int] | None = None  # the plane's first grid; None: its travel's
+    grid: tuple[int, int] = (7, 5)
     tolerance_arcsec: float = 3.0  # rotary axes: ISO 230-2 E between the points
 
 class Steps(DriftRefs):
@@ -119,15 +118,6 @@ class Steps(DriftRefs):
         # drift log of a long run, and the state is written after every run)
         atomic_write_text(self.state_path, json.dumps(self.state, default=_plain,
                                                       separators=(",", ":")))  # fmt: skip
-
-    def plane_grid(self) -> tuple[int, int]:
-        """The plane's first grid: as set (:attr:`Settings.grid`), else of its travel
-        (:func:`.plans_xy.plane_grid`)."""
-        if self.s.grid is not None:
-            return self.s.grid
-        assert self.s.planar is not None
-        (x0, x1), (y0, y1) = (self._travel(a) for a in self.s.planar)
-        return plane_grid(x1 - x0, y1 - y0)
 
     @property
     def used_s(self) -> float:

@@ -13,15 +13,15 @@ from .plans import Move, Plan, _meta, _round, _travel
 
 
 # -- XY grid (seed 001) ---------------------------------------------------------------------
-def plane_grid(x_travel_mm: float, y_travel_mm: float, lines: int = 7, least: int = 5
-               ) -> tuple[int, int]:  # fmt: skip
-    """The plane's first grid (nodes along x, along y): ``lines`` along the longer travel,
-    along the shorter as many as keep the cells about square, at least ``least`` (a cubic
-    grid needs 4): 7 x 5 on an 800 x 600 mm table, 7 x 7 on a square one. The judge's
-    worse axis reads a line across the grid; cells half again as long one way leave it the
-    worse (the sdss plates, their field interpolated noise-free from the nodes, median
-    over 40 parks: 15 x 10 leaves that axis 3.54, 2.30, 2.68 µm; 12 x 12, fewer nodes,
-    2.60, 2.04, 1.84 µm)."""
+def even_grid(x_travel_mm: float, y_travel_mm: float, lines: int = 7, least: int = 5
+              ) -> tuple[int, int]:  # fmt: skip
+    """A plane grid (nodes along x, along y) whose cells are about square: ``lines`` along
+    the longer travel, along the shorter as many as keep that spacing, at least ``least``
+    (a cubic grid needs 4): 7 x 5 on an 800 x 600 mm table, 7 x 7 on a square one. The
+    judge's worse axis reads a line across the grid, and cells half again as long one way
+    leave it the worse: the sdss plates' field interpolated noise-free from 15 x 10 nodes
+    leaves that axis 3.54, 2.30 and 2.68 µm (median over 40 parks), from 12 x 12, fewer
+    nodes, 2.60, 2.04 and 1.84 µm."""
     long_mm, short_mm = max(x_travel_mm, y_travel_mm), min(x_travel_mm, y_travel_mm)
     across = max(least, 1 + round((lines - 1) * short_mm / long_mm))
     return (lines, across) if x_travel_mm >= y_travel_mm else (across, lines)
