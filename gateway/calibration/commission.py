@@ -193,22 +193,19 @@ class Commission(ShortBudget):
         self._save()
 
     def _grid_plan(self, grid: tuple[int, int], runs: int = 2) -> Plan:
-        assert self.s.planar is not None
-        ax, ay = self.s.planar
-        (x0, x1), (y0, y1) = self._travel(ax), self._travel(ay)
-        return xy_grid_plan((x0 + 2, x1 - 2), (y0 + 2, y1 - 2), grid[0], grid[1], (ax, ay),
-                            runs=runs, approach_mm=1.0, lower_mm=(x0, y0))  # fmt: skip
+        (x0, x1), (y0, y1) = self._plane_travel()
+        return xy_grid_plan((x0 + 2, x1 - 2), (y0 + 2, y1 - 2), grid[0], grid[1],
+                            self.s.planar, runs=runs, approach_mm=1.0,
+                            lower_mm=(x0, y0))  # fmt: skip
 
     def _before_xy_plan(self) -> Plan:
         """The plane's random points judged before anything is fitted and after."""
         return self._xy_check_plan(10_000 + self.s.seed, self.s.grid)
 
     def _xy_check_plan(self, seed: int, grid: tuple[int, int]) -> Plan:
-        assert self.s.planar is not None
-        ax, ay = self.s.planar
-        (x0, x1), (y0, y1) = self._travel(ax), self._travel(ay)
+        (x0, x1), (y0, y1) = self._plane_travel()
         return xy_verification_plan((x0 + 2, x1 - 2), (y0 + 2, y1 - 2), grid[0], grid[1],
-                                    (ax, ay), mode="random", count=adaptive.RANDOM_TARGETS,
+                                    self.s.planar, mode="random", count=adaptive.RANDOM_TARGETS,
                                     seed=seed, approach_mm=1.0, lower_mm=(x0, y0))  # fmt: skip
 
     def print_plan(self) -> float:

@@ -146,8 +146,7 @@ class ShortBudget(BestTables):
                     if held_s + need_s > left_s:
                         break
                     held_s += need_s
-                assert self.s.planar is not None  # (only the plane's steps ask)
-                (x0, x1), (y0, y1) = (self._travel(a) for a in self.s.planar)
+                (x0, x1), (y0, y1) = self._plane_travel()
                 even, room_s = even_grid(x1 - x0, y1 - y0), left_s - held_s + cost_s(grid)
                 if cost_s(even) <= room_s:  # else the configured grid, as it was held
                     grid = max_grid_in(even, cost_s, room_s)

@@ -119,6 +119,12 @@ class Steps(DriftRefs):
         atomic_write_text(self.state_path, json.dumps(self.state, default=_plain,
                                                       separators=(",", ":")))  # fmt: skip
 
+    def _plane_travel(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The travel (mm) of the plane's two axes, X role first."""
+        assert self.s.planar is not None  # (only the plane's steps ask)
+        ax, ay = self.s.planar
+        return self._travel(ax), self._travel(ay)
+
     @property
     def used_s(self) -> float:
         steps = sum(step["machine_s"] for step in self.state["steps"].values())
