@@ -169,62 +169,59 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         assert not reframe_plane(load_config(rig.config), rig.config.parent)
 
 
-def test_commission_resumes_after_a_kill(template: Path, tmp_path: Path) -> None:
-    """SIGKILL in the middle (a power loss): the same command carries on; every reading
-    taken before the kill is kept, none is taken twice."""
+def remeasured(proc, done: set[str]) -> list[str]:  # type: ignore[no-untyped-def]
+    """The lines in which ``proc`` says it took readings for a step of ``done``."""
+    return [line for line in proc.lines if "readings" in line
+            and any(f"{name}:" in line for name in done)]  # fmt: skip
+
+
+def test_commission_resumes_after_a_kill_even_in_a_sweep(template: Path, tmp_path: Path) -> None:
+    """SIGKILL (a power loss) twice, and the same command carries on each time: first in
+    the middle of the identification, then while X's sweep is measuring. Every reading
+    taken before a kill is kept and none is taken twice; the sweep carries on from its
+    last reading and is folded once, from the table as it was before it. (One machine
+    for both kills: each resumed run would otherwise commission it whole again.)"""
     with running(template, tmp_path / "m") as rig:
-        state = rig.dir / "commission" / "commission.json"
-        # (a tolerance the first verification meets: no rounds after the resumed steps)
-        first = rig.commission("--tolerance-um", "5")
+        out = rig.dir / "commission"
+        state = out / "commission.json"
+        raw = out / "raw" / "sweep1-X.csv"
+        args = ("--tolerance-um", "1", "--budget-h", "1.7")
+        first = rig.commission(*args)
         wait_for_steps(state, 4, first)
         first.kill()
-        done_before = set(json.loads(state.read_text())["steps"])
-        second = rig.commission("--tolerance-um", "5")
-        assert second.popen.wait(timeout=300) in (0, 1), second.text()
-        text = second.text()
-        assert not any(f"{name}:" in line for name in done_before for line in second.lines
-                       if "readings" in line), text  # fmt: skip
-        out = rig.dir / "commission"
-        for name, step in json.loads(state.read_text())["steps"].items():
-            plan = read_plan(out / "plans" / f"{name}.plan")
-            files = [rig.dir / part["raw"] for part in step["parts"]]  # one per run
-            rows = sum(len(read_raw_csv(f)) for f in files)
-            assert rows == sum(m.measured for m in plan.moves) * len(plan.axes), name
-        assert json.loads((out / "summary.json").read_text())["axes"]["X"]["after"]
+        done_first = set(json.loads(state.read_text())["steps"])
 
-
-def test_a_sweep_killed_half_way_carries_on(template: Path, tmp_path: Path) -> None:
-    """SIGKILL while X's sweep is measuring (a power loss): the same command carries on
-    from the last reading (none taken twice) and folds the sweep once, from the table as
-    it was before it."""
-    with running(template, tmp_path / "m") as rig:
-        state = rig.dir / "commission" / "commission.json"
-        raw = rig.dir / "commission" / "raw" / "sweep1-X.csv"
-        first = rig.commission("--tolerance-um", "1", "--budget-h", "1.7")
+        second = rig.commission(*args)  # on to X's sweep, killed when 40 readings are in
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
             if raw.exists() and raw.read_text().count("\n") > 40:
                 break
-            assert first.popen.poll() is None, first.text()
+            assert second.popen.poll() is None, second.text()
             time.sleep(0.005)
-        first.kill()
+        second.kill()
+        assert not remeasured(second, done_first), second.text()
         before = json.loads(state.read_text())
         assert before["sweeping"] == {"X": 0} and "sweep1-X" not in before["steps"]
         taken = len(read_raw_csv(raw))
-        second = rig.commission("--tolerance-um", "1", "--budget-h", "1.7")
-        assert second.popen.wait(timeout=300) in (0, 1), second.text()
-        out = rig.dir / "commission"
+
+        third = rig.commission(*args)
+        assert third.popen.wait(timeout=300) in (0, 1), third.text()
+        assert not remeasured(third, set(before["steps"])), third.text()
         after = json.loads(state.read_text())
-        plan = read_plan(out / "plans" / "sweep1-X.plan")
-        parts = after["steps"]["sweep1-X"]["parts"]
-        rows = sum(len(read_raw_csv(rig.dir / part["raw"])) for part in parts)
+        for name, step in after["steps"].items():  # every step's readings, once each
+            plan = read_plan(out / "plans" / f"{name}.plan")
+            files = [rig.dir / part["raw"] for part in step["parts"]]  # one per run
+            rows = sum(len(read_raw_csv(f)) for f in files)
+            assert rows == sum(m.measured for m in plan.moves) * len(plan.axes), name
+        rows = sum(len(read_raw_csv(rig.dir / part["raw"]))
+                   for part in after["steps"]["sweep1-X"]["parts"])  # fmt: skip
         assert rows > taken
-        assert rows == sum(m.measured for m in plan.moves)
         assert "X" in after["swept"] and not after["sweeping"]
         assert after["identify"]["sweep-X"]["readings"] == rows
         # folded from the files kept before the sweep, which the fold never touched
         kept = out / "tables" / "sweep1-X" / "x_pitch.csv"
         assert kept.exists() and "swept" not in kept.read_text()
+        assert json.loads((out / "summary.json").read_text())["axes"]["X"]["after"]
 
 
 def test_an_abort_leaves_the_gateway_on_your_config(template: Path, tmp_path: Path) -> None:
