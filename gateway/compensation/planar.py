@@ -304,10 +304,11 @@ class _BilinearField:
     _vy: array = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "_gx", array("d", self.gx.tolist()))
-        object.__setattr__(self, "_gy", array("d", self.gy.tolist()))
-        object.__setattr__(self, "_vx", array("d", self.values[:, :, 0].ravel().tolist()))
-        object.__setattr__(self, "_vy", array("d", self.values[:, :, 1].ravel().tolist()))
+        for name, values in (("_gx", self.gx), ("_gy", self.gy), ("_vx", self.values[:, :, 0]),
+                             ("_vy", self.values[:, :, 1])):  # fmt: skip
+            plain = array("d")  # C doubles, as numpy's: copied whole, not element by element
+            plain.frombytes(np.ascontiguousarray(values, dtype=np.float64).tobytes())
+            object.__setattr__(self, name, plain)
 
     def __call__(self, points_mm: NDArray[np.float64]) -> NDArray[np.float64]:
         gx, gy, v = self.gx, self.gy, self.values
