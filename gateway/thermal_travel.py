@@ -20,7 +20,7 @@ import numpy as np
 
 from .compensation.thermal import (
     ThermalStage,
-    motion_heat_m,
+    motion_heat_one_m,
     travel_delta_a_mm,
     travel_integral,
     travel_swept,
@@ -108,14 +108,14 @@ class HeatFromMotion:
         speed = self.motion.speeds_mm_s.get(axis)
         moving_s = travel_mm / speed if speed else 0.0
         own_m = travel_mm / 1000.0 if axis == self.axis else 0.0
-        self.heat_m = float(motion_heat_m(self.heat_m, own_m, max(moving_s, now - self.at_s),
-                                          self.motion.tau_s))  # fmt: skip
+        self.heat_m = motion_heat_one_m(self.heat_m, own_m, max(moving_s, now - self.at_s),
+                                        self.motion.tau_s)  # fmt: skip
         self.at_s = now
 
     def heat_now_m(self) -> float:
         """The heat now (m of travel), cooled for the time since the last move."""
         idle = max(0.0, self.clock() - self.at_s)
-        return float(motion_heat_m(self.heat_m, 0.0, idle, self.motion.tau_s))
+        return motion_heat_one_m(self.heat_m, 0.0, idle, self.motion.tau_s)
 
     def delta_a_mm(self) -> float:
         """Δa now (mm)."""
@@ -123,6 +123,6 @@ class HeatFromMotion:
 
     def carry_on(self, heat_m: float, age_s: float) -> None:
         """Take back the heat an earlier process saved ``age_s`` ago (it cooled since)."""
-        self.heat_m = float(motion_heat_m(max(0.0, heat_m), 0.0, max(0.0, age_s),
-                                          self.motion.tau_s))  # fmt: skip
+        self.heat_m = motion_heat_one_m(max(0.0, heat_m), 0.0, max(0.0, age_s),
+                                        self.motion.tau_s)  # fmt: skip
         self.at_s = self.clock()

@@ -10,7 +10,7 @@ import pytest
 
 from gateway.calibration.heat_fit import motion_heat_fit
 from gateway.compensation.errors import TableError
-from gateway.compensation.thermal import motion_heat_m, motion_heat_series_m
+from gateway.compensation.thermal import motion_heat_m, motion_heat_one_m, motion_heat_series_m
 from gateway.config import AxisThermal, MotionHeat
 from gateway.sensors import SensorSet
 from gateway.thermal_travel import HeatFromMotion
@@ -27,6 +27,21 @@ def test_steady_travel_levels_off_at_speed_times_tau_and_a_pause_cools() -> None
     assert motion_heat_m(heat[-1], 0.0, tau, tau) == pytest.approx(heat[-1] / math.e)
     with pytest.raises(Exception, match="tau > 0"):
         motion_heat_m(0.0, 0.1, 1.0, 0.0)
+
+
+def test_one_screw_in_plain_floats_is_the_array_form() -> None:
+    """The gateway's per-request form (plain floats) gives what the array form gives, over
+    stretches from none to many time constants, and refuses what it refuses."""
+    rng = np.random.default_rng(5)
+    heat, travel = rng.uniform(0, 30, 400), rng.uniform(0, 2, 400)
+    elapsed = np.concatenate([[0.0, 1e-15, 1e-9], 10 ** rng.uniform(-6, 5, 397)])
+    tau = rng.uniform(60, 3000, 400)
+    want = motion_heat_m(heat, travel, elapsed, tau)
+    got = [motion_heat_one_m(*map(float, args)) for args in zip(heat, travel, elapsed, tau)]
+    assert got == pytest.approx(want, rel=1e-14, abs=1e-15)
+    for bad in ((0.0, -0.1, 1.0, 300.0), (0.0, 0.1, -1.0, 300.0), (0.0, 0.1, 1.0, 0.0)):
+        with pytest.raises(Exception, match="tau > 0"):
+            motion_heat_one_m(*bad)
 
 
 class Clock:

@@ -8,6 +8,7 @@ measured from ``origin_mm``, the fixed end of the screw in axis coordinates.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -144,6 +145,17 @@ def motion_heat_m(heat_m: ArrayLike, travel_m: ArrayLike, elapsed_s: ArrayLike,
     small = x < 1e-12
     share = np.where(small, 1.0, -np.expm1(-x) / np.where(small, 1.0, x))  # (1 − e^-x)/x
     return np.asarray(heat_m, dtype=np.float64) * np.exp(-x) + d * share
+
+
+def motion_heat_one_m(heat_m: float, travel_m: float, elapsed_s: float, tau_s: float) -> float:
+    """:func:`motion_heat_m` for one screw and one stretch, in plain floats: the gateway
+    asks it at every request of an axis without a sensor, where numpy's per-call cost is
+    most of the arithmetic."""
+    if travel_m < 0 or elapsed_s < 0 or tau_s <= 0:
+        raise CompensationError("motion heat: travel and time must be >= 0, tau > 0")
+    x = elapsed_s / tau_s
+    share = 1.0 if x < 1e-12 else -math.expm1(-x) / x  # (1 − e^-x)/x
+    return heat_m * math.exp(-x) + travel_m * share
 
 
 def motion_heat_series_m(travel_m: ArrayLike, elapsed_s: ArrayLike,
