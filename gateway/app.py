@@ -26,7 +26,14 @@ from pathlib import Path
 
 from .compensation import Chain
 from .config import Bus as BusConfig
-from .config import ConfigError, GatewayConfig, TcpListen, bus_silence_s, load_config
+from .config import (
+    ConfigError,
+    GatewayConfig,
+    TcpListen,
+    bus_silence_s,
+    config_crc,
+    load_config,
+)
 from .metrics import MetricsServer
 from .metrics import build as build_metrics
 from .modbus.downstream import Bus, RtuBus, TcpBus
@@ -79,6 +86,11 @@ def load(path: str | Path) -> tuple[GatewayConfig, Chain]:
     return config, build_chain(config, Path(path).resolve().parent)
 
 
+def _load_with_crc(path: str | Path) -> tuple[GatewayConfig, Chain, int]:
+    crc = config_crc(path)  # before the load: a file replaced meanwhile reads as another
+    return (*load(path), crc)
+
+
 class GatewayApp:
     """A running gateway: ``async with GatewayApp(config, chain) as app: app.tcp_port``."""
 
@@ -102,6 +114,7 @@ class GatewayApp:
         self.gateway.status_handler = self.status.handle
         if source is not None:
             self.status.reloader = self.reload_file
+            self.status.config_crc = config_crc(source)
         self._reload_lock = asyncio.Lock()
         self.write_guard = WriteGuard(lambda: self.config.write_protect)
         self.handler = self.write_guard.wrap(self.gateway.handle)
@@ -232,8 +245,10 @@ class GatewayApp:
         async with self._reload_lock:
             began_s = time.monotonic()
             try:
-                new_config, new_chain = await asyncio.to_thread(load, self.source)
+                new_config, new_chain, crc = await asyncio.to_thread(_load_with_crc,
+                                                                     self.source)  # fmt: skip
                 self.reload(new_config, new_chain)
+                self.status.config_crc = crc
             except ConfigError as exc:
                 log.error("reload refused, old config kept: %s", exc)
                 self.status.reloaded(str(exc))

@@ -64,7 +64,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 def _cmd_status(args: argparse.Namespace) -> int:
     from pymodbus.client import ModbusTcpClient
 
-    from .config import ConfigError, load_config
+    from .config import ConfigError, config_crc, load_config
     from .status import INPUT_SIZE, format_status
 
     try:
@@ -96,7 +96,8 @@ def _cmd_status(args: argparse.Namespace) -> int:
     if reply.isError():
         print(f"compgw status: the gateway answered {reply}", file=sys.stderr)
         return EXIT_RUNTIME
-    print(format_status(list(config.axes), list(config.thermal_sources), reply.registers))
+    print(format_status(list(config.axes), list(config.thermal_sources), reply.registers,
+                        (args.config, config_crc(args.config))))  # fmt: skip
     return EXIT_OK
 
 

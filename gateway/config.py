@@ -8,6 +8,7 @@ Table paths are relative to the config file.
 from __future__ import annotations
 
 import ipaddress
+import zlib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -662,6 +663,15 @@ def parse_config(data: Any, source: str = "<config>") -> GatewayConfig:
         return GatewayConfig.model_validate(data)
     except ValidationError as exc:
         raise ConfigError(f"{source}: {format_validation_error(exc, _UNION_TAGS)}") from None
+
+
+def config_crc(path: str | Path) -> int:
+    """CRC-32 of a config file's bytes (the status unit shows the loaded one's; 0 when it
+    cannot be read)."""
+    try:
+        return zlib.crc32(Path(path).read_bytes())
+    except OSError:
+        return 0
 
 
 def load_config(path: str | Path) -> GatewayConfig:

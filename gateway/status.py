@@ -15,6 +15,8 @@ address    meaning
 9-10       feedback reads corrected (uint32)
 11-12      config generation (uint32): 1 at start, +1 at each config reload that took
 13         last reload: 0 none or taken, 1 refused (the old config stays; see the log)
+14-15      CRC-32 of the config file's bytes as last loaded (uint32; 0 when not from a file):
+           whoever writes a config and has it reloaded can tell it is the one running
 16 + 8k    axis k: bit 0 compensation enabled, bit 1 last target corrected (homed and
            enabled when it was sent), bit 2 direction of the last move is −,
            bit 3 thermal correction active on this axis
@@ -60,12 +62,13 @@ from .sensors import SensorSet
 
 log = logging.getLogger(__name__)
 
-MAP_VERSION = 1
+MAP_VERSION = 2  # 2: the config's CRC-32 at 14-15
 AXIS_BASE, AXIS_STRIDE = 16, 8
 SOURCE_BASE, SOURCE_STRIDE = 80, 4
 INPUT_SIZE = 120  # one FC04 reads it all (at most 125 registers)
 RELOAD_REGISTER = 100
 GENERATION_REGISTER = 11
+CONFIG_CRC_REGISTER = 14
 
 #: reloads the config file; returns None when the new config was taken, else why not
 Reloader = Callable[[], Awaitable[str | None]]
@@ -91,6 +94,7 @@ class StatusUnit:
         self.reloader: Reloader | None = None  # set by whoever knows the config file
         self.generation = 1
         self.last_reload_refused = False
+        self.config_crc = 0  # set by whoever knows the config file
 
     def input_registers(self) -> list[int]:
         """The whole input-register image, computed from the live state."""
@@ -107,6 +111,7 @@ class StatusUnit:
         regs[9:11] = _u32(c.feedback_reads)
         regs[11:13] = _u32(self.generation)
         regs[13] = int(self.last_reload_refused)
+        regs[CONFIG_CRC_REGISTER : CONFIG_CRC_REGISTER + 2] = _u32(self.config_crc)
         for k, (name, axis) in enumerate(config.axes.items()):
             base = AXIS_BASE + AXIS_STRIDE * k
             if base + AXIS_STRIDE > SOURCE_BASE:
@@ -199,8 +204,10 @@ class StatusUnit:
         return response_for_write(req)
 
 
-def format_status(names: list[str], sources: list[str], regs: list[int]) -> str:
-    """Human-readable lines from an input-register image (for `compgw status`)."""
+def format_status(names: list[str], sources: list[str], regs: list[int],
+                  config: tuple[str, int] | None = None) -> str:  # fmt: skip
+    """Human-readable lines from an input-register image (for `compgw status`); with
+    ``config`` (a file and its CRC-32), whether that file is the one the gateway runs."""
     from .modbus.frames import unpack_int32
 
     def s32(at: int) -> int:
@@ -218,6 +225,13 @@ def format_status(names: list[str], sources: list[str], regs: list[int]) -> str:
         f"config generation {u32(GENERATION_REGISTER)}"
         f"{', last reload REFUSED' if regs[13] else ''}",
     ]
+    running = u32(CONFIG_CRC_REGISTER) if regs[0] >= 2 else 0
+    if config is not None and running:
+        path, crc = config
+        lines.append(f"config: {path} is what it loaded" if crc == running else
+                     f"config: NOT {path} (the gateway loaded another file or an older "
+                     f"version of it, CRC-32 {running:08x} against {crc:08x}; after an edit, "
+                     "reload it: SIGHUP)")  # fmt: skip
     for k, name in enumerate(names):
         base = AXIS_BASE + AXIS_STRIDE * k
         bits = regs[base]

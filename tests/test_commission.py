@@ -23,7 +23,7 @@ from gateway.calibration.plans import read_plan
 from gateway.calibration.rawdata import read_raw_csv
 from gateway.config import load_config
 from tests.commission_rig import TRAVEL_MM, running, small_machine
-from tests.test_service_helpers import ROOT
+from tests.test_service_helpers import ROOT, Proc
 
 
 @pytest.fixture(scope="module")
@@ -240,6 +240,33 @@ def test_an_abort_leaves_the_gateway_on_your_config(template: Path, tmp_path: Pa
         reloads = [ln for ln in rig.gw.lines if "reloaded" in ln]
         assert len(reloads) >= 2  # identification, then yours again
         assert json.loads(state.read_text())["phase"] == "original"
+
+
+def test_a_config_the_gateway_does_not_run_is_refused_before_anything_moves(
+        template: Path, tmp_path: Path) -> None:  # fmt: skip
+    """-c names a copy of the gateway's config, not the file it runs: the gateway reloads
+    its own file and commissioning would measure and "correct" a machine whose tables
+    never change. The gateway's status unit shows the loaded file's CRC-32, so the first
+    reload says so: exit 1, the file to give, no reading taken, the copy back as it was."""
+    with running(template, tmp_path / "m") as rig:
+        copy = rig.dir / "elsewhere" / "gw.yaml"
+        copy.parent.mkdir()
+        copy.write_text(rig.config.read_text())
+        original = rig.config.read_text()
+        args = rig.commission_args("--budget-h", "1")
+        args[args.index("-c") + 1] = str(copy)
+        proc = Proc(args)
+        assert proc.popen.wait(timeout=120) == 1, proc.text()
+        assert f"runs another config file than {copy}" in proc.text()
+        assert "give -c the file the gateway was started with" in proc.text()
+        assert "run the same command again" not in proc.text()
+        state = json.loads((copy.parent / "commission" / "commission.json").read_text())
+        assert not state["steps"] and not (copy.parent / "commission" / "raw").exists()
+        assert copy.read_text() == original and rig.config.read_text() == original
+        status = subprocess.run([sys.executable, "-m", "gateway.cli", "status", "-c", str(copy),
+                                 "--port", str(rig.gw_port)], cwd=ROOT, capture_output=True,
+                                text=True)  # fmt: skip
+        assert f"config: {copy} is what it loaded" in status.stdout, status.stdout
 
 
 def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path: Path) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import signal
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ from pymodbus.client import AsyncModbusTcpClient, ModbusTcpClient
 from gateway.app import load
 from gateway.compensation import AxisInput
 from gateway.modbus.frames import pack_int32, unpack_int32
-from gateway.status import GENERATION_REGISTER, RELOAD_REGISTER
+from gateway.status import CONFIG_CRC_REGISTER, GENERATION_REGISTER, RELOAD_REGISTER
 from tests.gateway_rig import TARGET, TRIGGER, rig
 from tests.helpers_modbus import run
 from tests.test_gateway_e2e import PITCH_X
@@ -117,6 +118,10 @@ def test_reload_over_modbus_with_remote_control(tmp_path: Path) -> None:
         rr = await master.read_input_registers(GENERATION_REGISTER, count=3, device_id=247)
         return (rr.registers[0] << 16) | rr.registers[1], rr.registers[2]
 
+    async def loaded_crc(master) -> int:  # the CRC-32 of the file as last loaded
+        rr = await master.read_input_registers(CONFIG_CRC_REGISTER, count=2, device_id=247)
+        return (rr.registers[0] << 16) | rr.registers[1]
+
     async def body() -> None:
         async with rig(tmp_path, edit, {"x.csv": PITCH_X}) as r:
             master, direct, path = r["master"], r["direct"], r["config_path"]
@@ -126,8 +131,10 @@ def test_reload_over_modbus_with_remote_control(tmp_path: Path) -> None:
             data = yaml.safe_load(path.read_text())
             data["axes"]["X"]["compensation"]["pitch"] = "x.csv"
             path.write_text(yaml.safe_dump(data))
+            started = await loaded_crc(master)
             assert not (await master.write_register(RELOAD_REGISTER, 1, device_id=247)).isError()
             assert await generation(master) == (2, 0)
+            assert await loaded_crc(master) == zlib.crc32(path.read_bytes()) != started
             await move_async(master, 1, 310_000)
             assert await read32_async(direct, 1, 0x6201) != 310_000  # the table is on
             data["axes"]["X"]["compensation"]["pitch"] = "missing.csv"
@@ -135,6 +142,7 @@ def test_reload_over_modbus_with_remote_control(tmp_path: Path) -> None:
             rr = await master.write_register(RELOAD_REGISTER, 1, device_id=247)
             assert rr.isError() and rr.exception_code == 0x04
             assert await generation(master) == (2, 1)  # refused, the old one stays
+            assert await loaded_crc(master) != zlib.crc32(path.read_bytes())
             await move_async(master, 1, 320_000)
             assert await read32_async(direct, 1, 0x6201) != 320_000
             data["status"]["remote_control"] = False

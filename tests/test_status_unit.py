@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import zlib
 from pathlib import Path
 
 from gateway.compensation import AxisInput
@@ -32,7 +33,7 @@ def test_status_reports_state_counters_and_sources(tmp_path: Path):
             rr = await master.read_input_registers(0, count=120, device_id=STATUS_UNIT)
             assert not rr.isError()
             regs = rr.registers
-            assert regs[0] == 1 and regs[1] == 2
+            assert regs[0] == 2 and regs[1] == 2
             assert unpack_int32(regs[3:5], "hi_lo", signed=False) == 3  # commits
             x = regs[16:24]
             assert x[0] & 0b1011 == 0b1011  # enabled, corrected, thermal active
@@ -44,6 +45,14 @@ def test_status_reports_state_counters_and_sources(tmp_path: Path):
             assert regs[80] in (0, 1)  # the source is starting or ok
             text = format_status(["X", "Y"], ["x_ref"], regs)
             assert "axis Y: compensation on" in text and "direction -" in text
+            # the loaded file's CRC-32: `compgw status -c FILE` says whether FILE is running
+            path = r["config_path"]
+            crc = zlib.crc32(path.read_bytes())
+            assert unpack_int32(regs[14:16], "hi_lo", signed=False) == crc
+            assert f"config: {path} is what it loaded" in format_status(
+                ["X", "Y"], ["x_ref"], regs, (str(path), crc))  # fmt: skip
+            assert f"config: NOT {path}" in format_status(
+                ["X", "Y"], ["x_ref"], regs, (str(path), crc ^ 1))  # fmt: skip
             # holding registers: the switches; writing them is refused by default
             rr = await master.read_holding_registers(0, count=2, device_id=STATUS_UNIT)
             assert rr.registers == [1, 1]

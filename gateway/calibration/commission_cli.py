@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from ..compensation.errors import CompensationError, TableError
-from ..config import ConfigError, GatewayConfig, load_config
+from ..config import ConfigError, GatewayConfig, config_crc, load_config
 from .cli_common import progress_bar, until_stopped
 
 EXIT_OK, EXIT_NOT_MET, EXIT_USAGE, EXIT_RUNTIME = 0, 1, 2, 3
@@ -141,15 +141,19 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
 
     from ..modbus.frames import unpack_int32
     from ..status import GENERATION_REGISTER, RELOAD_REGISTER
-    from .machine import MachineError, reraise_cancel
+    from .machine import ConfigMismatch, MachineError, reraise_cancel
 
     unit = config.status.upstream_unit
 
-    async def generation(client: AsyncModbusTcpClient) -> tuple[int, int]:
-        rr = await client.read_input_registers(GENERATION_REGISTER, count=3, device_id=unit)
+    async def generation(client: AsyncModbusTcpClient) -> tuple[int, int, int]:
+        """The config generation, whether the last reload was refused, the loaded file's
+        CRC-32 (0 from a gateway that does not show it)."""
+        rr = await client.read_input_registers(GENERATION_REGISTER, count=5, device_id=unit)
         if rr.isError():
             raise MachineError(f"the gateway's status unit {unit} answered {rr}")
-        return unpack_int32(rr.registers[:2], "hi_lo", signed=False), rr.registers[2]
+        regs = rr.registers
+        return (unpack_int32(regs[:2], "hi_lo", signed=False), regs[2],
+                unpack_int32(regs[3:5], "hi_lo", signed=False))  # fmt: skip
 
     async def reload() -> None:
         # the gateway answers the reload write once it has loaded the tables: on a loaded
@@ -161,7 +165,8 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
         if not connected:
             raise MachineError(f"no gateway at {gateway.host}:{gateway.port}")
         try:
-            before, _ = await _modbus(generation(client), "reading its config generation")
+            before, _, _ = await _modbus(generation(client), "reading its config generation")
+            want = config_crc(args.config)  # the file just written, that it is to load
             if args.reload_pid or args.reload_cmd:
                 if args.reload_pid:
                     os.kill(args.reload_pid, signal.SIGHUP)
@@ -178,13 +183,20 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
                                        "status.remote_control: true, or give --reload-pid or "
                                        "--reload-cmd")  # fmt: skip
             for _ in range(int(RELOAD_TIMEOUT_S / 0.05)):
-                now, refused = await _modbus(generation(client), "reading its config generation")
+                now, refused, crc = await _modbus(generation(client),
+                                                  "reading its config generation")  # fmt: skip
                 if now != before or refused:
                     break
                 await asyncio.sleep(0.05)
             if now == before:
                 why = "refused the config (see its log)" if refused else "did not reload"
                 raise MachineError(f"the gateway {why}")
+            if crc and crc != want:
+                raise ConfigMismatch(
+                    f"the gateway at {gateway.host}:{gateway.port} runs another config file "
+                    f"than {args.config} (it reloaded a file of CRC-32 {crc:08x}, not the "
+                    f"{want:08x} written here): give -c the file the gateway was started with "
+                    "(`compgw run -c FILE`; `compgw status -c FILE` says whether it is)")
         finally:
             client.close()
 
@@ -198,7 +210,7 @@ def main(args: argparse.Namespace) -> int:
     from .commission_report import summary_lines
     from .commission_report import write as write_report
     from .commission_steps import CommissionAborted, Settings
-    from .machine import Endpoint, MachineError, MotionSettings
+    from .machine import ConfigMismatch, Endpoint, MachineError, MotionSettings
     from .session import Instruments
 
     try:
@@ -275,6 +287,9 @@ def main(args: argparse.Namespace) -> int:
              "the same command again to resume")  # fmt: skip
         return EXIT_RUNTIME
     except CommissionAborted as exc:
+        if isinstance(exc.__cause__, ConfigMismatch):  # nothing to resume: the wrong file
+            _err(f"aborted: {exc}")
+            return EXIT_NOT_MET
         _err(f"aborted: {exc}; run the same command again to resume")
         return EXIT_RUNTIME
     except (TableError, CompensationError, ConfigError) as exc:

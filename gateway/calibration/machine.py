@@ -43,6 +43,10 @@ class MachineError(RuntimeError):
     """The machine or an instrument did not do what was asked (Modbus error, alarm, timeout)."""
 
 
+class ConfigMismatch(MachineError):
+    """The gateway reloaded, but not the file written for it (``-c`` names another)."""
+
+
 @dataclass(frozen=True)
 class Endpoint:
     """A Modbus TCP device: host, port, unit id and (optional) first register address."""
