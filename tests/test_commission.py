@@ -167,6 +167,16 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         faded = last is not None and pin_fades(last.split()[0])
         assert (out / "tables" / FRAME_FILE).exists() == faded, state["planar_fits"]
         assert not reframe_plane(load_config(rig.config), rig.config.parent)
+        # the same command again asks nothing more: it says so and moves nothing (run
+        # again, it would take the references anew and judge old readings against them)
+        kept = {p: p.read_bytes() for p in (out / "summary.json", out / "commission.json",
+                                            rig.config)}  # fmt: skip
+        reloads = sum("reloaded" in ln for ln in rig.gw.lines)
+        again = rig.commission("--tolerance-um", "1", "--budget-h", "1.7")
+        assert again.popen.wait(timeout=60) == rc, again.text()
+        assert "commissioned already" in again.text() and "nothing moves" in again.text()
+        assert all(p.read_bytes() == b for p, b in kept.items())
+        assert sum("reloaded" in ln for ln in rig.gw.lines) == reloads
 
 
 def remeasured(proc, done: set[str]) -> list[str]:  # type: ignore[no-untyped-def]

@@ -241,9 +241,31 @@ class Commission(ShortBudget):
         self.rotary_plan_lines()
         return total
 
+    def _asked(self) -> dict[str, float]:
+        """What this command asks of the commissioning: more of any of it carries on a
+        finished one."""
+        return {"budget_s": self.s.budget_s, "max_rounds": self.s.max_rounds,
+                "tolerance_um": -self.s.tolerance_um,
+                "tolerance_arcsec": -self.s.tolerance_arcsec}  # fmt: skip
+
+    def finished(self) -> dict[str, Any] | None:
+        """The summary of a commissioning that finished in this directory and that this
+        command asks nothing more of (no larger budget, tighter tolerance or more rounds):
+        run again, it would only take the references anew and judge old readings against
+        them, so it is not run again."""
+        done = self.state.get("finished")
+        path = self.dir / "summary.json"
+        if done is None or not path.exists():
+            return None
+        if any(v > done["asked"].get(k, v) + 1e-9 for k, v in self._asked().items()):
+            return None
+        return dict(json.loads(path.read_text()))
+
     async def run(self) -> dict[str, Any]:
         """Commission; returns the summary (also in DIR/summary.json). Raises
         CommissionAborted (after restoring the user's config) on a machine fault."""
+        if self.state.pop("finished", None) is not None:  # asked for more: carries on
+            self._save()
         self.original()
         try:
             await self._identify()
@@ -276,6 +298,8 @@ class Commission(ShortBudget):
         summary = self.summary(outcome)
         atomic_write_text(self.dir / "summary.json", json.dumps(summary, indent=1,
                                                                 default=_plain))  # fmt: skip
+        self.state["finished"] = {"outcome": outcome, "asked": self._asked()}
+        self._save()
         return summary
 
     # -- 1. identification ---------------------------------------------------------------

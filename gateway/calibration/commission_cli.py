@@ -258,10 +258,20 @@ def main(args: argparse.Namespace) -> int:
         )  # fmt: skip
         reload = make_reload(args, config, gateway)
         job = Commission(settings, reload, print, None)
-        job.print_plan()
+        finished = job.finished()
+        if finished is None:
+            job.print_plan()
     except (ConfigError, TableError, CompensationError, ValueError, OSError) as exc:
         _err(exc)
         return EXIT_NOT_MET
+    if finished is not None:
+        print(f"commissioned already in {settings.out_dir} ({finished['outcome']}, "
+              f"{finished['machine_h']:.2f} h of machine time): nothing moves. For more, give "
+              "a larger --budget-h, a tighter --tolerance-um or more --max-rounds; to start "
+              "over, remove that directory or give --out")  # fmt: skip
+        print("\n".join(summary_lines(finished)))
+        print(f"report: {settings.out_dir / 'report' / 'report.html'}")
+        return EXIT_OK if args.dry_run or finished["outcome"] == "within" else EXIT_NOT_MET
     if args.dry_run:
         return EXIT_OK
 
