@@ -279,6 +279,27 @@ def test_a_config_the_gateway_does_not_run_is_refused_before_anything_moves(
         assert f"config: {copy} is what it loaded" in status.stdout, status.stdout
 
 
+def test_laser_channels_in_the_wrong_order_are_caught_at_the_first_references(
+        template: Path, tmp_path: Path) -> None:  # fmt: skip
+    """--laser-axes swapped: the first thing measured, each axis's two drift references,
+    shows the reading for X not following X. Exit 1 naming the option, before any
+    identification reading is kept; the right order then commissions from the start."""
+    with running(template, tmp_path / "m") as rig:
+        original = rig.config.read_text()
+        proc = rig.commission("--laser-axes", "Y,X", "--budget-h", "0.05")
+        assert proc.popen.wait(timeout=120) == 1, proc.text()
+        text = proc.text()
+        assert "the laser's reading for axis X (channel 2, by --laser-axes Y,X)" in text, text
+        assert "give --laser-axes in the laser's channel order" in text
+        assert "run the same command again" not in text
+        out = rig.dir / "commission"
+        assert not json.loads((out / "commission.json").read_text())["steps"]
+        assert rig.config.read_text() == original
+        again = rig.commission("--laser-axes", "X,Y", "--budget-h", "0.05")
+        assert again.popen.wait(timeout=120) == 1, again.text()  # the budget, not the laser
+        assert json.loads((out / "summary.json").read_text())["outcome"] == "budget"
+
+
 def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path: Path) -> None:
     with running(template, tmp_path / "m") as rig:
         original = rig.config.read_text()

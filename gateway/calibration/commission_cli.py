@@ -141,7 +141,7 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
 
     from ..modbus.frames import unpack_int32
     from ..status import GENERATION_REGISTER, RELOAD_REGISTER
-    from .machine import ConfigMismatch, MachineError, reraise_cancel
+    from .machine import MachineError, SetupError, reraise_cancel
 
     unit = config.status.upstream_unit
 
@@ -192,7 +192,7 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
                 why = "refused the config (see its log)" if refused else "did not reload"
                 raise MachineError(f"the gateway {why}")
             if crc and crc != want:
-                raise ConfigMismatch(
+                raise SetupError(
                     f"the gateway at {gateway.host}:{gateway.port} runs another config file "
                     f"than {args.config} (it reloaded a file of CRC-32 {crc:08x}, not the "
                     f"{want:08x} written here): give -c the file the gateway was started with "
@@ -210,7 +210,7 @@ def main(args: argparse.Namespace) -> int:
     from .commission_report import summary_lines
     from .commission_report import write as write_report
     from .commission_steps import CommissionAborted, Settings
-    from .machine import ConfigMismatch, Endpoint, MachineError, MotionSettings
+    from .machine import Endpoint, MachineError, MotionSettings, SetupError
     from .session import Instruments
 
     try:
@@ -297,7 +297,7 @@ def main(args: argparse.Namespace) -> int:
              "the same command again to resume")  # fmt: skip
         return EXIT_RUNTIME
     except CommissionAborted as exc:
-        if isinstance(exc.__cause__, ConfigMismatch):  # nothing to resume: the wrong file
+        if isinstance(exc.__cause__, SetupError):  # the command line, not the machine
             _err(f"aborted: {exc}")
             return EXIT_NOT_MET
         _err(f"aborted: {exc}; run the same command again to resume")

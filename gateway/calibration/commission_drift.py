@@ -135,6 +135,7 @@ class DriftRefs:
                         readings.append((await laser.read_mm([a]))[a] - x)
                     devs.append(float(np.mean(readings)))
                     self._pool_ref_scatter(a, readings)
+                self._check_channel(a, order, devs)
                 out[a] = devs
                 cost += self.refs_cost_s([a], repeats)
         finally:
@@ -145,6 +146,23 @@ class DriftRefs:
         self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out,
                                    "odometer_mm": self._odometer()}  # fmt: skip
         return out
+
+    def _check_channel(self, axis: str, order: Sequence[str], devs_mm: Sequence[float]) -> None:
+        """The laser's reading for ``axis`` follows it between its two references (the
+        first thing commissioning measures): within 5 % of how far the axis was sent, or
+        the channels are not in the order given, or the beam is on another axis."""
+        from .machine import SetupError
+
+        x0, x1 = self._ref_positions(axis)
+        sent = x1 - x0
+        seen = sent + devs_mm[1] - devs_mm[0]
+        if abs(seen - sent) > 0.05 * abs(sent):
+            given = (f"--laser-axes {','.join(order)}" if self.s.instruments.laser_axes
+                     else f"the config's axis order {','.join(order)}; --laser-axes sets it")
+            raise SetupError(f"the laser's reading for axis {axis} (channel "
+                             f"{list(order).index(axis) + 1}, by {given}) moved {seen:.3f} mm "
+                             f"while {axis} was sent {sent:.3f} mm: give --laser-axes in the "
+                             f"laser's channel order, and check its beam is on {axis}")  # fmt: skip
 
     def _refs_unmoved(self) -> dict[str, list[float]] | None:
         """The drift references read last (mm), when this process read them and nothing has

@@ -43,8 +43,10 @@ class MachineError(RuntimeError):
     """The machine or an instrument did not do what was asked (Modbus error, alarm, timeout)."""
 
 
-class ConfigMismatch(MachineError):
-    """The gateway reloaded, but not the file written for it (``-c`` names another)."""
+class SetupError(MachineError):
+    """What the command line says does not match the machine (the gateway runs another
+    config file than ``-c``; a laser channel does not follow its axis): fixed by the
+    command line, not by resuming."""
 
 
 @dataclass(frozen=True)
