@@ -23,6 +23,10 @@ def write_machine_dir(seed: int | None, roughness: str, real: str | None, out: s
             assert seed is not None
             spec = random_machine(seed, roughness)
             out_dir = Path(out or f"random-machine-{seed}-{roughness}")
+        held = [f for f in ("gateway.yaml", "sim.yaml") if (out_dir / f).exists()]
+        if held:  # a machine written before, perhaps commissioned since: not overwritten
+            raise ValueError(f"{out_dir} already holds a machine ({', '.join(held)}): give "
+                             "another --out, or remove it first")  # fmt: skip
         write_machine(spec, out_dir)
     except (ValueError, OSError, KeyError) as err:
         print(f"compgw sim: {err}", file=sys.stderr)

@@ -57,6 +57,12 @@ def test_same_seed_same_bytes_other_seed_other_machine(tmp_path):
                       "truth/Y_cyclic.csv", "truth/xy_field.csv"}  # fmt: skip
     assert a == b
     assert a["truth/X_deviation.csv"] != c["truth/X_deviation.csv"]
+    # a directory that holds a machine (perhaps commissioned since) is not written over
+    (tmp_path / "a" / "gateway.yaml").write_text("mine\n")
+    again = subprocess.run([*argv[:5], "6", *argv[6:], str(tmp_path / "a")],
+                           capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert again.returncode == 1 and "already holds a machine" in again.stderr, again.stderr
+    assert (tmp_path / "a" / "gateway.yaml").read_text() == "mine\n"
 
 
 def test_rough_carries_structure_no_stage_models_smooth_does_not(tmp_path):

@@ -238,6 +238,14 @@ class Commission(ShortBudget):
                      "table misses between its points) and the plane's grid first, then "
                      "the backlash tests and before-runs, the lead searches and cyclic scans "
                      "last, as the budget allows")  # fmt: skip
+        ins = self.s.instruments
+        kinds = {self._source_kind(a) for a in self.s.axes}
+        for option, given, used in (("--delta-a", ins.delta_a, kinds - {None, "temperature"}),
+                                    ("--temperature", ins.temperature, kinds & {"temperature"})):
+            if given is not None and not used:
+                self.say(f"  {option} is given, but no commissioned axis's thermal setting "
+                         f"reads a source of that kind (axes.<name>.compensation.thermal."
+                         "source): no warm-up uses it")  # fmt: skip
         self.rotary_plan_lines()
         return total
 
@@ -279,7 +287,7 @@ class Commission(ShortBudget):
             self._restore_best()  # a refinement not yet judged is not kept
             await self._fit_identified()
         except (MachineError, OSError) as exc:
-            where = await self.restore()
+            where = await self.restore(exc)
             raise CommissionAborted(f"{exc}; {where}") from exc
         self.fit_motion_heat()
         try:

@@ -37,6 +37,20 @@ Exit 0: within tolerance; 1: not met (budget, rounds, repeatability: see the rep
 bad input; 3: the machine or gateway failed."""
 
 
+def _above(least: float, what: str, kind: type = float) -> Callable[[str], Any]:
+    """An argparse type: a finite number above ``least`` (``what`` says its unit)."""
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number ({what})") from None
+        if not (math.isfinite(value) and value > least):
+            raise argparse.ArgumentTypeError(f"{text} must be above {least:g} ({what})")
+        return value
+
+    return parse
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser("commission", help="identify, fit, verify and refine until within "
                        "tolerance: one command", description=HELP,
@@ -70,27 +84,29 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    "period in degrees (360/teeth; not searched for)")  # fmt: skip
     p.add_argument("--no-lead-search", action="store_true",
                    help="axes without --lead-mm get no cyclic stage (no search scan)")
-    p.add_argument("--tolerance-um", type=float, default=2.0, metavar="T",
+    p.add_argument("--tolerance-um", type=_above(0, "µm"), default=2.0, metavar="T",
                    help="ISO 230-2 E (XY: max vector error) between the points (2)")
-    p.add_argument("--tolerance-arcsec", type=float, default=3.0, metavar="T",
+    p.add_argument("--tolerance-arcsec", type=_above(0, "arcseconds"), default=3.0, metavar="T",
                    help="rotary axes: ISO 230-2 E between the points, arcseconds (3)")
-    p.add_argument("--budget-h", type=float, default=8.0, metavar="H",
+    p.add_argument("--budget-h", type=_above(0, "hours of machine time"), default=8.0, metavar="H",
                    help="machine time at most (8 h, plan estimate)")
     p.add_argument("--out", metavar="DIR", help="working directory (default: "
                    "commission/ beside the config)")  # fmt: skip
-    p.add_argument("--max-rounds", type=int, default=6)
-    p.add_argument("--warmup-min", type=float, default=30.0, help="warm-up length (30)")
+    p.add_argument("--max-rounds", type=_above(0, "verification rounds", int), default=6)
+    p.add_argument("--warmup-min", type=_above(0, "minutes"), default=30.0,
+                   help="warm-up length (30)")
     p.add_argument("--seed", type=int, default=0, help="random verification targets")
     p.add_argument("--dry-run", action="store_true", help="print the plan and stop")
     p.add_argument("--reload-pid", type=int, metavar="PID", help="reload by SIGHUP")
     p.add_argument("--reload-cmd", metavar="CMD", help="reload by a command")
-    p.add_argument("--estimate-speed-mm-s", type=float, default=100.0)
-    p.add_argument("--estimate-stop-s", type=float, default=2.0)
+    p.add_argument("--estimate-speed-mm-s", type=_above(0, "mm/s"), default=100.0,
+                   help="the axes' speed, for the machine-time estimates (100)")
+    p.add_argument("--estimate-stop-s", type=_above(0, "s per reading"), default=2.0)
     p.add_argument("--in-position-bit", type=int, default=4)
     p.add_argument("--moving-bit", type=int, default=2)
     p.add_argument("--alarm-bit", type=int, default=0)
     p.add_argument("--in-position-pulses", type=float, default=2.0)
-    p.add_argument("--timeout-s", type=float, default=120.0)
+    p.add_argument("--timeout-s", type=_above(0, "s"), default=120.0)
     p.add_argument("--progress", action="store_true", help="progress bar even off a terminal")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=main)
@@ -179,9 +195,10 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
                     rr = None  # the generation says whether it was taken
                 reraise_cancel()
                 if rr is not None and rr.isError() and rr.exception_code == 0x01:
-                    raise MachineError("the gateway refuses to reload over Modbus: set "
-                                       "status.remote_control: true, or give --reload-pid or "
-                                       "--reload-cmd")  # fmt: skip
+                    raise SetupError("the gateway refuses to reload over Modbus: set "
+                                     "status.remote_control: true in its config (then restart "
+                                     "it or send it SIGHUP), or give --reload-pid or "
+                                     "--reload-cmd")  # fmt: skip
             for _ in range(int(RELOAD_TIMEOUT_S / 0.05)):
                 now, refused, crc = await _modbus(generation(client),
                                                   "reading its config generation")  # fmt: skip
@@ -219,7 +236,8 @@ def main(args: argparse.Namespace) -> int:
         axes = tuple(args.axes.split(",")) if args.axes else tuple(config.axes)
         for a in axes:
             if a not in config.axes:
-                raise TableError(f"--axes: {a!r} is not an axis of {config_path}")
+                raise TableError(f"--axes: {a!r} is not an axis of {config_path} "
+                             f"({', '.join(config.axes)})")  # fmt: skip
             if config.axes[a].rotary and args.angle is None:
                 raise TableError(f"axis {a} is rotary: give its angle instrument, --angle "
                                  "HOST:PORT:UNIT (or leave it out with --axes)")  # fmt: skip
@@ -333,14 +351,23 @@ def parse_leads(text: str | None, axes: Sequence[str]) -> dict[str, float]:
     if not text:
         return {}
     if "=" not in text:
-        lead = float(text)
-        if not (math.isfinite(lead) and lead > 0):
-            raise ValueError(f"--lead-mm {text!r} must be > 0")
-        return dict.fromkeys(axes, lead)
+        return dict.fromkeys(axes, _lead(text, text))
     out = {}
     for item in text.split(","):
         name, _, value = item.partition("=")
         if name.strip() not in axes:
-            raise ValueError(f"--lead-mm {item!r}: {name.strip()!r} is not a commissioned axis")
-        out[name.strip()] = float(value)
+            raise ValueError(f"--lead-mm {item!r}: {name.strip()!r} is not a commissioned axis "
+                             f"({', '.join(axes)})")  # fmt: skip
+        out[name.strip()] = _lead(value, item)
     return out
+
+
+def _lead(value: str, item: str) -> float:
+    try:
+        lead = float(value)
+    except ValueError:
+        lead = math.nan
+    if not (math.isfinite(lead) and lead > 0):
+        raise ValueError(f"--lead-mm {item!r}: the lead in mm above 0, as 10 (every axis) or "
+                         "X=10,Y=5")  # fmt: skip
+    return lead

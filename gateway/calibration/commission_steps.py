@@ -265,8 +265,9 @@ class Steps(DriftRefs):
             datas.append(data)
         return concat_raw(datas)
 
-    async def restore(self) -> str:
-        """Put the user's own config back and have the gateway load it; says what happened."""
+    async def restore(self, failed: BaseException | None = None) -> str:
+        """Put the user's own config back and have the gateway load it; says what happened
+        (``failed``: what stopped the commissioning, not said twice)."""
         if not self.original_path.exists():
             return "the gateway's config file was not changed"
         shutil.copyfile(self.original_path, self.s.config_path)
@@ -275,8 +276,10 @@ class Steps(DriftRefs):
         try:
             await self.reload_fn()
         except Exception as exc:  # the gateway may be down: it loads the file at its start
+            why = ("for the same reason" if failed is not None and str(exc) == str(failed)
+                   else str(exc))  # fmt: skip
             return (f"your own config is back in {self.s.config_path} (the gateway did not "
-                    f"reload it: {exc}; it loads it when it starts)")  # fmt: skip
+                    f"reload it: {why}; it loads it when it starts)")  # fmt: skip
         return f"the gateway runs your own config again ({self.s.config_path})"
 
     # -- steps ---------------------------------------------------------------------------
