@@ -8,6 +8,7 @@ from __future__ import annotations
 import itertools
 import json
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -317,6 +318,23 @@ def test_a_gateway_that_refuses_remote_reloads_is_said_once(tmp_path: Path) -> N
         assert "did not reload it: for the same reason" in text
         assert "run the same command again" not in text
         assert rig.config.read_text() == original
+
+
+def test_an_instrument_that_does_not_answer_is_named_by_its_option(
+        template: Path, tmp_path: Path) -> None:  # fmt: skip
+    """A laser at a port nobody listens on, then at a unit the device does not have: the
+    abort names the option (--laser), not only an address and an exception code."""
+    with socket.socket() as s:  # a loopback port just free: nobody listens there
+        s.bind(("127.0.0.1", 0))
+        free = s.getsockname()[1]
+    with running(template, tmp_path / "m") as rig:
+        args = rig.commission_args("--budget-h", "1")
+        at = args.index("--laser") + 1
+        for laser in (f"127.0.0.1:{free}:20", f"127.0.0.1:{rig.sim_port}:30"):
+            args[at] = laser
+            proc = Proc(args)
+            assert proc.popen.wait(timeout=120) == 3, proc.text()
+            assert f"(that is --laser {laser})" in proc.text(), proc.text()
 
 
 def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path: Path) -> None:

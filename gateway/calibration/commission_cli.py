@@ -318,7 +318,8 @@ def main(args: argparse.Namespace) -> int:
         if isinstance(exc.__cause__, SetupError):  # the command line, not the machine
             _err(f"aborted: {exc}")
             return EXIT_NOT_MET
-        _err(f"aborted: {exc}; run the same command again to resume")
+        _err(f"aborted: {exc}{_options_at(str(exc.__cause__ or exc), settings)}; run the same "
+             "command again to resume")  # fmt: skip
         return EXIT_RUNTIME
     except (TableError, CompensationError, ConfigError) as exc:
         where = asyncio.run(_restore(job))
@@ -326,7 +327,8 @@ def main(args: argparse.Namespace) -> int:
         return EXIT_NOT_MET
     except (MachineError, OSError, ModbusException) as exc:  # a timeout, a lost link
         where = asyncio.run(_restore(job))
-        _err(f"{exc}; {where}; run the same command again to resume")
+        _err(f"{exc}{_options_at(str(exc), settings)}; {where}; run the same command again to "
+             "resume")  # fmt: skip
         return EXIT_RUNTIME
 
     def load(step: str):  # type: ignore[no-untyped-def]
@@ -336,6 +338,26 @@ def main(args: argparse.Namespace) -> int:
     print("\n".join(summary_lines(summary)))
     print(f"report: {report}")
     return EXIT_OK if summary["outcome"] == "within" else EXIT_NOT_MET
+
+
+def _options_at(message: str, settings: Any) -> str:
+    """Which of the command line's devices a Modbus error names (by HOST:PORT, and unit
+    where it says one), so a wrong --laser reads as one: " (that is --laser …)"."""
+    ins = settings.instruments
+    named = []
+    for option, ep in (("--laser", ins.laser), ("--xy-device", ins.xy), ("--angle", ins.angle),
+                       ("--delta-a", ins.delta_a), ("--temperature", ins.temperature),
+                       ("--gateway", settings.gateway)):  # fmt: skip
+        if ep is None or f"{ep.host}:{ep.port}" not in message:
+            continue
+        unit = getattr(ep, "unit", None)
+        if option != "--gateway" and "unit " in message and f"unit {unit}" not in message:
+            continue
+        named.append(f"{option} {ep.host}:{ep.port}" + (f":{unit}" if option != "--gateway"
+                                                         else ""))  # fmt: skip
+        if option != "--gateway":
+            break  # an instrument named: not also the gateway it may be reached through
+    return f" (that is {', '.join(named)})" if named else ""
 
 
 async def _restore(job) -> str:  # type: ignore[no-untyped-def]
