@@ -14,6 +14,7 @@ from gateway.calibration.iso230 import JSON_KEYS
 from gateway.calibration.plans import iso230_linear_plan
 from gateway.calibration.plans_xy import xy_grid_plan
 from gateway.calibration.rawdata import RawWriter
+from gateway.calibration.report import change_text
 from gateway.cli import main
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -97,3 +98,9 @@ def test_report_renders_in_headless_chromium(runs, tmp_path):
                    capture_output=True, timeout=60, check=True)  # fmt: skip
     assert shot.stat().st_size > 10_000
 
+
+
+def test_a_figure_that_grew_reads_more_not_a_negative_less() -> None:
+    assert change_text(10.0, 1.0) == "90 % less"
+    assert change_text(4.74, 6.21) == "31 % more"  # a repeatability that rose
+    assert change_text(1.0, 1.004) == "0 % less"  # not "-0 % less"

@@ -237,7 +237,9 @@ class Commission(ShortBudget):
             self.say("  a short budget: every axis's ISO runs (and their midpoints where a "
                      "table misses between its points) and the plane's grid first, then "
                      "the backlash tests and before-runs, the lead searches and cyclic scans "
-                     "last, as the budget allows")  # fmt: skip
+                     "last, as the budget allows; no round will refine the plane, so its grid "
+                     "is made as dense as the budget then left holds (more readings than the "
+                     "xy-grid line above: the budget is spent, not exceeded)")  # fmt: skip
         ins = self.s.instruments
         kinds = {self._source_kind(a) for a in self.s.axes}
         for option, given, used in (("--delta-a", ins.delta_a, kinds - {None, "temperature"}),

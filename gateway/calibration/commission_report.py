@@ -20,6 +20,7 @@ from .report import (
     _figures_table,
     _img,
     _page,
+    change_text,
     plot_axis,
     plot_xy,
     write_report,
@@ -93,7 +94,7 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
             u = _unit(entry)
             eb, ea = _fig(b, "E") or 0.0, _fig(a, "E") or 0.0
             lines.append(f"{axis}: E {eb:.2f} → {ea:.2f}{u} "
-                         f"({100 * (1 - ea / eb) if eb else 0:.0f} % less), A "
+                         f"({change_text(eb, ea) if eb else '–'}), A "
                          f"{_fig(b, 'A') or 0:.2f} → {_fig(a, 'A') or 0:.2f}{u} (R "
                          f"{_fig(a, 'R') or 0:.2f}), {entry.get('table_points')} table points"
                          + (f", {entry['interpolation']} interpolation"
@@ -101,7 +102,7 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
     xy = summary.get("xy") or {}
     if xy.get("before") and xy.get("after"):
         b, a = xy["before"]["max_um"], xy["after"]["max_um"]
-        lines.append(f"XY max vector error {b:.2f} → {a:.2f} µm ({100 * (1 - a / b):.0f} % less)")
+        lines.append(f"XY max vector error {b:.2f} → {a:.2f} µm ({change_text(b, a)})")
     if summary.get("retried"):
         lines.append(f"{summary['retried']} Modbus requests answered only when tried again "
                      "(exception 6 or 11: a drive or instrument slow to answer; if many, "
@@ -169,8 +170,11 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
                  "time an axis misses, if the budget allows, a sweep of its whole travel "
                  "gives it a point at every target read and the cyclic term a station every "
                  "few leads).</p>"
-                 f"<table id='rounds'><tr><th>round</th><th>verification ({round_units})</th>"
-                 "<th>then</th><th>machine h so far</th></tr>" + "".join(rrows) + "</table>")
+                 + (f"<table id='rounds'><tr><th>round</th><th>verification ({round_units})"
+                    "</th><th>then</th><th>machine h so far</th></tr>" + "".join(rrows)
+                    + "</table>" if rrows else
+                    "<p id='rounds'>No round ran: the budget was spent before the first "
+                    "verification (see what remains, above).</p>"))  # fmt: skip
     ident = summary.get("identify", {})
     if ident:
         items = "".join(f"<li>{html.escape(k)}: {html.escape(_short(v))}</li>"

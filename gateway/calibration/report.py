@@ -157,6 +157,13 @@ def _f(value: float | None, digits: int = 2) -> str:
     return "–" if value is None else f"{value:.{digits}f}"
 
 
+def change_text(before: float, after: float) -> str:
+    """"31 % less" (or "12 % more": a figure that grew says so) from ``before`` to
+    ``after`` (magnitudes)."""
+    pct = round(100 * (1 - abs(after) / abs(before)))
+    return f"{pct} % less" if pct >= 0 else f"{-pct} % more"
+
+
 # -- HTML ---------------------------------------------------------------------------------------
 def _figures_table(axis: str, results: dict[str, Iso230Result], units: Units = LINEAR) -> str:
     phases = list(results)
@@ -169,7 +176,7 @@ def _figures_table(axis: str, results: dict[str, Iso230Result], units: Units = L
         cells = "".join(f"<td>{units.cell(v)}</td>" for v in vals)
         if len(vals) == 2:
             a, b = vals
-            cut = "–" if not a or b is None else f"{100 * (1 - abs(b) / abs(a)):.0f} % less"
+            cut = "–" if not a or b is None else change_text(a, b)
             cells += f"<td>{cut}</td>"
         rows.append(f"<tr><th>{html.escape(LABELS[key])}</th>{cells}</tr>")
     return (f"<table class='fig' id='figures-{axis}'><tr><th>axis {axis} ({units.name})</th>"
