@@ -13,15 +13,19 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import yaml
 
+from gateway.calibration.commission_cli import _options_at
+from gateway.calibration.machine import Endpoint
 from gateway.calibration.models import pin_fades
 from gateway.calibration.plane_frame import FRAME_FILE, reframe_plane
 from gateway.calibration.plans import read_plan
 from gateway.calibration.rawdata import read_raw_csv
+from gateway.calibration.session import Instruments
 from gateway.config import load_config
 from tests.commission_rig import TRAVEL_MM, running, small_machine
 from tests.test_service_helpers import ROOT, Proc
@@ -335,6 +339,21 @@ def test_an_instrument_that_does_not_answer_is_named_by_its_option(
             proc = Proc(args)
             assert proc.popen.wait(timeout=120) == 3, proc.text()
             assert f"(that is --laser {laser})" in proc.text(), proc.text()
+
+
+def test_an_error_names_the_device_of_its_address_and_unit() -> None:
+    """By HOST:PORT and, where the error says one, the unit (unit 2 is not unit 21)."""
+    laser, xy = Endpoint.parse("127.0.0.1:5021:2"), Endpoint.parse("127.0.0.1:5021:21")
+    settings = SimpleNamespace(gateway=Endpoint.parse("127.0.0.1:5020"), instruments=Instruments(
+        laser=laser, xy=xy))  # fmt: skip
+    assert _options_at("127.0.0.1:5021: unit 21 read input 0x0000+6: ...", settings) \
+        == " (that is --xy-device 127.0.0.1:5021:21)"
+    assert _options_at("127.0.0.1:5021: unit 20 read input", settings) == ""
+    assert _options_at("cannot connect to 127.0.0.1:5021", settings) \
+        == " (that is --laser 127.0.0.1:5021:2, --xy-device 127.0.0.1:5021:21)"
+    assert _options_at("127.0.0.1:5020: unit 1 write", settings) == \
+        " (that is --gateway 127.0.0.1:5020)"
+    assert _options_at("cannot connect to 127.0.0.1:50210", settings) == ""
 
 
 def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path: Path) -> None:

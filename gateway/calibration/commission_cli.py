@@ -7,6 +7,7 @@ import argparse
 import asyncio
 import math
 import os
+import re
 import shlex
 import signal
 import subprocess
@@ -348,15 +349,16 @@ def _options_at(message: str, settings: Any) -> str:
     for option, ep in (("--laser", ins.laser), ("--xy-device", ins.xy), ("--angle", ins.angle),
                        ("--delta-a", ins.delta_a), ("--temperature", ins.temperature),
                        ("--gateway", settings.gateway)):  # fmt: skip
-        if ep is None or f"{ep.host}:{ep.port}" not in message:
+        if ep is None or not re.search(rf"{re.escape(ep.host)}:{ep.port}\b", message):
             continue
         unit = getattr(ep, "unit", None)
-        if option != "--gateway" and "unit " in message and f"unit {unit}" not in message:
+        if option != "--gateway" and "unit " in message and not re.search(rf"\bunit {unit}\b",
+                                                                          message):  # fmt: skip
             continue
         named.append(f"{option} {ep.host}:{ep.port}" + (f":{unit}" if option != "--gateway"
                                                          else ""))  # fmt: skip
-        if option != "--gateway":
-            break  # an instrument named: not also the gateway it may be reached through
+        if option != "--gateway" and "unit " in message:
+            break  # the instrument of that unit: not also the gateway it may be reached through
     return f" (that is {', '.join(named)})" if named else ""
 
 
