@@ -19,7 +19,9 @@ import numpy as np
 import pytest
 import yaml
 
+from gateway.calibration.commission import Commission
 from gateway.calibration.commission_cli import _options_at
+from gateway.calibration.commission_steps import Settings
 from gateway.calibration.machine import Endpoint
 from gateway.calibration.models import pin_fades
 from gateway.calibration.plane_frame import FRAME_FILE, reframe_plane
@@ -354,6 +356,33 @@ def test_an_error_names_the_device_of_its_address_and_unit() -> None:
     assert _options_at("127.0.0.1:5020: unit 1 write", settings) == \
         " (that is --gateway 127.0.0.1:5020)"
     assert _options_at("cannot connect to 127.0.0.1:50210", settings) == ""
+
+
+def test_a_finished_commissioning_is_carried_on_only_for_more(template: Path,
+                                                              tmp_path: Path) -> None:  # fmt: skip
+    """Pure (the state of a finished run, no machine): the same command, a smaller budget
+    or a looser tolerance find it finished; a larger budget, a tighter tolerance, more
+    rounds, other axes or another plane carry it on."""
+    out = tmp_path / "commission"
+    config = template / "gateway.yaml"
+
+    def job(**kw: object) -> Commission:
+        base: dict[str, object] = {"axes": ("X", "Y"), "planar": ("X", "Y"),
+                                   "budget_s": 7200.0, "tolerance_um": 2.0}  # fmt: skip
+        base.update(kw)
+        return Commission(Settings(config, out, None, Instruments(), **base),  # type: ignore[arg-type]
+                          reload=None)  # type: ignore[arg-type]
+
+    first = job()
+    first.state["finished"] = {"outcome": "within", "asked": first._asked(),
+                               "what": first._what()}  # fmt: skip
+    first._save()
+    (out / "summary.json").write_text(json.dumps({"outcome": "within", "machine_h": 1.5}))
+    for same in ({}, {"budget_s": 3600.0}, {"tolerance_um": 3.0}, {"max_rounds": 2}):
+        assert job(**same).finished() == {"outcome": "within", "machine_h": 1.5}, same
+    for more in ({"budget_s": 9000.0}, {"tolerance_um": 1.0}, {"max_rounds": 9},
+                 {"axes": ("X",)}, {"planar": None}):  # fmt: skip
+        assert job(**more).finished() is None, more
 
 
 def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path: Path) -> None:

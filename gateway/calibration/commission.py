@@ -258,14 +258,18 @@ class Commission(ShortBudget):
                 "tolerance_um": -self.s.tolerance_um,
                 "tolerance_arcsec": -self.s.tolerance_arcsec}  # fmt: skip
 
+    def _what(self) -> list[Any]:
+        """What is commissioned: other axes or another plane are another commissioning."""
+        return [list(self.s.axes), list(self.s.planar) if self.s.planar else None]
+
     def finished(self) -> dict[str, Any] | None:
         """The summary of a commissioning that finished in this directory and that this
-        command asks nothing more of (no larger budget, tighter tolerance or more rounds):
-        run again, it would only take the references anew and judge old readings against
-        them, so it is not run again."""
+        command asks nothing more of (the same axes and plane; no larger budget, tighter
+        tolerance or more rounds): run again, it would only take the references anew and
+        judge old readings against them, so it is not run again."""
         done = self.state.get("finished")
         path = self.dir / "summary.json"
-        if done is None or not path.exists():
+        if done is None or not path.exists() or done.get("what") != self._what():
             return None
         if any(v > done["asked"].get(k, v) + 1e-9 for k, v in self._asked().items()):
             return None
@@ -308,7 +312,8 @@ class Commission(ShortBudget):
         summary = self.summary(outcome)
         atomic_write_text(self.dir / "summary.json", json.dumps(summary, indent=1,
                                                                 default=_plain))  # fmt: skip
-        self.state["finished"] = {"outcome": outcome, "asked": self._asked()}
+        self.state["finished"] = {"outcome": outcome, "asked": self._asked(),
+                                  "what": self._what()}  # fmt: skip
         self._save()
         return summary
 
