@@ -20,7 +20,7 @@ import pytest
 import yaml
 
 from gateway.calibration.commission import Commission
-from gateway.calibration.commission_cli import _options_at
+from gateway.calibration.commission_cli import _device, _options_at
 from gateway.calibration.commission_steps import Settings
 from gateway.calibration.machine import Endpoint
 from gateway.calibration.models import pin_fades
@@ -276,6 +276,7 @@ def test_a_config_the_gateway_does_not_run_is_refused_before_anything_moves(
         assert proc.popen.wait(timeout=120) == 1, proc.text()
         assert f"runs another config file than {copy}" in proc.text()
         assert "give -c the file the gateway was started with" in proc.text()
+        assert "is back as it was; the gateway runs its own file" in proc.text()
         assert "run the same command again" not in proc.text()
         state = json.loads((copy.parent / "commission" / "commission.json").read_text())
         assert not state["steps"] and not (copy.parent / "commission" / "raw").exists()
@@ -356,6 +357,10 @@ def test_an_error_names_the_device_of_its_address_and_unit() -> None:
     assert _options_at("127.0.0.1:5020: unit 1 write", settings) == \
         " (that is --gateway 127.0.0.1:5020)"
     assert _options_at("cannot connect to 127.0.0.1:50210", settings) == ""
+    # an instrument is given with its unit: a default unit 1 is a drive on most lines
+    with pytest.raises(ValueError, match=r"--laser '127\.0\.0\.1:5021': give HOST:PORT:UNIT"):
+        _device("--laser", "127.0.0.1:5021")
+    assert _device("--laser", "127.0.0.1:5021:20") == Endpoint("127.0.0.1", 5021, 20)
 
 
 def test_a_finished_commissioning_is_carried_on_only_for_more(template: Path,

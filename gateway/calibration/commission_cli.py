@@ -158,7 +158,7 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
 
     from ..modbus.frames import unpack_int32
     from ..status import GENERATION_REGISTER, RELOAD_REGISTER
-    from .machine import MachineError, SetupError, reraise_cancel
+    from .machine import ConfigMismatch, MachineError, SetupError, reraise_cancel
 
     unit = config.status.upstream_unit
 
@@ -210,7 +210,7 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
                 why = "refused the config (see its log)" if refused else "did not reload"
                 raise MachineError(f"the gateway {why}")
             if crc and crc != want:
-                raise SetupError(
+                raise ConfigMismatch(
                     f"the gateway at {gateway.host}:{gateway.port} runs another config file "
                     f"than {args.config} (it reloaded a file of CRC-32 {crc:08x}, not the "
                     f"{want:08x} written here): give -c the file the gateway was started with "
@@ -228,7 +228,7 @@ def main(args: argparse.Namespace) -> int:
     from .commission_report import summary_lines
     from .commission_report import write as write_report
     from .commission_steps import CommissionAborted, Settings
-    from .machine import Endpoint, MachineError, MotionSettings, SetupError
+    from .machine import MachineError, MotionSettings, SetupError
     from .session import Instruments
 
     try:
@@ -257,13 +257,13 @@ def main(args: argparse.Namespace) -> int:
             out_dir=Path(args.out) if args.out else config_path.resolve().parent / "commission",
             gateway=gateway,
             instruments=Instruments(
-                laser=Endpoint.parse(args.laser) if args.laser else None,
+                laser=_device("--laser", args.laser),
                 laser_axes=args.laser_axes.split(",") if args.laser_axes else None,
-                angle=Endpoint.parse(args.angle) if args.angle else None,
+                angle=_device("--angle", args.angle),
                 angle_axes=args.angle_axes.split(",") if args.angle_axes else None,
-                xy=Endpoint.parse(args.xy_device) if args.xy_device else None,
-                delta_a=Endpoint.parse(args.delta_a) if args.delta_a else None,
-                temperature=Endpoint.parse(args.temperature) if args.temperature else None,
+                xy=_device("--xy-device", args.xy_device),
+                delta_a=_device("--delta-a", args.delta_a),
+                temperature=_device("--temperature", args.temperature),
                 wait_stable=not args.no_wait_stable,
             ),
             axes=axes, planar=plane, lead_mm=parse_leads(args.lead_mm, axes),
@@ -339,6 +339,21 @@ def main(args: argparse.Namespace) -> int:
     print("\n".join(summary_lines(summary)))
     print(f"report: {report}")
     return EXIT_OK if summary["outcome"] == "within" else EXIT_NOT_MET
+
+
+def _device(option: str, text: str | None) -> Any:
+    """An instrument's HOST:PORT:UNIT[:ADDRESS], its unit given (a default unit 1 would be
+    a drive on most lines)."""
+    from .machine import Endpoint
+
+    if text is None:
+        return None
+    if text.count(":") < 2:
+        raise ValueError(f"{option} {text!r}: give HOST:PORT:UNIT (the instrument's unit id)")
+    try:
+        return Endpoint.parse(text)
+    except ValueError as exc:
+        raise ValueError(f"{option} {exc}") from None
 
 
 def _options_at(message: str, settings: Any) -> str:

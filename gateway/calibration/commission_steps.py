@@ -273,6 +273,11 @@ class Steps(DriftRefs):
         shutil.copyfile(self.original_path, self.s.config_path)
         self.state["phase"] = "original"
         self._save()
+        from .machine import ConfigMismatch
+
+        if isinstance(failed, ConfigMismatch):  # the gateway runs another file: left alone
+            return (f"{self.s.config_path} is back as it was; the gateway runs its own file, "
+                    "which commissioning did not touch")  # fmt: skip
         try:
             await self.reload_fn()
         except Exception as exc:  # the gateway may be down: it loads the file at its start

@@ -49,6 +49,10 @@ class SetupError(MachineError):
     command line, not by resuming."""
 
 
+class ConfigMismatch(SetupError):
+    """The gateway reloaded, but another file than the one written for it (``-c``)."""
+
+
 @dataclass(frozen=True)
 class Endpoint:
     """A Modbus TCP device: host, port, unit id and (optional) first register address."""
