@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 
 EXIT_OK = 0
@@ -187,6 +188,10 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args = build_parser(argv).parse_args(argv)
+    if args.func not in (_cmd_run, _cmd_sim):  # (the services log; see service.py)
+        # a command's own one-line message says what failed, in the user's terms: not also
+        # the library's ("Connection to (…) failed", a late reply after Ctrl-C)
+        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     return int(args.func(args))
 
 

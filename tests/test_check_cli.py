@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import json
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -104,3 +105,15 @@ def test_check_refuses_a_bad_config_naming_the_field(tmp_path: Path):
 def test_schema_file_is_generated_from_the_models():
     committed = json.loads((ROOT / "config" / "schema.json").read_text())
     assert committed == json_schema(), "run: make schema"
+
+
+def test_status_with_no_gateway_says_so_in_one_line(tmp_path: Path):
+    """No gateway listening: one line, compgw's own, not also the Modbus library's."""
+    with socket.socket() as s:  # a loopback port just free: nobody listens there
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    out = subprocess.run([sys.executable, "-m", "gateway.cli", "status", "-c",
+                          "config/example.yaml", "--port", str(port)],
+                         capture_output=True, text=True, timeout=60, cwd=ROOT)  # fmt: skip
+    assert out.returncode == 3
+    assert out.stderr.splitlines() == [f"compgw status: no gateway at 127.0.0.1:{port}"], out.stderr
