@@ -20,7 +20,7 @@ import pytest
 import yaml
 
 from gateway.calibration.commission import Commission
-from gateway.calibration.commission_cli import _device, _options_at
+from gateway.calibration.commission_cli import _options_at
 from gateway.calibration.commission_steps import Settings
 from gateway.calibration.machine import Endpoint
 from gateway.calibration.models import pin_fades
@@ -359,8 +359,8 @@ def test_an_error_names_the_device_of_its_address_and_unit() -> None:
     assert _options_at("cannot connect to 127.0.0.1:50210", settings) == ""
     # an instrument is given with its unit: a default unit 1 is a drive on most lines
     with pytest.raises(ValueError, match=r"--laser '127\.0\.0\.1:5021': give HOST:PORT:UNIT"):
-        _device("--laser", "127.0.0.1:5021")
-    assert _device("--laser", "127.0.0.1:5021:20") == Endpoint("127.0.0.1", 5021, 20)
+        Endpoint.device("--laser", "127.0.0.1:5021")
+    assert Endpoint.device("--laser", "127.0.0.1:5021:20") == Endpoint("127.0.0.1", 5021, 20)
 
 
 def test_a_finished_commissioning_is_carried_on_only_for_more(template: Path,

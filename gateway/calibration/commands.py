@@ -209,11 +209,11 @@ def calibrate(
         session = Session(
             config, config_dir, Endpoint.parse(args.gateway),
             Instruments(
-                laser=Endpoint.parse(args.laser) if args.laser else None,
+                laser=Endpoint.device("--laser", args.laser),
                 laser_axes=args.laser_axes.split(",") if args.laser_axes else None,
-                xy=Endpoint.parse(args.xy_device) if args.xy_device else None,
-                delta_a=Endpoint.parse(args.delta_a) if args.delta_a else None,
-                angle=Endpoint.parse(args.angle) if args.angle else None,
+                xy=Endpoint.device("--xy-device", args.xy_device),
+                delta_a=Endpoint.device("--delta-a", args.delta_a),
+                angle=Endpoint.device("--angle", args.angle),
                 angle_axes=args.angle_axes.split(",") if args.angle_axes else None,
                 wait_stable=not args.no_wait_stable,
             ),

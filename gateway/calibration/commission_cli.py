@@ -228,7 +228,7 @@ def main(args: argparse.Namespace) -> int:
     from .commission_report import summary_lines
     from .commission_report import write as write_report
     from .commission_steps import CommissionAborted, Settings
-    from .machine import MachineError, MotionSettings, SetupError
+    from .machine import Endpoint, MachineError, MotionSettings, SetupError
     from .session import Instruments
 
     try:
@@ -257,13 +257,13 @@ def main(args: argparse.Namespace) -> int:
             out_dir=Path(args.out) if args.out else config_path.resolve().parent / "commission",
             gateway=gateway,
             instruments=Instruments(
-                laser=_device("--laser", args.laser),
+                laser=Endpoint.device("--laser", args.laser),
                 laser_axes=args.laser_axes.split(",") if args.laser_axes else None,
-                angle=_device("--angle", args.angle),
+                angle=Endpoint.device("--angle", args.angle),
                 angle_axes=args.angle_axes.split(",") if args.angle_axes else None,
-                xy=_device("--xy-device", args.xy_device),
-                delta_a=_device("--delta-a", args.delta_a),
-                temperature=_device("--temperature", args.temperature),
+                xy=Endpoint.device("--xy-device", args.xy_device),
+                delta_a=Endpoint.device("--delta-a", args.delta_a),
+                temperature=Endpoint.device("--temperature", args.temperature),
                 wait_stable=not args.no_wait_stable,
             ),
             axes=axes, planar=plane, lead_mm=parse_leads(args.lead_mm, axes),
@@ -341,21 +341,6 @@ def main(args: argparse.Namespace) -> int:
     return EXIT_OK if summary["outcome"] == "within" else EXIT_NOT_MET
 
 
-def _device(option: str, text: str | None) -> Any:
-    """An instrument's HOST:PORT:UNIT[:ADDRESS], its unit given (a default unit 1 would be
-    a drive on most lines)."""
-    from .machine import Endpoint
-
-    if text is None:
-        return None
-    if text.count(":") < 2:
-        raise ValueError(f"{option} {text!r}: give HOST:PORT:UNIT (the instrument's unit id)")
-    try:
-        return Endpoint.parse(text)
-    except ValueError as exc:
-        raise ValueError(f"{option} {exc}") from None
-
-
 def _options_at(message: str, settings: Any) -> str:
     """Which of the command line's devices a Modbus error names (by HOST:PORT, and unit
     where it says one), so a wrong --laser reads as one: " (that is --laser …)"."""
@@ -366,11 +351,10 @@ def _options_at(message: str, settings: Any) -> str:
                        ("--gateway", settings.gateway)):  # fmt: skip
         if ep is None or not re.search(rf"{re.escape(ep.host)}:{ep.port}\b", message):
             continue
-        unit = getattr(ep, "unit", None)
-        if option != "--gateway" and "unit " in message and not re.search(rf"\bunit {unit}\b",
-                                                                          message):  # fmt: skip
+        if option != "--gateway" and "unit " in message and not re.search(
+                rf"\bunit {ep.unit}\b", message):  # fmt: skip
             continue
-        named.append(f"{option} {ep.host}:{ep.port}" + (f":{unit}" if option != "--gateway"
+        named.append(f"{option} {ep.host}:{ep.port}" + (f":{ep.unit}" if option != "--gateway"
                                                          else ""))  # fmt: skip
         if option != "--gateway" and "unit " in message:
             break  # the instrument of that unit: not also the gateway it may be reached through

@@ -140,7 +140,7 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
         b, a = xy.get("before", {}), xy.get("after", {})
         parts.append(f"<p id='summary-xy'>XY maximum vector error: {_f(b.get('max_um'))} µm "
                      f"before, {_f(a.get('max_um'))} µm after "
-                     f"({_cut(b.get('max_um'), a.get('max_um'))} less).</p>")  # fmt: skip
+                     f"({change_text(b['max_um'], a['max_um']) if b and a else '–'}).</p>")
     parts.append("<h2>What remains</h2><ul>" + "".join(
         f"<li>{html.escape(s)}</li>" for s in remains(summary)) + "</ul>")  # fmt: skip
     rrows = []

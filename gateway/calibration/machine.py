@@ -79,6 +79,19 @@ class Endpoint:
             raise ValueError(f"{text!r}: port must be 1..65535 and unit 0..247")
         return cls(parts[0], port, unit, address)
 
+    @classmethod
+    def device(cls, option: str, text: str | None) -> Endpoint | None:
+        """An instrument's ``HOST:PORT:UNIT[:ADDRESS]`` given as ``option`` (None: not
+        given), its unit required: the default unit 1 is a drive on most lines."""
+        if text is None:
+            return None
+        if text.count(":") < 2:
+            raise ValueError(f"{option} {text!r}: give HOST:PORT:UNIT (the instrument's unit id)")
+        try:
+            return cls.parse(text)
+        except ValueError as exc:
+            raise ValueError(f"{option} {exc}") from None
+
     @property
     def key(self) -> tuple[str, int]:
         return self.host, self.port
