@@ -34,7 +34,9 @@ right after them (with those tables on, as dense as the budget left allows:
 :mod:`.commission_short`), then the
 backlash tests and the before-runs, and the lead searches and cyclic scans last (a plain
 ISO 230-2 calibration's steps first, then what judges them, then the extras); spent
-before the fit, it still fits the axes whose ISO runs were made (unverified, said so).
+before the fit, it still fits the axes whose ISO runs were made (no round verified them,
+said so). Where no round judged the tables, the after-run judges them as a round would
+(:meth:`~.commission_after.AfterSteps.after_verdict`).
 
 The gateway is made to load each config by writing it over the config file it runs and
 asking it to reload (the status unit's reload register, or SIGHUP / a command). An abort
@@ -305,6 +307,8 @@ class Commission(ShortBudget):
         if worse is not None:
             self.state["notes"].append(worse)
             self.say(worse)
+        else:
+            outcome = self.after_verdict(outcome)
         if self.tables.pitch and worse is None:
             await self.use("full")
         else:
@@ -443,8 +447,8 @@ class Commission(ShortBudget):
             await self._fit_axes(ready, curves=True)
         rest = [a for a in self.s.axes if a not in ready]
         bare = [a for a in ready if a in self.s.lead_mm and a not in self.tables.cyclic]
-        note = (f"{', '.join(ready)}: fitted from the identification's runs only, not "
-                "verified between the points (the budget ran out)"
+        note = (f"{', '.join(ready)}: fitted from the identification's runs only, no round "
+                "verified them between the points (the budget ran out)"
                 + (f"; {', '.join(bare)}: no cyclic term (its scans were not made)"
                    if bare else "")
                 + (f"; {', '.join(rest)}: not identified, no table" if rest else ""))
