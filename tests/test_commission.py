@@ -12,6 +12,7 @@ import socket
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -361,6 +362,11 @@ def test_an_error_names_the_device_of_its_address_and_unit() -> None:
     with pytest.raises(ValueError, match=r"--laser '127\.0\.0\.1:5021': give HOST:PORT:UNIT"):
         Endpoint.device("--laser", "127.0.0.1:5021")
     assert Endpoint.device("--laser", "127.0.0.1:5021:20") == Endpoint("127.0.0.1", 5021, 20)
+    # the laser given the XY device's unit (one register layout: it would follow the axes)
+    with pytest.raises(ValueError, match=r"--laser and --xy-device name the same device "
+                                         r"\(127\.0\.0\.1:5021 unit 21\)"):  # fmt: skip
+        Instruments(laser=xy, xy=xy)
+    Instruments(laser=xy, xy=replace(xy, address=64))  # another register block: allowed
 
 
 def test_a_finished_commissioning_is_carried_on_only_for_more(template: Path,

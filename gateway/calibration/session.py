@@ -68,6 +68,23 @@ class Instruments:
     #: readings wait for the instrument's stable flag (see :class:`.machine.Laser`)
     wait_stable: bool = True
 
+    def __post_init__(self) -> None:
+        """Two instruments given the same device (host, port, unit and first register) is
+        a slip of the command line: the laser and the XY device of the simulator share one
+        register layout, so a laser given the XY device's unit reads positions that follow
+        the axes, and no later check can tell."""
+        seen: dict[Endpoint, str] = {}
+        for option, end in (("--laser", self.laser), ("--xy-device", self.xy),
+                            ("--delta-a", self.delta_a), ("--temperature", self.temperature),
+                            ("--angle", self.angle)):  # fmt: skip
+            if end is None:
+                continue
+            if end in seen:
+                raise ValueError(f"{seen[end]} and {option} name the same device "
+                                 f"({end.host}:{end.port} unit {end.unit}): each instrument "
+                                 "answers at its own unit id")  # fmt: skip
+            seen[end] = option
+
 
 @dataclass
 class Session:
