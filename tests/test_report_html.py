@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gateway.calibration.commission_ident_text import identification_rows
 from gateway.calibration.iso230 import JSON_KEYS
 from gateway.calibration.plans import iso230_linear_plan
 from gateway.calibration.plans_xy import xy_grid_plan
@@ -104,3 +105,48 @@ def test_a_figure_that_grew_reads_more_not_a_negative_less() -> None:
     assert change_text(10.0, 1.0) == "90 % less"
     assert change_text(4.74, 6.21) == "31 % more"  # a repeatability that rose
     assert change_text(1.0, 1.004) == "0 % less"  # not "-0 % less"
+
+
+def test_the_identification_reads_as_sentences_per_axis() -> None:
+    """The commissioning report's Identification section: per axis, each record in words
+    with its unit, none of the state's own keys (``growth_max_um``); a record of a kind it
+    does not know, or with other fields (an older state's), as stored."""
+    ident = {
+        "thermal-X": {"gain": 0.672, "growth_max_um": 54.39, "residual_rms_um": 0.457,
+                      "rise_K": 6.87, "motion": {"replaces_sensor": True, "tau_s": 1427.1,
+                                                 "delta_a_um_per_m": 0.488,
+                                                 "motion_rms_um": 0.131,
+                                                 "sensor_rms_um": 7.12}},
+        "backlash-X": {"B_um": 2.578, "places_um": [1.887, 2.578, 1.725]},
+        "takeup-Y": {"kept": True, "why": "a full switch misses by up to 17.3 µm",
+                     "miss_um": 17.25, "lost_um": 19.09},
+        "lead-Y": {"lead_mm": 5.0, "amplitude_um": 3.21, "f_ratio": 40.0},
+        "sweep-X": {"round": 1, "step_mm": 0.6, "readings": 3322, "knots": 216,
+                    "stations": 19, "harmonics": 2, "residual_rms_um": 0.1504,
+                    "weighted_out": 3},
+        "motion-Y": {"fitted": False, "why": "the screw grew 0.5 µm at most"},
+        "backlash-A": {"B_arcsec": 12.5, "places_arcsec": [10.0, 12.5, 11.0]},
+        "fit-A": {"interpolation": "pchip", "loo_rms_arcsec": 1.234},
+        "cyclic-Y": {"peak": 3},  # other fields than expected: as stored
+        "novel-X": {"value": 1.5},
+    }
+    rows = identification_rows(ident)
+    assert list(rows) == ["X", "Y", "A"]
+    x = dict(rows["X"])
+    assert x["backlash"] == "2.58 µm at most (at three places: 1.89, 2.58, 1.73 µm)"
+    assert x["warm-up (thermal)"].startswith("temperature gain 0.672: 54.4 µm of growth over "
+                                             "6.9 K")  # fmt: skip
+    assert "heat from the axes' motion replaces the sensor" in x["warm-up (thermal)"]
+    assert "3322 readings every 0.6 mm" in x["sweep"] and "3 readings left out" in x["sweep"]
+    assert x["novel"] == "value 1.5"
+    y = dict(rows["Y"])
+    assert y["lead search"].startswith("a periodic error of 3.21 µm every 5 mm")
+    assert y["take-up of the lost motion"] == ("lost motion 19.1 µm; a take-up curve is kept: "
+                                               "a full switch misses by up to 17.3 µm")  # fmt: skip
+    assert y["heat from motion"] == "none: the screw grew 0.5 µm at most"
+    assert y["once-per-turn error"] == "peak 3"
+    a = dict(rows["A"])
+    assert a["backlash"].startswith("12.5″ at most") and a["table fit (rotary)"] == \
+        "pchip interpolation (leave-one-out RMS 1.23″)"
+    text = " ".join(t for axis in rows.values() for _, t in axis if _ != "novel")
+    assert "_um" not in text and "_K" not in text and "_s " not in text

@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from .commission_ident_text import identification_rows
 from .iso230 import ARCSEC_PER_MDEG, iso230_raw
 from .rawdata import RawData
 from .report import (
@@ -175,11 +176,15 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
                     + "</table>" if rrows else
                     "<p id='rounds'>No round ran: the budget was spent before the first "
                     "verification (see what remains, above).</p>"))  # fmt: skip
-    ident = summary.get("identify", {})
+    ident = identification_rows(summary.get("identify", {}))
     if ident:
-        items = "".join(f"<li>{html.escape(k)}: {html.escape(_short(v))}</li>"
-                        for k, v in ident.items())  # fmt: skip
-        parts.append(f"<h2>Identification</h2><ul>{items}</ul>")
+        parts.append("<h2>Identification</h2><p>What the first steps (and each sweep) "
+                     "found, per axis, in the order found.</p>")  # fmt: skip
+        for axis, rows in ident.items():
+            cells = "".join(f"<tr><th>{html.escape(what)}</th><td>{html.escape(text)}</td></tr>"
+                            for what, text in rows)  # fmt: skip
+            parts.append(f"<table id='identify-{html.escape(axis)}'><caption>axis "
+                         f"{html.escape(axis)}</caption>{cells}</table>")  # fmt: skip
     for axis in summary["axes"]:
         raws = {p: r for p in ("before", "after") if (r := load(f"{p}-{axis}")) is not None}
         if not raws:
@@ -218,15 +223,6 @@ def _round_cell(axis: str, verdict: dict[str, Any], entry: dict[str, Any]) -> st
         k = ARCSEC_PER_MDEG
         return f"{axis}: E {verdict['E_um'] * k:.2f}″, A {verdict['A_um'] * k:.2f}″"
     return f"{axis}: E {verdict['E_um']:.2f}, A {verdict['A_um']:.2f}"
-
-
-def _short(value: Any) -> str:
-    """One identification result as text (a nested section, heat from motion's, inline)."""
-    if isinstance(value, dict):
-        return ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else
-                         f"{k} ({_short(v)})" if isinstance(v, dict) else f"{k} {v}"
-                         for k, v in value.items() if not isinstance(v, list))  # fmt: skip
-    return str(value)
 
 
 def write(directory: Path, summary: dict[str, Any], load: Load) -> Path:
