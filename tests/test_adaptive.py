@@ -250,7 +250,8 @@ def test_a_refinement_scan_gives_the_point_its_mean_and_the_cyclic_term_a_statio
 
 def test_an_axis_refinement_must_pay_a_denser_plane_grid_must_not_lose() -> None:
     """An axis's refinement replaces the best table only when clearly better (10 %, at
-    least 0.2 µm); the plane's denser, smoothed grid stays unless clearly worse: the same
+    least 0.2 µm); the plane's denser, smoothed grid and an axis's sweep stay unless
+    clearly worse: the same
     0.17 µm better (rough-0's plane, 1.03 → 0.86 µm, put back before) or 0.1 µm worse."""
     assert not adaptive.keeps_refinement(0.86, 1.03)
     assert adaptive.keeps_refinement(0.80, 1.03)
@@ -258,3 +259,9 @@ def test_an_axis_refinement_must_pay_a_denser_plane_grid_must_not_lose() -> None
     assert adaptive.keeps_refinement(1.13, 1.03, plane=True)
     assert not adaptive.keeps_refinement(1.30, 1.03, plane=True)
     assert not adaptive.keeps_refinement(6.9, 6.19, plane=True)  # worse by over 10 %
+    # an axis's sweep, more readings of the same axis, too (smooth-7's X: 1.35 → 1.19 µm,
+    # put back before; noise-free its table missed 0.34 µm, the one kept instead 0.73)
+    assert not adaptive.keeps_refinement(1.19, 1.35)
+    assert adaptive.keeps_refinement(1.19, 1.35, swept=True)
+    assert adaptive.keeps_refinement(0.80, 0.71, swept=True)
+    assert not adaptive.keeps_refinement(1.20, 0.71, swept=True)

@@ -552,9 +552,11 @@ class Commission(ShortBudget):
             scores = {a: v.E_um for a, v in verdicts.items()}
             if xy is not None:
                 scores["XY"] = xy["max_um"]
+            swept = set(rounds[-1].get("swept") or []) if rounds else set()
             restored = [name for name, score in scores.items() if name not in settled
                         and not self._keep_best(name, score, r,
-                                                xy["rms_um"] if name == "XY" and xy else None)]
+                                                xy["rms_um"] if name == "XY" and xy else None,
+                                                swept=name in swept)]  # fmt: skip
             more_runs: dict[str, int] = {}
             for name in restored:
                 self.say(f"round {r}: {name}: the last refinement did not pay; back to round "

@@ -60,8 +60,10 @@ class BestTables(AfterSteps):
                 changed = True
         return changed
 
-    def _keep_best(self, name: str, score: float, r: int, rms: float | None = None) -> bool:
-        """Record round ``r``'s verification score (µm) of an axis or the plane. A score
+    def _keep_best(self, name: str, score: float, r: int, rms: float | None = None,
+                   swept: bool = False) -> bool:  # fmt: skip
+        """Record round ``r``'s verification score (µm) of an axis or the plane (``swept``:
+        the axis was swept in the round before). A score
         that :func:`.adaptive.keeps_refinement` keeps makes the current table the best
         (copied aside); else the best is put back. False when it was put back. The plane
         is kept or put back on its RMS vector error (``rms``) where both rounds have one:
@@ -77,7 +79,8 @@ class BestTables(AfterSteps):
         now, was = score, None if old is None else old["score"]
         if rms is not None and old is not None and old.get("rms") is not None:
             now, was = rms, old["rms"]
-        if was is None or adaptive.keeps_refinement(now, was, plane=name == "XY"):
+        if was is None or adaptive.keeps_refinement(now, was, plane=name == "XY",
+                                                      swept=swept):  # fmt: skip
             best[name] = {"score": score, "round": r, **({"rms": rms} if rms is not None
                                                           else {})}  # fmt: skip
             if name in self.tables.pitch and not self._rotary(name):  # and how it is read
