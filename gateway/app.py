@@ -44,7 +44,7 @@ from .modbus.tlsfiles import server_context
 from .modbus.upstream import RtuServer, TcpServer
 from .router import Gateway
 from .sensors import SensorSet
-from .service import Notifier
+from .service import EVERY, Notifier
 from .state_store import StateStore
 from .status import StatusUnit
 from .tables import build_chain
@@ -250,7 +250,7 @@ class GatewayApp:
                 self.reload(new_config, new_chain)
                 self.status.config_crc = crc
             except ConfigError as exc:
-                log.error("reload refused, old config kept: %s", exc)
+                log.error("reload refused, old config kept: %s", exc, extra=EVERY)
                 self.status.reloaded(str(exc))
                 return str(exc)
             log.info("reloaded %s (read and built in %.2f s)", self.source,

@@ -107,12 +107,18 @@ class OneLineFormatter(logging.Formatter):
         return text
 
 
+#: ``log.error(..., extra=EVERY)``: a record :class:`RepeatFilter` never holds back
+EVERY = {"every": True}
+
+
 class RepeatFilter(logging.Filter):
     """At most ``burst`` records of one kind (logger, level, message template) per
     ``window_s``; the next one let through says how many were held back.
 
     A master that reconnects or retries a refused write 100 times a second must not fill
-    the journal: the first few lines say what happened, then one line a window.
+    the journal: the first few lines say what happened, then one line a window. A record
+    logged with ``extra=EVERY`` is never held back: an operator's own action (a refused
+    reload) gets its line each time, with its reason.
     """
 
     def __init__(self, burst: int = 5, window_s: float = 60.0,
@@ -122,7 +128,7 @@ class RepeatFilter(logging.Filter):
         self._kinds: dict[tuple[str, int, str], list[float | int]] = {}  # start, seen, held
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if record.levelno < logging.WARNING:
+        if record.levelno < logging.WARNING or getattr(record, "every", False):
             return True
         now = self.clock()
         key = (record.name, record.levelno, str(record.msg))

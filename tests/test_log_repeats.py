@@ -8,7 +8,7 @@ import ipaddress
 import logging
 
 from gateway.modbus.upstream import TcpServer
-from gateway.service import RepeatFilter, configure_logging
+from gateway.service import EVERY, RepeatFilter, configure_logging
 from tests.helpers_modbus import run, wait_for_condition
 
 
@@ -108,3 +108,13 @@ def test_refusals_of_different_causes_are_held_back_separately() -> None:
     assert sum("not in the allowlist" in ln for ln in lines) == 1  # 2 held back
     assert [ln for ln in lines if "max_connections" in ln] != []  # not held, not counted
     assert "held back" not in out.getvalue()
+
+
+def test_a_record_marked_every_is_never_held_back() -> None:
+    """A refused reload is an operator's own action: each gets its line and its reason."""
+    clock = Clock()
+    log, out = capture(clock)
+    for i in range(10):
+        log.error("reload refused, old config kept: %s", f"reason {i}", extra=EVERY)
+    lines = out.getvalue().splitlines()
+    assert lines == [f"ERROR reload refused, old config kept: reason {i}" for i in range(10)]
