@@ -103,7 +103,30 @@ def read_text(path: str | Path, error: type[Exception]) -> str:
 
 #: PyYAML's safe loader in C where the wheel has libyaml (7x faster on a config: every start,
 #: every reload, every commissioning step pays it), else the same loader in Python
-SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+_BASE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+class UniqueKeyLoader(_BASE_LOADER):  # type: ignore[misc,valid-type]
+    """The safe loader, refusing a key given twice in one mapping (YAML forbids it;
+    PyYAML keeps the last silently, so a second ``X:`` axis would replace the first)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:  # type: ignore[type-arg]
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            try:
+                first = seen.get(key)
+            except TypeError:  # unhashable: the base class says so
+                continue
+            if first is not None:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"key {key!r} given twice (first on line {first + 1})",
+                    key_node.start_mark)  # fmt: skip
+            seen[key] = key_node.start_mark.line
+        return super().construct_mapping(node, deep)  # type: ignore[no-any-return]
+
+
+SAFE_LOADER = UniqueKeyLoader
 
 
 def read_yaml(path: str | Path, error: type[Exception]) -> Any:

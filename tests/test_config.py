@@ -137,6 +137,23 @@ def test_bad_yaml_and_missing_file(tmp_path: Path):
     assert load_config(path).buses["line1"].timeout_s == 0.1
 
 
+def test_a_key_given_twice_is_refused_naming_it_and_both_lines(tmp_path: Path):
+    """YAML forbids it; PyYAML would keep the last silently (a second ``X:`` axis replaced
+    the first, a second ``travel_mm`` the first), in block and flow style alike."""
+    path = tmp_path / "gw.yaml"
+    text = yaml.safe_dump(BASE, sort_keys=False)
+    lines = text.splitlines()
+    at = next(i for i, ln in enumerate(lines) if ln.strip().startswith("travel_mm"))
+    lines.insert(at + 1, lines[at])
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ConfigError, match=rf"gw\.yaml: line {at + 2}: not valid YAML \(key "
+                                          rf"'travel_mm' given twice \(first on line {at + 1}\)"):
+        load_config(path)
+    path.write_text(text + "status: {a: 1, a: 2}\n")  # (the top level's status again, too)
+    with pytest.raises(ConfigError, match="given twice"):
+        load_config(path)
+
+
 @pytest.mark.parametrize(
     ("source", "message"),
     [
