@@ -40,7 +40,7 @@ from .modbus.downstream import Bus, RtuBus, TcpBus
 from .modbus.mbsecurity import TlsGate
 from .modbus.rtu_over_tcp import RtuOverTcpBus
 from .modbus.security import WriteGuard
-from .modbus.tlsfiles import server_context
+from .modbus.tlsfiles import certificate_dates, server_context
 from .modbus.upstream import RtuServer, TcpServer
 from .router import Gateway
 from .sensors import SensorSet
@@ -167,7 +167,10 @@ class GatewayApp:
                 await self.tcp.start()
             if up.tls is not None:  # raises ConfigError when its files cannot be used
                 base = Path(self.source).resolve().parent if self.source is not None else None
-                self.tls = self._tcp_server(up.tls, TlsGate(up.tls, server_context(up.tls, base)))
+                context = server_context(up.tls, base)
+                for warning in certificate_dates(up.tls, base):
+                    log.warning("%s", warning)
+                self.tls = self._tcp_server(up.tls, TlsGate(up.tls, context))
                 await self.tls.start()
             if up.rtu is not None:
                 self.rtu = RtuServer(

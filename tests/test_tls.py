@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import re
 import shutil
 import signal
 import ssl
@@ -340,6 +341,40 @@ def test_the_daemon_refuses_to_start_without_its_tls_files(tmp_path: Path,
     errors = [r.getMessage() for r in caplog.records if r.levelname == "ERROR"]
     assert len(errors) == 1 and "upstream.tls.key: " in errors[0], errors
     assert "server.key: cannot read: No such file or directory" in errors[0]
+    # nor on an expired certificate: every handshake would fail while it looked ready
+    caplog.clear()
+    path = check_config(tmp_path, pki, "server_expired")
+    assert asyncio.run(serve(path)) == 1
+    errors = [r.getMessage() for r in caplog.records if r.levelname == "ERROR"]
+    assert len(errors) == 1 and re.search(r"upstream\.tls\.cert: .*server\.pem: expired on ",
+                                          errors[0]), errors  # fmt: skip
+
+
+def test_the_daemon_warns_of_a_certificate_that_expires_soon(tmp_path: Path,
+                                                             pki: dict[str, Issued]):
+    """What the daemon checks at start of its certificates: their dates (``compgw check``
+    checks the rest); 30 days ahead it warns."""
+    from gateway.config import load_config
+    from gateway.modbus.tlsfiles import certificate_dates
+
+    tls = load_config(check_config(tmp_path, pki)).upstream.tls
+    assert tls is not None and certificate_dates(tls, tmp_path) == []
+    tls = load_config(check_config(tmp_path, pki, "server_soon")).upstream.tls
+    assert tls is not None
+    warned = certificate_dates(tls, tmp_path)
+    assert len(warned) == 1 and "server.pem (server-soon) expires in 9 days" in warned[0]
+
+
+def test_check_says_a_missing_tls_file_is_missing(tmp_path: Path, pki: dict[str, Issued],
+                                                  capsys):
+    """Not "no PEM certificate in it": the file is not there."""
+    path = check_config(tmp_path, pki)
+    for name, key in (("ca.pem", "ca"), ("server.pem", "cert"), ("server.key", "key")):
+        (tmp_path / name).rename(tmp_path / f"{name}.away")
+        assert cli_main(["check", "-c", str(path)]) == 1
+        err = capsys.readouterr().err
+        assert f"upstream.tls.{key}: " in err and f"{name}: cannot read: No such file" in err
+        (tmp_path / f"{name}.away").rename(tmp_path / name)
 
 
 def test_compgw_run_on_uvloop_serves_tls(tmp_path: Path, pki: dict[str, Issued]):

@@ -60,15 +60,17 @@ def _read(key: str, path: Path) -> bytes:
 
 
 def _certificates(key: str, path: Path) -> list[x509.Certificate]:
+    data = _read(key, path)  # (a ConfigError is a ValueError: read outside the try)
     try:
-        return x509.load_pem_x509_certificates(_read(key, path))
+        return x509.load_pem_x509_certificates(data)
     except ValueError:
         raise ConfigError(f"upstream.tls.{key}: {path}: no PEM certificate in it") from None
 
 
 def _private_key(path: Path) -> PrivateKeyTypes:
+    data = _read("key", path)
     try:
-        return serialization.load_pem_private_key(_read("key", path), password=None)
+        return serialization.load_pem_private_key(data, password=None)
     except TypeError:
         raise ConfigError(f"upstream.tls.key: {path}: the key is encrypted: the gateway "
                           "needs it unencrypted (readable by its user only)") from None
@@ -126,6 +128,21 @@ def _dates(key: str, path: Path, cert: x509.Certificate, now: dt.datetime) -> li
         return [f"upstream.tls.{key}: {path} ({_name(cert)}) expires in {left.days} days, "
                 f"on {_when(cert.not_valid_after_utc)}"]
     return []
+
+
+def certificate_dates(tls: TlsListen, base: Path | None, now: dt.datetime | None = None
+                      ) -> list[str]:  # fmt: skip
+    """What the gateway checks of its certificate chain at start: ConfigError (one line)
+    when one is expired or not yet valid (every handshake would fail, and the service
+    would look ready while serving no one); warnings for one that expires within
+    ``EXPIRY_WARNING``. (Whether it chains to ``ca`` is `compgw check`'s: a server
+    certificate from another CA than the clients' is a setup some plants use.)"""
+    now = now or dt.datetime.now(dt.timezone.utc)
+    path = tls_path(tls.cert, base)
+    warnings: list[str] = []
+    for cert in _certificates("cert", path):
+        warnings += _dates("cert", path, cert, now)
+    return warnings
 
 
 def check_files(tls: TlsListen, base: Path | None, now: dt.datetime | None = None
