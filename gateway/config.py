@@ -626,9 +626,25 @@ def bus_silence_s(config: GatewayConfig, bus: str) -> float:
 COARSE_UNIT_MM = 0.0005
 
 
+def _loopback(host: str) -> bool:
+    """Whether a listener's host is on loopback only (an address; "localhost")."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
 def warnings(config: GatewayConfig) -> list[str]:
-    """Things that load but a user should act on (EEPROM wear, unverified profiles)."""
+    """Things that load but a user should act on (EEPROM wear, unverified profiles, a
+    plain port open beside Modbus/TCP Security)."""
     out = []
+    up = config.upstream
+    if up.tls is not None and up.tcp is not None and not _loopback(up.tcp.host):
+        out.append(f"upstream.tcp: plain Modbus/TCP on {up.tcp.host}:{up.tcp.port} beside "
+                   "upstream.tls: anyone the allowlist lets in writes without a certificate; "
+                   "leave it off or on loopback (README, \"Securing the gateway\")")  # fmt: skip
     for name, axis in config.axes.items():
         unit_mm = axis.pulse_mm / axis.command_scale
         comp = axis.compensation

@@ -197,6 +197,19 @@ def test_check_warns_when_corrections_are_rounded_to_coarse_drive_units():
     assert not [w for w in warnings(parse_config(data)) if "drive units" in w]
 
 
+def test_check_warns_of_a_plain_port_open_beside_tls():
+    """The README's rule: with upstream.tls, upstream.tcp off or on loopback."""
+    data = copy.deepcopy(BASE)
+    data["upstream"]["tls"] = {"port": 802, "cert": "s.pem", "key": "s.key", "ca": "ca.pem"}
+    for host in ("127.0.0.1", "::1", "localhost"):
+        data["upstream"]["tcp"]["host"] = host
+        assert not [w for w in warnings(parse_config(copy.deepcopy(data))) if "tls" in w]
+    data["upstream"]["tcp"] = {"host": "0.0.0.0", "port": 5020, "allow": ["0.0.0.0/0"]}
+    found = [w for w in warnings(parse_config(copy.deepcopy(data))) if "tls" in w]
+    assert len(found) == 1 and found[0].startswith("upstream.tcp: plain Modbus/TCP on "
+                                                   "0.0.0.0:5020 beside upstream.tls")  # fmt: skip
+
+
 @pytest.mark.parametrize(
     ("thermal", "message"),
     [
