@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from pathlib import Path
+from typing import Any
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 1
@@ -63,7 +65,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_status(args: argparse.Namespace) -> int:
-    from pymodbus.client import ModbusTcpClient
+    import asyncio
+
+    from pymodbus.client import AsyncModbusTcpClient, AsyncModbusTlsClient
 
     from .config import ConfigError, config_crc, load_config
     from .status import INPUT_SIZE, format_status
@@ -73,33 +77,72 @@ def _cmd_status(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"compgw status: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    if config.upstream.tcp is None:
-        print("compgw status: needs upstream.tcp to reach the gateway", file=sys.stderr)
+    up = config.upstream
+    listen = up.tls if args.cert or args.key else up.tcp
+    if listen is None:
+        print("compgw status: " + (
+            "--cert and --key need upstream.tls in the config" if args.cert or args.key else
+            "the config serves only Modbus/TCP Security (upstream.tls): give --cert and --key "
+            "of a master's certificate whose role reads (e.g. monitor), or add upstream.tcp "
+            "on loopback" if up.tls is not None else
+            "needs upstream.tcp (or upstream.tls) to reach the gateway"),
+            file=sys.stderr)  # fmt: skip
         return EXIT_BAD_INPUT
-    host = config.upstream.tcp.host
-    host = {"0.0.0.0": "127.0.0.1", "::": "::1", "": "127.0.0.1"}.get(host, host)
-    port = args.port or config.upstream.tcp.port
+    host = {"0.0.0.0": "127.0.0.1", "::": "::1", "": "127.0.0.1"}.get(listen.host, listen.host)
+    port = args.port or listen.port
+    section = "upstream.tls" if listen is up.tls else "upstream.tcp"
     if not port:
-        print(f"compgw status: {args.config}: upstream.tcp.port is 0, so the gateway chose its "
-              "port when it started (its log says 'Modbus TCP server listening on "
-              "HOST:PORT'): give that port with --port", file=sys.stderr)  # fmt: skip
+        print(f"compgw status: {args.config}: {section}.port is 0, so the gateway chose its "
+              "port when it started (its log says '... server listening on HOST:PORT'): give "
+              "that port with --port", file=sys.stderr)  # fmt: skip
         return EXIT_BAD_INPUT
-    client = ModbusTcpClient(host, port=port, timeout=2, retries=0)
-    try:
-        if not client.connect():
-            print(f"compgw status: no gateway at {host}:{port}", file=sys.stderr)
-            return EXIT_RUNTIME
-        reply = client.read_input_registers(
-            0, count=INPUT_SIZE, device_id=config.status.upstream_unit
-        )
-    finally:
-        client.close()
+    ctx = None
+    if listen is up.tls:
+        try:
+            ctx = _tls_context(args, config)
+        except (OSError, ValueError) as exc:  # ssl.SSLError is an OSError
+            print(f"compgw status: --cert/--key/--ca: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+
+    async def read() -> Any:  # (the clients are made on the running loop)
+        client = AsyncModbusTcpClient(host, port=port, timeout=2, retries=0,
+                                      reconnect_delay=0) if ctx is None else \
+            AsyncModbusTlsClient(host, port=port, sslctx=ctx, timeout=2, retries=0,
+                                 reconnect_delay=0)  # fmt: skip
+        try:
+            if not await client.connect():
+                return None
+            return await client.read_input_registers(
+                0, count=INPUT_SIZE, device_id=config.status.upstream_unit)  # fmt: skip
+        finally:
+            client.close()
+
+    reply = asyncio.run(read())
+    if reply is None:
+        print(f"compgw status: no gateway at {host}:{port}" + (
+            " (or the TLS handshake failed: the gateway's log says why)"
+            if listen is up.tls else ""), file=sys.stderr)  # fmt: skip
+        return EXIT_RUNTIME
     if reply.isError():
         print(f"compgw status: the gateway answered {reply}", file=sys.stderr)
         return EXIT_RUNTIME
     print(format_status(list(config.axes), list(config.thermal_sources), reply.registers,
                         (args.config, config_crc(args.config))))  # fmt: skip
     return EXIT_OK
+
+
+def _tls_context(args: argparse.Namespace, config: Any) -> Any:
+    """The SSL context of a master with the certificate of ``--cert``/``--key``, checking
+    the gateway's certificate against ``--ca`` (default: the config's upstream.tls.ca,
+    relative to the config file)."""
+    import ssl
+
+    if not (args.cert and args.key):
+        raise ValueError("give both --cert and --key")
+    ca = args.ca or str(Path(args.config).resolve().parent / config.upstream.tls.ca)
+    ctx = ssl.create_default_context(cafile=ca)
+    ctx.load_cert_chain(args.cert, args.key)
+    return ctx
 
 
 def _cmd_sim(args: argparse.Namespace) -> int:
@@ -178,9 +221,18 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 
         add_calibration_parsers(sub)
 
-    p = sub.add_parser("status", help="read the live gateway's status registers")
+    p = sub.add_parser("status", help="read the live gateway's status registers",
+                       description="Read the status unit of the running gateway (config "
+                       "generation, last reload, the loaded file's CRC, per-axis state) over "
+                       "plain Modbus/TCP (upstream.tcp), or over Modbus/TCP Security with "
+                       "--cert and --key (a master's certificate whose role reads).")  # fmt: skip
     p.add_argument("-c", "--config", required=True, help="gateway YAML config")
     p.add_argument("--port", type=int, help="gateway TCP port (default: from the config)")
+    p.add_argument("--cert", help="over upstream.tls: a master's certificate (PEM) whose role "
+                   "reads, e.g. monitor")  # fmt: skip
+    p.add_argument("--key", help="over upstream.tls: that certificate's key (PEM)")
+    p.add_argument("--ca", help="over upstream.tls: the CA the gateway's certificate is "
+                   "checked against (default: upstream.tls.ca)")  # fmt: skip
     p.set_defaults(func=_cmd_status)
     return parser
 

@@ -413,6 +413,20 @@ def test_compgw_run_on_uvloop_serves_tls(tmp_path: Path, pki: dict[str, Issued])
                 await move(client, 2, 100_000)
                 assert await read32(client, 2, FEEDBACK) == 100_000
                 client.close()
+                # compgw status over TLS with a monitor's certificate; without one it says so
+                status = ["-m", "gateway.cli", "status", "-c", str(path), "--port", str(port)]
+                monitor = ["--cert", str(pki["monitor"].cert_path),
+                           "--key", str(pki["monitor"].key_path),
+                           "--ca", str(pki["ca"].cert_path)]  # fmt: skip
+                out = subprocess.run([sys.executable, *status, *monitor], cwd=ROOT,
+                                     capture_output=True, text=True, timeout=30)  # fmt: skip
+                assert out.returncode == 0 and "config generation" in out.stdout, out
+                out = subprocess.run([sys.executable, *status], cwd=ROOT,
+                                     capture_output=True, text=True, timeout=30)  # fmt: skip
+                assert out.returncode == 1 and out.stderr.strip() == (
+                    "compgw status: the config serves only Modbus/TCP Security (upstream.tls): "
+                    "give --cert and --key of a master's certificate whose role reads (e.g. "
+                    "monitor), or add upstream.tcp on loopback"), out.stderr
                 assert await refused_at_handshake(port, client_context(pki, "expired"))
                 await line_with("certificate expired")
                 proc.send_signal(signal.SIGTERM)
