@@ -34,6 +34,7 @@ from .config import (
     config_crc,
     load_config,
 )
+from .config import warnings as config_warnings
 from .metrics import MetricsServer
 from .metrics import build as build_metrics
 from .modbus.downstream import Bus, RtuBus, TcpBus
@@ -301,6 +302,8 @@ async def serve(path: str | Path, *, stop: asyncio.Event | None = None,
         log.error("%s", exc)
         notifier.status(f"config error: {exc}")
         return 1
+    for warning in config_warnings(config):  # what `compgw check` warns of, in the journal
+        log.warning("%s", warning)
     app = GatewayApp(config, chain, source=str(path))
     try:
         await app.start()
