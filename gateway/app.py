@@ -41,6 +41,7 @@ from .modbus.downstream import Bus, RtuBus, TcpBus
 from .modbus.mbsecurity import TlsGate
 from .modbus.rtu_over_tcp import RtuOverTcpBus
 from .modbus.security import WriteGuard
+from .modbus.serialline import SerialLineLost
 from .modbus.tlsfiles import certificate_dates, server_context
 from .modbus.upstream import RtuServer, TcpServer
 from .router import Gateway
@@ -184,7 +185,10 @@ class GatewayApp:
                     stopbits=up.rtu.stopbits,
                     t35=up.rtu.t35,
                 )
-                await self.rtu.start()
+                try:
+                    await self.rtu.start()
+                except SerialLineLost as err:  # (an OSError: "cannot listen", exit 3)
+                    raise SerialLineLost(f"upstream.rtu {err}") from err
             if self.metrics is not None:
                 await self.metrics.start()
         except BaseException:

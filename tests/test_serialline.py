@@ -8,8 +8,10 @@ import contextlib
 import os
 from collections.abc import Iterator
 
+import pytest
+
 from gateway.modbus.frames import rtu_encode, rtu_request_length
-from gateway.modbus.serialline import MAX_EMPTY_READS, SerialLine
+from gateway.modbus.serialline import MAX_EMPTY_READS, SerialLine, SerialLineLost
 from tests.helpers_modbus import PtyPair, run, wait_for_condition
 
 
@@ -62,3 +64,24 @@ def test_ready_forever_with_nothing_to_read_is_a_loss() -> None:
             assert line.lost and line.spurious_wakeups == MAX_EMPTY_READS - 1
 
     run(main())
+
+
+def test_a_port_that_refuses_a_setting_is_one_line_naming_it(monkeypatch) -> None:
+    """An adapter (or a pty) refusing a setting makes pyserial's tcsetattr raise
+    ``termios.error``, which is no OSError: it crashed the gateway with a traceback. Now
+    it is a lost line naming the port and the settings, as a missing port is. (The
+    refusal itself cannot be had from a pty on every kernel: pyserial's call is made to
+    raise what such an adapter raises.)"""
+    import termios
+
+    import serial
+
+    def refuse(*args: object, **kwargs: object) -> None:
+        raise termios.error(22, "Invalid argument")
+
+    monkeypatch.setattr(serial, "Serial", refuse)
+    line = SerialLine("/dev/ttyUSB7", baudrate=57600, parity="E", stopbits=1)
+    with pytest.raises(SerialLineLost) as info:
+        line.open()
+    assert str(info.value) == "/dev/ttyUSB7: refuses 57600 baud, 8E1: Invalid argument"
+    assert isinstance(info.value, OSError)  # the bus logs it and retries; run exits 3

@@ -24,6 +24,7 @@ import logging
 import os
 import select
 import sys
+import termios
 import time
 from collections.abc import Callable
 from typing import Literal
@@ -463,6 +464,11 @@ class SerialLine(RtuStream):
             ser = serial.Serial(self.port, timeout=0, write_timeout=0, **self._settings)
         except (OSError, serial.SerialException, ValueError) as err:
             raise SerialLineLost(f"{self.port}: {err}") from err
+        except termios.error as err:  # the port refuses a setting (an adapter, a pty)
+            s = self._settings
+            raise SerialLineLost(f"{self.port}: refuses {s['baudrate']} baud, "
+                                 f"{s['bytesize']}{s['parity']}{s['stopbits']:g}: "
+                                 f"{err.args[-1] if err.args else err}") from err
         self._serial = ser
         self._attach(ser.fileno())
 
