@@ -7,7 +7,9 @@ load, and the error names the file and the point.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -31,16 +33,32 @@ from .formats import load_planar_model, read_cyclic, read_linkage, read_linuxcnc
 TURN_DEG = 360.0
 
 
+T = TypeVar("T")
+
+
+def _named(key: str, read: Callable[[Path], T], path: Path) -> T:
+    """``read(path)``, its error (a missing file, a bad line) named by the config key that
+    points at the file, as every config error is."""
+    try:
+        return read(path)
+    except CompensationError as exc:
+        text = str(exc)
+        if text.startswith(key):
+            raise
+        raise type(exc)(f"{key}: {text}") from None
+
+
 def _read_pitch(axis_name: str, axis: Axis, base_dir: Path) -> PitchStage | None:
     spec = axis.compensation.pitch_file
     if spec is None:
         return None
     path = base_dir / spec.file
     table: PitchTable
+    key = f"axes.{axis_name}.compensation.pitch.file"
     if spec.format == "csv":
-        table = read_pitch_csv(path)
+        table = _named(key, read_pitch_csv, path)
     else:  # a LinuxCNC file has no unit: it is in the axis's (mm or degrees)
-        table = read_linuxcnc(path, int(spec.format[-1]))
+        table = _named(key, lambda p: read_linuxcnc(p, int(spec.format[-1])), path)
         table = PitchTable(table.position_mm, table.forward_mm, table.reverse_mm,
                            axis.rotary, table.source, table.lines)  # fmt: skip
     if table.rotary != axis.rotary:
@@ -65,14 +83,16 @@ def build_axis(name: str, axis: Axis, base_dir: Path) -> AxisChain:
     cyclic = None
     if comp.cyclic is not None:
         period = TURN_DEG if axis.wraps else None
-        cyclic = CyclicStage(read_cyclic(base_dir / comp.cyclic), axis.travel_mm, period)
+        model = _named(f"axes.{name}.compensation.cyclic", read_cyclic, base_dir / comp.cyclic)
+        cyclic = CyclicStage(model, axis.travel_mm, period)
     takeup = None
     if comp.takeup is not None:
         takeup = TakeUpCurve(np.asarray(comp.takeup.reversal_um) / 1000.0, comp.takeup.fraction,
                              f"axes.{name}.compensation.takeup")  # fmt: skip
     linkage = None
     if comp.linkage is not None:
-        linkage = LinkageStage(read_linkage(base_dir / comp.linkage), axis.travel_mm)
+        linkage = LinkageStage(_named(f"axes.{name}.compensation.linkage", read_linkage,
+                                      base_dir / comp.linkage), axis.travel_mm)  # fmt: skip
     return AxisChain(
         name,
         axis.pulse_mm,
@@ -98,7 +118,8 @@ def build_chain(config: GatewayConfig, base_dir: str | Path) -> Chain:
         if config.planar is not None:
             model_path = base / config.planar.model
             planar = PlanarStage(
-                load_planar_model(model_path), tuple(config.planar.axes), source=str(model_path)
+                _named("planar.model", load_planar_model, model_path),
+                tuple(config.planar.axes), source=str(model_path)
             )
         chain = Chain(axes, planar)
         chain.check_limits()

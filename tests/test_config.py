@@ -227,3 +227,20 @@ def test_bad_heat_from_motion_names_the_field(thermal, message):
     data["axes"]["X"].setdefault("compensation", {})["thermal"] = thermal
     with pytest.raises(ConfigError, match=message):
         parse_config(data)
+
+
+def test_a_missing_table_file_is_named_by_its_key(tmp_path: Path):
+    """Every config error names the YAML path: a missing table too, not only its file."""
+    from gateway.tables import build_chain
+
+    data = copy.deepcopy(BASE)
+    data["axes"]["X"]["compensation"] = {"pitch": {"file": "x.csv"}}
+    with pytest.raises(ConfigError, match=r"^axes\.X\.compensation\.pitch\.file: .*x\.csv: "
+                                          r"file not found$"):  # fmt: skip
+        build_chain(parse_config(copy.deepcopy(data)), tmp_path)
+    (tmp_path / "x.csv").write_text("position_mm,forward_um\n0,1\n800,2\n")
+    build_chain(parse_config(copy.deepcopy(data)), tmp_path)  # there now: it loads
+    data["axes"]["X"]["compensation"]["cyclic"] = "x_cyclic.yaml"
+    with pytest.raises(ConfigError, match=r"^axes\.X\.compensation\.cyclic: .*x_cyclic\.yaml: "
+                                          r"file not found$"):  # fmt: skip
+        build_chain(parse_config(copy.deepcopy(data)), tmp_path)
