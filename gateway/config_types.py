@@ -8,6 +8,7 @@ vocabulary on purpose: one spelling of a register address for both configs.
 
 from __future__ import annotations
 
+import difflib
 import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -75,7 +76,12 @@ def format_validation_error(exc: ValidationError, union_tags: frozenset[str] = f
     loc = ".".join(str(p) for p in clean(err["loc"]))
     message = str(err["msg"]).removeprefix("Value error, ")
     if err["type"] == "missing":
-        return f"{loc}: missing (required)"
+        parent = clean(err["loc"])[:-1]
+        stray = [str(clean(e["loc"])[-1]) for e in exc.errors(include_url=False)
+                 if e["type"] == "extra_forbidden" and clean(e["loc"])[:-1] == parent]
+        near = difflib.get_close_matches(str(clean(err["loc"])[-1]), stray, n=1)
+        return f"{loc}: missing (required)" + (f"; {near[0]!r} beside it is no key (a typo?)"
+                                                if near else "")  # fmt: skip
     if err["type"] == "extra_forbidden":
         return f"{loc}: unknown key"
     value = err.get("input")

@@ -244,3 +244,12 @@ def test_a_missing_table_file_is_named_by_its_key(tmp_path: Path):
     with pytest.raises(ConfigError, match=r"^axes\.X\.compensation\.cyclic: .*x_cyclic\.yaml: "
                                           r"file not found$"):  # fmt: skip
         build_chain(parse_config(copy.deepcopy(data)), tmp_path)
+
+
+def test_a_required_key_misspelt_is_said_beside_its_absence():
+    data = copy.deepcopy(BASE)
+    data["axes"]["X"]["travel_mmm"] = data["axes"]["X"].pop("travel_mm")
+    with pytest.raises(ConfigError) as info:
+        parse_config(data, source="gw.yaml")
+    assert str(info.value) == ("gw.yaml: axes.X.travel_mm: missing (required); 'travel_mmm' "
+                               "beside it is no key (a typo?)")  # fmt: skip
