@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -244,7 +245,11 @@ def main(argv: list[str] | None = None) -> int:
         # a command's own one-line message says what failed, in the user's terms: not also
         # the library's ("Connection to (…) failed", a late reply after Ctrl-C)
         logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
-    return int(args.func(args))
+    try:
+        return int(args.func(args))
+    except BrokenPipeError:  # `compgw check | head`: the reader has what it wanted
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # (no second error
+        return EXIT_OK  # at exit's flush)
 
 
 if __name__ == "__main__":

@@ -117,3 +117,16 @@ def test_status_with_no_gateway_says_so_in_one_line(tmp_path: Path):
                          capture_output=True, text=True, timeout=60, cwd=ROOT)  # fmt: skip
     assert out.returncode == 3
     assert out.stderr.splitlines() == [f"compgw status: no gateway at 127.0.0.1:{port}"], out.stderr
+
+
+def test_a_reader_that_stops_reading_ends_no_traceback():
+    """`compgw check … | head`: the pipe closed early is not an error to show."""
+    root = Path(__file__).resolve().parent.parent
+    proc = subprocess.Popen([sys.executable, "-m", "gateway.cli", "check", "-c",
+                             str(root / "config" / "example.yaml")], cwd=root,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # before it writes a line
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) == 0 and "Traceback" not in err and "BrokenPipe" not in err, err
+    proc.stderr.close()
