@@ -82,11 +82,11 @@ _DENIED = {
              "ranges%s",
     "function": "TLS client %s (role %s): FC%02d to unit %d refused: a function only "
                 "write: true allows%s",
-    "no_role": "TLS client %s (%s): FC%02d to unit %d refused: the certificate has no role "
+    "no_role": "TLS client %s %s: FC%02d to unit %d refused: the certificate has no role "
                "(no_role: refuse)%s",
     "unknown_role": "TLS client %s (role %s): FC%02d to unit %d refused: the role is not in "
                     "upstream.tls.roles%s",
-    "bad_role": "TLS client %s (%s): FC%02d to unit %d refused: invalid role extension%s",
+    "bad_role": "TLS client %s %s: FC%02d to unit %d refused: invalid role extension%s",
 }
 NO_ROLE, BAD_ROLE = "(none)", "(invalid)"
 
