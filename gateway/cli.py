@@ -188,7 +188,11 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     )
     p.set_defaults(func=_cmd_run)
 
-    p = sub.add_parser("check", help="validate config and tables, print the resolved setup")
+    p = sub.add_parser("check", help="validate config and tables, print the resolved setup",
+                       description="Validate a gateway config as `compgw run` would load it "
+                       "(every table, model and TLS file read), print the resolved setup per "
+                       "axis, and warn of what loads but should be acted on. Exit 0: it "
+                       "loads; 1: it does not (one line naming the key or file).")  # fmt: skip
     p.add_argument("-c", "--config", required=True, help="gateway YAML config")
     p.set_defaults(func=_cmd_check)
 

@@ -228,7 +228,8 @@ class Commission(ShortBudget):
                      f"{MIN_LOST_UM:g} µm or more of lost motion and one rung of it, 12 moves, "
                      "shows less than all of it)")  # fmt: skip
         self.say(f"  then verification rounds (before, each round, after) within the budget; "
-                 f"first steps: {total / 3600:.2f} h at {self.s.speed_mm_s:g} mm/s and "
+                 f"first steps: {total / 3600:.2f} h at {self.s.speed_mm_s:g} "
+                 f"{'deg/s' if all(self._rotary(a) for a in self.s.axes) else 'mm/s'} and "
                  f"{self.s.stop_s:g} s per reading")  # fmt: skip
         if total > self.s.budget_s:
             self.say(f"  the budget ({self.s.budget_s / 3600:.2f} h) does not hold these first "
