@@ -69,6 +69,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
     import asyncio
 
     from pymodbus.client import AsyncModbusTcpClient, AsyncModbusTlsClient
+    from pymodbus.exceptions import ModbusException
 
     from .config import ConfigError, config_crc, load_config
     from .status import INPUT_SIZE, format_status
@@ -118,7 +119,11 @@ def _cmd_status(args: argparse.Namespace) -> int:
         finally:
             client.close()
 
-    reply = asyncio.run(read())
+    try:
+        reply = asyncio.run(read())
+    except ModbusException as exc:  # a timeout, the connection lost mid-request
+        print(f"compgw status: no reply from {host}:{port}: {exc}", file=sys.stderr)
+        return EXIT_RUNTIME
     if reply is None:
         print(f"compgw status: no gateway at {host}:{port}" + (
             " (or the TLS handshake failed: the gateway's log says why)"
