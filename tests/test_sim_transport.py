@@ -130,7 +130,7 @@ def test_rtu_on_its_own_pty_keeps_the_reply_silence() -> None:
     data["sim"]["rtu"] |= {"port": "pty", "reply_silence_s": 0.005}
 
     async def script() -> list[float]:
-        async with SimServer(config_from(data)) as server:
+        async with SimServer(config_from(data), tcp_port=0) as server:
             assert server.rtu_port is not None and server.rtu_port.startswith("/dev/")
             m = Master(await rtu_client(server.rtu_port), data)
             gaps = []
