@@ -371,9 +371,11 @@ def test_an_error_names_the_device_of_its_address_and_unit() -> None:
 
 def test_a_finished_commissioning_is_carried_on_only_for_more(template: Path,
                                                               tmp_path: Path) -> None:  # fmt: skip
-    """Pure (the state of a finished run, no machine): the same command, a smaller budget
-    or a looser tolerance find it finished; a larger budget, a tighter tolerance, more
-    rounds, other axes or another plane carry it on."""
+    """Pure (the state of a finished run, no machine): the same command, a smaller budget,
+    a looser tolerance or a tolerance that judges none of its axes (arcseconds on linear
+    axes) find it finished; a larger budget, a tighter tolerance or more rounds carry it
+    on. Other axes or another plane are refused: that directory's readings, references and
+    tables are the first one's (carried on, a turntable's after a swing axis crashed)."""
     out = tmp_path / "commission"
     config = template / "gateway.yaml"
 
@@ -389,11 +391,17 @@ def test_a_finished_commissioning_is_carried_on_only_for_more(template: Path,
                                "what": first._what()}  # fmt: skip
     first._save()
     (out / "summary.json").write_text(json.dumps({"outcome": "within", "machine_h": 1.5}))
-    for same in ({}, {"budget_s": 3600.0}, {"tolerance_um": 3.0}, {"max_rounds": 2}):
+    for same in ({}, {"budget_s": 3600.0}, {"tolerance_um": 3.0}, {"max_rounds": 2},
+                 {"tolerance_arcsec": 0.5}):  # fmt: skip
         assert job(**same).finished() == {"outcome": "within", "machine_h": 1.5}, same
-    for more in ({"budget_s": 9000.0}, {"tolerance_um": 1.0}, {"max_rounds": 9},
-                 {"axes": ("X",)}, {"planar": None}):  # fmt: skip
+        assert job(**same).other() is None
+    for more in ({"budget_s": 9000.0}, {"tolerance_um": 1.0}, {"max_rounds": 9}):
         assert job(**more).finished() is None, more
+    for other in ({"axes": ("X",)}, {"planar": None}):
+        why = job(**other).other()
+        assert why is not None and why.startswith(f"{out} holds the commissioning of X, Y and "
+                                                  "the plane X/Y; this command asks for ")
+        assert "give --out DIR for another commissioning" in why
 
 
 def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path: Path) -> None:

@@ -256,10 +256,31 @@ class Commission(ShortBudget):
 
     def _asked(self) -> dict[str, float]:
         """What this command asks of the commissioning: more of any of it carries on a
-        finished one."""
-        return {"budget_s": self.s.budget_s, "max_rounds": self.s.max_rounds,
-                "tolerance_um": -self.s.tolerance_um,
-                "tolerance_arcsec": -self.s.tolerance_arcsec}  # fmt: skip
+        finished one (a tolerance only where an axis or the plane is judged by it)."""
+        out = {"budget_s": self.s.budget_s, "max_rounds": float(self.s.max_rounds)}
+        if self.s.planar is not None or any(not self._rotary(a) for a in self.s.axes):
+            out["tolerance_um"] = -self.s.tolerance_um
+        if any(self._rotary(a) for a in self.s.axes):
+            out["tolerance_arcsec"] = -self.s.tolerance_arcsec
+        return out
+
+    def other(self) -> str | None:
+        """Why this command cannot carry on the commissioning in its directory: it holds
+        one of other axes or another plane, whose readings, drift references and tables
+        are that one's (carried on, it crashed on a reference of an axis it never read);
+        None when it holds none or this one."""
+        what = self.state.get("what") or (self.state.get("finished") or {}).get("what")
+        if what is None or what == self._what():
+            return None
+        axes, plane = what
+
+        def name(axes: list[str], plane: list[str] | None) -> str:
+            return ", ".join(axes) + (f" and the plane {'/'.join(plane)}" if plane else "")
+
+        return (f"{self.dir} holds the commissioning of {name(axes, plane)}; this command "
+                f"asks for {name(*self._what())}: give --out DIR for another commissioning "
+                "(it starts from your config as it is now, the tables of that one in it), or "
+                "the same --axes and plane to carry that one on")  # fmt: skip
 
     def _what(self) -> list[Any]:
         """What is commissioned: other axes or another plane are another commissioning."""
@@ -282,6 +303,9 @@ class Commission(ShortBudget):
         """Commission; returns the summary (also in DIR/summary.json). Raises
         CommissionAborted (after restoring the user's config) on a machine fault."""
         if self.state.pop("finished", None) is not None:  # asked for more: carries on
+            self._save()
+        if "what" not in self.state:
+            self.state["what"] = self._what()
             self._save()
         self.original()
         try:

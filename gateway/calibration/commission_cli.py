@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import math
 import os
 import re
@@ -12,6 +13,7 @@ import shlex
 import signal
 import subprocess
 import sys
+import traceback
 from collections.abc import Awaitable, Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -277,6 +279,9 @@ def main(args: argparse.Namespace) -> int:
         )  # fmt: skip
         reload = make_reload(args, config, gateway)
         job = Commission(settings, reload, print, None)
+        other = job.other()
+        if other is not None:
+            raise ValueError(other)
         finished = job.finished()
         if finished is None:
             job.print_plan()
@@ -286,7 +291,8 @@ def main(args: argparse.Namespace) -> int:
     if finished is not None:
         print(f"commissioned already in {settings.out_dir} ({finished['outcome']}, "
               f"{finished['machine_h']:.2f} h of machine time): nothing moves. For more, give "
-              "a larger --budget-h, a tighter --tolerance-um or more --max-rounds; to start "
+              f"a larger --budget-h, a tighter {' or '.join(_tolerances(job))} or more "
+              "--max-rounds; to start "
               "over, remove that directory or give --out")  # fmt: skip
         print("\n".join(summary_lines(finished)))
         print(f"report: {settings.out_dir / 'report' / 'report.html'}")
@@ -331,6 +337,14 @@ def main(args: argparse.Namespace) -> int:
         _err(f"{exc}{_options_at(str(exc), settings)}; {where}; run the same command again to "
              "resume")  # fmt: skip
         return EXIT_RUNTIME
+    except Exception as exc:  # a fault of compgw's own: the machine left on your config
+        where = asyncio.run(_restore(job))
+        log_path = settings.out_dir / "error.log"
+        with contextlib.suppress(OSError):
+            log_path.write_text(traceback.format_exc())
+        _err(f"internal error ({type(exc).__name__}: {exc}); {where}; please report it with "
+             f"{log_path} and {settings.out_dir / 'commission.json'}")  # fmt: skip
+        return EXIT_RUNTIME
 
     def load(step: str):  # type: ignore[no-untyped-def]
         return job.raw(step) if job.done(step) else None
@@ -339,6 +353,13 @@ def main(args: argparse.Namespace) -> int:
     print("\n".join(summary_lines(summary)))
     print(f"report: {report}")
     return EXIT_OK if summary["outcome"] == "within" else EXIT_NOT_MET
+
+
+def _tolerances(job: Any) -> list[str]:
+    """The tolerance options that judge this commissioning's axes and plane."""
+    asked = job._asked()
+    return [o for k, o in (("tolerance_um", "--tolerance-um"),
+                           ("tolerance_arcsec", "--tolerance-arcsec")) if k in asked]  # fmt: skip
 
 
 def _options_at(message: str, settings: Any) -> str:
