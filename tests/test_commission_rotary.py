@@ -209,6 +209,19 @@ def test_a_rotary_axis_needs_the_angle_instrument(tmp_path: Path) -> None:
     assert code == 0, err
     assert "table over 0…360°, judged at targets over 180…540° (across 360°)" in out
     assert "A: swing axis" in out and "table over -14…13°" in out and "cyclic-C" in out
+    # the command line's slips, said before anything moves: an XY device on rotary axes,
+    # angle channels naming no rotary axis, or leaving a commissioned one out
+    angle = ("commission", "-c", str(config), "--angle", "127.0.0.1:5021:24", "--gateway",
+             "127.0.0.1:5020", "--dry-run")  # fmt: skip
+    for extra, said in (
+            (("--xy-device", "127.0.0.1:5021:21"), "--xy-device: the plane needs two "
+             "commissioned linear axes (--plane –; linear: none)"),
+            (("--angle-axes", "C,Q"), "--angle-axes C,Q: the instrument's channels in order, "
+             "each a rotary axis of"),
+            (("--angle-axes", "C"), "--angle-axes C: no channel for axis A, which is "
+             "commissioned")):  # fmt: skip
+        code, out, err = compgw(*angle, *extra)
+        assert code == 1 and out == "" and err.startswith(f"compgw commission: {said}"), err
 
 
 def test_a_turntable_judges_and_refines_the_span_across_360(tmp_path: Path) -> None:

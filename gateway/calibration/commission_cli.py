@@ -245,12 +245,30 @@ def main(args: argparse.Namespace) -> int:
                 raise TableError(f"axis {a} is rotary: give its angle instrument, --angle "
                                  "HOST:PORT:UNIT (or leave it out with --axes)")  # fmt: skip
         plane = None
+        linear = [a for a in axes if not config.axes[a].rotary]
         if args.xy_device:
             names = (args.plane.split(",") if args.plane else
-                     list(config.planar.axes) if config.planar else list(axes[:2]))  # fmt: skip
-            if len(names) != 2 or any(n not in axes for n in names):
-                raise TableError(f"--plane {','.join(names)}: two commissioned axes")
+                     list(config.planar.axes) if config.planar else linear[:2])  # fmt: skip
+            if len(names) != 2 or any(n not in linear for n in names):
+                raise TableError(f"--xy-device: the plane needs two commissioned linear axes "
+                                 f"(--plane {','.join(names) or '–'}; linear: "
+                                 f"{', '.join(linear) or 'none'})")  # fmt: skip
             plane = (names[0], names[1])
+        for option, given, kind in (("--laser-axes", args.laser_axes, False),
+                                    ("--angle-axes", args.angle_axes, True)):  # fmt: skip
+            if not given:
+                continue
+            names = given.split(",")
+            fits = [a for a, c in config.axes.items() if c.rotary == kind]
+            bad = [n for n in names if n not in fits]
+            if bad or len(set(names)) < len(names):
+                raise TableError(f"{option} {given}: the instrument's channels in order, each a "
+                                 f"{'rotary' if kind else 'linear'} axis of {config_path} once "
+                                 f"({', '.join(fits) or 'none'})")  # fmt: skip
+            missing = [a for a in axes if config.axes[a].rotary == kind and a not in names]
+            if missing:
+                raise TableError(f"{option} {given}: no channel for axis {missing[0]}, which "
+                                 "is commissioned")  # fmt: skip
         if args.laser is None and not all(config.axes[a].rotary for a in axes):
             raise TableError("--laser HOST:PORT:UNIT is required (the axes' instrument)")
         gateway = gateway_endpoint(args, config)
