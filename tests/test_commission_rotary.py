@@ -106,6 +106,14 @@ def check_config(path: Path) -> None:
 
 def test_turntable_commissioned_end_to_end(tmp_path: Path) -> None:
     with running(tmp_path, {"C": axis_data(2, TURNTABLE_TRAVEL, True, {})}) as rig:
+        # the angle channels swapped (the instrument reads A, C): caught at C's first step,
+        # its readings (the swing head's, standing) discarded; the right order from there
+        swapped = rig.commission("--lead-mm", "C=5", "--angle-axes", "C,A")
+        assert swapped.popen.wait(timeout=120) == 1, swapped.text()
+        assert ("the angle instrument's reading for axis C (channel 1, by --angle-axes C,A) "
+                "strayed ") in swapped.text() and "run the same command" not in swapped.text()
+        state = json.loads((tmp_path / "commission" / "commission.json").read_text())
+        assert "backlash-C" not in state["steps"], state["steps"]
         proc = rig.commission("--lead-mm", "C=5")  # 72 teeth: the worm's period in degrees
         rc = proc.popen.wait(timeout=120)
         text = proc.text()
@@ -216,9 +224,9 @@ def test_a_rotary_axis_needs_the_angle_instrument(tmp_path: Path) -> None:
     for extra, said in (
             (("--xy-device", "127.0.0.1:5021:21"), "--xy-device: the plane needs two "
              "commissioned linear axes (--plane –; linear: none)"),
-            (("--angle-axes", "C,Q"), "--angle-axes C,Q: the instrument's channels in order, "
-             "each a rotary axis of"),
-            (("--angle-axes", "C"), "--angle-axes C: no channel for axis A, which is "
+            (("--angle-axes", "C,C"), "--angle-axes C,C: the instrument's channels in order, "
+             "each named once, a rotary axis of"),
+            (("--angle-axes", "C,Q"), "--angle-axes C,Q: no channel for axis A, which is "
              "commissioned")):  # fmt: skip
         code, out, err = compgw(*angle, *extra)
         assert code == 1 and out == "" and err.startswith(f"compgw commission: {said}"), err

@@ -260,11 +260,12 @@ def main(args: argparse.Namespace) -> int:
                 continue
             names = given.split(",")
             fits = [a for a, c in config.axes.items() if c.rotary == kind]
-            bad = [n for n in names if n not in fits]
+            bad = [n for n in names if n in config.axes and n not in fits]
             if bad or len(set(names)) < len(names):
-                raise TableError(f"{option} {given}: the instrument's channels in order, each a "
-                                 f"{'rotary' if kind else 'linear'} axis of {config_path} once "
-                                 f"({', '.join(fits) or 'none'})")  # fmt: skip
+                raise TableError(f"{option} {given}: the instrument's channels in order, each "
+                                 f"named once, a {'rotary' if kind else 'linear'} axis of "
+                                 f"{config_path} ({', '.join(fits) or 'none'}) or another "
+                                 "name for a channel no axis of it uses")  # fmt: skip
             missing = [a for a in axes if config.axes[a].rotary == kind and a not in names]
             if missing:
                 raise TableError(f"{option} {given}: no channel for axis {missing[0]}, which "

@@ -158,6 +158,7 @@ class RotarySteps(Steps):
         results = self.state.setdefault("identify", {})
         park = self._park(axis)
         await self.step(f"backlash-{axis}", lambda: self._backlash_plan(axis), "off", park)
+        self._check_angle_channel(axis, f"backlash-{axis}")
         b = backlash_from_raw(self.raw(f"backlash-{axis}"), axis)
         results[f"backlash-{axis}"] = {
             "B_arcsec": float(b.backlash_mm * ARCSEC_PER_DEG),
@@ -167,6 +168,38 @@ class RotarySteps(Steps):
         if axis in self.s.lead_mm:
             await self.step(f"cyclic-{axis}", lambda: self._cyclic_plan_deg(axis), "off", park)
         await self.step(f"before-{axis}", lambda: self.rotary_before_plan(axis), "off", park)
+
+    def _check_angle_channel(self, axis: str, name: str) -> None:
+        """The angle instrument's reading for ``axis`` follows it over its first step (the
+        backlash test's three places): its deviations spread over less than 5 % of how far
+        it was sent, or the channels
+        are not in the order given (a rotary axis has no drift references to check them
+        by, as the laser's are). Else the step is forgotten, its readings another axis's,
+        and SetupError says what to give. (Swapped, a turntable ran its whole
+        identification and failed at the fit: "forward deviation makes the axis run
+        backwards".)"""
+        from .machine import SetupError
+
+        raw = self.raw(name)
+        # the spread of the deviations, not of the readings: a turntable's reading is taken
+        # in its target's turn, so another axis's standing angle follows it a turn at a time
+        sent, off = float(np.ptp(raw.target_mm)), float(np.ptp(raw.deviation_mm))
+        if off <= 0.05 * sent:
+            return
+        for path in self.raw_paths(name):
+            path.unlink(missing_ok=True)
+        for key in ("steps", "parts", "apart"):
+            self.state.get(key, {}).pop(name, None)
+        self._save()
+        ins = self.s.instruments
+        order = list(ins.angle_axes or [a for a, c in self.config.axes.items() if c.rotary])
+        given = (f"--angle-axes {','.join(order)}" if ins.angle_axes else
+                 f"the config's rotary axes in order, {','.join(order)}; --angle-axes sets it")
+        raise SetupError(f"the angle instrument's reading for axis {axis} (channel "
+                         f"{order.index(axis) + 1}, by {given}) strayed {off:.3f}° from "
+                         f"where {axis} was sent, over {sent:.3f}°: give --angle-axes in the "
+                         "instrument's channel order (its readings of this step are "
+                         "discarded)")  # fmt: skip
 
     # -- 2. fit ------------------------------------------------------------------------------
     def rotary_fitted(self, axis: str, result: PitchResult) -> PitchResult:
