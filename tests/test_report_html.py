@@ -144,9 +144,13 @@ def test_the_identification_reads_as_sentences_per_axis() -> None:
     assert y["take-up of the lost motion"] == ("lost motion 19.1 µm; a take-up curve is kept: "
                                                "a full switch misses by up to 17.3 µm")  # fmt: skip
     assert y["heat from motion"] == "none: the screw grew 0.5 µm at most"
-    assert y["once-per-turn error"] == "peak 3"
+    assert y["periodic error (per screw turn or worm tooth)"] == "peak 3"
     a = dict(rows["A"])
     assert a["backlash"].startswith("12.5″ at most") and a["table fit (rotary)"] == \
         "pchip interpolation (leave-one-out RMS 1.23″)"
+    # a rotary axis's small errors, stored in millidegrees, read in arcseconds
+    turned = identification_rows({"reversal-A": {"per_point": False, "scatter_um": 0.05}},
+                                 rotary=frozenset({"A"}))  # fmt: skip
+    assert turned["A"][0][1].endswith("(scatter of a point's readings 0.18″)"), turned
     text = " ".join(t for axis in rows.values() for _, t in axis if _ != "novel")
     assert "_um" not in text and "_K" not in text and "_s " not in text

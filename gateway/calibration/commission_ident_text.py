@@ -9,20 +9,26 @@ from collections.abc import Callable
 from typing import Any
 
 Record = dict[str, Any]
+#: a small error in its axis's unit: µm, or (rotary axes, stored in millidegrees) ″
+Fmt = Callable[[float | None], str]
 
 
 def _um(value: float | None) -> str:
     return "–" if value is None else f"{value:.2f} µm"
 
 
-def _lead(r: Record) -> str:
+def _arcsec(value_mdeg: float | None) -> str:
+    return "–" if value_mdeg is None else f"{value_mdeg * 3.6:.2f}″"
+
+
+def _lead(r: Record, u: Fmt = _um) -> str:
     if r.get("lead_mm"):
         return (f"a periodic error of {r['amplitude_um']:.2f} µm every {r['lead_mm']:g} mm "
                 "stands out of the noise: the cyclic stage follows it")  # fmt: skip
     return "no periodic error stands out of the noise: no cyclic stage"
 
 
-def _backlash(r: Record) -> str:
+def _backlash(r: Record, u: Fmt = _um) -> str:
     if "B_arcsec" in r:
         places = ", ".join(f"{v:.1f}″" for v in r.get("places_arcsec", []))
         return f"{r['B_arcsec']:.1f}″ at most (at three places: {places})"
@@ -30,7 +36,7 @@ def _backlash(r: Record) -> str:
     return f"{r['B_um']:.2f} µm at most (at three places: {places} µm)"
 
 
-def _takeup(r: Record) -> str:
+def _takeup(r: Record, u: Fmt = _um) -> str:
     how = ("a take-up curve is kept" if r.get("kept") else
            "switched whole at a reversal")  # fmt: skip
     return f"lost motion {r['lost_um']:.1f} µm; {how}: {r.get('why', '')}"
@@ -41,7 +47,7 @@ def _motion_text(r: Record) -> str:
             f"{r.get('tau_s', 0.0):.0f} s")  # fmt: skip
 
 
-def _thermal(r: Record) -> str:
+def _thermal(r: Record, u: Fmt = _um) -> str:
     if r.get("fitted") is False:
         return f"the configured setting kept: {r.get('why', '')}"
     if "gain" in r:
@@ -62,49 +68,49 @@ def _thermal(r: Record) -> str:
     return text
 
 
-def _motion(r: Record) -> str:
+def _motion(r: Record, u: Fmt = _um) -> str:
     if not r.get("fitted"):
         return f"none: {r.get('why', '')}"
     return (f"no sensor; the axes' motion explains the drift ({r['growth_max_um']:.1f} µm "
             f"at most) to {r['residual_rms_um']:.2f} µm RMS: {_motion_text(r)}")  # fmt: skip
 
 
-def _cyclic(r: Record) -> str:
-    peak = f"{r['peak_arcsec']:.1f}″" if "peak_arcsec" in r else _um(r["peak_um"])
-    return f"{r['harmonics']} harmonic(s) per turn, peak {peak}"
+def _cyclic(r: Record, u: Fmt = _um) -> str:
+    peak = f"{r['peak_arcsec']:.1f}″" if "peak_arcsec" in r else u(r["peak_um"])
+    return f"{r['harmonics']} harmonic(s) per period, peak {peak}"
 
 
-def _reversal(r: Record) -> str:
+def _reversal(r: Record, u: Fmt = _um) -> str:
     how = ("per table point: the play varies along the travel beyond the runs' scatter"
            if r.get("per_point") else "a smooth function of the position")  # fmt: skip
-    return f"{how} (scatter of a point's readings {_um(r['scatter_um'])})"
+    return f"{how} (scatter of a point's readings {u(r['scatter_um'])})"
 
 
-def _smoothed(r: Record) -> str:
+def _smoothed(r: Record, u: Fmt = _um) -> str:
     return (f"the table smoothed as its own leave-one-out says: its points moved "
-            f"{_um(r['change_rms_um'])} RMS")  # fmt: skip
+            f"{u(r['change_rms_um'])} RMS")  # fmt: skip
 
 
-def _interpolation(r: Record) -> str:
+def _interpolation(r: Record, u: Fmt = _um) -> str:
     loo = r.get("loo_rms_um") or {}
     text = f"{r.get('method', 'linear')} ({r.get('why', '')})"
     if loo:
-        text += "; leave-one-out RMS " + ", ".join(f"{k} {v:.2f} µm" for k, v in loo.items())
+        text += "; leave-one-out RMS " + ", ".join(f"{k} {u(v)}" for k, v in loo.items())
     return text
 
 
-def _sweep(r: Record) -> str:
+def _sweep(r: Record, u: Fmt = _um) -> str:
     text = (f"round {r['round']}: {r['readings']} readings every "
             f"{r['step_mm']:g} mm over the travel, fitted as a level of "
             f"{r['knots']} points and {r['harmonics']} harmonic(s) per turn at "
-            f"{r['stations']} stations; they miss it by {_um(r['residual_rms_um'])} "
+            f"{r['stations']} stations; they miss it by {u(r['residual_rms_um'])} "
             "RMS")  # fmt: skip
     if r.get("weighted_out"):
         text += f"; {r['weighted_out']} readings left out (stops that fell short)"
     return text
 
 
-def _midpoints(r: Record) -> str:
+def _midpoints(r: Record, u: Fmt = _um) -> str:
     ratio = r.get("misses_x_scatter")
     miss = "–" if ratio is None else f"{ratio:.1f} ×"
     read = ("read too" if r.get("measured") else
@@ -113,7 +119,7 @@ def _midpoints(r: Record) -> str:
            f"its midpoints {read}"
 
 
-def _fit(r: Record) -> str:
+def _fit(r: Record, u: Fmt = _um) -> str:
     """A rotary axis's fit: its interpolation and linkage (arcseconds)."""
     text = f"{r['interpolation']} interpolation"
     if "loo_rms_arcsec" in r:
@@ -124,13 +130,13 @@ def _fit(r: Record) -> str:
 
 
 #: record kind → (what it is, its sentence)
-KINDS: dict[str, tuple[str, Callable[[Record], str]]] = {
+KINDS: dict[str, tuple[str, Callable[[Record, Fmt], str]]] = {
     "lead": ("lead search", _lead),
     "thermal": ("warm-up (thermal)", _thermal),
     "motion": ("heat from motion", _motion),
     "backlash": ("backlash", _backlash),
     "takeup": ("take-up of the lost motion", _takeup),
-    "cyclic": ("once-per-turn error", _cyclic),
+    "cyclic": ("periodic error (per screw turn or worm tooth)", _cyclic),
     "reversal": ("reversal (backlash along the travel)", _reversal),
     "smoothed": ("table smoothing", _smoothed),
     "interpolation": ("between the table's points", _interpolation),
@@ -149,9 +155,11 @@ def short(value: Any) -> str:
     return str(value)
 
 
-def identification_rows(identify: dict[str, Any]) -> dict[str, list[tuple[str, str]]]:
-    """Per axis (records named ``kind-AXIS``), (what, found) in the order identified; a
-    record of no known kind, or one whose fields are not the expected, as stored."""
+def identification_rows(identify: dict[str, Any], rotary: frozenset[str] = frozenset()
+                        ) -> dict[str, list[tuple[str, str]]]:  # fmt: skip
+    """Per axis (records named ``kind-AXIS``), (what, found) in the order identified, the
+    ``rotary`` axes' small errors in ″; a record of no known kind, or one whose fields are
+    not the expected, as stored."""
     out: dict[str, list[tuple[str, str]]] = {}
     for key, record in identify.items():
         kind, _, axis = key.partition("-")
@@ -159,6 +167,6 @@ def identification_rows(identify: dict[str, Any]) -> dict[str, list[tuple[str, s
         if kind in KINDS and isinstance(record, dict):
             what, sentence = KINDS[kind]
             with contextlib.suppress(KeyError, TypeError, ValueError):
-                text = sentence(record)  # (else an older state's record: as stored)
+                text = sentence(record, _arcsec if axis in rotary else _um)  # (else as stored)
         out.setdefault(axis or "–", []).append((what, text))
     return out

@@ -54,16 +54,16 @@ def _cut(before: float | None, after: float | None) -> str:
 def remains(summary: dict[str, Any]) -> list[str]:
     """Sentences on what remains after commissioning, and why."""
     out = []
-    tol = summary["tolerance_um"]
     outcome = summary["outcome"]
-    rotary = f" (rotary axes {summary['tolerance_arcsec']:g}″)" if "tolerance_arcsec" in \
-        summary else ""  # fmt: skip
+    linear = bool(summary.get("xy")) or any(not _angular(e) for e in summary["axes"].values())
+    tols = ([f"{summary['tolerance_um']:g} µm"] if linear else []) + (
+        [f"{summary['tolerance_arcsec']:g}″"] if "tolerance_arcsec" in summary else [])
+    tol_text = " (rotary axes ".join(tols) + (")" if len(tols) > 1 else "")
     if outcome == "within":
-        out.append(f"Every axis is within {tol:g} µm{rotary} (E) between the calibration "
-                   "points.")  # fmt: skip
+        out.append(f"Every axis is within {tol_text} (E) between the calibration points.")
     elif outcome == "budget":
         out.append(f"The machine-time budget ({summary['budget_h']:.2f} h) was spent before "
-                   f"the verification met {tol:g} µm{rotary}; what was fitted so far is "
+                   f"the verification met {tol_text}; what was fitted so far is "
                    "loaded.")  # fmt: skip
     elif outcome == "floor":
         out.append("The residual that misses the tolerance does not stand out of the "
@@ -71,7 +71,7 @@ def remains(summary: dict[str, Any]) -> list[str]:
                    "allowed), or it is finer than the table can follow: more points "
                    "would not help.")  # fmt: skip
     else:
-        out.append(f"The rounds ran out before the verification met {tol:g} µm{rotary}.")
+        out.append(f"The rounds ran out before the verification met {tol_text}.")
     for axis, entry in summary["axes"].items():
         after = entry.get("after")
         if not after:
@@ -176,7 +176,8 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
                     + "</table>" if rrows else
                     "<p id='rounds'>No round ran: the budget was spent before the first "
                     "verification (see what remains, above).</p>"))  # fmt: skip
-    ident = identification_rows(summary.get("identify", {}))
+    ident = identification_rows(summary.get("identify", {}), frozenset(
+        a for a, e in summary["axes"].items() if _angular(e)))  # fmt: skip
     if ident:
         parts.append("<h2>Identification</h2><p>What the first steps (and each sweep) "
                      "found, per axis, in the order found.</p>")  # fmt: skip
