@@ -95,7 +95,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    help="machine time at most (8 h, plan estimate)")
     p.add_argument("--out", metavar="DIR", help="working directory (default: "
                    "commission/ beside the config)")  # fmt: skip
-    p.add_argument("--max-rounds", type=_above(0, "verification rounds", int), default=6)
+    p.add_argument("--max-rounds", type=_above(0, "verification rounds", int), default=6,
+                   help="verification rounds at most (default 6)")
     p.add_argument("--warmup-min", type=_above(0, "minutes"), default=30.0,
                    help="warm-up length (30)")
     p.add_argument("--seed", type=int, default=0, help="random verification targets")
@@ -104,12 +105,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--reload-cmd", metavar="CMD", help="reload by a command")
     p.add_argument("--estimate-speed-mm-s", type=_above(0, "mm/s"), default=100.0,
                    help="the axes' speed, for the machine-time estimates (100)")
-    p.add_argument("--estimate-stop-s", type=_above(0, "s per reading"), default=2.0)
-    p.add_argument("--in-position-bit", type=int, default=4)
-    p.add_argument("--moving-bit", type=int, default=2)
-    p.add_argument("--alarm-bit", type=int, default=0)
-    p.add_argument("--in-position-pulses", type=float, default=2.0)
-    p.add_argument("--timeout-s", type=_above(0, "s"), default=120.0)
+    p.add_argument("--estimate-stop-s", type=_above(0, "s per reading"), default=2.0,
+                   help="the plan's estimate of a stop per reading, settling and the "
+                   "instrument's read (s, default 2)")
+    p.add_argument("--in-position-bit", type=int, default=4,
+                   help="the drive status word's in-position bit (default 4)")
+    p.add_argument("--moving-bit", type=int, default=2,
+                   help="the status word's moving bit (default 2)")
+    p.add_argument("--alarm-bit", type=int, default=0,
+                   help="the status word's alarm bit: set, the run stops and your config "
+                   "is put back (default 0)")
+    p.add_argument("--in-position-pulses", type=float, default=2.0,
+                   help="arrived when the feedback is within this of the target, and the "
+                   "status bits (where the axis has a status word) agree (pulses, default 2)")
+    p.add_argument("--timeout-s", type=_above(0, "s"), default=120.0,
+                   help="a move not in position this long after it was sent stops the run "
+                   "(s, default 120)")
     p.add_argument("--progress", action="store_true", help="progress bar even off a terminal")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=main)
