@@ -230,6 +230,11 @@ def test_a_rotary_axis_needs_the_angle_instrument(tmp_path: Path) -> None:
              "commissioned")):  # fmt: skip
         code, out, err = compgw(*angle, *extra)
         assert code == 1 and out == "" and err.startswith(f"compgw commission: {said}"), err
+    # calibrate's --verify judges in µm: on a rotary axis (millidegrees) it is refused
+    code, out, err = compgw("calibrate", "-c", str(config), "--iso", "A", "--verify",
+                            "--raw", str(tmp_path / "a.csv"), "--gateway", "127.0.0.1:5020",
+                            "--angle", "127.0.0.1:5021:24")  # fmt: skip
+    assert code == 1 and "--verify judges in µm: axis A is rotary" in err, err
 
 
 def test_a_turntable_judges_and_refines_the_span_across_360(tmp_path: Path) -> None:

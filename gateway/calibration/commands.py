@@ -180,6 +180,12 @@ def calibrate(
             if not (args.plan or args.iso or args.backlash or args.takeup or args.cyclic
                     or args.xy or args.warmup):
                 return EXIT_OK
+        rotary = [a for a in (args.iso, args.backlash, args.cyclic) if a and a in config.axes
+                  and config.axes[a].rotary]  # fmt: skip
+        if args.verify and rotary:  # its figures are millidegrees, its tolerance µm
+            raise TableError(f"--verify judges in µm: axis {rotary[0]} is rotary; commission "
+                             "it (compgw commission --tolerance-arcsec), or judge its runs with "
+                             "compgw report, in arcseconds")  # fmt: skip
         plan = make_plan(args, config)
         if args.save_plan:
             write_plan(args.save_plan, plan)
