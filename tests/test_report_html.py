@@ -73,6 +73,17 @@ def test_html_is_self_contained_with_before_after_and_pngs(runs, capsys):
                  "--out", str(out / "xy")]) == 0  # fmt: skip
     assert "figures-XY" in (out / "xy" / "report.html").read_text()
     assert (out / "xy" / "xy-field.png").stat().st_size > 1000
+    assert "warning" not in capsys.readouterr().err  # the same targets: a before-and-after
+    # a before-run at other targets is said to be no before-and-after of the same points
+    plan = iso230_linear_plan("X", (0, 500), step_mm=40, runs=5)
+    with RawWriter(runs / "elsewhere.csv") as w:
+        for m in plan.moves:
+            if m.measured:
+                w.append("X", m.run, m.direction, m.target_mm[0], m.target_mm[0] + 0.01)
+    assert main(["report", str(runs / "after.csv"), "--before", str(runs / "elsewhere.csv"),
+                 "--out", str(out / "other")]) == 0  # fmt: skip
+    err = capsys.readouterr().err
+    assert "was measured at other targets than" in err and "axis X: " in err, err
 
 
 @pytest.mark.skipif(not CHROMIUM.exists(),

@@ -250,6 +250,11 @@ def calibrate(
                       f"{summary.resumed_at}, {summary.measured_now} points measured now")
                 return EXIT_OK
             vplan = make_plan(args, config, verification=True)
+            if vplan is not None and not args.verify_plan:  # for a before-run (README)
+                vpath = raw.with_name(f"{raw.stem}.verify.plan")
+                write_plan(vpath, vplan)
+                print(f"verification plan: {vpath} (for a before-run at the same targets: "
+                      f"calibrate --plan {vpath.name} --compensation off)")  # fmt: skip
             rounds = await iterate_rounds(
                 session, plan, raw, args.iterate, args.tolerance_um,
                 reload or _reload_fn(args), print, verification=vplan,

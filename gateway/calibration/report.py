@@ -434,6 +434,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "the raw file's '# unit:' line, else mm")  # fmt: skip
 
 
+def _other_targets(before: RawData, after: RawData) -> str:
+    """How the targets of two runs differ, per axis (nothing when each axis was read at
+    the same targets, to 1 µm)."""
+    def targets(raw: RawData, axis: str) -> set[float]:
+        mask = np.asarray(raw.axis) == axis
+        return set(np.round(raw.target_mm[mask], 3).tolist())
+
+    out = []
+    for axis in after.axes:
+        a, b = targets(after, axis), targets(before, axis)
+        if a != b:
+            out.append(f"axis {axis}: {len(a - b)} of {len(a)} targets not in the before-run")
+    return "; ".join(out)
+
+
 def main(args: argparse.Namespace) -> int:
     try:
         raw = read_raw_csv(args.raw)
@@ -453,6 +468,12 @@ def main(args: argparse.Namespace) -> int:
                 print(f"report written to {path}")
             return 0
         before = read_raw_csv(args.before) if args.before else None
+        if before is not None and not is_planar(raw):
+            moved = _other_targets(before, raw)
+            if moved:
+                print(f"compgw report: warning: --before {args.before} was measured at other "
+                      f"targets than {args.raw} ({moved}): not a before-and-after of the same "
+                      "points", file=sys.stderr)  # fmt: skip
         angular = (args.unit or meta.get("unit", "mm")) == "deg"
         if args.json:
             if is_planar(raw):
