@@ -11,6 +11,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 
 from gateway.calibration.rawdata import RawWriter
@@ -126,3 +127,21 @@ def test_export_turntable_and_swing_tables_to_rotary_forms(tmp_path: Path):
     bad = compgw("export", str(tmp_path / "c.comp"), "--from", "linuxcnc0", "--turn",
                  "-o", str(tmp_path / "x.csv"), "--to", "csv")
     assert bad.returncode == 1 and "--turn needs a table in degrees" in bad.stderr
+    # a table fitted from runs that began at 3° (3…357°): LinuxCNC still gets 0…360°, the
+    # value at 0° read around the circle, the same at both ends
+    late = pos + 3.0
+    write_pitch_csv(tmp_path / "late.csv", PitchTable(late, dev, dev + 3e-3, rotary=True))
+    result = compgw("export", str(tmp_path / "late.csv"), "-o", str(tmp_path / "late.comp"),
+                    "--to", "linuxcnc0", "--turn")
+    assert result.returncode == 0, result.stderr
+    back = read_linuxcnc(tmp_path / "late.comp", 0)
+    assert back.position_mm[0] == 0.0 and back.position_mm[-1] == 360.0
+    at_zero = np.interp(0.0, late, dev, period=360.0)
+    assert back.forward_mm[0] == pytest.approx(at_zero, abs=1e-7)
+    assert back.forward_mm[-1] == pytest.approx(at_zero, abs=1e-7)
+    # a swing axis's table (−14…13°) is no turn
+    write_pitch_csv(tmp_path / "a.csv", PitchTable(np.linspace(-14, 13, 10), dev[:10],
+                                                   None, rotary=True))  # fmt: skip
+    bad = compgw("export", str(tmp_path / "a.csv"), "-o", str(tmp_path / "a.comp"),
+                 "--to", "linuxcnc0", "--turn")
+    assert bad.returncode == 1 and "--turn is for a turntable's table" in bad.stderr

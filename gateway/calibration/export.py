@@ -136,7 +136,8 @@ def fanuc_pitch(
         per_turn = round(360.0 / unit_mm)
         if abs(per_turn * unit_mm - 360.0) > 1e-9 or per_turn % units:
             raise TableError(f"interval {step:g} deg does not divide a turn into whole "
-                             f"detection units of {unit_mm:g} deg")  # fmt: skip
+                             f"detection units of {unit_mm:g} deg: give --interval-mm, a "
+                             "divisor of 360 (e.g. 5 or 10, in degrees)")  # fmt: skip
         ref = 0.0 if reference_mm is None else float(reference_mm)
         below, above = 0, per_turn // units
     else:
@@ -216,15 +217,27 @@ def read_table(path: str | Path, fmt: str | None, unit: str | None = None) -> Pi
 
 
 def closed_turn(table: PitchTable) -> PitchTable:
-    """A turntable's table with its first point again one turn later (LinuxCNC then
-    interpolates across 360→0), unless it has it."""
-    pos = table.position_mm
-    if not table.rotary or pos[-1] - pos[0] >= 360.0 - 1e-9:
+    """A turntable's table over 0…360°, its values at both ends the same (LinuxCNC then
+    interpolates across 360→0): its points taken modulo 360, the value at 0° read around
+    the circle where 0° is no point of it (a table fitted from runs that began at 3° ran
+    3…363°, and LinuxCNC had nothing for 0…3°)."""
+    pos = np.mod(table.position_mm, 360.0)
+    if not table.rotary:
         return table
-    rev = None if table.reverse_mm is None else np.append(table.reverse_mm, table.reverse_mm[0])
-    # a plain table for the writer: its last point lies one turn on, past 360
-    return PitchTable(np.append(pos, pos[0] + 360.0), np.append(table.forward_mm,
-                      table.forward_mm[0]), rev, False, table.source)  # fmt: skip
+    order = np.argsort(pos, kind="stable")
+    pos = pos[order]
+
+    def closed(values: NDArray[np.float64]) -> NDArray[np.float64]:
+        v = values[order]
+        start = float(np.interp(0.0, pos, v, period=360.0))
+        inner = v[pos > 1e-9]
+        return np.concatenate([[start], inner, [start]])
+
+    inner_pos = pos[pos > 1e-9]
+    rev = None if table.reverse_mm is None else closed(table.reverse_mm)
+    # a plain table for the writer: its last point 360, one turn after 0
+    return PitchTable(np.concatenate([[0.0], inner_pos, [360.0]]), closed(table.forward_mm),
+                      rev, False, table.source)  # fmt: skip
 
 
 def export(args: argparse.Namespace) -> str:
@@ -233,6 +246,11 @@ def export(args: argparse.Namespace) -> str:
     if turn and not table.rotary:
         raise TableError(f"{args.input}: --turn needs a table in degrees (position_deg, or "
                          "--unit deg for a LinuxCNC file)")  # fmt: skip
+    lo, hi = float(table.position_mm[0]), float(table.position_mm[-1])
+    if turn and (lo < -1e-9 or hi > 360.0 + 1e-9):
+        raise TableError(f"{args.input}: --turn is for a turntable's table, within one turn "
+                         f"0…360° (this one runs {lo:g}…{hi:g}°: a swing axis's is exported "
+                         "without --turn, and its linkage stays with compgw)")  # fmt: skip
     if args.to == "csv":
         write_pitch_csv(args.output, table, f"exported from {args.input}")
     elif args.to in ("linuxcnc0", "linuxcnc1"):
