@@ -235,6 +235,12 @@ def test_a_rotary_axis_needs_the_angle_instrument(tmp_path: Path) -> None:
                             "--raw", str(tmp_path / "a.csv"), "--gateway", "127.0.0.1:5020",
                             "--angle", "127.0.0.1:5021:24")  # fmt: skip
     assert code == 1 and "--verify judges in µm: axis A is rotary" in err, err
+    # calibrate's ISO runs of a rotary axis start 0.5° inside its travel, not 3 (a ninth of
+    # a swing head's): the plan covers the head's working range
+    code, out, err = compgw("calibrate", "-c", str(config), "--iso", "A", "--step-mm", "0.25",
+                            "--save-plan", str(tmp_path / "a.plan"))  # fmt: skip
+    targets = read_plan(tmp_path / "a.plan").targets_mm("A")
+    assert (targets.min(), targets.max()) == (-14.0, 13.0) and "deg/s" in out, out + err
 
 
 def test_a_turntable_judges_and_refines_the_span_across_360(tmp_path: Path) -> None:

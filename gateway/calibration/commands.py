@@ -57,6 +57,15 @@ def _range(text: str) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
+#: a rotary axis's ISO runs start this far inside its travel (deg): commission's own
+ROTARY_OVERRUN_DEG = 0.5
+
+
+def _overrun(args: argparse.Namespace) -> float:
+    """--overrun-mm as given, else 3 mm."""
+    return 3.0 if args.overrun_mm is None else float(args.overrun_mm)
+
+
 def make_plan(args: argparse.Namespace, config: GatewayConfig, verification: bool = False):  # type: ignore[no-untyped-def]
     """The plan the options describe (``verification``: its verification variant), its
     targets on each axis' pulse grid when the machine is driven (not for ``--join``)."""
@@ -89,9 +98,12 @@ def _described_plan(args: argparse.Namespace, config: GatewayConfig, verificatio
             read_plan(args.verify_plan) if args.verify_plan else None
         )
     if args.iso:
+        rotary = config.axes[args.iso].rotary if args.iso in config.axes else False
+        overrun = args.overrun_mm if args.overrun_mm is not None else \
+            ROTARY_OVERRUN_DEG if rotary else 3.0  # (a swing head's 3° is a ninth of it)
         return iso230_linear_plan(
             args.iso, travel(args.iso), step_mm=args.step_mm, runs=args.runs, seed=args.seed,
-            lead_mm=args.lead_mm, overrun_mm=args.overrun_mm, verification=verification,
+            lead_mm=args.lead_mm, overrun_mm=overrun, verification=verification,
         )  # fmt: skip
     if args.backlash:
         if verification:
@@ -120,8 +132,8 @@ def _described_plan(args: argparse.Namespace, config: GatewayConfig, verificatio
         if config.planar is None:
             raise TableError("--xy needs a planar section in the gateway config")
         ax, ay = config.planar.axes
-        xr = args.x_range or _inset(travel(ax), args.overrun_mm)
-        yr = args.y_range or _inset(travel(ay), args.overrun_mm)
+        xr = args.x_range or _inset(travel(ax), _overrun(args))
+        yr = args.y_range or _inset(travel(ay), _overrun(args))
         nx, ny = args.grid
         low = (travel(ax)[0], travel(ay)[0])
         approach = args.approach_mm or None
@@ -134,7 +146,7 @@ def _described_plan(args: argparse.Namespace, config: GatewayConfig, verificatio
         if verification:
             return None
         lo, hi = travel(args.warmup)
-        ref = args.reference_mm if args.reference_mm is not None else hi - args.overrun_mm
+        ref = args.reference_mm if args.reference_mm is not None else hi - _overrun(args)
         return warmup_plan(args.warmup, (lo, hi), args.speed_mm_s, args.duration_s, ref,
                            args.measure_every, dwell_s=args.dwell_s)  # fmt: skip
     raise TableError("give a plan: --plan FILE, --iso AXIS, --backlash AXIS, --takeup AXIS, "
@@ -195,10 +207,11 @@ def calibrate(
             minutes = plan_time_s(plan, args.estimate_speed_mm_s, args.estimate_stop_s) / 60
             where = (f" at stations {dict(plan.meta)['stations_mm']} mm"
                      if plan.kind == "cyclic" else "")  # fmt: skip
+            turning = all(a in config.axes and config.axes[a].rotary for a in plan.axes)
+            speed = f"{args.estimate_speed_mm_s:g} {'deg/s' if turning else 'mm/s'}"
             print(f"{plan.kind} plan: {sum(m.measured for m in plan.moves)} readings{where} "
                   f"in {len(plan.moves)} moves; about {minutes:.1f} min of machine time at "
-                  f"{args.estimate_speed_mm_s:g} mm/s and {args.estimate_stop_s:g} s per "
-                  f"reading")  # fmt: skip
+                  f"{speed} and {args.estimate_stop_s:g} s per reading")  # fmt: skip
         if args.raw is None:
             raise TableError("--raw FILE is required (where the readings go)")
         raw = Path(args.raw)
@@ -321,7 +334,8 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
                    help="speed for the machine-time estimate printed before a run (100)")
     o.add_argument("--estimate-stop-s", type=float, default=2.0,
                    help="settling + reading per point for the estimate (2)")
-    o.add_argument("--overrun-mm", type=float, default=3.0, help="overrun / margin (3)")
+    o.add_argument("--overrun-mm", type=float, default=None,
+                   help="overrun / margin (3 mm; a rotary axis's ISO runs: 0.5°)")
     o.add_argument("--grid", type=int, nargs=2, default=(9, 7), metavar=("NX", "NY"))
     o.add_argument("--grid-runs", type=int, default=1, help="passes over the XY grid (1)")
     o.add_argument("--approach-mm", type=float, default=1.0,
