@@ -133,7 +133,8 @@ def _cmd_status(args: argparse.Namespace) -> int:
         print(f"compgw status: the gateway answered {reply}", file=sys.stderr)
         return EXIT_RUNTIME
     print(format_status(list(config.axes), list(config.thermal_sources), reply.registers,
-                        (args.config, config_crc(args.config))))  # fmt: skip
+                        (args.config, config_crc(args.config)),
+                        frozenset(a for a, c in config.axes.items() if c.rotary)))  # fmt: skip
     return EXIT_OK
 
 

@@ -205,9 +205,11 @@ class StatusUnit:
 
 
 def format_status(names: list[str], sources: list[str], regs: list[int],
-                  config: tuple[str, int] | None = None) -> str:  # fmt: skip
+                  config: tuple[str, int] | None = None,
+                  rotary: frozenset[str] = frozenset()) -> str:  # fmt: skip
     """Human-readable lines from an input-register image (for `compgw status`); with
-    ``config`` (a file and its CRC-32), whether that file is the one the gateway runs."""
+    ``config`` (a file and its CRC-32), whether that file is the one the gateway runs. A
+    ``rotary`` axis's correction (the registers' 0.1 millidegrees) in arcseconds."""
     from .modbus.frames import unpack_int32
 
     def s32(at: int) -> int:
@@ -235,12 +237,14 @@ def format_status(names: list[str], sources: list[str], regs: list[int],
     for k, name in enumerate(names):
         base = AXIS_BASE + AXIS_STRIDE * k
         bits = regs[base]
-        lines.append(
-            f"axis {name}: compensation {'on' if bits & 1 else 'OFF'}, last target "
-            f"{'corrected' if bits & 2 else 'sent as written'}, direction "
-            f"{'-' if bits & 4 else '+'}, last correction {s32(base + 1) / 10:.1f} µm, "
-            f"Δa {s32(base + 3) / 10:.1f} µm, C1/C-1 {s32(base + 5) / 100:.2f} ppm"
-        )
+        head = (f"axis {name}: compensation {'on' if bits & 1 else 'OFF'}, last target "
+                f"{'corrected' if bits & 2 else 'sent as written'}, direction "
+                f"{'-' if bits & 4 else '+'}, last correction ")  # fmt: skip
+        if name in rotary:
+            lines.append(head + f"{s32(base + 1) / 10 * 3.6:.1f}″")
+            continue
+        lines.append(head + f"{s32(base + 1) / 10:.1f} µm, Δa {s32(base + 3) / 10:.1f} µm, "
+                     f"C1/C-1 {s32(base + 5) / 100:.2f} ppm")  # fmt: skip
     states = ["starting", "ok", "holding", "ALARM"]
     for s, name in enumerate(sources):
         base = SOURCE_BASE + SOURCE_STRIDE * s

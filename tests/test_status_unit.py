@@ -45,6 +45,11 @@ def test_status_reports_state_counters_and_sources(tmp_path: Path):
             assert regs[80] in (0, 1)  # the source is starting or ok
             text = format_status(["X", "Y"], ["x_ref"], regs)
             assert "axis Y: compensation on" in text and "direction -" in text
+            assert "last correction -5.0 µm, Δa" in text
+            # a rotary axis's registers hold 0.1 millidegrees: said in arcseconds
+            turned = format_status(["X", "Y"], ["x_ref"], regs, rotary=frozenset({"Y"}))
+            assert "axis Y: compensation on" in turned and "last correction -18.0″" in turned
+            assert turned.split("axis Y")[1].split("\n")[0].count("µm") == 0
             # the loaded file's CRC-32: `compgw status -c FILE` says whether FILE is running
             path = r["config_path"]
             crc = zlib.crc32(path.read_bytes())
