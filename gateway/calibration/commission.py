@@ -583,10 +583,16 @@ class Commission(ShortBudget):
                                                 xy["rms_um"] if name == "XY" and xy else None,
                                                 swept=name in swept)]  # fmt: skip
             more_runs: dict[str, int] = {}
+            last = rounds[-1] if rounds else {}
             for name in restored:
-                self.say(f"round {r}: {name}: the last refinement did not pay; back to round "
-                         f"{best[name]['round']}'s {'model' if name == 'XY' else 'table'} "
-                         f"({self.score_text(name, best[name]['score'])})")  # fmt: skip
+                what = "model" if name == "XY" else "table"
+                refined = (name in swept or (last.get("added") or {}).get(name)
+                           or (name == "XY" and "grid" in last))  # fmt: skip
+                self.say(f"round {r}: {name}: " + (
+                    "the last refinement did not pay; back to round " if refined else
+                    f"read {self.score_text(name, scores[name])}, not refined since round ")
+                    + f"{best[name]['round']}'s {what} "
+                    f"({self.score_text(name, best[name]['score'])})")  # fmt: skip
                 self._settle(r, name, more_runs)
             names = [*self.s.axes, *(["XY"] if self.s.planar else [])]
             good = {n: n in best and best[n]["score"] <= self.tolerance_of(n) for n in names}

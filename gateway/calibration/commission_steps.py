@@ -201,8 +201,9 @@ class Steps(DriftRefs):
         if base is not None:
             if before is None:  # the chain broke (an abort restored your config): the last
                 drift = self.state.get("drift_last", drift)  # known drift carries on
-                self.state["notes"].append(f"drift references re-linked when {phase} was "
-                                           "loaded after an interruption")  # fmt: skip
+                if self.ref_axes():  # (rotary axes have none)
+                    self.state["notes"].append(f"drift references re-linked when {phase} "
+                                               "was loaded after an interruption")  # fmt: skip
             else:
                 drift = {a: [before[a][k] - base["refs"][a][k] for k in (0, 1)]
                          for a in self.s.axes}  # fmt: skip
