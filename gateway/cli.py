@@ -257,6 +257,9 @@ def main(argv: list[str] | None = None) -> int:
         logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     try:
         return int(args.func(args))
+    except KeyboardInterrupt:  # before a command's own handler (at its start): one line
+        print(f"compgw {argv[0] if argv else ''}: interrupted", file=sys.stderr)
+        return 130
     except BrokenPipeError:  # `compgw check | head`: the reader has what it wanted
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # (no second error
         return EXIT_OK  # at exit's flush)

@@ -241,6 +241,11 @@ def test_a_rotary_axis_needs_the_angle_instrument(tmp_path: Path) -> None:
                             "--save-plan", str(tmp_path / "a.plan"))  # fmt: skip
     targets = read_plan(tmp_path / "a.plan").targets_mm("A")
     assert (targets.min(), targets.max()) == (-14.0, 13.0) and "deg/s" in out, out + err
+    # its readings are the angle instrument's: the laser alone is refused before a move
+    code, out, err = compgw("calibrate", "-c", str(config), "--iso", "C", "--step-mm", "15",
+                            "--raw", str(tmp_path / "c.csv"), "--gateway", "127.0.0.1:5020",
+                            "--laser", "127.0.0.1:5021:20")  # fmt: skip
+    assert code == 1 and "axis C is rotary: its readings come from the angle instrument" in err
 
 
 def test_a_turntable_judges_and_refines_the_span_across_360(tmp_path: Path) -> None:

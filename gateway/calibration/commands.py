@@ -221,6 +221,10 @@ def calibrate(
             return EXIT_OK
         if args.gateway is None:
             raise TableError("--gateway HOST:PORT is required (or --join FILE offline)")
+        if rotary and args.angle is None:
+            raise TableError(f"axis {rotary[0]} is rotary: its readings come from the angle "
+                             "instrument, --angle HOST:PORT:UNIT (the laser reads linear "
+                             "axes)")  # fmt: skip
         park = {}
         for item in args.park or []:
             name, _, value = item.partition("=")
