@@ -1,0 +1,107 @@
+"""``compgw commission``'s command before anything moves (a base of
+:class:`.commission.Commission`): the plan it prints; what it asks (budget, rounds, the
+tolerances that judge its axes) and commissions (axes and plane); whether the
+commissioning in its directory is this one, and whether it finished with nothing more
+asked.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from .commission_short import ShortBudget
+from .takeup_fit import MIN_LOST_UM
+
+
+class CommandChecks(ShortBudget):
+    """The command's plan, and what it asks of the commissioning in its directory."""
+
+    def print_plan(self) -> float:
+        """Say what will be measured first and its machine time; returns that time (s)."""
+        total = 0.0
+        self.say(f"commissioning {', '.join(self.s.axes)}"
+                 f"{' and the plane ' + '/'.join(self.s.planar) if self.s.planar else ''}: "
+                 f"tolerance {self.tolerance_text()} between the points, budget "
+                 f"{self.s.budget_s / 3600:.2f} h of machine time")  # fmt: skip
+        for name, plan in self.initial_plans():
+            self._check_limits(plan)
+            t = self.estimate_s(plan)
+            total += t
+            self.say(f"  {name:<14} {sum(m.measured for m in plan.moves):>5} readings "
+                     f"{len(plan.moves):>5} moves {t / 60:>7.1f} min")  # fmt: skip
+        if any(not self._rotary(a) for a in self.s.axes):
+            self.say(f"  (takeup-*: the reversal ladder, only where the backlash test shows "
+                     f"{MIN_LOST_UM:g} µm or more of lost motion and one rung of it, 12 moves, "
+                     "shows less than all of it)")  # fmt: skip
+        self.say(f"  then verification rounds (before, each round, after) within the budget; "
+                 f"first steps: {total / 3600:.2f} h at {self.s.speed_mm_s:g} "
+                 f"{'deg/s' if all(self._rotary(a) for a in self.s.axes) else 'mm/s'} and "
+                 f"{self.s.stop_s:g} s per reading")  # fmt: skip
+        if total > self.s.budget_s:
+            self.say(f"  the budget ({self.s.budget_s / 3600:.2f} h) does not hold these first "
+                     "steps: only the axes identified within it get tables, from those runs "
+                     f"alone and unverified; give at least {total / 3600:.2f} h, and more for "
+                     "the verification rounds")  # fmt: skip
+        if not self._zoned() and self._first_need_s() > self.s.budget_s:
+            self.say("  a short budget: every axis's ISO runs (and their midpoints where a "
+                     "table misses between its points) and the plane's grid first, then "
+                     "the backlash tests and before-runs, the lead searches and cyclic scans "
+                     "last, as the budget allows; no round will refine the plane, so its grid "
+                     "is made as dense as the budget then left holds (more readings than the "
+                     "xy-grid line above: the budget is spent, not exceeded)")  # fmt: skip
+        ins = self.s.instruments
+        kinds = {self._source_kind(a) for a in self.s.axes}
+        for option, given, used in (("--delta-a", ins.delta_a, kinds - {None, "temperature"}),
+                                    ("--temperature", ins.temperature, kinds & {"temperature"})):
+            if given is not None and not used:
+                self.say(f"  {option} is given, but no commissioned axis's thermal setting "
+                         f"reads a source of that kind (axes.<name>.compensation.thermal."
+                         "source): no warm-up uses it")  # fmt: skip
+        self.rotary_plan_lines()
+        return total
+
+    def _asked(self) -> dict[str, float]:
+        """What this command asks of the commissioning: more of any of it carries on a
+        finished one (a tolerance only where an axis or the plane is judged by it)."""
+        out = {"budget_s": self.s.budget_s, "max_rounds": float(self.s.max_rounds)}
+        if self.s.planar is not None or any(not self._rotary(a) for a in self.s.axes):
+            out["tolerance_um"] = -self.s.tolerance_um
+        if any(self._rotary(a) for a in self.s.axes):
+            out["tolerance_arcsec"] = -self.s.tolerance_arcsec
+        return out
+
+    def other(self) -> str | None:
+        """Why this command cannot carry on the commissioning in its directory: it holds
+        one of other axes or another plane, whose readings, drift references and tables
+        are that one's (carried on, it crashed on a reference of an axis it never read);
+        None when it holds none or this one."""
+        what = self.state.get("what") or (self.state.get("finished") or {}).get("what")
+        if what is None or what == self._what():
+            return None
+        axes, plane = what
+
+        def name(axes: list[str], plane: list[str] | None) -> str:
+            return ", ".join(axes) + (f" and the plane {'/'.join(plane)}" if plane else "")
+
+        return (f"{self.dir} holds the commissioning of {name(axes, plane)}; this command "
+                f"asks for {name(*self._what())}: give --out DIR for another commissioning "
+                "(it starts from your config as it is now, the tables of that one in it), or "
+                "the same --axes and plane to carry that one on")  # fmt: skip
+
+    def _what(self) -> list[Any]:
+        """What is commissioned: other axes or another plane are another commissioning."""
+        return [list(self.s.axes), list(self.s.planar) if self.s.planar else None]
+
+    def finished(self) -> dict[str, Any] | None:
+        """The summary of a commissioning that finished in this directory and that this
+        command asks nothing more of (the same axes and plane; no larger budget, tighter
+        tolerance or more rounds): run again, it would only take the references anew and
+        judge old readings against them, so it is not run again."""
+        done = self.state.get("finished")
+        path = self.dir / "summary.json"
+        if done is None or not path.exists() or done.get("what") != self._what():
+            return None
+        if any(v > done["asked"].get(k, v) + 1e-9 for k, v in self._asked().items()):
+            return None
+        return dict(json.loads(path.read_text()))
