@@ -217,6 +217,11 @@ def test_a_rotary_axis_needs_the_angle_instrument(tmp_path: Path) -> None:
     assert code == 0, err
     assert "table over 0…360°, judged at targets over 180…540° (across 360°)" in out
     assert "A: swing axis" in out and "table over -14…13°" in out and "cyclic-C" in out
+    assert "below what an angle instrument resolves" not in out
+    code, out, err = compgw("commission", "-c", str(config), "--angle", "127.0.0.1:5021:24",
+                            "--gateway", "127.0.0.1:5020", "--tolerance-arcsec", "0.001",
+                            "--dry-run")  # fmt: skip
+    assert code == 0 and "--tolerance-arcsec 0.001: below what an angle instrument" in out
     # the command line's slips, said before anything moves: an XY device on rotary axes,
     # angle channels naming no rotary axis, or leaving a commissioned one out
     angle = ("commission", "-c", str(config), "--angle", "127.0.0.1:5021:24", "--gateway",

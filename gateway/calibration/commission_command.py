@@ -50,6 +50,9 @@ class CommandChecks(ShortBudget):
                      "last, as the budget allows; no round will refine the plane, so its grid "
                      "is made as dense as the budget then left holds (more readings than the "
                      "xy-grid line above: the budget is spent, not exceeded)")  # fmt: skip
+        if any(self._rotary(a) for a in self.s.axes) and self.s.tolerance_arcsec < 0.1:
+            self.say(f"  --tolerance-arcsec {self.s.tolerance_arcsec:g}: below what an angle "
+                     "instrument resolves; it is in arcseconds (0.001° is 3.6″)")  # fmt: skip
         ins = self.s.instruments
         kinds = {self._source_kind(a) for a in self.s.axes}
         for option, given, used in (("--delta-a", ins.delta_a, kinds - {None, "temperature"}),
