@@ -118,7 +118,8 @@ def test_export_turntable_and_swing_tables_to_rotary_forms(tmp_path: Path):
     assert params["3625"] == "360000" and params["3624"] == "15000"
     assert int(params["3622"]) - int(params["3621"]) == 24  # 0..360 every 15 deg
     points = [int(v.split(",")[1]) for v in text.split("point,value\n")[1].splitlines()]
-    assert len(points) == 25 and sum(points) == 0  # one turn: back to where it started
+    assert len(points) == 25 and sum(points[1:]) == 0  # one turn: back to where it started
+    assert points[0] == points[-1]  # the reference point takes the last one's value
     assert "0.001 deg" in text and "rotary axis type" in text
 
     swing = compgw("export", str(tmp_path / "c.csv"), "-o", str(tmp_path / "s.fanuc"),

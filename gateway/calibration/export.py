@@ -31,11 +31,12 @@ FANUC conventions (as in the 0i/30i parameter manuals, no. 3620-3624; check your
 Rotary axes (issue 16): a compgw CSV in ``position_deg`` is in degrees; a LinuxCNC file has
 no unit, ``--unit deg`` says it is one. A swing axis's table is exported like a linear one,
 in degrees (FANUC: detection units of ``--unit-mm`` degrees, 0.001 by default). A
-turntable's (``--turn``) covers one turn: LinuxCNC gets the first point again one turn
-later, so the table closes across 360→0; FANUC gets points every interval over one turn from
-the reference position (the interval must divide 360), the last one turn after the first,
-so the increments over a turn sum to zero, and no. 3625, the movement per rotation in
-detection units (the rotary-axis type of pitch error compensation).
+turntable's (``--turn``) covers one turn: LinuxCNC gets it over 0…360°, the same value at
+both ends, so the table closes across 360→0; FANUC gets points every interval over one turn
+from the reference position (the interval must divide 360), the last one turn after the
+first, so the increments over a turn sum to zero, the reference point taking the last
+one's value (the parameter manual's rotary example), and no. 3625, the movement per
+rotation in detection units (the rotary-axis type of pitch error compensation).
 """
 
 from __future__ import annotations
@@ -162,6 +163,8 @@ def fanuc_pitch(
             if magnification > 100:
                 raise TableError("no magnification up to 100 keeps the increments in range")
     inc = integers(magnification)
+    if turn:  # the reference point takes the last point's value (FANUC's rotary type: the
+        inc[0] = inc[-1]  # parameter manual, no. 3625's example; 1…last sum to zero)
     if np.abs(inc).max() > max_increment:
         raise TableError(
             f"increment {int(np.abs(inc).max())} exceeds {max_increment} at magnification "
