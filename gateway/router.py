@@ -168,7 +168,11 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
                     log.info("axis %s: the drive holds target %d, not the saved %s: starting "
                              "afresh", name, held, saved["last_command_units"])  # fmt: skip
                     continue
-                self._axes[name].state.restore(saved)
+                runtime = self._axes[name]
+                runtime.state.restore(saved)
+                # the correction the drive holds (status and metrics read it, not 0)
+                runtime.last_correction_mm = (held / axis.command_scale - int(
+                    saved["last_nominal_pulses"])) * axis.pulse_mm  # fmt: skip
             except (ModbusError, KeyError, TypeError, ValueError) as exc:
                 log.warning("axis %s: saved state not used: %s", name, exc)
                 continue

@@ -79,6 +79,10 @@ def test_a_restarted_gateway_carries_on(tmp_path: Path, caplog: pytest.LogCaptur
             with caplog.at_level(logging.INFO, logger="gateway.router"):
                 async with gateway(tmp_path, sim.tcp_port) as (app, master):
                     assert "axis X: carried on from the state file" in caplog.text
+                    # the correction the drive holds, for status and metrics (it read 0)
+                    pulse_mm = app.config.axes["X"].pulse_mm
+                    assert app.gateway.last_correction_mm("X") == pytest.approx(
+                        (x_command - 300_000) * pulse_mm)  # fmt: skip
                     assert await read32(master, 1, FEEDBACK) == 300_000
                     assert await read32(master, 1, TARGET) == 300_000
                     assert await read32(master, 2, FEEDBACK) == 50_000
