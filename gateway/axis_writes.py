@@ -29,6 +29,8 @@ from .compensation import (
 from .config import Axis
 from .modbus.downstream import Bus
 from .modbus.frames import (
+    GATEWAY_PATH_UNAVAILABLE,
+    GATEWAY_TARGET_NO_RESPONSE,
     ILLEGAL_DATA_VALUE,
     SERVER_DEVICE_FAILURE,
     WRITE_MULTIPLE_REGISTERS,
@@ -91,12 +93,21 @@ class AxisWrites:
                 words = req.values[index : index + len(target_offsets)]
                 runtime.state.write_words(first, list(words))
             verdict = self._judge(runtime, axis, req) if trigger_hit else _NO_TRIGGER
-            if verdict.fires:
-                reply = await self._trigger_write(setup, name, axis, req, pdu)
-            elif target_offsets:
-                reply = await self._target_write(setup, name, axis, req)
-            else:
-                reply = await self._forward_write(name, axis, req, pdu)
+            try:
+                if verdict.fires:
+                    reply = await self._trigger_write(setup, name, axis, req, pdu)
+                elif target_offsets:
+                    reply = await self._target_write(setup, name, axis, req)
+                else:
+                    reply = await self._forward_write(name, axis, req, pdu)
+            except ModbusError as exc:
+                if exc.code in (GATEWAY_PATH_UNAVAILABLE, GATEWAY_TARGET_NO_RESPONSE):
+                    # a move the master asked for that the drive did not get: in the log
+                    log.warning("axis %s: %s to target %d not delivered: %s", name,
+                                "trigger" if verdict.fires else "write",
+                                runtime.state.nominal_target(axis.registers.target.order),
+                                exc)  # fmt: skip
+                raise
             if trigger_hit and not is_exception(reply):  # the drive has the trigger write
                 runtime.trigger = verdict.shadow
                 if verdict.homes:

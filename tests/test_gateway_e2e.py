@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 import math
 import re
 import shutil
@@ -524,6 +525,31 @@ def test_bus_unavailable_is_0x0a(tmp_path: Path):
             # the rest of the gateway keeps serving
             rr = await r["master"].read_holding_registers(FEEDBACK, count=2, device_id=1)
             assert not rr.isError()
+
+    run(body())
+
+
+def test_a_move_the_drive_did_not_get_is_logged(tmp_path: Path,
+                                                 caplog: pytest.LogCaptureFixture):  # fmt: skip
+    """A target the master sent that the drive did not get (its bus down: 0x0A) is a
+    warning naming the axis and the target, not only an exception to the master."""
+    def dead_x(data):
+        with socket.socket() as probe:  # a loopback port nobody listens on
+            probe.bind(("127.0.0.1", 0))
+            port = probe.getsockname()[1]
+        data["buses"]["dead"] = {"tcp": {"host": "127.0.0.1", "port": port}}
+        data["axes"]["X"]["bus"] = "dead"
+
+    async def body():
+        async with rig(tmp_path, dead_x, {}) as r:
+            with caplog.at_level(logging.WARNING, logger="gateway.router"):
+                master = r["master"]
+                replies = [await master.write_registers(TARGET, list(pack_int32(300_000)),
+                                                        device_id=1),
+                           await master.write_register(TRIGGER, 0x10, device_id=1)]  # fmt: skip
+            assert any(rr.isError() and rr.exception_code == 0x0A for rr in replies)
+            assert re.search(r"axis X: (trigger|write) to target 300000 not delivered",
+                             caplog.text), caplog.text  # fmt: skip
 
     run(body())
 
