@@ -341,6 +341,7 @@ async def serve(path: str | Path, *, stop: asyncio.Event | None = None,
     loop.add_signal_handler(signal.SIGHUP, do_reload)
     log.info("compgw running: %s", app.describe())
     notifier.ready(app.describe())
+    notifier.follow(app.describe)  # a bus going down or up: STATUS= with the next ping
     watchdog = notifier.start_watchdog()
     if on_ready is not None:
         on_ready(app)

@@ -45,6 +45,8 @@ class Notifier:
         self._notifier = sdnotify.SystemdNotifier() if self.enabled else None
         self.watchdog_s = watchdog_interval_s(env)
         self.pings = 0
+        self._describe: Callable[[], str] | None = None
+        self._described: str | None = None
 
     def send(self, *fields: str) -> None:
         if self._notifier is not None:
@@ -57,6 +59,12 @@ class Notifier:
     def status(self, status: str) -> None:
         self.send(f"STATUS={status}")
 
+    def follow(self, describe: Callable[[], str]) -> None:
+        """Send ``describe()`` (the listeners' and buses' state) as STATUS= with a watchdog
+        ping whenever it changed since the last, so `systemctl status` follows a bus going
+        down and up; a STATUS= said otherwise (a refused reload) stays until it changes."""
+        self._describe, self._described = describe, describe()
+
     def reloading(self) -> None:
         usec = time.clock_gettime_ns(time.CLOCK_MONOTONIC) // 1000
         self.send("RELOADING=1", f"MONOTONIC_USEC={usec}", "STATUS=reloading")
@@ -66,7 +74,12 @@ class Notifier:
 
     def watchdog(self) -> None:
         self.pings += 1
-        self.send("WATCHDOG=1")
+        fields = ["WATCHDOG=1"]
+        now = self._describe() if self._describe is not None else None
+        if now is not None and now != self._described:
+            self._described = now
+            fields.append(f"STATUS={now}")
+        self.send(*fields)
 
     async def watchdog_loop(self) -> None:
         """Ping every ``watchdog_s`` from the event loop, until cancelled."""

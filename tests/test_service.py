@@ -140,11 +140,26 @@ def test_process_ready_status_and_stopping(tmp_path: Path):
             assert r["gw"].popen.wait(timeout=20) == 0
             notify.wait_for("STOPPING=1", 1.0)
             data = gateway_config(dead.getsockname()[1])
-            gw, _ = start_gateway(tmp_path, data, env, name="down.yaml")
+            gw, port = start_gateway(tmp_path, data, env, name="down.yaml")
             try:
                 _, msg = notify.wait_for("READY=1", after=notify.times("STOPPING=1")[-1])
                 assert "line1 DOWN" in msg
                 gw.wait_line(r"line1: cannot open")
+                # the bus comes up (a request opens it): STATUS= follows with a ping
+                dead.listen()
+                t_up = time.monotonic()
+                assert port is not None
+                with socket.create_connection(("127.0.0.1", port), timeout=10) as master:
+                    for tid in range(9, 49):  # until its reconnect back-off lets one through
+                        master.sendall(mbap(tid, 1, read_pdu(3, 0x6200, 1)))
+                        with contextlib.suppress(AssertionError):
+                            gw.wait_line(r"line1: open", timeout_s=0.5)
+                            break
+                    gw.wait_line(r"line1: open", timeout_s=1.0)
+                    t, msg = notify.wait_for("WATCHDOG=1", after=t_up, timeout_s=20)
+                    while "STATUS=" not in msg:  # the ping after the bus opened
+                        t, msg = notify.wait_for("WATCHDOG=1", after=t, timeout_s=20)
+                    assert "line1 up" in msg, msg
             finally:
                 assert gw.stop() == 0
     finally:
