@@ -122,7 +122,9 @@ def _cmd_status(args: argparse.Namespace) -> int:
     try:
         reply = asyncio.run(read())
     except ModbusException as exc:  # a timeout, the connection lost mid-request
-        print(f"compgw status: no reply from {host}:{port}: {exc}", file=sys.stderr)
+        print(f"compgw status: no reply from {host}:{port} ({exc}); a host not in "
+              f"{section}.allow is cut off at once, and the gateway's log says so",
+              file=sys.stderr)  # fmt: skip
         return EXIT_RUNTIME
     if reply is None:
         print(f"compgw status: no gateway at {host}:{port}" + (
