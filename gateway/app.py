@@ -20,6 +20,7 @@ import asyncio
 import contextlib
 import logging
 import signal
+import socket
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -52,6 +53,18 @@ from .status import StatusUnit
 from .tables import build_chain
 
 log = logging.getLogger(__name__)
+
+
+def _port_free(host: str, port: int) -> None:
+    """OSError (as the listener would raise it) when ``host:port`` is taken."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as asyncio's server
+        try:
+            probe.bind((host, port))
+        except OSError as exc:
+            raise OSError(exc.errno, f"error while attempting to bind on address "
+                                     f"{(host, port)!r}: {exc.strerror}") from None
 
 
 def make_bus(name: str, cfg: BusConfig, min_silence_s: float | None = None) -> Bus:
@@ -128,6 +141,7 @@ class GatewayApp:
             self.fast_handler = request_metrics.wrap_fast(self.fast_handler)
             self.metrics = MetricsServer(registry, config.metrics.host, config.metrics.port)
         self.state_store: StateStore | None = None
+        self._state_live = False  # read and carried on: written at stop
         if config.state_file is not None:
             path = Path(config.state_file)
             if source is not None and not path.is_absolute():
@@ -152,7 +166,14 @@ class GatewayApp:
         return units
 
     async def start(self) -> None:
-        """Connect the buses (a bus that is down is retried on use) and listen."""
+        """Connect the buses (a bus that is down is retried on use) and listen. A fixed
+        upstream port already taken fails first, before a bus or the state file is
+        touched: a second `compgw run` beside the service must not take a drive's one
+        connection, nor write its state file."""
+        up = self.config.upstream
+        for listen in (up.tcp, up.tls):
+            if listen is not None and listen.port:
+                _port_free(listen.host, listen.port)
         for name, bus in self.buses.items():
             if not await bus.connect():
                 log.warning("bus %s is down at start; requests get 0x0A until it is back", name)
@@ -160,9 +181,9 @@ class GatewayApp:
             await self.gateway.carry_on(self.state_store.load())
             self.sensors.carry_on_heat(self.state_store.saved_heat)
             self.gateway.on_state_change = self.state_store.changed
+            self._state_live = True
         if len(self.sensors):
             self._sensor_task = asyncio.create_task(self.sensors.run(self._stop_sensors))
-        up = self.config.upstream
         try:
             if up.tcp is not None:
                 self.tcp = self._tcp_server(up.tcp)
@@ -219,7 +240,7 @@ class GatewayApp:
             self._sensor_task = None
         for bus in self.buses.values():
             await bus.close()
-        if self.state_store is not None:
+        if self.state_store is not None and self._state_live:  # (else it was never read)
             await self.state_store.close()
 
     def reload(self, config: GatewayConfig, chain: Chain) -> None:

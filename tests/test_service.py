@@ -228,3 +228,29 @@ def test_nothing_listens_on_an_address_not_configured(tmp_path: Path, metrics: b
         else:
             mport = int(r["gw"].wait_line(r"metrics on http://127\.0\.0\.1:(\d+)").group(1))
             assert found == {("127.0.0.1", r["port"]), ("127.0.0.1", mport)}
+
+
+def test_a_second_gateway_on_a_taken_port_touches_no_drive_and_no_state(tmp_path: Path):
+    """`compgw run` again beside the running service (its port taken): it fails at once,
+    before opening a drive's bus (a drive may serve one connection) or writing the state
+    file (the running gateway's), exit 3."""
+    sim = SimThread()
+    try:
+        data = gateway_config(sim.port, state_file=str(tmp_path / "state.json"))
+        first, port = start_gateway(tmp_path, data)
+        try:
+            assert port is not None
+            first.wait_line(r"compgw running")
+            (tmp_path / "state.json").write_text('{"format": 1, "axes": {}, "mine": 1}\n')
+            before = (tmp_path / "state.json").read_bytes()
+            data["upstream"]["tcp"]["port"] = port
+            second, _ = start_gateway(tmp_path, data, name="again.yaml", wait=False)
+            assert second.popen.wait(timeout=30) == 3
+            text = "\n".join(second.lines)
+            assert "cannot listen" in text and "already in use" in text.lower(), text
+            assert "line1" not in text, text  # no bus opened
+            assert (tmp_path / "state.json").read_bytes() == before
+        finally:
+            assert first.stop() == 0
+    finally:
+        sim.close()
