@@ -441,8 +441,10 @@ class ThermalSensor:
             return
         why = self.last_error if verdict == "failed" else f"last reading {verdict}"
         if after is ThermalState.ALARM:
+            now = self.delta_a_mm
             log.warning("thermal %s: ALARM (%s); fallback %s, Δa now %s", self.name, why,
-                        self.source.fallback, self.delta_a_mm)
+                        self.source.fallback, "off" if now is None else
+                        f"{now * 1000.0:.1f} µm")  # fmt: skip
         elif after is ThermalState.HOLDING:
             log.info("thermal %s: holding last value (%s)", self.name, why)
         else:
