@@ -416,20 +416,24 @@ class ThermalSensor:
     async def run(self, stop_event: asyncio.Event) -> None:
         """Poll every ``poll_s`` until ``stop_event`` is set.
 
-        A failed read that took long (a silent device on a shared line) is followed by a
-        wait at least as long, so a dead sensor holds the line at most half the time; a
-        bus that is down fails at once and is retried after ``poll_s``: never a busy loop.
+        A failed read is followed by a wait at least as long as it took, doubling with each
+        failure in a row up to ``MAX_BACKOFF_S`` (:func:`failed_wait_s`): a silent device
+        on a shared line leaves the line to the masters' requests, which queued behind
+        each poll's timeout (a master's 0x0B came 2-3 × later than its bus's timeout); a
+        bus that is down fails at once and is retried the same way: never a busy loop.
         """
         loop = asyncio.get_running_loop()
         poll_s = self.source.poll_s
         next_s = loop.time()
+        failures = 0
         while not stop_event.is_set():
             started_s = loop.time()
             verdict = await self.poll_once()
             now_s = loop.time()
             next_s += poll_s
-            if verdict == "failed":
-                next_s = max(next_s, now_s + (now_s - started_s))
+            failures = failures + 1 if verdict == "failed" else 0
+            if failures:
+                next_s = max(next_s, now_s + failed_wait_s(poll_s, now_s - started_s, failures))
             if next_s < now_s:  # overran: restart the grid instead of catching up
                 next_s = now_s + poll_s
             with contextlib.suppress(asyncio.TimeoutError):
@@ -453,6 +457,19 @@ class ThermalSensor:
 
 
 # ---------------------------------------------------------------------- all sources
+
+
+#: the longest wait between reads of a device that keeps failing (s), unless its poll_s
+#: is longer: a recovered sensor is read again within it
+MAX_BACKOFF_S = 10.0
+
+
+def failed_wait_s(poll_s: float, took_s: float, failures: int) -> float:
+    """The wait (s) after the ``failures``-th failed read in a row, which took ``took_s``:
+    as long as it took, at least ``poll_s``, doubling with each failure after the first,
+    at most ``MAX_BACKOFF_S`` (or ``poll_s``, or ``took_s``, where longer)."""
+    base = max(poll_s, took_s)
+    return max(base, min(base * 2.0 ** (failures - 1), MAX_BACKOFF_S))
 
 
 class SensorSet:

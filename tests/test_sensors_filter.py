@@ -10,6 +10,7 @@ from gateway.config import SourceRegister, ThermalSource
 from gateway.modbus.downstream import TcpBus
 from gateway.modbus.frames import build_read_registers_response, exception_pdu
 from gateway.sensors import (
+    MAX_BACKOFF_S,
     FilterSettings,
     SensorReadError,
     ThermalFilter,
@@ -17,6 +18,7 @@ from gateway.sensors import (
     ThermalState,
     decode_counts,
     decode_response,
+    failed_wait_s,
     read_request,
 )
 
@@ -262,3 +264,15 @@ def test_displacement_source_ignores_axis_length() -> None:
     assert sensor.delta_a_mm_for(800.0) == pytest.approx(0.012)
     assert sensor.delta_a_mm_for(400.0) == pytest.approx(0.012)
     assert sensor.temperature_c is None
+
+
+def test_a_device_that_keeps_failing_is_read_less_and_less_often() -> None:
+    """After a failed read, a wait as long as it took (at least poll_s), doubling with each
+    failure in a row up to MAX_BACKOFF_S: a silent sensor on a drive's line leaves the
+    line to the masters (their 0x0B queued behind each poll's timeout)."""
+    assert failed_wait_s(1.0, 0.4, 1) == 1.0
+    assert failed_wait_s(0.01, 0.1, 1) == 0.1  # as long as it took
+    assert [failed_wait_s(1.0, 0.4, k) for k in (2, 3, 4, 5, 9)] == [2.0, 4.0, 8.0,
+                                                                     MAX_BACKOFF_S,
+                                                                     MAX_BACKOFF_S]  # fmt: skip
+    assert failed_wait_s(30.0, 0.4, 6) == 30.0  # a poll_s longer than the cap stays
