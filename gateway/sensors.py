@@ -192,6 +192,17 @@ class ThermalFilter:
             return self._smoothed_mm
         return 0.0
 
+    def alarm_due_s(self, t_s: float) -> float | None:
+        """Seconds from ``t_s`` until a step with no accepted reading raises the alarm (0
+        when due now); None in alarm already, or before the first step."""
+        hold_s = self.settings.hold_s
+        if self._state in (ThermalState.OK, ThermalState.HOLDING) and \
+                self._last_good_t_s is not None:
+            return max(0.0, self._last_good_t_s + hold_s - t_s)
+        if self._state is ThermalState.STARTING and self._t0_s is not None:
+            return max(0.0, self._t0_s + hold_s - t_s)
+        return None
+
     # ------------------------------------------------------------------ stepping
 
     def step(self, t_s: float, raw_delta_a_mm: float | None) -> Verdict:
@@ -433,7 +444,11 @@ class ThermalSensor:
             next_s += poll_s
             failures = failures + 1 if verdict == "failed" else 0
             if failures:
-                next_s = max(next_s, now_s + failed_wait_s(poll_s, now_s - started_s, failures))
+                wait_s = failed_wait_s(poll_s, now_s - started_s, failures)
+                due_s = self.filter.alarm_due_s(self.clock())
+                if due_s is not None:  # the read that raises the alarm is not put off
+                    wait_s = min(wait_s, max(poll_s, due_s + 1e-3))
+                next_s = max(next_s, now_s + wait_s)
             if next_s < now_s:  # overran: restart the grid instead of catching up
                 next_s = now_s + poll_s
             with contextlib.suppress(asyncio.TimeoutError):

@@ -276,3 +276,14 @@ def test_a_device_that_keeps_failing_is_read_less_and_less_often() -> None:
                                                                      MAX_BACKOFF_S,
                                                                      MAX_BACKOFF_S]  # fmt: skip
     assert failed_wait_s(30.0, 0.4, 6) == 30.0  # a poll_s longer than the cap stays
+
+
+def test_the_alarm_is_due_hold_s_after_the_last_accepted_reading() -> None:
+    """What the poll loop's back-off keeps to: the read that raises the alarm is not put
+    off (the filter only changes state when it is stepped)."""
+    f = ThermalFilter(FilterSettings(hold_s=30.0))
+    assert f.alarm_due_s(0.0) is None  # before the first step
+    f.step(100.0, None)  # starting, nothing read: due hold_s after the first step
+    assert f.alarm_due_s(110.0) == 20.0
+    f.step(131.0, None)
+    assert f.alarm and f.alarm_due_s(140.0) is None
