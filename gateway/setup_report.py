@@ -120,6 +120,15 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
         f"status: upstream unit {config.status.upstream_unit}, remote control "
         f"{'on' if config.status.remote_control else 'off'}"
     )
+    if config.passthrough:
+        lines.append("passthrough: " + ", ".join(
+            f"upstream unit {u} -> {p.bus} unit {p.unit}"
+            for u, p in sorted(config.passthrough.items())))  # fmt: skip
+    metrics = config.metrics
+    lines.append(f"metrics: {metrics.host}:{metrics.port}" if metrics.port is not None
+                 else "metrics: off")  # fmt: skip
+    lines.append(f"state file: {config.state_file}" if config.state_file else
+                 "state file: none (a restart starts every axis afresh)")  # fmt: skip
     return "\n".join(lines)
 
 

@@ -69,6 +69,14 @@ def test_check_prints_the_resolved_setup(tmp_path: Path):
     assert "3 points, bidirectional, smooth" in out
     assert "backlash 8.0 µm (mean)" in out
     assert "planar: X/Y poly degree 1" in out
+    assert "metrics: off" in out and "state file: none (a restart starts every" in out
+    config = copy.deepcopy(CONFIG)
+    config["passthrough"] = {20: {"bus": "line1", "unit": 20}}
+    config["metrics"] = {"port": 9108}
+    config["state_file"] = "run/state.json"
+    out = _check(_write(tmp_path, GOOD_X, config)).stdout
+    assert "passthrough: upstream unit 20 -> line1 unit 20" in out
+    assert "metrics: 127.0.0.1:9108" in out and "state file: run/state.json" in out
 
 
 def test_check_refuses_a_bad_table_naming_file_and_line(tmp_path: Path):
