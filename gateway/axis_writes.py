@@ -230,7 +230,7 @@ class AxisWrites:
             runtime = self._axes[name]
             runtime.state.committed(nominal, command, motion)
             runtime.state.applied = applied
-            runtime.last_correction_mm = (command / axis.command_scale - nominal) * axis.pulse_mm
+            runtime.hold(axis, command, nominal)
             self.counters.commits += 1
         if plans:
             self.on_state_change()

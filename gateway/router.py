@@ -170,9 +170,7 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
                     continue
                 runtime = self._axes[name]
                 runtime.state.restore(saved)
-                # the correction the drive holds (status and metrics read it, not 0)
-                runtime.last_correction_mm = (held / axis.command_scale - int(
-                    saved["last_nominal_pulses"])) * axis.pulse_mm  # fmt: skip
+                runtime.hold(axis, held, int(saved["last_nominal_pulses"]))  # (not 0)
             except (ModbusError, KeyError, TypeError, ValueError) as exc:
                 log.warning("axis %s: saved state not used: %s", name, exc)
                 continue

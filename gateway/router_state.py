@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 from .axis import AxisState
 from .compensation import Chain
-from .config import GatewayConfig
+from .config import Axis, GatewayConfig
 from .triggers import TriggerShadow
 
 Finish = Callable[[bytes], bytes]  # the drive's reply -> the reply to the master
@@ -63,3 +63,9 @@ class AxisRuntime:
     status_word: int | None = None  # the drive's status word, as last read
     status_at_s: float = -1e9  # when (monotonic)
     last_correction_mm: float = 0.0
+
+    def hold(self, axis: Axis, command_units: int, nominal_pulses: int) -> None:
+        """The drive holds ``command_units`` for the master's ``nominal_pulses``: the
+        correction status and metrics report (mm)."""
+        self.last_correction_mm = (command_units / axis.command_scale
+                                   - nominal_pulses) * axis.pulse_mm  # fmt: skip
