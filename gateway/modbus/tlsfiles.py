@@ -164,10 +164,7 @@ def check_files(tls: TlsListen, base: Path | None, now: dt.datetime | None = Non
     if ca is None:
         raise ConfigError(f"upstream.tls.cert: {cert_path}: not issued by a CA of "
                           f"upstream.tls.ca {ca_path} (issuer {leaf.issuer.rfc4514_string()})")
-    warnings = _dates("cert", cert_path, leaf, now)
-    for other in chain[1:]:
-        warnings += _dates("cert", cert_path, other, now)
-    warnings += _dates("ca", ca_path, ca, now)
+    warnings = certificate_dates(tls, base, now) + _dates("ca", ca_path, ca, now)
     mode = key_path.stat().st_mode & 0o777
     if mode & 0o027:  # group read is how a service user gets it (systemd/README.md)
         warnings.append(f"upstream.tls.key: {key_path} is open to others (mode {mode:o}): "
