@@ -252,8 +252,7 @@ class Commission(CommandChecks):
         summary = self.summary(outcome)
         atomic_write_text(self.dir / "summary.json", json.dumps(summary, indent=1,
                                                                 default=_plain))  # fmt: skip
-        self.state["finished"] = {"outcome": outcome, "asked": self._asked(),
-                                  "what": self._what()}  # fmt: skip
+        self.state["finished"] = {"outcome": outcome, "asked": self._asked()}
         self._save()
         return summary
 

@@ -79,6 +79,7 @@ class CommandChecks(ShortBudget):
         one of other axes or another plane, whose readings, drift references and tables
         are that one's (carried on, it crashed on a reference of an axis it never read);
         None when it holds none or this one."""
+        # (a state finished by 5dcf6cc's code kept it in "finished")
         what = self.state.get("what") or (self.state.get("finished") or {}).get("what")
         if what is None or what == self._what():
             return None
@@ -98,12 +99,13 @@ class CommandChecks(ShortBudget):
 
     def finished(self) -> dict[str, Any] | None:
         """The summary of a commissioning that finished in this directory and that this
-        command asks nothing more of (the same axes and plane; no larger budget, tighter
-        tolerance or more rounds): run again, it would only take the references anew and
-        judge old readings against them, so it is not run again."""
+        command asks nothing more of (no larger budget, tighter tolerance or more rounds;
+        other axes or another plane are refused first, :meth:`other`): run again, it would
+        only take the references anew and judge old readings against them, so it is not
+        run again."""
         done = self.state.get("finished")
         path = self.dir / "summary.json"
-        if done is None or not path.exists() or done.get("what") != self._what():
+        if done is None or not path.exists() or self.other() is not None:
             return None
         if any(v > done["asked"].get(k, v) + 1e-9 for k, v in self._asked().items()):
             return None

@@ -8,6 +8,8 @@ import contextlib
 from collections.abc import Callable
 from typing import Any
 
+from .iso230 import ARCSEC_PER_MDEG
+
 Record = dict[str, Any]
 #: a small error in its axis's unit: µm, or (rotary axes, stored in millidegrees) ″
 Fmt = Callable[[float | None], str]
@@ -18,7 +20,7 @@ def _um(value: float | None) -> str:
 
 
 def _arcsec(value_mdeg: float | None) -> str:
-    return "–" if value_mdeg is None else f"{value_mdeg * 3.6:.2f}″"
+    return "–" if value_mdeg is None else f"{value_mdeg * ARCSEC_PER_MDEG:.2f}″"
 
 
 def _lead(r: Record, u: Fmt = _um) -> str:
