@@ -61,9 +61,12 @@ def _range(text: str) -> tuple[float, float]:
 ROTARY_OVERRUN_DEG = 0.5
 
 
-def _overrun(args: argparse.Namespace) -> float:
-    """--overrun-mm as given, else 3 mm."""
-    return 3.0 if args.overrun_mm is None else float(args.overrun_mm)
+def _overrun(args: argparse.Namespace, rotary: bool = False) -> float:
+    """--overrun-mm as given, else 3 mm (a rotary axis's ISO runs: ROTARY_OVERRUN_DEG; a
+    swing head's 3° is a ninth of it)."""
+    if args.overrun_mm is not None:
+        return float(args.overrun_mm)
+    return ROTARY_OVERRUN_DEG if rotary else 3.0
 
 
 def make_plan(args: argparse.Namespace, config: GatewayConfig, verification: bool = False):  # type: ignore[no-untyped-def]
@@ -98,12 +101,10 @@ def _described_plan(args: argparse.Namespace, config: GatewayConfig, verificatio
             read_plan(args.verify_plan) if args.verify_plan else None
         )
     if args.iso:
-        rotary = config.axes[args.iso].rotary if args.iso in config.axes else False
-        overrun = args.overrun_mm if args.overrun_mm is not None else \
-            ROTARY_OVERRUN_DEG if rotary else 3.0  # (a swing head's 3° is a ninth of it)
+        rotary = args.iso in config.axes and config.axes[args.iso].rotary
         return iso230_linear_plan(
             args.iso, travel(args.iso), step_mm=args.step_mm, runs=args.runs, seed=args.seed,
-            lead_mm=args.lead_mm, overrun_mm=overrun, verification=verification,
+            lead_mm=args.lead_mm, overrun_mm=_overrun(args, rotary), verification=verification,
         )  # fmt: skip
     if args.backlash:
         if verification:

@@ -487,13 +487,13 @@ class Commission(CommandChecks):
             scores = {a: v.E_um for a, v in verdicts.items()}
             if xy is not None:
                 scores["XY"] = xy["max_um"]
-            swept = set(rounds[-1].get("swept") or []) if rounds else set()
+            last = rounds[-1] if rounds else {}
+            swept = set(last.get("swept") or [])
             restored = [name for name, score in scores.items() if name not in settled
                         and not self._keep_best(name, score, r,
                                                 xy["rms_um"] if name == "XY" and xy else None,
                                                 swept=name in swept)]  # fmt: skip
             more_runs: dict[str, int] = {}
-            last = rounds[-1] if rounds else {}
             for name in restored:
                 what = "model" if name == "XY" else "table"
                 refined = (name in swept or (last.get("added") or {}).get(name)

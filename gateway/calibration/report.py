@@ -62,17 +62,12 @@ class Units:
     per_um: float
     angular: bool = False
 
-    def cell(self, value_um: float | None, digits: int = 2) -> str:
+    def cell(self, value_um: float | None, digits: int = 2, named: bool = False) -> str:
+        """A figure (µm, or millidegrees shown in arcsec and degrees), with ``named`` its
+        unit beside it: "1.23 µm", "61.30 arcsec (0.01703°)"."""
         if value_um is None:
             return "–"
-        text = f"{value_um * self.per_um:.{digits}f}"
-        return f"{text} ({value_um / 1000:.5f}°)" if self.angular else text
-
-    def named(self, value_um: float | None) -> str:
-        """A figure with its unit: "1.23 µm", "61.30 arcsec (0.01703°)"."""
-        if value_um is None:
-            return "–"
-        text = f"{value_um * self.per_um:.2f} {self.name}"
+        text = f"{value_um * self.per_um:.{digits}f}" + (f" {self.name}" if named else "")
         return f"{text} ({value_um / 1000:.5f}°)" if self.angular else text
 
 
@@ -128,8 +123,8 @@ def plot_axis(axis: str, results: dict[str, tuple[RawData, Iso230Result]],
                             (stats.mean_um + 2 * stats.s_um) * k,
                             color=colour, alpha=0.2, label=f"±2s {label}")  # fmt: skip
         ax.axhline(0, color="0.5", lw=0.5)
-        ax.set_title(f"axis {axis}, {phase}: E {units.named(iso.E_um)}, "
-                     f"A {units.named(iso.A_um)}")  # fmt: skip
+        ax.set_title(f"axis {axis}, {phase}: E {units.cell(iso.E_um, named=True)}, "
+                     f"A {units.cell(iso.A_um, named=True)}")  # fmt: skip
         ax.set_xlabel(f"target position ({units.position})")
         ax.set_ylabel(f"deviation actual − target ({units.name})")
         ax.legend(fontsize=7, ncol=2)
