@@ -119,7 +119,7 @@ class DriftRefs:
             driver.on_move = self._count_travel
             ins = self.s.instruments
             assert ins.laser is not None
-            order = list(ins.laser_axes or self.config.axes)
+            order = ins.laser_order(self.config)
             laser = Laser(await links.get(*ins.laser.key), ins.laser.unit,
                           {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
             for a in self.s.axes if axes is None else axes:

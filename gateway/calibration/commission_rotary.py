@@ -192,7 +192,7 @@ class RotarySteps(Steps):
             self.state.get(key, {}).pop(name, None)
         self._save()
         ins = self.s.instruments
-        order = list(ins.angle_axes or [a for a, c in self.config.axes.items() if c.rotary])
+        order = ins.angle_order(self.config)
         given = (f"--angle-axes {','.join(order)}" if ins.angle_axes else
                  f"the config's rotary axes in order, {','.join(order)}; --angle-axes sets it")
         raise SetupError(f"the angle instrument's reading for axis {axis} (channel "

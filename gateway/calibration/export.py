@@ -224,9 +224,9 @@ def closed_turn(table: PitchTable) -> PitchTable:
     interpolates across 360→0): its points taken modulo 360, the value at 0° read around
     the circle where 0° is no point of it (a table fitted from runs that began at 3° ran
     3…363°, and LinuxCNC had nothing for 0…3°)."""
-    pos = np.mod(table.position_mm, 360.0)
     if not table.rotary:
         return table
+    pos = np.mod(table.position_mm, 360.0)
     order = np.argsort(pos, kind="stable")
     pos = pos[order]
 

@@ -68,6 +68,14 @@ class Instruments:
     #: readings wait for the instrument's stable flag (see :class:`.machine.Laser`)
     wait_stable: bool = True
 
+    def laser_order(self, config: GatewayConfig) -> list[str]:
+        """The laser's channels in order: ``laser_axes``, else the config's axes."""
+        return list(self.laser_axes or config.axes)
+
+    def angle_order(self, config: GatewayConfig) -> list[str]:
+        """The angle instrument's channels: ``angle_axes``, else the config's rotary axes."""
+        return list(self.angle_axes or [a for a, c in config.axes.items() if c.rotary])
+
     def __post_init__(self) -> None:
         """Two instruments given the same device (host, port, unit and first register) is
         a slip of the command line: the laser and the XY device of the simulator share one
@@ -131,14 +139,14 @@ class Session:
         ins = self.instruments
         rotary = [a for a in plan.axes if a in self.config.axes and self.config.axes[a].rotary]
         if rotary and ins.angle is not None:
-            order = list(ins.angle_axes or [a for a, c in self.config.axes.items() if c.rotary])
+            order = ins.angle_order(self.config)
             dev = Laser(await links.get(*ins.angle.key), ins.angle.unit,  # type: ignore[assignment]
                         {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
         elif len(plan.axes) == 2 and ins.xy is not None:
             dev = XYDevice(await links.get(*ins.xy.key), ins.xy.unit, tuple(plan.axes),  # type: ignore[arg-type]
                            ins.wait_stable)
         elif ins.laser is not None:
-            order = list(ins.laser_axes or self.config.axes)
+            order = ins.laser_order(self.config)
             dev = Laser(await links.get(*ins.laser.key), ins.laser.unit,  # type: ignore[assignment]
                         {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
         elif ins.xy is not None:
