@@ -265,3 +265,17 @@ def test_an_axis_refinement_must_pay_a_denser_plane_grid_must_not_lose() -> None
     assert adaptive.keeps_refinement(1.19, 1.35, swept=True)
     assert adaptive.keeps_refinement(0.80, 0.71, swept=True)
     assert not adaptive.keeps_refinement(1.20, 0.71, swept=True)
+
+
+def test_random_targets_find_room_between_a_swept_tables_points() -> None:
+    """A swept table's points every 0.25 (mm or °) leave no room at a 0.2 clearance: the
+    clearance shrinks to 0.4 of their spacing, so a round still has its random targets,
+    each between two points; a coarse table keeps the 0.2."""
+    dense = np.round(np.arange(-14.0, 13.01, 0.25), 4)
+    t = adaptive.random_targets_mm((-14.0, 13.0), 12, 7, dense, margin_mm=0.0)
+    assert t.size == 12
+    gap = np.min(np.abs(t[:, None] - dense[None, :]), axis=1)
+    assert np.all(gap >= 0.1 - 1e-9) and np.all(gap < 0.125 + 1e-9)
+    coarse = np.arange(0.0, 101.0, 2.0)
+    t = adaptive.random_targets_mm((0.0, 100.0), 12, 7, coarse)
+    assert t.size == 12 and np.min(np.abs(t[:, None] - coarse[None, :])) >= 0.2

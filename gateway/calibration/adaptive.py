@@ -57,8 +57,13 @@ def random_targets_mm(
 ) -> NDArray[np.float64]:  # fmt: skip
     """``count`` seeded random targets inside the travel, each at least ``clearance_mm``
     from every position in ``avoid_mm`` (the table's points: never judged where fitted);
-    with ``period_mm`` (a turntable's 360°) the distance is the short way round."""
+    with ``period_mm`` (a turntable's 360°) the distance is the short way round. The
+    clearance is at most 0.4 of the points' median spacing: a swept table's points (every
+    0.25 mm or 0.25°) leave no room between them at 0.2."""
     lo, hi = float(travel_mm[0]) + margin_mm, float(travel_mm[1]) - margin_mm
+    if avoid_mm.size > 1:
+        gaps = np.diff(np.unique(avoid_mm))
+        clearance_mm = min(clearance_mm, 0.4 * float(np.median(gaps)))
     rng = np.random.default_rng(seed)
     out: list[float] = []
     for _ in range(200 * count):

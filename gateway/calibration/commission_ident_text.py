@@ -102,11 +102,12 @@ def _interpolation(r: Record, u: Fmt = _um) -> str:
 
 
 def _sweep(r: Record, u: Fmt = _um) -> str:
-    text = (f"round {r['round']}: {r['readings']} readings every "
-            f"{r['step_mm']:g} mm over the travel, fitted as a level of "
-            f"{r['knots']} points and {r['harmonics']} harmonic(s) per turn at "
-            f"{r['stations']} stations; they miss it by {u(r['residual_rms_um'])} "
-            "RMS")  # fmt: skip
+    step = f"{r['step_mm']:g}°" if u is _arcsec else f"{r['step_mm']:g} mm"
+    cyclic = (f" and {r['harmonics']} harmonic(s) per turn at {r['stations']} stations"
+              if r.get("harmonics") else "")  # fmt: skip
+    text = (f"round {r['round']}: {r['readings']} readings every {step} over the travel, "
+            f"fitted as a level of {r['knots']} points{cyclic}; they miss it by "
+            f"{u(r['residual_rms_um'])} RMS")  # fmt: skip
     if r.get("weighted_out"):
         text += f"; {r['weighted_out']} readings left out (stops that fell short)"
     return text

@@ -6,24 +6,29 @@ An axis that misses its tolerance is swept first, when the budget affords it: on
 every eighth of a lead over the whole travel, each way, gives the table a point at every
 target read and the cyclic term a station every few leads, each held as smooth as
 cross-validation says the readings allow. Spans that still miss after it are refined one
-by one. A sweep that does not pay is taken back like any refinement.
+by one. A sweep that does not pay is taken back like any refinement. A swing axis is swept
+too, every 0.25° (its screw's turns are uneven in angle, so the fit is its level alone); a
+turntable is not (its worm scans and harmonics are its own).
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
-from ..compensation import PitchStage, PitchTable
+from ..compensation import PitchTable
 from ..compensation.cyclic import CyclicModel
 from ..compensation.errors import CompensationError
 from ..config import GatewayConfig
 from ..formats import atomic_write_text, read_cyclic, read_pitch_csv, write_cyclic
 from . import adaptive
+from .commission_rotary import OVERRUN_DEG, SWING_KNOT_GAP_STEPS, SWING_SWEEP_STEPS_DEG
 from .commission_thermal import ThermalSteps
 from .cyclic_fit import scans_from_raw
 from .fit import smoothed_table
+from .iso230 import ARCSEC_PER_MDEG
 from .plans import Plan, read_plan, targets_plan
 from .plans_scans import cyclic_plan, sweep_plan
 from .rawdata import axis_deviations
@@ -33,7 +38,6 @@ from .sweep import (
     fit_sweep,
     harmonics_for_step,
     sweep_refinement,
-    sweep_step_mm,
     sweep_steps_mm,
     sweep_targets_mm,
 )
@@ -235,23 +239,37 @@ class RefineSteps(ThermalSteps):
         ``estimate``, before its cyclic term and ISO runs exist (the lead ``lead_mm``,
         not noisy)."""
         travel = self._travel(axis)
+        if self._rotary(axis):  # a swing axis: over the range its table covers
+            lo, hi = self.table_range(axis)
+            step = self._sweep_steps(axis)[coarser]
+            targets = np.round(lo + step * np.arange(math.floor((hi - lo) / step + 1e-9) + 1), 4)
+            return self._snap(sweep_plan(axis, travel, targets, piece_mm=SWEEP_PIECE_MM,
+                                         overrun_mm=OVERRUN_DEG))  # fmt: skip
         lead = lead_mm if estimate else self._lead_of(axis)
         targets = sweep_targets_mm(travel, lead, coarser=coarser,
                                    noisy=not estimate and self._noisy(axis))  # fmt: skip
         return self._snap(sweep_plan(axis, travel, targets, piece_mm=SWEEP_PIECE_MM))
 
+    def _sweep_steps(self, axis: str) -> tuple[float, ...]:
+        """The distances between a sweep's readings of ``axis`` (mm, or degrees), densest
+        first."""
+        if self._rotary(axis):
+            return SWING_SWEEP_STEPS_DEG
+        return sweep_steps_mm(self._lead_of(axis), self._noisy(axis))
+
     def _sweeps(self, r: int, axis: str, allowance_s: float) -> int | None:
         """How coarse round ``r``'s sweep of ``axis`` is (an index into the steps; None: no
-        sweep): a linear axis not swept yet, the densest step whose sweep and the next
-        round's random targets fit in ``allowance_s``; a sweep begun before an
-        interruption carries on as it was."""
-        if self._rotary(axis) or axis in self.state.get("swept", []):
+        sweep): a linear or swing axis not swept yet (a turntable's worm scans and
+        harmonics are its own), the densest step whose sweep and the next round's random
+        targets fit in ``allowance_s``; a sweep begun before an interruption carries on as
+        it was."""
+        if self._wraps(axis) or axis in self.state.get("swept", []):
             return None
         begun = self.state.get("sweeping", {}).get(axis)
         if begun is not None:
             return int(begun)
         random_s = adaptive.RANDOM_TARGETS * self._verify_target_s(r, axis)
-        for coarser in range(len(sweep_steps_mm(self._lead_of(axis), self._noisy(axis)))):
+        for coarser in range(len(self._sweep_steps(axis))):
             if self.step_cost_s(self._sweep_plan(axis, coarser)) + random_s <= allowance_s:
                 return coarser
         return None
@@ -265,12 +283,14 @@ class RefineSteps(ThermalSteps):
         raw = self.raw(name)
         rows = np.array([a == axis for a in raw.axis])
         lead = model.lead_mm if model else None
+        gap = SWING_KNOT_GAP_STEPS * step_mm if self._rotary(axis) else adaptive.MIN_SPACING_MM
         fit = fit_sweep(raw.target_mm[rows], raw.deviation_mm[rows], raw.direction[rows],
                         lead, model.origin_mm if model else 0.0,
                         harmonics_for_step(step_mm, lead), table=table,
                         stations_mm=model.station_mm if model else (),
-                        line_margin=line_margin)  # fmt: skip
-        return sweep_refinement(table, PitchStage(table, method), model, fit), int(rows.sum())
+                        line_margin=line_margin, gap_mm=gap)  # fmt: skip
+        return sweep_refinement(table, self.table_stage(axis, table, method), model, fit), \
+            int(rows.sum())  # fmt: skip
 
     async def _sweep_axis(self, r: int, axis: str, coarser: int) -> int:
         """Sweep ``axis`` with its table and cyclic term on and fold the fit into both;
@@ -288,7 +308,7 @@ class RefineSteps(ThermalSteps):
         self.state.setdefault("sweeping", {})[axis] = coarser
         # the interpolation the sweep reads the table with (the fold's, on a resume too)
         method = self.state.setdefault("sweep_interpolation", {}).setdefault(
-            axis, self.tables.interpolation.get(axis, "linear"))
+            axis, self.interpolation_of(axis))
         self._save()
         table = read_pitch_csv(keep / path.name)
         model = read_cyclic(keep / cyclic_path.name) if cyclic_path is not None else None
@@ -297,7 +317,7 @@ class RefineSteps(ThermalSteps):
         self.state["swept"] = [*self.state.get("swept", []), axis]
         self.state["sweeping"].pop(axis, None)
         lead = model.lead_mm if model else None
-        step_mm = sweep_step_mm(lead, coarser, self._noisy(axis))
+        step_mm = self._sweep_steps(axis)[coarser]
         ref, readings = self.fold_sweep(name, axis, table, model, method, step_mm)
         fit = ref.fit
         record: dict[str, Any] = {
@@ -312,15 +332,18 @@ class RefineSteps(ThermalSteps):
         if not self._write_tables(axis, config, ref.table, ref.cyclic, f"swept in round {r}"):
             return 0
         self.state.setdefault("spans", {})[axis] = []  # judged at random targets next
-        scatter = (f"; its stops scatter {self.iso_scatter_um(axis):.2f} µm, more than the "
-                   "tolerance: read densely" if self._noisy(axis) and not lead else "")
-        self.say(f"round {r}: {axis}: swept every {step_mm:g} mm ({record['readings']} "
+        unit, small = ("°", lambda v: f"{v * ARCSEC_PER_MDEG:.2f}″") if self._rotary(axis) \
+            else (" mm", lambda v: f"{v:.2f} µm")  # fmt: skip
+        scatter = (f"; its stops scatter {small(self.iso_scatter_um(axis))}, more than the "
+                   "tolerance: read densely" if self._noisy(axis) and not lead
+                   and not self._rotary(axis) else "")  # fmt: skip
+        self.say(f"round {r}: {axis}: swept every {step_mm:g}{unit} ({record['readings']} "
                  f"readings{scatter}): a level "
-                 f"{fit.level_ptp_um:.2f} µm peak to peak every "
-                 f"{float(np.diff(fit.knot_mm).mean()):.2f} mm"
+                 f"{small(fit.level_ptp_um)} peak to peak every "
+                 f"{float(np.diff(fit.knot_mm).mean()):.2f}{unit}"
                  + (f", {record['harmonics']} harmonics at {record['stations']} stations"
                     if record["harmonics"] else "")
-                 + f"; {fit.residual_rms_um:.2f} µm RMS left in the readings"
+                 + f"; {small(fit.residual_rms_um)} RMS left in the readings"
                  + (f", {fit.weighted_out} readings left out (stops that fell short)"
                     if fit.weighted_out else ""))  # fmt: skip
         return int(ref.table.position_mm.size - table.position_mm.size)

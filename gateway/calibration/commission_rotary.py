@@ -63,6 +63,14 @@ BACKLASH_MOVE_DEG = 1.0
 #: a random target keeps this far from every table point (deg)
 CLEARANCE_DEG = 0.2
 ARCSEC_PER_DEG = 3600.0
+#: a swing axis's sweep: a reading every this many degrees, densest first. Its screw turns
+#: once every few degrees of angle (seed 003's 5 mm lead: about 1.9°, unevenly, through
+#: the linkage), an error the coarse table's points, at least ``adaptive.MIN_SPACING_MM``
+#: apart, cannot follow; no lead in degrees exists to tie the step to, so the sweep reads
+#: densely enough for a period down to 1° and its fit keeps what cross-validation allows
+SWING_SWEEP_STEPS_DEG = (0.25, 0.5)
+#: ... and its level's knots keep this many steps from the table's points
+SWING_KNOT_GAP_STEPS = 0.4
 
 
 class RotarySteps(Steps):

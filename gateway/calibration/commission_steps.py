@@ -463,12 +463,18 @@ class Steps(DriftRefs):
             return "linear"
         return method
 
-    def table_stage(self, axis: str, table: PitchTable) -> PitchStage:
-        """The stage the gateway builds from ``table``: the chosen interpolation, the wrap."""
+    def interpolation_of(self, axis: str) -> str:
+        """The interpolation chosen for ``axis``'s table (a rotary axis's by its fit)."""
         if not self._rotary(axis):
-            return PitchStage(table, self.tables.interpolation.get(axis, "linear"))  # type: ignore[arg-type]
-        method = self.state.get("rotary", {}).get(axis, {}).get("interpolation", "linear")
-        return PitchStage(table, method, wrap=self._wraps(axis))
+            return self.tables.interpolation.get(axis, "linear")
+        return str(self.state.get("rotary", {}).get(axis, {}).get("interpolation", "linear"))
+
+    def table_stage(self, axis: str, table: PitchTable, method: str | None = None
+                    ) -> PitchStage:  # fmt: skip
+        """The stage the gateway builds from ``table``: the chosen interpolation (or
+        ``method``), the wrap."""
+        return PitchStage(table, method or self.interpolation_of(axis),  # type: ignore[arg-type]
+                          wrap=self._wraps(axis))  # fmt: skip
 
 
 def _plain(value: Any) -> Any:

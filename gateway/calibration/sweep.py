@@ -212,7 +212,8 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
               direction: NDArray[np.int64], lead_mm: float | None, origin_mm: float = 0.0,
               harmonics: int = SWEEP_HARMONICS, robust: bool = True,
               table: PitchTable | None = None, stations_mm: ArrayLike = (),
-              line_margin: float = LINE_MARGIN) -> SweepFit:  # fmt: skip
+              line_margin: float = LINE_MARGIN, gap_mm: float = MIN_SPACING_MM
+              ) -> SweepFit:  # fmt: skip
     """Fit a sweep's residual (see the module's docstring). The number of harmonics (up to
     ``harmonics``) and the four penalty weights are those of the smallest generalised
     cross-validation score: a harmonic the readings do not show is not added.
@@ -225,7 +226,9 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
     the whole error every step, so the noise of the fewer readings the table's points came
     from is smoothed out with its own, as far as cross-validation says the sweep allows;
     and a ridge holds the level to the table as it was (its weight ``hold`` chosen the same
-    way, 0 among the choices), so what those readings knew is weighed, not dropped."""
+    way, 0 among the choices), so what those readings knew is weighed, not dropped.
+    ``gap_mm``: how near a table point the level's own knots may lie (a swing axis's, in
+    degrees, nearer than a linear axis's)."""
     x = np.asarray(x_mm, dtype=np.float64)
     y = np.asarray(deviation_mm, dtype=np.float64) * 1e3  # µm: a well-scaled system
     s = np.where(np.asarray(direction) < 0, 0.5, -0.5)  # −D/2 going up, +D/2 down
@@ -235,7 +238,7 @@ def fit_sweep(x_mm: NDArray[np.float64], deviation_mm: NDArray[np.float64],
     step = float(np.median(np.diff(targets))) if targets.size > 1 else LEVEL_KNOT_MM
     knot_spacing = min(LEVEL_KNOT_MM, max(step, (hi - lo) / (LEVEL_KNOTS_MAX - 1)))
     kn = merged_mm(knots_mm(lo, hi, knot_spacing),
-                   () if table is None else table.position_mm, MIN_SPACING_MM)  # fmt: skip
+                   () if table is None else table.position_mm, gap_mm)  # fmt: skip
     h = _hats(x, kn)
     blocks = [h, h * s[:, None]]
     if k:
