@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import shutil
 import signal
 import socket
 import subprocess
@@ -470,11 +471,34 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         assert "a short budget: every axis's ISO runs (and their midpoints" in proc.text()
         # the same command with more budget carries on: Y's scans, the fit again with both
         # cyclic terms, the plane and the rounds
+        assert "WITHIN 10 µm on every commissioned axis and the plane" in proc.text()
+        def after_x(where: Path) -> list[str]:
+            return [f.read_text() for f in sorted(where.glob("after-X*.csv"))]
+
+        first_after = after_x(out / "raw")
+        assert first_after
         more = rig.commission("--budget-h", "2", "--tolerance-um", "5")
         assert more.popen.wait(timeout=300) in (0, 1), more.text()
         final = yaml.safe_load(rig.config.read_text())["axes"]
         assert all("cyclic" in final[a]["compensation"] for a in ("X", "Y")), final
-        assert json.loads((out / "summary.json").read_text())["axes"]["Y"]["after"]
+        again = json.loads((out / "summary.json").read_text())
+        assert again["axes"]["Y"]["after"]
+        # the after-run measured again with the tables now loaded, the first one's kept
+        # aside; what the first ending said is gone, and where it carried on from said
+        assert "after-X: " in more.text() and "after-xy: " in more.text()
+        assert after_x(out / "raw" / "superseded") == first_after
+        assert after_x(out / "raw") and after_x(out / "raw") != first_after
+        assert not any("the after-run judged the tables" in n or "budget spent" in n
+                       for n in again["notes"]), again["notes"]  # fmt: skip
+        assert "carried on after 'within' at 0.9" in " ".join(again["notes"])
+        verdict = more.text().strip().splitlines()[-2]
+        assert verdict.startswith(("WITHIN 5 µm", "NOT within 5 µm")), verdict
+        # a power loss between the summary and the report: the same command writes it
+        shutil.rmtree(out / "report")
+        last = rig.commission("--budget-h", "2", "--tolerance-um", "5")
+        assert last.popen.wait(timeout=60) in (0, 1), last.text()
+        assert "nothing moves" in last.text() and "the report was missing" in last.text()
+        assert (out / "report" / "report.html").exists()
 
 
 def test_tables_that_make_the_plane_worse_are_not_left_loaded(tmp_path: Path) -> None:

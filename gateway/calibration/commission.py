@@ -213,8 +213,9 @@ class Commission(CommandChecks):
     async def run(self) -> dict[str, Any]:
         """Commission; returns the summary (also in DIR/summary.json). Raises
         CommissionAborted (after restoring the user's config) on a machine fault."""
-        if self.state.pop("finished", None) is not None:  # asked for more: carries on
-            self._save()
+        done = self.state.pop("finished", None)
+        if done is not None:  # asked for more: carries on
+            self._carry_on(done)
         if "what" not in self.state:
             self.state["what"] = self._what()
             self._save()
@@ -224,7 +225,9 @@ class Commission(CommandChecks):
             await self._fit_axes(curves=bool(self.state.get("short")))
             await self._plane()
             outcome = await self._rounds()
+            ending = len(self.state["notes"])
         except BudgetSpent as exc:
+            ending = len(self.state["notes"])
             self.state["notes"].append(f"budget spent: {exc}")
             self.say(f"budget spent: {exc}")
             outcome = "budget"
@@ -252,9 +255,24 @@ class Commission(CommandChecks):
         summary = self.summary(outcome)
         atomic_write_text(self.dir / "summary.json", json.dumps(summary, indent=1,
                                                                 default=_plain))  # fmt: skip
-        self.state["finished"] = {"outcome": outcome, "asked": self._asked()}
+        self.state["finished"] = {"outcome": outcome, "asked": self._asked(),
+                                  "machine_h": self.used_s / 3600, "notes_from": ending}
         self._save()
         return summary
+
+    def _carry_on(self, done: dict[str, Any]) -> None:
+        """A finished commissioning asked for more (budget, rounds, a tighter tolerance):
+        what its ending said is dropped (a budget spent, an after-run's verdict) and its
+        after-run measured again at the end, with the tables then loaded (its readings
+        moved to ``raw/superseded/``); a note says where it carried on from."""
+        notes = self.state["notes"]
+        del notes[int(done.get("notes_from", len(notes))):]
+        for name in [n for n in self.state["steps"] if n.startswith("after-")]:
+            self.forget(name, keep_in=self.dir / "raw" / "superseded")
+        used = done.get("machine_h")
+        notes.append(f"carried on after '{done.get('outcome')}'"
+                     + (f" at {used:.2f} h of machine time" if used is not None else ""))
+        self._save()
 
     # -- 1. identification ---------------------------------------------------------------
     async def _identify(self) -> None:

@@ -5,6 +5,7 @@ summary the report is written from."""
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from ..formats import read_pitch_csv
@@ -98,7 +99,8 @@ class AfterSteps(TakeUpSteps):
                                "rounds": self.state["rounds"], "notes": self.state["notes"],
                                "identify": self.state.get("identify", {}),
                                "config": str(self.s.config_path),
-                               "retried": self.state.get("retried", 0)}  # fmt: skip
+                               "retried": self.state.get("retried", 0),
+                               "finished_at": time.strftime("%Y-%m-%d %H:%M")}  # fmt: skip
         for a in self.s.axes:
             entry: dict[str, Any] = {}
             for phase in ("before", "after"):

@@ -319,13 +319,20 @@ def main(args: argparse.Namespace) -> int:
         _err(exc)
         return EXIT_NOT_MET
     if finished is not None:
+        when = f", finished {finished['finished_at']}" if "finished_at" in finished else ""
         print(f"commissioned already in {settings.out_dir} ({finished['outcome']}, "
-              f"{finished['machine_h']:.2f} h of machine time): nothing moves. For more, give "
+              f"{finished['machine_h']:.2f} h of machine time{when}): nothing moves. It "
+              "re-measures nothing: to check the tables still hold, see the README's "
+              "\"Checking the tables later\". For more, give "
               f"a larger --budget-h, a tighter {' or '.join(_tolerances(job))} or more "
               "--max-rounds; to start "
               "over, remove that directory or give --out")  # fmt: skip
         print("\n".join(summary_lines(finished)))
-        print(f"report: {settings.out_dir / 'report' / 'report.html'}")
+        report = settings.out_dir / "report" / "report.html"
+        if not report.exists():  # a power loss between the summary and the report
+            report = write_report(settings.out_dir, finished, _loader(job))
+            print("the report was missing (an interruption as it was written): written again")
+        print(f"report: {report.resolve()}")
         return EXIT_OK if args.dry_run or finished["outcome"] == "within" else EXIT_NOT_MET
     if args.dry_run:
         return EXIT_OK
@@ -376,13 +383,19 @@ def main(args: argparse.Namespace) -> int:
              f"{log_path} and {settings.out_dir / 'commission.json'}")  # fmt: skip
         return EXIT_RUNTIME
 
+    report = write_report(settings.out_dir, summary, _loader(job))
+    print("\n".join(summary_lines(summary)))
+    print(f"report: {report.resolve()}")
+    return EXIT_OK if summary["outcome"] == "within" else EXIT_NOT_MET
+
+
+def _loader(job: Any) -> Any:
+    """A step's raw data as commissioning judged it, None where it was not measured."""
+
     def load(step: str):  # type: ignore[no-untyped-def]
         return job.raw(step) if job.done(step) else None
 
-    report = write_report(settings.out_dir, summary, load)
-    print("\n".join(summary_lines(summary)))
-    print(f"report: {report}")
-    return EXIT_OK if summary["outcome"] == "within" else EXIT_NOT_MET
+    return load
 
 
 def _tolerances(job: Any) -> list[str]:

@@ -51,14 +51,52 @@ def _cut(before: float | None, after: float | None) -> str:
     return f"{100 * (1 - after / before):.0f} %"
 
 
+def _tolerance_text(summary: dict[str, Any]) -> str:
+    """The tolerances asked, in words: "2 µm", "3″", "2 µm (rotary axes 3″)"."""
+    linear = bool(summary.get("xy")) or any(not _angular(e) for e in summary["axes"].values())
+    tols = ([f"{summary['tolerance_um']:g} µm"] if linear else []) + (
+        [f"{summary['tolerance_arcsec']:g}″"] if "tolerance_arcsec" in summary else [])
+    return " (rotary axes ".join(tols) + (")" if len(tols) > 1 else "")
+
+
+#: what to do next, per outcome that missed the tolerance
+NEXT = {
+    "budget": "the budget ran out: the same command with a larger --budget-h carries on "
+              "from here (every reading is kept)",
+    "rounds": "the rounds ran out: the same command with more --max-rounds (or a larger "
+              "--budget-h) carries on from here",
+    "floor": "what misses is the machine's own scatter or finer than a table follows: more "
+             "budget will not help; see the report's What remains (a looser tolerance, or "
+             "the mechanics)",
+}  # fmt: skip
+
+
+def verdict(summary: dict[str, Any]) -> str:
+    """One line a technician acts on: within the tolerance or not, where it misses (the
+    after-run's E per axis, the plane's maximum vector error) and what to do next."""
+    tol_text = _tolerance_text(summary)
+    if summary["outcome"] == "within":
+        return f"WITHIN {tol_text} on every commissioned axis" + (
+            " and the plane" if summary.get("xy") else "") + "; the tables are loaded"
+    missing = []
+    for axis, entry in summary["axes"].items():
+        e = _fig(entry.get("after") or {}, "E")
+        tol = summary.get("tolerance_arcsec") if _angular(entry) else summary["tolerance_um"]
+        if e is not None and tol is not None and e > tol:
+            missing.append(f"{axis} E {e:.2f}{_unit(entry)}")
+    after_xy = (summary.get("xy") or {}).get("after") or {}
+    if after_xy.get("max_um", 0.0) > summary["tolerance_um"]:
+        missing.append(f"XY {after_xy['max_um']:.2f} µm")
+    where = f" ({', '.join(missing)})" if missing else ""
+    return (f"NOT within {tol_text}{where}; what was fitted is loaded. Next: "
+            f"{NEXT.get(summary['outcome'], NEXT['rounds'])}")
+
+
 def remains(summary: dict[str, Any]) -> list[str]:
     """Sentences on what remains after commissioning, and why."""
     out = []
     outcome = summary["outcome"]
-    linear = bool(summary.get("xy")) or any(not _angular(e) for e in summary["axes"].values())
-    tols = ([f"{summary['tolerance_um']:g} µm"] if linear else []) + (
-        [f"{summary['tolerance_arcsec']:g}″"] if "tolerance_arcsec" in summary else [])
-    tol_text = " (rotary axes ".join(tols) + (")" if len(tols) > 1 else "")
+    tol_text = _tolerance_text(summary)
     if outcome == "within":
         out.append(f"Every axis is within {tol_text} (E) between the calibration points.")
     elif outcome == "budget":
@@ -79,9 +117,15 @@ def remains(summary: dict[str, Any]) -> list[str]:
         a, r, e = _fig(after, "A"), _fig(after, "R"), _fig(after, "E")
         u = _unit(entry)
         if a is not None and r is not None and e is not None:
-            out.append(f"Axis {axis}: A {a:.2f}{u} of which R (repeatability, ±2s of single "
-                       f"approaches) {r:.2f}{u}, which no table removes; the systematic part "
-                       f"E is {e:.2f}{u}.")  # fmt: skip
+            b = _fig(after, "B")
+            out.append(f"Axis {axis}: A {a:.2f}{u}, of which E {e:.2f}{u} is systematic (what "
+                       f"a table corrects) and R {r:.2f}{u} the scatter from one approach to "
+                       "the next at a target (ISO 230-2's repeatability, ±2s, with the "
+                       "reversal between directions"
+                       + (f", B {abs(b):.2f}{u}" if b is not None else "")
+                       + "): no table removes scatter, so a large R against the drive's own "
+                       "repeatability points at the mechanics or at heat while measuring."
+                       )  # fmt: skip
     out += [str(n) for n in summary.get("notes", [])]
     return out
 
@@ -111,6 +155,7 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
     lines.append(f"outcome: {summary['outcome']}; machine time {summary['machine_h']:.2f} h "
                  "(plan estimate); before and after at the same random targets, none a "
                  "table point")  # fmt: skip
+    lines.append(verdict(summary))
     return lines
 
 
@@ -118,8 +163,10 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
     """HTML text and figures of a commissioning: its summary, and ``load(step)``, a step's
     raw data as commissioning judged it (drift taken off), None when not measured."""
     parts = ["<h1>compgw commissioning report</h1>",
-             f"<p>Configuration: {html.escape(summary['config'])}. Outcome: "
-             f"<b>{html.escape(summary['outcome'])}</b>. Machine time used "
+             f"<p id='verdict'><b>{html.escape(verdict(summary))}</b>.</p>",
+             f"<p>Configuration: {html.escape(summary['config'])}. Tolerance "
+             f"{html.escape(_tolerance_text(summary))} (ISO 230-2 E between the calibration "
+             f"points). Outcome: <b>{html.escape(summary['outcome'])}</b>. Machine time used "
              f"{summary['machine_h']:.2f} h of a {summary['budget_h']:.2f} h budget. "
              "Before and after are measured at the same random targets, none of them a "
              "calibration point; figures per ISO 230-2, in µm (rotary axes: in arcseconds ″, "

@@ -194,11 +194,7 @@ class RotarySteps(Steps):
         sent, off = float(np.ptp(raw.target_mm)), float(np.ptp(raw.deviation_mm))
         if off <= 0.05 * sent:
             return
-        for path in self.raw_paths(name):
-            path.unlink(missing_ok=True)
-        for key in ("steps", "parts", "apart"):
-            self.state.get(key, {}).pop(name, None)
-        self._save()
+        self.forget(name)
         ins = self.s.instruments
         order = ins.angle_order(self.config)
         given = (f"--angle-axes {','.join(order)}" if ins.angle_axes else

@@ -243,6 +243,19 @@ class Steps(DriftRefs):
             return [self.dir / "raw" / f"{name}.csv"]
         return [self.config_dir / part["raw"] for part in parts]
 
+    def forget(self, name: str, keep_in: Path | None = None) -> None:
+        """Step ``name`` as if never run: its raw files removed (or moved into ``keep_in``)
+        and its records dropped; the next :meth:`step` of that name measures it again."""
+        for path in self.raw_paths(name):
+            if keep_in is not None and path.exists():
+                keep_in.mkdir(parents=True, exist_ok=True)
+                path.replace(keep_in / path.name)
+            else:
+                path.unlink(missing_ok=True)
+        for key in ("steps", "parts", "apart"):
+            self.state.get(key, {}).pop(name, None)
+        self._save()
+
     def raw(self, name: str) -> RawData:
         """A step's raw data (all its runs) with the machine's thermal drift during each run
         taken off: what the readings would have been in the state commissioning began in."""
