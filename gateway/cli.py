@@ -9,6 +9,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from .cli_args import Parser, above
+
 EXIT_OK = 0
 EXIT_BAD_INPUT = 1
 EXIT_USAGE = 2
@@ -176,7 +178,7 @@ _LIGHT = frozenset({"run", "check", "sim", "demo", "status"})
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """Every command's parser; given the arguments to parse, only the calibration's when the
     command is one of them (or none is named: ``compgw --help`` lists them all)."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="compgw",
         description="Modbus compensation gateway: pitch, backlash, XY and thermal correction.",
     )
@@ -240,7 +242,8 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
                        "plain Modbus/TCP (upstream.tcp), or over Modbus/TCP Security with "
                        "--cert and --key (a master's certificate whose role reads).")  # fmt: skip
     p.add_argument("-c", "--config", required=True, help="gateway YAML config")
-    p.add_argument("--port", type=int, help="gateway TCP port (default: from the config)")
+    p.add_argument("--port", type=above(0, "TCP port", int, most=65535),
+                   help="gateway TCP port (default: from the config)")
     p.add_argument("--cert", help="over upstream.tls: a master's certificate (PEM) whose role "
                    "reads, e.g. monitor")  # fmt: skip
     p.add_argument("--key", help="over upstream.tls: that certificate's key (PEM)")

@@ -138,3 +138,36 @@ def test_a_reader_that_stops_reading_ends_no_traceback():
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=60) == 0 and "Traceback" not in err and "BrokenPipe" not in err, err
     proc.stderr.close()
+
+
+def test_a_command_line_out_of_range_is_one_line_before_anything(tmp_path: Path):
+    """Numbers out of range, and a --verify --iterate with no table to fold into: one line
+    each naming the option, no usage text before it, no traceback, nothing moved (no
+    gateway or instrument is listening: a run would have failed otherwise)."""
+    no_pitch = yaml.safe_load((ROOT / "config" / "example.yaml").read_text())
+    no_pitch["axes"]["X"]["compensation"].pop("pitch")
+    (tmp_path / "gw.yaml").write_text(yaml.safe_dump(no_pitch))
+    base = ["--laser", "127.0.0.1:1:20", "--raw", str(tmp_path / "x.csv"),
+            "--gateway", "127.0.0.1:1"]  # fmt: skip
+    cases = [
+        (["status", "-c", "config/example.yaml", "--port", "70000"], 2,
+         "compgw status: argument --port: 70000 must be at most 65535 (TCP port)"),
+        (["calibrate", "-c", "config/example.yaml", "--iso", "X", "--step-mm", "0", *base], 2,
+         "compgw calibrate: argument --step-mm: 0 must be above 0 (mm)"),
+        (["calibrate", "-c", "config/example.yaml", "--iso", "X", "--verify",
+          "--tolerance-um", "-2", *base], 2,
+         "compgw calibrate: argument --tolerance-um: -2 must be above 0 (µm)"),
+        (["commission", "-c", "config/example.yaml", "--laser", "127.0.0.1:1:20",
+          "--budget-h", "nan"], 2, "compgw commission: argument --budget-h: nan must be above 0"),
+        (["calibrate", "-c", str(tmp_path / "gw.yaml"), "--iso", "X", "--verify",
+          "--iterate", "2", *base], 1,
+         "compgw calibrate: --verify --iterate folds into axis X's pitch table, and "
+         "axes.X.compensation.pitch names none"),
+    ]  # fmt: skip
+    for argv, code, line in cases:
+        out = subprocess.run([sys.executable, "-m", "gateway.cli", *argv], capture_output=True,
+                             text=True, timeout=60, cwd=ROOT)  # fmt: skip
+        assert out.returncode == code, (argv, out.stderr)
+        lines = out.stderr.splitlines()
+        assert len(lines) == 1 and lines[0].startswith(line), (argv, out.stderr)
+    assert not (tmp_path / "x.csv").exists()

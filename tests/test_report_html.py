@@ -140,8 +140,16 @@ def test_the_identification_reads_as_sentences_per_axis() -> None:
         "fit-A": {"interpolation": "pchip", "loo_rms_arcsec": 1.234},
         "cyclic-Y": {"peak": 3},  # other fields than expected: as stored
         "novel-X": {"value": 1.5},
+        # as fit_motion_heat stores it (the model's figures in its config's "motion")
+        "motion-Z": {"fitted": True, "origin_mm": 743.99, "length_mm": 707.99,
+                     "motion": {"delta_a_um_per_m": 1.0084, "tau_s": 403.0,
+                                "speeds_mm_s": {"X": 100.0}},
+                     "growth_max_um": 29.77, "residual_rms_um": 0.31, "points": 27},
     }
     rows = identification_rows(ident)
+    z = dict(rows.pop("Z"))
+    assert z["heat from motion"].endswith("to 0.31 µm RMS: Δa 1.01 µm per metre of heat, "
+                                          "time constant 403 s"), z  # fmt: skip
     assert list(rows) == ["X", "Y", "A"]
     x = dict(rows["X"])
     assert x["backlash"] == "2.58 µm at most (at three places: 1.89, 2.58, 1.73 µm)"

@@ -17,6 +17,7 @@ import sys
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 
+from ..cli_args import above
 from ..compensation.errors import CompensationError, TableError
 from ..config import ConfigError, GatewayConfig
 from .cli_common import (
@@ -200,6 +201,8 @@ def calibrate(
                              "it (compgw commission --tolerance-arcsec), or judge its runs with "
                              "compgw report, in arcseconds")  # fmt: skip
         plan = make_plan(args, config)
+        if args.verify and args.iterate > 0 and len(plan.axes) == 1:
+            _check_foldable(config, config_dir, plan.axes[0])
         if args.save_plan:
             write_plan(args.save_plan, plan)
         if not args.join:  # how long the machine will be busy, before it starts
@@ -324,15 +327,18 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     g.add_argument("--save-plan", metavar="FILE", help="also write the plan used")
     g.add_argument("--verify-plan", metavar="FILE", help="verification plan for --plan --verify")
     o = p.add_argument_group("plan parameters")
-    o.add_argument("--step-mm", type=float, default=25.0, help="ISO target spacing (25)")
-    o.add_argument("--runs", type=int, default=5, help="ISO bidirectional runs (5)")
+    o.add_argument("--step-mm", type=above(0, "mm"), default=25.0, help="ISO target spacing (25)")
+    o.add_argument("--runs", type=above(0, "runs", int), default=5,
+                   help="ISO bidirectional runs (5)")
     o.add_argument("--seed", type=int, default=0, help="seed of the uneven target offsets")
     o.add_argument("--lead-mm", type=float,
                    help="screw lead: ISO spacings kept off its multiples; --cyclic's period")
     o.add_argument("--stations", type=_floats, metavar="MM[,MM...]",
                    help="--cyclic: scan centres (default 15 %%, 50 %%, 85 %% of the travel)")
-    o.add_argument("--per-lead", type=int, default=16, help="--cyclic: points per lead (16)")
-    o.add_argument("--leads", type=float, default=2.0, help="--cyclic: leads per scan (2)")
+    o.add_argument("--per-lead", type=above(0, "points", int), default=16,
+                   help="--cyclic: points per lead (16)")
+    o.add_argument("--leads", type=above(0, "leads"), default=2.0,
+                   help="--cyclic: leads per scan (2)")
     o.add_argument("--takeup-mm", type=float, default=1.0,
                    help="--cyclic: take-up move before each scan direction (1; > backlash)")
     o.add_argument("--estimate-speed-mm-s", type=float, default=100.0,
@@ -342,7 +348,8 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     o.add_argument("--overrun-mm", type=float, default=None,
                    help="overrun / margin (3 mm; a rotary axis's ISO runs: 0.5°)")
     o.add_argument("--grid", type=int, nargs=2, default=(9, 7), metavar=("NX", "NY"))
-    o.add_argument("--grid-runs", type=int, default=1, help="passes over the XY grid (1)")
+    o.add_argument("--grid-runs", type=above(0, "passes", int), default=1,
+                   help="passes over the XY grid (1)")
     o.add_argument("--approach-mm", type=float, default=1.0,
                    help="XY: approach each point in + from this far below (0: serpentine)")
     o.add_argument("--x-range", type=_range, metavar="LO,HI")
@@ -372,13 +379,14 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     m.add_argument("--moving-bit", type=int, default=2)
     m.add_argument("--alarm-bit", type=int, default=0)
     m.add_argument("--in-position-pulses", type=float, default=2.0)
-    m.add_argument("--timeout-s", type=float, default=120.0, help="per move")
+    m.add_argument("--timeout-s", type=above(0, "s"), default=120.0, help="per move")
     m.add_argument("--no-progress", action="store_true")
     m.add_argument("--progress", action="store_true", help="progress bar even without a tty")
     v = p.add_argument_group("verify and iterate (seed 001)")
     v.add_argument("--verify", action="store_true", help="compensation on: iterate, verify")
-    v.add_argument("--iterate", type=int, default=0, metavar="N", help="fold at most N times")
-    v.add_argument("--tolerance-um", type=float, default=2.0, metavar="T")
+    v.add_argument("--iterate", type=above(-1, "folds", int), default=0, metavar="N",
+                   help="fold at most N times")
+    v.add_argument("--tolerance-um", type=above(0, "µm"), default=2.0, metavar="T")
     v.add_argument("--reload-pid", type=int, help="gateway pid: SIGHUP after writing tables")
     v.add_argument("--reload-cmd", help="command that makes the gateway reload")
     v.add_argument("--reload-wait-s", type=float, default=0.0, help="pause after reloading")
@@ -415,3 +423,18 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-a
     p = sub.add_parser("export", help="calibration: tables to/from LinuxCNC, CSV, FANUC")
     export_args(p)
     p.set_defaults(func=_cmd_export)
+
+
+def _check_foldable(config: GatewayConfig, config_dir: Path, axis: str) -> None:
+    """``--verify --iterate`` folds each round's residual into the axis's own pitch table:
+    it must name one, and it must exist (before anything moves, not after the first
+    round)."""
+    from .outputs import pitch_path, pitch_spec
+
+    if pitch_spec(config, axis) is None:
+        raise TableError(f"--verify --iterate folds into axis {axis}'s pitch table, and "
+                         f"axes.{axis}.compensation.pitch names none: fit one first (compgw "
+                         "fit) and name it in the config, or verify without --iterate")
+    path, _ = pitch_path(config, config_dir, axis)
+    if not path.exists():
+        raise TableError(f"axes.{axis}.compensation.pitch.file: {path}: file not found")

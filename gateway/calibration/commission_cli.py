@@ -18,6 +18,7 @@ from collections.abc import Awaitable, Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from ..cli_args import above
 from ..compensation.errors import CompensationError, TableError
 from ..config import ConfigError, GatewayConfig, config_crc, load_config
 from .cli_common import progress_bar, until_stopped
@@ -37,21 +38,7 @@ turntable over a whole turn (its table modulo 360), a swing axis over its range 
 linkage fitted when the config has one); --lead-mm C=5 gives a worm period in degrees,
 --tolerance-arcsec their tolerance; they get no drift references.
 Exit 0: within tolerance; 1: not met (budget, rounds, repeatability: see the report) or
-bad input; 3: the machine or gateway failed."""
-
-
-def _above(least: float, what: str, kind: type = float) -> Callable[[str], Any]:
-    """An argparse type: a finite number above ``least`` (``what`` says its unit)."""
-    def parse(text: str) -> Any:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number ({what})") from None
-        if not (math.isfinite(value) and value > least):
-            raise argparse.ArgumentTypeError(f"{text} must be above {least:g} ({what})")
-        return value
-
-    return parse
+bad input; 2: an option out of range; 3: the machine or gateway failed."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -87,25 +74,25 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    "period in degrees (360/teeth; not searched for)")  # fmt: skip
     p.add_argument("--no-lead-search", action="store_true",
                    help="axes without --lead-mm get no cyclic stage (no search scan)")
-    p.add_argument("--tolerance-um", type=_above(0, "µm"), default=2.0, metavar="T",
+    p.add_argument("--tolerance-um", type=above(0, "µm"), default=2.0, metavar="T",
                    help="ISO 230-2 E (XY: max vector error) between the points (2)")
-    p.add_argument("--tolerance-arcsec", type=_above(0, "arcseconds"), default=3.0, metavar="T",
+    p.add_argument("--tolerance-arcsec", type=above(0, "arcseconds"), default=3.0, metavar="T",
                    help="rotary axes: ISO 230-2 E between the points, arcseconds (3)")
-    p.add_argument("--budget-h", type=_above(0, "hours of machine time"), default=8.0, metavar="H",
+    p.add_argument("--budget-h", type=above(0, "hours of machine time"), default=8.0, metavar="H",
                    help="machine time at most (8 h, plan estimate)")
     p.add_argument("--out", metavar="DIR", help="working directory (default: "
                    "commission/ beside the config)")  # fmt: skip
-    p.add_argument("--max-rounds", type=_above(0, "verification rounds", int), default=6,
+    p.add_argument("--max-rounds", type=above(0, "verification rounds", int), default=6,
                    help="verification rounds at most (default 6)")
-    p.add_argument("--warmup-min", type=_above(0, "minutes"), default=30.0,
+    p.add_argument("--warmup-min", type=above(0, "minutes"), default=30.0,
                    help="warm-up length (30)")
     p.add_argument("--seed", type=int, default=0, help="random verification targets")
     p.add_argument("--dry-run", action="store_true", help="print the plan and stop")
     p.add_argument("--reload-pid", type=int, metavar="PID", help="reload by SIGHUP")
     p.add_argument("--reload-cmd", metavar="CMD", help="reload by a command")
-    p.add_argument("--estimate-speed-mm-s", type=_above(0, "mm/s"), default=100.0,
+    p.add_argument("--estimate-speed-mm-s", type=above(0, "mm/s"), default=100.0,
                    help="the axes' speed, for the machine-time estimates (100)")
-    p.add_argument("--estimate-stop-s", type=_above(0, "s per reading"), default=2.0,
+    p.add_argument("--estimate-stop-s", type=above(0, "s per reading"), default=2.0,
                    help="the plan's estimate of a stop per reading, settling and the "
                    "instrument's read (s, default 2)")
     p.add_argument("--in-position-bit", type=int, default=4,
@@ -118,7 +105,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--in-position-pulses", type=float, default=2.0,
                    help="arrived when the feedback is within this of the target, and the "
                    "status bits (where the axis has a status word) agree (pulses, default 2)")
-    p.add_argument("--timeout-s", type=_above(0, "s"), default=120.0,
+    p.add_argument("--timeout-s", type=above(0, "s"), default=120.0,
                    help="a move not in position this long after it was sent stops the run "
                    "(s, default 120)")
     p.add_argument("--progress", action="store_true", help="progress bar even off a terminal")

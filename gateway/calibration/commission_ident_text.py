@@ -74,7 +74,8 @@ def _motion(r: Record, u: Fmt = _um) -> str:
     if not r.get("fitted"):
         return f"none: {r.get('why', '')}"
     return (f"no sensor; the axes' motion explains the drift ({r['growth_max_um']:.1f} µm "
-            f"at most) to {r['residual_rms_um']:.2f} µm RMS: {_motion_text(r)}")  # fmt: skip
+            f"at most) to {r['residual_rms_um']:.2f} µm RMS: "
+            f"{_motion_text(r.get('motion') or r)}")  # fmt: skip
 
 
 def _cyclic(r: Record, u: Fmt = _um) -> str:
