@@ -33,6 +33,7 @@ from .config import (
     TcpListen,
     bus_silence_s,
     config_crc,
+    file_warnings,
     load_config,
 )
 from .config import warnings as config_warnings
@@ -327,7 +328,8 @@ async def serve(path: str | Path, *, stop: asyncio.Event | None = None,
         log.error("%s", exc)
         notifier.status(f"config error: {exc}")
         return 1
-    for warning in config_warnings(config):  # what `compgw check` warns of, in the journal
+    # what `compgw check` warns of, in the journal
+    for warning in [*file_warnings(path), *config_warnings(config)]:
         log.warning("%s", warning)
     app = GatewayApp(config, chain, source=str(path))
     try:

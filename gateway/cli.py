@@ -20,7 +20,7 @@ EXIT_RUNTIME = 3
 def _cmd_check(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .config import ConfigError, load_config, warnings
+    from .config import ConfigError, file_warnings, load_config, warnings
     from .setup_report import describe
     from .tables import build_chain
 
@@ -39,7 +39,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     print(describe(config, chain))
     for line in tls_lines:
         print(line)
-    for line in [*warnings(config), *tls_warnings]:
+    for line in [*file_warnings(args.config), *warnings(config), *tls_warnings]:
         print(f"compgw check: warning: {line}", file=sys.stderr)
     return EXIT_OK
 
@@ -73,7 +73,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
     from pymodbus.client import AsyncModbusTcpClient, AsyncModbusTlsClient
     from pymodbus.exceptions import ModbusException
 
-    from .config import ConfigError, config_crc, load_config
+    from .config import ConfigError, config_crc, file_warnings, load_config
     from .status import INPUT_SIZE, format_status
 
     try:
@@ -139,6 +139,8 @@ def _cmd_status(args: argparse.Namespace) -> int:
     print(format_status(list(config.axes), list(config.thermal_sources), reply.registers,
                         (args.config, config_crc(args.config)),
                         frozenset(a for a, c in config.axes.items() if c.rotary)))  # fmt: skip
+    for line in file_warnings(args.config):
+        print(f"compgw status: warning: {line}", file=sys.stderr)
     return EXIT_OK
 
 

@@ -8,6 +8,8 @@ Table paths are relative to the config file.
 from __future__ import annotations
 
 import ipaddress
+import os
+import re
 import zlib
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -634,6 +636,29 @@ def _loopback(host: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False
+
+
+#: the first line ``compgw commission`` writes into the configs it makes the gateway run
+_COMMISSION_LINE = re.compile(r"# written by compgw commission \((?P<phase>[\w ,-]+) config\): "
+                              r"your own config is kept in (?P<original>.+)$")
+
+
+def file_warnings(path: str | os.PathLike[str]) -> list[str]:
+    """What the file itself says a user should know: a config ``compgw commission`` wrote
+    for one of its phases (identification: compensation off on the axes it measures), left
+    behind by a commissioning that stopped without putting the user's own back (a power
+    loss, a kill)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            first = f.readline().strip()
+    except (OSError, UnicodeDecodeError):
+        return []
+    m = _COMMISSION_LINE.match(first)
+    if m is None or m["phase"] == "full":
+        return []
+    return [f"{path}: compgw commission's {m['phase']} config, left by a commissioning that "
+            f"did not finish (tables off or not yet verified): the same commission command "
+            f"carries it on, or put your own config back ({m['original']})"]
 
 
 def warnings(config: GatewayConfig) -> list[str]:

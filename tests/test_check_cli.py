@@ -171,3 +171,40 @@ def test_a_command_line_out_of_range_is_one_line_before_anything(tmp_path: Path)
         lines = out.stderr.splitlines()
         assert len(lines) == 1 and lines[0].startswith(line), (argv, out.stderr)
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_a_config_commissioning_left_behind_is_named(tmp_path: Path):
+    """A commissioning killed mid-run leaves its identification config loaded (tables
+    off): `check` (and `status`, `run`'s log) say so. And a config naming tables that are
+    gone (commission/ removed to start over) is refused before commissioning begins: an
+    abort would put it back, and the gateway would refuse it."""
+    text = (ROOT / "config" / "example.yaml").read_text()
+    tables = ROOT / "config" / "tables"
+    (tmp_path / "tables").symlink_to(tables)
+    left = tmp_path / "gw.yaml"
+    left.write_text("# written by compgw commission (identification config): your own config "
+                    "is kept in commission/original.yaml\n" + text)  # fmt: skip
+    out = subprocess.run([sys.executable, "-m", "gateway.cli", "check", "-c", str(left)],
+                         capture_output=True, text=True, timeout=60, cwd=ROOT)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert (f"compgw check: warning: {left}: compgw commission's identification config, left "
+            "by a commissioning that did not finish") in out.stderr, out.stderr
+    assert "put your own config back (commission/original.yaml)" in out.stderr
+    final = tmp_path / "final.yaml"
+    final.write_text("# written by compgw commission (full config): your own config is kept "
+                     "in x.yaml\n" + text)  # fmt: skip
+    out = subprocess.run([sys.executable, "-m", "gateway.cli", "check", "-c", str(final)],
+                         capture_output=True, text=True, timeout=60, cwd=ROOT)  # fmt: skip
+    assert "did not finish" not in out.stderr, out.stderr
+
+    gone = yaml.safe_load(text)
+    gone["axes"]["X"]["compensation"]["pitch"]["file"] = "commission/tables/x_pitch.csv"
+    (tmp_path / "gone.yaml").write_text(yaml.safe_dump(gone))
+    out = subprocess.run([sys.executable, "-m", "gateway.cli", "commission", "-c",
+                          str(tmp_path / "gone.yaml"), "--laser", "127.0.0.1:1:20"],
+                         capture_output=True, text=True, timeout=60, cwd=ROOT)  # fmt: skip
+    assert out.returncode == 1, out.stderr
+    assert out.stderr.splitlines() == [out.stderr.strip()], out.stderr
+    assert "gone.yaml does not load as it is (axes.X.compensation.pitch.file:" in out.stderr
+    assert "commission/tables/x_pitch.csv: file not found" in out.stderr
+    assert not (tmp_path / "commission").exists()

@@ -234,6 +234,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         config_path = Path(args.config)
         config = load_config(config_path)
+        _loads_whole(config, config_path)
         axes = tuple(args.axes.split(",")) if args.axes else tuple(config.axes)
         for a in axes:
             if a not in config.axes:
@@ -374,6 +375,21 @@ def main(args: argparse.Namespace) -> int:
     print("\n".join(summary_lines(summary)))
     print(f"report: {report.resolve()}")
     return EXIT_OK if summary["outcome"] == "within" else EXIT_NOT_MET
+
+
+def _loads_whole(config: GatewayConfig, path: Path) -> None:
+    """The config commissioning starts from loads with its tables, as the gateway would
+    load it: it is what an abort or the end puts back. (Started over as the README says,
+    by removing commission/, a config naming that directory's tables was put back on an
+    abort and the gateway refused it, left on the identification config.)"""
+    from ..tables import build_chain
+
+    try:
+        build_chain(config, path.resolve().parent)
+    except (ConfigError, TableError, CompensationError) as exc:
+        raise TableError(f"{path} does not load as it is ({exc}); commissioning puts it back "
+                         "at the end or on an abort, so it must: restore the files it names, "
+                         "or the config you had before them") from None
 
 
 def _loader(job: Any) -> Any:
