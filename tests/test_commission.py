@@ -296,6 +296,24 @@ def test_laser_channels_in_the_wrong_order_are_caught_at_the_first_references(
     identification reading is kept; the right order then commissions from the start."""
     with running(template, tmp_path / "m") as rig:
         original = rig.config.read_text()
+        # before it: a device that does not answer is one line naming the option, exit 1,
+        # before the plan and before anything is written (the last option given wins)
+        with socket.socket() as sock:  # a loopback port just free: nobody listens there
+            sock.bind(("127.0.0.1", 0))
+            free = sock.getsockname()[1]
+        for extra, line in (
+                (("--laser", f"127.0.0.1:{rig.sim_port}:99"),
+                 f"--laser 127.0.0.1:{rig.sim_port}:99: unit 99 "),
+                (("--xy-device", f"127.0.0.1:{free}:21"),
+                 f"--xy-device 127.0.0.1:{free}:21: nothing answers there"),
+                (("--gateway", f"127.0.0.1:{free}"),
+                 f"--gateway 127.0.0.1:{free}: nothing answers there; start the gateway "
+                 f"first (compgw run -c {rig.config})")):  # fmt: skip
+            bad = rig.commission(*extra)
+            assert bad.popen.wait(timeout=60) == 1, bad.text()
+            lines = bad.text().strip().splitlines()
+            assert len(lines) == 1 and lines[0].startswith(f"compgw commission: {line}"), lines
+            assert not (rig.dir / "commission").exists()
         proc = rig.commission("--laser-axes", "Y,X", "--budget-h", "0.05")
         assert proc.popen.wait(timeout=120) == 1, proc.text()
         text = proc.text()

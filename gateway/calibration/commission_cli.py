@@ -302,6 +302,8 @@ def main(args: argparse.Namespace) -> int:
             raise ValueError(other)
         finished = job.finished()
         if finished is None:
+            if not args.dry_run:
+                asyncio.run(_answering(settings, config.status.upstream_unit, config_path))
             job.print_plan()
     except (ConfigError, TableError, CompensationError, ValueError, OSError) as exc:
         _err(exc)
@@ -375,6 +377,53 @@ def main(args: argparse.Namespace) -> int:
     print("\n".join(summary_lines(summary)))
     print(f"report: {report.resolve()}")
     return EXIT_OK if summary["outcome"] == "within" else EXIT_NOT_MET
+
+
+#: Modbus exception codes in words, for the one line that names a device that refused
+_EXCEPTIONS = {0x01: "illegal function", 0x02: "illegal data address",
+               0x04: "device failure", 0x06: "busy", 0x0A: "gateway path unavailable",
+               0x0B: "gateway target device failed to respond"}  # fmt: skip
+
+
+async def _answering(settings: Any, status_unit: int, config_path: Path) -> None:
+    """Before anything is written or moved: the gateway answers at its status unit and the
+    laser, angle and XY instruments at theirs (one read of their first registers); a
+    TableError naming the option otherwise. (A wrong unit, a port nothing listens on or no
+    gateway running were found at the first reading, after the plan and a commission
+    directory, as an abort.)"""
+    from pymodbus.client import AsyncModbusTcpClient
+    from pymodbus.exceptions import ModbusException
+
+    from ..status import GENERATION_REGISTER
+
+    ins = settings.instruments
+    devices = [("--gateway", settings.gateway, status_unit, GENERATION_REGISTER)] + [
+        (option, ep, ep.unit, ep.address or 0)
+        for option, ep in (("--laser", ins.laser), ("--angle", ins.angle),
+                           ("--xy-device", ins.xy)) if ep is not None]  # fmt: skip
+    for option, ep, unit, address in devices:
+        gateway = option == "--gateway"
+        named = f"{option} {ep.host}:{ep.port}" + ("" if gateway else f":{ep.unit}")
+        client = AsyncModbusTcpClient(ep.host, port=ep.port, timeout=2.0, retries=1)
+        try:
+            if not await client.connect():
+                raise TableError(f"{named}: nothing answers there" + (
+                    f"; start the gateway first (compgw run -c {config_path})" if gateway
+                    else ""))  # fmt: skip
+            try:
+                rr = await client.read_input_registers(address, count=2, device_id=unit)
+            except ModbusException as exc:
+                raise TableError(f"{named}: unit {unit} gives no reply ({exc})") from None
+            if rr.isError():
+                code = getattr(rr, "exception_code", 0)
+                what = (f"its status unit {unit} answered" if gateway else
+                        f"unit {unit} answered")  # fmt: skip
+                hint = ("is it compgw, and status.upstream_unit its status unit?" if gateway
+                        else "is that the instrument's unit id?")  # fmt: skip
+                raise TableError(f"{named}: {what} exception {code:#04x} "
+                                 f"({_EXCEPTIONS.get(code, 'refused')}): {hint}")  # fmt: skip
+        finally:
+            client.close()
 
 
 def _loads_whole(config: GatewayConfig, path: Path) -> None:
