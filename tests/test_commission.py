@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import re
 import shutil
 import signal
 import socket
@@ -495,6 +496,40 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
 
         first_after = after_x(out / "raw")
         assert first_after
+        # months later: the same command with --recheck measures the random targets again
+        # with the tables loaded, fits nothing and says whether they still hold
+        tables = {f: f.read_text() for f in (out / "tables").iterdir()}
+        check = rig.commission("--budget-h", "0.95", "--tolerance-um", "10", "--recheck")
+        assert check.popen.wait(timeout=120) == 0, check.text()
+        assert "the tables still hold" in check.text() and "now: within 10 µm" in check.text()
+        rechecked = json.loads(next((out / "recheck").glob("*/recheck.json")).read_text())
+        assert set(rechecked["items"]) == {"X", "Y", "xy"} and rechecked["within"], rechecked
+        x = rechecked["items"]["X"]
+        assert x["then"] == summary["axes"]["X"]["after"]["E_um"] and x["now"] < 10.0, x
+        assert {f: f.read_text() for f in (out / "tables").iterdir()} == tables
+        # X's table skewed by 30 µm over the travel (the machine changed, as it reads):
+        # not within on X, exit 1, and what to do
+        x_table = rig.dir / yaml.safe_load(rig.config.read_text())["axes"]["X"][
+            "compensation"]["pitch"]["file"]  # fmt: skip
+        rows = x_table.read_text().splitlines()
+        data = [i for i, r in enumerate(rows) if r[:1].isdigit() or r[:1] == "-"]
+        for k, i in enumerate(data):
+            cols = rows[i].split(",")
+            cols[1:] = [f"{float(c) + 30.0 * k / (len(data) - 1):.4f}" for c in cols[1:]]
+            rows[i] = ",".join(cols)
+        x_table.write_text("\n".join(rows) + "\n")
+        mark = rig.gw.mark()
+        rig.gw.signal(signal.SIGHUP)
+        rig.gw.wait_line(r"reloaded ", start=mark)
+        check = rig.commission("--budget-h", "0.95", "--tolerance-um", "10", "--recheck")
+        assert check.popen.wait(timeout=120) == 1, check.text()
+        assert "NOT within on X, XY: the machine has changed since" in check.text(), check.text()
+        assert re.search(r"X: E [\d.]+ µm after commissioning, [\d.]+ µm now: NOT within 10 µm",
+                         check.text()), check.text()
+        x_table.write_text(tables[x_table])
+        mark = rig.gw.mark()
+        rig.gw.signal(signal.SIGHUP)
+        rig.gw.wait_line(r"reloaded ", start=mark)
         more = rig.commission("--budget-h", "2", "--tolerance-um", "5")
         assert more.popen.wait(timeout=300) in (0, 1), more.text()
         final = yaml.safe_load(rig.config.read_text())["axes"]

@@ -88,6 +88,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    help="warm-up length (30)")
     p.add_argument("--seed", type=int, default=0, help="random verification targets")
     p.add_argument("--dry-run", action="store_true", help="print the plan and stop")
+    p.add_argument("--recheck", action="store_true",
+                   help="a finished commissioning: measure its random targets again with the "
+                        "tables loaded now and say whether they still hold (fits nothing)")
     p.add_argument("--reload-pid", type=int, metavar="PID", help="reload by SIGHUP")
     p.add_argument("--reload-cmd", metavar="CMD", help="reload by a command")
     p.add_argument("--estimate-speed-mm-s", type=above(0, "mm/s"), default=100.0,
@@ -300,6 +303,8 @@ def main(args: argparse.Namespace) -> int:
         other = job.other()
         if other is not None:
             raise ValueError(other)
+        if args.recheck:
+            return _recheck(job, settings, config, config_path)
         finished = job.finished()
         if finished is None:
             if not args.dry_run:
@@ -439,6 +444,31 @@ def _loads_whole(config: GatewayConfig, path: Path) -> None:
         raise TableError(f"{path} does not load as it is ({exc}); commissioning puts it back "
                          "at the end or on an abort, so it must: restore the files it names, "
                          "or the config you had before them") from None
+
+
+def _recheck(job: Any, settings: Any, config: GatewayConfig, config_path: Path) -> int:
+    """``--recheck``: :mod:`.commission_recheck`; exit 0 when everything still holds."""
+    from .commission_recheck import finished_summary, recheck, verdict_line
+    from .machine import MachineError
+
+    summary = finished_summary(settings.out_dir, job.state)
+    if summary is None:
+        raise TableError(f"--recheck: no finished commissioning in {settings.out_dir} (give "
+                         "--out for another directory)")  # fmt: skip
+    if summary.get("xy") and settings.planar is None:
+        print("the plane is not rechecked: give --xy-device to measure it too")
+    asyncio.run(_answering(settings, config.status.upstream_unit, config_path))
+    try:
+        result = asyncio.run(until_stopped(recheck(job, summary)))
+    except KeyboardInterrupt:
+        _err("interrupted: the recheck measured part of its targets; run it again")
+        return EXIT_RUNTIME
+    except (MachineError, OSError) as exc:
+        _err(f"{exc}{_options_at(str(exc), settings)}")
+        return EXIT_RUNTIME
+    print(verdict_line(result))
+    print(f"recheck: {result['dir']}")
+    return EXIT_OK if result["within"] else EXIT_NOT_MET
 
 
 def _loader(job: Any) -> Any:
