@@ -20,6 +20,16 @@ class CommandChecks(ShortBudget):
     def print_plan(self) -> float:
         """Say what will be measured first and its machine time; returns that time (s)."""
         total = 0.0
+        done = list(self.state.get("steps", {}))
+        ended = self.state.get("finished")
+        if ended is not None:  # asked for more (:meth:`finished` is None)
+            self.say(f"carrying on the commissioning in {self.dir}, which ended "
+                     f"'{ended.get('outcome')}': {len(done)} steps done, the after-run "
+                     "measured again at the end")  # fmt: skip
+        elif done:
+            self.say(f"resuming in {self.dir}: {len(done)} steps done (the last {done[-1]}), "
+                     f"{self.used_s / 3600:.2f} h of machine time used; every reading kept, "
+                     "a step begun carries on from its last reading")  # fmt: skip
         self.say(f"commissioning {', '.join(self.s.axes)}"
                  f"{' and the plane ' + '/'.join(self.s.planar) if self.s.planar else ''}: "
                  f"tolerance {self.tolerance_text()} between the points, budget "
@@ -43,7 +53,11 @@ class CommandChecks(ShortBudget):
                      "steps: only the axes identified within it get tables, from those runs "
                      f"alone and unverified; give at least {total / 3600:.2f} h, and more for "
                      "the verification rounds")  # fmt: skip
-        if not self._zoned() and self._first_need_s() > self.s.budget_s:
+        # decided once, when it began (:meth:`.commission_short.ShortBudget.short`): a
+        # resume says what it was (the config then is a phase's own, its estimate another)
+        short = self.state["short"] if "short" in self.state else (
+            not self._zoned() and self._first_need_s() > self.s.budget_s)  # fmt: skip
+        if short:
             self.say("  a short budget: every axis's ISO runs (and their midpoints where a "
                      "table misses between its points) and the plane's grid first, then "
                      "the backlash tests and before-runs, the lead searches and cyclic scans "
