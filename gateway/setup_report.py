@@ -101,6 +101,11 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
                 f"backlash {stages.backlash.backlash_mm * small:.1f}{unit} "
                 f"({stages.backlash.table_direction})"
             )
+        if stages.takeup is not None:
+            curve = stages.takeup
+            parts.append(f"take-up curve ({curve.reversal_mm.size} points, all of the lost "
+                         f"motion by {float(curve.reversal_mm.max()) * small:.1f}{unit} of "
+                         "reversal)")  # fmt: skip
         if stages.thermal is not None:
             parts.append(
                 f"thermal from {_thermal_source(axis.compensation.thermal)} "  # type: ignore[arg-type]

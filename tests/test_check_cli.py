@@ -208,3 +208,17 @@ def test_a_config_commissioning_left_behind_is_named(tmp_path: Path):
     assert "gone.yaml does not load as it is (axes.X.compensation.pitch.file:" in out.stderr
     assert "commission/tables/x_pitch.csv: file not found" in out.stderr
     assert not (tmp_path / "commission").exists()
+
+
+def test_check_shows_a_take_up_curve(tmp_path: Path):
+    """A take-up curve (as commissioning fits it) is in the axis's compensation line."""
+    data = yaml.safe_load((ROOT / "config" / "example.yaml").read_text())
+    data["axes"]["X"]["compensation"]["takeup"] = {"reversal_um": [0.0, 3.0, 8.0],
+                                                   "fraction": [0.0, 0.6, 1.0]}
+    (tmp_path / "tables").symlink_to(ROOT / "config" / "tables")
+    (tmp_path / "gw.yaml").write_text(yaml.safe_dump(data))
+    out = subprocess.run([sys.executable, "-m", "gateway.cli", "check", "-c",
+                          str(tmp_path / "gw.yaml")], capture_output=True, text=True,
+                         timeout=60, cwd=ROOT)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert "take-up curve (3 points, all of the lost motion by 8.0 µm of reversal)" in out.stdout

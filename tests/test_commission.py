@@ -536,8 +536,10 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         assert not any("the after-run judged the tables" in n or "budget spent" in n
                        for n in again["notes"]), again["notes"]  # fmt: skip
         assert "carried on after 'within' at 0.9" in " ".join(again["notes"])
-        verdict = more.text().strip().splitlines()[-2]
+        lines = more.text().strip().splitlines()
+        verdict = lines[lines.index(next(n for n in lines if n.startswith("report: "))) - 1]
         assert verdict.startswith(("WITHIN 5 µm", "NOT within 5 µm")), verdict
+        assert lines[-1].startswith("status.remote_control is still on in "), lines[-1]
         # a power loss between the summary and the report: the same command writes it
         shutil.rmtree(out / "report")
         last = rig.commission("--budget-h", "2", "--tolerance-um", "5")

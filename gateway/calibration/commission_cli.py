@@ -381,6 +381,9 @@ def main(args: argparse.Namespace) -> int:
     report = write_report(settings.out_dir, summary, _loader(job))
     print("\n".join(summary_lines(summary)))
     print(f"report: {report.resolve()}")
+    if config.status.remote_control and not (args.reload_pid or args.reload_cmd):
+        print(f"status.remote_control is still on in {config_path}: any master may make the "
+              "gateway reload; set it false once commissioning is done (README, Safety)")
     return EXIT_OK if summary["outcome"] == "within" else EXIT_NOT_MET
 
 
