@@ -582,3 +582,22 @@ def test_dry_run_prints_the_plan_and_moves_nothing(template: Path, tmp_path: Pat
             assert step in text
         assert not (rig.dir / "commission" / "raw").exists()
         assert "then verification rounds" in text
+
+
+def test_a_config_compensated_already_is_said_in_the_plan(template: Path,
+                                                          tmp_path: Path) -> None:
+    """Commissioning a machine whose config has tables from an earlier calibration: the
+    plan says they are measured without and replaced, and where the user's config stays."""
+    data = yaml.safe_load((template / "gateway.yaml").read_text())
+    data["axes"]["Y"].setdefault("compensation", {})["backlash_mm"] = 0.002
+    config = tmp_path / "gateway.yaml"
+    config.write_text(yaml.safe_dump(data, sort_keys=False))
+    said: list[str] = []
+    job = Commission(Settings(config, tmp_path / "commission", None, Instruments(),  # type: ignore[arg-type]
+                              axes=("X", "Y"), budget_s=7200.0), reload=None,  # type: ignore[arg-type]
+                     say=said.append)  # fmt: skip
+    job.print_plan()
+    line = next(s for s in said if "compensates" in s)
+    assert line.startswith("  your config compensates Y already (tables from an earlier "
+                           "calibration): the identification measures without them"), line
+    assert line.endswith(f"yours is kept in {tmp_path / 'commission' / 'original.yaml'}")

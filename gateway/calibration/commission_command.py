@@ -75,8 +75,22 @@ class CommandChecks(ShortBudget):
                 self.say(f"  {option} is given, but no commissioned axis's thermal setting "
                          f"reads a source of that kind (axes.<name>.compensation.thermal."
                          "source): no warm-up uses it")  # fmt: skip
+        had = [a for a in self.s.axes if self._compensated(a)]
+        if had and ended is None and not done:
+            self.say(f"  your config compensates {', '.join(had)} already (tables from an "
+                     "earlier calibration): the identification measures without them and "
+                     "the final config has the new ones; yours is kept in "
+                     f"{self.original_path}")  # fmt: skip
         self.rotary_plan_lines()
         return total
+
+    def _compensated(self, axis: str) -> bool:
+        """Whether the user's config has a table stage on ``axis`` (pitch, cyclic, linkage,
+        backlash, take-up) or a planar model over it."""
+        comp = self.config.axes[axis].compensation
+        planar = self.config.planar is not None and axis in self.config.planar.axes
+        return planar or any((comp.pitch, comp.cyclic, comp.linkage, comp.backlash_mm,
+                              comp.takeup))  # fmt: skip
 
     def _asked(self) -> dict[str, float]:
         """What this command asks of the commissioning: more of any of it carries on a
