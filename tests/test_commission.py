@@ -1,14 +1,13 @@
 """`compgw commission` end to end on a small random machine (sim, gateway and the command as
 real processes, time_scale 0): one command from uncalibrated to verified tables judged
 between the points, resumable after a kill, an abort leaving the gateway on the stated
-config, and a budget too small ending with an honest report."""
+config, and what is refused or named before anything moves (the budget's cases:
+test_commission_budget.py)."""
 
 from __future__ import annotations
 
 import itertools
 import json
-import re
-import shutil
 import signal
 import socket
 import subprocess
@@ -22,9 +21,7 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway.calibration.commission import Commission
 from gateway.calibration.commission_cli import _options_at
-from gateway.calibration.commission_steps import Settings
 from gateway.calibration.machine import Endpoint
 from gateway.calibration.models import pin_fades
 from gateway.calibration.plane_frame import FRAME_FILE, reframe_plane
@@ -379,225 +376,3 @@ def test_an_error_names_the_device_of_its_address_and_unit() -> None:
                                          r"\(127\.0\.0\.1:5021 unit 21\)"):  # fmt: skip
         Instruments(laser=xy, xy=xy)
     Instruments(laser=xy, xy=replace(xy, address=64))  # another register block: allowed
-
-
-def test_a_finished_commissioning_is_carried_on_only_for_more(template: Path,
-                                                              tmp_path: Path) -> None:  # fmt: skip
-    """Pure (the state of a finished run, no machine): the same command, a smaller budget,
-    a looser tolerance or a tolerance that judges none of its axes (arcseconds on linear
-    axes) find it finished; a larger budget, a tighter tolerance or more rounds carry it
-    on. Other axes or another plane are refused: that directory's readings, references and
-    tables are the first one's (carried on, a turntable's after a swing axis crashed)."""
-    out = tmp_path / "commission"
-    config = template / "gateway.yaml"
-
-    def job(**kw: object) -> Commission:
-        base: dict[str, object] = {"axes": ("X", "Y"), "planar": ("X", "Y"),
-                                   "budget_s": 7200.0, "tolerance_um": 2.0}  # fmt: skip
-        base.update(kw)
-        return Commission(Settings(config, out, None, Instruments(), **base),  # type: ignore[arg-type]
-                          reload=None)  # type: ignore[arg-type]
-
-    first = job()
-    first.state["finished"] = {"outcome": "within", "asked": first._asked(),
-                               "what": first._what()}  # fmt: skip
-    first._save()
-    (out / "summary.json").write_text(json.dumps({"outcome": "within", "machine_h": 1.5}))
-    for same in ({}, {"budget_s": 3600.0}, {"tolerance_um": 3.0}, {"max_rounds": 2},
-                 {"tolerance_arcsec": 0.5}):  # fmt: skip
-        assert job(**same).finished() == {"outcome": "within", "machine_h": 1.5}, same
-        assert job(**same).other() is None
-    for more in ({"budget_s": 9000.0}, {"tolerance_um": 1.0}, {"max_rounds": 9}):
-        assert job(**more).finished() is None, more
-    for other in ({"axes": ("X",)}, {"planar": None}):
-        why = job(**other).other()
-        assert why is not None and why.startswith(f"{out} holds the commissioning of X, Y and "
-                                                  "the plane X/Y; this command asks for ")
-        assert "give --out DIR for another commissioning" in why
-
-
-def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path: Path) -> None:
-    with running(template, tmp_path / "m") as rig:
-        original = rig.config.read_text()
-        proc = rig.commission("--budget-h", "0.05")
-        assert proc.popen.wait(timeout=120) == 1, proc.text()
-        out = rig.dir / "commission"
-        summary = json.loads((out / "summary.json").read_text())
-        assert summary["outcome"] == "budget"
-        assert summary["machine_h"] <= 0.05
-        assert any("budget spent" in n for n in summary["notes"])
-        report = (out / "report" / "report.html").read_text()
-        assert "budget" in report and "No round ran" in report  # not an empty table
-        assert rig.config.read_text() == original  # nothing fitted: your config, loaded
-        assert "outcome: budget" in proc.text()
-        assert "does not hold these first steps" in proc.text()  # said before it moved
-
-
-def test_a_budget_spent_in_the_identification_still_fits_every_axis(
-        template: Path, tmp_path: Path) -> None:  # fmt: skip
-    """A budget short of the first steps and the before- and after-runs: every axis's ISO
-    runs, the plane's grid right after them, the backlash tests and the before-runs come
-    before any axis's cyclic scans, so when it is spent each axis has the table a plain
-    ISO 230-2 calibration would give it (with its cyclic term where the scans were made),
-    said to be unverified, the plane its model, and the report its before and after.
-    (Axis by axis, X had a verified table, Y none, and the plane none.) No round's
-    verification fits: the after-run, at random targets no fit used, judges the tables
-    instead, and within the tolerance (10 µm here: Y has no cyclic term) it is the outcome.
-    (A random machine at 2 h ended "budget" with its after-run within 2 µm everywhere.)"""
-    with running(template, tmp_path / "m") as rig:
-        proc = rig.commission("--budget-h", "0.95", "--tolerance-um", "10")
-        assert proc.popen.wait(timeout=300) == 0, proc.text()
-        out = rig.dir / "commission"
-        summary = json.loads((out / "summary.json").read_text())
-        state = json.loads((out / "commission.json").read_text())
-        assert summary["outcome"] == "within" and summary["machine_h"] <= 0.95
-        assert "budget spent: cyclic-Y needs" in proc.text() and not summary["rounds"]
-        judged = next(n for n in summary["notes"] if "the after-run judged the tables" in n)
-        assert all(f"{n} " in judged for n in ("X E", "Y E", "XY max")), judged
-        assert state["short"]
-        done = list(state["steps"])
-        # a plain calibration's steps, then what judges them, then the cyclic scans
-        order = ["iso-Y", "xy-grid", "backlash-Y", "before-X", "before-Y", "cyclic-X"]
-        assert [done.index(s) for s in order] == sorted(done.index(s) for s in order), done
-        # no round will refine the plane: its first grid is as dense as the budget allows
-        nx, ny = state["grid"]  # (a square plane's 7 x 7, denser)
-        assert nx > 7 and ny == nx, state["grid"]
-        note = next(n for n in summary["notes"] if "identification's runs only" in n)
-        assert note.startswith("X, Y: fitted") and "Y: no cyclic term" in note, note
-        final = yaml.safe_load(rig.config.read_text())["axes"]
-        assert "pitch" in final["X"]["compensation"] and "cyclic" in final["X"]["compensation"]
-        assert "pitch" in final["Y"]["compensation"]
-        assert "cyclic" not in final["Y"]["compensation"]
-        for a in ("X", "Y"):  # no round measures between the points: leave-one-out chooses
-            chosen = state["identify"][f"interpolation-{a}"]
-            assert chosen["why"] == "leave-one-out" and len(chosen["loo_rms_um"]) == 3, chosen
-            assert final[a]["compensation"]["pitch"]["interpolation"] == chosen["method"]
-        assert "planar" in yaml.safe_load(rig.config.read_text())
-        xy = summary["xy"]
-        assert xy["after"]["max_um"] < 0.5 * xy["before"]["max_um"], xy
-        for a in ("X", "Y"):  # judged before and after at random targets
-            e = summary["axes"][a]
-            assert e["after"]["E_um"] < 0.5 * e["before"]["E_um"], (a, e)
-        assert "no round verified them" in proc.text()
-        assert "a short budget: every axis's ISO runs (and their midpoints" in proc.text()
-        # the same command with more budget carries on: Y's scans, the fit again with both
-        # cyclic terms, the plane and the rounds
-        assert "WITHIN 10 µm on every commissioned axis and the plane" in proc.text()
-        def after_x(where: Path) -> list[str]:
-            return [f.read_text() for f in sorted(where.glob("after-X*.csv"))]
-
-        first_after = after_x(out / "raw")
-        assert first_after
-        # months later: the same command with --recheck measures the random targets again
-        # with the tables loaded, fits nothing and says whether they still hold
-        tables = {f: f.read_text() for f in (out / "tables").iterdir()}
-        check = rig.commission("--budget-h", "0.95", "--tolerance-um", "10", "--recheck")
-        assert check.popen.wait(timeout=120) == 0, check.text()
-        assert "the tables still hold" in check.text() and "now: within 10 µm" in check.text()
-        rechecked = json.loads(next((out / "recheck").glob("*/recheck.json")).read_text())
-        assert set(rechecked["items"]) == {"X", "Y", "xy"} and rechecked["within"], rechecked
-        x = rechecked["items"]["X"]
-        assert x["then"] == summary["axes"]["X"]["after"]["E_um"] and x["now"] < 10.0, x
-        assert {f: f.read_text() for f in (out / "tables").iterdir()} == tables
-        # X's table skewed by 30 µm over the travel (the machine changed, as it reads):
-        # not within on X, exit 1, and what to do
-        x_table = rig.dir / yaml.safe_load(rig.config.read_text())["axes"]["X"][
-            "compensation"]["pitch"]["file"]  # fmt: skip
-        rows = x_table.read_text().splitlines()
-        data = [i for i, r in enumerate(rows) if r[:1].isdigit() or r[:1] == "-"]
-        for k, i in enumerate(data):
-            cols = rows[i].split(",")
-            cols[1:] = [f"{float(c) + 30.0 * k / (len(data) - 1):.4f}" for c in cols[1:]]
-            rows[i] = ",".join(cols)
-        x_table.write_text("\n".join(rows) + "\n")
-        mark = rig.gw.mark()
-        rig.gw.signal(signal.SIGHUP)
-        rig.gw.wait_line(r"reloaded ", start=mark)
-        check = rig.commission("--budget-h", "0.95", "--tolerance-um", "10", "--recheck")
-        assert check.popen.wait(timeout=120) == 1, check.text()
-        assert "NOT within on X, XY: the machine has changed since" in check.text(), check.text()
-        assert re.search(r"X: E [\d.]+ µm after commissioning, [\d.]+ µm now: NOT within 10 µm",
-                         check.text()), check.text()
-        x_table.write_text(tables[x_table])
-        mark = rig.gw.mark()
-        rig.gw.signal(signal.SIGHUP)
-        rig.gw.wait_line(r"reloaded ", start=mark)
-        more = rig.commission("--budget-h", "2", "--tolerance-um", "5")
-        assert more.popen.wait(timeout=300) in (0, 1), more.text()
-        final = yaml.safe_load(rig.config.read_text())["axes"]
-        assert all("cyclic" in final[a]["compensation"] for a in ("X", "Y")), final
-        again = json.loads((out / "summary.json").read_text())
-        assert again["axes"]["Y"]["after"]
-        # the after-run measured again with the tables now loaded, the first one's kept
-        # aside; what the first ending said is gone, and where it carried on from said
-        assert "after-X: " in more.text() and "after-xy: " in more.text()
-        assert after_x(out / "raw" / "superseded") == first_after
-        assert after_x(out / "raw") and after_x(out / "raw") != first_after
-        assert not any("the after-run judged the tables" in n or "budget spent" in n
-                       for n in again["notes"]), again["notes"]  # fmt: skip
-        assert "carried on after 'within' at 0.9" in " ".join(again["notes"])
-        lines = more.text().strip().splitlines()
-        verdict = lines[lines.index(next(n for n in lines if n.startswith("report: "))) - 1]
-        assert verdict.startswith(("WITHIN 5 µm", "NOT within 5 µm")), verdict
-        assert lines[-1].startswith("status.remote_control is still on in "), lines[-1]
-        # a power loss between the summary and the report: the same command writes it
-        shutil.rmtree(out / "report")
-        last = rig.commission("--budget-h", "2", "--tolerance-um", "5")
-        assert last.popen.wait(timeout=60) in (0, 1), last.text()
-        assert "nothing moves" in last.text() and "the report was missing" in last.text()
-        assert (out / "report" / "report.html").exists()
-
-
-def test_tables_that_make_the_plane_worse_are_not_left_loaded(tmp_path: Path) -> None:
-    """A plane that is not made of the axes' own errors (each axis's straightness and scale
-    change sign across the other axis), and a budget spent before the XY grid: the tables,
-    fitted on their lines, read worse at the plane's random points than none (RMS vector
-    error 30.4 → 44.1 µm), and the user's own config stays loaded, said so."""
-    small_machine(tmp_path / "t", seed=7)
-    x = np.linspace(*TRAVEL_MM, 10)
-    gx, gy = np.meshgrid(x, x, indexing="ij")
-    u, v = np.pi * (gx - TRAVEL_MM[0]) / 90.0, np.pi * (gy - TRAVEL_MM[0]) / 90.0
-    ex, ey = 40.0 * np.sin(u) * np.cos(v), 40.0 * np.cos(u) * np.sin(v)
-    (tmp_path / "t" / "truth" / "xy_field.csv").write_text("x_mm,y_mm,ex_um,ey_um\n" + "".join(
-        f"{a:.4f},{b:.4f},{c:.4f},{d:.4f}\n"
-        for a, b, c, d in zip(gx.ravel(), gy.ravel(), ex.ravel(), ey.ravel())))  # fmt: skip
-    with running(tmp_path / "t", tmp_path / "m") as rig:
-        original = rig.config.read_text()
-        proc = rig.commission("--budget-h", "0.25")
-        assert proc.popen.wait(timeout=300) == 1, proc.text()
-        summary = json.loads((rig.dir / "commission" / "summary.json").read_text())
-        xy = summary["xy"]
-        assert xy["after"]["rms_um"] > 1.3 * xy["before"]["rms_um"], xy
-        assert any(n.startswith("XY: worse with the tables than without") for n in
-                   summary["notes"]), summary["notes"]  # fmt: skip
-        assert rig.config.read_text() == original
-
-
-def test_dry_run_prints_the_plan_and_moves_nothing(template: Path, tmp_path: Path) -> None:
-    with running(template, tmp_path / "m") as rig:
-        proc = rig.commission("--dry-run")
-        assert proc.popen.wait(timeout=60) == 0, proc.text()
-        text = proc.text()
-        for step in ("backlash-X", "iso-X", "cyclic-X", "iso-Y", "xy-grid"):
-            assert step in text
-        assert not (rig.dir / "commission" / "raw").exists()
-        assert "then verification rounds" in text
-
-
-def test_a_config_compensated_already_is_said_in_the_plan(template: Path,
-                                                          tmp_path: Path) -> None:
-    """Commissioning a machine whose config has tables from an earlier calibration: the
-    plan says they are measured without and replaced, and where the user's config stays."""
-    data = yaml.safe_load((template / "gateway.yaml").read_text())
-    data["axes"]["Y"].setdefault("compensation", {})["backlash_mm"] = 0.002
-    config = tmp_path / "gateway.yaml"
-    config.write_text(yaml.safe_dump(data, sort_keys=False))
-    said: list[str] = []
-    job = Commission(Settings(config, tmp_path / "commission", None, Instruments(),  # type: ignore[arg-type]
-                              axes=("X", "Y"), budget_s=7200.0), reload=None,  # type: ignore[arg-type]
-                     say=said.append)  # fmt: skip
-    job.print_plan()
-    line = next(s for s in said if "compensates" in s)
-    assert line.startswith("  your config compensates Y already (tables from an earlier "
-                           "calibration): the identification measures without them"), line
-    assert line.endswith(f"yours is kept in {tmp_path / 'commission' / 'original.yaml'}")
