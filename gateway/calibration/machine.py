@@ -288,6 +288,23 @@ class MachineDriver:
                 )
             await asyncio.sleep(s.poll_s)
 
+    async def still_at(self, targets_mm: Mapping[str, float]) -> None:
+        """After a reading: each axis's feedback still at its target (within the
+        in-position window). Else a MachineError, the reading not kept: something else
+        moved the axis (a PLC or HMI on the gateway's other port wrote a target; a reading
+        70 mm off its target was kept, and the fit refused the tables on every resume)."""
+        for name, position in targets_mm.items():
+            got = await self.feedback_pulses(name)
+            want = self.pulses(name, position)
+            if abs(got - want) > self.settings.in_position_pulses:
+                axis = self.axis(name)
+                unit = "°" if axis.rotary else " mm"
+                raise MachineError(
+                    f"axis {name}: at {got * axis.pulse_mm:g}{unit} when read, not at "
+                    f"{position:g}{unit} where it was sent: another master (a PLC, an HMI) "
+                    "moved it? Commissioning needs the machine to itself; that reading is not "
+                    "kept")  # fmt: skip
+
     async def move(self, targets_mm: Mapping[str, float]) -> None:
         """All targets first, then each trigger (``on_trigger`` planar commit sees both)."""
         for name, position in targets_mm.items():

@@ -118,7 +118,13 @@ class Session:
             link = await links.get(self.gateway.host, self.gateway.port)
             driver = MachineDriver(link, self.config, self.motion)
             driver.on_move = self.on_move
-            measure = await self._measure_fn(plan, links)
+            read = await self._measure_fn(plan, links)
+
+            async def measure(move: Move) -> Mapping[str, float]:
+                values = await read(move)  # then the axes still where they were sent:
+                await driver.still_at(dict(zip(plan.axes, move.target_mm)))  # else not kept
+                return values
+
             extra, names = None, ()
             if plan.kind == "warmup" and self.instruments.delta_a is None and \
                     self.instruments.temperature is not None:
