@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import shutil
 import signal
 import socket
 import subprocess
@@ -21,13 +22,16 @@ import numpy as np
 import pytest
 import yaml
 
+from gateway.calibration.commission import Commission
 from gateway.calibration.commission_cli import _options_at
+from gateway.calibration.commission_steps import Settings
 from gateway.calibration.machine import Endpoint
 from gateway.calibration.models import pin_fades
 from gateway.calibration.plane_frame import FRAME_FILE, reframe_plane
 from gateway.calibration.plans import read_plan
 from gateway.calibration.rawdata import read_raw_csv
 from gateway.calibration.session import Instruments
+from gateway.compensation.errors import TableError
 from gateway.config import load_config
 from tests.commission_rig import TRAVEL_MM, running, small_machine
 from tests.test_service_helpers import ROOT, Proc
@@ -376,3 +380,36 @@ def test_an_error_names_the_device_of_its_address_and_unit() -> None:
                                          r"\(127\.0\.0\.1:5021 unit 21\)"):  # fmt: skip
         Instruments(laser=xy, xy=xy)
     Instruments(laser=xy, xy=replace(xy, address=64))  # another register block: allowed
+
+
+def test_your_config_changed_after_an_abort_is_taken_not_written_over(
+        template: Path, tmp_path: Path) -> None:  # fmt: skip
+    """After an abort the user fixes their config (a bus setting) and runs the same command:
+    the fix is taken as their config from here and said (the first run's copy used to be
+    put back over it at the next abort); changed axes, which the readings so far were
+    measured in, are refused; a phase's own config (a crash's) is not an edit."""
+    config = tmp_path / "gateway.yaml"
+    shutil.copyfile(template / "gateway.yaml", config)
+    said: list[str] = []
+    job = Commission(Settings(config, tmp_path / "commission", None, Instruments(),  # type: ignore[arg-type]
+                              axes=("X", "Y"), budget_s=7200.0), reload=None,  # type: ignore[arg-type]
+                     say=said.append)  # fmt: skip
+    job.adopt_edits()  # nothing begun: nothing to adopt
+    job.original()
+    data = yaml.safe_load(config.read_text())
+    data["buses"][next(iter(data["buses"]))]["timeout_s"] = 0.7  # the fix
+    config.write_text(yaml.safe_dump(data, sort_keys=False))
+    job.adopt_edits()
+    assert job.original_path.read_text() == config.read_text()
+    assert said == [f"your config changed since this commissioning began: {config} is taken "
+                    "as your config from here (an abort puts it back)"]  # fmt: skip
+    assert said[0] in job.state["notes"]
+    data["axes"]["X"]["travel_mm"] = [0.0, 50.0]
+    config.write_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(TableError, match=r"axes\.X changed since this commissioning began "
+                                         r"\(travel_mm\), which its readings"):
+        job.adopt_edits()
+    config.write_text("# written by compgw commission (identification config): your own "
+                      "config is kept in commission/original.yaml\n" + config.read_text())
+    job.adopt_edits()  # a crash's phase config: not the user's edit
+    assert "travel_mm: [0.0, 50.0]" not in job.original_path.read_text()

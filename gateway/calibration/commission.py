@@ -219,6 +219,7 @@ class Commission(CommandChecks):
         if "what" not in self.state:
             self.state["what"] = self._what()
             self._save()
+        self.adopt_edits()
         self.original()
         try:
             await self._identify()

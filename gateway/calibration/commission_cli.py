@@ -309,6 +309,7 @@ def main(args: argparse.Namespace) -> int:
         if finished is None:
             if not args.dry_run:
                 asyncio.run(_answering(settings, config.status.upstream_unit, config_path))
+                job.adopt_edits()  # (refused here, before anything would put a config back)
             job.print_plan()
     except (ConfigError, TableError, CompensationError, ValueError, OSError) as exc:
         _err(exc)

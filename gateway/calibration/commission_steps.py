@@ -142,6 +142,37 @@ class Steps(DriftRefs):
             shutil.copyfile(self.s.config_path, self.original_path)
         return read_yaml(self.original_path, TableError)
 
+    def adopt_edits(self) -> None:
+        """A resume after the user changed their own config (the file the gateway runs,
+        put back at the abort, no phase's header): what they changed is taken as their
+        config from here, and said (a baud rate fixed after an abort was written over by
+        the first run's copy at the next abort). Changed axes (travel, pulses, units: what
+        the readings so far were measured in) are refused: they need a new commissioning."""
+        if not self.original_path.exists():
+            return
+        text = self.s.config_path.read_text()
+        if text.startswith("# written by compgw commission") or \
+                text == self.original_path.read_text():  # fmt: skip
+            return
+        mine, kept = read_yaml(self.s.config_path, TableError), self.original()
+        for a in self.s.axes:
+            now = {k: v for k, v in (mine.get("axes") or {}).get(a, {}).items()
+                   if k != "compensation"}  # fmt: skip
+            then = {k: v for k, v in kept["axes"][a].items() if k != "compensation"}
+            if now != then:
+                changed = sorted(k for k in {*now, *then} if now.get(k) != then.get(k))
+                raise TableError(
+                    f"{self.s.config_path}: axes.{a} changed since this commissioning began "
+                    f"({', '.join(changed)}), which its readings were measured in: start "
+                    f"over (remove {self.dir}, or give --out) or put back "
+                    f"{self.original_path}")  # fmt: skip
+        atomic_write_text(self.original_path, text)
+        note = (f"your config changed since this commissioning began: {self.s.config_path} "
+                "is taken as your config from here (an abort puts it back)")  # fmt: skip
+        self.state.setdefault("notes", []).append(note)
+        self._save()
+        self.say(note)
+
     def phase_config(self, phase: str) -> dict[str, Any]:
         original = self.original()
         if phase == "identification":
