@@ -106,8 +106,11 @@ class AfterSteps(TakeUpSteps):
             for phase in ("before", "after"):
                 if self.done(f"{phase}-{a}"):
                     iso = iso230_axis(axis_deviations(self.raw(f"{phase}-{a}"), a))
+                    read = iso230_axis(axis_deviations(self.raw_as_read(f"{phase}-{a}"), a))
+                    # E_read: as read, the drift while measuring in it (a recheck's terms)
                     entry[phase] = {"E_um": iso.E_um, "A_um": iso.A_um, "R_um": iso.R_um,
-                                    "B_um": iso.B_um, "M_um": iso.M_um}  # fmt: skip
+                                    "B_um": iso.B_um, "M_um": iso.M_um,
+                                    "E_read_um": read.E_um}  # fmt: skip
             entry.update(self.steps_summary(a))
             if a in self.tables.pitch:
                 entry["table_points"] = int(read_pitch_csv(
@@ -120,6 +123,8 @@ class AfterSteps(TakeUpSteps):
             for phase in ("before", "after"):
                 if self.done(f"{phase}-xy"):
                     xy[phase] = self._xy_figures(f"{phase}-xy")
+                    xy[phase]["max_read_um"] = planar_figures(
+                        self.raw_as_read(f"{phase}-xy"), self.s.planar)["max_um"]  # fmt: skip
             out["xy"] = xy
         self.rotary_summary(out)
         return out

@@ -126,9 +126,14 @@ def gateway_endpoint(args: argparse.Namespace, config: GatewayConfig):  # type: 
     if args.gateway:
         return Endpoint.parse(args.gateway)
     tcp = config.upstream.tcp
-    if tcp is None or not tcp.port:
-        raise TableError("--gateway HOST:PORT is needed (the config has no fixed "
-                         "upstream.tcp port)")  # fmt: skip
+    if tcp is None:
+        raise TableError("the config has no upstream.tcp, and commissioning talks to the "
+                         "gateway over Modbus/TCP: add one on loopback beside your serial "
+                         "upstream (upstream.tcp: {host: 127.0.0.1, port: 1502}), restart the "
+                         "gateway, then run this again (README, Commissioning a machine)")
+    if not tcp.port:
+        raise TableError("--gateway HOST:PORT is needed: the config's upstream.tcp.port is 0 "
+                         "(the gateway chose a free port: its log says \"listening on\")")
     host = {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(tcp.host, tcp.host)
     return Endpoint.parse(f"{host}:{tcp.port}")
 
@@ -388,12 +393,6 @@ def main(args: argparse.Namespace) -> int:
     return EXIT_OK if summary["outcome"] == "within" else EXIT_NOT_MET
 
 
-#: Modbus exception codes in words, for the one line that names a device that refused
-_EXCEPTIONS = {0x01: "illegal function", 0x02: "illegal data address",
-               0x04: "device failure", 0x06: "busy", 0x0A: "gateway path unavailable",
-               0x0B: "gateway target device failed to respond"}  # fmt: skip
-
-
 async def _answering(settings: Any, status_unit: int, config_path: Path) -> None:
     """Before anything is written or moved: the gateway answers at its status unit and the
     laser, angle and XY instruments at theirs (one read of their first registers); a
@@ -404,6 +403,7 @@ async def _answering(settings: Any, status_unit: int, config_path: Path) -> None
     from pymodbus.exceptions import ModbusException
 
     from ..status import GENERATION_REGISTER
+    from .machine import EXCEPTION_NAMES
 
     ins = settings.instruments
     devices = [("--gateway", settings.gateway, status_unit, GENERATION_REGISTER)] + [
@@ -430,7 +430,7 @@ async def _answering(settings: Any, status_unit: int, config_path: Path) -> None
                 hint = ("is it compgw, and status.upstream_unit its status unit?" if gateway
                         else "is that the instrument's unit id?")  # fmt: skip
                 raise TableError(f"{named}: {what} exception {code:#04x} "
-                                 f"({_EXCEPTIONS.get(code, 'refused')}): {hint}")  # fmt: skip
+                                 f"({EXCEPTION_NAMES.get(code, 'refused')}): {hint}")  # fmt: skip
         finally:
             client.close()
 

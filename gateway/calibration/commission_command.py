@@ -24,10 +24,11 @@ class CommandChecks(ShortBudget):
         ended = self.state.get("finished")
         if ended is not None:  # asked for more (:meth:`finished` is None)
             self.say(f"carrying on the commissioning in {self.dir}, which ended "
-                     f"'{ended.get('outcome')}': {len(done)} steps done, the after-run "
+                     f"'{ended.get('outcome')}': {_count(len(done), 'step')} done, the after-run "
                      "measured again at the end")  # fmt: skip
         elif done:
-            self.say(f"resuming in {self.dir}: {len(done)} steps done (the last {done[-1]}), "
+            self.say(f"resuming in {self.dir}: {_count(len(done), 'step')} done (the last "
+                     f"{done[-1]}), "
                      f"{self.used_s / 3600:.2f} h of machine time used; every reading kept, "
                      "a step begun carries on from its last reading")  # fmt: skip
         self.say(f"commissioning {', '.join(self.s.axes)}"
@@ -138,3 +139,8 @@ class CommandChecks(ShortBudget):
         if any(v > done["asked"].get(k, v) + 1e-9 for k, v in self._asked().items()):
             return None
         return dict(json.loads(path.read_text()))
+
+
+def _count(n: int, what: str) -> str:
+    """``n`` of ``what``, plural past one: "1 step", "4 steps"."""
+    return f"{n} {what}{'' if n == 1 else 's'}"

@@ -341,7 +341,8 @@ class RefineSteps(ThermalSteps):
                  f"readings{scatter}): a level "
                  f"{small(fit.level_ptp_um)} peak to peak every "
                  f"{float(np.diff(fit.knot_mm).mean()):.2f}{unit}"
-                 + (f", {record['harmonics']} harmonics at {record['stations']} stations"
+                 + (f", {record['harmonics']} harmonic{'s' if record['harmonics'] > 1 else ''}"
+                    f" at {record['stations']} stations"
                     if record["harmonics"] else "")
                  + f"; {small(fit.residual_rms_um)} RMS left in the readings"
                  + (f", {fit.weighted_out} readings left out (stops that fell short)"

@@ -130,6 +130,15 @@ def remains(summary: dict[str, Any]) -> list[str]:
     return out
 
 
+def _as_read(before: float | None, after: float | None, judged: float, unit: str) -> str:
+    """The figures as read, where the machine's drift while measuring (taken off the judged
+    figures: they judge the tables) makes them differ: what a recheck will read."""
+    if before is None or after is None or abs(after - judged) <= max(0.3, 0.2 * judged):
+        return ""
+    return (f"; as read, with the machine's drift while measuring: {before:.2f} → "
+            f"{after:.2f}{unit} (heat no thermal setting corrects)")
+
+
 def summary_lines(summary: dict[str, Any]) -> list[str]:
     """What a commissioning bought, a line per axis, the plane and the outcome."""
     lines = []
@@ -143,11 +152,14 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
                          f"{_fig(b, 'A') or 0:.2f} → {_fig(a, 'A') or 0:.2f}{u} (R "
                          f"{_fig(a, 'R') or 0:.2f}), {entry.get('table_points')} table points"
                          + (f", {entry['interpolation']} interpolation"
-                            if "interpolation" in entry else ""))  # fmt: skip
+                            if "interpolation" in entry else "")
+                         + _as_read(_fig(b, "E_read"), _fig(a, "E_read"), ea, u))  # fmt: skip
     xy = summary.get("xy") or {}
     if xy.get("before") and xy.get("after"):
         b, a = xy["before"]["max_um"], xy["after"]["max_um"]
-        lines.append(f"XY max vector error {b:.2f} → {a:.2f} µm ({change_text(b, a)})")
+        lines.append(f"XY max vector error {b:.2f} → {a:.2f} µm ({change_text(b, a)})"
+                     + _as_read(xy["before"].get("max_read_um"),
+                                xy["after"].get("max_read_um"), a, " µm"))  # fmt: skip
     if summary.get("retried"):
         lines.append(f"{summary['retried']} Modbus requests answered only when tried again "
                      "(exception 6 or 11: a drive or instrument slow to answer; if many, "

@@ -119,6 +119,27 @@ TRANSIENT_RETRIES = 3
 TRANSIENT_PAUSE_S = 0.05
 
 
+#: Modbus exception codes in words, and what each says to check
+EXCEPTION_NAMES = {0x01: "illegal function", 0x02: "illegal data address",
+                   0x03: "illegal data value", 0x04: "device failure", 0x06: "busy",
+                   0x0A: "gateway path unavailable",
+                   0x0B: "gateway target device failed to respond"}  # fmt: skip
+_EXCEPTION_HINTS = {0x0A: "the gateway's line to that device is down",
+                    0x0B: "no answer from that device on its line: its wiring, baud rate "
+                          "and unit id"}  # fmt: skip
+
+
+def exception_text(reply: Any) -> str:
+    """A Modbus reply in words: "exception 0x0b (gateway target device failed to respond:
+    …)" for an exception response (pymodbus's repr otherwise)."""
+    code = getattr(reply, "exception_code", None)
+    if not isinstance(code, int) or not code:
+        return str(reply)
+    hint = _EXCEPTION_HINTS.get(code)
+    return (f"exception {code:#04x} ({EXCEPTION_NAMES.get(code, 'refused')}"
+            + (f": {hint}" if hint else "") + ")")
+
+
 class Link:
     """One Modbus TCP connection, shared by every device at that host and port."""
 
@@ -156,7 +177,7 @@ class Link:
             if attempt < TRANSIENT_RETRIES:
                 await asyncio.sleep(TRANSIENT_PAUSE_S * (attempt + 1))
         tries = f" ({attempt + 1} tries)" if attempt else ""
-        raise MachineError(f"{self.host}:{self.port}: {what}: {reply}{tries}")
+        raise MachineError(f"{self.host}:{self.port}: {what}: {exception_text(reply)}{tries}")
 
     async def read(self, unit: int, address: int, count: int, table: str) -> list[int]:
         fn = self.client.read_input_registers if table == "input" else (
