@@ -661,11 +661,24 @@ def file_warnings(path: str | os.PathLike[str]) -> list[str]:
             f"carries it on, or put your own config back ({m['original']})"]
 
 
+#: the baud rates serial Modbus devices offer; anything else is most likely a typo
+STANDARD_BAUDS = frozenset({1200, 2400, 4800, 9600, 14400, 19200, 38400, 57600, 76800, 115200,
+                            128000, 230400, 250000, 460800, 500000, 921600, 1000000})
+
+
 def warnings(config: GatewayConfig) -> list[str]:
     """Things that load but a user should act on (EEPROM wear, unverified profiles, a
-    plain port open beside Modbus/TCP Security)."""
+    plain port open beside Modbus/TCP Security, a baud rate no device offers)."""
     out = []
     up = config.upstream
+    lines = [("upstream.rtu", up.rtu)] + [
+        (f"buses.{n}.{kind}", getattr(b, kind)) for n, b in config.buses.items()
+        for kind in ("rtu", "rtu_over_tcp")]  # fmt: skip
+    for where, line in lines:
+        if line is not None and line.baudrate not in STANDARD_BAUDS:
+            out.append(f"{where}.baudrate: {line.baudrate} is no standard rate (9600, 19200, "
+                       "38400, 57600, 115200, …): a typo? A line at the wrong rate answers "
+                       "nothing, or garbage")  # fmt: skip
     if up.tls is not None and up.tcp is not None and not _loopback(up.tcp.host):
         out.append(f"upstream.tcp: plain Modbus/TCP on {up.tcp.host}:{up.tcp.port} beside "
                    "upstream.tls: anyone the allowlist lets in writes without a certificate; "

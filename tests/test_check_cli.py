@@ -222,3 +222,18 @@ def test_check_shows_a_take_up_curve(tmp_path: Path):
                          timeout=60, cwd=ROOT)  # fmt: skip
     assert out.returncode == 0, out.stderr
     assert "take-up curve (3 points, all of the lost motion by 8.0 µm of reversal)" in out.stdout
+
+
+def test_check_warns_of_a_baud_rate_no_device_offers(tmp_path: Path):
+    """baudrate: 11520 (a digit short) loads, and is said to be no standard rate."""
+    data = yaml.safe_load((ROOT / "config" / "example.yaml").read_text())
+    data["upstream"]["rtu"] = {"port": "/dev/ttyUSB9", "baudrate": 11520}
+    (tmp_path / "tables").symlink_to(ROOT / "config" / "tables")
+    (tmp_path / "gw.yaml").write_text(yaml.safe_dump(data))
+    out = subprocess.run([sys.executable, "-m", "gateway.cli", "check", "-c",
+                          str(tmp_path / "gw.yaml")], capture_output=True, text=True,
+                         timeout=60, cwd=ROOT)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert ("compgw check: warning: upstream.rtu.baudrate: 11520 is no standard rate "
+            "(9600, 19200, 38400, 57600, 115200, …): a typo?") in out.stderr, out.stderr
+    assert "buses." not in out.stderr  # the example's TCP buses have no baud rate
