@@ -210,30 +210,31 @@ def test_a_config_commissioning_left_behind_is_named(tmp_path: Path):
     assert not (tmp_path / "commission").exists()
 
 
-def test_check_shows_a_take_up_curve(tmp_path: Path):
-    """A take-up curve (as commissioning fits it) is in the axis's compensation line."""
+def _check_example_with(tmp_path: Path, change) -> subprocess.CompletedProcess:  # type: ignore[no-untyped-def,type-arg]
+    """``compgw check`` of config/example.yaml changed by ``change(data)`` (its tables
+    beside it); it must load."""
     data = yaml.safe_load((ROOT / "config" / "example.yaml").read_text())
-    data["axes"]["X"]["compensation"]["takeup"] = {"reversal_um": [0.0, 3.0, 8.0],
-                                                   "fraction": [0.0, 0.6, 1.0]}
+    change(data)
     (tmp_path / "tables").symlink_to(ROOT / "config" / "tables")
     (tmp_path / "gw.yaml").write_text(yaml.safe_dump(data))
     out = subprocess.run([sys.executable, "-m", "gateway.cli", "check", "-c",
                           str(tmp_path / "gw.yaml")], capture_output=True, text=True,
                          timeout=60, cwd=ROOT)  # fmt: skip
     assert out.returncode == 0, out.stderr
+    return out
+
+
+def test_check_shows_a_take_up_curve(tmp_path: Path):
+    """A take-up curve (as commissioning fits it) is in the axis's compensation line."""
+    out = _check_example_with(tmp_path, lambda d: d["axes"]["X"]["compensation"].update(
+        takeup={"reversal_um": [0.0, 3.0, 8.0], "fraction": [0.0, 0.6, 1.0]}))
     assert "take-up curve (3 points, all of the lost motion by 8.0 µm of reversal)" in out.stdout
 
 
 def test_check_warns_of_a_baud_rate_no_device_offers(tmp_path: Path):
     """baudrate: 11520 (a digit short) loads, and is said to be no standard rate."""
-    data = yaml.safe_load((ROOT / "config" / "example.yaml").read_text())
-    data["upstream"]["rtu"] = {"port": "/dev/ttyUSB9", "baudrate": 11520}
-    (tmp_path / "tables").symlink_to(ROOT / "config" / "tables")
-    (tmp_path / "gw.yaml").write_text(yaml.safe_dump(data))
-    out = subprocess.run([sys.executable, "-m", "gateway.cli", "check", "-c",
-                          str(tmp_path / "gw.yaml")], capture_output=True, text=True,
-                         timeout=60, cwd=ROOT)  # fmt: skip
-    assert out.returncode == 0, out.stderr
+    out = _check_example_with(tmp_path, lambda d: d["upstream"].update(
+        rtu={"port": "/dev/ttyUSB9", "baudrate": 11520}))
     assert ("compgw check: warning: upstream.rtu.baudrate: 11520 is no standard rate "
             "(9600, 19200, 38400, 57600, 115200, …): a typo?") in out.stderr, out.stderr
     assert "buses." not in out.stderr  # the example's TCP buses have no baud rate
