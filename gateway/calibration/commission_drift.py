@@ -21,7 +21,7 @@ from ..compensation.errors import TableError
 from ..config import GatewayConfig
 from .commission_configs import Tables
 from .drift_shape import SweptHeat
-from .heat_fit import motion_heat_fit
+from .heat_fit import MIN_GROWTH_UM, motion_heat_fit
 
 #: readings of each drift reference per reading (their mean is the reference)
 REF_REPEATS = 3
@@ -314,7 +314,7 @@ class DriftRefs:
                     [e["wall_s"] for e in log],
                     [[d * 1000.0 for d in e["drift_mm"][a]] for e in log],
                     self._ref_positions(a), dict.fromkeys(self.s.axes, self.s.speed_mm_s),
-                    self._travel(a))  # fmt: skip
+                    self._travel(a), min(MIN_GROWTH_UM, self.s.tolerance_um))  # fmt: skip
             except TableError as exc:
                 ident[key] = {"fitted": False, "why": str(exc)}
                 self.say(f"no heat-from-motion model: {exc}")
