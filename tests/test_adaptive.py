@@ -265,6 +265,12 @@ def test_an_axis_refinement_must_pay_a_denser_plane_grid_must_not_lose() -> None
     assert adaptive.keeps_refinement(1.19, 1.35, swept=True)
     assert adaptive.keeps_refinement(0.80, 0.71, swept=True)
     assert not adaptive.keeps_refinement(1.20, 0.71, swept=True)
+    # ... and worse only within a target mean's noise: chance (rough-2's Y, 1.95 → 2.46 µm
+    # at a noise of 0.97 µm; noise-free the sweep left 1.02 µm, the table kept 1.30)
+    assert not adaptive.keeps_refinement(2.46, 1.95, swept=True)
+    assert adaptive.keeps_refinement(2.46, 1.95, swept=True, noise_um=0.97)
+    assert not adaptive.keeps_refinement(3.10, 1.95, swept=True, noise_um=0.97)
+    assert not adaptive.keeps_refinement(2.46, 1.95, noise_um=0.97)  # new points: must pay
 
 
 def test_random_targets_find_room_between_a_swept_tables_points() -> None:

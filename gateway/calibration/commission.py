@@ -511,7 +511,9 @@ class Commission(CommandChecks):
             restored = [name for name, score in scores.items() if name not in settled
                         and not self._keep_best(name, score, r,
                                                 xy["rms_um"] if name == "XY" and xy else None,
-                                                swept=name in swept)]  # fmt: skip
+                                                swept=name in swept,
+                                                noise=verdicts[name].noise_um
+                                                if name in verdicts else 0.0)]  # fmt: skip
             more_runs: dict[str, int] = {}
             for name in restored:
                 what = "model" if name == "XY" else "table"

@@ -61,7 +61,7 @@ class BestTables(AfterSteps):
         return changed
 
     def _keep_best(self, name: str, score: float, r: int, rms: float | None = None,
-                   swept: bool = False) -> bool:  # fmt: skip
+                   swept: bool = False, noise: float = 0.0) -> bool:  # fmt: skip
         """Record round ``r``'s verification score (µm) of an axis or the plane (``swept``:
         the axis was swept in the round before). A score
         that :func:`.adaptive.keeps_refinement` keeps makes the current table the best
@@ -80,7 +80,7 @@ class BestTables(AfterSteps):
         if rms is not None and old is not None and old.get("rms") is not None:
             now, was = rms, old["rms"]
         if was is None or adaptive.keeps_refinement(now, was, plane=name == "XY",
-                                                      swept=swept):  # fmt: skip
+                                                      swept=swept, noise_um=noise):  # fmt: skip
             best[name] = {"score": score, "round": r, **({"rms": rms} if rms is not None
                                                           else {})}  # fmt: skip
             if name in self.tables.pitch and not self._rotary(name):  # and how it is read
