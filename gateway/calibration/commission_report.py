@@ -135,8 +135,8 @@ def _as_read(before: float | None, after: float | None, judged: float, unit: str
     figures: they judge the tables) makes them differ: what a recheck will read."""
     if before is None or after is None or abs(after - judged) <= max(0.3, 0.2 * judged):
         return ""
-    return (f"; as read, with the machine's drift while measuring: {before:.2f} → "
-            f"{after:.2f}{unit} (heat no thermal setting corrects)")
+    return (f"; as read, the machine's drift while measuring left in: {before:.2f} → "
+            f"{after:.2f}{unit}")
 
 
 def summary_lines(summary: dict[str, Any]) -> list[str]:
