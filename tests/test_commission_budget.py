@@ -83,6 +83,8 @@ def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path:
         assert "does not hold these first steps" in proc.text()  # said before it moved
 
 
+@pytest.mark.timeout(300)  # five commands on one machine (about 60 s alone, more when the
+# other worker is busy): the short budget, its recheck twice, the carry-on, its report again
 def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         template: Path, tmp_path: Path) -> None:  # fmt: skip
     """A budget short of the first steps and the before- and after-runs: every axis's ISO

@@ -290,18 +290,17 @@ class Steps(DriftRefs):
     def raw_as_read(self, name: str) -> RawData:
         """A step's raw data (all its runs) as the instrument read it: the machine's drift
         in it (what the technician gets from the same readings, and what a recheck reads)."""
-        return concat_raw([read_raw_csv(self.config_dir / part["raw"])
-                           for part in self._parts(name)])  # fmt: skip
-
-    def _parts(self, name: str) -> list[dict[str, Any]]:
         step = self.state["steps"].get(name, {})
-        return list(step.get("parts") or [{"raw": self._rel(self.dir / "raw" / f"{name}.csv")}])
+        parts = step.get("parts") or [{"raw": self._rel(self.dir / "raw" / f"{name}.csv")}]
+        return concat_raw([read_raw_csv(self.config_dir / part["raw"]) for part in parts])
 
     def raw(self, name: str) -> RawData:
         """A step's raw data (all its runs) with the machine's thermal drift during each run
         taken off: what the readings would have been in the state commissioning began in."""
+        step = self.state["steps"].get(name, {})
+        parts = step.get("parts") or [{"raw": self._rel(self.dir / "raw" / f"{name}.csv")}]
         datas = []
-        for part in self._parts(name):
+        for part in parts:
             data = read_raw_csv(self.config_dir / part["raw"])
             drifts = {a: adaptive.Drift.from_json(v) for a, v in (part.get("drift") or {}).items()
                       if self.drift_taken_off(a)}  # fmt: skip
