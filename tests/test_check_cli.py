@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import io
 import json
 import socket
 import subprocess
@@ -11,6 +13,7 @@ from pathlib import Path
 
 import yaml
 
+from gateway.cli import main as cli_main
 from gateway.config import json_schema
 from tests.test_config import BASE
 
@@ -30,6 +33,18 @@ def _config() -> dict:
 
 
 CONFIG = _config()
+
+
+def _compgw(*args: object) -> subprocess.CompletedProcess:  # type: ignore[type-arg]
+    """``compgw ARGS`` in this process (no interpreter to start per call, as a process's
+    would): its exit code (a parser's SystemExit too), stdout and stderr."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            rc = cli_main([str(a) for a in args])
+        except SystemExit as exc:
+            rc = int(exc.code or 0)
+    return subprocess.CompletedProcess(list(args), rc, out.getvalue(), err.getvalue())
 
 
 def _write(tmp_path: Path, x_csv: str, config=CONFIG) -> Path:
@@ -150,14 +165,15 @@ def test_a_command_line_out_of_range_is_one_line_before_anything(tmp_path: Path)
     base = ["--laser", "127.0.0.1:1:20", "--raw", str(tmp_path / "x.csv"),
             "--gateway", "127.0.0.1:1"]  # fmt: skip
     cases = [
-        (["status", "-c", "config/example.yaml", "--port", "70000"], 2,
+        (["status", "-c", ROOT / "config/example.yaml", "--port", "70000"], 2,
          "compgw status: argument --port: 70000 must be at most 65535 (TCP port)"),
-        (["calibrate", "-c", "config/example.yaml", "--iso", "X", "--step-mm", "0", *base], 2,
+        (["calibrate", "-c", ROOT / "config/example.yaml", "--iso", "X", "--step-mm", "0",
+          *base], 2,
          "compgw calibrate: argument --step-mm: 0 must be above 0 (mm)"),
-        (["calibrate", "-c", "config/example.yaml", "--iso", "X", "--verify",
+        (["calibrate", "-c", ROOT / "config/example.yaml", "--iso", "X", "--verify",
           "--tolerance-um", "-2", *base], 2,
          "compgw calibrate: argument --tolerance-um: -2 must be above 0 (µm)"),
-        (["commission", "-c", "config/example.yaml", "--laser", "127.0.0.1:1:20",
+        (["commission", "-c", ROOT / "config/example.yaml", "--laser", "127.0.0.1:1:20",
           "--budget-h", "nan"], 2, "compgw commission: argument --budget-h: nan must be above 0"),
         (["calibrate", "-c", str(tmp_path / "gw.yaml"), "--iso", "X", "--verify",
           "--iterate", "2", *base], 1,
@@ -165,8 +181,7 @@ def test_a_command_line_out_of_range_is_one_line_before_anything(tmp_path: Path)
          "axes.X.compensation.pitch names none"),
     ]  # fmt: skip
     for argv, code, line in cases:
-        out = subprocess.run([sys.executable, "-m", "gateway.cli", *argv], capture_output=True,
-                             text=True, timeout=60, cwd=ROOT)  # fmt: skip
+        out = _compgw(*argv)
         assert out.returncode == code, (argv, out.stderr)
         lines = out.stderr.splitlines()
         assert len(lines) == 1 and lines[0].startswith(line), (argv, out.stderr)
@@ -184,8 +199,7 @@ def test_a_config_commissioning_left_behind_is_named(tmp_path: Path):
     left = tmp_path / "gw.yaml"
     left.write_text("# written by compgw commission (identification config): your own config "
                     "is kept in commission/original.yaml\n" + text)  # fmt: skip
-    out = subprocess.run([sys.executable, "-m", "gateway.cli", "check", "-c", str(left)],
-                         capture_output=True, text=True, timeout=60, cwd=ROOT)  # fmt: skip
+    out = _compgw("check", "-c", left)
     assert out.returncode == 0, out.stderr
     assert (f"compgw check: warning: {left}: compgw commission's identification config, left "
             "by a commissioning that did not finish") in out.stderr, out.stderr
@@ -193,16 +207,13 @@ def test_a_config_commissioning_left_behind_is_named(tmp_path: Path):
     final = tmp_path / "final.yaml"
     final.write_text("# written by compgw commission (full config): your own config is kept "
                      "in x.yaml\n" + text)  # fmt: skip
-    out = subprocess.run([sys.executable, "-m", "gateway.cli", "check", "-c", str(final)],
-                         capture_output=True, text=True, timeout=60, cwd=ROOT)  # fmt: skip
+    out = _compgw("check", "-c", final)
     assert "did not finish" not in out.stderr, out.stderr
 
     gone = yaml.safe_load(text)
     gone["axes"]["X"]["compensation"]["pitch"]["file"] = "commission/tables/x_pitch.csv"
     (tmp_path / "gone.yaml").write_text(yaml.safe_dump(gone))
-    out = subprocess.run([sys.executable, "-m", "gateway.cli", "commission", "-c",
-                          str(tmp_path / "gone.yaml"), "--laser", "127.0.0.1:1:20"],
-                         capture_output=True, text=True, timeout=60, cwd=ROOT)  # fmt: skip
+    out = _compgw("commission", "-c", tmp_path / "gone.yaml", "--laser", "127.0.0.1:1:20")
     assert out.returncode == 1, out.stderr
     assert out.stderr.splitlines() == [out.stderr.strip()], out.stderr
     assert "gone.yaml does not load as it is (axes.X.compensation.pitch.file:" in out.stderr
@@ -217,9 +228,7 @@ def _check_example_with(tmp_path: Path, change) -> subprocess.CompletedProcess: 
     change(data)
     (tmp_path / "tables").symlink_to(ROOT / "config" / "tables")
     (tmp_path / "gw.yaml").write_text(yaml.safe_dump(data))
-    out = subprocess.run([sys.executable, "-m", "gateway.cli", "check", "-c",
-                          str(tmp_path / "gw.yaml")], capture_output=True, text=True,
-                         timeout=60, cwd=ROOT)  # fmt: skip
+    out = _compgw("check", "-c", tmp_path / "gw.yaml")
     assert out.returncode == 0, out.stderr
     return out
 
