@@ -256,3 +256,15 @@ def test_a_config_compensated_already_is_said_in_the_plan(template: Path,
     assert line.startswith("  your config compensates Y already (tables from an earlier "
                            "calibration): the identification measures without them"), line
     assert line.endswith(f"yours is kept in {tmp_path / 'commission' / 'original.yaml'}")
+
+
+def test_a_short_budget_without_the_plane_says_nothing_of_it(template: Path,
+                                                             tmp_path: Path) -> None:
+    """No --xy-device: the short budget's line names no plane grid (it did)."""
+    said: list[str] = []
+    job = Commission(Settings(template / "gateway.yaml", tmp_path / "commission", None,  # type: ignore[arg-type]
+                              Instruments(), axes=("X", "Y"), budget_s=1800.0),
+                     reload=None, say=said.append)  # type: ignore[arg-type]  # fmt: skip
+    job.print_plan()
+    line = next(s for s in said if "a short budget" in s)
+    assert "plane" not in line and line.endswith("as the budget allows"), line

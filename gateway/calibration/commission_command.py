@@ -59,12 +59,15 @@ class CommandChecks(ShortBudget):
         short = self.state["short"] if "short" in self.state else (
             not self._zoned() and self._first_need_s() > self.s.budget_s)  # fmt: skip
         if short:
+            plane = self.s.planar is not None
             self.say("  a short budget: every axis's ISO runs (and their midpoints where a "
-                     "table misses between its points) and the plane's grid first, then "
+                     "table misses between its points)"
+                     + (" and the plane's grid" if plane else "") + " first, then "
                      "the backlash tests and before-runs, the lead searches and cyclic scans "
-                     "last, as the budget allows; no round will refine the plane, so its grid "
-                     "is made as dense as the budget then left holds (more readings than the "
-                     "xy-grid line above: the budget is spent, not exceeded)")  # fmt: skip
+                     "last, as the budget allows"
+                     + ("; no round will refine the plane, so its grid is made as dense as "
+                        "the budget then left holds (more readings than the xy-grid line "
+                        "above: the budget is spent, not exceeded)" if plane else ""))  # fmt: skip
         if any(self._rotary(a) for a in self.s.axes) and self.s.tolerance_arcsec < 0.1:
             self.say(f"  --tolerance-arcsec {self.s.tolerance_arcsec:g}: below what an angle "
                      "instrument resolves; it is in arcseconds (0.001° is 3.6″)")  # fmt: skip
