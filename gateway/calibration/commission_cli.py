@@ -395,15 +395,13 @@ def main(args: argparse.Namespace) -> int:
 
 async def _answering(settings: Any, status_unit: int, config_path: Path) -> None:
     """Before anything is written or moved: the gateway answers at its status unit and the
-    laser, angle and XY instruments at theirs (one read of their first registers); a
-    TableError naming the option otherwise. (A wrong unit, a port nothing listens on or no
-    gateway running were found at the first reading, after the plan and a commission
-    directory, as an abort.)"""
-    from pymodbus.client import AsyncModbusTcpClient
-    from pymodbus.exceptions import ModbusException
-
+    laser, angle and XY instruments at theirs (one read of their first registers, over the
+    calibration's own :class:`.machine.Link`); a TableError naming the option otherwise. (A
+    wrong unit, a port nothing listens on or no gateway running were found at the first
+    reading, after the plan and a commission directory, as an abort.)"""
+    from ..modbus.frames import EXCEPTION_NAMES
     from ..status import GENERATION_REGISTER
-    from .machine import EXCEPTION_NAMES
+    from .machine import Link, MachineError
 
     ins = settings.instruments
     devices = [("--gateway", settings.gateway, status_unit, GENERATION_REGISTER)] + [
@@ -413,26 +411,27 @@ async def _answering(settings: Any, status_unit: int, config_path: Path) -> None
     for option, ep, unit, address in devices:
         gateway = option == "--gateway"
         named = f"{option} {ep.host}:{ep.port}" + ("" if gateway else f":{ep.unit}")
-        client = AsyncModbusTcpClient(ep.host, port=ep.port, timeout=2.0, retries=1)
+        link = Link(ep.host, ep.port)
         try:
-            if not await client.connect():
+            try:
+                await link.connect()
+            except MachineError:
                 raise TableError(f"{named}: nothing answers there" + (
                     f"; start the gateway first (compgw run -c {config_path})" if gateway
-                    else ""))  # fmt: skip
+                    else "")) from None  # fmt: skip
             try:
-                rr = await client.read_input_registers(address, count=2, device_id=unit)
-            except ModbusException as exc:
-                raise TableError(f"{named}: unit {unit} gives no reply ({exc})") from None
-            if rr.isError():
-                code = getattr(rr, "exception_code", 0)
-                what = (f"its status unit {unit} answered" if gateway else
-                        f"unit {unit} answered")  # fmt: skip
+                await link.read(unit, address, 2, "input")
+            except MachineError as exc:
+                if exc.code is None:  # a timeout, a dropped connection
+                    raise TableError(f"{named}: unit {unit} gives no reply ({exc})") from None
+                what = f"its status unit {unit}" if gateway else f"unit {unit}"
                 hint = ("is it compgw, and status.upstream_unit its status unit?" if gateway
                         else "is that the instrument's unit id?")  # fmt: skip
-                raise TableError(f"{named}: {what} exception {code:#04x} "
-                                 f"({EXCEPTION_NAMES.get(code, 'refused')}): {hint}")  # fmt: skip
+                raise TableError(f"{named}: {what} answered exception {exc.code:#04x} "
+                                 f"({EXCEPTION_NAMES.get(exc.code, 'refused')}): "
+                                 f"{hint}") from None  # fmt: skip
         finally:
-            client.close()
+            link.close()
 
 
 def _loads_whole(config: GatewayConfig, path: Path) -> None:

@@ -30,7 +30,14 @@ from typing import Any
 from pymodbus.client import AsyncModbusTcpClient
 
 from ..config import Axis, GatewayConfig, SourceRegister, ThermalSource
-from ..modbus.frames import pack_int32, unpack_int32
+from ..modbus.frames import (
+    EXCEPTION_NAMES,
+    GATEWAY_PATH_UNAVAILABLE,
+    GATEWAY_TARGET_NO_RESPONSE,
+    SERVER_DEVICE_BUSY,
+    pack_int32,
+    unpack_int32,
+)
 
 #: Status bits of the sim's default (Leadshine-like) profile; override per run.
 DEFAULT_IN_POSITION_BIT = 4
@@ -40,7 +47,12 @@ NM_PER_MM = 1e6
 
 
 class MachineError(RuntimeError):
-    """The machine or an instrument did not do what was asked (Modbus error, alarm, timeout)."""
+    """The machine or an instrument did not do what was asked (Modbus error, alarm, timeout);
+    ``code``: the Modbus exception code a device answered, where one did."""
+
+    def __init__(self, message: str, code: int | None = None) -> None:
+        super().__init__(message)
+        self.code = code
 
 
 class SetupError(MachineError):
@@ -113,20 +125,16 @@ def reraise_cancel() -> None:
 #: the sim behind a gateway with a 0.2 s bus timeout answered late and a commissioning
 #: aborted on one reply). Reads and register writes are idempotent, so a second try is safe:
 #: a target written twice is the same target, a trigger bit set twice is one rising edge.
-TRANSIENT_CODES = frozenset({0x06, 0x0B})
+TRANSIENT_CODES = frozenset({SERVER_DEVICE_BUSY, GATEWAY_TARGET_NO_RESPONSE})
 #: tries after the first, and the pause before each (s, growing linearly)
 TRANSIENT_RETRIES = 3
 TRANSIENT_PAUSE_S = 0.05
 
 
-#: Modbus exception codes in words, and what each says to check
-EXCEPTION_NAMES = {0x01: "illegal function", 0x02: "illegal data address",
-                   0x03: "illegal data value", 0x04: "device failure", 0x06: "busy",
-                   0x0A: "gateway path unavailable",
-                   0x0B: "gateway target device failed to respond"}  # fmt: skip
-_EXCEPTION_HINTS = {0x0A: "the gateway's line to that device is down",
-                    0x0B: "no answer from that device on its line: its wiring, baud rate "
-                          "and unit id"}  # fmt: skip
+#: what a gateway's exception says to check
+_EXCEPTION_HINTS = {GATEWAY_PATH_UNAVAILABLE: "the gateway's line to that device is down",
+                    GATEWAY_TARGET_NO_RESPONSE: "no answer from that device on its line: its "
+                    "wiring, baud rate and unit id"}  # fmt: skip
 
 
 def exception_text(reply: Any) -> str:
@@ -177,7 +185,8 @@ class Link:
             if attempt < TRANSIENT_RETRIES:
                 await asyncio.sleep(TRANSIENT_PAUSE_S * (attempt + 1))
         tries = f" ({attempt + 1} tries)" if attempt else ""
-        raise MachineError(f"{self.host}:{self.port}: {what}: {exception_text(reply)}{tries}")
+        raise MachineError(f"{self.host}:{self.port}: {what}: {exception_text(reply)}{tries}",
+                           getattr(reply, "exception_code", None))
 
     async def read(self, unit: int, address: int, count: int, table: str) -> list[int]:
         fn = self.client.read_input_registers if table == "input" else (

@@ -34,8 +34,16 @@ ILLEGAL_FUNCTION = 0x01
 ILLEGAL_DATA_ADDRESS = 0x02
 ILLEGAL_DATA_VALUE = 0x03
 SERVER_DEVICE_FAILURE = 0x04
+SERVER_DEVICE_BUSY = 0x06
 GATEWAY_PATH_UNAVAILABLE = 0x0A
 GATEWAY_TARGET_NO_RESPONSE = 0x0B
+#: the exception codes in words (the application protocol spec's names)
+EXCEPTION_NAMES = {
+    ILLEGAL_FUNCTION: "illegal function", ILLEGAL_DATA_ADDRESS: "illegal data address",
+    ILLEGAL_DATA_VALUE: "illegal data value", SERVER_DEVICE_FAILURE: "device failure",
+    SERVER_DEVICE_BUSY: "busy", GATEWAY_PATH_UNAVAILABLE: "gateway path unavailable",
+    GATEWAY_TARGET_NO_RESPONSE: "gateway target device failed to respond",
+}  # fmt: skip
 
 EXCEPTION_BIT = 0x80
 MAX_PDU_BYTES = 253  # Modbus application protocol spec 1.1b3, section 4.1
