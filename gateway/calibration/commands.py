@@ -58,15 +58,13 @@ def _range(text: str) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
-#: a rotary axis's ISO runs start this far inside its travel (deg): commission's own
-ROTARY_OVERRUN_DEG = 0.5
-
-
 def _overrun(args: argparse.Namespace, rotary: bool = False) -> float:
     """--overrun-mm as given, else 3 mm (a rotary axis's ISO runs: ROTARY_OVERRUN_DEG; a
     swing head's 3° is a ninth of it)."""
     if args.overrun_mm is not None:
         return float(args.overrun_mm)
+    from .plans import ROTARY_OVERRUN_DEG
+
     return ROTARY_OVERRUN_DEG if rotary else 3.0
 
 

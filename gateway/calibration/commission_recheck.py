@@ -20,7 +20,7 @@ from typing import Any
 
 from ..formats import atomic_write_text
 from .iso230 import ARCSEC_PER_MDEG, iso230_axis
-from .plans import Plan, plan_time_s, read_plan
+from .plans import Plan, read_plan
 from .rawdata import axis_deviations, read_raw_csv
 from .session import Session, planar_figures
 
@@ -60,8 +60,7 @@ async def recheck(job: Any, summary: dict[str, Any], say: Callable[[str], None] 
             break
         out_dir = job.dir / "recheck" / f"{stamp}-{k}"
     out_dir.mkdir(parents=True)
-    speed, stop = job.s.speed_mm_s, job.s.stop_s
-    total_s = sum(plan_time_s(p, speed, stop) for _, p in plans)
+    total_s = sum(job.estimate_s(p) for _, p in plans)
     say(f"recheck of the commissioning finished {summary.get('finished_at', '(undated)')}: "
         f"{sum(sum(m.measured for m in p.moves) for _, p in plans)} readings at its random "
         f"targets, about {total_s / 3600:.2f} h of machine time, the tables as loaded now")

@@ -13,7 +13,6 @@ turntable is not (its worm scans and harmonics are its own).
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -24,12 +23,12 @@ from ..compensation.errors import CompensationError
 from ..config import GatewayConfig
 from ..formats import atomic_write_text, read_cyclic, read_pitch_csv, write_cyclic
 from . import adaptive
-from .commission_rotary import OVERRUN_DEG, SWING_KNOT_GAP_STEPS, SWING_SWEEP_STEPS_DEG
+from .commission_rotary import SWING_KNOT_GAP_STEPS, SWING_SWEEP_STEPS_DEG
 from .commission_thermal import ThermalSteps
 from .cyclic_fit import scans_from_raw
 from .fit import smoothed_table
 from .iso230 import ARCSEC_PER_MDEG
-from .plans import Plan, read_plan, targets_plan
+from .plans import ROTARY_OVERRUN_DEG, Plan, read_plan, targets_plan
 from .plans_scans import cyclic_plan, sweep_plan
 from .rawdata import axis_deviations
 from .sweep import (
@@ -240,11 +239,10 @@ class RefineSteps(ThermalSteps):
         not noisy)."""
         travel = self._travel(axis)
         if self._rotary(axis):  # a swing axis: over the range its table covers
-            lo, hi = self.table_range(axis)
-            step = self._sweep_steps(axis)[coarser]
-            targets = np.round(lo + step * np.arange(math.floor((hi - lo) / step + 1e-9) + 1), 4)
+            targets = sweep_targets_mm(self.table_range(axis), None, margin_mm=0.0,
+                                       step_mm=self._sweep_steps(axis)[coarser])
             return self._snap(sweep_plan(axis, travel, targets, piece_mm=SWEEP_PIECE_MM,
-                                         overrun_mm=OVERRUN_DEG))  # fmt: skip
+                                         overrun_mm=ROTARY_OVERRUN_DEG))  # fmt: skip
         lead = lead_mm if estimate else self._lead_of(axis)
         targets = sweep_targets_mm(travel, lead, coarser=coarser,
                                    noisy=not estimate and self._noisy(axis))  # fmt: skip

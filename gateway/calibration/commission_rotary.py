@@ -44,6 +44,7 @@ from . import adaptive
 from .commission_steps import Steps
 from .iso230 import ARCSEC_PER_MDEG
 from .outputs import PitchResult
+from .plans import ROTARY_OVERRUN_DEG as OVERRUN_DEG  # past the ISO runs' end targets
 from .plans import (
     Plan,
     backlash_from_raw,
@@ -56,8 +57,6 @@ from .plans_scans import cyclic_plan
 from .rawdata import AxisDeviations
 
 TURN_DEG = 360.0
-#: overrun past the end targets of every ISO-style run (deg): takes up the play
-OVERRUN_DEG = 0.5
 #: seed 000 in angle (as ``compgw calibrate --backlash`` on a rotary axis): take-up and away
 BACKLASH_MOVE_DEG = 1.0
 #: a random target keeps this far from every table point (deg)

@@ -49,6 +49,9 @@ _DIRECTION_TEXT = {1: "+", -1: "-", 0: ""}
 _TEXT_DIRECTION = {v: k for k, v in _DIRECTION_TEXT.items()}
 #: Targets are rounded to this many decimals (0.1 µm) so plan files stay readable.
 TARGET_DECIMALS = 4
+#: a rotary axis's ISO runs start this far inside its travel, their overrun (deg): calibrate's
+#: and commission's alike
+ROTARY_OVERRUN_DEG = 0.5
 
 
 @dataclass(frozen=True)

@@ -108,11 +108,12 @@ def harmonics_for_step(step_mm: float, lead_mm: float | None) -> int:
 
 
 def sweep_targets_mm(travel_mm: Sequence[float], lead_mm: float | None,
-                     margin_mm: float = 2.0, coarser: int = 0,
-                     noisy: bool = False) -> NDArray[np.float64]:  # fmt: skip
-    """The sweep's targets over the travel less ``margin_mm`` at each end."""
+                     margin_mm: float = 2.0, coarser: int = 0, noisy: bool = False,
+                     step_mm: float | None = None) -> NDArray[np.float64]:  # fmt: skip
+    """The sweep's targets over the travel less ``margin_mm`` at each end, ``step_mm``
+    apart (default :func:`sweep_step_mm`'s)."""
     lo, hi = float(travel_mm[0]) + margin_mm, float(travel_mm[1]) - margin_mm
-    step = sweep_step_mm(lead_mm, coarser, noisy)
+    step = step_mm if step_mm is not None else sweep_step_mm(lead_mm, coarser, noisy)
     n = max(2, math.floor((hi - lo) / step) + 1)
     return np.round(lo + step * np.arange(n), 4)
 
