@@ -88,8 +88,10 @@ def reseed(sim_yaml: Path, sim_seed: int) -> None:
 
 def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed: int,
                 without: list[str] | None = None, judge_repeats: int = 1,
-                sim_seed: int | None = None) -> dict[str, Any]:  # fmt: skip
-    """Generate, calibrate and evaluate one machine; a dict of its figures (or its error)."""
+                sim_seed: int | None = None, oracle: bool = False
+                ) -> dict[str, Any]:  # fmt: skip
+    """Generate, calibrate and evaluate one machine; a dict of its figures (or its error);
+    with ``oracle`` also judge a perfect pitch table in place of the calibrated one."""
     t0 = time.monotonic()
     mdir = root / label
     shutil.rmtree(mdir, ignore_errors=True)
@@ -122,6 +124,16 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
         out["after_repeats"] = [phases["after"]] + [
             asyncio.run(evaluate(run.machine, the_plan, run.sim_port, run.gateway_port, cool))
             for _ in range(judge_repeats - 1)]  # fmt: skip
+        if oracle:  # a perfect pitch table judged at the same targets, in the same run
+            from static_chain import oracle_config  # imports sim and gateway: only here
+
+            calibrated = run.write_config("gw.calibrated.yaml", result.config)
+            run.use(oracle_config(mdir, calibrated, run.work / "oracle"))
+            out["oracle_repeats"] = [
+                asyncio.run(evaluate(run.machine, the_plan, run.sim_port, run.gateway_port, cool))
+                for _ in range(judge_repeats)]  # fmt: skip
+            out["oracle"] = out["oracle_repeats"][0]
+            run.use(result.config)
         out["sensor"] = run.machine.get("thermal_sensor", "none")
         thermal = {a: ax.get("compensation", {}).get("thermal") or {}
                    for a, ax in result.config["axes"].items()}  # fmt: skip
@@ -253,6 +265,29 @@ def print_repeats(results: list[dict[str, Any]], say: Any = print) -> None:
             say(f"{group + ' median A − R':<24}" + "  ".join(f"{m:4.2f}" for m in med))
 
 
+def print_oracle(results: list[dict[str, Any]], say: Any = print) -> None:
+    """E cut on each machine's worst axis, the calibration's and a perfect table's, judged at
+    the same targets in the same run (``--oracle``)."""
+    rows = [r for r in results if "oracle" in r and "summary" in r]
+    if not rows:
+        return
+    say("\na perfect pitch table at the same targets (E cut % on the axis that fell least, "
+        "each judging, calibrated / perfect; XY cut %):")
+    for r in rows:
+        axis = r["summary"]["E_axis"]
+        before = r["before"]["axes"][axis]["E_um"]
+
+        def cuts(judgings: list[dict[str, Any]], axis: str = axis, before: float = before
+                 ) -> str:  # fmt: skip
+            return " ".join(f"{100 * (1 - j['axes'][axis]['E_um'] / before):5.1f}"
+                            for j in judgings)  # fmt: skip
+
+        xy = 100 * (1 - r["oracle"]["xy"]["max_um"] / r["before"]["xy"]["max_um"])
+        say(f"{r['machine']:<24}{axis} {cuts(r.get('after_repeats', [r['after']]))} / "
+            f"{cuts(r.get('oracle_repeats', [r['oracle']]))}   "
+            f"XY {r['summary']['xy_cut_pct']:5.1f} / {xy:5.1f}")
+
+
 def print_table(data: dict[str, Any]) -> int:
     """The table of a saved ``--json`` output (figures recomputed from the raw phases)."""
     print(HEAD)
@@ -264,6 +299,7 @@ def print_table(data: dict[str, Any]) -> int:
         r["summary"] = summary(r)
         print(row(r["machine"], r["summary"], r["sensor"]))
     print_repeats(results)
+    print_oracle(results)
     print()
     for group, st in group_stats(results).items():
         for which in ("median", "worst"):
@@ -304,6 +340,10 @@ def main() -> int:
     parser.add_argument("--judge-repeats", type=int, default=1, metavar="N",
                         help="judge the calibrated machine N times (same targets, a cool-down "
                              "before each): the judge's own spread of E cut and A − R")
+    parser.add_argument("--oracle", action="store_true",
+                        help="also judge, at the same targets, each machine's calibrated config "
+                             "with its pitch tables replaced by perfect ones read from the "
+                             "quiet sim (bench/static_chain.py): what no table could cut")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--table", type=Path, metavar="JSON",
                         help="print the table of an earlier run's --json output and exit")
@@ -331,7 +371,7 @@ def main() -> int:
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         futures = [pool.submit(run_machine, label, gen, args.workflow, root, args.seed, without,
-                               args.judge_repeats, args.sim_seed)
+                               args.judge_repeats, args.sim_seed, args.oracle)
                    for label, gen in machines]  # fmt: skip
         for fut in futures:
             r = fut.result()
@@ -348,6 +388,7 @@ def main() -> int:
         for which in ("median", "worst"):
             say(row(f"{group} {which}", st[which], "any"))
     print_repeats(results, say)
+    print_oracle(results, say)
     say(f"wall time {wall / 60:.1f} min; machine files in {root}")
     if args.json:
         print(json.dumps({"workflow": args.workflow, "without": without,

@@ -182,6 +182,39 @@ def oracle_e_um(machine: Path, gw_path: Path, name: str, draws: Draws) -> float:
         bare_path.unlink(missing_ok=True)
 
 
+def oracle_config(machine: Path, gw_path: Path, out_dir: Path) -> dict[str, Any]:
+    """The config at ``gw_path`` with every linear axis's pitch table, cyclic term and
+    backlash replaced by a perfect table (the quiet machine's own deviation read every
+    ``ORACLE_STEP_MM`` along the pitch line, ↑ and ↓, through the rest of that config's chain),
+    written into ``out_dir``; the rest (plane, heat) as calibrated. What the judge reads
+    under it is what no table could cut."""
+    data = yaml.safe_load(gw_path.read_text())
+    names = [n for n, ax in data["axes"].items() if not ax.get("rotary")]
+    for name in names:
+        comp = data["axes"][name].setdefault("compensation", {})
+        for key in ("pitch", "cyclic", "backlash", "takeup"):
+            comp.pop(key, None)
+    bare_path = gw_path.parent / ".oracle-bare.yaml"  # beside it: relative tables stay valid
+    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        bare_path.write_text(yaml.safe_dump(data, sort_keys=False))
+        rig = _rig(machine, bare_path)
+        all_axes = list(rig.m.axes)
+        for name in names:
+            other = next((a for a in all_axes if a != name), None)
+            lo, hi = rig.m.axes[name].cfg.travel_mm
+            olo = rig.m.axes[other].cfg.travel_mm[0] if other else None
+            x = np.linspace(lo, hi, int(np.ceil((hi - lo) / ORACLE_STEP_MM)) + 1)
+            up, down = up_and_down_um(rig, name, other, olo, x)
+            table = (out_dir / f"{name}_oracle.csv").resolve()
+            write_table(table, "csv", PitchTable(x, up * 1e-3, down * 1e-3), "oracle")
+            data["axes"][name]["compensation"]["pitch"] = {"file": str(table),
+                                                           "interpolation": "linear"}
+    finally:
+        bare_path.unlink(missing_ok=True)
+    return data
+
+
 def _targets_mm(rng: np.random.Generator, lo_mm: float, hi_mm: float, count: int,
                 pulse_mm: float) -> np.ndarray:
     """Random targets 3 mm inside the travel, sorted, on the drive's pulses as the judge's: a

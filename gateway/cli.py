@@ -134,7 +134,13 @@ def _cmd_status(args: argparse.Namespace) -> int:
             if listen is up.tls else ""), file=sys.stderr)  # fmt: skip
         return EXIT_RUNTIME
     if reply.isError():
-        print(f"compgw status: the gateway answered {reply}", file=sys.stderr)
+        from .modbus.frames import EXCEPTION_NAMES
+
+        code = getattr(reply, "exception_code", 0)
+        print(f"compgw status: {host}:{port} answered exception {code:#04x} "
+              f"({EXCEPTION_NAMES.get(code, 'refused')}) at unit "
+              f"{config.status.upstream_unit}: is it a compgw gateway, running "
+              f"{args.config}'s status.upstream_unit?", file=sys.stderr)  # fmt: skip
         return EXIT_RUNTIME
     print(format_status(list(config.axes), list(config.thermal_sources), reply.registers,
                         (args.config, config_crc(args.config)),

@@ -666,6 +666,16 @@ STANDARD_BAUDS = frozenset({1200, 2400, 4800, 9600, 14400, 19200, 38400, 57600, 
                             128000, 230400, 250000, 460800, 500000, 921600, 1000000})
 
 
+def corrects(config: GatewayConfig, name: str) -> bool:
+    """Whether ``config`` gives axis ``name`` anything to correct (a table, backlash, take-up,
+    heat, a cyclic term, a linkage, the plane): compensation "on" with none of them moves
+    nothing."""
+    comp = config.axes[name].compensation
+    return (comp.pitch is not None or comp.backlash_mm > 0 or comp.takeup is not None
+            or comp.thermal is not None or comp.cyclic is not None or comp.linkage is not None
+            or (config.planar is not None and name in config.planar.axes))
+
+
 def warnings(config: GatewayConfig) -> list[str]:
     """Things that load but a user should act on (EEPROM wear, unverified profiles, a
     plain port open beside Modbus/TCP Security, a baud rate no device offers)."""
@@ -685,11 +695,7 @@ def warnings(config: GatewayConfig) -> list[str]:
                    "leave it off or on loopback (README, \"Securing the gateway\")")  # fmt: skip
     for name, axis in config.axes.items():
         unit_mm = axis.pulse_mm / axis.command_scale
-        comp = axis.compensation
-        corrects = comp.pitch is not None or comp.backlash_mm > 0 or comp.thermal is not None \
-            or comp.cyclic is not None or comp.linkage is not None \
-            or (config.planar is not None and name in config.planar.axes)
-        if corrects and not axis.rotary and unit_mm > COARSE_UNIT_MM:
+        if corrects(config, name) and not axis.rotary and unit_mm > COARSE_UNIT_MM:
             out.append(
                 f"axes.{name}: corrections land to whole drive units of {unit_mm * 1000:g} µm "
                 f"(up to ±{unit_mm * 500:g} µm of rounding); gear the drive finer and set "

@@ -6,9 +6,10 @@ signed unless noted:
 =========  ==========================================================================
 address    meaning
 =========  ==========================================================================
-0          register map version (1)
+0          register map version (3)
 1          number of axes N (config order)
-2          gateway flags: bit 0 a thermal source is in alarm, bit 1 a bus is down
+2          gateway flags: bit 0 a thermal source is in alarm, bit 1 a bus is down,
+           bit 2 an axis's drive left its last request unanswered (a bus up, a drive silent)
 3-4        targets committed (uint32)
 5-6        targets refused: outside travel (uint32)
 7-8        targets refused: correction above max_correction_mm (uint32)
@@ -19,10 +20,14 @@ address    meaning
            whoever writes a config and has it reloaded can tell it is the one running
 16 + 8k    axis k: bit 0 compensation enabled, bit 1 last target corrected (homed and
            enabled when it was sent), bit 2 direction of the last move is −,
-           bit 3 thermal correction active on this axis
+           bit 3 thermal correction active on this axis, bit 4 its drive left its last
+           request unanswered, bit 5 the config gives it nothing to correct (no table,
+           backlash, heat, plane: compensation "on" moves nothing)
 17 + 8k    axis k: last correction (command − nominal), int32 in 0.1 µm (17-18)
 19 + 8k    axis k: Δa used, int32 in 0.1 µm (19-20)
 21 + 8k    axis k: C1/C − 1 (thermal pulse-equivalent change), int32 in 0.01 ppm (21-22)
+23 + 8k    axis k: requests in a row its drive left unanswered (uint16, saturating; 0 at
+           its next reply)
 80 + 4s    thermal source s (config order): state 0 starting, 1 ok, 2 holding, 3 alarm
 81 + 4s    source s: Δa (reference length), int32 in 0.1 µm (81-82)
 83 + 4s    source s: failed reads (uint16, saturating)
@@ -41,6 +46,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Awaitable, Callable
 
+from .config import corrects
 from .modbus.frames import (
     ILLEGAL_DATA_ADDRESS,
     ILLEGAL_DATA_VALUE,
@@ -62,7 +68,7 @@ from .sensors import SensorSet
 
 log = logging.getLogger(__name__)
 
-MAP_VERSION = 2  # 2: the config's CRC-32 at 14-15
+MAP_VERSION = 3  # 2: the config's CRC-32 at 14-15; 3: silent drives, axes given nothing
 AXIS_BASE, AXIS_STRIDE = 16, 8
 SOURCE_BASE, SOURCE_STRIDE = 80, 4
 INPUT_SIZE = 120  # one FC04 reads it all (at most 125 registers)
@@ -103,7 +109,8 @@ class StatusUnit:
         regs = [0] * INPUT_SIZE
         regs[0] = MAP_VERSION
         regs[1] = len(config.axes)
-        regs[2] = int(self.sensors.alarm) | int(self.buses_down()) << 1
+        silent = [gw.buses[a.bus].silent.get(a.unit, 0) for a in config.axes.values()]
+        regs[2] = int(self.sensors.alarm) | int(self.buses_down()) << 1 | int(any(silent)) << 2
         c = gw.counters
         regs[3:5] = _u32(c.commits)
         regs[5:7] = _u32(c.refused_travel)
@@ -124,11 +131,14 @@ class StatusUnit:
                 | int(state.applied) << 1
                 | int(state.motion.direction < 0) << 2
                 | int(delta_a is not None) << 3
+                | int(silent[k] > 0) << 4
+                | int(not corrects(config, name)) << 5
             )
             regs[base + 1 : base + 3] = _s32(gw.last_correction_mm(name) * 1e4)
             regs[base + 3 : base + 5] = _s32((delta_a or 0.0) * 1e4)
             ratio_ppm = (delta_a or 0.0) / thermal.length_mm * 1e6 if thermal else 0.0
             regs[base + 5 : base + 7] = _s32(ratio_ppm * 100)
+            regs[base + 7] = min(silent[k], 0xFFFF)
         for s, name in enumerate(self.sensors):
             base = SOURCE_BASE + SOURCE_STRIDE * s
             if base + SOURCE_STRIDE > INPUT_SIZE:
@@ -219,9 +229,11 @@ def format_status(names: list[str], sources: list[str], regs: list[int],
         return unpack_int32(regs[at : at + 2], "hi_lo", signed=False)
 
     flags = regs[2]
+    v3 = regs[0] >= 3
     lines = [
         f"status map v{regs[0]}, {regs[1]} axes; thermal alarm: {'YES' if flags & 1 else 'no'}; "
-        f"bus down: {'YES' if flags & 2 else 'no'}",
+        f"bus down: {'YES' if flags & 2 else 'no'}"
+        + (f"; drive not answering: {'YES' if flags & 4 else 'no'}" if v3 else ""),
         f"targets committed {u32(3)}, refused (travel) {u32(5)}, refused (cap) {u32(7)}, "
         f"feedback reads {u32(9)}",
         f"config generation {u32(GENERATION_REGISTER)}"
@@ -237,7 +249,11 @@ def format_status(names: list[str], sources: list[str], regs: list[int],
     for k, name in enumerate(names):
         base = AXIS_BASE + AXIS_STRIDE * k
         bits = regs[base]
-        head = (f"axis {name}: compensation {'on' if bits & 1 else 'OFF'}, last target "
+        if v3 and bits & 16:
+            lines.append(f"axis {name}: its DRIVE IS NOT ANSWERING: the last {regs[base + 7]} "
+                         "request(s) to it timed out (wiring, power, unit id, baud rate)")
+        given = " (the config gives it nothing to correct)" if v3 and bits & 32 else ""
+        head = (f"axis {name}: compensation {'on' if bits & 1 else 'OFF'}{given}, last target "
                 f"{'corrected' if bits & 2 else 'sent as written'}, direction "
                 f"{'-' if bits & 4 else '+'}, last correction ")  # fmt: skip
         if name in rotary:

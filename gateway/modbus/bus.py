@@ -157,6 +157,9 @@ class Bus(ABC):
         self.reconnect_min_s = reconnect_min_s
         self.reconnect_max_s = reconnect_max_s
         self.counters = BusCounters()
+        #: unit id → transactions in a row it left unanswered (DriveTimeout); a unit leaves
+        #: at its next reply: a silent drive on a bus that is up (the status unit says so)
+        self.silent: dict[int, int] = {}
         self._queue = FairQueue()
         self._backoff_s = reconnect_min_s
         self._next_open_s = 0.0
@@ -281,6 +284,8 @@ class Bus(ABC):
                     self._after_timeout(final=True)
             if reply is not None:
                 self.counters.replies += 1
+                if self.silent:
+                    self.silent.pop(unit_id, None)
                 if timed_out:  # an earlier attempt may still be answered: a duplicate
                     self._after_timeout(final=True)
                 return reply
@@ -289,7 +294,12 @@ class Bus(ABC):
             self._after_timeout(final)
             log.debug("%s: unit %d FC%02d attempt %d timed out", self.name, unit_id, pdu[0],
                       attempt + 1)
+        self.unanswered(unit_id)
         raise DriveTimeout(f"{self.name}: unit {unit_id} did not answer FC{pdu[0]:02d}")
+
+    def unanswered(self, unit_id: int) -> None:
+        """Count a transaction ``unit_id`` left unanswered (every attempt timed out)."""
+        self.silent[unit_id] = self.silent.get(unit_id, 0) + 1
 
     async def _await_reply(self, unit_id: int, tid: int | None, pdu: bytes) -> bytes | None:
         """Receive until a matching reply or the attempt's deadline; drop the others."""

@@ -215,6 +215,7 @@ class TcpBus(Bus):
         log.debug("%s: unit %s FC%02d attempt 1 timed out", self.name, unit_id, pdu[0])
         if final:
             self._queue.release()
+            self.unanswered(unit_id)
             _deliver(done, None, DriveTimeout(
                 f"{self.name}: unit {unit_id} did not answer FC{pdu[0]:02d}"))
         else:
@@ -256,6 +257,8 @@ class TcpBus(Bus):
                     and response_matches(f_pdu, pdu):
                 self._fast = None
                 self.counters.replies += 1
+                if self.silent:
+                    self.silent.pop(f_unit, None)
                 queue = self._queue
                 if queue._lanes:
                     queue.release()  # the next transaction waiting in transact()
