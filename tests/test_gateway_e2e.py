@@ -298,6 +298,36 @@ def test_immediate_uses_the_partners_latest_target(tmp_path: Path):
     run(body())
 
 
+def test_a_partner_no_target_was_seen_of_is_read_from_its_drive(tmp_path: Path):
+    """A gateway started (no state file) with Y standing at 400 mm where an earlier run or
+    a jog left it: X's first target takes the plane's term at Y's place, read from Y's
+    drive (trial 8: it was left out, X 79-88 µm off until Y was moved once); Y's drive
+    silent: X's target is refused with the drive's 0x0B, never sent without it."""
+
+    async def body():
+        async with rig(tmp_path, with_planar("immediate"), XY_FILES) as r:
+            master, direct, chain = r["master"], r["direct"], r["chain"]
+            await move(direct, 2, 400_000)  # not through the gateway
+            assert await read32(direct, 2, FEEDBACK) == 400_000
+            await write_target(master, 1, 500_000)
+            bare = chain.command_pulses("X", {"X": AxisInput(500_000, 1)})
+            ex = chain.command_pulses("X", {"X": AxisInput(500_000, 1), "Y": AxisInput(400_000)})
+            assert ex == pytest.approx(bare - 58, abs=2)  # 0.145 µm per mm of Y
+            assert await read32(direct, 1, TARGET) == ex
+            assert not (await direct.write_register(2 * 8, 1, device_id=250)).isError()
+            rr = await master.write_registers(TARGET, list(pack_int32(510_000)), device_id=1)
+            assert rr.isError() and rr.exception_code == 0x0B
+            assert await read32(direct, 1, TARGET) == ex  # nothing sent
+            assert not (await direct.write_register(0x0804, 1, device_id=250)).isError()
+            await write_target(master, 2, 300_000)  # Y known from here: no read needed
+            assert not (await direct.write_register(2 * 8, 1, device_id=250)).isError()
+            await write_target(master, 1, 200_000)
+            inputs = {"X": AxisInput(200_000, 1), "Y": AxisInput(300_000, 1)}
+            assert await read32(direct, 1, TARGET) == chain.command_pulses("X", inputs)
+
+    run(body())
+
+
 @pytest.mark.parametrize(("upstream", "drives"), [("tcp", "rtu"), ("rtu", "rtu"), ("rtu", "tcp")])
 def test_same_results_over_rtu(tmp_path: Path, upstream: str, drives: str):
     """TCP→RTU(pty), RTU(pty)→RTU(pty), RTU→TCP: corrected out, nominal back, split writes."""
