@@ -209,12 +209,21 @@ class StatusRegister(Model):
     """The drive's status word. ``homed_bit``: compensation only while it is set.
     ``max_age_s``: how old a status word (seen in the master's polls or read by compgw)
     may be to decide "homed" at a target write; older, compgw reads it first (one more
-    drive transaction per move when the master does not poll the status)."""
+    drive transaction per move when the master does not poll the status).
+
+    ``in_position_bit``, ``moving_bit``, ``alarm_bit``: how compgw's own moves (calibrate,
+    commission) see a move end or a fault; the gateway does not use them. Given any of
+    them, the others unset mean the drive has no such bit; none given: bits 4, 2 and 0
+    (Leadshine's status word) without a ``profile``, the feedback alone with one whose
+    bits are not known."""
 
     address: Address
     table: Literal["holding", "input"] = "holding"
     homed_bit: Bit | None = None
     max_age_s: float = Field(default=0.5, ge=0.0, le=60.0)
+    in_position_bit: Bit | None = None
+    moving_bit: Bit | None = None
+    alarm_bit: Bit | None = None
 
 
 class TriggerRegister(Model):
@@ -712,6 +721,16 @@ def warnings(config: GatewayConfig) -> list[str]:
             )
         if not profile.verified:
             out.append(f"axes.{name}: profile {axis.profile} is unverified: check {profile.check}")
+        mine = axis.registers
+        for key in ("target", "feedback", "trigger"):
+            theirs = profile.axis["registers"].get(key) or {}
+            have = getattr(mine, key)
+            if have is not None and "address" in theirs and have.address != theirs["address"]:
+                out.append(f"axes.{name}.registers.{key}: address {have.address:#06x} where "
+                           f"the {axis.profile} profile has {theirs['address']:#06x}: a "
+                           "registers block left from another drive beside the profile? "
+                           "Remove it to take the profile's whole (README, \"Retrofit your "
+                           "machine\")")  # fmt: skip
     return out
 
 

@@ -389,6 +389,13 @@ def test_compgw_check_describes_the_trigger_shapes(tmp_path: Path):
     assert "trigger coil 0x0120 on value 0x1" in text
     assert "trigger 0x3100 on rising bit 4" in text
     assert [w.split(":")[0] for w in warnings(config)] == ["axes.Y", "axes.Z"]  # unverified
+    # a generated config's registers block left beside a profile (trial 8): said, per key
+    data["axes"]["Z"]["registers"] = {"target": {"address": 0x6201, "order": "hi_lo"}}
+    found = [w for w in warnings(parse_config(data)) if "registers" in w]
+    assert found == ["axes.Z.registers.target: address 0x6201 where the kinco-fd profile has "
+                     "0x4000: a registers block left from another drive beside the profile? "
+                     'Remove it to take the profile\'s whole (README, "Retrofit your '
+                     'machine")']  # fmt: skip
 
 
 def test_profiles_are_marked_with_their_sources():
@@ -397,3 +404,42 @@ def test_profiles_are_marked_with_their_sources():
         assert profile.check and profile.notes
     assert PROFILES[AZ].verified and not PROFILES[A6].verified
     assert PROFILES[A6].axis["registers"]["trigger"]["table"] == "coils"
+
+
+@pytest.mark.parametrize("name", sorted(PROFILES))
+def test_calibration_moves_every_profile_as_its_master_does(tmp_path: Path, name: str):
+    """compgw's own moves (calibrate, commission) on each drive family, through the gateway
+    to the sim's emulation: the start as the drive wants it (a coil, the 32-bit field, a bit
+    edge keeping the control word's other bits) and the end from the profile's status bits
+    or, where they are not known, the feedback (trial 8: Kinco never moved, its enable bits
+    written to 0 with the edge; Inovance waited 120 s on Leadshine's in-position bit 4)."""
+    from gateway.calibration.machine import Link, MachineDriver, MotionSettings
+
+    async def body():
+        async with rig(tmp_path, gateway_profile(name), {"x.csv": PITCH_X}, drives="rtu",
+                       sim_edit=sim_profile(name)) as r:
+            master, direct, chain = r["master"], r["direct"], r["chain"]
+            # what the machine's own master set up once: the rest of a block, the enable
+            if name in (AZ, A6):
+                await move(master, name, 1, 1_000)
+            if name == KINCO:
+                await ok(await master.write_register(KINCO_CONTROL, 0x2F, device_id=1))
+            link = Link("127.0.0.1", r["app"].tcp_port, timeout_s=2)
+            await link.connect()
+            try:
+                driver = MachineDriver(link, r["app"].config, MotionSettings(timeout_s=10))
+                feedback = regs(name)["feedback"]
+                for mm in (300.0, 120.5, 300.0):
+                    await driver.move({"X": mm})
+                    expected = chain.command_pulses("X", {"X": AxisInput(round(mm * 1000),
+                                                                         1 if mm > 200 else -1)})
+                    assert await read32(direct, 1, feedback["address"],
+                                        feedback["order"]) == expected  # fmt: skip
+                    assert await driver.feedback_pulses("X") == round(mm * 1000)
+            finally:
+                link.close()
+            if name == KINCO:  # the enable bits kept: the edge only
+                rr = await direct.read_holding_registers(KINCO_CONTROL, count=1, device_id=1)
+                assert rr.registers[0] & 0x0F == 0x0F
+
+    run(body())

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from gateway.calibration.commission_ident_text import identification_rows
+from gateway.calibration.commission_report import remains, verdict
 from gateway.calibration.iso230 import JSON_KEYS
 from gateway.calibration.plans import iso230_linear_plan
 from gateway.calibration.plans_xy import xy_grid_plan
@@ -173,3 +174,20 @@ def test_the_identification_reads_as_sentences_per_axis() -> None:
     assert turned["A"][0][1].endswith("(scatter of a point's readings 0.18″)"), turned
     text = " ".join(t for axis in rows.values() for _, t in axis if _ != "novel")
     assert "_um" not in text and "_K" not in text and "_s " not in text
+
+
+def test_the_verdict_is_never_within_beside_an_after_run_that_misses() -> None:
+    """Trial 8: "WITHIN 2 µm" printed beside the after-run's X E 2.74 µm (the rounds had
+    read within at their own random targets). The line says NOT within and what to do."""
+    summary = {"outcome": "within", "tolerance_um": 2.0, "xy": {"after": {"max_um": 1.62}},
+               "axes": {"X": {"after": {"E_um": 2.74}}, "Y": {"after": {"E_um": 1.67}}}}
+    line = verdict(summary)
+    assert line.startswith("NOT within 2 µm (X E 2.74 µm); what was fitted is loaded."), line
+    assert "a tighter --tolerance-um carries on" in line
+    summary["axes"]["X"]["after"]["E_um"] = 1.9
+    assert verdict(summary) == ("WITHIN 2 µm on every commissioned axis and the plane; the "
+                                "tables are loaded")
+    summary["outcome"] = "after"  # as commission now ends it
+    summary["axes"]["X"]["after"]["E_um"] = 2.74
+    assert verdict(summary).startswith("NOT within 2 µm (X E 2.74 µm)")
+    assert "did not" in remains(summary)[0]

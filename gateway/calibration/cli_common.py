@@ -15,6 +15,9 @@ from typing import TypeVar
 
 from ..config import GatewayConfig, load_config
 
+#: a drive status bit the command line did not give: the axis's config says (or the default)
+FROM_CONFIG = -1
+
 EXIT_OK, EXIT_BAD_INPUT, EXIT_USAGE, EXIT_RUNTIME = 0, 1, 2, 3
 
 T = TypeVar("T")

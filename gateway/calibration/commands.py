@@ -24,6 +24,7 @@ from .cli_common import (
     EXIT_BAD_INPUT,
     EXIT_OK,
     EXIT_RUNTIME,
+    FROM_CONFIG,
     err,
     load,
     progress_bar,
@@ -373,9 +374,13 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
                    help="what the gateway applies (recorded in the raw file; see above)")
     m.add_argument("--identify-config", metavar="OUT", help="write the identification config")
     m.add_argument("--park", action="append", metavar="AXIS=MM", help="move there first")
-    m.add_argument("--in-position-bit", type=int, default=4)
-    m.add_argument("--moving-bit", type=int, default=2)
-    m.add_argument("--alarm-bit", type=int, default=0)
+    m.add_argument("--in-position-bit", type=int, default=FROM_CONFIG,
+                   help="the drive status word's in-position bit (default: the axis's "
+                   "registers.status.in_position_bit, else 4)")
+    m.add_argument("--moving-bit", type=int, default=FROM_CONFIG,
+                   help="its moving bit (default: registers.status.moving_bit, else 2)")
+    m.add_argument("--alarm-bit", type=int, default=FROM_CONFIG,
+                   help="its alarm bit (default: registers.status.alarm_bit, else 0)")
     m.add_argument("--in-position-pulses", type=float, default=2.0)
     m.add_argument("--timeout-s", type=above(0, "s"), default=120.0, help="per move")
     m.add_argument("--no-progress", action="store_true")

@@ -21,7 +21,7 @@ from typing import Any
 from ..cli_args import above
 from ..compensation.errors import CompensationError, TableError
 from ..config import ConfigError, GatewayConfig, config_crc, load_config
-from .cli_common import progress_bar, until_stopped
+from .cli_common import FROM_CONFIG, progress_bar, until_stopped
 
 EXIT_OK, EXIT_NOT_MET, EXIT_USAGE, EXIT_RUNTIME = 0, 1, 2, 3
 
@@ -98,13 +98,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--estimate-stop-s", type=above(0, "s per reading"), default=2.0,
                    help="the plan's estimate of a stop per reading, settling and the "
                    "instrument's read (s, default 2)")
-    p.add_argument("--in-position-bit", type=int, default=4,
-                   help="the drive status word's in-position bit (default 4)")
-    p.add_argument("--moving-bit", type=int, default=2,
-                   help="the status word's moving bit (default 2)")
-    p.add_argument("--alarm-bit", type=int, default=0,
+    p.add_argument("--in-position-bit", type=int, default=FROM_CONFIG,
+                   help="the drive status word's in-position bit (default: each axis's "
+                   "registers.status.in_position_bit; none there: 4, or the feedback alone "
+                   "with a drive profile)")
+    p.add_argument("--moving-bit", type=int, default=FROM_CONFIG,
+                   help="the status word's moving bit (default: registers.status.moving_bit, "
+                   "as above: 2)")
+    p.add_argument("--alarm-bit", type=int, default=FROM_CONFIG,
                    help="the status word's alarm bit: set, the run stops and your config "
-                   "is put back (default 0)")
+                   "is put back (default: registers.status.alarm_bit, as above: 0)")
     p.add_argument("--in-position-pulses", type=float, default=2.0,
                    help="arrived when the feedback is within this of the target, and the "
                    "status bits (where the axis has a status word) agree (pulses, default 2)")

@@ -38,6 +38,7 @@ from ..modbus.frames import (
     pack_int32,
     unpack_int32,
 )
+from .cli_common import FROM_CONFIG
 
 #: Status bits of the sim's default (Leadshine-like) profile; override per run.
 DEFAULT_IN_POSITION_BIT = 4
@@ -196,6 +197,10 @@ class Link:
         reply = await self._ok(lambda: fn(address, count=count, device_id=unit), what)
         return list(reply.registers)
 
+    async def write_coil(self, unit: int, address: int, on: bool) -> None:
+        await self._ok(lambda: self.client.write_coil(address, on, device_id=unit),
+                       f"unit {unit} write coil {address:#06x}")  # fmt: skip
+
     async def write(self, unit: int, address: int, values: Sequence[int]) -> None:
         what = f"unit {unit} write {address:#06x}"
         if len(values) == 1:
@@ -233,11 +238,13 @@ class Links:
 
 @dataclass(frozen=True)
 class MotionSettings:
-    """How in-position is recognised: status bits of the drive, feedback tolerance, timeout."""
+    """How in-position is recognised: status bits of the drive, feedback tolerance, timeout.
+    A bit left at :data:`FROM_CONFIG` comes from the axis's ``registers.status``
+    (:meth:`MachineDriver.status_bits`); None: the drive has no such bit."""
 
-    in_position_bit: int | None = DEFAULT_IN_POSITION_BIT
-    moving_bit: int | None = DEFAULT_MOVING_BIT
-    alarm_bit: int | None = DEFAULT_ALARM_BIT
+    in_position_bit: int | None = FROM_CONFIG
+    moving_bit: int | None = FROM_CONFIG
+    alarm_bit: int | None = FROM_CONFIG
     in_position_pulses: float = 2.0
     timeout_s: float = 120.0
     poll_s: float = 0.005
@@ -277,15 +284,43 @@ class MachineDriver:
             self.on_move(name, position_mm)
 
     async def trigger(self, name: str) -> None:
+        """Start the move as the drive's trigger says: a coil switched on, a 32-bit field
+        written, a value written, or an edge of one bit of a control word whose other bits
+        are kept as they read (a servo-on input, a CiA 402 drive's enable bits: writing 0
+        then the bit alone switched those off, and a Kinco drive never moved)."""
         axis = self.axis(name)
         trig = axis.registers.trigger
         if trig is None:
             return  # the target write itself starts the move
-        if trig.rising_bit is not None:
-            await self.link.write(axis.upstream, trig.address, [0])
-            await self.link.write(axis.upstream, trig.address, [1 << trig.rising_bit])
+        unit = axis.upstream
+        if trig.table == "coils":
+            await self.link.write_coil(unit, trig.address, trig.value != 0)
+        elif trig.words == 2:
+            value = 1 if trig.value is None else trig.value
+            await self.link.write(unit, trig.address, list(pack_int32(value, trig.order)))
+        elif trig.rising_bit is not None:
+            word = (await self.link.read(unit, trig.address, 1, "holding"))[0]
+            bit = 1 << trig.rising_bit
+            await self.link.write(unit, trig.address, [word & ~bit & 0xFFFF])
+            await self.link.write(unit, trig.address, [word | bit])
         else:
-            await self.link.write(axis.upstream, trig.address, [trig.value or 0])
+            await self.link.write(unit, trig.address, [(trig.value or 0) & 0xFFFF])
+
+    def status_bits(self, name: str) -> tuple[int | None, int | None, int | None]:
+        """In-position, moving and alarm bits of axis ``name``'s status word: the command
+        line's where it gave them, else its config's ``registers.status`` where that gives
+        any (the others unset: the drive has none), else Leadshine's (4, 2, 0) without a
+        drive ``profile`` and none with one (the feedback alone says the move ended)."""
+        axis = self.axis(name)
+        status = axis.registers.status
+        given = (None if status is None else
+                 (status.in_position_bit, status.moving_bit, status.alarm_bit))  # fmt: skip
+        if given is None or given == (None, None, None):
+            given = ((DEFAULT_IN_POSITION_BIT, DEFAULT_MOVING_BIT, DEFAULT_ALARM_BIT)
+                     if axis.profile is None else (None, None, None))  # fmt: skip
+        s = self.settings
+        asked = (s.in_position_bit, s.moving_bit, s.alarm_bit)
+        return tuple(g if a == FROM_CONFIG else a for a, g in zip(asked, given))  # type: ignore[return-value]
 
     async def feedback_pulses(self, name: str) -> float:
         axis = self.axis(name)
@@ -299,23 +334,36 @@ class MachineDriver:
         want = self.pulses(name, position_mm)
         loop = asyncio.get_running_loop()
         deadline = loop.time() + s.timeout_s
+        in_position, moving, alarm = self.status_bits(name)
+        word: int | None = None
         while True:
             done = True
             status = axis.registers.status
             if status is not None:
                 word = (await self.link.read(axis.upstream, status.address, 1, status.table))[0]
-                if s.alarm_bit is not None and word >> s.alarm_bit & 1:
-                    raise MachineError(f"axis {name}: drive alarm (status {word:#06x})")
-                if s.in_position_bit is not None and not word >> s.in_position_bit & 1:
+                if alarm is not None and word >> alarm & 1:
+                    raise MachineError(f"axis {name}: drive alarm (status {word:#06x}, bit "
+                                       f"{alarm}: registers.status.alarm_bit)")  # fmt: skip
+                if in_position is not None and not word >> in_position & 1:
                     done = False
-                if s.moving_bit is not None and word >> s.moving_bit & 1:
+                if moving is not None and word >> moving & 1:
                     done = False
-            if done and abs(await self.feedback_pulses(name) - want) <= s.in_position_pulses:
+            at = await self.feedback_pulses(name)
+            if done and abs(at - want) <= s.in_position_pulses:
                 return
             if loop.time() > deadline:
+                unit = "°" if axis.rotary else " mm"
+                seen = "" if word is None else (
+                    f", status {word:#06x}: in-position bit {in_position} "
+                    f"{'set' if in_position is not None and word >> in_position & 1 else 'clear'}"
+                    + (f", moving bit {moving} {'set' if word >> moving & 1 else 'clear'}"
+                       if moving is not None else ""))  # fmt: skip
                 raise MachineError(
-                    f"axis {name}: not in position at {position_mm:g} mm after {s.timeout_s:g} s"
-                )
+                    f"axis {name}: not in position at {position_mm:g}{unit} after "
+                    f"{s.timeout_s:g} s (feedback at {at * axis.pulse_mm:g}{unit}{seen}): "
+                    "never moved? the drive switched on (servo on, enable bits) and its "
+                    "registers.trigger as it starts; at the target? registers.status's "
+                    "in_position_bit and moving_bit (or --in-position-bit, --moving-bit)")
             await asyncio.sleep(s.poll_s)
 
     async def still_at(self, targets_mm: Mapping[str, float]) -> None:
