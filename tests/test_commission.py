@@ -246,14 +246,25 @@ def test_commission_resumes_after_a_kill_even_in_a_sweep(template: Path, tmp_pat
         assert json.loads((out / "summary.json").read_text())["axes"]["X"]["after"]
 
 
+def _grid_rows(raw_dir: Path) -> list[str]:
+    return [ln for f in sorted(raw_dir.glob("xy-grid*.csv")) for ln in f.read_text().splitlines()
+            if ln[:2] in ("X,", "Y,")]  # fmt: skip
+
+
 def test_an_abort_leaves_the_gateway_on_your_config(template: Path, tmp_path: Path) -> None:
-    """Ctrl-C mid-run: exit 3, your config back in the file and loaded by the gateway (its
-    config generation moved on), the message says so; running again resumes."""
+    """Ctrl-C mid-run (in the plane's grid): exit 3, your config back in the file and
+    loaded by the gateway (its config generation moved on), the message says so; running
+    again resumes, and the grid carries on with the tables it began with, not under your
+    config (trial 8: a resumed grid read without them, round 1's plane 44 µm off)."""
     with running(template, tmp_path / "m") as rig:
         original = rig.config.read_text()
         state = rig.dir / "commission" / "commission.json"
+        raw_dir = rig.dir / "commission" / "raw"
         proc = rig.commission()
-        wait_for_steps(state, 2, proc)
+        deadline = time.monotonic() + 120
+        while len(_grid_rows(raw_dir)) < 8 and time.monotonic() < deadline:
+            assert proc.popen.poll() is None, proc.text()
+            time.sleep(0.005)
         proc.signal(signal.SIGINT)
         assert proc.popen.wait(timeout=60) == 3, proc.text()
         assert "SIGINT: stopping at the next reading" in proc.text()  # heard, and said
@@ -262,6 +273,19 @@ def test_an_abort_leaves_the_gateway_on_your_config(template: Path, tmp_path: Pa
         reloads = [ln for ln in rig.gw.lines if "reloaded" in ln]
         assert len(reloads) >= 2  # identification, then yours again
         assert json.loads(state.read_text())["phase"] == "original"
+        again = rig.commission()
+        wait_for_steps(state, len(json.loads(state.read_text())["steps"]) + 1, again)
+        again.kill()
+        steps = json.loads(state.read_text())["steps"]
+        assert "xy-grid" in steps, steps
+        # each node read twice (two runs): both with the pitch tables on, so alike (a
+        # run read under your config differs by the axes' own errors, tens of µm here)
+        dev: dict[tuple[str, str, str], list[float]] = {}
+        for row in _grid_rows(raw_dir):
+            axis, _, _, target, actual, _, x, y = row.split(",")
+            dev.setdefault((axis, x, y), []).append(1000 * (float(actual) - float(target)))
+        apart = max(max(v) - min(v) for v in dev.values())  # with the tables 1.6-1.7 µm,
+        assert len(dev) >= 10 and apart < 3.0, (apart, again.text())  # without 4.3 µm
 
 
 def test_a_config_the_gateway_does_not_run_is_refused_before_anything_moves(

@@ -410,6 +410,9 @@ class Steps(DriftRefs):
         raw = self.dir / "raw" / f"{name}.csv"
         if self.done(name):
             return raw
+        if self.state.get("phase") == "original":  # never read under the user's own config
+            raise RuntimeError(f"step {name}: the gateway runs your own config, not a "
+                               "commissioning phase (a bug in compgw: please report it)")
         plan_path = self.dir / "plans" / f"{name}.plan"
         if plan_path.exists():
             plan = read_plan(plan_path)
