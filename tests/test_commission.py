@@ -373,6 +373,9 @@ def test_a_device_that_does_not_answer_is_named_before_anything(
                  "id?"),
                 (("--xy-device", f"127.0.0.1:{free}:21"),
                  f"--xy-device 127.0.0.1:{free}:21: nothing answers there"),
+                (("--delta-a", f"127.0.0.1:{rig.gw_port}:10:1"),  # the gateway routes no 10
+                 f"--delta-a 127.0.0.1:{rig.gw_port}:10: unit 10 answered exception 0x0a "
+                 "(gateway path unavailable): is that the instrument's unit id?"),
                 (("--gateway", f"127.0.0.1:{free}"),
                  f"--gateway 127.0.0.1:{free}: nothing answers there; start the gateway "
                  f"first (compgw run -c {rig.config})")):  # fmt: skip
@@ -437,3 +440,21 @@ def test_your_config_changed_after_an_abort_is_taken_not_written_over(
                       "config is kept in commission/original.yaml\n" + config.read_text())
     job.adopt_edits()  # a crash's phase config: not the user's edit
     assert "travel_mm: [0.0, 50.0]" not in job.original_path.read_text()
+
+
+def test_a_pulse_a_round_factor_off_is_named_not_the_laser_channels() -> None:
+    """The laser follows the axis, 10 times as far as it was sent: the pulse equivalent, not
+    the channel order (trial 8: "give --laser-axes in the laser's channel order")."""
+    from gateway.calibration.commission_drift import DriftRefs
+    from gateway.calibration.machine import SetupError
+
+    fake = SimpleNamespace(_ref_positions=lambda axis: (10.0, 80.0),
+                           s=SimpleNamespace(instruments=SimpleNamespace(laser_axes=None)),
+                           config=SimpleNamespace(axes={"X": SimpleNamespace(pulse_mm=0.01)}))
+    with pytest.raises(SetupError, match=r"axis X moved 700.000 mm by the laser while it was "
+                       r"sent 70.000 mm: 10 times as far, so axes.X.pulse_mm 0.01 is likely "
+                       r"0.1 \(the drive's units per mm"):  # fmt: skip
+        DriftRefs._check_channel(fake, "X", ["X", "Y"], [0.0, 630.0])  # type: ignore[arg-type]
+    with pytest.raises(SetupError, match="give --laser-axes"):  # a channel that stood still
+        DriftRefs._check_channel(fake, "X", ["X", "Y"], [0.0, -70.0])  # type: ignore[arg-type]
+    DriftRefs._check_channel(fake, "X", ["X", "Y"], [0.0, 0.01])  # type: ignore[arg-type]

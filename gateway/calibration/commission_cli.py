@@ -316,7 +316,7 @@ def main(args: argparse.Namespace) -> int:
         finished = job.finished()
         if finished is None:
             if not args.dry_run:
-                asyncio.run(_answering(settings, config.status.upstream_unit, config_path))
+                asyncio.run(_answering(settings, config, config_path))
                 job.adopt_edits()  # (refused here, before anything would put a config back)
             job.print_plan()
     except (ConfigError, TableError, CompensationError, ValueError, OSError) as exc:
@@ -396,22 +396,33 @@ def main(args: argparse.Namespace) -> int:
     return EXIT_OK if summary["outcome"] == "within" else EXIT_NOT_MET
 
 
-async def _answering(settings: Any, status_unit: int, config_path: Path) -> None:
+async def _answering(settings: Any, config: GatewayConfig, config_path: Path) -> None:
     """Before anything is written or moved: the gateway answers at its status unit and the
-    laser, angle and XY instruments at theirs (one read of their first registers, over the
-    calibration's own :class:`.machine.Link`); a TableError naming the option otherwise. (A
-    wrong unit, a port nothing listens on or no gateway running were found at the first
-    reading, after the plan and a commission directory, as an abort.)"""
+    laser, angle, XY, Δa and temperature instruments at theirs (one read of their first
+    registers, a temperature sensor's as the config's first temperature source reads it,
+    over the calibration's own :class:`.machine.Link`); a TableError naming the option
+    otherwise. (A wrong unit, a port nothing listens on or no gateway running were found at
+    the first reading, after the plan and a commission directory, as an abort; a --delta-a
+    at a unit the gateway does not route, after a 44-minute warm-up.)"""
     from ..modbus.frames import EXCEPTION_NAMES
     from ..status import GENERATION_REGISTER
     from .machine import Link, MachineError
 
     ins = settings.instruments
-    devices = [("--gateway", settings.gateway, status_unit, GENERATION_REGISTER)] + [
-        (option, ep, ep.unit, ep.address or 0)
-        for option, ep in (("--laser", ins.laser), ("--angle", ins.angle),
-                           ("--xy-device", ins.xy)) if ep is not None]  # fmt: skip
-    for option, ep, unit, address in devices:
+    devices = [("--gateway", settings.gateway, config.status.upstream_unit,
+                GENERATION_REGISTER, "input", 2)] + [
+        (option, ep, ep.unit, ep.address or default, "input", 2)
+        for option, ep, default in (("--laser", ins.laser, 0), ("--angle", ins.angle, 0),
+                                    ("--xy-device", ins.xy, 0), ("--delta-a", ins.delta_a, 1))
+        if ep is not None]  # fmt: skip
+    if ins.temperature is not None:
+        source = next((s for s in config.thermal_sources.values()
+                       if s.kind == "temperature"), None)  # fmt: skip
+        if source is not None:
+            reg = source.source_register
+            devices.append(("--temperature", ins.temperature, ins.temperature.unit,
+                            reg.address, reg.table, reg.words))  # fmt: skip
+    for option, ep, unit, address, table, count in devices:
         gateway = option == "--gateway"
         named = f"{option} {ep.host}:{ep.port}" + ("" if gateway else f":{ep.unit}")
         link = Link(ep.host, ep.port)
@@ -423,7 +434,7 @@ async def _answering(settings: Any, status_unit: int, config_path: Path) -> None
                     f"; start the gateway first (compgw run -c {config_path})" if gateway
                     else "")) from None  # fmt: skip
             try:
-                await link.read(unit, address, 2, "input")
+                await link.read(unit, address, count, table)
             except MachineError as exc:
                 if exc.code is None:  # a timeout, a dropped connection
                     raise TableError(f"{named}: unit {unit} gives no reply ({exc})") from None
@@ -463,7 +474,7 @@ def _recheck(job: Any, settings: Any, config: GatewayConfig, config_path: Path) 
                          "--out for another directory)")  # fmt: skip
     if summary.get("xy") and settings.planar is None:
         print("the plane is not rechecked: give --xy-device to measure it too")
-    asyncio.run(_answering(settings, config.status.upstream_unit, config_path))
+    asyncio.run(_answering(settings, config, config_path))
     try:
         result = asyncio.run(until_stopped(recheck(job, summary)))
     except KeyboardInterrupt:

@@ -157,6 +157,16 @@ class DriftRefs:
         sent = x1 - x0
         seen = sent + devs_mm[1] - devs_mm[0]
         if abs(seen - sent) > 0.05 * abs(sent):
+            ratio = seen / sent if sent else 0.0
+            scale = next((k for k in (10.0, 0.1, 2.0, 0.5, 4.0, 0.25, 100.0, 0.01)
+                          if abs(ratio / k - 1.0) < 0.02), None)  # fmt: skip
+            if scale is not None:  # the laser followed, by a round factor: the pulse
+                pulse = self.config.axes[axis].pulse_mm
+                raise SetupError(
+                    f"axis {axis} moved {seen:.3f} mm by the laser while it was sent "
+                    f"{sent:.3f} mm: {ratio:.3g} times as far, so axes.{axis}.pulse_mm "
+                    f"{pulse:g} is likely {pulse * ratio:.3g} (the drive's units per mm, "
+                    "its electronic gear); fix it in the config and start again")  # fmt: skip
             given = (f"--laser-axes {','.join(order)}" if self.s.instruments.laser_axes
                      else f"the config's axis order {','.join(order)}; --laser-axes sets it")
             raise SetupError(f"the laser's reading for axis {axis} (channel "
