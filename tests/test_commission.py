@@ -159,6 +159,11 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
                 assert len({m.run for m in plan.moves}) == n, (r, a, n)
         report = (out / "report" / "report.html").read_text()
         assert "id='summary'" in report and "What remains" in report
+        # the figures as read beside the judged ones (trial 8: only on the terminal)
+        summ = json.loads((out / "summary.json").read_text())
+        x_read = summ["axes"]["X"]["after"]["E_read_um"]
+        assert "<th>E as read</th>" in report and f"→ {x_read:.2f}</td>" in report
+        assert "As read (the drift left in): " in report
         if doubled:
             assert "verified again with 4 runs" in report
         assert report.count("data:image/png;base64,") == 3  # X, Y, the XY field

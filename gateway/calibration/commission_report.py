@@ -201,16 +201,25 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
         rows.append(f"<tr><th>{html.escape(name)}</th><td>{_f(_fig(b, 'E'))}</td>"
                     f"<td>{_f(_fig(a, 'E'))}</td><td>{_cut(_fig(b, 'E'), _fig(a, 'E'))}</td>"
                     f"<td>{_f(_fig(b, 'A'))}</td><td>{_f(_fig(a, 'A'))}</td>"
-                    f"<td>{_f(_fig(a, 'R'))}</td><td>{entry.get('table_points', '–')}</td></tr>")
+                    f"<td>{_f(_fig(a, 'R'))}</td><td>{entry.get('table_points', '–')}</td>"
+                    f"<td>{_f(_fig(b, 'E_read'))} → {_f(_fig(a, 'E_read'))}</td></tr>")
     parts.append("<h2>Summary</h2><table id='summary'><tr><th>axis</th><th>E before</th>"
                  "<th>E after</th><th>E cut</th><th>A before</th><th>A after</th>"
-                 "<th>R after</th><th>table points</th></tr>" + "".join(rows) + "</table>")
+                 "<th>R after</th><th>table points</th><th>E as read</th></tr>"
+                 + "".join(rows) + "</table>"
+                 "<p>E, A and R judge the tables: the machine's drift while it was measured "
+                 "(read at the drift references) is taken off. <i>E as read</i> leaves it in: "
+                 "what the same targets read as they were read, and what <code>compgw "
+                 "commission --recheck</code> compares later. Far apart, the machine moved "
+                 "while measuring (heat): a thermal setting corrects that, not a table.</p>")
     xy = summary.get("xy") or {}
     if xy:
         b, a = xy.get("before", {}), xy.get("after", {})
+        read = (f" As read (the drift left in): {_f(b.get('max_read_um'))} → "
+                f"{_f(a.get('max_read_um'))} µm." if a.get("max_read_um") is not None else "")
         parts.append(f"<p id='summary-xy'>XY maximum vector error: {_f(b.get('max_um'))} µm "
                      f"before, {_f(a.get('max_um'))} µm after "
-                     f"({change_text(b['max_um'], a['max_um']) if b and a else '–'}).</p>")
+                     f"({change_text(b['max_um'], a['max_um']) if b and a else '–'}).{read}</p>")
     parts.append("<h2>What remains</h2><ul>" + "".join(
         f"<li>{html.escape(s)}</li>" for s in remains(summary)) + "</ul>")  # fmt: skip
     rrows = []

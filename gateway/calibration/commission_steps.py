@@ -232,9 +232,9 @@ class Steps(DriftRefs):
         if base is not None:
             if before is None:  # the chain broke (an abort restored your config): the last
                 drift = self.state.get("drift_last", drift)  # known drift carries on
-                if self.ref_axes():  # (rotary axes have none)
-                    self.state["notes"].append(f"drift references re-linked when {phase} "
-                                               "was loaded after an interruption")  # fmt: skip
+                note = f"drift references re-linked when {phase} was loaded after an interruption"
+                if self.ref_axes() and note not in self.state["notes"]:  # (rotary: none)
+                    self.state["notes"].append(note)
             else:
                 drift = {a: [before[a][k] - base["refs"][a][k] for k in (0, 1)]
                          for a in self.s.axes}  # fmt: skip
