@@ -702,6 +702,13 @@ def warnings(config: GatewayConfig) -> list[str]:
         out.append(f"upstream.tcp: plain Modbus/TCP on {up.tcp.host}:{up.tcp.port} beside "
                    "upstream.tls: anyone the allowlist lets in writes without a certificate; "
                    "leave it off or on loopback (README, \"Securing the gateway\")")  # fmt: skip
+    moving = [n for n, a in config.axes.items()
+              if a.compensation.thermal is not None and a.compensation.thermal.motion is not None]
+    if moving and config.state_file is None:
+        out.append(f"axes.{moving[0]}.compensation.thermal.motion without a state_file: a "
+                   "restart of the gateway forgets the heat in the screw and corrects a warm "
+                   "machine as a cold one until it has cooled; set state_file (README, "
+                   "\"Configuration\")")  # fmt: skip
     for name, axis in config.axes.items():
         unit_mm = axis.pulse_mm / axis.command_scale
         if corrects(config, name) and not axis.rotary and unit_mm > COARSE_UNIT_MM:

@@ -253,3 +253,16 @@ def test_a_required_key_misspelt_is_said_beside_its_absence():
         parse_config(data, source="gw.yaml")
     assert str(info.value) == ("gw.yaml: axes.X.travel_mm: missing (required); 'travel_mmm' "
                                "beside it is no key (a typo?)")  # fmt: skip
+
+
+def test_check_warns_of_heat_from_motion_without_a_state_file():
+    """Trial 8: restarted without one, a warm machine read 13 µm where it had read 2.7."""
+    data = copy.deepcopy(BASE)
+    data["axes"]["X"]["compensation"]["thermal"] = {
+        "motion": {"delta_a_um_per_m": 1.0, "tau_s": 600, "speeds_mm_s": {"X": 100}},
+        "length_mm": 800}
+    found = [w for w in warnings(parse_config(copy.deepcopy(data))) if "state_file" in w]
+    assert len(found) == 1 and found[0].startswith(
+        "axes.X.compensation.thermal.motion without a state_file: a restart")
+    data["state_file"] = "run/state.json"
+    assert not [w for w in warnings(parse_config(data)) if "state_file" in w]
