@@ -149,8 +149,9 @@ def test_the_identification_reads_as_sentences_per_axis() -> None:
     }
     rows = identification_rows(ident)
     z = dict(rows.pop("Z"))
-    assert z["heat from motion"].endswith("to 0.31 µm RMS: Δa 1.01 µm per metre of heat, "
-                                          "time constant 403 s"), z  # fmt: skip
+    assert ("to 0.31 µm RMS: Δa 1.01 µm per metre of heat, time constant 403 s; the growth "
+            "spread evenly from the fixed end") in z["heat from motion"], z
+    assert z["heat from motion"].endswith("a Δa sensor (--delta-a) measures where it grows")
     assert list(rows) == ["X", "Y", "A"]
     x = dict(rows["X"])
     assert x["backlash"] == "2.58 µm at most (at three places: 1.89, 2.58, 1.73 µm)"

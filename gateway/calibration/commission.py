@@ -159,7 +159,8 @@ class Commission(CommandChecks):
         if found.lead_mm:
             self.s.lead_mm[axis] = found.lead_mm
             self.say(f"{axis}: a periodic error of {found.amplitude_um:.2f} µm every "
-                     f"{found.lead_mm:g} mm: the lead; the cyclic stage follows it")  # fmt: skip
+                     f"{found.lead_mm:g} mm, taken as the screw's lead (--lead-mm gives it "
+                     "where you know it); the cyclic stage follows it")  # fmt: skip
         else:
             self.say(f"{axis}: no periodic error stands out of the noise: no cyclic stage")
         self._save()
