@@ -413,7 +413,7 @@ def test_calibration_moves_every_profile_as_its_master_does(tmp_path: Path, name
     edge keeping the control word's other bits) and the end from the profile's status bits
     or, where they are not known, the feedback (trial 8: Kinco never moved, its enable bits
     written to 0 with the edge; Inovance waited 120 s on Leadshine's in-position bit 4)."""
-    from gateway.calibration.machine import Link, MachineDriver, MotionSettings
+    from gateway.calibration.machine import Link, MachineDriver, MachineError, MotionSettings
 
     async def body():
         async with rig(tmp_path, gateway_profile(name), {"x.csv": PITCH_X}, drives="rtu",
@@ -422,11 +422,17 @@ def test_calibration_moves_every_profile_as_its_master_does(tmp_path: Path, name
             # what the machine's own master set up once: the rest of a block, the enable
             if name in (AZ, A6):
                 await move(master, name, 1, 1_000)
-            if name == KINCO:
-                await ok(await master.write_register(KINCO_CONTROL, 0x2F, device_id=1))
             link = Link("127.0.0.1", r["app"].tcp_port, timeout_s=2)
             await link.connect()
             try:
+                if name == KINCO:  # not switched on: it never moves, and the error says so
+                    brief = MachineDriver(link, r["app"].config, MotionSettings(timeout_s=0.3))
+                    with pytest.raises(MachineError, match=r"not in position at 5 mm after "
+                                       r"0.3 s \(feedback at 0 mm, status 0x[0-9a-f]{4}, "
+                                       r"in-position bit 10 set\): never moved\? the drive "
+                                       r"switched on"):  # fmt: skip
+                        await brief.move({"X": 5.0})
+                    await ok(await master.write_register(KINCO_CONTROL, 0x2F, device_id=1))
                 driver = MachineDriver(link, r["app"].config, MotionSettings(timeout_s=10))
                 feedback = regs(name)["feedback"]
                 for mm in (300.0, 120.5, 300.0):

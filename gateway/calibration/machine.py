@@ -348,16 +348,16 @@ class MachineDriver:
                     done = False
                 if moving is not None and word >> moving & 1:
                     done = False
-            at = await self.feedback_pulses(name)
-            if done and abs(at - want) <= s.in_position_pulses:
+            if done and abs(await self.feedback_pulses(name) - want) <= s.in_position_pulses:
                 return
             if loop.time() > deadline:
+                at = await self.feedback_pulses(name)
                 unit = "°" if axis.rotary else " mm"
-                seen = "" if word is None else (
-                    f", status {word:#06x}: in-position bit {in_position} "
-                    f"{'set' if in_position is not None and word >> in_position & 1 else 'clear'}"
-                    + (f", moving bit {moving} {'set' if word >> moving & 1 else 'clear'}"
-                       if moving is not None else ""))  # fmt: skip
+                bits = [(f"{what} bit {b} {'set' if word >> b & 1 else 'clear'}")
+                        for what, b in (("in-position", in_position), ("moving", moving))
+                        if b is not None and word is not None]  # fmt: skip
+                seen = "" if word is None else f", status {word:#06x}" + "".join(
+                    f", {b}" for b in bits)  # fmt: skip
                 raise MachineError(
                     f"axis {name}: not in position at {position_mm:g}{unit} after "
                     f"{s.timeout_s:g} s (feedback at {at * axis.pulse_mm:g}{unit}{seen}): "
