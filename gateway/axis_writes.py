@@ -302,7 +302,8 @@ class AxisWrites:
         if not (state.enabled and homed):  # sent as written, but the screw heats all the same
             self._swept(name, nominal)
             return nominal * axis_cfg.command_scale, False, motion
-        inputs = {name: AxisInput(nominal, motion.engagement, self._delta_a(name, nominal))}
+        delta_a = self._delta_a(name, nominal)
+        inputs = {name: AxisInput(nominal, motion.engagement, delta_a)}
         partner = setup.planar_partner(name)
         if partner is not None:
             other = self._axes[partner].state
@@ -316,8 +317,21 @@ class AxisWrites:
                 )
             elif partner_seen is not None:
                 inputs[partner] = AxisInput(partner_seen)
+        scale = axis_cfg.command_scale
         try:
-            command = setup.chain.command_pulses(name, inputs, axis_cfg.command_scale)
+            command = setup.chain.command_pulses(name, inputs, scale)
+            last = state.last_command_units
+            if last is not None and command != last and (command > last) != (motion.direction > 0):
+                # the motor turns against the nominal move (a target sent again whose
+                # correction went back: the partner moved, the screw grew): the nut turns
+                # through its play, corrected as a reversal (trial 9: Y sent 400 again
+                # after X moved, 7.2 µm back in command, stayed 7.1 µm off in the play)
+                turned = chain_axis.turned(state.motion, nominal, -motion.direction,
+                                           abs(command - last) * axis_cfg.pulse_mm / scale)
+                inputs[name] = AxisInput(nominal, turned.engagement, delta_a)
+                again = setup.chain.command_pulses(name, inputs, scale)
+                if again != last and (again > last) == (turned.direction > 0):
+                    command, motion = again, turned
             self._swept(name, nominal)  # after: this move heats what comes next
             return command, True, motion
         except CorrectionLimitError as exc:

@@ -298,6 +298,34 @@ def test_immediate_uses_the_partners_latest_target(tmp_path: Path):
     run(body())
 
 
+def test_a_target_sent_again_whose_command_goes_back_is_a_reversal(tmp_path: Path):
+    """Y at 300 mm approached +; X moves 800 mm, the plane's Y error there is 16 µm: Y sent
+    300 mm again goes 16 µm back in command, through the nut's play, so it is corrected as
+    a reversal (−B/2 of Y's 10 µm backlash), and forward again when X comes back (trial 9:
+    it kept the + flank, and Y stood 7.1 µm off in the play with its feedback at 400.000)."""
+
+    async def body():
+        async with rig(tmp_path, with_planar("immediate"), XY_FILES) as r:
+            master, direct, chain = r["master"], r["direct"], r["chain"]
+            await move(master, 1, 0)
+            await move(master, 2, 300_000)
+            up = chain.command_pulses("Y", {"Y": AxisInput(300_000, 1), "X": AxisInput(0)})
+            assert await read32(direct, 2, TARGET) == up
+            await move(master, 1, 800_000)
+            await move(master, 2, 300_000)  # the same target, sent again
+            back = chain.command_pulses("Y", {"Y": AxisInput(300_000, -1),
+                                              "X": AxisInput(800_000)})  # fmt: skip
+            assert await read32(direct, 2, TARGET) == back == up - 16 - 10
+            assert await read32(master, 2, FEEDBACK) == 300_000
+            await move(master, 1, 0)
+            await move(master, 2, 300_000)
+            assert await read32(direct, 2, TARGET) == up  # forward again: the + flank
+            await move(master, 2, 300_000)  # nothing changed: nothing turns
+            assert await read32(direct, 2, TARGET) == up
+
+    run(body())
+
+
 def test_a_partner_no_target_was_seen_of_is_read_from_its_drive(tmp_path: Path):
     """A gateway started (no state file) with Y standing at 400 mm where an earlier run or
     a jog left it: X's first target takes the plane's term at Y's place, read from Y's

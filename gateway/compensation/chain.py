@@ -113,6 +113,12 @@ class AxisChain:
         """The axis's motion state after a move to ``target_pulses`` (nominal)."""
         return motion.approach(target_pulses, self.takeup, self.pulse_mm)
 
+    def turned(self, motion: MotionState, target_pulses: int, direction: int,
+               moved_mm: float) -> MotionState:  # fmt: skip
+        """The motion state after the motor moved ``moved_mm`` in ``direction`` to reach
+        nominal ``target_pulses`` (:meth:`MotionState.turned`)."""
+        return motion.turned(direction, target_pulses, moved_mm, self.takeup)
+
     # -- vectorised ---------------------------------------------------------------------
     def command_mm(
         self, target_mm: ArrayLike, direction: ArrayLike, delta_a_mm: float = 0.0

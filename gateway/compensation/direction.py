@@ -1,7 +1,9 @@
 """Direction of motion of an axis, decided from successive nominal targets.
 
 Backlash and bidirectional tables need the direction of the *approach* to a target. It is
-the sign of (new target − previous target); a repeated target keeps the previous direction.
+the sign of (new target − previous target); a repeated target keeps the previous direction,
+unless its command goes the other way (:meth:`MotionState.turned`: the gateway decides that
+from the commands it sends).
 Before the first target after homing, the direction is ``home_direction`` from config,
 because homing decides which flank of the nut is engaged.
 
@@ -47,5 +49,16 @@ class MotionState:
         if takeup is None:
             return MotionState(direction, target_pulses)
         moved_mm = abs(target_pulses - last) * pulse_mm
+        return MotionState(direction, target_pulses,
+                           takeup.advance(self.engagement, direction, moved_mm))  # fmt: skip
+
+    def turned(self, direction: int, target_pulses: int, moved_mm: float,
+               takeup: TakeUpCurve | None = None) -> MotionState:  # fmt: skip
+        """The state after the motor moved ``moved_mm`` in ``direction`` to reach nominal
+        ``target_pulses``, whatever the nominal move says: a target sent again (or moved
+        less than its correction changed) whose command goes the other way, because the
+        plane's partner moved or the screw grew, turns the nut through its play."""
+        if takeup is None:
+            return MotionState(direction, target_pulses)
         return MotionState(direction, target_pulses,
                            takeup.advance(self.engagement, direction, moved_mm))  # fmt: skip
