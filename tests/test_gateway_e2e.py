@@ -298,6 +298,24 @@ def test_immediate_uses_the_partners_latest_target(tmp_path: Path):
     run(body())
 
 
+def test_the_first_move_after_a_start_takes_its_direction_from_where_the_axis_stands(
+        tmp_path: Path) -> None:  # fmt: skip
+    """No state file, Y left at 300 mm (an earlier run, a jog): its first move, to 100 mm, is
+    a − move and arrives on the − flank of its 10 µm play (trial 9: taken as home_direction
+    +, it landed 8.7 µm off); a drive that cannot say where it stands: home_direction."""
+
+    async def body():
+        async with rig(tmp_path, with_pitch, {"x.csv": PITCH_X}) as r:
+            master, direct, chain = r["master"], r["direct"], r["chain"]
+            await move(direct, 2, 300_000)  # not through the gateway
+            await move(master, 2, 100_000)
+            assert await read32(direct, 2, TARGET) == chain.command_pulses(
+                "Y", {"Y": AxisInput(100_000, -1)}) == 100_000 - 5  # fmt: skip
+            assert await read32(master, 2, FEEDBACK) == 100_000
+
+    run(body())
+
+
 def test_a_target_sent_again_whose_command_goes_back_is_a_reversal(tmp_path: Path):
     """Y at 300 mm approached +; X moves 800 mm, the plane's Y error there is 16 µm: Y sent
     300 mm again goes 16 µm back in command, through the nut's play, so it is corrected as
