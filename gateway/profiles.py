@@ -34,6 +34,9 @@ class DriveProfile:
     axis: dict[str, Any] = field(default_factory=dict)
     eeprom: Eeprom = field(default_factory=lambda: Eeprom(False, ""))
     notes: str = ""
+    #: what the machine's own master must have done before compgw moves the drive itself
+    #: (calibrate, commission write only the target and the start)
+    before_moves: str = ""
 
     def defaults(self) -> dict[str, Any]:
         """A fresh copy of the axis defaults (to be overridden by the user's keys)."""
@@ -66,6 +69,7 @@ PROFILES: dict[str, DriveProfile] = {
                 writes_eeprom_by_default=False,
                 ram_setting="none needed: writes stay in RAM unless saved (0x1801 = 0x2211)",
             ),
+            before_moves=("PR mode with path 0 absolute (0x6200 = 1), the drive enabled"),
             notes="An 8-word FC16 at 0x6200 whose last word is 0x10 sets and starts a move "
             "(configure trigger address 0x6207 for that style). Reading 0x6002 back after a "
             "move is unreliable: completion comes from the status word or the position.",
@@ -93,6 +97,8 @@ PROFILES: dict[str, DriveProfile] = {
                 writes_eeprom_by_default=True,
                 ram_setting="H0C.13 = 0 (address 0x0C0D): bus writes to RAM only",
             ),
+            before_moves=("servo on and the position-start function mapped to virtual input bit "
+                          "4 (H0C.09 = 1, H17), segment 1 absolute"),
             notes="No trigger register: writing H31.00 (0x3100) with bit 4 going 0→1 (e.g. 1 "
             "= servo on, then 17) starts segment 1 once H17 maps it. For encoder feedback "
             "use H0B.17 (0x0B11) with counts_per_pulse = encoder counts per command pulse.",
@@ -120,6 +126,7 @@ PROFILES: dict[str, DriveProfile] = {
                 "not saved to EEPROM",
                 verified=False,
             ),
+            before_moves=("PR#1 defined as an absolute move (P6-02 at 0x0604), servo on"),
             notes="P5-07 reads 20000+PR# when the path is done. No homed bit is known: "
             "compensation is applied whenever enabled.",
         ),
@@ -150,6 +157,8 @@ PROFILES: dict[str, DriveProfile] = {
                 "are not saved (check the manual's non-volatile memory section)",
                 verified=False,
             ),
+            before_moves=("the 16-register block at 0x0058 written once by your master: "
+                          "operation type 1 (absolute), speed, rates, current"),
             notes="The master writes one FC16 of 16 registers at 0x0058 holding the target "
             "and the trigger: compgw corrects the target inside it and sends it as one "
             "write. Use operation type 1 (absolute): an incremental move (2, 3) would be "
@@ -181,6 +190,8 @@ PROFILES: dict[str, DriveProfile] = {
                 "in RAM",
                 verified=False,
             ),
+            before_moves=("block 0's command 2 (absolute) at 0x4800, block 0 selected (0x4414 = "
+                          "0), servo on (SRV-ON)"),
             notes="The start is the coil STB (FC05 ON to 0x0120, or FC15 covering it): "
             "compgw writes the corrected target, then forwards the coil write. Only block 0 "
             "is corrected (select it in 0x4414; for block n set target to 0x4802 + 4n). "
@@ -214,6 +225,8 @@ PROFILES: dict[str, DriveProfile] = {
                 "command",
                 verified=False,
             ),
+            before_moves=("profile position mode (0x3500 = 1) and the drive switched on "
+                          "(control word 0x3100 = 0x2F)"),
             notes="The start is a 0->1 edge of the control word's new-set-point bit 4 "
             "(0x2F -> 0x3F): compgw commits the corrected target before forwarding it. Use "
             "absolute moves: a relative one (0x4F -> 0x5F) would be corrected as a position.",

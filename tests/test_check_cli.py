@@ -247,3 +247,23 @@ def test_check_warns_of_a_baud_rate_no_device_offers(tmp_path: Path):
     assert ("compgw check: warning: upstream.rtu.baudrate: 11520 is no standard rate "
             "(9600, 19200, 38400, 57600, 115200, …): a typo?") in out.stderr, out.stderr
     assert "buses." not in out.stderr  # the example's TCP buses have no baud rate
+
+
+def test_commission_refuses_a_drive_that_writes_its_eeprom_on_every_bus_write(tmp_path: Path):
+    """Trial 9: an Inovance drive left writing EEPROM took 1849 and 2014 writes in one
+    commissioning. Refused in one line, before anything is asked or moved."""
+    data = copy.deepcopy(BASE)
+    x = data["axes"]["X"]
+    x.pop("registers", None)
+    x["profile"] = "inovance-sv660p"
+    path = tmp_path / "gw.yaml"
+    path.write_text(yaml.safe_dump(data))
+    out = _compgw("commission", "-c", path, "--gateway", "127.0.0.1:1",
+                  "--laser", "127.0.0.1:1:20")  # fmt: skip
+    assert out.returncode == 1, out
+    assert out.stderr.splitlines() == [
+        "compgw commission: axes.X: the inovance-sv660p drive writes every bus write to EEPROM "
+        "by default, and commissioning writes thousands of targets: keep them in RAM on the "
+        "drive (H0C.13 = 0 (address 0x0C0D): bus writes to RAM only), then set "
+        "ram_setting_applied: true in the config"], out.stderr  # fmt: skip
+    assert not (tmp_path / "commission").exists()

@@ -429,8 +429,10 @@ def test_calibration_moves_every_profile_as_its_master_does(tmp_path: Path, name
                     brief = MachineDriver(link, r["app"].config, MotionSettings(timeout_s=0.3))
                     with pytest.raises(MachineError, match=r"not in position at 5 mm after "
                                        r"0.3 s \(feedback at 0 mm, status 0x[0-9a-f]{4}, "
-                                       r"in-position bit 10 set\): never moved\? the drive "
-                                       r"switched on"):  # fmt: skip
+                                       r"in-position bit 10 set\): never moved\? a kinco-fd "
+                                       r"drive needs profile position mode \(0x3500 = 1\) and "
+                                       r"the drive switched on \(control word 0x3100 = "
+                                       r"0x2F\)"):  # fmt: skip
                         await brief.move({"X": 5.0})
                     await ok(await master.write_register(KINCO_CONTROL, 0x2F, device_id=1))
                 driver = MachineDriver(link, r["app"].config, MotionSettings(timeout_s=10))

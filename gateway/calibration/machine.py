@@ -358,11 +358,16 @@ class MachineDriver:
                         if b is not None and word is not None]  # fmt: skip
                 seen = "" if word is None else f", status {word:#06x}" + "".join(
                     f", {b}" for b in bits)  # fmt: skip
+                ready = ("the drive switched on (servo on, enable bits) and its "
+                         "registers.trigger as it starts")  # fmt: skip
+                if axis.profile is not None:
+                    from ..profiles import PROFILES
+
+                    ready = f"a {axis.profile} drive needs {PROFILES[axis.profile].before_moves}"
                 raise MachineError(
                     f"axis {name}: not in position at {position_mm:g}{unit} after "
                     f"{s.timeout_s:g} s (feedback at {at * axis.pulse_mm:g}{unit}{seen}): "
-                    "never moved? the drive switched on (servo on, enable bits) and its "
-                    "registers.trigger as it starts; at the target? registers.status's "
+                    f"never moved? {ready}; at the target? registers.status's "
                     "in_position_bit and moving_bit (or --in-position-bit, --moving-bit)")
             await asyncio.sleep(s.poll_s)
 
