@@ -267,3 +267,8 @@ def test_commission_refuses_a_drive_that_writes_its_eeprom_on_every_bus_write(tm
         "drive (H0C.13 = 0 (address 0x0C0D): bus writes to RAM only), then set "
         "ram_setting_applied: true in the config"], out.stderr  # fmt: skip
     assert not (tmp_path / "commission").exists()
+    out = _compgw("calibrate", "-c", path, "--iso", "X", "--gateway", "127.0.0.1:1",
+                  "--laser", "127.0.0.1:1:20", "--raw", tmp_path / "raw.csv")  # fmt: skip
+    assert out.returncode != 0 and "axes.X: the inovance-sv660p drive writes every bus write " \
+        "to EEPROM by default, and a calibration writes thousands" in out.stderr, out
+    assert not (tmp_path / "raw.csv").exists()

@@ -9,7 +9,7 @@ from __future__ import annotations
 import asyncio
 import signal
 import sys
-from collections.abc import Awaitable
+from collections.abc import Awaitable, Sequence
 from pathlib import Path
 from typing import TypeVar
 
@@ -100,3 +100,23 @@ async def until_stopped(work: Awaitable[T]) -> T:
     if stop.asked:
         raise KeyboardInterrupt
     return result
+
+
+def refuse_eeprom_wear(config: GatewayConfig, axes: Sequence[str], who: str) -> None:
+    """A drive that writes every bus write to EEPROM by default, not declared set to RAM
+    (``ram_setting_applied``), is refused (a TableError naming the axis): ``who``
+    (commissioning, a calibration) writes thousands of targets (trial 9: 1849 and 2014 EEPROM
+    writes on two Inovance drives in one commissioning)."""
+    from ..compensation.errors import TableError
+    from ..profiles import PROFILES
+
+    for a in axes:
+        axis = config.axes[a]
+        if axis.profile is None or axis.ram_setting_applied:
+            continue
+        eeprom = PROFILES[axis.profile].eeprom
+        if eeprom.writes_eeprom_by_default:
+            raise TableError(f"axes.{a}: the {axis.profile} drive writes every bus write to "
+                             f"EEPROM by default, and {who} writes thousands of targets: "
+                             f"keep them in RAM on the drive ({eeprom.ram_setting}), then set "
+                             "ram_setting_applied: true in the config")  # fmt: skip

@@ -28,6 +28,7 @@ from .cli_common import (
     err,
     load,
     progress_bar,
+    refuse_eeprom_wear,
     until_stopped,
 )
 
@@ -185,6 +186,11 @@ def calibrate(
 
     try:
         config, config_dir = load(args.config)
+        moved = [a for a in (args.iso, args.backlash, args.takeup, args.cyclic, args.warmup)
+                 if isinstance(a, str) and a in config.axes]  # fmt: skip
+        if args.xy or args.plan:
+            moved = list(config.axes)
+        refuse_eeprom_wear(config, moved, "a calibration")
         if args.identify_config:
             from ..formats import atomic_write_text
 

@@ -21,7 +21,7 @@ from typing import Any
 from ..cli_args import above
 from ..compensation.errors import CompensationError, TableError
 from ..config import ConfigError, GatewayConfig, config_crc, load_config
-from .cli_common import FROM_CONFIG, progress_bar, until_stopped
+from .cli_common import FROM_CONFIG, progress_bar, refuse_eeprom_wear, until_stopped
 
 EXIT_OK, EXIT_NOT_MET, EXIT_USAGE, EXIT_RUNTIME = 0, 1, 2, 3
 
@@ -247,7 +247,7 @@ def main(args: argparse.Namespace) -> int:
         config = load_config(config_path)
         _loads_whole(config, config_path)
         axes = tuple(args.axes.split(",")) if args.axes else tuple(config.axes)
-        _no_eeprom_wear(config, [a for a in axes if a in config.axes])
+        refuse_eeprom_wear(config, [a for a in axes if a in config.axes], "commissioning")
         for a in axes:
             if a not in config.axes:
                 raise TableError(f"--axes: {a!r} is not an axis of {config_path} "
@@ -447,24 +447,6 @@ async def _answering(settings: Any, config: GatewayConfig, config_path: Path) ->
                                  f"{hint}") from None  # fmt: skip
         finally:
             link.close()
-
-
-def _no_eeprom_wear(config: GatewayConfig, axes: Sequence[str]) -> None:
-    """A drive that writes every bus write to EEPROM by default, not declared set to RAM
-    (``ram_setting_applied``), is refused: commissioning writes thousands of targets (trial
-    9: 1849 and 2014 EEPROM writes on two Inovance drives in one commissioning)."""
-    from ..profiles import PROFILES
-
-    for a in axes:
-        axis = config.axes[a]
-        if axis.profile is None or axis.ram_setting_applied:
-            continue
-        eeprom = PROFILES[axis.profile].eeprom
-        if eeprom.writes_eeprom_by_default:
-            raise TableError(f"axes.{a}: the {axis.profile} drive writes every bus write to "
-                             "EEPROM by default, and commissioning writes thousands of targets: "
-                             f"keep them in RAM on the drive ({eeprom.ram_setting}), then set "
-                             "ram_setting_applied: true in the config")  # fmt: skip
 
 
 def _loads_whole(config: GatewayConfig, path: Path) -> None:
