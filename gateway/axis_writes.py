@@ -94,6 +94,14 @@ class AxisWrites:
                 words = req.values[index : index + len(target_offsets)]
                 runtime.state.write_words(first, list(words))
             verdict = self._judge(runtime, axis, req) if trigger_hit else _NO_TRIGGER
+            if verdict.relative:
+                assert axis.registers.trigger is not None
+                log.warning("axis %s: a relative move refused (trigger bit %d)", name,
+                            axis.registers.trigger.relative_bit)  # fmt: skip
+                raise ModbusError(f"axis {name}: a relative move (trigger bit "
+                                  f"{axis.registers.trigger.relative_bit}) is refused: compgw "
+                                  "corrects positions, not distances; use absolute moves",
+                                  ILLEGAL_DATA_VALUE)  # fmt: skip
             try:
                 if verdict.fires:
                     reply = await self._trigger_write(setup, name, axis, req, pdu)

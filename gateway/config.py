@@ -237,6 +237,10 @@ class TriggerRegister(Model):
     ``home_value``: a write of this value starts the drive's homing; the gateway forwards
     it and then takes the next move as the first after homing (``home_direction``), since
     the axis no longer stands at its last target.
+
+    ``relative_bit``: a start with this bit of the trigger word set is a relative move (a
+    distance, not a position: Kinco's 0x4F → 0x5F): refused with exception 0x03, since a
+    correction added to a distance lands nowhere meant.
     """
 
     address: Address
@@ -246,6 +250,7 @@ class TriggerRegister(Model):
     value: Annotated[int, in_range(-(2**31), 2**32 - 1)] | None = None
     rising_bit: Bit | None = None
     home_value: Annotated[int, in_range(-(2**31), 2**32 - 1)] | None = None
+    relative_bit: Bit | None = None
 
     @model_validator(mode="after")
     def _one_rule(self) -> TriggerRegister:

@@ -214,7 +214,7 @@ PROFILES: dict[str, DriveProfile] = {
                     # bit 10 target reached, bit 3 fault (CiA 402); no "moving" bit
                     "status": {"address": 0x3200, "table": "holding", "homed_bit": 15,
                                "in_position_bit": 10, "alarm_bit": 3},
-                    "trigger": {"address": 0x3100, "rising_bit": 4},
+                    "trigger": {"address": 0x3100, "rising_bit": 4, "relative_bit": 6},
                 },
                 "fc16_max_words": 123,
                 "min_silence_s": 0.0,

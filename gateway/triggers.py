@@ -47,6 +47,8 @@ class Verdict:
     fires: bool
     homes: bool
     shadow: TriggerShadow = field(default_factory=TriggerShadow)
+    #: the start is a relative move (``relative_bit`` set): refused
+    relative: bool = False
 
 
 def writes_trigger(rule: TriggerRegister | None, fc: int, start: int, count: int) -> bool:
@@ -80,4 +82,5 @@ def judge(rule: TriggerRegister, shadow: TriggerShadow, req: Request) -> Verdict
     else:
         fires = rule.value is None or value == rule.value & mask
     homes = rule.home_value is not None and value == rule.home_value & mask
-    return Verdict(fires, homes, TriggerShadow((words[0], words[1]), value))
+    relative = fires and rule.relative_bit is not None and bool(value >> rule.relative_bit & 1)
+    return Verdict(fires, homes, TriggerShadow((words[0], words[1]), value), relative)

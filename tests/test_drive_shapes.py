@@ -146,6 +146,13 @@ def test_moves_land_on_the_corrected_target_and_read_back_nominal(tmp_path: Path
                 await start(master, name, 2, other_form=True)
                 corrected = chain.command_pulses("Y", {"Y": AxisInput(50_000, -1)})
                 expected["Y"].append((50_000, corrected))
+            if name == KINCO:  # a relative move (0x4F → 0x5F): a distance, refused (it
+                # was corrected as a position: trial 9, 77 µm off), no start reaches it
+                await set_target(master, name, 2, 10_000)
+                await ok(await master.write_register(KINCO_CONTROL, 0x4F, device_id=2))
+                rr = await master.write_register(KINCO_CONTROL, 0x5F, device_id=2)
+                assert rr.isError() and rr.exception_code == 0x03
+                assert await read32(direct, 2, f["address"], f["order"]) == expected["Y"][-1][1]
             for unit, axis in ((1, "X"), (2, "Y")):
                 drive = drives[axis]
                 assert started_targets(drive, name) == [c for _, c in expected[axis]]
