@@ -34,7 +34,7 @@ from .modbus.frames import (
     unpack_int32,
 )
 from .router_state import Finish
-from .triggers import writes_trigger
+from .triggers import check_mode, writes_trigger
 
 if TYPE_CHECKING:
     from .router_state import AxisRuntime, GatewayCounters, Setup
@@ -185,6 +185,8 @@ class AxisReads:
         """FC23: writes touching the target or trigger are refused (they need the split
         and commit rules); reads of intercepted pairs are rewritten when fully covered."""
         regs = axis.registers
+        if regs.mode is not None:
+            check_mode(name, regs.mode, req)
         w_start, w_count = req.write_address or 0, req.write_count
         if overlap(w_start, w_count, regs.target.address) \
                 or writes_trigger(regs.trigger, req.function, w_start, w_count):

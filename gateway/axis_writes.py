@@ -42,7 +42,7 @@ from .modbus.frames import (
     response_for_write,
     unpack_int32,
 )
-from .triggers import COIL_WRITES, Verdict, judge, writes_trigger
+from .triggers import COIL_WRITES, Verdict, check_mode, judge, writes_trigger
 
 if TYPE_CHECKING:
     from .router_state import AxisRuntime, GatewayCounters, Setup
@@ -77,6 +77,8 @@ class AxisWrites:
         regs = axis.registers
         start, count = req.write_address or 0, req.write_count
         coils = req.function in COIL_WRITES
+        if regs.mode is not None and not coils:
+            check_mode(name, regs.mode, req)
         target_offsets = range(0) if coils else overlap(start, count, regs.target.address)
         trigger_hit = writes_trigger(regs.trigger, req.function, start, count)
         if not target_offsets and not trigger_hit:
@@ -375,3 +377,4 @@ class AxisWrites:
         except CompensationError as exc:
             log.error("axis %s: target refused: %s", name, exc)
             raise ModbusError(str(exc), SERVER_DEVICE_FAILURE) from None
+

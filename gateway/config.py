@@ -283,11 +283,30 @@ class TriggerRegister(Model):
         return range(self.address, self.address + self.words)
 
 
+class ModeRegister(Model):
+    """Where a drive is told whether a move is absolute or relative (Oriental AZ's operation
+    type, Panasonic A6's block command code). A write of the whole field whose value, under
+    ``mask``, is not ``absolute`` is refused with exception 0x03 and not forwarded: compgw
+    corrects positions, and a correction added to a distance lands nowhere meant. (A write
+    of one word of a two-word field is forwarded unjudged.)"""
+
+    address: Address
+    words: Literal[1, 2] = 2
+    order: WordOrder = "hi_lo"
+    absolute: Annotated[int, in_range(0, 2**32 - 1)]
+    mask: Annotated[int, in_range(1, 2**32 - 1)] = 0xFFFFFFFF
+
+    @property
+    def span(self) -> range:
+        return range(self.address, self.address + self.words)
+
+
 class Registers(Model):
     target: TargetRegister
     feedback: FeedbackRegister
     status: StatusRegister | None = None
     trigger: TriggerRegister | None = None
+    mode: ModeRegister | None = None
 
     @model_validator(mode="after")
     def _no_overlap(self) -> Registers:

@@ -147,6 +147,8 @@ PROFILES: dict[str, DriveProfile] = {
                     # any write of the 32-bit trigger field starts: 1 (all fields) and
                     # -1..-7 (one field updated) alike
                     "trigger": {"address": 0x0066, "words": 2, "order": "hi_lo"},
+                    # operation type: 1 absolute (2, 3 incremental: refused)
+                    "mode": {"address": 0x005A, "words": 2, "order": "hi_lo", "absolute": 1},
                 },
                 "fc16_max_words": 123,
                 "min_silence_s": 0.005,
@@ -180,6 +182,9 @@ PROFILES: dict[str, DriveProfile] = {
                     "feedback": {"address": 0x600F, "table": "holding", "order": "hi_lo",
                                  "counts_per_pulse": 1},
                     "trigger": {"address": 0x0120, "table": "coils", "value": 1},
+                    # block 0's command: code 2 absolute in the top byte (1 relative: refused)
+                    "mode": {"address": 0x4800, "words": 2, "order": "hi_lo",
+                             "absolute": 0x02000000, "mask": 0xFF000000},
                 },
                 "fc16_max_words": 123,
                 "min_silence_s": 0.0,

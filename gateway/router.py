@@ -230,6 +230,8 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
             regs = axis.registers
             if (overlap(start, count, regs.target.address)
                     or writes_trigger(regs.trigger, fc, start, count)
+                    or (regs.mode is not None
+                        and overlap(start, count, regs.mode.address, regs.mode.words))
                     or (fc == WRITE_MULTIPLE_REGISTERS and count > axis.fc16_max_words)):
                 return False
             return bus.submit(axis.unit, pdu, done)

@@ -146,6 +146,19 @@ def test_moves_land_on_the_corrected_target_and_read_back_nominal(tmp_path: Path
                 await start(master, name, 2, other_form=True)
                 corrected = chain.command_pulses("Y", {"Y": AxisInput(50_000, -1)})
                 expected["Y"].append((50_000, corrected))
+            if name in (AZ, A6):  # an incremental move asked in its mode field: refused,
+                # nothing of that write reaches the drive (a distance corrected as a position)
+                seen = len(drives["Y"].received)
+                if name == AZ:  # operation type 2: incremental from the command position
+                    block = [0, 0, 0, 2, *target_words(name, 10_000), 0, 5000, 0, 10000, 0,
+                             10000, 0, 1000, 0, 1]
+                    rr = await master.write_registers(AZ_BLOCK, block, device_id=2)
+                else:  # block 0's command code 1: relative
+                    rr = await master.write_registers(A6_TABLE, [0x0100, 0,
+                                                                 *target_words(name, 10_000)],
+                                                      device_id=2)  # fmt: skip
+                assert rr.isError() and rr.exception_code == 0x03
+                assert len(drives["Y"].received) == seen
             if name == KINCO:  # a relative move (0x4F → 0x5F): a distance, refused (it
                 # was corrected as a position: trial 9, 77 µm off), no start reaches it
                 await set_target(master, name, 2, 10_000)
