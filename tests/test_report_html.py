@@ -192,3 +192,24 @@ def test_the_verdict_is_never_within_beside_an_after_run_that_misses() -> None:
     summary["axes"]["X"]["after"]["E_um"] = 2.74
     assert verdict(summary).startswith("NOT within 2 µm (X E 2.74 µm)")
     assert "did not" in remains(summary)[0]
+
+
+def test_r_from_few_runs_is_said_to_read_high_beside_the_pooled_scatter() -> None:
+    """Trial 9: after-run R 4.7-7.2 µm on drives that scatter 0.27-0.47 µm, "the mechanics
+    or heat" said; with 2 runs per target R is the largest of many two-stop scatters."""
+    from gateway.calibration.iso230 import iso230_2, pooled_s_um
+
+    rng = np.random.default_rng(3)
+    targets = np.linspace(10.0, 300.0, 30)
+    up, down = (rng.normal(0.0, 0.3e-3, (30, 2)) for _ in range(2))  # mm, σ 0.3 µm
+    iso = iso230_2(targets, up, down)
+    pooled = pooled_s_um(iso)
+    assert 0.22 < pooled < 0.38 and iso.R_um > 4 * pooled  # the largest reads high
+    summary = {"outcome": "within", "tolerance_um": 2.0,
+               "axes": {"X": {"after": {"E_um": 1.0, "A_um": iso.A_um, "R_um": iso.R_um,
+                                        "B_um": 0.3, "runs": 2, "s_pooled_um": pooled}}}}
+    text = " ".join(remains(summary))
+    assert ("Here R rests on 2 runs per target (ISO 230-2 asks 5)" in text
+            and f"a stop scatters {pooled:.2f} µm (±2s: {4 * pooled:.2f} µm)" in text), text
+    summary["axes"]["X"]["after"]["runs"] = 5
+    assert "Here R rests" not in " ".join(remains(summary))

@@ -11,7 +11,7 @@ from typing import Any
 from ..formats import read_pitch_csv
 from . import adaptive
 from .commission_takeup import TakeUpSteps
-from .iso230 import iso230_axis
+from .iso230 import iso230_axis, pooled_s_um
 from .plans import read_plan
 from .rawdata import axis_deviations
 from .session import planar_figures
@@ -133,7 +133,8 @@ class AfterSteps(TakeUpSteps):
                     # E_read: as read, the drift while measuring in it (a recheck's terms)
                     entry[phase] = {"E_um": iso.E_um, "A_um": iso.A_um, "R_um": iso.R_um,
                                     "B_um": iso.B_um, "M_um": iso.M_um,
-                                    "E_read_um": read.E_um}  # fmt: skip
+                                    "E_read_um": read.E_um, "runs": iso.runs,
+                                    "s_pooled_um": pooled_s_um(iso)}  # fmt: skip
             entry.update(self.steps_summary(a))
             if a in self.tables.pitch:
                 entry["table_points"] = int(read_pitch_csv(

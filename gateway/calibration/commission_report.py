@@ -135,9 +135,21 @@ def remains(summary: dict[str, Any]) -> list[str]:
                        + (f", B {abs(b):.2f}{u}" if b is not None else "")
                        + "): no table removes scatter, so a large R against the drive's own "
                        "repeatability points at the mechanics or at heat while measuring."
-                       )  # fmt: skip
+                       + _pooled(after, u))  # fmt: skip
     out += [str(n) for n in summary.get("notes", [])]
     return out
+
+
+def _pooled(after: dict[str, Any], unit: str) -> str:
+    """What R rests on where it has few runs per target, and the pooled scatter of a stop
+    (linear axes; older summaries have neither: nothing said)."""
+    runs, s = after.get("runs"), after.get("s_pooled_um")
+    if runs is None or s is None or runs >= 5 or unit != " µm":
+        return ""
+    return (f" Here R rests on {runs} runs per target (ISO 230-2 asks 5): the largest of "
+            f"many scatters each from {runs} stops reads high; pooled over the targets a stop "
+            f"scatters {s:.2f} µm (±2s: {4 * s:.2f} µm), the figure to hold against the "
+            "drive's repeatability.")
 
 
 def _as_read(before: float | None, after: float | None, judged: float, unit: str) -> str:
