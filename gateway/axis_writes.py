@@ -52,6 +52,12 @@ log = logging.getLogger("gateway.router")
 
 _NO_TRIGGER = Verdict(fires=False, homes=False)
 
+#: a command going back against its move by no more than this (mm, or degrees) stays on its
+#: flank: the table does not follow inside the play, an error of at most that; crossing
+#: the whole play for less would make the axis hunt by its lost motion each time a master
+#: sends the same target again while a Δa sensor's reading wanders by a fraction of a µm
+TURN_DEADBAND_MM = 0.002
+
 
 class AxisWrites:
     """The write half of the axis request handler (see the module docstring)."""
@@ -357,13 +363,14 @@ class AxisWrites:
         try:
             command = setup.chain.command_pulses(name, inputs, scale)
             last = state.last_command_units
-            if last is not None and command != last and (command > last) != (motion.direction > 0):
+            back_mm = 0.0 if last is None else abs(command - last) * axis_cfg.pulse_mm / scale
+            if (last is not None and back_mm > TURN_DEADBAND_MM
+                    and (command > last) != (motion.direction > 0)):
                 # the motor turns against the nominal move (a target sent again whose
                 # correction went back: the partner moved, the screw grew): the nut turns
                 # through its play, corrected as a reversal (trial 9: Y sent 400 again
                 # after X moved, 7.2 µm back in command, stayed 7.1 µm off in the play)
-                turned = chain_axis.turned(start, nominal, -motion.direction,
-                                           abs(command - last) * axis_cfg.pulse_mm / scale)
+                turned = chain_axis.turned(start, nominal, -motion.direction, back_mm)
                 inputs[name] = AxisInput(nominal, turned.engagement, delta_a)
                 again = setup.chain.command_pulses(name, inputs, scale)
                 if again != last and (again > last) == (turned.direction > 0):

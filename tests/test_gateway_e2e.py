@@ -340,6 +340,11 @@ def test_a_target_sent_again_whose_command_goes_back_is_a_reversal(tmp_path: Pat
             assert await read32(direct, 2, TARGET) == up  # forward again: the + flank
             await move(master, 2, 300_000)  # nothing changed: nothing turns
             assert await read32(direct, 2, TARGET) == up
+            # 1 µm back (X at 50 mm), within the dead band: no turn through the whole play
+            # (a Δa sensor's wander would otherwise make the axis hunt by its lost motion)
+            await move(master, 1, 50_000)
+            await move(master, 2, 300_000)
+            assert await read32(direct, 2, TARGET) == up - 1
 
     run(body())
 
