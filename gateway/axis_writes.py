@@ -103,13 +103,11 @@ class AxisWrites:
                 runtime.state.write_words(first, list(words))
             verdict = self._judge(runtime, axis, req) if trigger_hit else _NO_TRIGGER
             if verdict.relative:
-                assert axis.registers.trigger is not None
-                log.warning("axis %s: a relative move refused (trigger bit %d)", name,
-                            axis.registers.trigger.relative_bit)  # fmt: skip
-                raise ModbusError(f"axis {name}: a relative move (trigger bit "
-                                  f"{axis.registers.trigger.relative_bit}) is refused: compgw "
-                                  "corrects positions, not distances; use absolute moves",
-                                  ILLEGAL_DATA_VALUE)  # fmt: skip
+                assert regs.trigger is not None
+                why = (f"axis {name}: a relative move (trigger bit {regs.trigger.relative_bit}) "
+                       "is refused: compgw corrects positions, not distances; use absolute moves")
+                log.warning("%s", why)
+                raise ModbusError(why, ILLEGAL_DATA_VALUE)
             try:
                 if verdict.fires:
                     reply = await self._trigger_write(setup, name, axis, req, pdu)
@@ -384,4 +382,3 @@ class AxisWrites:
         except CompensationError as exc:
             log.error("axis %s: target refused: %s", name, exc)
             raise ModbusError(str(exc), SERVER_DEVICE_FAILURE) from None
-

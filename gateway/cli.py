@@ -134,11 +134,10 @@ def _cmd_status(args: argparse.Namespace) -> int:
             if listen is up.tls else ""), file=sys.stderr)  # fmt: skip
         return EXIT_RUNTIME
     if reply.isError():
-        from .modbus.frames import EXCEPTION_NAMES
+        from .modbus.frames import exception_words
 
         code = getattr(reply, "exception_code", 0)
-        print(f"compgw status: {host}:{port} answered exception {code:#04x} "
-              f"({EXCEPTION_NAMES.get(code, 'refused')}) at unit "
+        print(f"compgw status: {host}:{port} answered {exception_words(code)} at unit "
               f"{config.status.upstream_unit}: is it a compgw gateway, running "
               f"{args.config}'s status.upstream_unit?", file=sys.stderr)  # fmt: skip
         return EXIT_RUNTIME

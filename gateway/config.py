@@ -296,10 +296,6 @@ class ModeRegister(Model):
     absolute: Annotated[int, in_range(0, 2**32 - 1)]
     mask: Annotated[int, in_range(1, 2**32 - 1)] = 0xFFFFFFFF
 
-    @property
-    def span(self) -> range:
-        return range(self.address, self.address + self.words)
-
 
 class Registers(Model):
     target: TargetRegister

@@ -163,8 +163,8 @@ PROFILES: dict[str, DriveProfile] = {
                           "operation type 1 (absolute), speed, rates, current"),
             notes="The master writes one FC16 of 16 registers at 0x0058 holding the target "
             "and the trigger: compgw corrects the target inside it and sends it as one "
-            "write. Use operation type 1 (absolute): an incremental move (2, 3) would be "
-            "corrected as a position. Feedback position (encoder) is 0x0120. No homed bit "
+            "write. Use operation type 1 (absolute): an incremental move (2, 3) is refused "
+            "(0x03). Feedback position (encoder) is 0x0120. No homed bit "
             "by default: compensation is applied whenever enabled.",
         ),
         DriveProfile(
@@ -234,7 +234,7 @@ PROFILES: dict[str, DriveProfile] = {
                           "(control word 0x3100 = 0x2F)"),
             notes="The start is a 0->1 edge of the control word's new-set-point bit 4 "
             "(0x2F -> 0x3F): compgw commits the corrected target before forwarding it. Use "
-            "absolute moves: a relative one (0x4F -> 0x5F) would be corrected as a position.",
+            "absolute moves: a relative one (0x4F -> 0x5F) is refused (0x03).",
         ),
     )
 }

@@ -458,9 +458,9 @@ class Commission(CommandChecks):
         if self.s.planar is None or self.tables.planar_model is not None:
             return
         grid = self._first_grid()
-        # the grid is read with the pitch tables on; loaded here too, for a resume after an
-        # abort put your config back (the tables, fitted already, skip the fit's own load:
-        # trial 8 read a resumed grid without them, round 1's plane 44 µm off)
+        # each stage loads its phase on entry, as _identify, _rounds and _after do (a no-op
+        # when loaded): the fit's own load is skipped on a resume after an abort put your
+        # config back (trial 8 read a resumed grid without the tables, round 1's plane 44 µm)
         await self.use("pitch")
         await self.step("xy-grid", lambda: self._grid_plan(grid), "on")
         self.tables.planar_axes = self.s.planar

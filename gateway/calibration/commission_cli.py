@@ -405,7 +405,7 @@ async def _answering(settings: Any, config: GatewayConfig, config_path: Path) ->
     otherwise. (A wrong unit, a port nothing listens on or no gateway running were found at
     the first reading, after the plan and a commission directory, as an abort; a --delta-a
     at a unit the gateway does not route, after a 44-minute warm-up.)"""
-    from ..modbus.frames import EXCEPTION_NAMES
+    from ..modbus.frames import exception_words
     from ..status import GENERATION_REGISTER
     from .machine import Link, MachineError
 
@@ -442,8 +442,7 @@ async def _answering(settings: Any, config: GatewayConfig, config_path: Path) ->
                 what = f"its status unit {unit}" if gateway else f"unit {unit}"
                 hint = ("is it compgw, and status.upstream_unit its status unit?" if gateway
                         else "is that the instrument's unit id?")  # fmt: skip
-                raise TableError(f"{named}: {what} answered exception {exc.code:#04x} "
-                                 f"({EXCEPTION_NAMES.get(exc.code, 'refused')}): "
+                raise TableError(f"{named}: {what} answered {exception_words(exc.code)}: "
                                  f"{hint}") from None  # fmt: skip
         finally:
             link.close()

@@ -31,10 +31,10 @@ from pymodbus.client import AsyncModbusTcpClient
 
 from ..config import Axis, GatewayConfig, SourceRegister, ThermalSource
 from ..modbus.frames import (
-    EXCEPTION_NAMES,
     GATEWAY_PATH_UNAVAILABLE,
     GATEWAY_TARGET_NO_RESPONSE,
     SERVER_DEVICE_BUSY,
+    exception_words,
     pack_int32,
     unpack_int32,
 )
@@ -144,9 +144,7 @@ def exception_text(reply: Any) -> str:
     code = getattr(reply, "exception_code", None)
     if not isinstance(code, int) or not code:
         return str(reply)
-    hint = _EXCEPTION_HINTS.get(code)
-    return (f"exception {code:#04x} ({EXCEPTION_NAMES.get(code, 'refused')}"
-            + (f": {hint}" if hint else "") + ")")
+    return exception_words(code, _EXCEPTION_HINTS.get(code, ""))
 
 
 class Link:

@@ -46,11 +46,8 @@ class MotionState:
         if last is None or target_pulses == last:
             return MotionState(self.direction, target_pulses, self.engagement)
         direction = 1 if target_pulses > last else -1
-        if takeup is None:
-            return MotionState(direction, target_pulses)
-        moved_mm = abs(target_pulses - last) * pulse_mm
-        return MotionState(direction, target_pulses,
-                           takeup.advance(self.engagement, direction, moved_mm))  # fmt: skip
+        return self.turned(direction, target_pulses, abs(target_pulses - last) * pulse_mm,
+                           takeup)  # fmt: skip
 
     def turned(self, direction: int, target_pulses: int, moved_mm: float,
                takeup: TakeUpCurve | None = None) -> MotionState:  # fmt: skip

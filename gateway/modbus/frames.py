@@ -45,6 +45,13 @@ EXCEPTION_NAMES = {
     GATEWAY_TARGET_NO_RESPONSE: "gateway target device failed to respond",
 }  # fmt: skip
 
+
+def exception_words(code: int, hint: str = "") -> str:
+    """"exception 0x0a (gateway path unavailable)": a Modbus exception code in words, with
+    ``hint`` (what to check) inside the brackets."""
+    return (f"exception {code:#04x} ({EXCEPTION_NAMES.get(code, 'refused')}"
+            + (f": {hint}" if hint else "") + ")")
+
 EXCEPTION_BIT = 0x80
 MAX_PDU_BYTES = 253  # Modbus application protocol spec 1.1b3, section 4.1
 
