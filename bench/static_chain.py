@@ -157,39 +157,29 @@ def _parked_e(rig: Rig, name: str, other: str | None, draws: Draws) -> dict[str,
 def oracle_e_um(machine: Path, gw_path: Path, name: str, draws: Draws) -> float:
     """E at random parks (median, µm) of axis ``name`` with its pitch table, cyclic term and
     backlash replaced by the quiet machine's own deviation along the pitch line."""
-    bare = yaml.safe_load(gw_path.read_text())
-    comp = bare["axes"][name].setdefault("compensation", {})
-    for key in ("pitch", "cyclic", "backlash", "takeup"):  # the reversals here are long
-        comp.pop(key, None)
     # beside the config: its tables are named relative to its directory
-    bare_path = gw_path.parent / f".oracle-{name}.yaml"
-    try:
-        bare_path.write_text(yaml.safe_dump(bare, sort_keys=False))
-        rig = _rig(machine, bare_path)
-        names = list(rig.m.axes)
-        other = next((a for a in names if a != name), None)
-        lo, hi = rig.m.axes[name].cfg.travel_mm
-        olo = rig.m.axes[other].cfg.travel_mm[0] if other else None
-        x = np.linspace(lo, hi, int(np.ceil((hi - lo) / ORACLE_STEP_MM)) + 1)
-        up, down = up_and_down_um(rig, name, other, olo, x)
-        with tempfile.TemporaryDirectory() as tmp:
-            table = Path(tmp) / "oracle.csv"
-            write_table(table, "csv", PitchTable(x, up * 1e-3, down * 1e-3), "oracle")
-            comp["pitch"] = {"file": str(table), "interpolation": "linear"}
-            bare_path.write_text(yaml.safe_dump(bare, sort_keys=False))
-            return _parked_e(_rig(machine, bare_path), name, other, draws)["E"]
-    finally:
-        bare_path.unlink(missing_ok=True)
+    path = gw_path.parent / f".oracle-{name}.yaml"
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            path.write_text(yaml.safe_dump(oracle_config(machine, gw_path, Path(tmp), [name]),
+                                           sort_keys=False))  # fmt: skip
+            rig = _rig(machine, path)
+            other = next((a for a in rig.m.axes if a != name), None)
+            return _parked_e(rig, name, other, draws)["E"]
+        finally:
+            path.unlink(missing_ok=True)
 
 
-def oracle_config(machine: Path, gw_path: Path, out_dir: Path) -> dict[str, Any]:
-    """The config at ``gw_path`` with every linear axis's pitch table, cyclic term and
-    backlash replaced by a perfect table (the quiet machine's own deviation read every
-    ``ORACLE_STEP_MM`` along the pitch line, ↑ and ↓, through the rest of that config's chain),
-    written into ``out_dir``; the rest (plane, heat) as calibrated. What the judge reads
+def oracle_config(machine: Path, gw_path: Path, out_dir: Path,
+                  axes: list[str] | None = None) -> dict[str, Any]:  # fmt: skip
+    """The config at ``gw_path`` with the pitch table, cyclic term and backlash of ``axes``
+    (default: every linear axis) replaced by a perfect table (the quiet machine's own
+    deviation read every ``ORACLE_STEP_MM`` along the pitch line, ↑ and ↓, through the
+    rest of that config's chain), written into ``out_dir``; the rest (plane, heat) as
+    calibrated. What the judge reads
     under it is what no table could cut."""
     data = yaml.safe_load(gw_path.read_text())
-    names = [n for n, ax in data["axes"].items() if not ax.get("rotary")]
+    names = axes or [n for n, ax in data["axes"].items() if not ax.get("rotary")]
     for name in names:
         comp = data["axes"][name].setdefault("compensation", {})
         for key in ("pitch", "cyclic", "backlash", "takeup"):
