@@ -20,7 +20,6 @@ from .compensation import AxisInput, CompensationError
 from .config import Axis
 from .modbus.downstream import Bus, Done
 from .modbus.frames import (
-    ILLEGAL_DATA_VALUE,
     MAX_READ_REGISTERS,
     READ_HOLDING_REGISTERS,
     SERVER_DEVICE_FAILURE,
@@ -34,7 +33,6 @@ from .modbus.frames import (
     unpack_int32,
 )
 from .router_state import Finish
-from .triggers import check_mode, writes_trigger
 
 if TYPE_CHECKING:
     from .router_state import AxisRuntime, GatewayCounters, Setup
@@ -178,29 +176,6 @@ class AxisReads:
         except CompensationError as exc:
             log.warning("axis %s: feedback not corrected: %s", name, exc)
             return command_pulses
-
-    async def _read_write(
-        self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes
-    ) -> bytes:
-        """FC23: writes touching the target or trigger are refused (they need the split
-        and commit rules); reads of intercepted pairs are rewritten when fully covered."""
-        regs = axis.registers
-        if regs.mode is not None:
-            check_mode(name, regs.mode, req)
-        w_start, w_count = req.write_address or 0, req.write_count
-        if overlap(w_start, w_count, regs.target.address) \
-                or writes_trigger(regs.trigger, req.function, w_start, w_count):
-            raise ModbusError(
-                f"axis {name}: FC23 writing the target or trigger is not supported",
-                ILLEGAL_DATA_VALUE,
-            )
-        reply = await self.buses[axis.bus].transact(axis.unit, pdu)
-        if is_exception(reply):
-            return reply
-        words = parse_read_registers_response(reply)
-        start = req.read_address or 0
-        self._rewrite_read(setup, name, axis, "holding", start, words)
-        return build_read_registers_response(req.function, words)
 
 
 def _finishing(finish: Finish, done: Done) -> Done:

@@ -13,6 +13,7 @@ concern apart from the routing and from the read-back (:mod:`gateway.axis_reads`
 from __future__ import annotations
 
 import logging
+import struct
 import time
 from collections.abc import Callable, Iterable
 from contextlib import AbstractAsyncContextManager
@@ -27,6 +28,14 @@ from .compensation import (
     TravelError,
 )
 from .config import Axis
+from .drive_model import (
+    LatchedField,
+    first_refusal,
+    mask_write,
+    missing,
+    touched,
+    written_words,
+)
 from .modbus.downstream import Bus
 from .modbus.frames import (
     GATEWAY_PATH_UNAVAILABLE,
@@ -34,15 +43,19 @@ from .modbus.frames import (
     ILLEGAL_DATA_VALUE,
     SERVER_DEVICE_FAILURE,
     WRITE_MULTIPLE_REGISTERS,
+    WRITE_SINGLE_REGISTER,
     ModbusError,
     Request,
+    build_read_registers_response,
     build_write_multiple_registers,
+    build_write_single_register,
     is_exception,
     pack_int32,
+    parse_read_registers_response,
     response_for_write,
     unpack_int32,
 )
-from .triggers import COIL_WRITES, Verdict, check_mode, judge, writes_trigger
+from .triggers import COIL_WRITES, Verdict, judge, writes_trigger
 
 if TYPE_CHECKING:
     from .router_state import AxisRuntime, GatewayCounters, Setup
@@ -77,58 +90,201 @@ class AxisWrites:
 
         def _swept(self, name: str, to_pulses: float) -> None: ...
 
+        def _rewrite_read(self, setup: Setup, name: str, axis: Axis, table: str,
+                          start: int, words: list[int]) -> None: ...
+
     async def _write(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
         """A register write (FC06/16), or a coil write (FC05/15) to an axis whose trigger
         is a coil."""
         regs = axis.registers
         start, count = req.write_address or 0, req.write_count
         coils = req.function in COIL_WRITES
-        if regs.mode is not None and not coils:
-            check_mode(name, regs.mode, req)
         target_offsets = range(0) if coils else overlap(start, count, regs.target.address)
         trigger_hit = writes_trigger(regs.trigger, req.function, start, count)
-        if not target_offsets and not trigger_hit:
+        mode_hit = [] if coils else touched(setup.latched[name], start, count)
+        if not target_offsets and not trigger_hit and not mode_hit:
             return await self._forward_write(name, axis, req, pdu)
         if target_offsets and count > 1 and len(target_offsets) == 1:
             raise ModbusError(
                 f"axis {name}: a register block must hold both words of the target",
                 ILLEGAL_DATA_VALUE,
             )
-        runtime = self._axes[name]
         async with self._axis_locks([name, setup.planar_partner(name)]):
-            if target_offsets:
-                first = target_offsets[0]
-                index = regs.target.address + first - start
-                words = req.values[index : index + len(target_offsets)]
-                runtime.state.write_words(first, list(words))
-            verdict = self._judge(runtime, axis, req) if trigger_hit else _NO_TRIGGER
-            if verdict.relative:
-                assert regs.trigger is not None
-                why = (f"axis {name}: a relative move (trigger bit {regs.trigger.relative_bit}) "
-                       "is refused: compgw corrects positions, not distances; use absolute moves")
-                log.warning("%s", why)
-                raise ModbusError(why, ILLEGAL_DATA_VALUE)
+            return await self._write_locked(setup, name, axis, req, pdu, mode_hit)
+
+    async def _write_locked(self, setup: Setup, name: str, axis: Axis, req: Request,
+                            pdu: bytes, mode_hit: list[LatchedField]) -> bytes:
+        """:meth:`_write` under the axis locks: judge what the drive would do, then send.
+        Refused (an exception raised): nothing of the write is sent or kept."""
+        regs = axis.registers
+        start, count = req.write_address or 0, req.write_count
+        coils = req.function in COIL_WRITES
+        target_offsets = range(0) if coils else overlap(start, count, regs.target.address)
+        trigger_hit = writes_trigger(regs.trigger, req.function, start, count)
+        runtime = self._axes[name]
+        fields = setup.latched[name]
+        written = written_words(mode_hit, start, req.values)
+        latched = {**runtime.latched, **written}  # what the drive's fields hold after it
+        if mode_hit:
+            await self._judge_latched(name, axis, mode_hit, latched, "a write")
+        verdict = self._judge(runtime, axis, req) if trigger_hit else _NO_TRIGGER
+        if verdict.relative:
+            assert regs.trigger is not None
+            why = (f"axis {name}: a relative move (trigger bit {regs.trigger.relative_bit}) "
+                   "is refused: compgw corrects positions, not distances; use absolute moves")
+            log.warning("%s", why)
+            raise ModbusError(why, ILLEGAL_DATA_VALUE)
+        starts = verdict.fires or (regs.trigger is None and bool(target_offsets))
+        if starts and fields:  # the move goes where the drive's latched fields say
+            await self._judge_latched(name, axis, fields, latched, "a start")
+        hold = False
+        if target_offsets and not verdict.fires:
+            hold = await self._hold_for_mode(setup, name, axis, latched)
+        state = runtime.state
+        before = (list(state.shadow), set(state.halves_written))
+        if target_offsets:
+            first = target_offsets[0]
+            index = regs.target.address + first - start
+            state.write_words(first, list(req.values[index : index + len(target_offsets)]))
+        try:
+            if verdict.fires:
+                reply = await self._trigger_write(setup, name, axis, req, pdu)
+            elif target_offsets:
+                reply = await self._target_write(setup, name, axis, req, hold)
+            else:
+                reply = await self._forward_write(name, axis, req, pdu)
+        except ModbusError as exc:
+            if exc.code not in (GATEWAY_PATH_UNAVAILABLE, GATEWAY_TARGET_NO_RESPONSE):
+                state.shadow, state.halves_written = before  # nothing of a refusal kept
+                raise
+            for address in written:  # the drive may or may not have them
+                runtime.latched.pop(address, None)
+            # a move the master asked for that the drive did not get: in the log (the
+            # target stays pending: a start once the line is back commits it)
+            log.warning("axis %s: %s to target %d not delivered: %s", name,
+                        "trigger" if verdict.fires else "write",
+                        state.nominal_target(axis.registers.target.order), exc)  # fmt: skip
+            raise
+        if is_exception(reply):  # the drive refused it: nothing of it is in the drive
+            state.shadow, state.halves_written = before
+            return reply
+        runtime.latched.update(written)
+        if trigger_hit:  # the drive has the trigger write
+            runtime.trigger = verdict.shadow
+            if verdict.homes:
+                state.homing_started(axis.home_direction)
+                self.on_state_change()
+        return reply
+
+    async def _judge_latched(self, name: str, axis: Axis, fields: list[LatchedField]
+                             | tuple[LatchedField, ...], latched: dict[int, int],
+                             when: str) -> None:  # fmt: skip
+        """Refuse (0x03) ``when`` (a write, a start) unless every field of ``fields`` holds
+        its expected value in ``latched`` (the drive's words after the write); a word not
+        known is read from the drive first (and kept), never guessed."""
+        await self._learn_latched(name, axis, fields, latched)
+        why = first_refusal(fields, latched, name, when)
+        if why is not None:
+            log.warning("%s", why)
+            raise ModbusError(why, ILLEGAL_DATA_VALUE)
+
+    async def _learn_latched(self, name: str, axis: Axis, fields: list[LatchedField]
+                             | tuple[LatchedField, ...], latched: dict[int, int]) -> None:
+        """Read the words of ``fields`` that neither the master wrote nor compgw read
+        (into ``latched`` and the axis's runtime). A drive that cannot say leaves them
+        unknown: the caller refuses (:func:`~gateway.drive_model.first_refusal`)."""
+        bus = self.buses[axis.bus]
+        runtime = self._axes[name]
+        for address in missing(fields, latched):
             try:
-                if verdict.fires:
-                    reply = await self._trigger_write(setup, name, axis, req, pdu)
-                elif target_offsets:
-                    reply = await self._target_write(setup, name, axis, req)
-                else:
-                    reply = await self._forward_write(name, axis, req, pdu)
+                word = (await bus.read_registers(axis.unit, "holding", address, 1))[0]
             except ModbusError as exc:
                 if exc.code in (GATEWAY_PATH_UNAVAILABLE, GATEWAY_TARGET_NO_RESPONSE):
-                    # a move the master asked for that the drive did not get: in the log
-                    log.warning("axis %s: %s to target %d not delivered: %s", name,
-                                "trigger" if verdict.fires else "write",
-                                runtime.state.nominal_target(axis.registers.target.order),
-                                exc)  # fmt: skip
+                    raise
+                log.warning("axis %s: register %#06x not readable (%s): its move is refused "
+                            "until the master writes it", name, address, exc)  # fmt: skip
+                continue
+            runtime.latched[address] = latched[address] = word
+
+    async def _hold_for_mode(self, setup: Setup, name: str, axis: Axis,
+                             latched: dict[int, int]) -> bool:
+        """Whether a target written without a start waits for the start in the shadow,
+        because only the start tells what the drive will do with it: a relative bit in the
+        trigger word (Kinco), or a move mode or block select that is not known to hold
+        (a distance written to the target is never sent as a corrected position)."""
+        if axis.registers.trigger is None or not setup.holds_on_its_mode(name):
+            return False
+        trigger = axis.registers.trigger
+        if trigger.relative_bit is not None:
+            return True
+        fields = setup.latched[name]
+        try:
+            await self._learn_latched(name, axis, fields, latched)
+        except ModbusError:
+            return True
+        return first_refusal(fields, latched, name, "a write") is not None
+
+    async def _mask_write(self, setup: Setup, name: str, axis: Axis, pdu: bytes) -> bytes:
+        """FC22 (mask write): on a register that decides a move (the trigger, a move mode,
+        a block select) it is done as the drive would do it: the register read, the masks
+        applied, the result judged and written as FC06; on the target refused (a position
+        is written whole); anything else forwarded as it is."""
+        if len(pdu) != 7:
+            raise ModbusError(f"axis {name}: request refused: FC22: PDU is {len(pdu)} bytes, "
+                              "expected 7", ILLEGAL_DATA_VALUE)  # fmt: skip
+        address, and_mask, or_mask = struct.unpack(">HHH", pdu[1:7])
+        regs = axis.registers
+        if overlap(address, 1, regs.target.address):
+            why = (f"axis {name}: a mask write (FC22) to the target at {address:#06x} is "
+                   "refused: compgw corrects whole positions; write both words")
+            log.warning("%s", why)
+            raise ModbusError(why, ILLEGAL_DATA_VALUE)
+        mode_hit = touched(setup.latched[name], address, 1)
+        if not mode_hit and not writes_trigger(regs.trigger, WRITE_SINGLE_REGISTER, address, 1):
+            return await self.buses[axis.bus].transact(axis.unit, pdu)
+        async with self._axis_locks([name, setup.planar_partner(name)]):
+            bus = self.buses[axis.bus]
+            current = (await bus.read_registers(axis.unit, "holding", address, 1))[0]
+            value = mask_write(current, and_mask, or_mask)
+            single = build_write_single_register(address, value)
+            req = Request(WRITE_SINGLE_REGISTER, write_address=address, values=(value,))
+            reply = await self._write_locked(setup, name, axis, req, single, mode_hit)
+        return reply if is_exception(reply) else pdu
+
+    async def _read_write(self, setup: Setup, name: str, axis: Axis, req: Request,
+                          pdu: bytes) -> bytes:
+        """FC23: a write touching the target or trigger is refused (they need the split
+        and commit rules); one touching a move mode or block select is judged as any
+        write of it; reads of intercepted pairs are rewritten when fully covered."""
+        regs = axis.registers
+        w_start, w_count = req.write_address or 0, req.write_count
+        if overlap(w_start, w_count, regs.target.address) \
+                or writes_trigger(regs.trigger, req.function, w_start, w_count):
+            raise ModbusError(
+                f"axis {name}: FC23 writing the target or trigger is not supported",
+                ILLEGAL_DATA_VALUE,
+            )
+        mode_hit = touched(setup.latched[name], w_start, w_count)
+        runtime = self._axes[name]
+        async with self._axis_locks([name]):
+            written = written_words(mode_hit, w_start, req.values)
+            if mode_hit:
+                latched = {**runtime.latched, **written}
+                await self._judge_latched(name, axis, mode_hit, latched, "a write")
+            try:
+                reply = await self.buses[axis.bus].transact(axis.unit, pdu)
+            except ModbusError as exc:
+                if exc.code in (GATEWAY_PATH_UNAVAILABLE, GATEWAY_TARGET_NO_RESPONSE):
+                    for address in written:
+                        runtime.latched.pop(address, None)
                 raise
-            if trigger_hit and not is_exception(reply):  # the drive has the trigger write
-                runtime.trigger = verdict.shadow
-                if verdict.homes:
-                    runtime.state.homing_started(axis.home_direction)
-                    self.on_state_change()
-            return reply
+            if is_exception(reply):
+                return reply
+            runtime.latched.update(written)
+        words = parse_read_registers_response(reply)
+        start = req.read_address or 0
+        self._rewrite_read(setup, name, axis, "holding", start, words)
+        return build_read_registers_response(req.function, words)
 
     async def _forward_write(self, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
         """A write the gateway does not rewrite: byte for byte, unless the block is longer
@@ -172,12 +328,19 @@ class AxisWrites:
         assert rule is not None
         return judge(rule, runtime.trigger, req)
 
-    async def _target_write(self, setup: Setup, name: str, axis: Axis, req: Request) -> bytes:
-        """Target words written, no trigger fired: commit now, or hold (half a pair, or a
-        planar axis with ``commit: on_trigger``)."""
+    async def _target_write(self, setup: Setup, name: str, axis: Axis, req: Request,
+                            hold_for_mode: bool = False) -> bytes:
+        """Target words written, no trigger fired: commit now, or hold (half a pair, a
+        planar axis with ``commit: on_trigger``, or ``hold_for_mode``: only the start
+        tells whether the drive takes it as a position, :meth:`_hold_for_mode`). A held
+        whole pair outside travel is refused at once (0x03)."""
         state = self._axes[name].state
-        hold = setup.hold_until_trigger(name) and axis.registers.trigger is not None
+        hold = (setup.hold_until_trigger(name) or hold_for_mode) \
+            and axis.registers.trigger is not None
         if not state.pair_complete() or hold:
+            if state.pair_complete():
+                self._check_travel(setup, name, state.nominal_target(
+                    axis.registers.target.order))  # fmt: skip
             if req.function == WRITE_MULTIPLE_REGISTERS and req.write_count > 2:
                 await self._forward_around_target(name, axis, req)
             return response_for_write(req)
@@ -319,6 +482,15 @@ class AxisWrites:
         counts = unpack_int32(words, fb.order)
         return round(counts / fb.counts_per_pulse / axis.command_scale)
 
+    def _check_travel(self, setup: Setup, name: str, nominal: int) -> None:
+        """Refuse (0x03) a nominal target (pulses) outside the axis's travel."""
+        try:
+            setup.chain.axes[name].check_travel(nominal * setup.config.axes[name].pulse_mm)
+        except TravelError as exc:
+            self.counters.refused_travel += 1
+            log.warning("%s", exc)
+            raise ModbusError(str(exc), ILLEGAL_DATA_VALUE) from None
+
     def _correct(self, setup: Setup, name: str, nominal: int, homed: bool,
                  partner_seen: int | None = None, own_seen: int | None = None
                  ) -> tuple[int, bool, MotionState]:  # fmt: skip
@@ -332,12 +504,7 @@ class AxisWrites:
         start = state.motion if own_seen is None else MotionState(
             state.motion.direction, own_seen, state.motion.engagement)  # fmt: skip
         chain_axis = setup.chain.axes[name]
-        try:
-            chain_axis.check_travel(nominal * axis_cfg.pulse_mm)
-        except TravelError as exc:
-            self.counters.refused_travel += 1
-            log.warning("%s", exc)
-            raise ModbusError(str(exc), ILLEGAL_DATA_VALUE) from None
+        self._check_travel(setup, name, nominal)
         motion = chain_axis.approach(start, nominal)  # the nut moves either way
         if not (state.enabled and homed):  # sent as written, but the screw heats all the same
             self._swept(name, nominal)

@@ -284,11 +284,13 @@ class TriggerRegister(Model):
 
 
 class ModeRegister(Model):
-    """Where a drive is told whether a move is absolute or relative (Oriental AZ's operation
-    type, Panasonic A6's block command code). A write of the whole field whose value, under
-    ``mask``, is not ``absolute`` is refused with exception 0x03 and not forwarded: compgw
-    corrects positions, and a correction added to a distance lands nowhere meant. (A write
-    of one word of a two-word field is forwarded unjudged.)"""
+    """Where a drive is told whether a move is absolute or relative (Leadshine's PR mode,
+    Oriental AZ's operation type, Panasonic A6's block command code). compgw corrects
+    positions: a correction added to a distance lands nowhere meant. So a write (any
+    function code, the whole field or one word of it) that would leave the field, under
+    ``mask``, at anything but ``absolute`` is refused with exception 0x03 and not forwarded,
+    and a start while the drive's field is not ``absolute`` is refused too; a word compgw
+    has not seen written is read from the drive first, never guessed."""
 
     address: Address
     words: Literal[1, 2] = 2
@@ -297,12 +299,23 @@ class ModeRegister(Model):
     mask: Annotated[int, in_range(1, 2**32 - 1)] = 0xFFFFFFFF
 
 
+class BlockSelectRegister(Model):
+    """Which stored block a start runs (Panasonic A6's block number, 0x4414): compgw
+    corrects the block whose target is ``target``, so a start while this register holds
+    anything but ``value`` is refused with exception 0x03 (the drive would run a block
+    whose target compgw never corrected), and so is a write that sets another value."""
+
+    address: Address
+    value: Annotated[int, in_range(0, 0xFFFF)] = 0
+
+
 class Registers(Model):
     target: TargetRegister
     feedback: FeedbackRegister
     status: StatusRegister | None = None
     trigger: TriggerRegister | None = None
     mode: ModeRegister | None = None
+    block_select: BlockSelectRegister | None = None
 
     @model_validator(mode="after")
     def _no_overlap(self) -> Registers:

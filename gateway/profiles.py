@@ -61,6 +61,8 @@ PROFILES: dict[str, DriveProfile] = {
                     "status": {"address": 0x1003, "table": "holding", "homed_bit": 6,
                                "in_position_bit": 4, "moving_bit": 2, "alarm_bit": 0},
                     "trigger": {"address": 0x6002, "value": 0x10, "home_value": 0x20},
+                    # PR0's mode word: 1 absolute, 0x41 relative (bit 6): refused
+                    "mode": {"address": 0x6200, "words": 1, "absolute": 0, "mask": 0x40},
                 },
                 "fc16_max_words": 123,
                 "min_silence_s": 0.0,
@@ -71,7 +73,8 @@ PROFILES: dict[str, DriveProfile] = {
             ),
             before_moves=("PR mode with path 0 absolute (0x6200 = 1), the drive enabled"),
             notes="An 8-word FC16 at 0x6200 whose last word is 0x10 sets and starts a move "
-            "(configure trigger address 0x6207 for that style). Reading 0x6002 back after a "
+            "(configure trigger address 0x6207 for that style). A relative PR0 (0x6200 bit 6, "
+            "0x41) is refused (0x03). Reading 0x6002 back after a "
             "move is unreliable: completion comes from the status word or the position.",
         ),
         DriveProfile(
@@ -185,6 +188,8 @@ PROFILES: dict[str, DriveProfile] = {
                     # block 0's command: code 2 absolute in the top byte (1 relative: refused)
                     "mode": {"address": 0x4800, "words": 2, "order": "hi_lo",
                              "absolute": 0x02000000, "mask": 0xFF000000},
+                    # the block a start runs: block 0, whose target compgw corrects
+                    "block_select": {"address": 0x4414, "value": 0},
                 },
                 "fc16_max_words": 123,
                 "min_silence_s": 0.0,
@@ -199,7 +204,8 @@ PROFILES: dict[str, DriveProfile] = {
                           "0), servo on (SRV-ON)"),
             notes="The start is the coil STB (FC05 ON to 0x0120, or FC15 covering it): "
             "compgw writes the corrected target, then forwards the coil write. Only block 0 "
-            "is corrected (select it in 0x4414; for block n set target to 0x4802 + 4n). "
+            "is corrected (0x4414 = 0; a start with another block selected is refused; for "
+            "block n set target to 0x4802 + 4n and block_select.value to n). "
             "Homed (HOME-CMP) is a coil, which compgw does not read: compensation is applied "
             "whenever enabled.",
         ),

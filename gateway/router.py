@@ -50,10 +50,12 @@ from .axis_reads import AxisReads, _finishing
 from .axis_writes import AxisWrites
 from .compensation import Chain, MotionState
 from .config import Axis, GatewayConfig
+from .drive_model import touched
 from .modbus.broadcast import Broadcasts
 from .modbus.downstream import Bus, Done
 from .modbus.frames import (
     GATEWAY_PATH_UNAVAILABLE,
+    MASK_WRITE_REGISTER,
     MAX_READ_REGISTERS,
     MAX_WRITE_REGISTERS,
     READ_HOLDING_REGISTERS,
@@ -230,12 +232,11 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
             regs = axis.registers
             if (overlap(start, count, regs.target.address)
                     or writes_trigger(regs.trigger, fc, start, count)
-                    or (regs.mode is not None
-                        and overlap(start, count, regs.mode.address, regs.mode.words))
+                    or touched(setup.latched[name], start, count)
                     or (fc == WRITE_MULTIPLE_REGISTERS and count > axis.fc16_max_words)):
                 return False
             return bus.submit(axis.unit, pdu, done)
-        if fc == READ_WRITE_MULTIPLE_REGISTERS or (
+        if fc in (READ_WRITE_MULTIPLE_REGISTERS, MASK_WRITE_REGISTER) or (
                 fc in COIL_WRITES and _coil_trigger(axis)):
             return False
         return bus.submit(axis.unit, pdu, done)
@@ -251,6 +252,8 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
             WRITE_MULTIPLE_REGISTERS,
             READ_WRITE_MULTIPLE_REGISTERS,
         ) and not (fc in COIL_WRITES and _coil_trigger(axis)):
+            if fc == MASK_WRITE_REGISTER:
+                return await self._mask_write(setup, name, axis, pdu)
             return await bus.transact(axis.unit, pdu)
         try:
             req = parse_request(pdu)

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from .axis import AxisState
 from .compensation import Chain
 from .config import Axis, GatewayConfig
+from .drive_model import LatchedField, latched_fields
 from .triggers import TriggerShadow
 
 Finish = Callable[[bytes], bytes]  # the drive's reply -> the reply to the master
@@ -24,13 +25,23 @@ class Setup:
     config: GatewayConfig
     chain: Chain
     axis_by_unit: dict[int, str]
+    #: axis -> the fields besides target and trigger that decide what a start does
+    latched: dict[str, tuple[LatchedField, ...]] = field(default_factory=dict)
     #: (axis, FC, start, count) -> what _read_plan gives for it (it depends on nothing else)
     read_plans: dict[tuple[str, int, int, int], tuple[bytes, Finish | None]] = field(
         default_factory=dict, compare=False, repr=False)
 
     @classmethod
     def build(cls, config: GatewayConfig, chain: Chain) -> Setup:
-        return cls(config, chain, {axis.upstream: name for name, axis in config.axes.items()})
+        return cls(config, chain, {axis.upstream: name for name, axis in config.axes.items()},
+                   {name: latched_fields(axis.registers) for name, axis in config.axes.items()})
+
+    def holds_on_its_mode(self, axis: str) -> bool:
+        """Whether what a start of ``axis`` does depends on more than its target: a move
+        mode, a block select or a relative bit in the trigger word."""
+        trigger = self.config.axes[axis].registers.trigger
+        return bool(self.latched[axis]) or (trigger is not None
+                                            and trigger.relative_bit is not None)
 
     def hold_until_trigger(self, axis: str) -> bool:
         planar = self.config.planar
@@ -60,6 +71,11 @@ class AxisRuntime:
     state: AxisState
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
     trigger: TriggerShadow = field(default_factory=TriggerShadow)
+    #: whether ``trigger`` is what the drive holds (written through compgw or read from it)
+    trigger_known: bool = False
+    #: the words of the latched fields (move mode, block select) the drive holds, as
+    #: written through compgw or read from it: address -> word; missing: not known
+    latched: dict[int, int] = field(default_factory=dict)
     status_word: int | None = None  # the drive's status word, as last read
     status_at_s: float = -1e9  # when (monotonic)
     last_correction_mm: float = 0.0

@@ -1,5 +1,6 @@
 """Trigger rules: does a write touch an axis's trigger, and does it start a move (or homing)?
-And the move-mode guard: a write asking for a relative move is refused (:func:`check_mode`).
+(The move mode and block select, the other registers that decide a move, are
+:mod:`gateway.drive_model`'s.)
 
 Pure functions over a parsed write request (:class:`gateway.modbus.frames.Request`) and the
 trigger's config. A trigger is a holding register (FC06, FC16 blocks around it), a 32-bit
@@ -16,15 +17,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from .axis import overlap
-from .config import ModeRegister, TriggerRegister
+from .config import TriggerRegister
 from .modbus.frames import (
-    ILLEGAL_DATA_VALUE,
     READ_WRITE_MULTIPLE_REGISTERS,
     WRITE_MULTIPLE_COILS,
     WRITE_MULTIPLE_REGISTERS,
     WRITE_SINGLE_COIL,
     WRITE_SINGLE_REGISTER,
-    ModbusError,
     Request,
     unpack_int32,
 )
@@ -87,18 +86,3 @@ def judge(rule: TriggerRegister, shadow: TriggerShadow, req: Request) -> Verdict
     homes = rule.home_value is not None and value == rule.home_value & mask
     relative = fires and rule.relative_bit is not None and bool(value >> rule.relative_bit & 1)
     return Verdict(fires, homes, TriggerShadow((words[0], words[1]), value), relative)
-
-
-def check_mode(name: str, mode: ModeRegister, req: Request) -> None:
-    """Refuse (0x03) a write of the whole move-mode field that asks for anything but an
-    absolute move (:class:`gateway.config.ModeRegister`)."""
-    start = req.write_address or 0
-    offsets = overlap(start, req.write_count, mode.address, mode.words)
-    if len(offsets) != mode.words:
-        return
-    words = list(req.values[mode.address - start : mode.address - start + mode.words])
-    value = words[0] if mode.words == 1 else unpack_int32(words, mode.order, signed=False)
-    if value & mode.mask != mode.absolute & mode.mask:
-        raise ModbusError(f"axis {name}: move mode {value:#x} at {mode.address:#06x} refused: "
-                          "compgw corrects positions, not distances; write an absolute "
-                          f"move ({mode.absolute:#x})", ILLEGAL_DATA_VALUE)  # fmt: skip

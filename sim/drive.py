@@ -38,6 +38,8 @@ from sim.profiles import (
     AZ_OPERATION_TYPE,
     KINCO_ENABLED_MASK,
     KINCO_RELATIVE_BIT,
+    LEADSHINE_PR0_MODE,
+    LEADSHINE_RELATIVE_BIT,
 )
 
 RECEIVED_MAX = 4096  # writes kept in Drive.received (the oldest go first)
@@ -227,6 +229,10 @@ class Drive:
             return self._oriental_direct(new)
         if t.style == "kinco-control":
             return self._kinco_control(old, new)
+        if t.style == "leadshine-pr" and new == t.value:
+            if self._store.get(LEADSHINE_PR0_MODE, 1) >> LEADSHINE_RELATIVE_BIT & 1:
+                return self._start_move(self._command() + self.target_pulses())
+            return self._start_move(self.target_pulses())
         if t.rising_bit is not None:
             mask = 1 << t.rising_bit
             if new & mask and not old & mask:

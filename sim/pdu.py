@@ -98,6 +98,12 @@ def _dispatch(unit: RegisterUnit, fc: int, data: bytes) -> bytes:
         values = list(struct.unpack(f">{count}H", data[5 : 5 + nbytes]))
         unit.write(address, values, fc)
         return bytes([fc]) + data[:4]
+    if fc == 0x16:  # mask write: (current AND and) OR (or AND NOT and)
+        _check_length(data, 6)
+        address, and_mask, or_mask = struct.unpack(">HHH", data)
+        current = unit.read("holding", address, 1)[0]
+        unit.write(address, [(current & and_mask) | (or_mask & ~and_mask & 0xFFFF)], fc)
+        return bytes([fc]) + data
     if fc == 0x17:
         r_addr, r_count, w_addr, w_count, nbytes = struct.unpack(">HHHHB", data[:9])
         if not (1 <= r_count <= 125 and 1 <= w_count <= 121 and nbytes == 2 * w_count

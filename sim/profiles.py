@@ -10,6 +10,9 @@ Trigger styles (``trigger.style``; the rules are in :class:`sim.drive.Drive`):
 
 - ``plain``: a write of ``value`` (any write without one) or a 0->1 edge of ``rising_bit``
   starts a move to the target register; ``home_value`` homes;
+- ``leadshine-pr`` (Leadshine RS/PR): as ``plain``, but the move runs PR0 as its mode word
+  at :data:`LEADSHINE_PR0_MODE` says: 0x41 (bit 6) relative to the command position, 1
+  absolute;
 - ``oriental-direct`` (Oriental Motor AZ direct data operation): the 32-bit trigger field
   (``words: 2``, high word first) written non-zero (1: all fields, -1..-7: one field
   updated) executes at once with the operation type at :data:`AZ_OPERATION_TYPE`
@@ -30,7 +33,13 @@ from __future__ import annotations
 import copy
 from typing import Any
 
-TRIGGER_STYLES = ("plain", "oriental-direct", "panasonic-block", "kinco-control")
+TRIGGER_STYLES = ("plain", "leadshine-pr", "oriental-direct", "panasonic-block",
+                  "kinco-control")
+
+#: Leadshine PR0's mode word (Pr9.00): bit 6 set (0x41) a move relative to the command
+#: position, otherwise (1) absolute
+LEADSHINE_PR0_MODE = 0x6200
+LEADSHINE_RELATIVE_BIT = 6
 
 #: Oriental AZ direct data operation: the operation type field (32-bit, high word first)
 AZ_OPERATION_TYPE = 0x005A
@@ -56,7 +65,8 @@ DRIVE_PROFILES: dict[str, dict[str, Any]] = {
         "feedback": {"address": 0x602A, "table": "holding", "order": "hi_lo"},
         "status": {"address": 0x1003, "alarm_bit": 0, "enabled_bit": 1, "moving_bit": 2,
                    "in_position_bit": 4, "homed_bit": 6},
-        "trigger": {"address": 0x6002, "value": 0x10, "rising_bit": None, "home_value": 0x20},
+        "trigger": {"address": 0x6002, "value": 0x10, "rising_bit": None, "home_value": 0x20,
+                    "style": "leadshine-pr"},
         "speed": {"address": 0x6203, "scale_mm_s": 1.0},
         "memory": [{"address": 0x6200, "count": 8}, {"address": 0x1801, "count": 1}],
         "eeprom": {"counter": {"address": 0x7F00, "count": 2}, "ram_only": True},

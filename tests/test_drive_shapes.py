@@ -253,9 +253,10 @@ def test_exceptions_pass_through_and_a_refused_move_sends_nothing(tmp_path: Path
 
 
 def test_a_refused_start_leaves_the_edge_still_to_come(tmp_path: Path):
-    """Kinco, planar on_trigger: the edge whose commit is refused (a target out of travel)
-    never reached the drive, so the master's next 0x3F is still an edge: the gateway must
-    commit then, not forward it as a repeat (the drive would start on a stale target)."""
+    """Kinco, planar on_trigger: the edge that is refused (a relative start) never reached
+    the drive, so the master's next 0x3F is still an edge: the gateway must commit then, not
+    forward it as a repeat (the drive would start on a stale target). A held target outside
+    travel is refused at its write, not kept for the start."""
 
     async def body():
         async with rig(tmp_path, gateway_profile(KINCO, planar=True), XY_FILES, drives="rtu",
@@ -263,11 +264,14 @@ def test_a_refused_start_leaves_the_edge_still_to_come(tmp_path: Path):
             master, chain = r["master"], r["chain"]
             x = r["sim"].sim.drives["X"]
             await set_target(master, KINCO, 2, 400_000)
-            await set_target(master, KINCO, 1, 900_000)  # held: beyond X's 800 mm travel
-            await ok(await master.write_register(KINCO_CONTROL, 0x2F, device_id=1))
-            rr = await master.write_register(KINCO_CONTROL, 0x3F, device_id=1)
-            assert rr.isError() and rr.exception_code == 0x03 and x.moves_started == 0
+            rr = await master.write_registers(0x4000, target_words(KINCO, 900_000),
+                                              device_id=1)  # beyond X's 800 mm travel
+            assert rr.isError() and rr.exception_code == 0x03
             await set_target(master, KINCO, 1, 500_000)
+            await ok(await master.write_register(KINCO_CONTROL, 0x2F, device_id=1))
+            rr = await master.write_register(KINCO_CONTROL, 0x5F, device_id=1)  # relative
+            assert rr.isError() and rr.exception_code == 0x03 and x.moves_started == 0
+            assert not x.received or all(e.address == KINCO_CONTROL for e in x.received)
             await ok(await master.write_register(KINCO_CONTROL, 0x3F, device_id=1))
             inputs = {"X": AxisInput(500_000, 1), "Y": AxisInput(400_000, 1)}
             assert started_targets(x, KINCO) == [chain.command_pulses("X", inputs)]

@@ -6,9 +6,13 @@ A mixin of :class:`gateway.router.Gateway`: the rules are the unicast ones (its 
 - touching an axis's target: expanded into what a unicast of the same request to each axis
   whose target or trigger it touches does (corrected target, planar commit rules, trigger
   after its target); nothing is broadcast;
-- touching triggers only (a register, a 32-bit field or a coil, whatever the axis has):
-  each fired axis's pending target is committed first (one corrected unicast write each,
-  its planar partner's too under ``on_trigger``), then the request is broadcast;
+- touching triggers, move modes or block selects only (a register, a 32-bit field or a
+  coil, whatever the axis has): every axis is judged first (a relative start, a mode or
+  block select compgw does not correct for: the whole broadcast refused, 0x03, nothing
+  sent), then each fired axis's pending target is committed (one corrected unicast write
+  each, its planar partner's too under ``on_trigger``), then the request is broadcast;
+- a mask write (FC22) of any of those registers: refused (0x03): its result depends on
+  each drive's own word;
 - anything else: broadcast as it is.
 
 Broadcast means one unit-0 frame on every RTU bus (serial or over TCP), and one unicast to
@@ -26,10 +30,13 @@ from typing import TYPE_CHECKING
 
 from ..axis import overlap
 from ..config import Axis
+from ..drive_model import LatchedField, touched, written_words
 from ..triggers import COIL_WRITES, judge, writes_trigger
 from .downstream import Bus
 from .frames import (
+    ILLEGAL_DATA_VALUE,
     ILLEGAL_FUNCTION,
+    MASK_WRITE_REGISTER,
     WRITE_MULTIPLE_COILS,
     WRITE_MULTIPLE_REGISTERS,
     WRITE_SINGLE_COIL,
@@ -47,7 +54,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-MASK_WRITE_REGISTER = 0x16
 #: function codes a broadcast may carry (the spec allows writes only)
 BROADCAST_WRITES = frozenset({WRITE_SINGLE_COIL, WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_COILS,
                               WRITE_MULTIPLE_REGISTERS, MASK_WRITE_REGISTER})
@@ -68,6 +74,10 @@ class Broadcasts:
         async def _commit(self, setup: Setup, owner: str, partners: list[str],
                           block: Request | None) -> None: ...
 
+        async def _judge_latched(self, name: str, axis: Axis,
+                                 fields: list[LatchedField] | tuple[LatchedField, ...],
+                                 latched: dict[int, int], when: str) -> None: ...
+
         def _axis_locks(self, names: Iterable[str]) -> AbstractAsyncContextManager[None]: ...
 
     async def _broadcast(self, setup: Setup, pdu: bytes) -> bytes:
@@ -80,25 +90,29 @@ class Broadcasts:
             req = parse_request(pdu) if fc != MASK_WRITE_REGISTER else None
         except FrameError as exc:
             raise ModbusError(f"broadcast refused: {exc}", exc.code) from None
-        self.counters.broadcasts += 1
         if req is None:
+            self._mask_write_allowed(setup, pdu)
+            self.counters.broadcasts += 1
             await self._broadcast_raw(setup, pdu)
             return pdu[:5]
+        self.counters.broadcasts += 1
         reply = response_for_write(req)
         start, count = req.write_address or 0, req.write_count
-        targets, triggers = [], []
+        targets, triggers, modes = [], [], []
         for name, axis in setup.config.axes.items():
             regs = axis.registers
             if fc not in COIL_WRITES and overlap(start, count, regs.target.address):
                 targets.append(name)
             elif writes_trigger(regs.trigger, fc, start, count):
                 triggers.append(name)
+            elif fc not in COIL_WRITES and touched(setup.latched[name], start, count):
+                modes.append(name)
         if targets:
             self.counters.broadcasts_expanded += 1
             log.info("broadcast FC%02d at 0x%04X touches the target of %s: sent to each axis "
                      "corrected", fc, start, ", ".join(targets))  # fmt: skip
             failure: ModbusError | None = None
-            for name in [*targets, *triggers]:  # one axis refused: the others still go
+            for name in [*targets, *triggers, *modes]:  # one axis refused: the others go
                 try:
                     answer = await self._write(setup, name, setup.config.axes[name], req, pdu)
                 except ModbusError as exc:
@@ -109,27 +123,65 @@ class Broadcasts:
             if failure is not None:
                 raise failure
             return reply
-        if triggers:
-            await self._broadcast_trigger(setup, triggers, req, pdu)
+        if triggers or modes:
+            await self._broadcast_trigger(setup, triggers, modes, req, pdu)
         else:
             await self._broadcast_raw(setup, pdu)
         return reply
 
-    async def _broadcast_trigger(self, setup: Setup, names: list[str], req: Request,
-                                 pdu: bytes) -> None:
-        """Commit each fired axis's target (unicast, corrected), then broadcast the
-        trigger; every axis involved stays locked until the trigger is out."""
-        involved = set(names)
+    def _mask_write_allowed(self, setup: Setup, pdu: bytes) -> None:
+        """A broadcast mask write (FC22) to a register that decides a move (a target, a
+        trigger, a move mode, a block select) is refused (0x03): its result depends on
+        each drive's word, which a broadcast does not read."""
+        if len(pdu) != 7:
+            raise ModbusError(f"broadcast refused: FC22: PDU is {len(pdu)} bytes, expected 7",
+                              ILLEGAL_DATA_VALUE)  # fmt: skip
+        address = int.from_bytes(pdu[1:3], "big")
+        for name, axis in setup.config.axes.items():
+            regs = axis.registers
+            if (overlap(address, 1, regs.target.address)
+                    or writes_trigger(regs.trigger, WRITE_SINGLE_REGISTER, address, 1)
+                    or touched(setup.latched[name], address, 1)):
+                raise ModbusError(f"broadcast mask write (FC22) at {address:#06x} refused: it "
+                                  f"decides axis {name}'s moves; write it to each drive",
+                                  ILLEGAL_DATA_VALUE)  # fmt: skip
+
+    async def _broadcast_trigger(self, setup: Setup, names: list[str], modes: list[str],
+                                 req: Request, pdu: bytes) -> None:
+        """Judge every axis first (a relative start, a move mode or block select that is
+        not what compgw corrects for: the whole broadcast refused, nothing sent); then
+        commit each fired axis's target (unicast, corrected) and broadcast the write; every
+        axis involved stays locked until it is out."""
+        involved = set(names) | set(modes)
         for name in names:
             partner = setup.planar_partner(name)
             if partner is not None:
                 involved.add(partner)
+        start = req.write_address or 0
         verdicts = {}
+        written: dict[str, dict[int, int]] = {}
         async with self._axis_locks(involved):
-            for name in names:
-                rule = setup.config.axes[name].registers.trigger
+            for name in [*names, *modes]:
+                axis = setup.config.axes[name]
+                fields = setup.latched[name]
+                hit = touched(fields, start, req.write_count) if req.function not in \
+                    COIL_WRITES else []  # fmt: skip
+                written[name] = written_words(hit, start, req.values)
+                latched = {**self._axes[name].latched, **written[name]}
+                if hit:
+                    await self._judge_latched(name, axis, hit, latched, "a broadcast write")
+                if name not in names:
+                    continue
+                rule = axis.registers.trigger
                 assert rule is not None
                 verdicts[name] = verdict = judge(rule, self._axes[name].trigger, req)
+                if verdict.relative:
+                    raise ModbusError(f"axis {name}: a broadcast relative start (trigger bit "
+                                      f"{rule.relative_bit}) is refused: compgw corrects "
+                                      "positions, not distances", ILLEGAL_DATA_VALUE)
+                if verdict.fires and fields:
+                    await self._judge_latched(name, axis, fields, latched, "a broadcast start")
+            for name, verdict in verdicts.items():
                 if not verdict.fires:
                     continue
                 partner = setup.planar_partner(name)
@@ -137,6 +189,8 @@ class Broadcasts:
                             else [])  # fmt: skip
                 await self._commit(setup, name, partners, None)
             await self._broadcast_raw(setup, pdu)
+            for name, words in written.items():
+                self._axes[name].latched.update(words)
             homed = False
             for name, verdict in verdicts.items():  # the drives have the trigger write
                 self._axes[name].trigger = verdict.shadow

@@ -18,6 +18,7 @@ from ..config import WriteProtect
 from .frames import (
     ILLEGAL_DATA_ADDRESS,
     ILLEGAL_DATA_VALUE,
+    MASK_WRITE_REGISTER,
     READ_WRITE_MULTIPLE_REGISTERS,
     WRITE_MULTIPLE_COILS,
     WRITE_MULTIPLE_REGISTERS,
@@ -32,7 +33,6 @@ Handler = Callable[[int, bytes], Awaitable[bytes | None]]
 Done = Callable[[bytes | None, BaseException | None], None]
 FastHandler = Callable[[int, bytes, Done], bool]
 
-MASK_WRITE_REGISTER = 0x16
 _HOLDING_WRITES = {WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_REGISTERS, MASK_WRITE_REGISTER,
                    READ_WRITE_MULTIPLE_REGISTERS}
 _COIL_WRITES = {WRITE_SINGLE_COIL, WRITE_MULTIPLE_COILS}
