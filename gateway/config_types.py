@@ -52,6 +52,11 @@ Interval = Annotated[tuple[float, float], AfterValidator(_low_below_high)]  # [l
 WordOrder = Literal["hi_lo", "lo_hi"]
 
 
+def path_error(path: tuple[Any, ...], value: Any, rule: str) -> ValueError:
+    """A model-level error that names the key it is about (see format_validation_error)."""
+    return ValueError(f"{'.'.join(str(p) for p in path)}: {value!r} {rule}")
+
+
 class StrictModel(BaseModel):
     """Unknown keys are errors; a loaded config never changes."""
 

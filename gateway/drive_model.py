@@ -19,7 +19,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 from .axis import overlap
-from .config import Registers
+from .config_registers import Registers
 from .modbus.frames import WordOrder, unpack_int32
 
 

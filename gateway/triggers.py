@@ -6,10 +6,12 @@ Pure functions over a parsed write request (:class:`gateway.modbus.frames.Reques
 trigger's config. A trigger is a holding register (FC06, FC16 blocks around it), a 32-bit
 field of two registers (``words: 2``, either word written counts), or a coil (FC05, FC15
 covering it). The router keeps, per axis, what the master last wrote to the trigger
-(:class:`TriggerShadow`), so a rising bit is an edge of what was written and a 32-bit value
-written one word at a time is judged whole. It takes the shadow a verdict gives only once
-the drive has the write: a trigger refused (a target out of travel, the drive's exception)
-leaves the edge still to come.
+(:class:`TriggerShadow`), so a 32-bit value written one word at a time is judged whole. A
+``rising_bit`` write with the bit set is taken as a possible start whatever the shadow says
+(the drive sees an edge against what *it* held, which a broadcast it refused can leave
+other than the shadow): its pending target is committed and its mode judged first, and a
+relative bit with it is refused. It takes the shadow a verdict gives only once the drive
+has the write.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from .axis import overlap
-from .config import TriggerRegister
+from .config_registers import TriggerRegister
 from .modbus.frames import (
     READ_WRITE_MULTIPLE_REGISTERS,
     WRITE_MULTIPLE_COILS,
@@ -65,7 +67,6 @@ def writes_trigger(rule: TriggerRegister | None, fc: int, start: int, count: int
 def judge(rule: TriggerRegister, shadow: TriggerShadow, req: Request) -> Verdict:
     """The verdict on ``req``, a write that :func:`writes_trigger`, after ``shadow``."""
     start = req.write_address or 0
-    previous = shadow.value
     words = list(shadow.words)
     if rule.table == "coils":
         value = req.values[rule.address - start]
@@ -79,8 +80,10 @@ def judge(rule: TriggerRegister, shadow: TriggerShadow, req: Request) -> Verdict
             value = unpack_int32(words, rule.order, signed=False)
             mask = 0xFFFFFFFF
     if rule.rising_bit is not None:
-        bit = 1 << rule.rising_bit
-        fires = bool(value & bit) and not previous & bit
+        # any write with the bit set may be the drive's edge: what the drive held before is
+        # not relied on (a broadcast the drive refused, a write by another path leave it
+        # other than the shadow), so its target is committed and its mode judged first
+        fires = bool(value >> rule.rising_bit & 1)
     else:
         fires = rule.value is None or value == rule.value & mask
     homes = rule.home_value is not None and value == rule.home_value & mask

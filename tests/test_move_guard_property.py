@@ -159,7 +159,7 @@ def allowed(name: str, chain) -> dict[str, set[int]]:
 
 #: the sequences that found the issue's cases (AZ: the low word of the operation type, then
 #: the block; A6: the top byte of block 0's command, then target and STB; Kinco: a distance
-#: and a relative start; Leadshine: PR0 relative)
+#: and a relative start; Leadshine: PR0 relative), and this test's own finds
 REGRESSIONS: dict[str, list[list[tuple[int, bytes]]]] = {
     "oriental-az-direct": [[
         (1, build_write_single_register(0x005B, 2)),
@@ -178,7 +178,13 @@ REGRESSIONS: dict[str, list[list[tuple[int, bytes]]]] = {
         (1, build_write_single_register(0x3100, 0x4F)),
         (1, build_write_single_register(0x3100, 0x5F))], [
         (1, build_write_single_register(0x3100, 0x2F)),
-        (0, build_write_single_register(0x3100, 0x5F))]],
+        (0, build_write_single_register(0x3100, 0x5F))], [
+        # found by this test: a broadcast the drive refuses (0x3101 is not writable) left
+        # compgw's shadow of the control word (0x1F) other than the drive's (0x0F), so a
+        # relative 0x5F was no edge to compgw and a relative start to the drive
+        (1, build_write_single_register(0x3100, 0x0F)),
+        (0, build_write_multiple_registers(0x3100, [0x1F, 1, 0])),
+        (1, build_write_single_register(0x3100, 0x5F))]],
     "inovance-sv660p": [[(1, build_write_single_register(0x3100, 0x11)),
                          (1, build_write_single_register(0x3100, 0x11))]],
     "leadshine-rs-pr0": [[
