@@ -34,7 +34,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
             tls_lines, tls_warnings = check_files(config.upstream.tls,
                                                   Path(args.config).resolve().parent)
     except ConfigError as exc:
-        print(f"compgw check: {exc}", file=sys.stderr)
+        for line in exc.lines:
+            print(f"compgw check: {line}", file=sys.stderr)
         return EXIT_BAD_INPUT
     print(describe(config, chain))
     for line in tls_lines:
@@ -79,8 +80,12 @@ def _cmd_status(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config)
     except ConfigError as exc:
-        print(f"compgw status: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        config = _reachable_part(args.config)
+        if config is None:
+            print(f"compgw status: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        print(f"compgw status: warning: {exc}; the gateway is asked all the same (its "
+              "upstream and status sections are sound)", file=sys.stderr)  # fmt: skip
     up = config.upstream
     listen = up.tls if args.cert or args.key else up.tcp
     if listen is None:
@@ -147,6 +152,32 @@ def _cmd_status(args: argparse.Namespace) -> int:
     for line in file_warnings(args.config):
         print(f"compgw status: warning: {line}", file=sys.stderr)
     return EXIT_OK
+
+
+def _reachable_part(path: str) -> Any:
+    """What ``compgw status`` needs of a config that does not validate as a whole (a typo
+    in an axis must not hide the live gateway): its upstream and status sections, the axis
+    and thermal source names; None when those are not sound either."""
+    from types import SimpleNamespace
+
+    from pydantic import ValidationError
+
+    from .config import ConfigError, Status, Upstream
+    from .config_types import read_yaml
+
+    try:
+        data = read_yaml(path, ConfigError)
+        upstream = Upstream.model_validate(data.get("upstream"))
+        status = Status.model_validate(data.get("status") or {})
+    except (ConfigError, ValidationError, AttributeError):
+        return None
+    axes = data.get("axes") if isinstance(data.get("axes"), dict) else {}
+    sources = data.get("thermal_sources") if isinstance(data.get("thermal_sources"),
+                                                         dict) else {}  # fmt: skip
+    return SimpleNamespace(upstream=upstream, status=status, thermal_sources=dict(sources),
+                           axes={name: SimpleNamespace(rotary=bool(isinstance(a, dict)
+                                                                   and a.get("rotary")))
+                                 for name, a in axes.items()})  # fmt: skip
 
 
 def _tls_context(args: argparse.Namespace, config: Any) -> Any:

@@ -26,9 +26,9 @@ from .config_types import (
     Positive,
     UnitId,
     WordOrder,
-    format_validation_error,
     in_range,
     read_yaml,
+    validation_lines,
 )
 from .config_types import StrictModel as Model
 from .config_types import path_error as _path_error
@@ -36,7 +36,12 @@ from .profiles import PROFILES, merge_defaults, profile_names
 
 
 class ConfigError(ValueError):
-    """A config that must not run; the message is one line naming the YAML path."""
+    """A config that must not run; the message is one line naming the YAML path.
+    ``lines``: every mistake found, one line each (``compgw check`` prints them all)."""
+
+    def __init__(self, message: str, lines: list[str] | None = None) -> None:
+        super().__init__(message)
+        self.lines = lines or [message]
 
 
 # -- upstream -------------------------------------------------------------------------------
@@ -630,7 +635,10 @@ def parse_config(data: Any, source: str = "<config>") -> GatewayConfig:
     try:
         return GatewayConfig.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(f"{source}: {format_validation_error(exc, _UNION_TAGS)}") from None
+        lines = [f"{source}: {line}" for line in validation_lines(exc, _UNION_TAGS,
+                                                                    GatewayConfig)]
+        more = f" (and {len(lines) - 1} more: compgw check lists them)" if len(lines) > 1 else ""
+        raise ConfigError(lines[0] + more, lines) from None
 
 
 def config_crc(path: str | Path) -> int:

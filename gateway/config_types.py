@@ -11,7 +11,7 @@ from __future__ import annotations
 import difflib
 import re
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args, get_origin
 
 import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
@@ -66,29 +66,66 @@ class StrictModel(BaseModel):
 _RELATIVE_PATH = re.compile(r"[\w.]+")
 
 
-def format_validation_error(exc: ValidationError, union_tags: frozenset[str] = frozenset()) -> str:
-    """One line for a validation error: ``yaml.path: value rule``.
+def format_validation_error(exc: ValidationError, union_tags: frozenset[str] = frozenset(),
+                            root: type[BaseModel] | None = None) -> str:
+    """One line for a validation error: ``yaml.path: value rule`` (the first of
+    :func:`validation_lines`)."""
+    return validation_lines(exc, union_tags, root)[0]
 
-    In a union, the member that got furthest explains the mistake best; ``union_tags`` are
-    the member names pydantic puts into the path, removed here. A model-level rule may name
-    the key it is about as ``"relative.path: rest"``; that path is appended to the location.
+
+def validation_lines(exc: ValidationError, union_tags: frozenset[str] = frozenset(),
+                     root: type[BaseModel] | None = None) -> list[str]:
+    """Every mistake of a validation error, one line each, the deepest first:
+    ``yaml.path: value rule``.
+
+    In a union, the member that got furthest explains the mistake best (the others'
+    errors, on a path that leads to it, are left out); ``union_tags`` are the member names
+    pydantic puts into the path, removed here. A model-level rule may name the key it is
+    about as ``"relative.path: rest"``; that path is appended to the location. An unknown
+    key is given the nearest known one of its model (``root``: the top model) as a guess.
     """
 
     def clean(loc: tuple[Any, ...]) -> tuple[Any, ...]:
         return tuple(p for p in loc if not (isinstance(p, str) and p in union_tags))
 
-    err = max(exc.errors(include_url=False), key=lambda e: len(clean(e["loc"])))
-    loc = ".".join(str(p) for p in clean(err["loc"]))
+    errors = exc.errors(include_url=False)
+    ordered = sorted(errors, key=lambda e: -len(clean(e["loc"])))
+    taken: list[tuple[Any, ...]] = []
+    lines: list[str] = []
+    explained = set()  # a misspelt required key: its stray spelling is said beside it
+    for err in errors:
+        if err["type"] == "missing":
+            loc = clean(err["loc"])
+            stray = [clean(e["loc"]) for e in errors if e["type"] == "extra_forbidden"
+                     and clean(e["loc"])[:-1] == loc[:-1]]
+            near = difflib.get_close_matches(str(loc[-1]), [str(x[-1]) for x in stray], n=1)
+            explained.update(x for x in stray if near and str(x[-1]) == near[0])
+    for err in ordered:
+        loc = clean(err["loc"])
+        if any(loc == t[: len(loc)] for t in taken) or loc in explained:
+            continue
+        taken.append(loc)
+        line = _one_line(err, loc, errors, clean, root)
+        if line not in lines:
+            lines.append(line)
+    return lines or ["(no detail)"]
+
+
+def _one_line(err: Any, loc_parts: tuple[Any, ...], errors: list[Any], clean: Any,
+              root: type[BaseModel] | None) -> str:  # fmt: skip
+    loc = ".".join(str(p) for p in loc_parts)
     message = str(err["msg"]).removeprefix("Value error, ")
     if err["type"] == "missing":
-        parent = clean(err["loc"])[:-1]
-        stray = [str(clean(e["loc"])[-1]) for e in exc.errors(include_url=False)
+        parent = loc_parts[:-1]
+        stray = [str(clean(e["loc"])[-1]) for e in errors
                  if e["type"] == "extra_forbidden" and clean(e["loc"])[:-1] == parent]
-        near = difflib.get_close_matches(str(clean(err["loc"])[-1]), stray, n=1)
+        near = difflib.get_close_matches(str(loc_parts[-1]), stray, n=1)
         return f"{loc}: missing (required)" + (f"; {near[0]!r} beside it is no key (a typo?)"
                                                 if near else "")  # fmt: skip
     if err["type"] == "extra_forbidden":
-        return f"{loc}: unknown key"
+        known = _keys_at(root, loc_parts[:-1]) if root is not None else []
+        near = difflib.get_close_matches(str(loc_parts[-1]), known, n=1)
+        return f"{loc}: unknown key" + (f" (did you mean {near[0]!r}?)" if near else "")
     value = err.get("input")
     if isinstance(value, dict | list | tuple):
         head, sep, rest = message.partition(": ")
@@ -98,6 +135,46 @@ def format_validation_error(exc: ValidationError, union_tags: frozenset[str] = f
     if message.startswith(("is ", "must ")):
         return f"{loc}: {value!r} {message}"
     return f"{loc}: {value!r}: {message[:1].lower()}{message[1:]}"
+
+
+def _keys_at(model: type[BaseModel], path: tuple[Any, ...]) -> list[str]:
+    """The keys of the model found at ``path`` from ``model`` (through nested models,
+    mappings and lists); [] where the path leads to no model."""
+    current: Any = model
+    for part in path:
+        current = _model_in(current)
+        if current is None:
+            return []
+        if isinstance(current, tuple):  # a mapping or list: its keys are the user's
+            current = current[0]
+            continue
+        field = current.model_fields.get(str(part))
+        if field is None:
+            return []
+        current = field.annotation
+    found = _model_in(current)
+    if isinstance(found, tuple):
+        found = found[0]
+    return list(found.model_fields) if isinstance(found, type) and issubclass(found, BaseModel) \
+        else []  # fmt: skip
+
+
+def _model_in(tp: Any) -> Any:
+    """The model in an annotation: a model class, or (model,) for a dict/list of models."""
+    if isinstance(tp, type) and issubclass(tp, BaseModel):
+        return tp
+    origin = get_origin(tp)
+    args = [a for a in get_args(tp) if a is not type(None)]
+    if origin in (dict, list, tuple, set, frozenset) and args:
+        inner = _model_in(args[-1])
+        if inner is not None:
+            return (inner if not isinstance(inner, tuple) else inner[0],)
+        return None
+    for arg in args:  # Optional, Union, Annotated
+        inner = _model_in(arg)
+        if inner is not None:
+            return inner
+    return None
 
 
 def read_text(path: str | Path, error: type[Exception]) -> str:

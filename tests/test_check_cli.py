@@ -272,3 +272,42 @@ def test_commission_refuses_a_drive_that_writes_its_eeprom_on_every_bus_write(tm
     assert out.returncode != 0 and "axes.X: the inovance-sv660p drive writes every bus write " \
         "to EEPROM by default, and a calibration writes thousands" in out.stderr, out
     assert not (tmp_path / "raw.csv").exists()
+
+
+def test_check_lists_every_mistake_and_guesses_a_misspelt_key(tmp_path: Path):
+    config = json.loads(json.dumps(CONFIG))
+    config["axes"]["X"]["home_directon"] = 1  # trial: a typo stopped at the first error
+    config["axes"]["X"]["registers"]["target"]["address"] = 70000
+    config["axes"]["Y"]["pulse_mm"] = -1
+    result = _check(_write(tmp_path, GOOD_X, config))
+    assert result.returncode == 1
+    lines = result.stderr.splitlines()
+    assert "axes.X.home_directon: unknown key (did you mean 'home_direction'?)" in lines[1]
+    assert any("axes.X.registers.target.address: 70000 is not in 0..65535" in x for x in lines)
+    assert any("axes.Y.pulse_mm: -1 must be > 0" in x for x in lines)
+    assert len(lines) == 3
+
+
+def test_status_reaches_the_live_gateway_past_a_typo_in_an_axis(tmp_path: Path):
+    import asyncio
+
+    import yaml
+
+    from tests.gateway_rig import rig
+
+    async def body() -> subprocess.CompletedProcess[str]:
+        async with rig(tmp_path) as r:
+            data = yaml.safe_load(r["config_path"].read_text())
+            data["axes"]["X"]["home_directon"] = 1
+            data["upstream"]["tcp"]["port"] = r["app"].tcp_port
+            broken = tmp_path / "typo.yaml"
+            broken.write_text(yaml.safe_dump(data))
+            return await asyncio.to_thread(subprocess.run, [
+                sys.executable, "-m", "gateway.cli", "status", "-c", str(broken)],
+                capture_output=True, text=True, timeout=60, cwd=ROOT)
+
+    out = asyncio.run(body())
+    assert out.returncode == 0, out.stderr
+    assert "axes.X.home_directon: unknown key (did you mean 'home_direction'?)" in out.stderr
+    assert "the gateway is asked all the same" in out.stderr
+    assert "X" in out.stdout and "Y" in out.stdout
