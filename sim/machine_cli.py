@@ -3,6 +3,7 @@ files (sim config, truth, gateway config, machine.json) and exit. 0 ok, 1 bad in
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -32,4 +33,23 @@ def write_machine_dir(seed: int | None, roughness: str, real: str | None, out: s
         print(f"compgw sim: {err}", file=sys.stderr)
         return 1
     print(f"compgw sim: wrote {out_dir}/sim.yaml, gateway.yaml, machine.json, truth/")
+    for line in next_steps(out_dir):
+        print(line)
     return 0
+
+
+def next_steps(out_dir: Path) -> list[str]:
+    """What to run next, with the instruments' addresses (from machine.json): a user
+    should not have to dig the laser's unit id out of sim.yaml."""
+    summary = json.loads((out_dir / "machine.json").read_text(encoding="utf-8"))
+    ins = summary.get("instruments", {})
+    given = [ins[k]["calibrate"] for k in ("laser", "xy", "delta_a", "temperature")
+             if k in ins and "calibrate" in ins[k]]
+    return [
+        "next, in three terminals:",
+        f"  compgw sim -c {out_dir}/sim.yaml",
+        f"  compgw run -c {out_dir}/gateway.yaml",
+        f"  compgw commission -c {out_dir}/gateway.yaml {' '.join(given)} --dry-run",
+        "(commission reloads the gateway through its status unit: set status.remote_control: "
+        f"true in {out_dir}/gateway.yaml first, and back to false when done)",
+    ]

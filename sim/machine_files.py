@@ -232,7 +232,9 @@ def instruments_summary(spec: MachineSpec) -> dict[str, Any]:
     elif sensor.get("kind") == "temperature":
         out["temperature"] = {"unit": TEMPERATURE_UNIT, "channels": [*names, "ambient"],
                               "positions_mm": sensor["positions_mm"],
-                              "registers": "channel k at input k: int16, 0.01 degC"}  # fmt: skip
+                              "registers": "channel k at input k: int16, 0.01 degC",
+                              "calibrate": f"--temperature 127.0.0.1:{SIM_PORT}:"
+                                           f"{TEMPERATURE_UNIT}"}  # fmt: skip
     return out
 
 

@@ -50,6 +50,10 @@ def test_same_seed_same_bytes_other_seed_other_machine(tmp_path):
             "--roughness", "rough", "--out"]  # fmt: skip
     out = subprocess.run([*argv, str(tmp_path / "a")], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
+    # the next step, with the instruments' unit ids (trial: dug out of sim.yaml)
+    assert f"compgw commission -c {tmp_path / 'a'}/gateway.yaml --laser 127.0.0.1:5021:20 " \
+           "--xy-device 127.0.0.1:5021:21" in out.stdout, out.stdout
+    assert "set status.remote_control: true" in out.stdout
     write_machine(random_machine(5, "rough"), tmp_path / "b")
     write_machine(random_machine(6, "rough"), tmp_path / "c")
     a, b, c = files(tmp_path / "a"), files(tmp_path / "b"), files(tmp_path / "c")
