@@ -588,21 +588,22 @@ def warnings(config: GatewayConfig) -> list[str]:
     if up.tls is not None and up.tcp is not None and not _loopback(up.tcp.host):
         out.append(f"upstream.tcp: plain Modbus/TCP on {up.tcp.host}:{up.tcp.port} beside "
                    "upstream.tls: anyone the allowlist lets in writes without a certificate; "
-                   "leave it off or on loopback (README, \"Securing the gateway\")")  # fmt: skip
+                   "leave it off or on loopback (docs/service-and-security.md, \"Securing "
+                   "the gateway\")")  # fmt: skip
     moving = [n for n, a in config.axes.items()
               if a.compensation.thermal is not None and a.compensation.thermal.motion is not None]
     if moving and config.state_file is None:
         out.append(f"axes.{moving[0]}.compensation.thermal.motion without a state_file: a "
                    "restart of the gateway forgets the heat in the screw and corrects a warm "
-                   "machine as a cold one until it has cooled; set state_file (README, "
-                   "\"Configuration\")")  # fmt: skip
+                   "machine as a cold one until it has cooled; set state_file "
+                   "(docs/configuration.md)")  # fmt: skip
     for name, axis in config.axes.items():
         unit_mm = axis.pulse_mm / axis.command_scale
         if corrects(config, name) and not axis.rotary and unit_mm > COARSE_UNIT_MM:
             out.append(
                 f"axes.{name}: corrections land to whole drive units of {unit_mm * 1000:g} µm "
                 f"(up to ±{unit_mm * 500:g} µm of rounding); gear the drive finer and set "
-                "command_scale (README, \"Resolution first\")"
+                "command_scale (docs/retrofit.md, \"Resolution first\")"
             )
         if axis.profile is None:
             continue
@@ -623,8 +624,8 @@ def warnings(config: GatewayConfig) -> list[str]:
                 out.append(f"axes.{name}.registers.{key}: address {have.address:#06x} where "
                            f"the {axis.profile} profile has {theirs['address']:#06x}: a "
                            "registers block left from another drive beside the profile? "
-                           "Remove it to take the profile's whole (README, \"Retrofit your "
-                           "machine\")")  # fmt: skip
+                           "Remove it to take the profile's whole (docs/retrofit.md, \"A profile "
+                           "replaces the registers\")")  # fmt: skip
     return out
 
 

@@ -187,7 +187,7 @@ def test_check_warns_when_corrections_are_rounded_to_coarse_drive_units():
     data = copy.deepcopy(BASE)  # 1 µm pulses, backlash compensation on X
     found = [w for w in warnings(parse_config(copy.deepcopy(data))) if "drive units" in w]
     assert found == ["axes.X: corrections land to whole drive units of 1 µm (up to ±0.5 µm of "
-                     'rounding); gear the drive finer and set command_scale (README, '
+                     'rounding); gear the drive finer and set command_scale (docs/retrofit.md, '
                      '"Resolution first")']  # fmt: skip
     data["axes"]["X"]["command_scale"] = 10
     data["axes"]["X"]["registers"]["feedback"]["upstream_counts_per_pulse"] = 1
