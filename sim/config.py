@@ -365,6 +365,59 @@ class PlaneConfig(_Model):
 
 
 # ---------------------------------------------------------------- instruments
+class LaserBridgeConfig(_Model):
+    """The laser on the bridge line protocol (docs/instruments-bridge.md) over TCP.
+
+    ``hang_after`` / ``garbage_after``: faults for tests, counted over the server's life:
+    after N requests it stops answering (the connection stays open) / answers ``OK banana``.
+    """
+
+    host: str = "127.0.0.1"
+    port: Annotated[int, _in_range(0, 65535)] = 0
+    hang_after: Annotated[int, Field(ge=0)] | None = None
+    garbage_after: Annotated[int, Field(ge=0)] | None = None
+
+
+class LaserRecordingConfig(_Model):
+    """The laser recording continuously, as CARTO's Dynamic capture does (sim/recorder.py)."""
+
+    #: where ``rec-NNN.rtx|csv`` files go (relative to the sim config file)
+    dir: str = "recordings"
+    format: Literal["rtx", "csv"] = "rtx"
+    #: the laser channel recorded (default: the laser's first channel)
+    axis: str | None = None
+    rate_hz: PositiveFloat = 200.0
+    unit: Literal["um", "mm"] = "um"
+    noise_um: NonNegFloat = 0.02
+    #: while the axis moves: a sine of this amplitude at ``vibration_hz`` plus normal noise
+    #: of half of it
+    vibration_um: NonNegFloat = 0.3
+    vibration_hz: PositiveFloat = 40.0
+    #: after each stop: amplitude · e^(−t/ringing_s) · sin(2π · vibration_hz · t), ahead in
+    #: the move's direction
+    ringing_um: NonNegFloat = 3.0
+    ringing_s: PositiveFloat = 0.05
+    #: added to the CSV time column (the laser's clock is not the machine's)
+    clock_offset_s: float = 0.0
+    #: [start_s, end_s] of recording time left out of the file (a lost beam)
+    drop_s: tuple[NonNegFloat, NonNegFloat] | None = None
+    #: at time_scale 0, wall time while nothing moves is recorded as wall_s / idle_time_scale
+    #: seconds of standstill (how a master's dwell shows in the recording)
+    idle_time_scale: PositiveFloat = 0.02
+    csv_columns: tuple[Literal["time", "value"], Literal["time", "value"]] = ("time", "value")
+    #: the recording stops taking samples beyond this many (a capture's memory is finite)
+    max_samples: Annotated[int, Field(ge=1)] = 5_000_000
+
+    @model_validator(mode="after")
+    def _checks(self) -> LaserRecordingConfig:
+        if self.drop_s is not None and not self.drop_s[0] < self.drop_s[1]:
+            raise ValueError(f"drop_s: {list(self.drop_s)} must be [start_s, end_s], start < end")
+        if set(self.csv_columns) != {"time", "value"}:
+            raise ValueError(f"csv_columns: {list(self.csv_columns)} must be [time, value] or "
+                             "[value, time]")  # fmt: skip
+        return self
+
+
 class LaserConfig(_Model):
     """Laser interferometer: one int32 (nm) per axis, true table position."""
 
@@ -378,6 +431,10 @@ class LaserConfig(_Model):
     #: a channel's stable flag (registers after the readings) is 1 once the axis is at
     #: rest and its ringing is within this band
     stable_band_um: PositiveFloat = 0.1
+    #: the laser on the bridge line protocol over TCP (absent: no bridge server)
+    bridge: LaserBridgeConfig | None = None
+    #: continuous recording to .rtx / CSV files (absent: none)
+    recording: LaserRecordingConfig | None = None
 
 
 class XYConfig(_Model):
@@ -479,6 +536,12 @@ class SimSection(_Model):
             for name in ins.laser.axes:
                 if name not in self.axes:
                     raise ValueError(f"instruments.laser.axes: {name!r} is not an axis")
+        if ins.laser is not None and ins.laser.recording is not None:
+            channels = ins.laser.axes if ins.laser.axes is not None else tuple(self.axes)
+            rec_axis = ins.laser.recording.axis
+            if rec_axis is not None and rec_axis not in channels:
+                raise ValueError(f"instruments.laser.recording.axis: {rec_axis!r} is not a "
+                                 f"laser channel ({', '.join(channels)})")  # fmt: skip
         if ins.angle is not None:
             for name in ins.angle.axes:
                 if name not in self.axes:

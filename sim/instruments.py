@@ -6,7 +6,13 @@ Register maps (0-based addresses; int32 = two registers, high word first, two's 
   registers 2k, 2k+1: true table position along that axis, int32 in nanometres, quantised
   to ``resolution_um``, plus normal noise ``noise_um`` per read; then, after the N axes'
   readings, register 2N + k: 1 when axis k is at rest and stable (its settling ringing within
-  ``stable_band_um``), else 0 — a laser's "capture when stable".
+  ``stable_band_um``), else 0 — a laser's "capture when stable". With
+  ``laser.recording`` (sim/recorder.py) it has two holding registers besides: 0x0100 (FC06
+  or a one-register FC16: 1 starts a recording, 2 stops it and saves ``DIR/rec-NNN``;
+  reads 1 while recording, else 0) and 0x0101 (read-only: NNN of the last file saved, 0
+  before any); a start while recording or a stop while not is refused with 0x04. Every
+  other write is refused (0x02). The same laser answers the bridge line protocol
+  (sim/bridge.py) through :meth:`Laser.reading`.
 * 2-D device (``instruments.xy``): 0-1 true X, 2-3 true Y of the plane axes, int32 nm;
   4, 5: X, Y stable flags as the laser's.
 * Laser and XY device take ``sample_s`` of machine time per reading: at time_scale 0 each
@@ -28,7 +34,19 @@ import numpy as np
 from sim.clock import MachineClock
 from sim.config import DeltaAConfig, LaserConfig, TemperatureConfig, XYConfig
 from sim.machine import Machine
-from sim.pdu import ILLEGAL_ADDRESS, ModbusError, int32_to_words
+from sim.pdu import (
+    DEVICE_FAILURE,
+    ILLEGAL_ADDRESS,
+    ILLEGAL_VALUE,
+    ModbusError,
+    int32_to_words,
+)
+from sim.recorder import Recorder, RecorderError
+
+#: the laser's recording control (holding registers; only with ``laser.recording``)
+REC_CONTROL = 0x0100  # write 1: start, 2: stop and save; reads 1 while recording
+REC_LAST = 0x0101  # the number NNN of the last rec-NNN file saved
+REC_START, REC_STOP = 1, 2
 
 
 def _quantised_nm(value_mm: float, resolution_um: float) -> int:
@@ -70,16 +88,52 @@ class Laser(Instrument):
         super().__init__(*args)
         self.cfg = cfg
         self.axes = list(cfg.axes) if cfg.axes is not None else axes
+        #: the continuous recording (set by the simulation with ``laser.recording``)
+        self.recorder: Recorder | None = None
 
     def sample(self) -> list[int]:
         """Axis k at 2k: true position, nm; 2N + k: stable flag."""
-        now_s = _take_sample(self.clock, self.machine, self.cfg.sample_s)
+        nm, stable = self.reading(self.axes)
         out: list[int] = []
-        for name in self.axes:
+        for value_nm in nm:
+            out += int32_to_words(value_nm, "hi_lo")
+        return out + [int(flag) for flag in stable]
+
+    def reading(self, channels: list[str]) -> tuple[list[int], list[bool]]:
+        """One reading (``sample_s`` of machine time) of these channels: (nm quantised to
+        ``resolution_um`` with noise, stable flags); the Modbus registers and the bridge
+        both read through here."""
+        now_s = _take_sample(self.clock, self.machine, self.cfg.sample_s)
+        nm: list[int] = []
+        for name in channels:
             pos_mm = self.machine.table_mm(name, now_s) + self._noise(self.cfg.noise_um) / 1000
-            out += int32_to_words(_quantised_nm(pos_mm, self.cfg.resolution_um), "hi_lo")
+            nm.append(_quantised_nm(pos_mm, self.cfg.resolution_um))
         band = self.cfg.stable_band_um
-        return out + [int(self.machine.ringing_um(n, now_s) <= band) for n in self.axes]
+        return nm, [self.machine.ringing_um(n, now_s) <= band for n in channels]
+
+    def read(self, table: str, address: int, count: int) -> list[int]:
+        """Readings (no control registers in the span), or the recording control."""
+        if self.recorder is None or address + count <= REC_CONTROL:
+            return super().read(table, address, count)
+        if address < REC_CONTROL or address + count > REC_LAST + 1:
+            raise ModbusError(ILLEGAL_ADDRESS, "readings, or 0x0100-0x0101")
+        regs = [int(self.recorder.recording), self.recorder.last_number & 0xFFFF]
+        return regs[address - REC_CONTROL : address - REC_CONTROL + count]
+
+    def write(self, address: int, values: list[int], function_code: int) -> None:
+        """Only the recording control takes a write (one register at 0x0100)."""
+        if (self.recorder is None or address != REC_CONTROL or len(values) != 1
+                or function_code not in (0x06, 0x10)):
+            raise ModbusError(ILLEGAL_ADDRESS, "read-only")  # fmt: skip
+        try:
+            if values[0] == REC_START:
+                self.recorder.start()
+            elif values[0] == REC_STOP:
+                self.recorder.stop()
+            else:
+                raise ModbusError(ILLEGAL_VALUE, "1 starts, 2 stops and saves")
+        except RecorderError as err:
+            raise ModbusError(DEVICE_FAILURE, str(err)) from None
 
 
 class XYDevice(Instrument):

@@ -13,6 +13,8 @@ In-process use (tests, demo)::
     async with SimServer(cfg, tcp_port=0) as server:
         port = server.tcp_port              # the bound port
         server.sim.machine ...              # the truth, for assertions
+        server.laser_bridge_port            # with instruments.laser.bridge (sim/bridge.py)
+        server.sim.recorder                 # with instruments.laser.recording (sim/recorder.py)
 
 Unknown unit ids: no reply on RTU (another device's address on a shared line); exception
 0x0B (gateway target failed to respond) on TCP, as a TCP-to-RS-485 gateway answers.
@@ -38,7 +40,9 @@ import serial
 from pymodbus.framer import FramerRTU, FramerSocket
 from pymodbus.pdu import DecodePDU
 
+from sim.bridge import LaserBridge
 from sim.config import PTY_PORT, RtuConfig, SimConfig, SimConfigError, TcpConfig, load_config
+from sim.instruments import Laser
 from sim.pdu import GATEWAY_NO_RESPONSE, exception_pdu
 from sim.simulation import Reply, Simulation
 
@@ -86,6 +90,9 @@ class SimServer:
         self.tcp_port: int | None = None
         self.rtu_port: str | None = None
         self.rtu_over_tcp_port: int | None = None
+        #: the laser on the bridge line protocol (``instruments.laser.bridge``), bound port
+        self.laser_bridge_port: int | None = None
+        self.laser_bridge: LaserBridge | None = None
         self._tcp_server: asyncio.Server | None = None
         self._rot_server: asyncio.Server | None = None
         self._rot_lines: set[_RtuOverTcpLine] = set()
@@ -106,6 +113,11 @@ class SimServer:
                 self.rtu_port = self._rtu.open()
             if cfg.rtu_over_tcp is not None:
                 await self.start_rtu_over_tcp(cfg.rtu_over_tcp.port)
+            laser = self.sim.instruments.get("laser")
+            bridge_cfg = cfg.instruments.laser.bridge if cfg.instruments.laser else None
+            if bridge_cfg is not None and isinstance(laser, Laser):
+                self.laser_bridge = LaserBridge(bridge_cfg, laser)
+                self.laser_bridge_port = await self.laser_bridge.start()
         except BaseException:
             await self.stop()
             raise
@@ -131,6 +143,9 @@ class SimServer:
 
     async def stop(self) -> None:
         """Close listeners and connections."""
+        if self.laser_bridge is not None:
+            await self.laser_bridge.stop()
+            self.laser_bridge = None
         await self.stop_rtu_over_tcp()
         if self._rtu is not None:
             await self._rtu.close()
@@ -407,6 +422,14 @@ async def _serve(config: SimConfig) -> int:
     if server.rtu_over_tcp_port is not None and cfg.rtu_over_tcp is not None:
         print(f"compgw sim: modbus rtu over tcp on {cfg.rtu_over_tcp.host}:"
               f"{server.rtu_over_tcp_port}", flush=True)
+    laser = cfg.instruments.laser
+    if server.laser_bridge_port is not None and laser is not None and laser.bridge is not None:
+        print(f"compgw sim: laser bridge on {laser.bridge.host}:{server.laser_bridge_port}",
+              flush=True)
+    recorder = server.sim.recorder
+    if recorder is not None and laser is not None:
+        print(f"compgw sim: laser recording {recorder.axis} to {recorder.dir} (unit "
+              f"{laser.unit} register 0x0100: 1 starts, 2 stops and saves)", flush=True)
     units = ", ".join(f"{n}={a.unit}" for n, a in cfg.axes.items())
     print(f"compgw sim: drives {units}; faults unit {cfg.faults.unit}", flush=True)
     try:

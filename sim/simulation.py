@@ -21,10 +21,11 @@ from sim.faults import MODE_EXCEPTION, MODE_GARBAGE, MODE_SILENT, FaultControl
 from sim.instruments import DeltaASensor, Instrument, Laser, TemperatureSensors, XYDevice
 from sim.machine import Machine
 from sim.pdu import RegisterUnit, exception_pdu, handle_pdu
+from sim.recorder import Recorder
 
 # spawn keys for instrument noise, well away from the machine's per-axis keys (0..n-1)
 _INSTRUMENT_KEYS = {"laser": 1001, "xy": 1002, "delta_a": 1003, "temperature": 1004,
-                    "angle": 1005}
+                    "angle": 1005, "recording": 1006}
 _GARBAGE_KEY = 1100
 
 
@@ -66,8 +67,17 @@ class Simulation:
 
         ins = cfg.instruments
         base = (self.machine, self.clock)
+        #: the laser's continuous recording (``instruments.laser.recording``), if any
+        self.recorder: Recorder | None = None
         if ins.laser is not None:
-            self.instruments["laser"] = Laser(ins.laser, axes, *base, rng("laser"))
+            laser = Laser(ins.laser, axes, *base, rng("laser"))
+            self.instruments["laser"] = laser
+            if ins.laser.recording is not None:
+                rec = ins.laser.recording
+                self.recorder = Recorder(rec, rec.axis or laser.axes[0], self.machine,
+                                         self.clock, rng("recording"), config.base_dir,
+                                         wall_s)  # fmt: skip
+                laser.recorder = self.recorder
         if ins.xy is not None:
             self.instruments["xy"] = XYDevice(ins.xy, *base, rng("xy"))
         if ins.delta_a is not None:
@@ -91,6 +101,8 @@ class Simulation:
 
     def respond(self, unit: int, pdu: bytes) -> Reply:
         """Answer one request PDU for ``unit``, faults applied."""
+        if self.recorder is not None:
+            self.recorder.catch_up()  # time_scale > 0: record up to now before any change
         target = self.units.get(unit)
         if target is None or not pdu:
             return Reply(None, unknown_unit=target is None)
