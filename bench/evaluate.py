@@ -1,7 +1,7 @@
 """The independent judge of a calibration: an upper computer that moves the machine through
 the gateway to random targets no workflow measured, waits until the instruments say the
 axis is stable, reads the truth from the sim's laser and XY device, and computes the
-ISO 230-2 figures with its own few lines of arithmetic (not ``gateway.calibration.iso230``:
+ISO 230-2 figures with its own few lines of arithmetic (not ``gateway.calibration.fitting.iso230``:
 a mistake shared with the gateway could not hide).
 
 Per axis (the other axis parked at a random place): 5 bidirectional ISO 230-2 runs over

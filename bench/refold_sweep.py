@@ -27,10 +27,10 @@ import numpy as np
 import yaml
 from static_chain import machine_static
 
-from gateway.calibration.commission import Commission
-from gateway.calibration.commission_steps import Settings
-from gateway.calibration.outputs import write_table
-from gateway.calibration.sweep import LINE_MARGIN
+from gateway.calibration.commissioning.commission import Commission
+from gateway.calibration.commissioning.steps import Settings
+from gateway.calibration.fitting.outputs import write_table
+from gateway.calibration.fitting.sweep import LINE_MARGIN
 from gateway.formats import read_pitch_csv
 from gateway.formats.cyclic_file import read_cyclic, write_cyclic
 

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from gateway.calibration.outputs import write_table
+from gateway.calibration.fitting.outputs import write_table
 from gateway.compensation import PitchTable
 from gateway.config import load_config as load_gateway_config
 from gateway.tables import build_chain

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gateway.calibration.iso230 import iso230_2
+from gateway.calibration.fitting.iso230 import iso230_2
 
 BENCH = Path(__file__).resolve().parent.parent / "bench"
 

@@ -1,5 +1,5 @@
-"""The pure parts of commissioning (gateway/calibration/adaptive.py), checked against numbers
-made another way: the lead search, the verdict on a verification run, the refined table,
+"""The pure parts of commissioning (gateway/calibration/fitting/adaptive.py), checked against
+numbers made another way: the lead search, the verdict on a verification run, the refined table,
 and the drift taken off readings."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gateway.calibration import adaptive
-from gateway.calibration.rawdata import AxisDeviations, RawData
+from gateway.calibration.fitting import adaptive
+from gateway.calibration.plans.rawdata import AxisDeviations, RawData
 from gateway.compensation import PitchStage, PitchTable
 
 
@@ -212,7 +212,7 @@ def test_a_refinement_scan_gives_the_point_its_mean_and_the_cyclic_term_a_statio
     of truth − model, with noise) must give the table the truth's level there, not the
     level plus whatever phase of the cyclic term the point happens to sit at, and the new
     station the truth's amplitude."""
-    from gateway.calibration.cyclic_fit import StationScan
+    from gateway.calibration.fitting.cyclic_fit import StationScan
     from gateway.compensation.cyclic import CyclicModel
 
     lead, centre = 5.0, 130.0

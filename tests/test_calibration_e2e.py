@@ -27,18 +27,18 @@ import numpy as np
 import pytest
 
 from gateway.calibration.commands import calibrate
-from gateway.calibration.iso230 import iso230_raw
-from gateway.calibration.models import drift_um
-from gateway.calibration.plans import (
+from gateway.calibration.fitting.iso230 import iso230_raw
+from gateway.calibration.fitting.models import drift_um
+from gateway.calibration.measuring.session import planar_figures
+from gateway.calibration.plans.plans import (
     iso230_linear_plan,
     read_plan,
     resume_index,
     snap_to_pulses,
     write_plan,
 )
-from gateway.calibration.plans_xy import xy_verification_plan
-from gateway.calibration.rawdata import read_raw_csv
-from gateway.calibration.session import planar_figures
+from gateway.calibration.plans.rawdata import read_raw_csv
+from gateway.calibration.plans.xy import xy_verification_plan
 from gateway.cli import build_parser
 from gateway.compensation import PitchTable
 from gateway.formats import read_pitch_csv, write_pitch_csv
@@ -130,7 +130,7 @@ def flow(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
            "--raw", d / "warm_on.csv")  # fmt: skip
 
         # a run interrupted half-way (Ctrl-C while measuring) and resumed by the same command
-        from gateway.calibration import machine
+        from gateway.calibration.measuring import machine
 
         calls = {"n": 0}
         real = machine.Laser.read_mm

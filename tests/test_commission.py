@@ -22,15 +22,15 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway.calibration.commission import Commission
-from gateway.calibration.commission_cli import _options_at
-from gateway.calibration.commission_steps import Settings
-from gateway.calibration.machine import Endpoint
-from gateway.calibration.models import pin_fades
-from gateway.calibration.plane_frame import FRAME_FILE, reframe_plane
-from gateway.calibration.plans import read_plan
-from gateway.calibration.rawdata import read_raw_csv
-from gateway.calibration.session import Instruments
+from gateway.calibration.commissioning.cli import _options_at
+from gateway.calibration.commissioning.commission import Commission
+from gateway.calibration.commissioning.steps import Settings
+from gateway.calibration.fitting.models import pin_fades
+from gateway.calibration.fitting.plane_frame import FRAME_FILE, reframe_plane
+from gateway.calibration.measuring.machine import Endpoint
+from gateway.calibration.measuring.session import Instruments
+from gateway.calibration.plans.plans import read_plan
+from gateway.calibration.plans.rawdata import read_raw_csv
 from gateway.compensation.errors import TableError
 from gateway.config import load_config
 from tests.commission_rig import TRAVEL_MM, running, small_machine
@@ -450,8 +450,8 @@ def test_your_config_changed_after_an_abort_is_taken_not_written_over(
 def test_a_pulse_a_round_factor_off_is_named_not_the_laser_channels() -> None:
     """The laser follows the axis, 10 times as far as it was sent: the pulse equivalent, not
     the channel order (trial 8: "give --laser-axes in the laser's channel order")."""
-    from gateway.calibration.commission_drift import DriftRefs
-    from gateway.calibration.machine import SetupError
+    from gateway.calibration.commissioning.drift import DriftRefs
+    from gateway.calibration.measuring.machine import SetupError
 
     fake = SimpleNamespace(_ref_positions=lambda axis: (10.0, 80.0),
                            s=SimpleNamespace(instruments=SimpleNamespace(laser_axes=None)),

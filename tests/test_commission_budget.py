@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway.calibration.commission import Commission
-from gateway.calibration.commission_steps import Settings
-from gateway.calibration.session import Instruments
+from gateway.calibration.commissioning.commission import Commission
+from gateway.calibration.commissioning.steps import Settings
+from gateway.calibration.measuring.session import Instruments
 from tests.commission_rig import TRAVEL_MM, running, small_machine
 
 

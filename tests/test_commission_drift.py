@@ -1,5 +1,5 @@
 """The drift commissioning takes off an axis whose temperature sensor heat from motion
-replaces (gateway.calibration.commission_steps.Steps.raw, adaptive.relinked_base): runs
+replaces (gateway.calibration.commissioning.steps.Steps.raw, adaptive.relinked_base): runs
 read with the sensor on and runs read with it off must both come back to the cold
 machine's own error, whatever the screw's temperature then. Built as the gateway reads:
 the sensor's correction moves where the axis lands, the screw grows from its fixed end."""
@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from gateway.calibration import adaptive
-from gateway.calibration.commission_steps import Steps
-from gateway.calibration.rawdata import RawWriter
+from gateway.calibration.commissioning.steps import Steps
+from gateway.calibration.fitting import adaptive
+from gateway.calibration.plans.rawdata import RawWriter
 from gateway.compensation.thermal import ThermalStage, delta_a_from_temperature
 
 REFS = (31.0, 570.0)

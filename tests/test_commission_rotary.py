@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from gateway.calibration.commission import Commission
-from gateway.calibration.commission_steps import Settings
-from gateway.calibration.machine import Endpoint
-from gateway.calibration.plans import read_plan, snap_to_pulses, targets_plan
-from gateway.calibration.rawdata import AxisDeviations, read_raw_csv
-from gateway.calibration.session import Instruments, Session
+from gateway.calibration.commissioning.commission import Commission
+from gateway.calibration.commissioning.steps import Settings
+from gateway.calibration.measuring.machine import Endpoint
+from gateway.calibration.measuring.session import Instruments, Session
+from gateway.calibration.plans.plans import read_plan, snap_to_pulses, targets_plan
+from gateway.calibration.plans.rawdata import AxisDeviations, read_raw_csv
 from gateway.cli import build_parser
 from gateway.compensation import PitchTable
 from gateway.config import load_config

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway.calibration.commission_short import max_grid_in
-from gateway.calibration.plans_xy import even_grid
+from gateway.calibration.commissioning.short import max_grid_in
+from gateway.calibration.plans.xy import even_grid
 from gateway.compensation import PitchStage
 from gateway.formats import read_pitch_csv
 from sim.real_machines import data_root

@@ -1,4 +1,4 @@
-"""A temperature sensor replaced by heat from motion (gateway.calibration.commission_thermal):
+"""A temperature sensor replaced by heat from motion (gateway.calibration.commissioning.thermal):
 the tables were measured with the sensor's compensation on, which at a cold start away from
 its reference temperature already took the screw for grown. Heat from motion starts at
 zero, so that growth goes back into the table, once. Judged through the gateway's own
@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gateway.calibration.commission_configs import Tables
-from gateway.calibration.commission_thermal import ThermalSteps, start_growth_mm
+from gateway.calibration.commissioning.configs import Tables
+from gateway.calibration.commissioning.thermal import ThermalSteps, start_growth_mm
 from gateway.compensation import PitchStage, PitchTable
 from gateway.compensation.thermal import ThermalStage, delta_a_from_temperature
 from gateway.formats import read_pitch_csv, write_pitch_csv

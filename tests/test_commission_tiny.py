@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from gateway.calibration.plans import read_plan
+from gateway.calibration.plans.plans import read_plan
 from tests.commission_rig import running, small_machine
 
 

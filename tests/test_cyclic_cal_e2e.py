@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from gateway.calibration.plans import Move, Plan, read_plan, write_plan
-from gateway.calibration.rawdata import read_raw_csv
+from gateway.calibration.plans.plans import Move, Plan, read_plan, write_plan
+from gateway.calibration.plans.rawdata import read_raw_csv
 from gateway.formats import read_cyclic
 from tests.test_calibration_rig import Bench, compgw, example_config, ok, without
 

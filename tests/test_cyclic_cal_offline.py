@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway.calibration.cyclic_fit import Harmonic
-from gateway.calibration.plans import iso230_linear_plan
-from gateway.calibration.plans_scans import cyclic_plan
-from gateway.calibration.runner import run_plan
+from gateway.calibration.fitting.cyclic_fit import Harmonic
+from gateway.calibration.fitting.plans_scans import cyclic_plan
+from gateway.calibration.plans.plans import iso230_linear_plan
+from gateway.calibration.plans.runner import run_plan
 from gateway.cli import main
 from gateway.compensation.cyclic import CyclicModel
 from gateway.formats import read_cyclic, read_pitch_csv, write_cyclic

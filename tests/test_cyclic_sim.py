@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway.calibration.cyclic_fit import (
+from gateway.calibration.fitting.cyclic_fit import (
     StationScan,
     dense_scan_targets,
     fit_cyclic,

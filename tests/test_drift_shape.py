@@ -1,4 +1,4 @@
-"""The thermal drift between the two drift references (gateway.calibration.drift_shape,
+"""The thermal drift between the two drift references (gateway.calibration.thermal.drift_shape,
 adaptive.Drift), checked against the sim's screw: heat where the nut works, conducted along
 the steel and lost to the air (sim.heat), never the gateway's own travel counts."""
 
@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gateway.calibration.adaptive import Drift
-from gateway.calibration.drift_shape import SweptHeat, sample_mm
+from gateway.calibration.fitting.adaptive import Drift
+from gateway.calibration.thermal.drift_shape import SweptHeat, sample_mm
 from sim.config_truth import ScrewHeat
 from sim.heat import ScrewHeatModel
 

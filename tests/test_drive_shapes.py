@@ -437,7 +437,12 @@ def test_calibration_moves_every_profile_as_its_master_does(tmp_path: Path, name
     edge keeping the control word's other bits) and the end from the profile's status bits
     or, where they are not known, the feedback (trial 8: Kinco never moved, its enable bits
     written to 0 with the edge; Inovance waited 120 s on Leadshine's in-position bit 4)."""
-    from gateway.calibration.machine import Link, MachineDriver, MachineError, MotionSettings
+    from gateway.calibration.measuring.machine import (
+        Link,
+        MachineDriver,
+        MachineError,
+        MotionSettings,
+    )
 
     async def body():
         async with rig(tmp_path, gateway_profile(name), {"x.csv": PITCH_X}, drives="rtu",

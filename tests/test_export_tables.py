@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gateway.calibration.export import fanuc_pitch
+from gateway.calibration.reporting.export import fanuc_pitch
 from gateway.cli import main
 from gateway.compensation import PitchTable
 from gateway.formats import read_linuxcnc, read_pitch_csv, write_pitch_csv

@@ -9,16 +9,16 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway.calibration.models import (
+from gateway.calibration.fitting.models import (
     choose_planar_model,
     pinned_measurement,
     thermal_fit,
     thermal_gain_fit,
 )
-from gateway.calibration.plans import iso230_linear_plan, write_plan
-from gateway.calibration.plans_scans import warmup_plan
-from gateway.calibration.rawdata import RawWriter, read_raw_csv
-from gateway.calibration.runner import read_raw_meta, run_plan
+from gateway.calibration.fitting.plans_scans import warmup_plan
+from gateway.calibration.plans.plans import iso230_linear_plan, write_plan
+from gateway.calibration.plans.rawdata import RawWriter, read_raw_csv
+from gateway.calibration.plans.runner import read_raw_meta, run_plan
 from gateway.cli import main
 from gateway.compensation import GridModel, PlanarMeasurement
 from gateway.compensation.errors import TableError
@@ -242,7 +242,7 @@ def test_warmup_raw_numbers_runs_from_one(tmp_path):
 def test_backlash_plan_and_unidirectional_table_use_seed_000s_value(tmp_path, capsys):
     import json
 
-    from gateway.calibration.plans import backlash_plan
+    from gateway.calibration.plans.plans import backlash_plan
 
     config = write_config(tmp_path)
     lash = tmp_path / "lash.csv"
@@ -258,8 +258,11 @@ def test_backlash_plan_and_unidirectional_table_use_seed_000s_value(tmp_path, ca
 
 def test_smooth_reversal_halves_the_table_noise_variance():
     """Both directions' readings serve every point: noise variance halves, reversal kept."""
-    from gateway.calibration.fit import bidirectional_table, bidirectional_table_smooth_reversal
-    from gateway.calibration.rawdata import AxisDeviations
+    from gateway.calibration.fitting.fit import (
+        bidirectional_table,
+        bidirectional_table_smooth_reversal,
+    )
+    from gateway.calibration.plans.rawdata import AxisDeviations
 
     rng = np.random.default_rng(5)
     x = np.linspace(0.0, 600.0, 241)
@@ -279,7 +282,7 @@ def test_smooth_reversal_halves_the_table_noise_variance():
 def _iso_deviations(rev_mm, seed, s_mm=4.5e-4, runs=3):
     """21 targets over 900 mm, ``runs`` runs each way, scatter ``s_mm``: a screw error
     plus the reversal ``rev_mm(x)`` moving down."""
-    from gateway.calibration.rawdata import AxisDeviations
+    from gateway.calibration.plans.rawdata import AxisDeviations
 
     rng = np.random.default_rng(seed)
     x = np.linspace(10.0, 890.0, 21)
@@ -291,7 +294,7 @@ def _iso_deviations(rev_mm, seed, s_mm=4.5e-4, runs=3):
 
 def _reversal_table(dev):  # type: ignore[no-untyped-def]
     """The table fit_pitch builds for the reversal choose_reversal makes."""
-    from gateway.calibration.fit import (
+    from gateway.calibration.fitting.fit import (
         bidirectional_table,
         bidirectional_table_reversal,
         bidirectional_table_smooth_reversal,
@@ -311,7 +314,7 @@ def test_reversal_per_point_only_where_the_scatter_cannot_explain_it():
     is nearer the truth than per point; a worn zone (4 µm more play over 60 mm) is followed
     (near per point: its points keep their own reversal); one run each way (no scatter to
     weigh) stays a curve."""
-    from gateway.calibration.fit import bidirectional_table, choose_reversal
+    from gateway.calibration.fitting.fit import bidirectional_table, choose_reversal
 
     def smooth(x):
         return 1.3e-3 + 2.5e-4 * np.sin(x / 300.0)
@@ -432,7 +435,10 @@ def test_a_reversal_a_polynomial_cannot_follow_is_smoothed_not_taken_per_point()
     over 900 mm) read with 1.5 µm of scatter (mcu1025's kind): neither per point (each
     point's own scatter) nor the polynomial (misses the wave) but a curve through the
     points, which misses the truth least of the three, on every draw."""
-    from gateway.calibration.fit import bidirectional_table, bidirectional_table_smooth_reversal
+    from gateway.calibration.fitting.fit import (
+        bidirectional_table,
+        bidirectional_table_smooth_reversal,
+    )
 
     def wave(x):
         return 5e-3 + 3e-3 * np.sin(x / 110.0)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gateway.calibration.grid_smooth import smooth_grid
-from gateway.calibration.models import choose_planar_model, grid_clearly_better
+from gateway.calibration.fitting.grid_smooth import smooth_grid
+from gateway.calibration.fitting.models import choose_planar_model, grid_clearly_better
 from gateway.compensation import GridModel, PlanarMeasurement
 
 
@@ -144,7 +144,7 @@ def test_table_of_noisy_means_is_smoothed_closer_to_the_screw() -> None:
     """45 points, each a mean with 0.5 µm of standard error: smoothed, the correction
     between them is nearer the screw than straight lines through the points (seeded
     draws, every one, by 10 % or more on average), moved by no more than the cap."""
-    from gateway.calibration.fit import smoothed_table
+    from gateway.calibration.fitting.fit import smoothed_table
     from gateway.compensation import PitchTable
 
     x = np.linspace(0, 400, 45)
@@ -167,7 +167,7 @@ def test_points_apart_by_more_than_their_scatter_are_kept() -> None:
     period) read to 0.1 µm: leave-one-out alone flattens the wave (each point left out is
     two steps from the next), the cap keeps the points where they were read; a line of
     three points is returned as it is."""
-    from gateway.calibration.grid_smooth import smooth_line
+    from gateway.calibration.fitting.grid_smooth import smooth_line
 
     x = np.linspace(0, 400, 15)
     z = _screw_mm(x) + np.random.default_rng(1).normal(0, 0.1e-3, x.size)

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from gateway.calibration.heat_fit import motion_heat_fit
+from gateway.calibration.thermal.heat_fit import motion_heat_fit
 from gateway.compensation.errors import TableError
 from gateway.compensation.thermal import motion_heat_m, motion_heat_one_m, motion_heat_series_m
 from gateway.config import AxisThermal, MotionHeat

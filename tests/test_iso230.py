@@ -7,8 +7,8 @@ import statistics
 import numpy as np
 import pytest
 
-from gateway.calibration.iso230 import JSON_KEYS, iso230_2, report_json
-from gateway.calibration.rawdata import RawWriter, read_raw_csv
+from gateway.calibration.fitting.iso230 import JSON_KEYS, iso230_2, report_json
+from gateway.calibration.plans.rawdata import RawWriter, read_raw_csv
 from gateway.compensation.errors import TableError
 
 T = np.array([10.0, 20.0, 30.0])

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gateway.calibration.iso230 import Iso230Result, iso230_2
+from gateway.calibration.fitting.iso230 import Iso230Result, iso230_2
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 MCU = REAL / "ecmc_iso230_ess_mcu1025"
@@ -355,9 +355,9 @@ def test_invariants_on_every_real_file(path: str) -> None:
 def test_real_run_through_raw_file_report_and_fit(tmp_path) -> None:
     """run_b written as a compgw raw CSV (append writer), read back: report_json gives the
     same figures (E = 74.77 µm), and the bidirectional table holds the per-target means."""
-    from gateway.calibration.fit import bidirectional_table, unidirectional_table
-    from gateway.calibration.iso230 import report_json
-    from gateway.calibration.rawdata import RawWriter, axis_deviations, read_raw_csv
+    from gateway.calibration.fitting.fit import bidirectional_table, unidirectional_table
+    from gateway.calibration.fitting.iso230 import report_json
+    from gateway.calibration.plans.rawdata import RawWriter, axis_deviations, read_raw_csv
 
     src = MCU / "mcu1025_axis1_run_2021-11-10b_isodat.csv"
     path = tmp_path / "raw.csv"

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gateway.calibration.fit import as_axis_table
-from gateway.calibration.linkage_fit import fit_linkage, residual_deviations
-from gateway.calibration.rawdata import AxisDeviations
-from gateway.calibration.table_cv import choose_interpolation
+from gateway.calibration.fitting.fit import as_axis_table
+from gateway.calibration.fitting.linkage_fit import fit_linkage, residual_deviations
+from gateway.calibration.fitting.table_cv import choose_interpolation
+from gateway.calibration.plans.rawdata import AxisDeviations
 from gateway.compensation import (
     AxisChain,
     CyclicModel,

@@ -13,7 +13,7 @@ import asyncio
 
 import pytest
 
-from gateway.calibration.machine import Link
+from gateway.calibration.measuring.machine import Link
 from tests.helpers_modbus import DRIVE_UNIT, run, tcp_drive
 
 

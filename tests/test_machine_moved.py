@@ -10,7 +10,7 @@ import asyncio
 import pytest
 
 from gateway.app import GatewayApp
-from gateway.calibration.machine import Link, MachineDriver, MachineError
+from gateway.calibration.measuring.machine import Link, MachineDriver, MachineError
 from gateway.config import parse_config
 from gateway.tables import build_chain
 from sim.config import load_config as load_sim

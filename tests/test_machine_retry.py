@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from gateway.calibration.machine import TRANSIENT_RETRIES, Link, MachineError
+from gateway.calibration.measuring.machine import TRANSIENT_RETRIES, Link, MachineError
 from sim.server import SimServer
 from tests.test_sim_faults import CODE, MODE, fault_address
 from tests.test_sim_support import Master, config_from, example_dict, run, tcp_client

@@ -1,13 +1,13 @@
 """A faded planar model re-expressed when the tables it was read with change
-(gateway/calibration/plane_frame.py)."""
+(gateway/calibration/fitting/plane_frame.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import yaml
 
-from gateway.calibration.models import choose_planar_model, pinned_measurement
-from gateway.calibration.plane_frame import (
+from gateway.calibration.fitting.models import choose_planar_model, pinned_measurement
+from gateway.calibration.fitting.plane_frame import (
     frame_of,
     read_frame,
     reframed,
@@ -91,7 +91,7 @@ def test_reframe_plane_rewrites_the_points_once_per_change(tmp_path):
     """What `compgw fit`, the iteration's fold and the commissioning call after a table is
     written: the points re-expressed against the new tables; nothing when the points are
     that already or there is no frame (a plane pinned without a fade)."""
-    from gateway.calibration.plane_frame import reframe_plane, save_frame
+    from gateway.calibration.fitting.plane_frame import reframe_plane, save_frame
     from gateway.formats import read_planar_csv, write_planar_csv
 
     xs, ys = np.linspace(2, 448, 13), np.linspace(2, 448, 9)
@@ -123,8 +123,8 @@ def test_compgw_fit_keeps_a_faded_plane_in_line_with_a_table_it_writes(tmp_path,
     """`compgw fit xy.csv --pitch-line …` writes a smoothed grid pinned with a fade and its
     frame; `compgw fit X_on.csv --residual` then folds 1 µm into X's table, and the plane
     gives that 1 µm back off X's pitch line (where the table alone rules, nothing moves)."""
-    from gateway.calibration.plane_frame import FRAME_FILE
-    from gateway.calibration.rawdata import RawWriter
+    from gateway.calibration.fitting.plane_frame import FRAME_FILE
+    from gateway.calibration.plans.rawdata import RawWriter
     from gateway.cli import main
     from gateway.formats import read_planar_csv
 

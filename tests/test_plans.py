@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gateway.calibration.plans import (
+from gateway.calibration.fitting.plans_scans import warmup_plan
+from gateway.calibration.plans.plans import (
     Move,
     Plan,
     backlash_from_raw,
@@ -17,9 +18,8 @@ from gateway.calibration.plans import (
     snap_to_pulses,
     write_plan,
 )
-from gateway.calibration.plans_scans import warmup_plan
-from gateway.calibration.plans_xy import xy_grid_plan, xy_verification_plan
-from gateway.calibration.rawdata import RawWriter, read_raw_csv
+from gateway.calibration.plans.rawdata import RawWriter, read_raw_csv
+from gateway.calibration.plans.xy import xy_grid_plan, xy_verification_plan
 from gateway.compensation.errors import TableError
 
 TRAVEL = (0.0, 800.0)

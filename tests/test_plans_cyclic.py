@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gateway.calibration.plans import iso230_linear_plan, plan_time_s, read_plan, write_plan
-from gateway.calibration.plans_scans import cyclic_plan, cyclic_stations_mm
+from gateway.calibration.fitting.plans_scans import cyclic_plan, cyclic_stations_mm
+from gateway.calibration.plans.plans import iso230_linear_plan, plan_time_s, read_plan, write_plan
 from gateway.cli import main
 
 LEAD = 10.0

@@ -11,17 +11,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gateway.calibration.fit import (
+from gateway.calibration.fitting.fit import (
     bidirectional_table,
     fold_backlash,
     fold_residual,
     planar_measurement,
     unidirectional_table,
 )
-from gateway.calibration.iso230 import iso230_axis
-from gateway.calibration.plans import iso230_linear_plan, resume_index
-from gateway.calibration.plans_xy import xy_grid_plan, xy_verification_plan
-from gateway.calibration.rawdata import RawData, RawWriter, axis_deviations, read_raw_csv
+from gateway.calibration.fitting.iso230 import iso230_axis
+from gateway.calibration.plans.plans import iso230_linear_plan, resume_index
+from gateway.calibration.plans.rawdata import RawData, RawWriter, axis_deviations, read_raw_csv
+from gateway.calibration.plans.xy import xy_grid_plan, xy_verification_plan
 from gateway.compensation import BacklashStage, GridModel, PitchStage, PitchTable
 from gateway.compensation.errors import TableError
 

@@ -10,7 +10,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from gateway.calibration.rawdata import (
+from gateway.calibration.plans.rawdata import (
     RawWriter,
     axis_deviations,
     deviations_by_axis,
@@ -97,7 +97,7 @@ def test_killed_writer_loses_no_written_row(tmp_path) -> None:
     script = textwrap.dedent(
         f"""
         import os, signal
-        from gateway.calibration.rawdata import RawWriter
+        from gateway.calibration.plans.rawdata import RawWriter
         w = RawWriter({str(path)!r})
         for k in range(25):
             w.append("X", 1 + k // 5, "+", float(k % 5), k % 5 + 0.001 * k)

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from gateway.calibration.plans_scans import cyclic_plan
+from gateway.calibration.fitting.plans_scans import cyclic_plan
 from gateway.cli import main
 from tests.test_cyclic_cal_offline import AMP_UM, LEAD, PHASE_DEG, run
 

@@ -10,13 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gateway.calibration.commission_ident_text import identification_rows
-from gateway.calibration.commission_report import remains, verdict
-from gateway.calibration.iso230 import JSON_KEYS
-from gateway.calibration.plans import iso230_linear_plan
-from gateway.calibration.plans_xy import xy_grid_plan
-from gateway.calibration.rawdata import RawWriter
-from gateway.calibration.report import change_text
+from gateway.calibration.commissioning.ident_text import identification_rows
+from gateway.calibration.commissioning.report import remains, verdict
+from gateway.calibration.fitting.iso230 import JSON_KEYS
+from gateway.calibration.plans.plans import iso230_linear_plan
+from gateway.calibration.plans.rawdata import RawWriter
+from gateway.calibration.plans.xy import xy_grid_plan
+from gateway.calibration.reporting.report import change_text
 from gateway.cli import main
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -197,7 +197,7 @@ def test_the_verdict_is_never_within_beside_an_after_run_that_misses() -> None:
 def test_r_from_few_runs_is_said_to_read_high_beside_the_pooled_scatter() -> None:
     """Trial 9: after-run R 4.7-7.2 µm on drives that scatter 0.27-0.47 µm, "the mechanics
     or heat" said; with 2 runs per target R is the largest of many two-stop scatters."""
-    from gateway.calibration.iso230 import iso230_2, pooled_s_um
+    from gateway.calibration.fitting.iso230 import iso230_2, pooled_s_um
 
     rng = np.random.default_rng(3)
     targets = np.linspace(10.0, 300.0, 30)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway.calibration.rawdata import RawWriter
+from gateway.calibration.plans.rawdata import RawWriter
 from gateway.cli import build_parser
 from gateway.compensation import LinkageModel, PitchTable
 from gateway.demos.seed003 import axis_data, gateway_data

@@ -19,7 +19,7 @@ import pytest
 import yaml
 from scipy.optimize import brentq
 
-from gateway.calibration.machine import Link
+from gateway.calibration.measuring.machine import Link
 from gateway.modbus.frames import pack_int32, unpack_int32
 from sim.config import SimConfigError, parse_config
 from sim.server import SimServer

@@ -1,4 +1,4 @@
-"""Commissioning's sweep (gateway/calibration/sweep.py, plans_scans.sweep_plan), checked
+"""Commissioning's sweep (gateway/calibration/fitting/sweep.py, plans_scans.sweep_plan), checked
 against a truth drawn here: a wavy screw whose once-per-turn term changes along the travel
 is followed between the readings, and a sweep of noise adds next to nothing."""
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.interpolate import Akima1DInterpolator
 
-from gateway.calibration.plans_scans import sweep_plan
-from gateway.calibration.sweep import (
+from gateway.calibration.fitting.plans_scans import sweep_plan
+from gateway.calibration.fitting.sweep import (
     LINE_MARGIN,
     NOISY_STEPS_MM,
     SWEEP_STEPS_MM,

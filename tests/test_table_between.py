@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gateway.calibration.rawdata import AxisDeviations
-from gateway.calibration.table_cv import between_points_ratio
+from gateway.calibration.fitting.table_cv import between_points_ratio
+from gateway.calibration.plans.rawdata import AxisDeviations
 
 
 def _runs(truth_um, x_mm: np.ndarray, scatter_um: float, seed: int, runs: int = 3

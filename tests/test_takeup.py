@@ -19,17 +19,17 @@ import yaml
 
 from gateway.app import GatewayApp
 from gateway.calibration.commands import make_plan
-from gateway.calibration.machine import Endpoint
-from gateway.calibration.plans import Plan, backlash_from_raw, backlash_plan, snap_to_pulses
-from gateway.calibration.rawdata import read_raw_csv
-from gateway.calibration.session import Instruments, Session
-from gateway.calibration.takeup_fit import (
+from gateway.calibration.fitting.takeup_fit import (
     RUNGS_MM,
     fit_takeup,
     fit_takeup_raw,
     short_steps_plan,
     takeup_plan,
 )
+from gateway.calibration.measuring.machine import Endpoint
+from gateway.calibration.measuring.session import Instruments, Session
+from gateway.calibration.plans.plans import Plan, backlash_from_raw, backlash_plan, snap_to_pulses
+from gateway.calibration.plans.rawdata import read_raw_csv
 from gateway.cli import build_parser
 from gateway.compensation import (
     AxisChain,

@@ -1,4 +1,4 @@
-"""The zone warm-up's choice of growth shape (gateway.calibration.thermal_shape): the
+"""The zone warm-up's choice of growth shape (gateway.calibration.thermal.thermal_shape): the
 truth is the sim's 1-D heat equation of the screw (warm where its nut runs) or a screw at
 one temperature along its length, never the gateway's travel counts it is judged against."""
 
@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway.calibration.commission_configs import Tables, identification, with_tables
-from gateway.calibration.plans_scans import warmup_plan
-from gateway.calibration.rawdata import RawData
-from gateway.calibration.thermal_shape import thermal_shape_fit
-from gateway.calibration.warmup_heat import warmup_heat_fit
+from gateway.calibration.commissioning.configs import Tables, identification, with_tables
+from gateway.calibration.fitting.plans_scans import warmup_plan
+from gateway.calibration.plans.rawdata import RawData
+from gateway.calibration.thermal.thermal_shape import thermal_shape_fit
+from gateway.calibration.thermal.warmup_heat import warmup_heat_fit
 from gateway.compensation.errors import TableError
 from gateway.config import AxisThermal, load_config
 from sim.config_truth import ScrewHeat
@@ -289,7 +289,7 @@ def test_the_travel_before_a_warm_up_comes_from_the_drift_log() -> None:
     readings after the warm-up began are not its prior."""
     from types import SimpleNamespace
 
-    from gateway.calibration.commission_thermal import ThermalSteps
+    from gateway.calibration.commissioning.thermal import ThermalSteps
 
     log = [{"odometer_mm": {"X": x, "Y": y}, "wall_s": w} for x, y, w in
            ((0.0, 0.0, 0.0), (200_000.0, 500.0, 1.0), (200_000.0, 30_500.0, 2.0),

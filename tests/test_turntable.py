@@ -14,20 +14,24 @@ import numpy as np
 import yaml
 
 from gateway.app import GatewayApp
-from gateway.calibration.iso230 import ARCSEC_PER_MDEG, iso230_axis
-from gateway.calibration.machine import Link, MachineDriver
-from gateway.calibration.outputs import (
+from gateway.calibration.fitting.iso230 import ARCSEC_PER_MDEG, iso230_axis
+from gateway.calibration.fitting.outputs import (
     fit_cyclic_raw,
     fit_pitch,
     net_pitch,
     save_cyclic,
     save_pitch,
 )
-from gateway.calibration.plans import iso230_linear_plan, targets_plan, verification_targets_mm
-from gateway.calibration.plans_scans import cyclic_plan
-from gateway.calibration.rawdata import axis_deviations, read_raw_csv
-from gateway.calibration.report import build_cyclic_report
-from gateway.calibration.runner import read_raw_meta
+from gateway.calibration.fitting.plans_scans import cyclic_plan
+from gateway.calibration.measuring.machine import Link, MachineDriver
+from gateway.calibration.plans.plans import (
+    iso230_linear_plan,
+    targets_plan,
+    verification_targets_mm,
+)
+from gateway.calibration.plans.rawdata import axis_deviations, read_raw_csv
+from gateway.calibration.plans.runner import read_raw_meta
+from gateway.calibration.reporting.report import build_cyclic_report
 from gateway.config import parse_config
 from gateway.demos.seed003 import SIM_CONFIG, Rig, axis_data, gateway_data
 from gateway.modbus.frames import unpack_int32

@@ -1,10 +1,17 @@
 """Calibration: plans, raw data, ISO 230-2 statistics and table fitting (pure functions).
 
-The I/O that drives a machine through a plan lives elsewhere; everything here works on
-arrays and files only, so the CLI, the demo and tests share it.
+The I/O that drives a machine through a plan lives in ``measuring``; everything exported
+here works on arrays and files only, so the CLI, the demo and tests share it.
+
+The subpackages, by concern, each importing only subpackages listed before it: ``plans``
+(what to measure, the raw data, the runner), ``thermal`` (how a screw warms), ``fitting``
+(readings to tables and models), ``measuring`` (the machine, a session), ``reporting``
+(``compgw report``, ``export``), ``commissioning`` (``compgw commission``). On top, the
+command line: ``commands`` (calibrate, report, export), ``commands_fit`` (fit) and what
+they share, ``cli_common`` (whose FROM_CONFIG measuring reads too).
 """
 
-from .fit import (
+from .fitting.fit import (
     UnidirectionalFit,
     bidirectional_table,
     fold_backlash,
@@ -12,7 +19,7 @@ from .fit import (
     planar_measurement,
     unidirectional_table,
 )
-from .iso230 import (
+from .fitting.iso230 import (
     JSON_KEYS,
     DirectionStats,
     Iso230Result,
@@ -21,7 +28,8 @@ from .iso230 import (
     iso230_raw,
     report_json,
 )
-from .plans import (
+from .fitting.plans_scans import warmup_plan
+from .plans.plans import (
     BacklashResult,
     Move,
     Plan,
@@ -35,9 +43,7 @@ from .plans import (
     verification_targets_mm,
     write_plan,
 )
-from .plans_scans import warmup_plan
-from .plans_xy import xy_grid_plan, xy_verification_plan
-from .rawdata import (
+from .plans.rawdata import (
     RAW_COLUMNS,
     AxisDeviations,
     RawData,
@@ -46,6 +52,7 @@ from .rawdata import (
     deviations_by_axis,
     read_raw_csv,
 )
+from .plans.xy import xy_grid_plan, xy_verification_plan
 
 __all__ = [
     "JSON_KEYS",

@@ -1,7 +1,7 @@
 """What the calibration subcommands share: exit codes, the one-line error, the config.
 
 :mod:`.commands` (calibrate, report, export), :mod:`.commands_fit` (fit) and
-:mod:`.commission_cli` (commission) use these; none imports another.
+:mod:`.commissioning.cli` (commission) use these; none imports another.
 """
 
 from __future__ import annotations

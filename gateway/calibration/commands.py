@@ -46,8 +46,8 @@ measures the verification plan (targets between the calibration targets).
 --cyclic AXIS --lead-mm L: dense scans for the once-per-lead screw error (issue 7); fit the
 raw file together with the axis's ISO raw file (`compgw fit X_id.csv X_cyclic.csv`).
 Interrupted runs resume when the same command is run again; Ctrl-C loses nothing measured.
-Instrument register maps: see gateway/calibration/machine.py (as the sim's laser, XY device
-and Δa sensor)."""
+Instrument register maps: see gateway/calibration/measuring/machine.py (as the sim's laser,
+XY device and Δa sensor)."""
 
 
 # -- calibrate ----------------------------------------------------------------------------------
@@ -65,7 +65,7 @@ def _overrun(args: argparse.Namespace, rotary: bool = False) -> float:
     swing head's 3° is a ninth of it)."""
     if args.overrun_mm is not None:
         return float(args.overrun_mm)
-    from .plans import ROTARY_OVERRUN_DEG
+    from .plans.plans import ROTARY_OVERRUN_DEG
 
     return ROTARY_OVERRUN_DEG if rotary else 3.0
 
@@ -73,7 +73,7 @@ def _overrun(args: argparse.Namespace, rotary: bool = False) -> float:
 def make_plan(args: argparse.Namespace, config: GatewayConfig, verification: bool = False):  # type: ignore[no-untyped-def]
     """The plan the options describe (``verification``: its verification variant), its
     targets on each axis' pulse grid when the machine is driven (not for ``--join``)."""
-    from .plans import Plan, snap_to_pulses
+    from .plans.plans import Plan, snap_to_pulses
 
     plan = _described_plan(args, config, verification)
     if plan is None:
@@ -87,10 +87,10 @@ def make_plan(args: argparse.Namespace, config: GatewayConfig, verification: boo
 
 
 def _described_plan(args: argparse.Namespace, config: GatewayConfig, verification: bool):  # type: ignore[no-untyped-def]
-    from .plans import backlash_plan, iso230_linear_plan, read_plan
-    from .plans_scans import cyclic_plan, warmup_plan
-    from .plans_xy import xy_grid_plan, xy_verification_plan
-    from .takeup_fit import takeup_plan
+    from .fitting.plans_scans import cyclic_plan, warmup_plan
+    from .fitting.takeup_fit import takeup_plan
+    from .plans.plans import backlash_plan, iso230_linear_plan, read_plan
+    from .plans.xy import xy_grid_plan, xy_verification_plan
 
     def travel(axis: str) -> tuple[float, float]:
         if axis not in config.axes:
@@ -178,11 +178,17 @@ def calibrate(
     args: argparse.Namespace, reload: Callable[[], Awaitable[None]] | None = None
 ) -> int:
     """``compgw calibrate``; ``reload`` overrides --reload-pid/--reload-cmd (tests)."""
-    from .machine import Endpoint, MachineError, MotionSettings
-    from .plans import write_plan
-    from .runner import join_readings
-    from .session import Instruments, Session, format_figures, identify_config_text, within
-    from .session import iterate as iterate_rounds
+    from .measuring.machine import Endpoint, MachineError, MotionSettings
+    from .measuring.session import (
+        Instruments,
+        Session,
+        format_figures,
+        identify_config_text,
+        within,
+    )
+    from .measuring.session import iterate as iterate_rounds
+    from .plans.plans import write_plan
+    from .plans.runner import join_readings
 
     try:
         config, config_dir = load(args.config)
@@ -211,7 +217,7 @@ def calibrate(
         if args.save_plan:
             write_plan(args.save_plan, plan)
         if not args.join:  # how long the machine will be busy, before it starts
-            from .plans import plan_time_s
+            from .plans.plans import plan_time_s
 
             minutes = plan_time_s(plan, args.estimate_speed_mm_s, args.estimate_stop_s) / 60
             where = (f" at stations {dict(plan.meta)['stations_mm']} mm"
@@ -318,7 +324,8 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     p.add_argument("--gateway", metavar="HOST:PORT", help="the running gateway (or the drives)")
     p.add_argument("--raw", metavar="FILE", help="raw CSV to append to (resumed if present)")
     g = p.add_argument_group("plan (one of)")
-    g.add_argument("--plan", metavar="FILE", help="a plan CSV (see gateway/calibration/plans.py)")
+    g.add_argument("--plan", metavar="FILE",
+                   help="a plan CSV (see gateway/calibration/plans/plans.py)")
     g.add_argument("--iso", metavar="AXIS", help="ISO 230-2 linear test of AXIS")
     g.add_argument("--backlash", metavar="AXIS", help="seed 000 backlash procedure on AXIS")
     g.add_argument("--takeup", metavar="AXIS",
@@ -403,13 +410,13 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from .report import main as report_main
+    from .reporting.report import main as report_main
 
     return report_main(args)
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from .export import main as export_main
+    from .reporting.export import main as export_main
 
     return export_main(args)
 
@@ -420,11 +427,11 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-a
     from .commands_fit import add_parser as add_fit
 
     add_fit(sub)
-    from .commission_cli import add_parser as add_commission
+    from .commissioning.cli import add_parser as add_commission
 
     add_commission(sub)
-    from .export import add_arguments as export_args
-    from .report import add_arguments as report_args
+    from .reporting.export import add_arguments as export_args
+    from .reporting.report import add_arguments as report_args
 
     p = sub.add_parser("report", help="calibration: ISO 230-2 report (HTML, PNG, JSON)")
     report_args(p)
@@ -438,7 +445,7 @@ def _check_foldable(config: GatewayConfig, config_dir: Path, axis: str) -> None:
     """``--verify --iterate`` folds each round's residual into the axis's own pitch table:
     it must name one, and it must exist (before anything moves, not after the first
     round)."""
-    from .outputs import pitch_path, pitch_spec
+    from .fitting.outputs import pitch_path, pitch_spec
 
     if pitch_spec(config, axis) is None:
         raise TableError(f"--verify --iterate folds into axis {axis}'s pitch table, and "

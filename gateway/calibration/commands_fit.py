@@ -1,9 +1,9 @@
 """``compgw fit``: raw files → the tables, models and values the config references.
 
 Each raw file's kind comes from its ``# kind:`` line (else its columns); the fits are
-:mod:`.outputs`'s, written only once every file of the call has fitted (nothing half
+:mod:`.fitting.outputs`'s, written only once every file of the call has fitted (nothing half
 written), then a faded plane is re-expressed against tables written in the same call
-(:mod:`.plane_frame`).
+(:mod:`.fitting.plane_frame`).
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from .cli_common import EXIT_BAD_INPUT, EXIT_OK, err, load
 def raw_kind(path: str) -> str:
     """pitch, backlash, takeup, cyclic, planar or thermal: from the raw file's meta, else its
     columns."""
-    from .rawdata import read_raw_csv
-    from .runner import read_raw_meta
+    from .plans.rawdata import read_raw_csv
+    from .plans.runner import read_raw_meta
 
     kind = read_raw_meta(path).get("kind", "")
     if kind in ("backlash", "cyclic", "takeup"):
@@ -49,10 +49,10 @@ def fit(args: argparse.Namespace) -> int:
     cyclic run is in the same call is written net of the cyclic term at its targets (the
     joint fit: the coarse points do not count the cyclic error a second time).
     """
-    from .cyclic_fit import harmonics_table
-    from .fit import planar_measurement
-    from .models import thermal_fit
-    from .outputs import (
+    from .fitting.cyclic_fit import harmonics_table
+    from .fitting.fit import planar_measurement
+    from .fitting.models import thermal_fit
+    from .fitting.outputs import (
         fit_cyclic_raw,
         fit_pitch,
         fit_planar,
@@ -61,10 +61,10 @@ def fit(args: argparse.Namespace) -> int:
         save_pitch,
         save_planar,
     )
-    from .plane_frame import fitted_frame, reframe_plane, save_frame
-    from .plans import backlash_from_raw
-    from .rawdata import read_raw_csv
-    from .runner import read_raw_meta
+    from .fitting.plane_frame import fitted_frame, reframe_plane, save_frame
+    from .plans.plans import backlash_from_raw
+    from .plans.rawdata import read_raw_csv
+    from .plans.runner import read_raw_meta
 
     report: dict[str, Any] = {}
     try:
@@ -211,12 +211,12 @@ def _rotary_entry(r: Any, config: GatewayConfig, axis: str) -> dict[str, Any]:
 def _smoothed(r: Any, raw: Any, config: GatewayConfig, entry: dict[str, Any]) -> Any:
     """``--smooth``: an identification's table smoothed by its own leave-one-out, its
     points moved by no more than their standard error (the runs' scatter over √runs, as
-    ``compgw commission`` does; :func:`.fit.smoothed_table`), checked again."""
+    ``compgw commission`` does; :func:`.fitting.fit.smoothed_table`), checked again."""
     from dataclasses import replace
 
-    from .fit import smoothed_table
-    from .outputs import check_pitch
-    from .rawdata import axis_deviations
+    from .fitting.fit import smoothed_table
+    from .fitting.outputs import check_pitch
+    from .plans.rawdata import axis_deviations
 
     runs = len(axis_deviations(raw, r.axis).runs)  # the runs' numbers
     fit = smoothed_table(r.table, r.reversal.scatter_um * 1e-3, runs)
@@ -332,8 +332,8 @@ def format_fit(report: dict[str, Any], dry_run: bool = False) -> str:
 def _fit_takeup(path: str, places: dict[str, Any], report: dict[str, Any]) -> None:
     """The take-up curve of each axis of a ``--takeup`` run, against the lost motion its
     ``--backlash`` run (in the same call) read at the same places."""
-    from .rawdata import read_raw_csv
-    from .takeup_fit import fit_takeup_raw
+    from .fitting.takeup_fit import fit_takeup_raw
+    from .plans.rawdata import read_raw_csv
 
     raw = read_raw_csv(path)
     for a in raw.axes:

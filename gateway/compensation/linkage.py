@@ -16,8 +16,9 @@ S(``zero_deg``) + ``mm_per_deg``·c, so the head reaches
 and the command that puts it at θ is c = (S(θ) − S(zero_deg)) / mm_per_deg. Both are closed
 forms, so the stage is exact both ways like every other stage: ``forward`` (target angle →
 command) and ``inverse`` (command → actual angle). The parameters come from the drawing and
-are refined by a least-squares fit to measured angles (:mod:`gateway.calibration.linkage_fit`);
-the pitch table before this stage in the chain holds what the kinematics leave.
+are refined by a least-squares fit to measured angles
+(:mod:`gateway.calibration.fitting.linkage_fit`); the pitch table before this stage in the
+chain holds what the kinematics leave.
 """
 
 from __future__ import annotations

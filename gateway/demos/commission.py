@@ -17,11 +17,11 @@ from typing import Any
 import yaml
 
 from ..app import GatewayApp, load
-from ..calibration.commission import Commission
-from ..calibration.commission_report import summary_lines
-from ..calibration.commission_steps import Settings
-from ..calibration.machine import Endpoint
-from ..calibration.session import Instruments
+from ..calibration.commissioning.commission import Commission
+from ..calibration.commissioning.report import summary_lines
+from ..calibration.commissioning.steps import Settings
+from ..calibration.measuring.machine import Endpoint
+from ..calibration.measuring.session import Instruments
 
 SEED, TRAVEL_MM = 7, (0.0, 120.0)
 SAVED = Path(__file__).resolve().parents[2] / "config" / "commission-demo.txt"

@@ -30,12 +30,12 @@ from typing import Any
 import numpy as np
 
 from ..app import GatewayApp
-from ..calibration.iso230 import ARCSEC_PER_MDEG, iso230_axis
-from ..calibration.machine import Endpoint
-from ..calibration.outputs import fit_pitch, save_pitch
-from ..calibration.plans import Plan, snap_to_pulses, targets_plan
-from ..calibration.rawdata import axis_deviations, read_raw_csv
-from ..calibration.session import Instruments, Session
+from ..calibration.fitting.iso230 import ARCSEC_PER_MDEG, iso230_axis
+from ..calibration.fitting.outputs import fit_pitch, save_pitch
+from ..calibration.measuring.machine import Endpoint
+from ..calibration.measuring.session import Instruments, Session
+from ..calibration.plans.plans import Plan, snap_to_pulses, targets_plan
+from ..calibration.plans.rawdata import axis_deviations, read_raw_csv
 from ..compensation import PitchTable
 from ..compensation.linkage import LinkageModel
 from ..config import GatewayConfig, parse_config

@@ -23,9 +23,9 @@ import numpy as np
 import yaml
 
 from ..app import GatewayApp
-from ..calibration.iso230 import iso230_2
-from ..calibration.machine import Laser, Link, MachineDriver, XYDevice
-from ..calibration.outputs import fit_planar, save_planar
+from ..calibration.fitting.iso230 import iso230_2
+from ..calibration.fitting.outputs import fit_planar, save_planar
+from ..calibration.measuring.machine import Laser, Link, MachineDriver, XYDevice
 from ..compensation import PitchTable, PlanarMeasurement
 from ..config import parse_config
 from ..formats import write_pitch_csv

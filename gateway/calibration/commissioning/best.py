@@ -1,0 +1,95 @@
+"""``compgw commission``'s best tables (a base of :class:`.commission.Commission`): each
+round's verification score of an axis or the plane, the files (and the table's
+interpolation) of the best judged so far kept aside, and put back when a refinement does
+not pay or the budget ends a round before it was judged.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from ...formats import atomic_write_text
+from ..fitting import adaptive
+from ..fitting.plane_frame import FITTED_FILE, FRAME_FILE
+from .after import AfterSteps
+
+
+class BestTables(AfterSteps):
+    """The best tables judged so far, per axis and for the plane ("XY")."""
+
+    def _table_files(self, name: str) -> list[Path]:
+        """The files that hold an axis's table (or, for "XY", the planar model)."""
+        if name == "XY":
+            model = self.config_dir / str(self.tables.planar_model)
+            return [model, model.parent / "xy_points.csv", model.parent / FRAME_FILE,
+                    model.parent / FITTED_FILE]
+        files = [self.config_dir / self.tables.pitch[name]]
+        if name in self.tables.cyclic:  # refinement scans add cyclic stations too
+            files.append(self.config_dir / self.tables.cyclic[name])
+        return files
+
+    def _restore_best(self) -> None:
+        """Put back the best table of every axis (and the plane's model) judged so far."""
+        for name in self.state.get("best", {}):
+            if self._put_back(name):
+                self.state["notes"].append(f"{name}: back to its best "
+                                           f"(round {self.state['best'][name]['round']})")
+
+    def _put_back(self, name: str) -> bool:
+        """The best files of an axis (or "XY") as they were: copied over the current ones,
+        and one that did not exist then removed (a plane's frame, where the best plane was
+        pinned without a fade), and the table's interpolation then; True when any
+        differed."""
+        keep = self.dir / "tables" / "best"
+        changed = False
+        method = self.state.get("best", {}).get(name, {}).get("interpolation")
+        if method is not None and method != self.tables.interpolation.get(name, "linear"):
+            if method == "linear":
+                self.tables.interpolation.pop(name, None)
+            else:
+                self.tables.interpolation[name] = method
+            changed = True
+        for path in self._table_files(name):
+            saved = keep / f"{name}-{path.name}"
+            if saved.exists() and (not path.exists() or path.read_bytes() != saved.read_bytes()):
+                atomic_write_text(path, saved.read_text())
+                changed = True
+            elif not saved.exists() and path.exists():
+                path.unlink()
+                changed = True
+        return changed
+
+    def _keep_best(self, name: str, score: float, r: int, rms: float | None = None,
+                   swept: bool = False, noise: float = 0.0) -> bool:  # fmt: skip
+        """Record round ``r``'s verification score (µm) of an axis or the plane (``swept``:
+        the axis was swept in the round before). A score
+        that :func:`..fitting.adaptive.keeps_refinement` keeps makes the current table the best
+        (copied aside); else the best is put back. False when it was put back. The plane
+        is kept or put back on its RMS vector error (``rms``) where both rounds have one:
+        its score, the largest error at 32 points read once, moves by more than the 10 %
+        between two readings of the same field (sdss-2130: 4.83 → 5.37 µm, RMS 2.85 →
+        2.66, and its denser grid was put back for good)."""
+        best = self.state["best"]
+        keep = self.dir / "tables" / "best"
+        keep.mkdir(parents=True, exist_ok=True)
+        old = best.get(name)
+        if old is not None and old["round"] == r:  # this round again, resumed: as it was
+            return True
+        now, was = score, None if old is None else old["score"]
+        if rms is not None and old is not None and old.get("rms") is not None:
+            now, was = rms, old["rms"]
+        if was is None or adaptive.keeps_refinement(now, was, plane=name == "XY",
+                                                      swept=swept, noise_um=noise):  # fmt: skip
+            best[name] = {"score": score, "round": r, **({"rms": rms} if rms is not None
+                                                          else {})}  # fmt: skip
+            if name in self.tables.pitch and not self._rotary(name):  # and how it is read
+                best[name]["interpolation"] = self.tables.interpolation.get(name, "linear")
+            for path in self._table_files(name):
+                if path.exists():
+                    shutil.copyfile(path, keep / f"{name}-{path.name}")
+                else:  # (a plane without a frame): no older copy stands in for it
+                    (keep / f"{name}-{path.name}").unlink(missing_ok=True)
+            return True
+        self._put_back(name)
+        return False

@@ -1,0 +1,322 @@
+"""The commissioning report (HTML + PNG): before / after on the same verification targets
+(ISO 230-2 per axis, the XY vector map), what each round bought, what remains and why, and
+the machine time used. Built from the summary and the steps' raw data, so it can be made
+again at any time."""
+
+from __future__ import annotations
+
+import html
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from ..fitting.iso230 import ARCSEC_PER_MDEG, iso230_raw
+from ..plans.rawdata import RawData
+from ..reporting.report import (
+    ANGULAR,
+    LINEAR,
+    Figure,
+    _f,
+    _figures_table,
+    _img,
+    _page,
+    change_text,
+    plot_axis,
+    plot_xy,
+    write_report,
+)
+from .ident_text import identification_rows
+
+#: a step's raw data as commissioning judged it, or None
+Load = Callable[[str], "RawData | None"]
+
+
+def _angular(entry: dict[str, Any]) -> bool:
+    """A rotary axis's summary entry: figures in arcseconds (``*_arcsec``)."""
+    return entry.get("unit") == "deg"
+
+
+def _fig(figures: dict[str, Any], key: str) -> float | None:
+    """Figure ``key`` (E, A, R, B, M) in its axis's unit: µm, or arcseconds."""
+    return figures.get(f"{key}_arcsec", figures.get(f"{key}_um"))
+
+
+def _unit(entry: dict[str, Any]) -> str:
+    return "″" if _angular(entry) else " µm"
+
+
+def _cut(before: float | None, after: float | None) -> str:
+    if not before or after is None:
+        return "–"
+    return f"{100 * (1 - after / before):.0f} %"
+
+
+def _tolerance_text(summary: dict[str, Any]) -> str:
+    """The tolerances asked, in words: "2 µm", "3″", "2 µm (rotary axes 3″)"."""
+    linear = bool(summary.get("xy")) or any(not _angular(e) for e in summary["axes"].values())
+    tols = ([f"{summary['tolerance_um']:g} µm"] if linear else []) + (
+        [f"{summary['tolerance_arcsec']:g}″"] if "tolerance_arcsec" in summary else [])
+    return " (rotary axes ".join(tols) + (")" if len(tols) > 1 else "")
+
+
+#: what to do next, per outcome that missed the tolerance
+NEXT = {
+    "budget": "the budget ran out: the same command with a larger --budget-h carries on "
+              "from here (every reading is kept)",
+    "rounds": "the rounds ran out: the same command with more --max-rounds (or a larger "
+              "--budget-h) carries on from here",
+    "floor": "what misses is the machine's own scatter or finer than a table follows: more "
+             "budget will not help; see the report's What remains (a looser tolerance, or "
+             "the mechanics)",
+    "after": "the rounds' random targets read within, the after-run's did not: the same "
+             "command with a tighter --tolerance-um carries on refining from here (every "
+             "reading is kept), or --recheck reads the after-run's targets again",
+}  # fmt: skip
+
+
+def verdict(summary: dict[str, Any]) -> str:
+    """One line a technician acts on: within the tolerance or not, where it misses (the
+    after-run's E per axis, the plane's maximum vector error) and what to do next."""
+    tol_text = _tolerance_text(summary)
+    missing = []
+    for axis, entry in summary["axes"].items():
+        e = _fig(entry.get("after") or {}, "E")
+        tol = summary.get("tolerance_arcsec") if _angular(entry) else summary["tolerance_um"]
+        if e is not None and tol is not None and e > tol:
+            missing.append(f"{axis} E {e:.2f}{_unit(entry)}")
+    after_xy = (summary.get("xy") or {}).get("after") or {}
+    if after_xy.get("max_um", 0.0) > summary["tolerance_um"]:
+        missing.append(f"XY {after_xy['max_um']:.2f} µm")
+    outcome = summary["outcome"]
+    if outcome == "within" and not missing:
+        return f"WITHIN {tol_text} on every commissioned axis" + (
+            " and the plane" if summary.get("xy") else "") + "; the tables are loaded"
+    if outcome == "within":  # the rounds' word against the after-run's: never WITHIN then
+        outcome = "after"
+    where = f" ({', '.join(missing)})" if missing else ""
+    return (f"NOT within {tol_text}{where}; what was fitted is loaded. Next: "
+            f"{NEXT.get(outcome, NEXT['rounds'])}")
+
+
+def remains(summary: dict[str, Any]) -> list[str]:
+    """Sentences on what remains after commissioning, and why."""
+    out = []
+    outcome = summary["outcome"]
+    tol_text = _tolerance_text(summary)
+    if outcome == "within":
+        out.append(f"Every axis is within {tol_text} (E) between the calibration points.")
+    elif outcome == "budget":
+        out.append(f"The machine-time budget ({summary['budget_h']:.2f} h) was spent before "
+                   f"the verification met {tol_text}; what was fitted so far is "
+                   "loaded.")  # fmt: skip
+    elif outcome == "floor":
+        out.append("The residual that misses the tolerance does not stand out of the "
+                   "machine's repeatability (judged with more runs per target where the budget "
+                   "allowed), or it is finer than the table can follow: more points "
+                   "would not help.")  # fmt: skip
+    elif outcome == "after":
+        out.append(f"The verification rounds met {tol_text} at their random targets; the "
+                   "after-run, at the before-run's, did not (below): the tables hold that "
+                   "well at some places and not at others.")  # fmt: skip
+    else:
+        out.append(f"The rounds ran out before the verification met {tol_text}.")
+    for axis, entry in summary["axes"].items():
+        after = entry.get("after")
+        if not after:
+            continue
+        a, r, e = _fig(after, "A"), _fig(after, "R"), _fig(after, "E")
+        u = _unit(entry)
+        if a is not None and r is not None and e is not None:
+            b = _fig(after, "B")
+            out.append(f"Axis {axis}: A {a:.2f}{u}, of which E {e:.2f}{u} is systematic (what "
+                       f"a table corrects) and R {r:.2f}{u} the scatter from one approach to "
+                       "the next at a target (ISO 230-2's repeatability, ±2s, with the "
+                       "reversal between directions"
+                       + (f", B {abs(b):.2f}{u}" if b is not None else "")
+                       + "): no table removes scatter, so a large R against the drive's own "
+                       "repeatability points at the mechanics or at heat while measuring."
+                       + _pooled(after, u))  # fmt: skip
+    out += [str(n) for n in summary.get("notes", [])]
+    return out
+
+
+def _pooled(after: dict[str, Any], unit: str) -> str:
+    """What R rests on where it has few runs per target, and the pooled scatter of a stop
+    (linear axes; older summaries have neither: nothing said)."""
+    runs, s = after.get("runs"), after.get("s_pooled_um")
+    if runs is None or s is None or runs >= 5 or unit != " µm":
+        return ""
+    return (f" Here R rests on {runs} runs per target (ISO 230-2 asks 5): the largest of "
+            f"many scatters each from {runs} stops reads high; pooled over the targets a stop "
+            f"scatters {s:.2f} µm (±2s: {4 * s:.2f} µm), the figure to hold against the "
+            "drive's repeatability.")
+
+
+def _as_read(before: float | None, after: float | None, judged: float, unit: str) -> str:
+    """The figures as read, where the machine's drift while measuring (taken off the judged
+    figures: they judge the tables) makes them differ: what a recheck will read."""
+    if before is None or after is None or abs(after - judged) <= max(0.3, 0.2 * judged):
+        return ""
+    return (f"; as read, the machine's drift while measuring left in: {before:.2f} → "
+            f"{after:.2f}{unit}")
+
+
+def summary_lines(summary: dict[str, Any]) -> list[str]:
+    """What a commissioning bought, a line per axis, the plane and the outcome."""
+    lines = []
+    for axis, entry in summary["axes"].items():
+        b, a = entry.get("before", {}), entry.get("after", {})
+        if b and a:
+            u = _unit(entry)
+            eb, ea = _fig(b, "E") or 0.0, _fig(a, "E") or 0.0
+            lines.append(f"{axis}: E {eb:.2f} → {ea:.2f}{u} "
+                         f"({change_text(eb, ea) if eb else '–'}), A "
+                         f"{_fig(b, 'A') or 0:.2f} → {_fig(a, 'A') or 0:.2f}{u} (R "
+                         f"{_fig(a, 'R') or 0:.2f}), {entry.get('table_points')} table points"
+                         + (f", {entry['interpolation']} interpolation"
+                            if "interpolation" in entry else "")
+                         + _as_read(_fig(b, "E_read"), _fig(a, "E_read"), ea, u))  # fmt: skip
+    xy = summary.get("xy") or {}
+    if xy.get("before") and xy.get("after"):
+        b, a = xy["before"]["max_um"], xy["after"]["max_um"]
+        lines.append(f"XY max vector error {b:.2f} → {a:.2f} µm ({change_text(b, a)})"
+                     + _as_read(xy["before"].get("max_read_um"),
+                                xy["after"].get("max_read_um"), a, " µm"))  # fmt: skip
+    if summary.get("retried"):
+        lines.append(f"{summary['retried']} Modbus requests answered only when tried again "
+                     "(exception 6 or 11: a drive or instrument slow to answer; if many, "
+                     "raise the bus's timeout_s)")
+    lines.append(f"outcome: {summary['outcome']}; machine time {summary['machine_h']:.2f} h "
+                 "(plan estimate); before and after at the same random targets, none a "
+                 "table point")  # fmt: skip
+    lines.append(verdict(summary))
+    return lines
+
+
+def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
+    """HTML text and figures of a commissioning: its summary, and ``load(step)``, a step's
+    raw data as commissioning judged it (drift taken off), None when not measured."""
+    parts = ["<h1>compgw commissioning report</h1>",
+             f"<p id='verdict'><b>{html.escape(verdict(summary))}</b>.</p>",
+             f"<p>Configuration: {html.escape(summary['config'])}. Tolerance "
+             f"{html.escape(_tolerance_text(summary))} (ISO 230-2 E between the calibration "
+             f"points). Outcome: <b>{html.escape(summary['outcome'])}</b>. Machine time used "
+             f"{summary['machine_h']:.2f} h of a {summary['budget_h']:.2f} h budget. "
+             "Before and after are measured at the same random targets, none of them a "
+             "calibration point; figures per ISO 230-2, in µm (rotary axes: in arcseconds ″, "
+             "targets in degrees).</p>"]  # fmt: skip
+    figures: list[Figure] = []
+    rows = []
+    for axis, entry in summary["axes"].items():
+        b, a = entry.get("before", {}), entry.get("after", {})
+        name = f"{axis} ({_unit(entry).strip()})"
+        rows.append(f"<tr><th>{html.escape(name)}</th><td>{_f(_fig(b, 'E'))}</td>"
+                    f"<td>{_f(_fig(a, 'E'))}</td><td>{_cut(_fig(b, 'E'), _fig(a, 'E'))}</td>"
+                    f"<td>{_f(_fig(b, 'A'))}</td><td>{_f(_fig(a, 'A'))}</td>"
+                    f"<td>{_f(_fig(a, 'R'))}</td><td>{entry.get('table_points', '–')}</td>"
+                    f"<td>{_f(_fig(b, 'E_read'))} → {_f(_fig(a, 'E_read'))}</td></tr>")
+    parts.append("<h2>Summary</h2><table id='summary'><tr><th>axis</th><th>E before</th>"
+                 "<th>E after</th><th>E cut</th><th>A before</th><th>A after</th>"
+                 "<th>R after</th><th>table points</th><th>E as read</th></tr>"
+                 + "".join(rows) + "</table>"
+                 "<p>E, A and R judge the tables: the machine's drift while it was measured "
+                 "(read at the drift references) is taken off. <i>E as read</i> leaves it in: "
+                 "what the same targets read as they were read, and what <code>compgw "
+                 "commission --recheck</code> compares later. Far apart, the machine moved "
+                 "while measuring (heat): a thermal setting corrects that, not a table.</p>")
+    xy = summary.get("xy") or {}
+    if xy:
+        b, a = xy.get("before", {}), xy.get("after", {})
+        read = (f" As read (the drift left in): {_f(b.get('max_read_um'))} → "
+                f"{_f(a.get('max_read_um'))} µm." if a.get("max_read_um") is not None else "")
+        parts.append(f"<p id='summary-xy'>XY maximum vector error: {_f(b.get('max_um'))} µm "
+                     f"before, {_f(a.get('max_um'))} µm after "
+                     f"({change_text(b['max_um'], a['max_um']) if b and a else '–'}).{read}</p>")
+    parts.append("<h2>What remains</h2><ul>" + "".join(
+        f"<li>{html.escape(s)}</li>" for s in remains(summary)) + "</ul>")  # fmt: skip
+    rrows = []
+    angular = any(_angular(e) for e in summary["axes"].values())
+    round_units = "µm, rotary axes ″" if angular else "µm"
+    for entry in summary["rounds"]:
+        axes = "; ".join(_round_cell(k, v, summary["axes"].get(k, {}))
+                         for k, v in entry["axes"].items())  # fmt: skip
+        if entry.get("xy"):
+            axes += f"; XY max {entry['xy']['max_um']:.2f}"
+        swept = entry.get("swept") or []
+        added = ", ".join(f"{k} swept over its travel (+{n} points)" if k in swept else
+                          f"{k} +{n} points" for k, n in (entry.get("added") or {}).items())
+        if entry.get("grid"):
+            added += f"{', ' if added else ''}XY grid {entry['grid'][0]}×{entry['grid'][1]}"
+        for name in entry.get("restored") or []:
+            added += f"{', ' if added else ''}{name} back to its best (the refinement did not pay)"
+        for name, runs in (entry.get("verify_runs") or {}).items():
+            added += (f"{', ' if added else ''}{name} verified again with {runs} runs (what "
+                      "misses is within the noise of fewer)")  # fmt: skip
+        rrows.append(f"<tr><td>{entry['round']}</td><td>{html.escape(axes)}</td>"
+                     f"<td>{html.escape(added or entry.get('outcome', '–'))}</td>"
+                     f"<td>{entry['machine_s'] / 3600:.2f}</td></tr>")  # fmt: skip
+    parts.append("<h2>Rounds: what each refinement bought</h2><p>Each round is judged at "
+                 "targets never used to fit (the new spans' midpoints and fresh random "
+                 "targets); where the residual stands out, the span gets a new point (the first "
+                 "time an axis misses, if the budget allows, a sweep of its whole travel "
+                 "gives it a point at every target read and the cyclic term a station every "
+                 "few leads).</p>"
+                 + (f"<table id='rounds'><tr><th>round</th><th>verification ({round_units})"
+                    "</th><th>then</th><th>machine h so far</th></tr>" + "".join(rrows)
+                    + "</table>" if rrows else
+                    "<p id='rounds'>No round ran: the budget was spent before the first "
+                    "verification (see what remains, above).</p>"))  # fmt: skip
+    ident = identification_rows(summary.get("identify", {}), frozenset(
+        a for a, e in summary["axes"].items() if _angular(e)))  # fmt: skip
+    if ident:
+        parts.append("<h2>Identification</h2><p>What the first steps (and each sweep) "
+                     "found, per axis, in the order found.</p>")  # fmt: skip
+        for axis, rows in ident.items():
+            cells = "".join(f"<tr><th>{html.escape(what)}</th><td>{html.escape(text)}</td></tr>"
+                            for what, text in rows)  # fmt: skip
+            parts.append(f"<table id='identify-{html.escape(axis)}'><caption>axis "
+                         f"{html.escape(axis)}</caption>{cells}</table>")  # fmt: skip
+    for axis in summary["axes"]:
+        raws = {p: r for p in ("before", "after") if (r := load(f"{p}-{axis}")) is not None}
+        if not raws:
+            continue
+        iso = {p: iso230_raw(r)[axis] for p, r in raws.items()}
+        units = ANGULAR if _angular(summary["axes"][axis]) else LINEAR
+        parts.append(f"<h2>Axis {html.escape(axis)}</h2>")
+        parts.append(_figures_table(axis, iso, units))
+        steps = summary["axes"][axis].get("short_steps")
+        if steps:
+            switch = steps.get("switch_miss_um")
+            parts.append(f"<p id='short-steps-{html.escape(axis)}'>Short steps ({steps['stops']} "
+                         "random steps of 5 µm to 2 mm either way, where a reversal takes up "
+                         "only part of the play; none a calibration point), everything on: "
+                         f"RMS {steps['rms_um']:.2f} µm, largest {steps['max_um']:.2f} µm"
+                         + (f" (switching the whole lost motion at a reversal would miss by up "
+                            f"to {switch:.1f} µm after such reversals)" if switch else "")
+                         + ".</p>")  # fmt: skip
+        png = plot_axis(axis, {p: (raws[p], iso[p]) for p in raws}, units)
+        figures.append(Figure(f"axis-{axis}", png, f"axis {axis}: before and after, at the "
+                              "same verification targets"))  # fmt: skip
+        parts.append(_img(figures[-1]))
+    xy_raws = {p: r for p in ("before", "after") if (r := load(f"{p}-xy")) is not None}
+    if xy and xy_raws:
+        raws = xy_raws
+        axes = tuple(next(iter(raws.values())).axes)[:2]
+        png, _ = plot_xy(raws, axes)  # type: ignore[arg-type]
+        figures.append(Figure("xy-field", png, "XY error field before and after"))
+        parts.append("<h2>XY plane</h2>" + _img(figures[-1]))
+    return _page("compgw commissioning report", "\n".join(parts)), figures
+
+
+def _round_cell(axis: str, verdict: dict[str, Any], entry: dict[str, Any]) -> str:
+    """A round's verdict of an axis (µm; a rotary axis's millidegrees shown in ″)."""
+    if _angular(entry):
+        k = ARCSEC_PER_MDEG
+        return f"{axis}: E {verdict['E_um'] * k:.2f}″, A {verdict['A_um'] * k:.2f}″"
+    return f"{axis}: E {verdict['E_um']:.2f}, A {verdict['A_um']:.2f}"
+
+
+def write(directory: Path, summary: dict[str, Any], load: Load) -> Path:
+    """The report in ``directory``/report (see :func:`build`)."""
+    text, figures = build(summary, load)
+    return write_report(directory / "report", text, figures)

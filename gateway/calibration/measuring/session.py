@@ -1,0 +1,347 @@
+"""A calibration session against a running gateway: plan run, and the seed-001 iteration.
+
+Compensation off / on (decided here, documented in ``compgw calibrate --help``): the
+runner does not switch the gateway. *Off* means the gateway it talks to runs an
+identification config: the same config with the pitch tables, backlash, cyclic term, linkage
+and planar model removed (``compgw calibrate --identify-config OUT.yaml -c CFG`` writes it;
+thermal stays on when configured, so a long run's heating does not enter the tables). *On*
+means the gateway runs the config whose tables are being verified. Iterating rewrites those
+tables; the gateway must then reload them (SIGHUP: ``--reload-pid``, or ``--reload-cmd``, e.g.
+``systemctl reload compgw``) before the next round. Talking straight to the drives (no
+gateway) is also compensation off. The raw file records ``# compensation: off|on``.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Awaitable, Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ...config import GatewayConfig
+from ...config_types import read_yaml
+from ..fitting.fit import planar_measurement
+from ..fitting.outputs import (
+    fit_pitch,
+    fit_planar,
+    residual_figures,
+    save_pitch,
+    save_planar,
+)
+from ..fitting.plane_frame import reframe_plane, save_frame
+from ..plans.plans import Move, Plan
+from ..plans.rawdata import RawData, read_raw_csv
+from ..plans.runner import ProgressFn, RunSummary, run_plan
+from .machine import (
+    DeltaASensor,
+    Endpoint,
+    Laser,
+    Links,
+    MachineDriver,
+    MachineError,
+    MotionSettings,
+    TemperatureSensor,
+    XYDevice,
+    nearest_turn_deg,
+)
+
+ReloadFn = Callable[[], Awaitable[None]]
+
+
+@dataclass
+class Instruments:
+    """Endpoints of the measuring devices (any may be None)."""
+
+    laser: Endpoint | None = None
+    laser_axes: Sequence[str] | None = None
+    xy: Endpoint | None = None
+    delta_a: Endpoint | None = None
+    #: where the screw temperature sensors answer (registers and scale: the config's
+    #: thermal sources); a warm-up records ``temperature_c`` of its axis's source
+    temperature: Endpoint | None = None
+    #: the angle instrument of rotary axes (the laser's layout in µdeg) and its channels
+    angle: Endpoint | None = None
+    angle_axes: Sequence[str] | None = None
+    #: readings wait for the instrument's stable flag (see :class:`.machine.Laser`)
+    wait_stable: bool = True
+
+    def laser_order(self, config: GatewayConfig) -> list[str]:
+        """The laser's channels in order: ``laser_axes``, else the config's axes."""
+        return list(self.laser_axes or config.axes)
+
+    def angle_order(self, config: GatewayConfig) -> list[str]:
+        """The angle instrument's channels: ``angle_axes``, else the config's rotary axes."""
+        return list(self.angle_axes or [a for a, c in config.axes.items() if c.rotary])
+
+    def __post_init__(self) -> None:
+        """Two instruments given the same device (host, port, unit and first register) is
+        a slip of the command line: the laser and the XY device of the simulator share one
+        register layout, so a laser given the XY device's unit reads positions that follow
+        the axes, and no later check can tell."""
+        seen: dict[Endpoint, str] = {}
+        for option, end in (("--laser", self.laser), ("--xy-device", self.xy),
+                            ("--delta-a", self.delta_a), ("--temperature", self.temperature),
+                            ("--angle", self.angle)):  # fmt: skip
+            if end is None:
+                continue
+            if end in seen:
+                raise ValueError(f"{seen[end]} and {option} name the same device "
+                                 f"({end.host}:{end.port} unit {end.unit}): each instrument "
+                                 "answers at its own unit id")  # fmt: skip
+            seen[end] = option
+
+
+@dataclass
+class Session:
+    """Gateway connection, motion settings and instruments of one calibration session."""
+
+    config: GatewayConfig
+    config_dir: Path
+    gateway: Endpoint
+    instruments: Instruments
+    motion: MotionSettings = field(default_factory=MotionSettings)
+    park: Mapping[str, float] = field(default_factory=dict)
+    progress: ProgressFn | None = None
+    dwell: Callable[[float], Awaitable[None]] | None = None
+    #: told of every target written (axis, mm)
+    on_move: Callable[[str, float], None] | None = None
+    #: requests answered only on a later try (:data:`.machine.TRANSIENT_CODES`), all runs
+    retried: int = 0
+
+    async def run(self, plan: Plan, raw_path: Path, compensation: str) -> RunSummary:
+        """Run ``plan`` into ``raw_path`` (resuming), measuring with the right instrument."""
+        links = Links()
+        try:
+            link = await links.get(self.gateway.host, self.gateway.port)
+            driver = MachineDriver(link, self.config, self.motion)
+            driver.on_move = self.on_move
+            read = await self._measure_fn(plan, links)
+
+            async def measure(move: Move) -> Mapping[str, float]:
+                values = await read(move)  # then the axes still where they were sent:
+                await driver.still_at(dict(zip(plan.axes, move.target_mm)))  # else not kept
+                return values
+
+            extra, names = None, ()
+            if plan.kind == "warmup" and self.instruments.delta_a is None and \
+                    self.instruments.temperature is not None:
+                extra, names = await self._temperature_fn(plan, links)
+            elif plan.kind == "warmup" or self.instruments.delta_a is not None:
+                extra, names = await self._delta_a_fn(links)
+            if self.park:
+                await driver.move(dict(self.park))
+            return await run_plan(
+                plan, raw_path, driver.move, measure, extra=extra, extra_names=names,
+                meta={"compensation": compensation}, progress=self.progress, dwell=self.dwell,
+            )  # fmt: skip
+        finally:
+            self.retried += links.retried
+            links.close()
+
+    async def _measure_fn(self, plan: Plan, links: Links):  # type: ignore[no-untyped-def]
+        ins = self.instruments
+        rotary = [a for a in plan.axes if a in self.config.axes and self.config.axes[a].rotary]
+        if rotary and ins.angle is not None:
+            order = ins.angle_order(self.config)
+            dev = Laser(await links.get(*ins.angle.key), ins.angle.unit,  # type: ignore[assignment]
+                        {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
+        elif len(plan.axes) == 2 and ins.xy is not None:
+            dev = XYDevice(await links.get(*ins.xy.key), ins.xy.unit, tuple(plan.axes),  # type: ignore[arg-type]
+                           ins.wait_stable)
+        elif ins.laser is not None:
+            order = ins.laser_order(self.config)
+            dev = Laser(await links.get(*ins.laser.key), ins.laser.unit,  # type: ignore[assignment]
+                        {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
+        elif ins.xy is not None:
+            dev = XYDevice(await links.get(*ins.xy.key), ins.xy.unit, tuple(self.config.planar.axes)  # type: ignore[union-attr]
+                           if self.config.planar else ("X", "Y"), ins.wait_stable)  # type: ignore[assignment]  # fmt: skip
+        else:
+            raise MachineError("no instrument: give --laser, --angle or --xy-device (or "
+                               "--join FILE)")  # fmt: skip
+        wraps = {a for a in plan.axes if a in self.config.axes and self.config.axes[a].wraps}
+
+        async def measure(move: Move) -> Mapping[str, float]:
+            values = dict(await dev.read_mm(plan.axes))
+            for a, target in zip(plan.axes, move.target_mm):
+                if a in wraps:
+                    values[a] = nearest_turn_deg(values[a], target)
+            return values
+
+        return measure
+
+    async def _temperature_fn(self, plan: Plan, links: Links):  # type: ignore[no-untyped-def]
+        ep = self.instruments.temperature
+        assert ep is not None
+        thermal = self.config.axes[plan.axes[0]].compensation.thermal
+        if thermal is None:
+            raise MachineError(f"axis {plan.axes[0]}: no thermal source to warm up with")
+        src = self.config.thermal_sources[thermal.source]
+        sensor = TemperatureSensor.of_source(await links.get(*ep.key), ep.unit, src)
+
+        async def extra(_: Move) -> Mapping[str, float]:
+            return {"temperature_c": await sensor.read_c()}
+
+        return extra, ("temperature_c",)
+
+    async def _delta_a_fn(self, links: Links):  # type: ignore[no-untyped-def]
+        ep = self.instruments.delta_a
+        if ep is None:
+            raise MachineError("a warm-up run needs the Δa sensor: --delta-a HOST:PORT:UNIT")
+        sensor = DeltaASensor(await links.get(*ep.key), ep.unit, ep.address or 1)
+
+        async def extra(_: Move) -> Mapping[str, float]:
+            return {"delta_a_mm": await sensor.read_mm()}
+
+        return extra, ("delta_a_mm",)
+
+
+# -- identification config ----------------------------------------------------------------------
+def identify_config(path: Path) -> dict[str, Any]:
+    """The config at ``path`` without pitch tables, backlash, cyclic term, linkage and planar
+    model (thermal kept).
+
+    Table paths are not needed by it; other relative paths stay valid when the result is
+    written next to the original.
+    """
+    data = copy.deepcopy(read_yaml(path, ValueError))
+    for axis in (data.get("axes") or {}).values():
+        comp = axis.get("compensation") or {}
+        comp.pop("pitch", None)
+        comp.pop("backlash_mm", None)
+        comp.pop("cyclic", None)
+        comp.pop("linkage", None)
+        axis["compensation"] = comp
+    data.pop("planar", None)
+    return data
+
+
+def identify_config_text(path: Path) -> str:
+    head = f"# identification config made from {path.name} by compgw calibrate: no pitch,\n"
+    head += "# backlash, cyclic, linkage or planar compensation (thermal kept)\n"
+    return head + yaml.safe_dump(identify_config(path), sort_keys=False)
+
+
+# -- iteration (seed 001) -------------------------------------------------------------------------
+@dataclass
+class Round:
+    number: int
+    raw_path: Path
+    figures: dict[str, dict[str, float | None]]  # axis → ISO figures; "XY" → max/rms vector
+    #: the same on the verification plan (targets between the calibration targets)
+    verify_path: Path | None = None
+    verify_figures: dict[str, dict[str, float | None]] | None = None
+
+    @property
+    def judged(self) -> dict[str, dict[str, float | None]]:
+        """What the tolerance is judged on: the verification targets when measured."""
+        return self.figures if self.verify_figures is None else self.verify_figures
+
+
+def planar_figures(raw: Path | RawData, axes: Sequence[str]) -> dict[str, float]:
+    """Max and RMS vector error (µm) of an XY run (its file, or its data)."""
+    import numpy as np
+
+    data = read_raw_csv(raw) if isinstance(raw, Path) else raw
+    meas = planar_measurement(data, tuple(axes))  # type: ignore[arg-type]
+    norm = np.hypot(*meas.error_mm.T) * 1e3
+    return {"max_um": float(norm.max()), "rms_um": float(np.sqrt(np.mean(norm**2)))}
+
+
+def round_figures(plan: Plan, raw_path: Path) -> dict[str, dict[str, float | None]]:
+    if len(plan.axes) == 2:
+        return {"XY": dict(planar_figures(raw_path, plan.axes))}
+    raw = read_raw_csv(raw_path)
+    return {a: residual_figures(raw, a) for a in plan.axes}
+
+
+def within(figures: dict[str, dict[str, float | None]], tolerance_um: float) -> bool:
+    """Systematic error within tolerance: E of every axis (max vector error for XY)."""
+    for name, f in figures.items():
+        value = f.get("max_um") if name == "XY" else f.get("E_um")
+        if value is None or value > tolerance_um:
+            return False
+    return True
+
+
+def fold_round(session: Session, plan: Plan, raw_path: Path, comment: str) -> list[str]:
+    """Fold a compensation-on run of the calibration plan into the tables; lines to print."""
+    raw = read_raw_csv(raw_path)
+    out: list[str] = []
+    if len(plan.axes) == 2:
+        meas = planar_measurement(raw, tuple(plan.axes))  # type: ignore[arg-type]
+        res = fit_planar(meas, session.config, session.config_dir, residual=True)
+        save_planar(res, comment)
+        save_frame(res.points_path, None)  # folded unpinned: no fade to keep in line
+        out.append(f"planar model {res.choice.kind} written to {res.model_path}")
+        return out
+    for a in plan.axes:
+        res = fit_pitch(raw, session.config, session.config_dir, a, residual=True)
+        save_pitch(res, comment)
+        line = f"{a}: table folded into {res.path}"
+        if res.backlash_mm is not None:
+            line += f"; set axes.{a}.compensation.backlash_mm: {res.backlash_mm:.6g}"
+        out.append(line)
+    if reframe_plane(session.config, session.config_dir):
+        out.append("planar model re-expressed against the folded tables")
+    return out
+
+
+async def iterate(
+    session: Session,
+    plan: Plan,
+    raw_stem: Path,
+    rounds: int,
+    tolerance_um: float,
+    reload: ReloadFn,
+    say: Callable[[str], None] = print,
+    verification: Plan | None = None,
+) -> list[Round]:
+    """Seed 001: re-run ``plan`` with compensation on, fold, reload, until within tolerance.
+
+    The tolerance is judged where the machine will be used: on ``verification`` (targets
+    between the calibration targets, never used for fitting), measured every round into
+    ``<stem>.round<r>.verify.csv``; only without one on the calibration targets (said so).
+    Round r's calibration data goes to ``<stem>.round<r>.csv`` (resumable like any run) and
+    is what is folded. At most ``rounds`` folds; the last round is a measurement only.
+    """
+    done: list[Round] = []
+    if verification is None:
+        say("no verification plan: the tolerance is judged at the calibration targets only")
+    for r in range(rounds + 1):
+        path = raw_stem.with_name(f"{raw_stem.stem}.round{r}.csv")
+        await session.run(plan, path, "on")
+        this = Round(r, path, round_figures(plan, path))
+        say(f"round {r} at the calibration targets: " + format_figures(this.figures))
+        if verification is not None:
+            this.verify_path = path.with_name(f"{path.stem}.verify.csv")
+            await session.run(verification, this.verify_path, "on")
+            this.verify_figures = round_figures(verification, this.verify_path)
+            say(f"round {r} between them (verification): "
+                + format_figures(this.verify_figures))  # fmt: skip
+        done.append(this)
+        if within(this.judged, tolerance_um):
+            say(f"round {r}: within {tolerance_um:g} µm: done")
+            break
+        if verification is not None and within(this.figures, tolerance_um):
+            say(f"round {r}: within {tolerance_um:g} µm at the calibration targets but not "
+                "between them: the table is too coarse for this screw; folding cannot help. "
+                "Measure denser (smaller --step-mm) or add the cyclic stage (--cyclic)")
+            break
+        if r == rounds:
+            say(f"round {r}: not within {tolerance_um:g} µm after {rounds} folds")
+            break
+        for line in fold_round(session, plan, path, f"folded with {path.name} (seed 001)"):
+            say(f"round {r}: {line}")
+        await reload()
+    return done
+
+
+def format_figures(figures: dict[str, dict[str, float | None]]) -> str:
+    parts = []
+    for name, f in figures.items():
+        text = "  ".join(f"{k[:-3]} {v:.2f}" for k, v in f.items() if v is not None)
+        parts.append(f"{name}: {text} µm")
+    return "; ".join(parts)

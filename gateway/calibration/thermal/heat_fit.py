@@ -1,0 +1,143 @@
+"""Heat from motion, fitted from drift references: an axis with no thermal sensor.
+
+While commissioning, the drift references (two places per axis, read before and after every
+run) record how far the screw has grown, and the odometer how far the axis has travelled
+and when. A screw warms by its nut's friction, the same energy per metre at any speed, and
+cools in proportion to how warm it is, so its growth at x is
+
+    growth(x) = c · (x − x_fixed) · H,    H = heat in metres of travel (motion_heat_m)
+
+with three unknowns: c, the screw's fixed end x_fixed, and the time constant τ of its
+cooling. Time is what the moves of every commissioned axis take at ``speed_mm_s`` (or the
+wall clock, if longer): the gateway counts it the same way. For each τ on a grid, the two
+references' growth is a linear least-squares fit in H; the τ with the least residual
+wins. The result is the config's ``thermal: {origin_mm, length_mm, motion: {...}}``.
+Pure: arrays in, numbers out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ...compensation.errors import TableError
+from ...compensation.thermal import motion_heat_series_m
+
+#: the time constants tried (s): from a thin screw in a draught to a thick one in still air
+TAU_GRID_S = np.geomspace(20.0, 50_000.0, 100)
+#: the other axes' time per metre tried, relative to the estimated speeds
+SCALE_GRID = np.geomspace(0.2, 5.0, 41)
+#: fits within this share of the best residual (sum of squares) count as as good
+LIKE_SHARE = 0.05
+#: growth (µm) below which there is nothing worth a model (or below the tolerance asked,
+#: when that is tighter: 2.3 µm of growth left as it was read 4.3 µm at a 3 µm tolerance)
+MIN_GROWTH_UM = 3.0
+#: the model must explain this much of the drift (residual RMS over drift RMS at most)
+MAX_RESIDUAL_SHARE = 0.5
+#: a fixed end farther than this many travels off the travel is not a screw's growth (a
+#: drift that is the same everywhere: the air at the laser, a base that moves)
+FAR_ENDS = 20.0
+
+
+@dataclass(frozen=True)
+class MotionHeatFit:
+    """The fitted thermal setting of one axis, and how well it explains the drift."""
+
+    axis: str
+    origin_mm: float  # the screw's fixed end, axis coordinates
+    length_mm: float  # from the fixed end to the farther reference
+    delta_a_um_per_m: float  # Δa at length_mm per metre of heat
+    tau_s: float
+    speeds_mm_s: dict[str, float]
+    growth_max_um: float
+    residual_rms_um: float
+    points: int
+
+    def config(self) -> dict[str, object]:
+        """The axis's ``compensation.thermal`` section."""
+        return {"origin_mm": round(float(self.origin_mm), 2),
+                "length_mm": round(float(self.length_mm), 2),
+                "motion": {"delta_a_um_per_m": float(f"{self.delta_a_um_per_m:.5g}"),
+                           "tau_s": round(float(self.tau_s), 1),
+                           "speeds_mm_s": {a: float(v) for a, v
+                                           in self.speeds_mm_s.items()}}}  # fmt: skip
+
+
+def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLike,
+                    growth_um: ArrayLike, refs_mm: tuple[float, float],
+                    speeds_mm_s: dict[str, float], travel_mm: tuple[float, float],
+                    min_growth_um: float = MIN_GROWTH_UM) -> MotionHeatFit:  # fmt: skip
+    """Fit heat from motion to the growth (µm, shape (k, 2): both references) of ``axis``
+    read at the odometers ``odometer_m`` (each commissioned axis's travel since the first
+    reading, m) and wall clock ``wall_s``; ``speeds_mm_s`` the axes' speeds as estimated.
+    The other axes' speeds relative to this one's are fitted too (their moves cool this
+    screw for as long as they take). Raises TableError (naming the axis) when the drift is
+    too small or the model does not hold."""
+    wall = np.asarray(wall_s, dtype=np.float64)
+    odo = {a: np.asarray(v, dtype=np.float64) for a, v in odometer_m.items()}
+    g = np.asarray(growth_um, dtype=np.float64).reshape(-1, 2)
+    n = g.shape[0]
+    if n < 6 or wall.size != n or any(v.size != n for v in odo.values()):
+        raise TableError(f"axis {axis}: {n} drift readings, too few to fit heat from "
+                         "motion (6 needed)")  # fmt: skip
+    peak = float(np.abs(g).max())
+    if peak < min_growth_um:
+        raise TableError(f"axis {axis}: the screw grew {peak:.1f} µm at most while "
+                         f"commissioning (under {min_growth_um:g}): no heat to model")
+    travel = np.diff(odo[axis], prepend=0.0).clip(min=0.0)
+    moving = {a: np.diff(v, prepend=0.0).clip(min=0.0) * 1000.0 / speeds_mm_s[a]
+              for a, v in odo.items()}  # fmt: skip
+    idle = np.diff(wall, prepend=wall[0]).clip(min=0.0)
+    # tau and each other axis's time per metre (relative to the estimate) on a grid
+    # together, the remaining axes held (coordinate descent when there are several)
+    scale = dict.fromkeys(odo, 1.0)
+    others = [a for a in odo if a != axis] or [None]
+    sse, tau, slopes = np.inf, 0.0, np.zeros(2)
+    for _ in range(1 if len(others) == 1 else 3):
+        for what in others:
+            grid = SCALE_GRID if what is not None else np.ones(1)
+            elapsed = sum(moving[a][:, None] * (grid[None, :] if a == what else scale[a])
+                          for a in odo)  # fmt: skip
+            elapsed = np.maximum(np.broadcast_to(elapsed, (n, grid.size)), idle[:, None])
+            heat = motion_heat_series_m(travel, elapsed[:, :, None], TAU_GRID_S)  # (n, S, T)
+            hh = (heat * heat).sum(axis=0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                trial = np.einsum("kst,kr->str", heat, g) / hh[:, :, None]
+                err = ((g[:, None, None, :] - heat[..., None] * trial[None]) ** 2).sum(
+                    axis=(0, 3))  # fmt: skip
+            err = np.where(hh > 0, err, np.inf)
+            # the speeds as estimated unless the drift clearly says otherwise: of the
+            # scales that fit within LIKE_SHARE of the best, the one nearest 1
+            per_scale = err.min(axis=1)
+            near = per_scale <= (1.0 + LIKE_SHARE) * per_scale.min()
+            ks = int(np.argmin(np.where(near, np.abs(np.log(grid)), np.inf)))
+            kt = int(np.argmin(err[ks]))
+            if err[ks, kt] < sse:
+                sse, tau, slopes = float(err[ks, kt]), float(TAU_GRID_S[kt]), trial[ks, kt]
+                if what is not None:
+                    scale[what] = float(grid[ks])
+    if not np.isfinite(sse):
+        raise TableError(f"axis {axis}: it never moved between the drift readings")
+    rms = float(np.sqrt(sse / g.size))
+    spread = float(np.sqrt((g**2).mean()))
+    if tau >= TAU_GRID_S[-1] or rms > MAX_RESIDUAL_SHARE * spread:
+        why = ("the heat never levelled off (a longer commissioning would show where)"
+               if tau >= TAU_GRID_S[-1] else
+               f"it leaves {rms:.1f} µm RMS of {spread:.1f} µm")  # fmt: skip
+        raise TableError(f"axis {axis}: heat from motion does not explain the drift: {why}")
+    speeds_mm_s = {a: speeds_mm_s[a] / scale[a] for a in odo}
+    (x0, x1), (s0, s1) = refs_mm, slopes
+    per_mm = (s1 - s0) / (x1 - x0)  # growth per mm of lever per metre of heat
+    if per_mm <= 0:
+        raise TableError(f"axis {axis}: the references drift as a screw that shrinks with "
+                         "use: is the machine still cooling from before?")  # fmt: skip
+    origin = x0 - s0 / per_mm
+    lo, hi = travel_mm
+    length = max(abs(x0 - origin), abs(x1 - origin))
+    if not lo - FAR_ENDS * (hi - lo) <= origin <= hi + FAR_ENDS * (hi - lo):
+        raise TableError(f"axis {axis}: the drift puts the screw's fixed end at "
+                         f"{origin:.0f} mm, far off the travel: not the screw's growth")
+    return MotionHeatFit(axis, origin, length, per_mm * length, tau, speeds_mm_s,
+                         peak, rms, n)  # fmt: skip
