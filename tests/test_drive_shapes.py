@@ -418,8 +418,8 @@ def test_compgw_check_describes_the_trigger_shapes(tmp_path: Path):
     found = [w for w in warnings(parse_config(data)) if "registers" in w]
     assert found == ["axes.Z.registers.target: address 0x6201 where the kinco-fd profile has "
                      "0x4000: a registers block left from another drive beside the profile? "
-                     'Remove it to take the profile\'s whole (README, "Retrofit your '
-                     'machine")']  # fmt: skip
+                     'Remove it to take the profile\'s whole (docs/retrofit.md, "A profile '
+                     'replaces the registers")']  # fmt: skip
 
 
 def test_profiles_are_marked_with_their_sources():

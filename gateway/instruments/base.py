@@ -12,8 +12,11 @@ failure as one line naming the instrument.
 from __future__ import annotations
 
 import asyncio
+import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+
+log = logging.getLogger(__name__)
 
 #: unit -> mm (lengths) or degrees (angles) per unit
 UNITS: dict[str, float] = {
@@ -102,6 +105,7 @@ class Instrument:
                 failures += 1
                 if failures > self.retries:
                     raise InstrumentError(f"{self.name}: {exc}") from None
+                log.warning("%s: %s; trying again", self.name, exc)
                 await self._recover()
                 continue
             except InstrumentError as exc:

@@ -83,13 +83,13 @@ class Bridge(Instrument):
         except (ConnectionError, OSError) as exc:
             raise TransientError(f"{request}: {exc}") from None
         if not raw:
-            raise TransientError(f"{request}: {self._gone()}")
+            raise TransientError(f"{request}: {await self._gone()}")
         try:
             return raw.decode("utf-8").strip()
         except UnicodeDecodeError:
             raise InstrumentError(f"{request}: answer {raw[:40]!r} is not UTF-8 text") from None
 
-    def _gone(self) -> str:
+    async def _gone(self) -> str:
         return "the bridge closed the connection"
 
     async def _greet(self) -> None:
@@ -175,8 +175,14 @@ class CommandBridge(Bridge):
             self._stderr_tail = [*self._stderr_tail[-4:], text]
             log.info("%s: %s", self.name, text)
 
-    def _gone(self) -> str:
-        code = self._proc.returncode if self._proc is not None else None
+    async def _gone(self) -> str:
+        code = None
+        if self._proc is not None:
+            with contextlib.suppress(asyncio.TimeoutError):
+                code = await asyncio.wait_for(self._proc.wait(), 2.0)
+            if self._stderr_task is not None:  # its last words, read to the end
+                with contextlib.suppress(asyncio.TimeoutError, asyncio.CancelledError):
+                    await asyncio.wait_for(asyncio.shield(self._stderr_task), 1.0)
         tail = f"; its last words: {self._stderr_tail[-1]!r}" if self._stderr_tail else ""
         return f"the bridge exited (code {code}){tail}"
 
