@@ -130,24 +130,24 @@ def flow(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
            "--raw", d / "warm_on.csv")  # fmt: skip
 
         # a run interrupted half-way (Ctrl-C while measuring) and resumed by the same command
-        from gateway.calibration.measuring import machine
+        from gateway.instruments.base import Instrument
 
         calls = {"n": 0}
-        real = machine.Laser.read_mm
+        real = Instrument.read_mm
 
-        async def flaky(self, axes):  # type: ignore[no-untyped-def]
+        async def flaky(self, axes, near_mm=None):  # type: ignore[no-untyped-def]
             calls["n"] += 1
             if calls["n"] == 100:
                 raise Interrupt
-            return await real(self, axes)
+            return await real(self, axes, near_mm)
 
         args = ["calibrate", *common, "--plan", d / "X_verify.plan", "--laser", laser,
                 "--compensation", "on", "--raw", d / "X_resumed.csv"]  # fmt: skip
-        machine.Laser.read_mm = flaky  # type: ignore[method-assign]
+        Instrument.read_mm = flaky  # type: ignore[method-assign]
         try:
             out["interrupted_rc"] = compgw(*args)[0]
         finally:
-            machine.Laser.read_mm = real  # type: ignore[method-assign]
+            Instrument.read_mm = real  # type: ignore[method-assign]
         out["rows_after_interrupt"] = len(read_raw_csv(d / "X_resumed.csv"))
         out["resume_output"] = ok(*args)
 

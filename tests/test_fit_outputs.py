@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,6 +24,8 @@ from gateway.cli import main
 from gateway.compensation import GridModel, PlanarMeasurement
 from gateway.compensation.errors import TableError
 from gateway.formats import read_pitch_csv
+
+ROOT = Path(__file__).resolve().parents[1]
 
 CONFIG = {
     "upstream": {"tcp": {"port": 0}},
@@ -451,3 +454,32 @@ def test_a_reversal_a_polynomial_cannot_follow_is_smoothed_not_taken_per_point()
         miss = [np.abs(t.reverse_mm - t.forward_mm - truth).max() for t in
                 (table, bidirectional_table(dev), bidirectional_table_smooth_reversal(dev))]
         assert miss[0] < min(miss[1:]), (seed, miss)
+
+
+def test_join_refuses_readings_it_cannot_place(tmp_path):
+    """Trial: a 2-row laser file joined to a 12-reading plan was taken (exit 0); one missed
+    capture would shift every reading after it into the wrong target."""
+    plan = iso230_linear_plan("X", (0, 600), step_mm=100, runs=1)
+    write_plan(tmp_path / "p.csv", plan)
+    measured = [m for m in plan.moves if m.measured]
+    config = write_config(tmp_path)
+    raw = tmp_path / "raw.csv"
+    (tmp_path / "laser.csv").write_text("deviation_um\n1.0\n2.0\n")
+    args = ["calibrate", "-c", str(config), "--plan", str(tmp_path / "p.csv"),
+            "--join", str(tmp_path / "laser.csv"), "--raw", str(raw)]  # fmt: skip
+    assert main(args) == 1 and not raw.exists()
+    # a capture export as the laser software writes it, mapped once
+    rows = ["Point,Target (mm),Run,Dir,Error (um)"]
+    rows += [f"{i + 1},{m.target_mm[0]:.3f},1,{'+' if m.direction > 0 else '-'},{i * 0.5}"
+             for i, m in enumerate(measured)]
+    layout = ["--join-layout", str(ROOT / "config" / "capture-generic.yaml")]
+    export = tmp_path / "capture.csv"
+    export.write_text("\n".join(rows[:5] + rows[6:]) + "\n")  # reading 5 missed
+    capture = [*args[:6], str(export), "--raw", str(raw), *layout]
+    assert main(capture) == 1 and not raw.exists()
+    export.write_text("\n".join(rows) + "\n")  # the file fixed: the same command carries on
+    assert main(capture) == 0
+    data = read_raw_csv(raw)
+    assert len(data) == len(measured)
+    np.testing.assert_allclose(data.deviation_mm * 1e3, [i * 0.5 for i in range(len(measured))],
+                               atol=1e-9)  # fmt: skip

@@ -16,6 +16,7 @@ import subprocess
 import sys
 from collections.abc import Awaitable, Callable
 from pathlib import Path
+from typing import Any
 
 from ..cli_args import above
 from ..compensation.errors import CompensationError, TableError
@@ -46,11 +47,33 @@ measures the verification plan (targets between the calibration targets).
 --cyclic AXIS --lead-mm L: dense scans for the once-per-lead screw error (issue 7); fit the
 raw file together with the axis's ISO raw file (`compgw fit X_id.csv X_cyclic.csv`).
 Interrupted runs resume when the same command is run again; Ctrl-C loses nothing measured.
-Instrument register maps: see gateway/calibration/measuring/machine.py (as the sim's laser,
-XY device and Δa sensor)."""
+Instruments (--laser, --angle, --xy-device): KIND:ARGS, one syntax for every kind: a
+Modbus device in compgw's register layout (HOST:PORT:UNIT, as the sim's laser), a bridge
+around your laser's SDK (bridge:tcp:HOST:PORT, bridge:cmd:COMMAND), a gauge typed at the
+prompt (manual[:UNIT][:deviation]): docs/instruments.md."""
 
 
 # -- calibrate ----------------------------------------------------------------------------------
+def _join_capture(plan: Any, export: str, layout_path: str, raw: Path,
+                  meta: dict[str, str]) -> Any:  # fmt: skip
+    """Join a capture export laid out as ``layout_path`` says: every reading matched with
+    the plan's, row by row (a missing or added one refused, never shifted)."""
+    from ..instruments.capture import CaptureError, PlanStop, load_layout, read_export
+    from .plans.runner import join_values
+
+    if len(plan.axes) != 1:
+        raise TableError(f"--join-layout: a capture export reads one axis; the plan moves "
+                         f"{', '.join(plan.axes)}")  # fmt: skip
+    stops = [PlanStop(m.target_mm[0], m.run, m.direction) for m in plan.moves if m.measured]
+    try:
+        values = read_export(export, load_layout(layout_path), stops)
+    except CaptureError as exc:
+        raise TableError(str(exc)) from None
+    axis = plan.axes[0]
+    return join_values(plan, [{axis: float(v)} for v in values], export, raw, meta)
+
+
+
 def _floats(text: str) -> list[float]:
     return [float(v) for v in text.replace(",", " ").split()]
 
@@ -178,6 +201,7 @@ def calibrate(
     args: argparse.Namespace, reload: Callable[[], Awaitable[None]] | None = None
 ) -> int:
     """``compgw calibrate``; ``reload`` overrides --reload-pid/--reload-cmd (tests)."""
+    from .measuring.devices import device_option, given_kinds
     from .measuring.machine import Endpoint, MachineError, MotionSettings
     from .measuring.session import (
         Instruments,
@@ -216,6 +240,12 @@ def calibrate(
             _check_foldable(config, config_dir, plan.axes[0])
         if args.save_plan:
             write_plan(args.save_plan, plan)
+            if args.gateway is None and not args.join:  # the plan for another software
+                targets = ", ".join(f"{t:g}" for t in dict.fromkeys(
+                    float(m.target_mm[0]) for m in plan.moves if m.measured))  # fmt: skip
+                print(f"wrote {args.save_plan}: {sum(m.measured for m in plan.moves)} readings "
+                      f"of {', '.join(plan.axes)} at {targets} mm")  # fmt: skip
+                return EXIT_OK
         if not args.join:  # how long the machine will be busy, before it starts
             from .plans.plans import plan_time_s
 
@@ -231,7 +261,11 @@ def calibrate(
             raise TableError("--raw FILE is required (where the readings go)")
         raw = Path(args.raw)
         if args.join:
-            summary = join_readings(plan, args.join, raw, {"compensation": args.compensation})
+            meta = {"compensation": args.compensation}
+            if args.join_layout:
+                summary = _join_capture(plan, args.join, args.join_layout, raw, meta)
+            else:
+                summary = join_readings(plan, args.join, raw, meta)
             print(f"joined {args.join}: {raw} ({summary.measured_now} new points)")
             return EXIT_OK
         if args.gateway is None:
@@ -244,16 +278,20 @@ def calibrate(
         for item in args.park or []:
             name, _, value = item.partition("=")
             park[name] = float(value)
+        laser, laser_kind = device_option("--laser", args.laser)
+        angle, angle_kind = device_option("--angle", args.angle)
+        xy, xy_kind = device_option("--xy-device", args.xy_device)
         session = Session(
             config, config_dir, Endpoint.parse(args.gateway),
             Instruments(
-                laser=Endpoint.device("--laser", args.laser),
+                laser=laser,
                 laser_axes=args.laser_axes.split(",") if args.laser_axes else None,
-                xy=Endpoint.device("--xy-device", args.xy_device),
+                xy=xy,
                 delta_a=Endpoint.device("--delta-a", args.delta_a),
-                angle=Endpoint.device("--angle", args.angle),
+                angle=angle,
                 angle_axes=args.angle_axes.split(",") if args.angle_axes else None,
                 wait_stable=not args.no_wait_stable,
+                kinds=given_kinds(laser=laser_kind, angle=angle_kind, xy=xy_kind),
             ),
             MotionSettings(args.in_position_bit, args.moving_bit, args.alarm_bit,
                            args.in_position_pulses, args.timeout_s),
@@ -372,16 +410,21 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     o.add_argument("--measure-every", type=int, default=5, help="warm-up cycles per reading")
     o.add_argument("--dwell-s", type=float, default=0.0, help="warm-up dwell before reading")
     i = p.add_argument_group("instruments")
-    i.add_argument("--laser", metavar="HOST:PORT:UNIT", help="laser: int32 nm at 2k (axis k)")
+    i.add_argument("--laser", metavar="KIND:ARGS", help="laser: HOST:PORT:UNIT (Modbus, int32 "
+                   "nm at 2k for axis k), bridge:tcp:HOST:PORT, bridge:cmd:COMMAND, manual")
     i.add_argument("--laser-axes", metavar="X,Y", help="laser channel order (config order)")
-    i.add_argument("--xy-device", metavar="HOST:PORT:UNIT", help="XY device: X at 0, Y at 2")
+    i.add_argument("--xy-device", metavar="KIND:ARGS", help="XY device: HOST:PORT:UNIT (X at "
+                   "0, Y at 2), or a bridge")
     i.add_argument("--delta-a", metavar="HOST:PORT:UNIT[:ADDR]", help="Δa sensor (int32 nm)")
-    i.add_argument("--angle", metavar="HOST:PORT:UNIT",
+    i.add_argument("--angle", metavar="KIND:ARGS",
                    help="angle instrument of rotary axes: int32 µdeg at 2k (axis k)")
     i.add_argument("--angle-axes", metavar="A,C", help="its channel order (the rotary axes)")
     i.add_argument("--no-wait-stable", action="store_true", help="read the laser / XY device "
                    "at once (default: wait for their stable flags, 2N+k / 4-5)")  # fmt: skip
     i.add_argument("--join", metavar="FILE", help="offline: join a laser system's CSV export")
+    i.add_argument("--join-layout", metavar="MAPPING.yaml",
+                   help="the export's layout (columns, units, sign): your laser software's "
+                   "capture export as it is (config/capture-generic.yaml)")
     m = p.add_argument_group("motion")
     m.add_argument("--compensation", choices=["off", "on"], default="off",
                    help="what the gateway applies (recorded in the raw file; see above)")

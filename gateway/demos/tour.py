@@ -25,10 +25,11 @@ import yaml
 from ..app import GatewayApp
 from ..calibration.fitting.iso230 import iso230_2
 from ..calibration.fitting.outputs import fit_planar, save_planar
-from ..calibration.measuring.machine import Laser, Link, MachineDriver, XYDevice
+from ..calibration.measuring.machine import Link, MachineDriver
 from ..compensation import PitchTable, PlanarMeasurement
 from ..config import parse_config
 from ..formats import write_pitch_csv
+from ..instruments.modbus import ModbusChannels, ModbusXY
 from ..sensors import ThermalState
 from ..tables import build_chain
 
@@ -56,8 +57,8 @@ class UpperComputer:
     and reads the sim's laser and XY device on the bench link."""
 
     driver: MachineDriver
-    laser: Laser
-    xy: XYDevice
+    laser: ModbusChannels
+    xy: ModbusXY
     bench: Link  # the sim: its instruments and control block
 
     async def move(self, axis: str, position_mm: float) -> None:
@@ -168,8 +169,8 @@ class _Session:
         axes = list(self.config.axes)
         pc = UpperComputer(
             MachineDriver(self.master, self.config),
-            Laser(self.bench, LASER_UNIT, {name: k for k, name in enumerate(axes)}),
-            XYDevice(self.bench, XY_UNIT, ("X", "Y")),
+            ModbusChannels("laser", f"unit {LASER_UNIT}", self.bench.read, LASER_UNIT, axes),
+            ModbusXY("XY device", f"unit {XY_UNIT}", self.bench.read, XY_UNIT, ("X", "Y")),
             self.bench,
         )
         await pc.cool_down()

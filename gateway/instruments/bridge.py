@@ -13,6 +13,8 @@ import asyncio
 import contextlib
 import logging
 import math
+import os
+import signal
 from collections.abc import Mapping, Sequence
 
 from .base import UNITS, Instrument, InstrumentError, Sample, TransientError
@@ -155,7 +157,7 @@ class CommandBridge(Bridge):
         try:
             self._proc = await asyncio.create_subprocess_shell(
                 self.command, stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE,
-                stderr=asyncio.subprocess.PIPE)
+                stderr=asyncio.subprocess.PIPE, start_new_session=True)  # its own group
         except OSError as exc:
             raise InstrumentError(f"{self.name}: cannot start: {exc}") from None
         assert self._proc.stdout is not None and self._proc.stdin is not None
@@ -198,8 +200,9 @@ class CommandBridge(Bridge):
                 proc.stdin.close()
         try:
             await asyncio.wait_for(proc.wait(), 2.0)
-        except asyncio.TimeoutError:
-            proc.kill()  # a bridge that hangs is stopped
+        except asyncio.TimeoutError:  # a bridge that hangs is stopped, with what it started
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(proc.pid, signal.SIGKILL)
             await proc.wait()
         if self._stderr_task is not None:
             self._stderr_task.cancel()

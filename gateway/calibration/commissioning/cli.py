@@ -48,13 +48,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("-c", "--config", required=True, help="the config the gateway runs")
     p.add_argument("--gateway", metavar="HOST:PORT",
                    help="the running gateway (default: the config's upstream.tcp)")
-    p.add_argument("--laser", metavar="HOST:PORT:UNIT", help="laser interferometer")
+    p.add_argument("--laser", metavar="KIND:ARGS", help="laser interferometer: HOST:PORT:UNIT "
+                   "(Modbus), bridge:tcp:HOST:PORT, bridge:cmd:COMMAND, manual "
+                   "(docs/instruments.md)")
     p.add_argument("--laser-axes", metavar="X,Y", help="laser channel order")
-    p.add_argument("--angle", metavar="HOST:PORT:UNIT", help="angle instrument of rotary "
+    p.add_argument("--angle", metavar="KIND:ARGS", help="angle instrument of rotary "
                    "axes: int32 µdeg at 2k (axis k), as calibrate --angle")  # fmt: skip
     p.add_argument("--angle-axes", metavar="A,C", help="its channel order (default: the "
                    "config's rotary axes)")  # fmt: skip
-    p.add_argument("--xy-device", metavar="HOST:PORT:UNIT", help="XY measuring device: "
+    p.add_argument("--xy-device", metavar="KIND:ARGS", help="XY measuring device: "
                    "the plane is commissioned too")  # fmt: skip
     p.add_argument("--delta-a", metavar="HOST:PORT:UNIT[:ADDRESS]",
                    help="Δa sensor: a warm-up fits the thermal length of axes with a "
@@ -235,6 +237,7 @@ def make_reload(args: argparse.Namespace, config: GatewayConfig, gateway
 def main(args: argparse.Namespace) -> int:
     from pymodbus.exceptions import ModbusException
 
+    from ..measuring.devices import device_option, given_kinds
     from ..measuring.machine import Endpoint, MachineError, MotionSettings, SetupError
     from ..measuring.session import Instruments
     from .commission import Commission
@@ -284,19 +287,23 @@ def main(args: argparse.Namespace) -> int:
         if args.laser is None and not all(config.axes[a].rotary for a in axes):
             raise TableError("--laser HOST:PORT:UNIT is required (the axes' instrument)")
         gateway = gateway_endpoint(args, config)
+        laser, laser_kind = device_option("--laser", args.laser)
+        angle, angle_kind = device_option("--angle", args.angle)
+        xy, xy_kind = device_option("--xy-device", args.xy_device)
         settings = Settings(
             config_path=config_path,
             out_dir=Path(args.out) if args.out else config_path.resolve().parent / "commission",
             gateway=gateway,
             instruments=Instruments(
-                laser=Endpoint.device("--laser", args.laser),
+                laser=laser,
                 laser_axes=args.laser_axes.split(",") if args.laser_axes else None,
-                angle=Endpoint.device("--angle", args.angle),
+                angle=angle,
                 angle_axes=args.angle_axes.split(",") if args.angle_axes else None,
-                xy=Endpoint.device("--xy-device", args.xy_device),
+                xy=xy,
                 delta_a=Endpoint.device("--delta-a", args.delta_a),
                 temperature=Endpoint.device("--temperature", args.temperature),
                 wait_stable=not args.no_wait_stable,
+                kinds=given_kinds(laser=laser_kind, angle=angle_kind, xy=xy_kind),
             ),
             axes=axes, planar=plane, lead_mm=parse_leads(args.lead_mm, axes),
             tolerance_um=args.tolerance_um, tolerance_arcsec=args.tolerance_arcsec,
@@ -446,6 +453,28 @@ async def _answering(settings: Any, config: GatewayConfig, config_path: Path) ->
                                  f"{hint}") from None  # fmt: skip
         finally:
             link.close()
+    await _kinds_answering(settings)
+
+
+async def _kinds_answering(settings: Any) -> None:
+    """A bridge given for an instrument answers its greeting before anything moves (a
+    TableError naming the option otherwise); a gauge at the prompt has nothing to ask."""
+    from ...instruments.base import InstrumentError
+    from ..measuring.devices import OPTIONS, open_device
+    from ..measuring.machine import Links
+
+    for role, spec in settings.instruments.kinds.items():
+        if spec.kind != "bridge":
+            continue
+        links = Links()
+        device = await open_device(role, None, spec, links, order=())
+        try:
+            await device.open()
+        except InstrumentError as exc:
+            raise TableError(f"{OPTIONS.get(role, role)} {spec.text}: {exc}") from None
+        finally:
+            await device.close()
+            links.close()
 
 
 def _loads_whole(config: GatewayConfig, path: Path) -> None:

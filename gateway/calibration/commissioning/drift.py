@@ -108,20 +108,21 @@ class DriftRefs:
         """Deviation (mm) of each commissioned axis (or of ``axes``) at its two drift
         references, the mean of ``repeats`` approaches in + from 1 mm below (the other plane
         axis parked)."""
-        from ..measuring.machine import Laser, Links, MachineDriver
+        from ...instruments.base import InstrumentError
+        from ..measuring.machine import Links, MachineDriver, MachineError
 
         links = Links()
         out: dict[str, list[float]] = {}
         cost = 0.0
+        laser = None
         try:
             link = await links.get(self.s.gateway.host, self.s.gateway.port)
             driver = MachineDriver(link, self.config, self.s.motion)
             driver.on_move = self._count_travel
             ins = self.s.instruments
-            assert ins.laser is not None
+            assert ins.given("laser")
             order = ins.laser_order(self.config)
-            laser = Laser(await links.get(*ins.laser.key), ins.laser.unit,
-                          {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
+            laser = await ins.open("laser", links, order=order)
             for a in self.s.axes if axes is None else axes:
                 park = self._park(a)
                 if park:
@@ -132,7 +133,11 @@ class DriftRefs:
                     for _ in range(repeats):
                         await driver.move({a: x - 1.0})
                         await driver.move({a: x})
-                        readings.append((await laser.read_mm([a]))[a] - x)
+                        try:
+                            reading = (await laser.read_mm([a], {a: x}))[a]
+                        except InstrumentError as exc:
+                            raise MachineError(str(exc)) from None
+                        readings.append(reading - x)
                     devs.append(float(np.mean(readings)))
                     self._pool_ref_scatter(a, readings)
                 self._check_channel(a, order, devs)
@@ -140,6 +145,8 @@ class DriftRefs:
                 cost += self.refs_cost_s([a], repeats)
         finally:
             self._retried(links.retried)
+            if laser is not None:
+                await laser.close()
             links.close()
         self.state["refs_s"] = self.state.get("refs_s", 0.0) + cost
         self._refs_read_here = True

@@ -3,19 +3,16 @@
 This is the I/O side of calibration (the math lives in :mod:`..fitting.fit`,
 :mod:`..fitting.iso230`, :mod:`..fitting.models`). It acts as an upper computer: it writes
 nominal targets to the gateway the way any master would, triggers the move, and waits for
-in-position. Instruments are Modbus devices with the register map of the simulator's
-(``sim/README.md``):
+in-position. The laser, XY device and angle instrument are read through
+:mod:`gateway.instruments` (any kind: :mod:`.devices`); the Modbus sensors read here as the
+config's thermal sources read them:
 
-- laser (``--laser HOST:PORT:UNIT``): axis k at input registers 2k, 2k+1, signed int32, nm,
-  high word first; axis k is the k-th axis of the gateway config unless ``--laser-axes``
-  gives the order;
-- XY device (``--xy HOST:PORT:UNIT``): input registers 0-1 true X, 2-3 true Y, int32 nm;
 - Δa sensor (``--delta-a HOST:PORT:UNIT[:ADDRESS]``): input registers ADDRESS (default 1),
   ADDRESS+1, int32 nm (the sim's displacement sensor at reference point A);
-- angle instrument (``--angle HOST:PORT:UNIT``, rotary axes): the laser's layout in µdeg
-  (axis k at 2k, 2k+1, stable flags at 2N + k; ``--angle-axes`` the channel order), read
-  by :class:`Laser` as degrees; a turntable's reading (modulo 360) is taken in the turn of
-  its target (:func:`nearest_turn_deg`).
+- screw temperature (``--temperature HOST:PORT:UNIT``): the config's temperature source's
+  register and scale;
+- a turntable's angle reading (modulo 360) is taken in the turn of its target
+  (:func:`nearest_turn_deg`).
 
 Any instrument behind the gateway's ``passthrough`` can be reached through the gateway's
 own address, e.g. ``--laser 127.0.0.1:5020:20``.
@@ -401,78 +398,10 @@ async def read_int32_mm(link: Link, unit: int, address: int, table: str = "input
     return unpack_int32(await link.read(unit, address, 2, table), "hi_lo") / NM_PER_MM
 
 
-#: how long a reading may wait for the instrument's stable flag (s), and how often it asks
-STABLE_TIMEOUT_S = 30.0
-STABLE_POLL_S = 0.002
-
-
-async def _stable_words(link: Link, unit: int, count: int, flags: Sequence[int],
-                        wait: bool) -> list[int]:
-    """Input registers 0..count-1 of an instrument, read when every flag register in
-    ``flags`` is 1 (the instrument's "stable": a table still ringing after a stop reads
-    off by the ringing). Value and flags come from one read, so they belong together."""
-    if not wait or not flags:
-        return await link.read(unit, 0, count, "input")
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + STABLE_TIMEOUT_S
-    while True:
-        words = await link.read(unit, 0, count, "input")
-        if all(words[f] == 1 for f in flags):
-            return words
-        if loop.time() > deadline:
-            raise MachineError(f"unit {unit}: reading not stable after {STABLE_TIMEOUT_S:g} s "
-                               f"(flag registers {flags}); --no-wait-stable if the instrument "
-                               "has no stable flag")  # fmt: skip
-        await asyncio.sleep(STABLE_POLL_S)
-
-
-@dataclass
-class Laser:
-    """Laser interferometer: one int32 nm reading per axis (axis k at registers 2k, 2k+1),
-    and per axis a stable flag (2N + k, N channels) that a reading waits for."""
-
-    link: Link
-    unit: int
-    index: Mapping[str, int]
-    wait_stable: bool = True
-
-    async def read_mm(self, axes: Sequence[str]) -> dict[str, float]:
-        for name in axes:
-            if name not in self.index:
-                raise MachineError(f"laser: no channel for axis {name} ({', '.join(self.index)})")
-        n = max(self.index.values()) + 1
-        flags = [2 * n + self.index[a] for a in axes]
-        words = await _stable_words(self.link, self.unit, 3 * n if self.wait_stable else 2 * n,
-                                    flags, self.wait_stable)  # fmt: skip
-        return {a: unpack_int32(words[2 * self.index[a] : 2 * self.index[a] + 2], "hi_lo")
-                / NM_PER_MM for a in axes}  # fmt: skip
-
-
 def nearest_turn_deg(reading_deg: float, target_deg: float) -> float:
     """A turntable's angle read modulo 360, in the turn of ``target_deg`` (the reading
     within ±180° of it): the instrument counts within a turn, the drive counts turns."""
     return target_deg + ((reading_deg - target_deg + 180.0) % 360.0 - 180.0)
-
-
-@dataclass
-class XYDevice:
-    """2-D measuring device: true positions of the plane's two axes (registers 0-3) and
-    their stable flags (4, 5), which a reading waits for."""
-
-    link: Link
-    unit: int
-    axes: tuple[str, str]
-    wait_stable: bool = True
-
-    async def read_mm(self, axes: Sequence[str]) -> dict[str, float]:
-        words = await _stable_words(self.link, self.unit, 6 if self.wait_stable else 4,
-                                    [4, 5], self.wait_stable)  # fmt: skip
-        values = dict(zip(self.axes, (unpack_int32(words[:2], "hi_lo") / NM_PER_MM,
-                                      unpack_int32(words[2:4], "hi_lo") / NM_PER_MM)))  # fmt: skip
-        missing = [a for a in axes if a not in values]
-        if missing:
-            raise MachineError(f"XY device measures {', '.join(self.axes)}, not {missing[0]}")
-        return {a: values[a] for a in axes}
 
 
 @dataclass

@@ -23,6 +23,8 @@ import yaml
 
 from ...config import GatewayConfig
 from ...config_types import read_yaml
+from ...instruments.base import Instrument, InstrumentError
+from ...instruments.spec import InstrumentSpec
 from ..fitting.fit import planar_measurement
 from ..fitting.outputs import (
     fit_pitch,
@@ -35,16 +37,15 @@ from ..fitting.plane_frame import reframe_plane, save_frame
 from ..plans.plans import Move, Plan
 from ..plans.rawdata import RawData, read_raw_csv
 from ..plans.runner import ProgressFn, RunSummary, run_plan
+from .devices import open_device
 from .machine import (
     DeltaASensor,
     Endpoint,
-    Laser,
     Links,
     MachineDriver,
     MachineError,
     MotionSettings,
     TemperatureSensor,
-    XYDevice,
     nearest_turn_deg,
 )
 
@@ -67,6 +68,20 @@ class Instruments:
     angle_axes: Sequence[str] | None = None
     #: readings wait for the instrument's stable flag (see :class:`.machine.Laser`)
     wait_stable: bool = True
+    #: instruments of another kind than Modbus, by role (laser, angle, xy, delta_a): a
+    #: bridge, a gauge at the prompt (:mod:`.devices`)
+    kinds: Mapping[str, InstrumentSpec] = field(default_factory=dict)
+
+    def given(self, role: str) -> bool:
+        """Whether an instrument of ``role`` was given, whatever its kind."""
+        return getattr(self, role) is not None or role in self.kinds
+
+    async def open(self, role: str, links: Links, *, order: Sequence[str], unit: str = "nm",
+                   xy_axes: tuple[str, str] = ("X", "Y")) -> Instrument:  # fmt: skip
+        """The instrument of ``role`` through the one interface (:mod:`.devices`)."""
+        return await open_device(role, getattr(self, role), self.kinds.get(role), links,
+                                 order=order, unit=unit, wait_stable=self.wait_stable,
+                                 xy_axes=xy_axes)  # fmt: skip
 
     def laser_order(self, config: GatewayConfig) -> list[str]:
         """The laser's channels in order: ``laser_axes``, else the config's axes."""
@@ -110,6 +125,8 @@ class Session:
     on_move: Callable[[str, float], None] | None = None
     #: requests answered only on a later try (:data:`.machine.TRANSIENT_CODES`), all runs
     retried: int = 0
+    #: the instruments a run opened (closed when it ends: a bridge's connection or child)
+    _opened: list[Instrument] = field(default_factory=list, repr=False)
 
     async def run(self, plan: Plan, raw_path: Path, compensation: str) -> RunSummary:
         """Run ``plan`` into ``raw_path`` (resuming), measuring with the right instrument."""
@@ -126,8 +143,7 @@ class Session:
                 return values
 
             extra, names = None, ()
-            if plan.kind == "warmup" and self.instruments.delta_a is None and \
-                    self.instruments.temperature is not None:
+            if plan.kind == "warmup" and self._warmup_reads_temperature(plan):
                 extra, names = await self._temperature_fn(plan, links)
             elif plan.kind == "warmup" or self.instruments.delta_a is not None:
                 extra, names = await self._delta_a_fn(links)
@@ -139,38 +155,56 @@ class Session:
             )  # fmt: skip
         finally:
             self.retried += links.retried
+            for dev in self._opened:
+                await dev.close()
+            self._opened.clear()
             links.close()
 
     async def _measure_fn(self, plan: Plan, links: Links):  # type: ignore[no-untyped-def]
         ins = self.instruments
         rotary = [a for a in plan.axes if a in self.config.axes and self.config.axes[a].rotary]
-        if rotary and ins.angle is not None:
-            order = ins.angle_order(self.config)
-            dev = Laser(await links.get(*ins.angle.key), ins.angle.unit,  # type: ignore[assignment]
-                        {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
-        elif len(plan.axes) == 2 and ins.xy is not None:
-            dev = XYDevice(await links.get(*ins.xy.key), ins.xy.unit, tuple(plan.axes),  # type: ignore[arg-type]
-                           ins.wait_stable)
-        elif ins.laser is not None:
-            order = ins.laser_order(self.config)
-            dev = Laser(await links.get(*ins.laser.key), ins.laser.unit,  # type: ignore[assignment]
-                        {a: k for k, a in enumerate(order)}, ins.wait_stable)  # fmt: skip
-        elif ins.xy is not None:
-            dev = XYDevice(await links.get(*ins.xy.key), ins.xy.unit, tuple(self.config.planar.axes)  # type: ignore[union-attr]
-                           if self.config.planar else ("X", "Y"), ins.wait_stable)  # type: ignore[assignment]  # fmt: skip
+        planar = tuple(self.config.planar.axes) if self.config.planar else ("X", "Y")
+        if rotary and ins.given("angle"):
+            dev = await ins.open("angle", links, order=ins.angle_order(self.config),
+                                 unit="udeg")  # fmt: skip
+        elif len(plan.axes) == 2 and ins.given("xy"):
+            dev = await ins.open("xy", links, order=plan.axes, xy_axes=tuple(plan.axes))  # type: ignore[arg-type]
+        elif ins.given("laser"):
+            dev = await ins.open("laser", links, order=ins.laser_order(self.config))
+        elif ins.given("xy"):
+            dev = await ins.open("xy", links, order=planar, xy_axes=planar)  # type: ignore[arg-type]
         else:
             raise MachineError("no instrument: give --laser, --angle or --xy-device (or "
                                "--join FILE)")  # fmt: skip
+        self._opened.append(dev)
         wraps = {a for a in plan.axes if a in self.config.axes and self.config.axes[a].wraps}
 
         async def measure(move: Move) -> Mapping[str, float]:
-            values = dict(await dev.read_mm(plan.axes))
+            try:
+                values = dict(await dev.read_mm(plan.axes, dict(zip(plan.axes, move.target_mm))))
+            except InstrumentError as exc:
+                raise MachineError(str(exc)) from None
             for a, target in zip(plan.axes, move.target_mm):
                 if a in wraps:
                     values[a] = nearest_turn_deg(values[a], target)
             return values
 
         return measure
+
+    def _warmup_reads_temperature(self, plan: Plan) -> bool:
+        """Whether a warm-up records its axis's screw temperature: its thermal source is a
+        temperature sensor and one is given, or no Δa sensor is (with both sensors given,
+        an axis warmed by temperature recorded the Δa column and its fit failed: 46 minutes
+        of machine time lost, trial of issue 54)."""
+        ins = self.instruments
+        if ins.temperature is None:
+            return False
+        thermal = self.config.axes[plan.axes[0]].compensation.thermal
+        source = (self.config.thermal_sources.get(thermal.source)
+                  if thermal is not None and thermal.source else None)  # fmt: skip
+        if source is not None:
+            return source.kind == "temperature"
+        return ins.delta_a is None
 
     async def _temperature_fn(self, plan: Plan, links: Links):  # type: ignore[no-untyped-def]
         ep = self.instruments.temperature

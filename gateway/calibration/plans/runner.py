@@ -22,7 +22,7 @@ from __future__ import annotations
 import asyncio
 import os
 import time
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -177,8 +177,11 @@ def join_readings(
     laser, mm) or ``deviation_um`` (actual − target, µm); for a multi-axis plan one
     ``<axis>_actual_mm`` or ``<axis>_deviation_um`` column per axis (axis name in lower case).
     An optional ``target_mm`` (one axis) or ``<axis>_target_mm`` column is checked against the
-    plan (within 1 µm), so an export of another plan is refused. Fewer rows than the plan
-    measures give a partial raw file (joining again later appends the rest).
+    plan (within 1 µm), so an export of another plan, or one with a reading missing or added,
+    is refused at the first row that is not the plan's. With the targets, fewer rows than the
+    plan measures give a partial raw file (joining again later appends the rest); without
+    them the rows must be exactly the plan's readings (a missing one would shift every
+    reading after it into another target's place, unseen).
     """
     plan, _ = raw_runs(plan)
     rows = data_lines(readings_path)
@@ -224,7 +227,24 @@ def join_readings(
                 values[a] = target + dev * 1e-3
         readings.append((number, values))
 
-    by_move = {id(m): values for m, (_, values) in zip(measured, readings)}
+    targets_given = all(names(a, "target_mm") in col for a in plan.axes)
+    if not targets_given and len(readings) != len(measured):
+        raise TableError(f"{readings_path}: {len(readings)} readings, the plan measures "
+                         f"{len(measured)}: without a {names(plan.axes[0], 'target_mm')} "
+                         "column a missing or added reading would shift every reading after "
+                         "it into another target's place: export the whole run, or with its "
+                         "targets")  # fmt: skip
+    return join_values(plan, [values for _, values in readings], readings_path, raw_path, meta)
+
+
+def join_values(plan: Plan, readings: Sequence[Mapping[str, float]],
+                source: str | os.PathLike[str], raw_path: str | os.PathLike[str],
+                meta: Mapping[str, str] | None = None) -> RunSummary:  # fmt: skip
+    """Raw data from a plan and readings (mm per axis) of its first measured moves, in
+    order, taken from ``source`` (a file checked against the plan by the caller)."""
+    plan, _ = raw_runs(plan)
+    measured = [m for m in plan.moves if m.measured]
+    by_move = {id(m): values for m, values in zip(measured, readings)}
 
     async def no_move(_: Mapping[str, float]) -> None:
         return None
@@ -234,7 +254,7 @@ def join_readings(
 
     plan_part = Plan(plan.kind, plan.axes, _through_last(plan, len(readings)), plan.meta)
     return asyncio.run(run_plan(plan_part, raw_path, no_move, measure,
-                                meta={"joined": str(readings_path), **(meta or {})}))  # fmt: skip
+                                meta={"joined": str(source), **(meta or {})}))  # fmt: skip
 
 
 def _through_last(plan: Plan, count: int) -> tuple[Move, ...]:
