@@ -23,6 +23,7 @@ from gateway.calibration.fitting.takeup_fit import (
     RUNGS_MM,
     fit_takeup,
     fit_takeup_raw,
+    full_takeup_um,
     short_steps_plan,
     takeup_plan,
 )
@@ -254,3 +255,13 @@ def test_commission_finds_a_soft_nut_and_writes_its_curve(tmp_path: Path):
         assert len(state["steps"]["after-steps-X"]["parts"]) == 1  # references around all
         report = (rig.dir / "commission" / "report" / "report.html").read_text()
         assert "id='short-steps-X'" in report
+
+
+def test_the_take_up_is_said_where_the_curve_shows_all_of_it():
+    """Trial (issue 54): "taken up over a reversal of about 1269 µm" where the ladder
+    showed all of the lost motion by the 40 µm rung: the curve's last point, not its
+    first full one."""
+    section = {"reversal_um": [5.0, 10.0, 20.0, 40.0, 80.0, 640.0, 1269.0],
+               "fraction": [0.2, 0.45, 0.8, 1.0, 1.0, 1.0, 1.0]}
+    assert full_takeup_um(section) == 40.0
+    assert full_takeup_um({"reversal_um": [5.0, 10.0], "fraction": [0.3, 0.9]}) == 10.0

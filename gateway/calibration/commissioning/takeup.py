@@ -14,6 +14,7 @@ from ..fitting.takeup_fit import (
     MIN_LOST_UM,
     RUNGS_MM,
     fit_takeup_raw,
+    full_takeup_um,
     short_steps_plan,
     takeup_plan,
 )
@@ -51,9 +52,9 @@ class TakeUpSteps(RefineSteps):
             self.tables.takeup.pop(a, None)
             return
         self.tables.takeup[a] = section
-        last = section["reversal_um"][-1]
+        whole = full_takeup_um(section)
         self.say(f"{a}: the lost motion ({fit.lost_um:.1f} µm) is taken up over a reversal of "
-                 f"about {last:.0f} µm, not at once ({fit.why}): a take-up curve of "
+                 f"about {whole:.0f} µm, not at once ({fit.why}): a take-up curve of "
                  f"{len(section['fraction'])} points")  # fmt: skip
 
     def steps_plan(self, axis: str) -> Plan:

@@ -149,6 +149,15 @@ def fit_takeup(motor_mm: ArrayLike, lost_mm: ArrayLike, full_mm: ArrayLike,
                      f"a full switch misses by up to {miss:.1f} µm")
 
 
+def full_takeup_um(section: dict[str, list[float]], level: float = 0.99) -> float:
+    """The reversal (µm) by which a take-up section shows the whole lost motion (``level``
+    of it): its first point that does, not its last (trial: "taken up over a reversal of
+    about 1269 µm" where the ladder showed all of it by the 40 µm rung)."""
+    reversal, fraction = section["reversal_um"], section["fraction"]
+    return next((r for r, f in zip(reversal, fraction, strict=True) if f >= level),
+                reversal[-1])  # fmt: skip
+
+
 def _between(r_mm: NDArray[np.float64], f: NDArray[np.float64], sub: int = 4
              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:  # fmt: skip
     """The rungs' points with ``sub`` − 1 more between each two, on the monotone cubic
