@@ -283,37 +283,67 @@ class Commission(CommandChecks):
         last, every other one before its warm-up (cold, with the configured thermal
         setting; the drift references take what it misses). A zone's heat the sensor's
         model cannot place (a temperature at one spot, the linear spread) then fades for
-        hours before its axis is measured, instead of going into its table."""
+        hours before its axis is measured, instead of going into its table. On a short
+        budget the plain calibration's steps come first, and each warm-up after them only
+        where the budget left holds it (:meth:`_plain_steps_first`)."""
         await self.read_start_temperatures()
         await self.use("identification")
         zoned = self._zoned()
+        if self.short():  # a plain ISO 230-2 calibration's steps first, warm-ups after
+            await self._plain_steps_first([a for a in self.s.axes if not self._rotary(a)])
+            for a in zoned:  # each where the budget left holds it
+                await self._warm_up_if_affordable(a)
+            for a in self.s.axes:
+                await self._identify_axis(a)
+            await self._before_xy()
+            self._save()
+            return
         if zoned:
             await self._warm_up(zoned[0])
         for a in zoned[1:]:
             await self._identify_axis(a)
             await self._warm_up(a)
         rest = [a for a in self.s.axes if a not in zoned] + zoned[:1]
-        if not zoned and self.short():  # a plain ISO 230-2 calibration's steps first
-            cores = [a for a in rest if not self._rotary(a)]
-            self._iso_runs_that_fit(cores)
-            for a in cores:
-                await self._iso(a)
-            for a in cores:  # where the tables miss between their points
-                await self.densify(a)
-            if self.s.planar is not None and set(self.s.planar) <= set(cores):
-                await self._before_xy()  # (what the plane's check and report need)
-                await self._fit_axes(cores, curves=True)
-                await self._plane()
-                await self.use("identification")  # the rest is measured without them
-            for a in cores:  # (the bidirectional tables hold the backlash meanwhile)
-                await self._backlash(a)
-            for a in cores:  # what the report judges them by, before any lead search
-                await self.step(f"before-{a}", lambda a=a: self._before_plan(a), "off",
-                                self._park(a))  # fmt: skip
         for a in rest:
             await self._identify_axis(a)
         await self._before_xy()
         self._save()
+
+    async def _plain_steps_first(self, cores: list[str]) -> None:
+        """On a short budget, a plain ISO 230-2 calibration's steps before anything else,
+        thermal settings or not (the zone warm-ups came first and a 0.9 h budget spent 45
+        minutes warming X and ended with no table: issue 54): every linear axis's ISO runs,
+        the plane's grid with their tables on, the backlash tests, the before-runs."""
+        self._iso_runs_that_fit(cores)
+        for a in cores:
+            await self._iso(a)
+        for a in cores:  # where the tables miss between their points
+            await self.densify(a)
+        if self.s.planar is not None and set(self.s.planar) <= set(cores):
+            await self._before_xy()  # (what the plane's check and report need)
+            await self._fit_axes(cores, curves=True)
+            await self._plane()
+            await self.use("identification")  # the rest is measured without them
+        for a in cores:  # (the bidirectional tables hold the backlash meanwhile)
+            await self._backlash(a)
+        for a in cores:  # what the report judges them by, before any lead search
+            await self.step(f"before-{a}", lambda a=a: self._before_plan(a), "off",
+                            self._park(a))  # fmt: skip
+
+    async def _warm_up_if_affordable(self, a: str) -> None:
+        """The zone warm-up of ``a`` where the budget left holds it; else said, and the
+        configured thermal setting kept."""
+        if a in self.tables.thermal_length_mm or a in self.tables.thermal_gain:
+            return
+        cost_s = self.step_cost_s(self._warmup_plan(a), drift=False)
+        if not self.done(f"warmup-{a}") and cost_s > self.left_s():
+            self.state.setdefault("identify", {})[f"thermal-{a}"] = {
+                "fitted": False, "why": f"its warm-up ({cost_s / 60:.0f} min) is not in the "
+                f"budget left ({max(self.left_s(), 0.0) / 60:.0f} min)"}  # fmt: skip
+            self.say(f"{a}: thermal setting kept as configured: its warm-up "
+                     f"({cost_s / 60:.0f} min) is not in the budget left")  # fmt: skip
+            return
+        await self._warm_up(a)
 
     async def _before_xy(self) -> None:
         """The plane's random points before anything is fitted (judged again at the end)."""
@@ -321,8 +351,8 @@ class Commission(CommandChecks):
             await self.step("before-xy", self._before_xy_plan, "off")
 
     def _zoned(self) -> list[str]:
-        """The linear axes with a thermal setting: each gets a zone warm-up, and the
-        identification keeps its own order (a short budget's does not apply)."""
+        """The linear axes with a thermal setting: each gets a zone warm-up (on a short
+        budget after the plain calibration's steps, where the budget holds it)."""
         return [a for a in self.s.axes if not self._rotary(a) and self._thermal(a)]
 
     async def _warm_up(self, a: str) -> None:
