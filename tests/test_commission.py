@@ -343,8 +343,9 @@ def test_laser_channels_in_the_wrong_order_are_caught_at_the_first_references(
 
 
 def test_a_gateway_that_refuses_remote_reloads_is_said_once(tmp_path: Path) -> None:
-    """status.remote_control off (as `compgw sim --random-machine` writes it): exit 1 at
-    the first reload, saying what to set, once, and no resume hint (it would fail again)."""
+    """status.remote_control off (as `compgw sim --random-machine` writes it): exit 1 before
+    anything moves, the dry run too, saying what to set, once (a dry run passed, then the
+    run aborted at its first reload: issue 52)."""
     small_machine(tmp_path / "t", seed=7)
     path = tmp_path / "t" / "gateway.yaml"
     data = yaml.safe_load(path.read_text())
@@ -352,13 +353,14 @@ def test_a_gateway_that_refuses_remote_reloads_is_said_once(tmp_path: Path) -> N
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     with running(tmp_path / "t", tmp_path / "m") as rig:
         original = rig.config.read_text()
-        proc = rig.commission("--budget-h", "1")
-        assert proc.popen.wait(timeout=120) == 1, proc.text()
-        text = proc.text()
-        assert text.count("set status.remote_control: true") == 1, text
-        assert "did not reload it: for the same reason" in text
-        assert "run the same command again" not in text
-        assert rig.config.read_text() == original
+        for extra in (("--dry-run",), ()):
+            proc = rig.commission("--budget-h", "1", *extra)
+            assert proc.popen.wait(timeout=120) == 1, proc.text()
+            text = proc.text()
+            assert text.count("set status.remote_control: true") == 1, text
+            assert "run the same command again" not in text
+            assert rig.config.read_text() == original
+            assert not (rig.dir / "commission").exists()
 
 
 def test_a_device_that_does_not_answer_is_named_before_anything(

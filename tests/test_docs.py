@@ -191,11 +191,15 @@ def test_compgw_is_the_entry_point_the_tests_call() -> None:
 
 
 def _site_config(tmp_path: Path) -> Path:
-    """A stand-in for the site's /etc/compgw/compgw.yaml: the example and its tables."""
+    """A stand-in for the site's /etc/compgw/compgw.yaml: the example and its tables, with
+    status.remote_control on as the commissioning guide's steps have you set it."""
     site = tmp_path / "site"
     site.mkdir(exist_ok=True)
     shutil.copytree(ROOT / "config" / "tables", site / "tables", dirs_exist_ok=True)
-    shutil.copy(ROOT / "config" / "example.yaml", site / "compgw.yaml")
+    text = (ROOT / "config" / "example.yaml").read_text()
+    assert "remote_control: false" in text
+    (site / "compgw.yaml").write_text(text.replace("remote_control: false",
+                                                   "remote_control: true"))
     return site / "compgw.yaml"
 
 

@@ -323,6 +323,11 @@ def main(args: argparse.Namespace) -> int:
             return _recheck(job, settings, config, config_path)
         finished = job.finished()
         if finished is None:
+            if not (config.status.remote_control or args.reload_pid or args.reload_cmd):
+                raise TableError(  # (a dry run passed, then the run aborted: issue 52)
+                    f"{config_path}: status.remote_control is false, so the gateway refuses to "
+                    "reload over Modbus: set status.remote_control: true in its config (then "
+                    "restart it or send it SIGHUP), or give --reload-pid or --reload-cmd")
             if not args.dry_run:
                 asyncio.run(_answering(settings, config, config_path))
                 job.adopt_edits()  # (refused here, before anything would put a config back)
