@@ -75,8 +75,9 @@ async def live(say: Any = print) -> dict[str, Any]:
                     axes=("X", "Y"), planar=("X", "Y"), lead_mm=leads,
                 )  # fmt: skip
                 job = Commission(settings, reload, say)
-                say(f"compgw commission on random machine {SEED} (smooth), travel "
-                    f"{TRAVEL_MM[1]:g} mm, leads {leads}")  # fmt: skip
+                say(f"compgw commission on random machine {SEED} (smooth), its travel cut "
+                    f"to {TRAVEL_MM[1]:g} mm so the demo takes seconds (`compgw sim "
+                    f"--random-machine {SEED}` writes it whole), leads {leads}")  # fmt: skip
                 job.print_plan()
                 summary = await job.run()
     for line in summary_lines(summary):
