@@ -80,3 +80,69 @@ def test_calibrate_with_a_gauge_typed_at_the_prompt(template: Path, tmp_path: Pa
         raw = read_raw_csv(tmp_path / "gauge.csv")
         assert np.allclose(raw.target_mm, [10.0, 30.0, 50.0, 70.0])
         assert np.allclose(raw.deviation_mm * 1000, [3.1, -2.5, 1.5, 0.0], atol=1e-6), raw
+
+
+def test_calibrate_from_the_laser_software_s_own_recording(tmp_path: Path) -> None:
+    """The laser software records while compgw stands 0.2 s at each stop (the technician
+    starts it before and stops it after, on the sim's laser over Modbus); compgw waits for
+    the file, finds the stops, and its readings are the Modbus laser's within the machine's
+    repeatability. A recording of another axis is refused naming the file, nothing joined,
+    and the same command carries on once the right file is there."""
+    from pymodbus.client import ModbusTcpClient
+
+    from tests.test_service_helpers import Proc
+
+    directory = tmp_path / "t"
+    small_machine(directory, seed=7)
+    sim = yaml.safe_load((directory / "sim.yaml").read_text())
+    sim["sim"]["instruments"]["laser"]["recording"] = {
+        "dir": "recordings", "format": "rtx", "axis": "X", "rate_hz": 1000, "unit": "um",
+        "idle_time_scale": 1.0}  # fmt: skip
+    (directory / "sim.yaml").write_text(yaml.safe_dump(sim, sort_keys=False))
+    with running(directory, tmp_path / "m") as rig:
+        plan = tmp_path / "x.plan"
+        write_plan(plan, Plan("iso", ("X",), tuple(
+            Move(1, d, "measure", (x,)) for x, d in ((10.0, 1), (30.0, 1), (50.0, 1),
+                                                     (70.0, 1), (50.0, -1), (30.0, -1)))))
+        laser_dir = tmp_path / "laser"
+        laser_dir.mkdir()
+        saved = rig.dir / "recordings"
+        args = ["-m", "gateway.cli", "calibrate", "-c", str(rig.config), "--gateway",
+                f"127.0.0.1:{rig.gw_port}", "--plan", str(plan), "--no-progress",
+                "--dwell-s", "0.3"]  # fmt: skip
+        laser = ModbusTcpClient("127.0.0.1", port=rig.sim_port)
+        assert laser.connect()
+        try:
+            raw = tmp_path / "rec.csv"
+            assert not laser.write_register(0x0100, 1, device_id=20).isError()  # start
+            recording = [*args, "--laser", f"recording:{laser_dir}:um", "--raw", str(raw)]
+            proc = Proc(recording)
+            proc.wait_line(r"waiting for rec\.rtx in ", timeout_s=60)
+            assert not laser.write_register(0x0100, 2, device_id=20).isError()  # stop, save
+            number = laser.read_holding_registers(0x0101, count=1, device_id=20).registers[0]
+            made = (saved / f"rec-{number:03d}.rtx").read_bytes()
+            (laser_dir / "rec.rtx").write_bytes(made[: len(made) // 2])  # a copy cut short
+            assert proc.popen.wait(timeout=60) == 3, proc.text()
+            assert "rec.rtx: truncated" in proc.text() and "nothing fitted" in proc.text()
+            assert not raw.exists() or not read_raw_csv(raw).target_mm.size
+            (laser_dir / "rec.rtx").write_bytes(made)  # the whole file: carries on, no moves
+            again = subprocess.run([sys.executable, *recording], cwd=ROOT, capture_output=True,
+                                   text=True, timeout=60)  # fmt: skip
+            assert again.returncode == 0, again.stdout + again.stderr
+            assert "start the laser's recording" not in again.stdout
+        finally:
+            laser.close()
+        reference = tmp_path / "modbus.csv"
+        done = subprocess.run([sys.executable, *args, "--laser", f"127.0.0.1:{rig.sim_port}:20",
+                               "--raw", str(reference)], cwd=ROOT, capture_output=True,
+                              text=True, timeout=60)  # fmt: skip
+        assert done.returncode == 0, done.stdout + done.stderr
+        got, want = read_raw_csv(raw), read_raw_csv(reference)
+        assert np.allclose(got.target_mm, want.target_mm)
+        # the recording reads from its first stop (the laser zeroed there): deviations
+        # relative to the first one's
+        rec = (got.deviation_mm - got.deviation_mm[0]) * 1000
+        mod = (want.deviation_mm - want.deviation_mm[0]) * 1000
+        # two visits of each stop: each reading scatters by the machine's repeatability
+        # (0.3-0.5 µm here) and the first stop's too, so a few µm between single readings
+        assert np.max(np.abs(rec - mod)) < 3.0 and abs(np.mean(rec - mod)) < 1.5, (rec, mod)

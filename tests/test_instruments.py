@@ -391,3 +391,13 @@ def test_manual_entry_validates_and_reads_again():
     assert "'twelve' is not a number" in text
     assert "900 um is 0.900 mm from the target, more than the 0.5 mm" in text
     assert "X at 200.0000 mm: the gauge's deviation in um?" in text
+
+
+def test_the_machine_standing_before_and_after_the_plan_is_not_an_extra_stop(tmp_path: Path):
+    """The laser's recording started before compgw's first move and stopped after its last:
+    the still stretches at both ends are not the plan's, and are left out."""
+    targets = iso_targets()
+    samples = synthesize(np.concatenate([[-20.0], targets, [60.0]]))  # stands before, after
+    got = readings(write_rtx(tmp_path / "iso-X.rtx", samples), targets)
+    expected = targets + (truth_um(targets) - truth_um(targets[:1])) / 1000.0
+    assert np.max(np.abs(got - expected)) * 1000 < 0.05

@@ -50,7 +50,9 @@ Interrupted runs resume when the same command is run again; Ctrl-C loses nothing
 Instruments (--laser, --angle, --xy-device): KIND:ARGS, one syntax for every kind: a
 Modbus device in compgw's register layout (HOST:PORT:UNIT, as the sim's laser), a bridge
 around your laser's SDK (bridge:tcp:HOST:PORT, bridge:cmd:COMMAND), a gauge typed at the
-prompt (manual[:UNIT][:deviation]): docs/instruments.md."""
+prompt (manual[:UNIT][:deviation]), or your laser software's own recording or capture,
+read after the moves (recording:DIR[:UNIT[:-1]], capture:MAPPING.yaml:DIR): compgw stands
+--dwell-s at each stop, then waits for the file: docs/instruments.md."""
 
 
 # -- calibrate ----------------------------------------------------------------------------------
@@ -292,6 +294,7 @@ def calibrate(
                 angle_axes=args.angle_axes.split(",") if args.angle_axes else None,
                 wait_stable=not args.no_wait_stable,
                 kinds=given_kinds(laser=laser_kind, angle=angle_kind, xy=xy_kind),
+                dwell_s=args.dwell_s or 3.0,
             ),
             MotionSettings(args.in_position_bit, args.moving_bit, args.alarm_bit,
                            args.in_position_pulses, args.timeout_s),
@@ -408,7 +411,8 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     o.add_argument("--duration-s", type=float, default=1800.0, help="warm-up duration (1800)")
     o.add_argument("--reference-mm", type=float, help="warm-up measuring position")
     o.add_argument("--measure-every", type=int, default=5, help="warm-up cycles per reading")
-    o.add_argument("--dwell-s", type=float, default=0.0, help="warm-up dwell before reading")
+    o.add_argument("--dwell-s", type=float, default=0.0, help="warm-up dwell before reading; "
+                   "with a recording or capture, the stand at each stop (default 3 s)")
     i = p.add_argument_group("instruments")
     i.add_argument("--laser", metavar="KIND:ARGS", help="laser: HOST:PORT:UNIT (Modbus, int32 "
                    "nm at 2k for axis k), bridge:tcp:HOST:PORT, bridge:cmd:COMMAND, manual")

@@ -268,6 +268,10 @@ def align(rec: Recording, stops: Sequence[Stop], targets_mm: Sequence[float],
         raise RecordingError(f"{name}: found no stops, expected {k} (is this the recording "
                              "of this step? was the axis still for the dwell?)")
     steps_plan = targets - targets[0]
+    for lead in range(1, m - k + 1):  # the machine standing before the first stop or after
+        window = found[lead : lead + k]  # the last one (the laser started early, stopped
+        if np.all(np.abs(window - window[0] - steps_plan) <= tolerance_mm):  # late)
+            return targets[0] + window - window[0]
     steps_read = found - found[0]
     n = min(k, m)
     off = np.flatnonzero(np.abs(steps_read[:n] - steps_plan[:n]) > tolerance_mm)

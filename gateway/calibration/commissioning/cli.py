@@ -284,6 +284,14 @@ def main(args: argparse.Namespace) -> int:
             if missing:
                 raise TableError(f"{option} {given}: no channel for axis {missing[0]}, which "
                                  "is commissioned")  # fmt: skip
+        for option, text in (("--laser", args.laser), ("--angle", args.angle),
+                             ("--xy-device", args.xy_device)):
+            kind = (text or "").partition(":")[0]
+            if kind in ("recording", "capture"):
+                raise TableError(f"{option} {text}: commission reads its instrument between "
+                                 "the steps too (the drift references); a recording or "
+                                 "capture is read after a step's moves: use it with compgw "
+                                 "calibrate, or a bridge here (docs/instruments.md)")
         if args.laser is None and not all(config.axes[a].rotary for a in axes):
             raise TableError("--laser HOST:PORT:UNIT is required (the axes' instrument)")
         gateway = gateway_endpoint(args, config)

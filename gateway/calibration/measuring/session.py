@@ -38,6 +38,7 @@ from ..plans.plans import Move, Plan
 from ..plans.rawdata import RawData, read_raw_csv
 from ..plans.runner import ProgressFn, RunSummary, run_plan
 from .devices import open_device
+from .from_file import run_for_file
 from .machine import (
     DeltaASensor,
     Endpoint,
@@ -71,6 +72,8 @@ class Instruments:
     #: instruments of another kind than Modbus, by role (laser, angle, xy, delta_a): a
     #: bridge, a gauge at the prompt (:mod:`.devices`)
     kinds: Mapping[str, InstrumentSpec] = field(default_factory=dict)
+    #: how long compgw stands at each stop for a recording or a capture (s)
+    dwell_s: float = 3.0
 
     def given(self, role: str) -> bool:
         """Whether an instrument of ``role`` was given, whatever its kind."""
@@ -135,6 +138,13 @@ class Session:
             link = await links.get(self.gateway.host, self.gateway.port)
             driver = MachineDriver(link, self.config, self.motion)
             driver.on_move = self.on_move
+            later = self.instruments.kinds.get(self._role(plan))
+            if later is not None and later.reads_later:  # from a recording or a capture
+                if self.park:
+                    await driver.move(dict(self.park))
+                return await run_for_file(plan, raw_path, later, driver.move,
+                                          self.instruments.dwell_s,
+                                          {"compensation": compensation})  # fmt: skip
             read = await self._measure_fn(plan, links)
 
             async def measure(move: Move) -> Mapping[str, float]:
@@ -160,22 +170,35 @@ class Session:
             self._opened.clear()
             links.close()
 
-    async def _measure_fn(self, plan: Plan, links: Links):  # type: ignore[no-untyped-def]
+    def _role(self, plan: Plan) -> str:
+        """Which instrument reads ``plan``: the angle instrument for rotary axes, the XY
+        device for the plane, else the laser (the XY device when there is no laser)."""
         ins = self.instruments
         rotary = [a for a in plan.axes if a in self.config.axes and self.config.axes[a].rotary]
-        planar = tuple(self.config.planar.axes) if self.config.planar else ("X", "Y")
         if rotary and ins.given("angle"):
+            return "angle"
+        if len(plan.axes) == 2 and ins.given("xy"):
+            return "xy"
+        if ins.given("laser"):
+            return "laser"
+        if ins.given("xy"):
+            return "xy"
+        raise MachineError("no instrument: give --laser, --angle or --xy-device (or "
+                           "--join FILE)")  # fmt: skip
+
+    async def _measure_fn(self, plan: Plan, links: Links):  # type: ignore[no-untyped-def]
+        ins = self.instruments
+        planar = tuple(self.config.planar.axes) if self.config.planar else ("X", "Y")
+        role = self._role(plan)
+        if role == "angle":
             dev = await ins.open("angle", links, order=ins.angle_order(self.config),
                                  unit="udeg")  # fmt: skip
-        elif len(plan.axes) == 2 and ins.given("xy"):
+        elif role == "xy" and len(plan.axes) == 2:
             dev = await ins.open("xy", links, order=plan.axes, xy_axes=tuple(plan.axes))  # type: ignore[arg-type]
-        elif ins.given("laser"):
+        elif role == "laser":
             dev = await ins.open("laser", links, order=ins.laser_order(self.config))
-        elif ins.given("xy"):
-            dev = await ins.open("xy", links, order=planar, xy_axes=planar)  # type: ignore[arg-type]
         else:
-            raise MachineError("no instrument: give --laser, --angle or --xy-device (or "
-                               "--join FILE)")  # fmt: skip
+            dev = await ins.open("xy", links, order=planar, xy_axes=planar)  # type: ignore[arg-type]
         self._opened.append(dev)
         wraps = {a for a in plan.axes if a in self.config.axes and self.config.axes[a].wraps}
 

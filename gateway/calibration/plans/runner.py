@@ -242,6 +242,13 @@ def join_values(plan: Plan, readings: Sequence[Mapping[str, float]],
                 meta: Mapping[str, str] | None = None) -> RunSummary:  # fmt: skip
     """Raw data from a plan and readings (mm per axis) of its first measured moves, in
     order, taken from ``source`` (a file checked against the plan by the caller)."""
+    return asyncio.run(join_values_async(plan, readings, source, raw_path, meta))
+
+
+async def join_values_async(plan: Plan, readings: Sequence[Mapping[str, float]],
+                            source: str | os.PathLike[str], raw_path: str | os.PathLike[str],
+                            meta: Mapping[str, str] | None = None) -> RunSummary:  # fmt: skip
+    """:func:`join_values` in a running event loop."""
     plan, _ = raw_runs(plan)
     measured = [m for m in plan.moves if m.measured]
     by_move = {id(m): values for m, values in zip(measured, readings)}
@@ -253,8 +260,8 @@ def join_values(plan: Plan, readings: Sequence[Mapping[str, float]],
         return by_move[id(move)]
 
     plan_part = Plan(plan.kind, plan.axes, _through_last(plan, len(readings)), plan.meta)
-    return asyncio.run(run_plan(plan_part, raw_path, no_move, measure,
-                                meta={"joined": str(source), **(meta or {})}))  # fmt: skip
+    return await run_plan(plan_part, raw_path, no_move, measure,
+                          meta={"joined": str(source), **(meta or {})})  # fmt: skip
 
 
 def _through_last(plan: Plan, count: int) -> tuple[Move, ...]:

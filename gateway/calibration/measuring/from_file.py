@@ -1,0 +1,100 @@
+"""A step whose readings come from a file after the moves: a laser's recording or capture.
+
+compgw runs the plan with a dwell at every measured stop while the laser's own software
+records continuously (``--laser recording:DIR``) or captures on stationary
+(``--laser capture:MAPPING.yaml:DIR``); then it says which file it waits for, in which
+folder, and waits. The file is read, its stops matched with the plan's
+(:mod:`gateway.instruments.recording`, :mod:`gateway.instruments.capture`), and only a file
+that matches gives raw rows: a file that does not is refused with one line, nothing is
+fitted, and the same command carries on once the file is fixed (the moves are not made
+again: a marker beside the raw file says they were).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Awaitable, Callable, Mapping
+from pathlib import Path
+
+from ...formats import atomic_write_text
+from ...instruments.base import InstrumentError
+from ...instruments.capture import PlanStop, load_layout, read_export
+from ...instruments.recording import align, plan_stops, read_recording
+from ...instruments.spec import InstrumentSpec
+from ..plans.plans import Plan
+from ..plans.runner import RunSummary, join_values_async, raw_runs
+from .machine import MachineError
+
+Say = Callable[[str], None]
+MoveFn = Callable[[Mapping[str, float]], Awaitable[None]]
+
+#: how often the folder is looked at while compgw waits for the file (s)
+POLL_S = 0.2
+
+
+def expected_files(spec: InstrumentSpec, name: str) -> list[Path]:
+    """The files a step's readings may come in (the first that exists is read)."""
+    assert spec.directory is not None
+    suffixes = (".rtx", ".csv") if spec.kind == "recording" else (".csv",)
+    return [spec.directory / f"{name}{s}" for s in suffixes]
+
+
+async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: MoveFn,
+                       dwell_s: float, meta: Mapping[str, str], say: Say = print
+                       ) -> RunSummary:  # fmt: skip
+    """Move through ``plan`` dwelling ``dwell_s`` at each measured stop, then wait for the
+    step's file and join its readings into ``raw_path`` (see the module docstring)."""
+    if len(plan.axes) != 1:
+        raise MachineError(f"--laser {spec.text}: a {spec.kind} reads one axis; this step "
+                           f"moves {', '.join(plan.axes)} (give --xy-device for the plane)")
+    plan, _ = raw_runs(plan)
+    name = raw_path.stem
+    files = expected_files(spec, name)
+    moved = raw_path.with_suffix(".moved")
+    measured = [m for m in plan.moves if m.measured]
+    if raw_path.exists() and raw_path.stat().st_size > 0 and _complete(raw_path, measured):
+        return RunSummary(raw_path, len(plan.moves), len(plan.moves), 0, True)
+    if not moved.exists():
+        what = ("recording" if spec.kind == "recording" else "capture (on stationary, "
+                f"dwell under {dwell_s:g} s)")  # fmt: skip
+        say(f"{name}: start the laser's {what} now: {len(measured)} stops of {dwell_s:g} s; "
+            f"save it as {files[0]}" + (f" (or {files[1].name})" if len(files) > 1 else ""))
+        for m in plan.moves:
+            await move(dict(zip(plan.axes, m.target_mm)))
+            if m.measured:
+                await asyncio.sleep(dwell_s)
+        atomic_write_text(moved, f"{name}: moves done; readings from {files[0]}\n")
+    found = next((f for f in files if f.exists()), None)
+    if found is None:
+        say(f"{name}: moves done; waiting for {files[0].name} in {spec.directory} (Ctrl-C "
+            "stops; the same command carries on from here)")
+        while found is None:
+            await asyncio.sleep(POLL_S)
+            found = next((f for f in files if f.exists()), None)
+        await asyncio.sleep(POLL_S)  # a file being written: its writer finishes first
+    axis = plan.axes[0]
+    try:
+        if spec.kind == "recording":
+            rec = read_recording(found, spec.unit)
+            stops = plan_stops(rec, len(measured), dwell_s)
+            values = align(rec, stops, [m.target_mm[0] for m in measured], spec.sign)
+        else:
+            assert spec.mapping is not None
+            stops_plan = [PlanStop(m.target_mm[0], m.run, m.direction) for m in measured]
+            values = read_export(found, load_layout(spec.mapping), stops_plan)
+    except InstrumentError as exc:
+        raise MachineError(f"{exc}; nothing fitted from it: fix or replace the file and run "
+                           "the same command again") from None  # fmt: skip
+    except OSError as exc:
+        raise MachineError(f"{found}: {exc}") from None
+    return await join_values_async(plan, [{axis: float(v)} for v in values], found, raw_path,
+                                   {**meta, "instrument": spec.kind})  # fmt: skip
+
+
+def _complete(raw_path: Path, measured: list) -> bool:  # type: ignore[type-arg]
+    from ..plans.rawdata import read_raw_csv
+
+    try:
+        return len(read_raw_csv(raw_path)) >= len(measured)
+    except Exception:
+        return False
