@@ -95,10 +95,15 @@ class Bridge(Instrument):
         return "the bridge closed the connection"
 
     async def _greet(self) -> None:
-        answer = await self._ask(f"HELLO {PROTOCOL_VERSION}")
-        if answer.split()[:1] != ["OK"] or len(answer.split()) < 2:
-            raise InstrumentError(f"HELLO {PROTOCOL_VERSION}: answer {answer!r} is not 'OK "
-                                  "NAME ...': is this a compgw bridge?")
+        """HELLO once connected; a bridge that does not answer it is closed again."""
+        try:
+            answer = await self._ask(f"HELLO {PROTOCOL_VERSION}")
+            if answer.split()[:1] != ["OK"] or len(answer.split()) < 2:
+                raise InstrumentError(f"HELLO {PROTOCOL_VERSION}: answer {answer!r} is not "
+                                      "'OK NAME ...': is this a compgw bridge?")
+        except InstrumentError as exc:
+            await self._close()
+            raise InstrumentError(f"{self.name}: {exc}") from None
         self.hello = answer[3:]
 
     async def _sample(self, channels: list[str], axes: Sequence[str],
@@ -121,11 +126,7 @@ class TcpBridge(Bridge):
                 asyncio.open_connection(self.host, self.port), self.timeout_s)
         except (OSError, asyncio.TimeoutError) as exc:
             raise InstrumentError(f"{self.name}: cannot connect: {exc or 'timeout'}") from None
-        try:
-            await self._greet()
-        except InstrumentError as exc:
-            await self._close()
-            raise InstrumentError(f"{self.name}: {exc}") from None
+        await self._greet()
 
     async def _close(self) -> None:
         writer, self._reader, self._writer = self._writer, None, None
@@ -164,11 +165,7 @@ class CommandBridge(Bridge):
         self._reader = self._proc.stdout
         self._writer = self._proc.stdin  # type: ignore[assignment]
         self._stderr_task = asyncio.create_task(self._drain_stderr())
-        try:
-            await self._greet()
-        except InstrumentError as exc:
-            await self._close()
-            raise InstrumentError(f"{self.name}: {exc}") from None
+        await self._greet()
 
     async def _drain_stderr(self) -> None:
         assert self._proc is not None and self._proc.stderr is not None
