@@ -210,8 +210,10 @@ def compgw(*args: str) -> tuple[int, str, str]:
 
 def test_a_rotary_axis_needs_the_angle_instrument(tmp_path: Path) -> None:
     config = tmp_path / "gw.yaml"
-    config.write_text(yaml.safe_dump(gateway_data(5021, {
-        "C": axis_data(2, TURNTABLE_TRAVEL, True), "A": axis_data(1, SWING_TRAVEL, False)})))
+    data = gateway_data(5021, {"C": axis_data(2, TURNTABLE_TRAVEL, True),
+                               "A": axis_data(1, SWING_TRAVEL, False)})
+    data["status"] = {"remote_control": True}  # commission reloads the gateway
+    config.write_text(yaml.safe_dump(data))
     code, out, err = compgw("commission", "-c", str(config), "--laser", "127.0.0.1:5021:20")
     assert code == 1 and out == ""
     assert err.splitlines() == ["compgw commission: axis A is rotary: give its angle "
@@ -264,8 +266,10 @@ def test_a_turntable_judges_and_refines_the_span_across_360(tmp_path: Path) -> N
     """Pure: a residual between the last table point and 360° marks the span that closes
     the circle; its new points lie modulo 360 there; the stage wraps (a swing axis's not)."""
     config = tmp_path / "gw.yaml"
-    config.write_text(yaml.safe_dump(gateway_data(5021, {
-        "C": axis_data(2, TURNTABLE_TRAVEL, True), "A": axis_data(1, SWING_TRAVEL, False)})))
+    data = gateway_data(5021, {"C": axis_data(2, TURNTABLE_TRAVEL, True),
+                               "A": axis_data(1, SWING_TRAVEL, False)})
+    data["status"] = {"remote_control": True}  # commission reloads the gateway
+    config.write_text(yaml.safe_dump(data))
     job = Commission(Settings(config, tmp_path / "out", None, Instruments(), ("C", "A")),
                      reload=None)  # type: ignore[arg-type]
     x = np.arange(10.0, 360.0, 20.0)  # 10, 30, ..., 350: the last span 350 → 370 ≡ 10

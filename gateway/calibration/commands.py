@@ -56,6 +56,16 @@ read after the moves (recording:DIR[:UNIT[:-1]], capture:MAPPING.yaml:DIR): comp
 
 
 # -- calibrate ----------------------------------------------------------------------------------
+def _targets_said(plan: Any, config: Any) -> str:
+    """A plan's measured targets in words, for entering them into a laser's software."""
+    unit = "°" if all(a in config.axes and config.axes[a].rotary for a in plan.axes) else " mm"
+    targets = list(dict.fromkeys(float(m.target_mm[0]) for m in plan.moves if m.measured))
+    said = (", ".join(f"{t:g}" for t in targets) if len(targets) <= 24 else
+            f"{len(targets)} targets from {min(targets):g} to {max(targets):g}")  # fmt: skip
+    return (f"{sum(m.measured for m in plan.moves)} readings of {', '.join(plan.axes)} at "
+            f"{said}{unit}")
+
+
 def _join_capture(plan: Any, export: str, layout_path: str, raw: Path,
                   meta: dict[str, str]) -> Any:  # fmt: skip
     """Join a capture export laid out as ``layout_path`` says: every reading matched with
@@ -242,12 +252,6 @@ def calibrate(
             _check_foldable(config, config_dir, plan.axes[0])
         if args.save_plan:
             write_plan(args.save_plan, plan)
-            if args.gateway is None and not args.join:  # the plan for another software
-                targets = ", ".join(f"{t:g}" for t in dict.fromkeys(
-                    float(m.target_mm[0]) for m in plan.moves if m.measured))  # fmt: skip
-                print(f"wrote {args.save_plan}: {sum(m.measured for m in plan.moves)} readings "
-                      f"of {', '.join(plan.axes)} at {targets} mm")  # fmt: skip
-                return EXIT_OK
         if not args.join:  # how long the machine will be busy, before it starts
             from .plans.plans import plan_time_s
 
@@ -259,6 +263,9 @@ def calibrate(
             print(f"{plan.kind} plan: {sum(m.measured for m in plan.moves)} readings{where} "
                   f"in {len(plan.moves)} moves; about {minutes:.1f} min of machine time at "
                   f"{speed} and {args.estimate_stop_s:g} s per reading")  # fmt: skip
+        if args.save_plan and args.gateway is None and not args.join:
+            print(f"wrote {args.save_plan}: {_targets_said(plan, config)}")  # for another
+            return EXIT_OK  # software (a laser's capture), nothing runs
         if args.raw is None:
             raise TableError("--raw FILE is required (where the readings go)")
         raw = Path(args.raw)
