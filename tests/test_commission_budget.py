@@ -269,36 +269,3 @@ def test_a_short_budget_without_the_plane_says_nothing_of_it(template: Path,
     line = next(s for s in said if "a short budget" in s)
     assert "plane" not in line and line.endswith("as the budget allows"), line
 
-
-def test_a_short_budget_with_a_thermal_sensor_takes_the_plain_steps_first(
-        tmp_path: Path) -> None:  # fmt: skip
-    """Issue 54: with a Δa sensor given, a short budget warmed X first (45 minutes of a
-    0.9 h budget) and stopped with no table. Now the ISO runs of every axis come first,
-    and the warm-up only where the budget left holds it."""
-    directory = tmp_path / "machine"
-    machine = small_machine(directory, seed=7)
-    original = yaml.safe_load((tmp_path / "machine" / "gateway.yaml").read_text())
-    fresh = tmp_path / "fresh"
-    from tests.test_service_helpers import Proc
-
-    proc = Proc(["-m", "gateway.cli", "sim", "--random-machine", "7", "--out", str(fresh)])
-    assert proc.popen.wait(timeout=60) == 0, proc.text()
-    sources = yaml.safe_load((fresh / "gateway.yaml").read_text())["thermal_sources"]
-    original["thermal_sources"] = sources  # the Δa sensor back (small_machine drops it)
-    delta_a = machine["instruments"]["delta_a"]
-    origin = machine["axes"]["X"]["screw_fixed_end_mm"]
-    original["axes"]["X"]["compensation"]["thermal"] = {  # as bench/workflows.py sets it
-        "source": "x_ref", "origin_mm": origin, "length_mm": abs(delta_a["a_mm"] - origin)}
-    (directory / "gateway.yaml").write_text(yaml.safe_dump(original, sort_keys=False))
-    with running(directory, tmp_path / "m") as rig:
-        proc = rig.commission("--budget-h", "0.3", "--delta-a",
-                              f"127.0.0.1:{rig.sim_port}:{delta_a['unit']}:1")
-        assert proc.popen.wait(timeout=300) in (0, 1), proc.text()
-        state = json.loads((rig.dir / "commission" / "commission.json").read_text())
-        done = list(state["steps"])
-        assert state["short"], proc.text()
-        assert "iso-X" in done and "iso-Y" in done, done
-        assert "warmup-X" not in done or done.index("iso-X") < done.index("warmup-X"), done
-        summary = json.loads((rig.dir / "commission" / "summary.json").read_text())
-        assert all(e.get("table_points", 0) > 0 for e in summary["axes"].values()), summary
-

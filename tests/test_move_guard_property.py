@@ -8,7 +8,7 @@ move a simulated drive started went to the corrected value of a nominal target t
 could have written (relative moves, a block compgw never corrected, an uncorrected target:
 all land elsewhere, since the axis first stands at :data:`START` away from them).
 
-``COMPGW_PROPERTY_EXAMPLES`` sets the sequences per profile (default 40); the counts are
+``COMPGW_PROPERTY_EXAMPLES`` sets the sequences per profile (default 25); the counts are
 printed (``pytest -s``). The issue's sequences are kept as explicit examples.
 """
 
@@ -39,7 +39,7 @@ from tests.helpers_modbus import RawTcpMaster
 from tests.test_gateway_e2e import PITCH_X
 from tests.test_profiles import gateway_profile, sim_profile
 
-EXAMPLES = int(os.environ.get("COMPGW_PROPERTY_EXAMPLES", "40"))
+EXAMPLES = int(os.environ.get("COMPGW_PROPERTY_EXAMPLES", "25"))
 #: nominal targets the master writes (pulses of 1 µm), and where each axis stands first
 NOMINALS = (123_457, 301_003, 488_881)
 START = 50_017

@@ -92,7 +92,7 @@ def test_calibrate_cyclic_generates_the_plan(tmp_path, capsys) -> None:
     rc = main(["calibrate", "-c", config, "--cyclic", "X", "--lead-mm", "10",
                "--stations", "100,400,700", "--save-plan", str(tmp_path / "c.plan")])
     assert rc == 0  # no --gateway: the plan is written (for another software), nothing runs
-    out, err = capsys.readouterr()
+    out, _ = capsys.readouterr()
     assert "min of machine time" in out and f"wrote {tmp_path / 'c.plan'}: " in out
     assert read_plan(tmp_path / "c.plan") == cyclic_plan("X", (0, 800), 10, [100, 400, 700])
     rc = main(["calibrate", "-c", config, "--cyclic", "X", "--raw", str(tmp_path / "r.csv")])
