@@ -33,7 +33,7 @@ def test_a_short_budget_with_a_thermal_sensor_takes_the_plain_steps_first(
         "source": "x_ref", "origin_mm": origin, "length_mm": abs(delta_a["a_mm"] - origin)}
     (directory / "gateway.yaml").write_text(yaml.safe_dump(original, sort_keys=False))
     with running(directory, tmp_path / "m") as rig:
-        proc = rig.commission("--budget-h", "0.3", "--delta-a",
+        proc = rig.commission("--budget-h", "0.2", "--delta-a",
                               f"127.0.0.1:{rig.sim_port}:{delta_a['unit']}:1")
         assert proc.popen.wait(timeout=300) in (0, 1), proc.text()
         state = json.loads((rig.dir / "commission" / "commission.json").read_text())
