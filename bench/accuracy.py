@@ -149,8 +149,22 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
     finally:
         if run is not None:
             run.stop()
+            out["unsynced"] = run.unsynced
     out["wall_s"] = round(time.monotonic() - t0, 1)
     return out
+
+
+def print_unrepeatable(results: list[dict[str, Any]], say: Any = print) -> None:
+    """Machines whose figures a second run need not repeat: a write through the gateway that
+    went on before its thermal sources had read the machine's instant (bench/lockstep.py),
+    or a request the judge asked again (it may have reached the machine twice)."""
+    for r in results:
+        judgings = [r[k] for k in ("before", "after", "oracle") if k in r]
+        judgings += r.get("after_repeats", [])[1:] + r.get("oracle_repeats", [])[1:]
+        retries = sum(j.get("retries", 0) for j in judgings)
+        if r.get("unsynced") or retries:
+            say(f"{r['machine']}: not repeatable as run: {r.get('unsynced', 0)} write(s) "
+                f"unsynced, {retries} judge request(s) asked again")
 
 
 def _floor(fig: dict[str, Any]) -> float:
@@ -389,6 +403,7 @@ def main() -> int:
             say(row(f"{group} {which}", st[which], "any"))
     print_repeats(results, say)
     print_oracle(results, say)
+    print_unrepeatable(results, say)
     say(f"wall time {wall / 60:.1f} min; machine files in {root}")
     if args.json:
         print(json.dumps({"workflow": args.workflow, "without": without,

@@ -133,6 +133,9 @@ class Master:
         self.gw, self.sim, self.axes = gateway, sim, axes
         self.moves = 0
         self.settle_steps = 0
+        #: requests asked again: each may have reached the machine twice (a trigger twice
+        #: is another stop), so a run with any is not bound to repeat figure for figure
+        self.retries = 0
 
     async def _ok(self, fn: Any, *args: Any, **kwargs: Any) -> Any:
         """The reply of ``fn(*args, **kwargs)``; asked again, up to 3 times, on exception 11
@@ -144,6 +147,7 @@ class Master:
                 return reply
             if getattr(reply, "exception_code", None) != 0x0B or attempt == 3:
                 break
+            self.retries += 1
             await asyncio.sleep(0.05 * (attempt + 1))
         raise RuntimeError(f"modbus: {reply}")
 
@@ -349,7 +353,7 @@ async def evaluate(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: 
                 p = the_plan["axes"][name]
                 speed = machine["axes"][name]["speed_mm_s"]
                 out["axes"][name]["thermal_um"] = await _thermal(m, name, p, speed, cool)
-        out["moves"], out["settle_steps"] = m.moves, m.settle_steps
+        out["moves"], out["settle_steps"], out["retries"] = m.moves, m.settle_steps, m.retries
     finally:
         gw.close()
         sim.close()

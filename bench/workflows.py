@@ -44,12 +44,31 @@ FAULTS_UNIT, ADVANCE_CLOCK_S = 250, 0x0800
 STATUS_UNIT, SOURCE_BASE, SOURCE_STRIDE = 247, 80, 4
 COOL_DOWN_S = 30_000
 START_TIMEOUT_S, COMMAND_TIMEOUT_S = 60.0, 3600.0
+#: the gateway's bus timeout here (s): a late answer is waited for, never asked again (a
+#: trigger sent twice is a second stop: another draw of the stop's scatter)
+BUS_TIMEOUT_S = 10.0
+#: how often the gateway polls its thermal sources here (s): a write through the wire waits
+#: for two polls (bench/lockstep.py), the figures do not depend on it
+SOURCE_POLL_S = 0.002
+
+
+def child_env() -> dict[str, str]:
+    """The children's environment: str hashing (set order) the same in every run, and one
+    BLAS thread (the sums in the same order whatever ``--jobs``; set it to change it)."""
+    threads = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    return {**threads, **os.environ, "PYTHONHASHSEED": "0"}
 
 
 def compgw_argv() -> list[str]:
     """The `compgw` command of this Python environment."""
     script = Path(sys.executable).with_name("compgw")
     return [str(script)] if script.exists() else [sys.executable, "-m", "gateway.cli"]
+
+
+def lockstep_argv(sim_port: int) -> list[str]:
+    """`compgw` on the machine's clock (bench/lockstep.py clock): ARGS to follow."""
+    return [sys.executable, str(Path(__file__).with_name("lockstep.py")), "clock",
+            f"127.0.0.1:{sim_port}", "--"]  # fmt: skip
 
 
 class CommandFailed(RuntimeError):
@@ -90,20 +109,33 @@ class _Lines:
 
 @dataclass
 class MachineRun:
-    """A generated machine with its sim and gateway running; what a workflow works with."""
+    """A generated machine with its sim and gateway running; what a workflow works with.
+
+    In lock-step with the machine (bench/lockstep.py): every `compgw` command and the
+    gateway run on the sim's machine clock; with thermal sources the wire stands between
+    the sim and everyone (``sim_port``, the gateway's bus, ``gateway_port``)."""
 
     dir: Path
     work: Path
     machine: dict[str, Any]
+    #: where the instruments and the control block answer (the wire, or the sim itself)
     sim_port: int = 0
+    #: where the masters reach the gateway (through the wire, or the gateway itself)
     gateway_port: int = 0
+    #: the sim itself (its clock) and where the gateway's bus goes
+    machine_port: int = 0
+    bus_port: int = 0
     commands: list[str] = field(default_factory=list)
     command_wall_s: float = 0.0
     #: machine time of the plans run, as each command estimated it before moving (s)
     machine_s: float = 0.0
     #: the manual workflow's machine time on this machine (s), when a workflow asked for it
     manual_s: float | None = None
+    #: the wire's count of writes that went on with the sources not read (see lockstep.py)
+    unsynced: int = 0
     _sim: subprocess.Popen[str] | None = None
+    _wire: subprocess.Popen[str] | None = None
+    _wire_out: _Lines | None = None
     _gateway: subprocess.Popen[str] | None = None
     _gw_log: _Lines | None = None
     _gw_path: Path | None = None
@@ -111,51 +143,102 @@ class MachineRun:
     # -- processes ----------------------------------------------------------------------------
     @classmethod
     def start(cls, machine_dir: Path, work: Path) -> MachineRun:
-        """Start ``compgw sim`` (free port) and ``compgw run`` with the uncalibrated config."""
+        """Start ``compgw sim`` (free port), the wire when the gateway has thermal sources,
+        and ``compgw run`` with the uncalibrated config."""
         machine_dir, work = machine_dir.resolve(), work.resolve()
         machine = json.loads((machine_dir / "machine.json").read_text())
         work.mkdir(parents=True, exist_ok=True)
         run = cls(machine_dir, work, machine)
         try:
-            run._start_sim()
+            sim = run._start_sim()
+            run._start_wire(sim)
             run._start_gateway(run.base_config())
         except BaseException:
             run.stop()
             raise
         return run
 
-    def _start_sim(self) -> None:
+    def _start_sim(self) -> dict[str, Any]:
         data = yaml.safe_load((self.dir / "sim.yaml").read_text())
         data["sim"]["tcp"]["port"] = 0
+        data["sim"]["time_scale"] = 0  # the machine's clock moves with requests alone
         path = self.dir / "sim.run.yaml"  # beside sim.yaml: truth/ paths stay valid
         path.write_text(yaml.safe_dump(data, sort_keys=False))
         self._sim = subprocess.Popen([*compgw_argv(), "sim", "-c", str(path)], text=True,
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                     env=child_env())  # fmt: skip
         lines = _Lines(self._sim.stdout)
-        self.sim_port = int(lines.wait_for(r"modbus tcp on [\d.]+:(\d+)").group(1))
+        self.machine_port = int(lines.wait_for(r"modbus tcp on [\d.]+:(\d+)").group(1))
+        self.sim_port = self.bus_port = self.machine_port
+        return data["sim"]
+
+    def _start_wire(self, sim: dict[str, Any]) -> None:
+        """The wire (bench/lockstep.py) when the gateway polls thermal sources."""
+        base = yaml.safe_load((self.dir / "gateway.yaml").read_text())
+        sources = base.get("thermal_sources") or {}
+        if not sources:
+            return
+        ins = sim.get("instruments") or {}
+        sensors = []
+        if ins.get("delta_a"):
+            sensors.append(f"{ins['delta_a']['unit']}:3")
+        if ins.get("temperature"):
+            t = ins["temperature"]
+            channels = t.get("channels") or [*sim["axes"], "ambient"]
+            sensors.append(f"{t['unit']}:{len(channels)}")
+        argv = [sys.executable, str(Path(__file__).with_name("lockstep.py")), "wire",
+                "--sim", f"127.0.0.1:{self.machine_port}",
+                "--status-unit", str(base["status"]["upstream_unit"])]  # fmt: skip
+        for s in sensors:
+            argv += ["--sensor", s]
+        for axis in sim["axes"].values():
+            argv += ["--drive", str(axis["unit"])]
+        for src in sources.values():
+            reg = src["register"]
+            argv += ["--source", f"{src['unit']}:{reg['address']}:{reg.get('words', 1)}"]
+        with (self.work / "wire.log").open("w") as log:
+            self._wire = subprocess.Popen(argv, text=True, stdin=subprocess.PIPE,
+                                          stdout=subprocess.PIPE, stderr=log,
+                                          env=child_env())  # fmt: skip
+        self._wire_out = _Lines(self._wire.stdout)
+        found = self._wire_out.wait_for(r"lockstep wire: sim (\d+) bus (\d+)")
+        self.sim_port, self.bus_port = int(found.group(1)), int(found.group(2))
 
     def _start_gateway(self, config: dict[str, Any]) -> None:
         self._gw_path = self.work / "gw.yaml"
         self._write(self._gw_path, config)
         self._gateway = subprocess.Popen(
-            [*compgw_argv(), "run", "-c", str(self._gw_path), "--log-level", "info"],
-            text=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)  # fmt: skip
+            [*lockstep_argv(self.machine_port), "run", "-c", str(self._gw_path),
+             "--log-level", "info"],
+            text=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            env=child_env())  # fmt: skip
         self._gw_log = _Lines(self._gateway.stderr)
         found = self._gw_log.wait_for(r"compgw running: Modbus TCP [\d.]+:(\d+)")
         self.gateway_port = int(found.group(1))
+        if self._wire is not None and self._wire_out is not None:
+            assert self._wire.stdin is not None
+            self._wire.stdin.write(f"gateway {self.gateway_port}\n")
+            self._wire.stdin.flush()
+            found = self._wire_out.wait_for(r"lockstep wire: gateway (\d+)")
+            self.gateway_port = int(found.group(1))
 
     def stop(self) -> None:
-        """SIGTERM the gateway and the sim, wait for both."""
-        for proc in (self._gateway, self._sim):
+        """SIGTERM the gateway, the wire and the sim, wait for them."""
+        procs = (self._gateway, self._wire, self._sim)
+        for proc in procs:
             if proc is not None and proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
-        for proc in (self._gateway, self._sim):
+        for proc in procs:
             if proc is not None:
                 try:
                     proc.wait(10)
                 except subprocess.TimeoutExpired:
                     proc.kill()
                     proc.wait(10)
+        if self._wire_out is not None:
+            with contextlib.suppress(TimeoutError):
+                found = self._wire_out.wait_for(r"unsynced (\d+)", timeout_s=1.0)
+                self.unsynced = int(found.group(1))
 
     # -- configs ------------------------------------------------------------------------------
     def base_config(self) -> dict[str, Any]:
@@ -163,7 +246,10 @@ class MachineRun:
         data = yaml.safe_load((self.dir / "gateway.yaml").read_text())
         data["upstream"]["tcp"]["port"] = 0
         for bus in data["buses"].values():
-            bus["tcp"]["port"] = self.sim_port
+            bus["tcp"]["port"] = self.bus_port
+            bus["timeout_s"] = max(bus.get("timeout_s", 0.0), BUS_TIMEOUT_S)
+        for src in (data.get("thermal_sources") or {}).values():
+            src["poll_s"] = SOURCE_POLL_S
         return data
 
     @staticmethod
@@ -249,11 +335,11 @@ class MachineRun:
 
     def compgw(self, *args: object) -> str:
         """Run ``compgw ARGS`` in the work directory; its stdout; CommandFailed if non-zero."""
-        argv = [*compgw_argv(), *(str(a) for a in args)]
+        argv = [*lockstep_argv(self.machine_port), *(str(a) for a in args)]
         self.commands.append(" ".join(["compgw", *(str(a) for a in args)]))
         t0 = time.monotonic()
         out = subprocess.run(argv, cwd=self.work, text=True, capture_output=True,
-                             timeout=COMMAND_TIMEOUT_S)  # fmt: skip
+                             timeout=COMMAND_TIMEOUT_S, env=child_env())  # fmt: skip
         self.command_wall_s += time.monotonic() - t0
         self.machine_s += 60 * sum(float(m) for m in re.findall(
             r"about ([\d.]+) min of machine time", out.stdout))  # fmt: skip
