@@ -71,8 +71,6 @@ class AxisRuntime:
     state: AxisState
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
     trigger: TriggerShadow = field(default_factory=TriggerShadow)
-    #: whether ``trigger`` is what the drive holds (written through compgw or read from it)
-    trigger_known: bool = False
     #: the words of the latched fields (move mode, block select) the drive holds, as
     #: written through compgw or read from it: address -> word; missing: not known
     latched: dict[int, int] = field(default_factory=dict)
