@@ -63,14 +63,15 @@ def refold(machine: Path, margins: list[float], parks: int, targets: int, seed: 
         cyclic_path = tables["cyclic"].get(axis)
         model = read_cyclic(keep / Path(cyclic_path).name) if cyclic_path else None
         method = state.get("sweep_interpolation", {}).get(axis, "linear")
-        config, _ = job.staged(job._tables_phase)
+        config, _ = job.stager.staged(job.record.tables_phase)
         for margin in margins:
-            ref, _ = job.fold_sweep(name, axis, table, model, method, record["step_mm"], margin)
+            ref, _ = job.refine.fold_sweep(name, axis, table, model, method, record["step_mm"],
+                                            margin)
             fit = ref.fit
             tag = f"refold{margin:g}"
             (work / tag).mkdir(exist_ok=True)
             write_table(work / tag / f"{axis}_pitch.csv", "csv",
-                        job.smoothed(axis, ref.table, config), "refold")  # fmt: skip
+                        job.refine.smoothed(axis, ref.table, config), "refold")  # fmt: skip
             gw = yaml.safe_load((work / "gw.yaml").read_text())
             comp = gw["axes"][axis]["compensation"]
             comp["pitch"]["file"] = f"{tag}/{axis}_pitch.csv"

@@ -428,40 +428,43 @@ def test_your_config_changed_after_an_abort_is_taken_not_written_over(
     job = Commission(Settings(config, tmp_path / "commission", None, Instruments(),  # type: ignore[arg-type]
                               axes=("X", "Y"), budget_s=7200.0), reload=None,  # type: ignore[arg-type]
                      say=said.append)  # fmt: skip
-    job.adopt_edits()  # nothing begun: nothing to adopt
-    job.original()
+    job.stager.adopt_edits()  # nothing begun: nothing to adopt
+    job.stager.original()
     data = yaml.safe_load(config.read_text())
     data["buses"][next(iter(data["buses"]))]["timeout_s"] = 0.7  # the fix
     config.write_text(yaml.safe_dump(data, sort_keys=False))
-    job.adopt_edits()
-    assert job.original_path.read_text() == config.read_text()
+    job.stager.adopt_edits()
+    assert job.record.original_path.read_text() == config.read_text()
     assert said == [f"your config changed since this commissioning began: {config} is taken "
                     "as your config from here (an abort puts it back)"]  # fmt: skip
-    assert said[0] in job.state["notes"]
+    assert said[0] in job.record.state["notes"]
     data["axes"]["X"]["travel_mm"] = [0.0, 50.0]
     config.write_text(yaml.safe_dump(data, sort_keys=False))
     with pytest.raises(TableError, match=r"axes\.X changed since this commissioning began "
                                          r"\(travel_mm\), which its readings"):
-        job.adopt_edits()
+        job.stager.adopt_edits()
     config.write_text("# written by compgw commission (identification config): your own "
                       "config is kept in commission/original.yaml\n" + config.read_text())
-    job.adopt_edits()  # a crash's phase config: not the user's edit
-    assert "travel_mm: [0.0, 50.0]" not in job.original_path.read_text()
+    job.stager.adopt_edits()  # a crash's phase config: not the user's edit
+    assert "travel_mm: [0.0, 50.0]" not in job.record.original_path.read_text()
 
 
 def test_a_pulse_a_round_factor_off_is_named_not_the_laser_channels() -> None:
     """The laser follows the axis, 10 times as far as it was sent: the pulse equivalent, not
     the channel order (trial 8: "give --laser-axes in the laser's channel order")."""
     from gateway.calibration.commissioning.drift import DriftRefs
+    from gateway.calibration.commissioning.record import Record
     from gateway.calibration.measuring.machine import SetupError
 
-    fake = SimpleNamespace(_ref_positions=lambda axis: (10.0, 80.0),
+    axes = SimpleNamespace(ref_positions=lambda axis: (10.0, 80.0), ref_axes=lambda: [],
                            s=SimpleNamespace(instruments=SimpleNamespace(laser_axes=None)),
                            config=SimpleNamespace(axes={"X": SimpleNamespace(pulse_mm=0.01)}))
+    refs = DriftRefs(axes, Record(Path("/nonexistent"), Path("/nonexistent")),  # type: ignore[arg-type]
+                     print)
     with pytest.raises(SetupError, match=r"axis X moved 700.000 mm by the laser while it was "
                        r"sent 70.000 mm: 10 times as far, so axes.X.pulse_mm 0.01 is likely "
                        r"0.1 \(the drive's units per mm"):  # fmt: skip
-        DriftRefs._check_channel(fake, "X", ["X", "Y"], [0.0, 630.0])  # type: ignore[arg-type]
+        refs.check_channel("X", ["X", "Y"], [0.0, 630.0])
     with pytest.raises(SetupError, match="give --laser-axes"):  # a channel that stood still
-        DriftRefs._check_channel(fake, "X", ["X", "Y"], [0.0, -70.0])  # type: ignore[arg-type]
-    DriftRefs._check_channel(fake, "X", ["X", "Y"], [0.0, 0.01])  # type: ignore[arg-type]
+        refs.check_channel("X", ["X", "Y"], [0.0, -70.0])
+    refs.check_channel("X", ["X", "Y"], [0.0, 0.01])

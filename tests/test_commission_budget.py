@@ -49,18 +49,18 @@ def test_a_finished_commissioning_is_carried_on_only_for_more(template: Path,
                           reload=None)  # type: ignore[arg-type]
 
     first = job()
-    first.state["finished"] = {"outcome": "within", "asked": first._asked(),
-                               "what": first._what()}  # fmt: skip
-    first._save()
+    first.record.state["finished"] = {"outcome": "within", "asked": first.command.asked(),
+                                      "what": first.command.what()}  # fmt: skip
+    first.record.save()
     (out / "summary.json").write_text(json.dumps({"outcome": "within", "machine_h": 1.5}))
     for same in ({}, {"budget_s": 3600.0}, {"tolerance_um": 3.0}, {"max_rounds": 2},
                  {"tolerance_arcsec": 0.5}):  # fmt: skip
-        assert job(**same).finished() == {"outcome": "within", "machine_h": 1.5}, same
-        assert job(**same).other() is None
+        assert job(**same).command.finished() == {"outcome": "within", "machine_h": 1.5}, same
+        assert job(**same).command.other() is None
     for more in ({"budget_s": 9000.0}, {"tolerance_um": 1.0}, {"max_rounds": 9}):
-        assert job(**more).finished() is None, more
+        assert job(**more).command.finished() is None, more
     for other in ({"axes": ("X",)}, {"planar": None}):
-        why = job(**other).other()
+        why = job(**other).command.other()
         assert why is not None and why.startswith(f"{out} holds the commissioning of X, Y and "
                                                   "the plane X/Y; this command asks for ")
         assert "give --out DIR for another commissioning" in why
@@ -251,7 +251,7 @@ def test_a_config_compensated_already_is_said_in_the_plan(template: Path,
     job = Commission(Settings(config, tmp_path / "commission", None, Instruments(),  # type: ignore[arg-type]
                               axes=("X", "Y"), budget_s=7200.0), reload=None,  # type: ignore[arg-type]
                      say=said.append)  # fmt: skip
-    job.print_plan()
+    job.command.print_plan()
     line = next(s for s in said if "compensates" in s)
     assert line.startswith("  your config compensates Y already (tables from an earlier "
                            "calibration): the identification measures without them"), line
@@ -265,7 +265,7 @@ def test_a_short_budget_without_the_plane_says_nothing_of_it(template: Path,
     job = Commission(Settings(template / "gateway.yaml", tmp_path / "commission", None,  # type: ignore[arg-type]
                               Instruments(), axes=("X", "Y"), budget_s=1800.0),
                      reload=None, say=said.append)  # type: ignore[arg-type]  # fmt: skip
-    job.print_plan()
+    job.command.print_plan()
     line = next(s for s in said if "a short budget" in s)
     assert "plane" not in line and line.endswith("as the budget allows"), line
 

@@ -1,5 +1,5 @@
 """The drift commissioning takes off an axis whose temperature sensor heat from motion
-replaces (gateway.calibration.commissioning.steps.Steps.raw, adaptive.relinked_base): runs
+replaces (gateway.calibration.commissioning.steps.StepRunner.raw, adaptive.relinked_base): runs
 read with the sensor on and runs read with it off must both come back to the cold
 machine's own error, whatever the screw's temperature then. Built as the gateway reads:
 the sensor's correction moves where the axis lands, the screw grows from its fixed end."""
@@ -11,7 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
-from gateway.calibration.commissioning.steps import Steps
+from gateway.calibration.commissioning.axes import Axes
+from gateway.calibration.commissioning.budget import Budget
+from gateway.calibration.commissioning.drift import DriftRefs
+from gateway.calibration.commissioning.record import Record
+from gateway.calibration.commissioning.steps import StepRunner
 from gateway.calibration.fitting import adaptive
 from gateway.calibration.plans.rawdata import RawWriter
 from gateway.compensation.thermal import ThermalStage, delta_a_from_temperature
@@ -80,11 +84,13 @@ def test_runs_with_the_sensor_on_and_off_both_come_back_to_the_cold_machine(tmp_
                          *refs_drift(2.0, None, base_off["X"])]}},
     ]  # fmt: skip
     for spread, left in ((150.0, 0.0), (None, 1.0)):
-        fake = types.SimpleNamespace(
-            state={"steps": {"s": {"parts": parts}}}, config_dir=tmp_path, dir=tmp_path,
-            drift_taken_off=lambda a: True, drift_spread_mm=lambda a, s=spread: s,
-            _rel=lambda p: str(p))  # fmt: skip
-        data = Steps.raw(fake, "s")  # type: ignore[arg-type]
+        record = Record(tmp_path, tmp_path)
+        record.state["steps"] = {"s": {"parts": parts}}
+        drift = types.SimpleNamespace(drift_taken_off=lambda a: True,
+                                      drift_spread_mm=lambda a, s=spread: s)  # fmt: skip
+        runner = StepRunner(types.SimpleNamespace(s=None, config=None), record, drift,  # type: ignore[arg-type]
+                            None, print)  # type: ignore[arg-type]
+        data = runner.raw("s")
         got = data.deviation_mm.reshape(2, -1)
         # off: the cold machine's error; on: the same where its sensor goes (a spread
         # known), else less what the sensor took at the cold start (put back later)
@@ -102,9 +108,9 @@ def test_drift_taken_off_only_where_the_references_vary_beyond_their_scatter():
     noise_um = np.random.default_rng(0).normal(0.0, s_um / np.sqrt(3), (70, 2))
 
     growth_um = noise_um + np.linspace(0.0, 4.0, 70)[:, None]
-    assert not Steps.drift_stands_out(_fake(noise_um, s_um), "X")  # type: ignore[arg-type]
-    assert Steps.drift_stands_out(_fake(growth_um, s_um), "X")  # type: ignore[arg-type]
-    assert Steps.drift_stands_out(_fake(noise_um, None), "X")  # type: ignore[arg-type]
+    assert not _fake(noise_um, s_um).drift_stands_out("X")
+    assert _fake(growth_um, s_um).drift_stands_out("X")
+    assert _fake(noise_um, None).drift_stands_out("X")
 
 
 def test_the_references_own_readings_give_their_scatter_before_the_iso_runs():
@@ -120,13 +126,13 @@ def test_the_references_own_readings_give_their_scatter_before_the_iso_runs():
     for me in (quiet, warming):
         for _ in range(3):  # three readings of both references, 3 stops each
             for _ in range(2):
-                Steps._pool_ref_scatter(me, "X", list(rng.normal(0.0, s_um, 3) * 1e-3))  # type: ignore[arg-type]
-    Steps._pool_ref_scatter(once, "X", [0.0, 1e-3, 2e-3])  # type: ignore[arg-type]
-    assert 0.6 * s_um < Steps.ref_scatter_um(quiet, "X") < 1.6 * s_um  # type: ignore[arg-type,operator]
-    assert not Steps.drift_stands_out(quiet, "X")  # type: ignore[arg-type]
-    assert Steps.drift_stands_out(warming, "X")  # type: ignore[arg-type]
-    assert Steps.ref_scatter_um(once, "X") is None  # type: ignore[arg-type]
-    assert Steps.drift_stands_out(once, "X")  # type: ignore[arg-type]
+                me.pool_ref_scatter("X", list(rng.normal(0.0, s_um, 3) * 1e-3))  # type: ignore[arg-type]
+    once.pool_ref_scatter("X", [0.0, 1e-3, 2e-3])  # type: ignore[arg-type]
+    assert 0.6 * s_um < quiet.ref_scatter_um("X") < 1.6 * s_um  # type: ignore[arg-type,operator]
+    assert not quiet.drift_stands_out("X")
+    assert warming.drift_stands_out("X")
+    assert once.ref_scatter_um("X") is None  # type: ignore[arg-type]
+    assert once.drift_stands_out("X")
 
 
 def test_runs_get_their_own_references_only_where_a_drift_can_be_taken_off():
@@ -137,27 +143,32 @@ def test_runs_get_their_own_references_only_where_a_drift_can_be_taken_off():
     s_um = 1.2
     noise_um = np.random.default_rng(1).normal(0.0, s_um / np.sqrt(3), (12, 2))
     growth_um = noise_um + np.linspace(0.0, 6.0, 12)[:, None]
-    assert not Steps.runs_apart(_fake(noise_um, s_um))  # type: ignore[arg-type]
-    assert Steps.runs_apart(_fake(growth_um, s_um))  # type: ignore[arg-type]
-    assert Steps.runs_apart(_fake(noise_um, None))  # type: ignore[arg-type]
-    assert Steps.runs_apart(_fake(noise_um, s_um, sensor=True))  # type: ignore[arg-type]
-    assert Steps.runs_apart(_fake(noise_um, s_um, short=False))  # type: ignore[arg-type]
+    assert not _budget(noise_um, s_um).runs_apart()
+    assert _budget(growth_um, s_um).runs_apart()
+    assert _budget(noise_um, None).runs_apart()
+    assert _budget(noise_um, s_um, sensor=True).runs_apart()
+    assert _budget(noise_um, s_um, short=False).runs_apart()
 
 
 def _fake(log_um: np.ndarray, s_um: float | None, sensor: bool = False,
-          short: bool = True) -> types.SimpleNamespace:
-    """Just what :meth:`Steps.drift_stands_out` and :meth:`Steps.runs_apart` read: axis X's
-    drift log (µm, two references per reading), its ISO scatter (None: not fitted yet),
-    whether its compensation has a thermal section and whether the budget is short."""
+          short: bool = True) -> DriftRefs:
+    """The drift references of axis X with just what :meth:`DriftRefs.drift_stands_out` and
+    :meth:`Budget.runs_apart` read: its drift log (µm, two references per reading), its ISO
+    scatter (None: not fitted yet), whether its compensation has a thermal section and
+    whether the budget is short."""
     ident = {"reversal-X": {"scatter_um": s_um}} if s_um is not None else {}
     log = [{"drift_mm": {"X": list(row * 1e-3)}} for row in log_um]
     comp = types.SimpleNamespace(thermal=types.SimpleNamespace(source="t") if sensor else None)
-    axes = {"X": types.SimpleNamespace(rotary=False, compensation=comp)}
-    me = types.SimpleNamespace(state={"identify": ident, "drift_log": log, "short": short},
-                               config=types.SimpleNamespace(axes=axes))  # fmt: skip
-    me.iso_scatter_um = lambda axis: Steps.iso_scatter_um(me, axis)  # type: ignore[arg-type]
-    me.ref_scatter_um = lambda axis: Steps.ref_scatter_um(me, axis)  # type: ignore[arg-type]
-    me.drift_stands_out = lambda axis: Steps.drift_stands_out(me, axis)  # type: ignore[arg-type]
-    me.ref_axes = lambda: Steps.ref_axes(me)  # type: ignore[arg-type]
-    me.s = types.SimpleNamespace(axes=("X",))
-    return me
+    config = types.SimpleNamespace(axes={"X": types.SimpleNamespace(
+        rotary=False, compensation=comp, travel_mm=(0.0, 100.0))})  # fmt: skip
+    axes = Axes(types.SimpleNamespace(axes=("X",)), config)  # type: ignore[arg-type]
+    record = Record(Path("/nonexistent"), Path("/nonexistent"))
+    record.state.update({"identify": ident, "drift_log": log, "short": short})
+    return DriftRefs(axes, record, print)
+
+
+def _budget(log_um: np.ndarray, s_um: float | None, sensor: bool = False,
+            short: bool = True) -> Budget:
+    """The budget over :func:`_fake`'s drift references."""
+    drift = _fake(log_um, s_um, sensor, short)
+    return Budget(drift.axes, drift.record, drift)

@@ -277,12 +277,12 @@ def test_a_turntable_judges_and_refines_the_span_across_360(tmp_path: Path) -> N
     up = np.zeros((targets.size, 2))
     up[2:4] = 2e-3  # 7.2″ off in that span only
     dev = AxisDeviations("C", targets, np.array([1, 2]), up, up.copy())
-    verdict = job.judge("C", dev, x)
+    verdict = job.rotary.judge("C", dev, x)
     assert verdict.failing_spans == (x.size - 1,)  # the extra span: x[-1] → x[0] + 360
     table = PitchTable(x, np.zeros_like(x), None, rotary=True)
-    new = job.refine_points("C", table, verdict)
+    new = job.rotary.refine_points("C", table, verdict)
     assert np.allclose(new, [0.0, 5.0, 355.0]), new  # 355, 360, 365 taken modulo 360
-    assert job.table_stage("C", table).wrap is True
+    assert job.refine.table_stage("C", table).wrap is True
     swing = PitchTable(np.arange(-14.0, 13.5, 1.0), np.zeros(28), None, rotary=True)
-    assert job.table_stage("A", swing).wrap is False
-    assert job.tolerance_of("C") == 3.0 / 3.6 and job.tolerance_of("XY") == 2.0
+    assert job.refine.table_stage("A", swing).wrap is False
+    assert job.rotary.tolerance_of("C") == 3.0 / 3.6 and job.rotary.tolerance_of("XY") == 2.0

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from gateway.calibration.commissioning.configs import Tables
+from gateway.calibration.commissioning.record import Record
 from gateway.calibration.commissioning.thermal import ThermalSteps, start_growth_mm
 from gateway.compensation import PitchStage, PitchTable
 from gateway.compensation.thermal import ThermalStage, delta_a_from_temperature
@@ -61,22 +62,21 @@ def test_the_cold_start_growth_put_back_lands_the_cold_machine_on_its_targets() 
                                       REFERENCE_C, REFERENCE_C))  # fmt: skip
 
 
-def _steps(tmp_path: Path, cap_mm: float) -> types.SimpleNamespace:
-    """Just what ThermalSteps._add_start_growth reads: the config's thermal setting and
-    source, the axis's correction cap, the table file, the state."""
+def _steps(tmp_path: Path, cap_mm: float) -> ThermalSteps:
+    """The thermal steps with just what ThermalSteps._add_start_growth reads: the config's
+    thermal setting and source, the axis's correction cap, the table file, the state."""
     th = types.SimpleNamespace(source="t", origin_mm=ORIGIN_MM, length_mm=LENGTH_MM, gain=1.0)
     comp = types.SimpleNamespace(thermal=th, pitch_file=None, max_correction_mm=cap_mm)
-    steps = types.SimpleNamespace(
-        config_dir=tmp_path, tables=Tables(pitch={"X": "x_pitch.csv"}), say=lambda _: None,
-        state={"start_temperature_c": {"X": START_C}, "notes": []}, _save=lambda: None,
-        config=types.SimpleNamespace(
-            axes={"X": types.SimpleNamespace(compensation=comp, wraps=False)},
-            thermal_sources={"t": types.SimpleNamespace(kind="temperature", alpha_per_k=ALPHA,
-                                                        reference_c=REFERENCE_C)}))  # fmt: skip
-    for name in ("_start_growth_mm", "_add_start_growth"):
-        setattr(steps, name, types.MethodType(getattr(ThermalSteps, name), steps))
+    config = types.SimpleNamespace(
+        axes={"X": types.SimpleNamespace(compensation=comp, wraps=False)},
+        thermal_sources={"t": types.SimpleNamespace(kind="temperature", alpha_per_k=ALPHA,
+                                                    reference_c=REFERENCE_C)})  # fmt: skip
+    record = Record(tmp_path / "commission", tmp_path)
+    record.tables = Tables(pitch={"X": "x_pitch.csv"})
+    record.state.update({"start_temperature_c": {"X": START_C}, "notes": []})
     write_pitch_csv(tmp_path / "x_pitch.csv", _measured_table())
-    return steps
+    return ThermalSteps(types.SimpleNamespace(s=None, config=config), record,  # type: ignore[arg-type]
+                        None, lambda _: None)  # type: ignore[arg-type]
 
 
 def test_the_table_gets_it_once_even_across_a_resume(tmp_path: Path) -> None:
@@ -86,7 +86,7 @@ def test_the_table_gets_it_once_even_across_a_resume(tmp_path: Path) -> None:
     steps._add_start_growth("X")
     once = read_pitch_csv(tmp_path / "x_pitch.csv")
     assert _landing_error_um(once) < 0.3
-    assert "cold start" in steps.state["notes"][0]
+    assert "cold start" in steps.record.state["notes"][0]
     steps._add_start_growth("X")  # again: the state says it was written
     np.testing.assert_allclose(read_pitch_csv(tmp_path / "x_pitch.csv").forward_mm,
                                once.forward_mm)  # fmt: skip
@@ -99,7 +99,7 @@ def test_what_the_gateway_would_refuse_is_not_written(tmp_path: Path) -> None:
     steps._add_start_growth("X")
     np.testing.assert_allclose(read_pitch_csv(tmp_path / "x_pitch.csv").forward_mm,
                                before.forward_mm)  # fmt: skip
-    assert "not put back" in steps.state["notes"][0]
+    assert "not put back" in steps.record.state["notes"][0]
 
 
 def test_a_resume_past_the_start_reads_no_start_temperature() -> None:
@@ -109,13 +109,14 @@ def test_a_resume_past_the_start_reads_no_start_temperature() -> None:
     import asyncio
 
     th = types.SimpleNamespace(source="t")
-    steps = types.SimpleNamespace(
+    axes = types.SimpleNamespace(
         s=types.SimpleNamespace(axes=("X",), instruments=types.SimpleNamespace(
             temperature=types.SimpleNamespace(key=("127.0.0.1", 9), unit=23))),
-        state={"drift_base": {"phase": "identification", "refs": {}}},
         config=types.SimpleNamespace(
             axes={"X": types.SimpleNamespace(compensation=types.SimpleNamespace(thermal=th))},
             thermal_sources={"t": types.SimpleNamespace(kind="temperature")}))  # fmt: skip
-    steps._source_kind = types.MethodType(ThermalSteps._source_kind, steps)
-    asyncio.run(ThermalSteps.read_start_temperatures(steps))  # type: ignore[arg-type]
-    assert steps.state["start_temperature_c"] == {}
+    record = Record(Path("/nonexistent"), Path("/nonexistent"))
+    record.state["drift_base"] = {"phase": "identification", "refs": {}}
+    steps = ThermalSteps(axes, record, None, print)  # type: ignore[arg-type]
+    asyncio.run(steps.read_start_temperatures())
+    assert record.state["start_temperature_c"] == {}

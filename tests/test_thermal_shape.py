@@ -289,16 +289,19 @@ def test_the_travel_before_a_warm_up_comes_from_the_drift_log() -> None:
     readings after the warm-up began are not its prior."""
     from types import SimpleNamespace
 
+    from gateway.calibration.commissioning.record import Record
     from gateway.calibration.commissioning.thermal import ThermalSteps
 
     log = [{"odometer_mm": {"X": x, "Y": y}, "wall_s": w} for x, y, w in
            ((0.0, 0.0, 0.0), (200_000.0, 500.0, 1.0), (200_000.0, 30_500.0, 2.0),
             (200_000.0, 30_500.0, 3602.0), (200_000.0, 230_500.0, 3603.0))]  # fmt: skip
-    steps = SimpleNamespace(state={"drift_log": log, "warmup_log": {"Y": 4}},
-                            s=SimpleNamespace(axes=("X", "Y"), speed_mm_s=100.0))  # fmt: skip
-    travel_m, elapsed_s = ThermalSteps._travel_before_warmup(steps, "Y")  # type: ignore[arg-type]
+    record = Record(Path("/nonexistent"), Path("/nonexistent"))
+    record.state.update({"drift_log": log, "warmup_log": {"Y": 4}})
+    axes = SimpleNamespace(s=SimpleNamespace(axes=("X", "Y"), speed_mm_s=100.0), config=None)
+    steps = ThermalSteps(axes, record, None, print)  # type: ignore[arg-type]
+    travel_m, elapsed_s = steps._travel_before_warmup("Y")
     np.testing.assert_allclose(travel_m, [0.5, 30.0, 0.0])
     # X's 200 m warm-up took 2000 s of Y's cooling; an hour's pause counts by the clock
     np.testing.assert_allclose(elapsed_s, [2005.0, 300.0, 3600.0])
-    steps.state["warmup_log"] = {}
-    assert ThermalSteps._travel_before_warmup(steps, "Y")[0].size == 0  # no warm-up begun
+    record.state["warmup_log"] = {}
+    assert steps._travel_before_warmup("Y")[0].size == 0  # no warm-up begun

@@ -78,7 +78,7 @@ async def live(say: Any = print) -> dict[str, Any]:
                 say(f"compgw commission on random machine {SEED} (smooth), its travel cut "
                     f"to {TRAVEL_MM[1]:g} mm so the demo takes seconds (`compgw sim "
                     f"--random-machine {SEED}` writes it whole), leads {leads}")  # fmt: skip
-                job.print_plan()
+                job.command.print_plan()
                 summary = await job.run()
     for line in summary_lines(summary):
         say(line)

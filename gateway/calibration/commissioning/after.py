@@ -1,4 +1,4 @@
-"""``compgw commission``'s end (a base of :class:`.commission.Commission`): the after-run,
+"""``compgw commission``'s end (step 4 of :class:`.commission.Commission`): the after-run,
 the before-run's targets again with everything on; whether the plane reads worse with the
 tables than the machine did without them (then the user's own config is kept); the
 summary the report is written from."""
@@ -6,7 +6,8 @@ summary the report is written from."""
 from __future__ import annotations
 
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from ...formats import read_pitch_csv
 from ..fitting import adaptive
@@ -14,16 +15,51 @@ from ..fitting.iso230 import iso230_axis, pooled_s_um
 from ..measuring.session import planar_figures
 from ..plans.plans import read_plan
 from ..plans.rawdata import axis_deviations
-from .takeup import TakeUpSteps
+
+if TYPE_CHECKING:
+    from .axes import Axes
+    from .record import Record
+    from .rotary import RotarySteps
+    from .stager import Stager
+    from .steps import StepRunner
+    from .takeup import TakeUpSteps
+
+Say = Callable[[str], None]
 
 
-class AfterSteps(TakeUpSteps):
+
+class AfterSteps:
     """The after-run, the plane's last word on the tables, and the summary."""
 
-    def _xy_figures(self, name: str) -> dict[str, float]:
+    def __init__(self, axes: Axes, record: Record, stager: Stager, runner: StepRunner,
+                 rotary: RotarySteps, takeup: TakeUpSteps, say: Say) -> None:
+        self.s = axes.s
+        self.axes = axes
+        self.record = record
+        self.stager = stager
+        self.runner = runner
+        self.rotary = rotary
+        self.takeup = takeup
+        self.say = say
+
+    async def run(self) -> None:
+        if not self.record.tables.pitch:
+            return
+        self.record.tables.sensor_off.clear()  # the after-run with the sensors (motion_for_sensors)
+        await self.stager.use(self.record.tables_phase)
+        for a in self.s.axes:  # where the before-run was made (a budget spent may stop it)
+            if a in self.record.tables.pitch and self.record.done(f"before-{a}"):
+                plan = read_plan(self.record.dir / "plans" / f"before-{a}.plan")
+                await self.runner.step(f"after-{a}", lambda p=plan: p, "on", self.axes.park(a))
+        if self.s.planar is not None and self.record.done("before-xy"):
+            plan = read_plan(self.record.dir / "plans" / "before-xy.plan")
+            await self.runner.step("after-xy", lambda: plan, "on")
+        await self.takeup.after_steps()
+
+    def xy_figures(self, name: str) -> dict[str, float]:
         """Max and RMS vector error (µm) of an XY run, drift taken off."""
         assert self.s.planar is not None
-        return planar_figures(self.raw(name), self.s.planar)
+        return planar_figures(self.runner.raw(name), self.s.planar)
 
     def plane_worse(self) -> str | None:
         """Why the tables are not left loaded: the plane read worse at the before-run's
@@ -32,13 +68,14 @@ class AfterSteps(TakeUpSteps):
         that where the plane was not fitted (the budget ran out before the XY grid) and it
         is not made of the axes' own errors (sdss-1396 at 1.5 × a manual calibration's time:
         13.5 → 23.5 µm). None: not worse, or not read."""
-        if self.s.planar is None or not (self.done("before-xy") and self.done("after-xy")):
+        done = self.record.done
+        if self.s.planar is None or not (done("before-xy") and done("after-xy")):
             return None
-        before, after = self._xy_figures("before-xy"), self._xy_figures("after-xy")
+        before, after = self.xy_figures("before-xy"), self.xy_figures("after-xy")
         if adaptive.keeps_refinement(after["rms_um"], before["rms_um"], plane=True):
             return None
         why = ("the plane was not measured, and the tables, fitted on their lines, do not "
-               "hold away from them" if self.tables.planar_model is None else
+               "hold away from them" if self.record.tables.planar_model is None else
                "the tables and plane do not hold there")  # fmt: skip
         return (f"XY: worse with the tables than without (RMS vector error "
                 f"{before['rms_um']:.1f} → {after['rms_um']:.1f} µm at the same random "
@@ -49,14 +86,15 @@ class AfterSteps(TakeUpSteps):
         error; drift taken off); None when an axis has no table or was not measured."""
         scores: dict[str, float] = {}
         for a in self.s.axes:
-            if a not in self.tables.pitch or not self.done(f"after-{a}"):
+            if a not in self.record.tables.pitch or not self.record.done(f"after-{a}"):
                 return None
-            table = read_pitch_csv(self.config_dir / self.tables.pitch[a]).position_mm
-            scores[a] = self.judge(a, axis_deviations(self.raw(f"after-{a}"), a), table).E_um
+            table = read_pitch_csv(self.record.config_dir / self.record.tables.pitch[a]).position_mm
+            dev = axis_deviations(self.runner.raw(f"after-{a}"), a)
+            scores[a] = self.rotary.judge(a, dev, table).E_um
         if self.s.planar is not None:
-            if not self.done("after-xy"):
+            if not self.record.done("after-xy"):
                 return None
-            scores["XY"] = self._xy_figures("after-xy")["max_um"]
+            scores["XY"] = self.xy_figures("after-xy")["max_um"]
         return scores
 
     def after_verdict(self, outcome: str) -> str:
@@ -72,83 +110,72 @@ class AfterSteps(TakeUpSteps):
         axis or the plane beyond the tolerance: "after", not within (trial 8: "WITHIN 2 µm"
         beside an after-run's X E 2.74 µm; a round keeps an axis's best reading, and
         another set of targets read it otherwise). Else ``outcome`` unchanged."""
-        if not self.tables.pitch:
+        if not self.record.tables.pitch:
             return outcome
-        if outcome == "within" and self.state["rounds"]:
+        if outcome == "within" and self.record.state["rounds"]:
             scores = self._after_scores()
-            missed = {n: v for n, v in (scores or {}).items() if v > self.tolerance_of(n)}
+            missed = {n: v for n, v in (scores or {}).items() if v > self.rotary.tolerance_of(n)}
             if not missed:
                 return outcome
-            note = ("the rounds read within " + self.tolerance_text() + " at their random "
+            note = ("the rounds read within " + self.rotary.tolerance_text() + " at their random "
                     "targets; the after-run, at the before-run's, does not: "
-                    + ", ".join(f"{n} {'max' if n == 'XY' else 'E'} {self.score_text(n, v)}"
+                    + ", ".join(f"{n} {'max' if n == 'XY' else 'E'} {self.rotary.score_text(n, v)}"
                                 for n, v in missed.items()))  # fmt: skip
-            self.state["notes"].append(note)
+            self.record.state["notes"].append(note)
             self.say(note)
             return "after"
-        if outcome != "budget" or self.state["rounds"]:
+        if outcome != "budget" or self.record.state["rounds"]:
             return outcome
         scores = self._after_scores()
-        if scores is None or any(v > self.tolerance_of(n) for n, v in scores.items()):
+        if scores is None or any(v > self.rotary.tolerance_of(n) for n, v in scores.items()):
             return outcome
         note = ("no round's verification fit in the budget; the after-run judged the tables "
                 "instead, at the before-run's random targets (none used to fit anything): "
-                + ", ".join(f"{n} {'max' if n == 'XY' else 'E'} {self.score_text(n, v)}"
+                + ", ".join(f"{n} {'max' if n == 'XY' else 'E'} {self.rotary.score_text(n, v)}"
                             for n, v in scores.items())
-                + f", within {self.tolerance_text()}")  # fmt: skip
-        self.state["notes"].append(note)
+                + f", within {self.rotary.tolerance_text()}")  # fmt: skip
+        self.record.state["notes"].append(note)
         self.say(note)
         return "within"
-
-    async def _after(self) -> None:
-        if not self.tables.pitch:
-            return
-        self.tables.sensor_off.clear()  # the after-run with the sensors (motion_for_sensors)
-        await self.use(self._tables_phase)
-        for a in self.s.axes:  # where the before-run was made (a budget spent may stop it)
-            if a in self.tables.pitch and self.done(f"before-{a}"):
-                plan = read_plan(self.dir / "plans" / f"before-{a}.plan")
-                await self.step(f"after-{a}", lambda p=plan: p, "on", self._park(a))
-        if self.s.planar is not None and self.done("before-xy"):
-            plan = read_plan(self.dir / "plans" / "before-xy.plan")
-            await self.step("after-xy", lambda: plan, "on")
-        await self.after_steps()
 
     # -- summary -------------------------------------------------------------------------
     def summary(self, outcome: str) -> dict[str, Any]:
         out: dict[str, Any] = {"outcome": outcome, "tolerance_um": self.s.tolerance_um,
-                               "machine_h": self.used_s / 3600,
+                               "machine_h": self.record.used_s / 3600,
                                "budget_h": self.s.budget_s / 3600, "axes": {},
-                               "rounds": self.state["rounds"], "notes": self.state["notes"],
-                               "identify": self.state.get("identify", {}),
+                               "rounds": self.record.state["rounds"],
+                               "notes": self.record.state["notes"],
+                               "identify": self.record.state.get("identify", {}),
                                "config": str(self.s.config_path),
-                               "retried": self.state.get("retried", 0),
+                               "retried": self.record.state.get("retried", 0),
                                "finished_at": time.strftime("%Y-%m-%d %H:%M")}  # fmt: skip
         for a in self.s.axes:
             entry: dict[str, Any] = {}
             for phase in ("before", "after"):
-                if self.done(f"{phase}-{a}"):
-                    iso = iso230_axis(axis_deviations(self.raw(f"{phase}-{a}"), a))
-                    read = iso230_axis(axis_deviations(self.raw_as_read(f"{phase}-{a}"), a))
+                if self.record.done(f"{phase}-{a}"):
+                    iso = iso230_axis(axis_deviations(self.runner.raw(f"{phase}-{a}"), a))
+                    read = iso230_axis(axis_deviations(self.runner.raw_as_read(f"{phase}-{a}"), a))
                     # E_read: as read, the drift while measuring in it (a recheck's terms)
                     entry[phase] = {"E_um": iso.E_um, "A_um": iso.A_um, "R_um": iso.R_um,
                                     "B_um": iso.B_um, "M_um": iso.M_um,
                                     "E_read_um": read.E_um, "runs": iso.runs,
                                     "s_pooled_um": pooled_s_um(iso)}  # fmt: skip
-            entry.update(self.steps_summary(a))
-            if a in self.tables.pitch:
+            entry.update(self.takeup.steps_summary(a))
+            if a in self.record.tables.pitch:
                 entry["table_points"] = int(read_pitch_csv(
-                    self.config_dir / self.tables.pitch[a]).position_mm.size)
-                if not self._rotary(a):  # (a rotary axis's: rotary_summary)
-                    entry["interpolation"] = self.tables.interpolation.get(a, "linear")
+                    self.record.config_dir / self.record.tables.pitch[a]).position_mm.size)
+                if not self.axes.rotary(a):  # (a rotary axis's: rotary_summary)
+                    entry["interpolation"] = self.record.tables.interpolation.get(a, "linear")
             out["axes"][a] = entry
         if self.s.planar is not None:
             xy: dict[str, Any] = {}
             for phase in ("before", "after"):
-                if self.done(f"{phase}-xy"):
-                    xy[phase] = self._xy_figures(f"{phase}-xy")
+                if self.record.done(f"{phase}-xy"):
+                    xy[phase] = self.xy_figures(f"{phase}-xy")
                     xy[phase]["max_read_um"] = planar_figures(
-                        self.raw_as_read(f"{phase}-xy"), self.s.planar)["max_um"]  # fmt: skip
+                        self.runner.raw_as_read(f"{phase}-xy"),
+                        self.s.planar)["max_um"]  # fmt: skip
             out["xy"] = xy
-        self.rotary_summary(out)
+        self.rotary.rotary_summary(out)
         return out
+

@@ -1,4 +1,4 @@
-"""``compgw commission``'s best tables (a base of :class:`.commission.Commission`): each
+"""``compgw commission``'s best tables (kept for :mod:`.rounds`): each
 round's verification score of an axis or the plane, the files (and the table's
 interpolation) of the best judged so far kept aside, and put back when a refinement does
 not pay or the budget ends a round before it was judged.
@@ -8,47 +8,57 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ...formats import atomic_write_text
 from ..fitting import adaptive
 from ..fitting.plane_frame import FITTED_FILE, FRAME_FILE
-from .after import AfterSteps
+
+if TYPE_CHECKING:
+    from .axes import Axes
+    from .record import Record
 
 
-class BestTables(AfterSteps):
+
+
+class BestTables:
     """The best tables judged so far, per axis and for the plane ("XY")."""
+
+    def __init__(self, axes: Axes, record: Record) -> None:
+        self.axes = axes
+        self.record = record
 
     def _table_files(self, name: str) -> list[Path]:
         """The files that hold an axis's table (or, for "XY", the planar model)."""
         if name == "XY":
-            model = self.config_dir / str(self.tables.planar_model)
+            model = self.record.config_dir / str(self.record.tables.planar_model)
             return [model, model.parent / "xy_points.csv", model.parent / FRAME_FILE,
                     model.parent / FITTED_FILE]
-        files = [self.config_dir / self.tables.pitch[name]]
-        if name in self.tables.cyclic:  # refinement scans add cyclic stations too
-            files.append(self.config_dir / self.tables.cyclic[name])
+        files = [self.record.config_dir / self.record.tables.pitch[name]]
+        if name in self.record.tables.cyclic:  # refinement scans add cyclic stations too
+            files.append(self.record.config_dir / self.record.tables.cyclic[name])
         return files
 
-    def _restore_best(self) -> None:
+    def restore_best(self) -> None:
         """Put back the best table of every axis (and the plane's model) judged so far."""
-        for name in self.state.get("best", {}):
+        for name in self.record.state.get("best", {}):
             if self._put_back(name):
-                self.state["notes"].append(f"{name}: back to its best "
-                                           f"(round {self.state['best'][name]['round']})")
+                self.record.state["notes"].append(f"{name}: back to its best "
+                                           f"(round {self.record.state['best'][name]['round']})")
 
     def _put_back(self, name: str) -> bool:
         """The best files of an axis (or "XY") as they were: copied over the current ones,
         and one that did not exist then removed (a plane's frame, where the best plane was
         pinned without a fade), and the table's interpolation then; True when any
         differed."""
-        keep = self.dir / "tables" / "best"
+        keep = self.record.dir / "tables" / "best"
         changed = False
-        method = self.state.get("best", {}).get(name, {}).get("interpolation")
-        if method is not None and method != self.tables.interpolation.get(name, "linear"):
+        method = self.record.state.get("best", {}).get(name, {}).get("interpolation")
+        if method is not None and method != self.record.tables.interpolation.get(name, "linear"):
             if method == "linear":
-                self.tables.interpolation.pop(name, None)
+                self.record.tables.interpolation.pop(name, None)
             else:
-                self.tables.interpolation[name] = method
+                self.record.tables.interpolation[name] = method
             changed = True
         for path in self._table_files(name):
             saved = keep / f"{name}-{path.name}"
@@ -60,7 +70,7 @@ class BestTables(AfterSteps):
                 changed = True
         return changed
 
-    def _keep_best(self, name: str, score: float, r: int, rms: float | None = None,
+    def keep_best(self, name: str, score: float, r: int, rms: float | None = None,
                    swept: bool = False, noise: float = 0.0) -> bool:  # fmt: skip
         """Record round ``r``'s verification score (µm) of an axis or the plane (``swept``:
         the axis was swept in the round before). A score
@@ -70,8 +80,8 @@ class BestTables(AfterSteps):
         its score, the largest error at 32 points read once, moves by more than the 10 %
         between two readings of the same field (sdss-2130: 4.83 → 5.37 µm, RMS 2.85 →
         2.66, and its denser grid was put back for good)."""
-        best = self.state["best"]
-        keep = self.dir / "tables" / "best"
+        best = self.record.state["best"]
+        keep = self.record.dir / "tables" / "best"
         keep.mkdir(parents=True, exist_ok=True)
         old = best.get(name)
         if old is not None and old["round"] == r:  # this round again, resumed: as it was
@@ -83,8 +93,9 @@ class BestTables(AfterSteps):
                                                       swept=swept, noise_um=noise):  # fmt: skip
             best[name] = {"score": score, "round": r, **({"rms": rms} if rms is not None
                                                           else {})}  # fmt: skip
-            if name in self.tables.pitch and not self._rotary(name):  # and how it is read
-                best[name]["interpolation"] = self.tables.interpolation.get(name, "linear")
+            # and how it is read
+            if name in self.record.tables.pitch and not self.axes.rotary(name):
+                best[name]["interpolation"] = self.record.tables.interpolation.get(name, "linear")
             for path in self._table_files(name):
                 if path.exists():
                     shutil.copyfile(path, keep / f"{name}-{path.name}")
@@ -93,3 +104,4 @@ class BestTables(AfterSteps):
             return True
         self._put_back(name)
         return False
+

@@ -324,12 +324,12 @@ def main(args: argparse.Namespace) -> int:
         )  # fmt: skip
         reload = make_reload(args, config, gateway)
         job = Commission(settings, reload, print, None)
-        other = job.other()
+        other = job.command.other()
         if other is not None:
             raise ValueError(other)
         if args.recheck:
             return _recheck(job, settings, config, config_path)
-        finished = job.finished()
+        finished = job.command.finished()
         if finished is None:
             if not (config.status.remote_control or args.reload_pid or args.reload_cmd):
                 raise TableError(  # (a dry run passed, then the run aborted: issue 52)
@@ -338,8 +338,8 @@ def main(args: argparse.Namespace) -> int:
                     "restart it or send it SIGHUP), or give --reload-pid or --reload-cmd")
             if not args.dry_run:
                 asyncio.run(_answering(settings, config, config_path))
-                job.adopt_edits()  # (refused here, before anything would put a config back)
-            job.print_plan()
+                job.stager.adopt_edits()  # (refused here, before anything would put a config back)
+            job.command.print_plan()
     except (ConfigError, TableError, CompensationError, ValueError, OSError) as exc:
         _err(exc)
         return EXIT_NOT_MET
@@ -373,7 +373,7 @@ def main(args: argparse.Namespace) -> int:
                         tasks[name] = progress.add_task(name, total=total)
                     progress.update(tasks[name], completed=done, total=total)  # type: ignore[arg-type]
 
-                job.progress = update
+                job.runner.progress = update
             return await job.run()
 
     try:
@@ -510,7 +510,7 @@ def _recheck(job: Any, settings: Any, config: GatewayConfig, config_path: Path) 
     from ..measuring.machine import MachineError
     from .recheck import finished_summary, recheck, verdict_line
 
-    summary = finished_summary(settings.out_dir, job.state)
+    summary = finished_summary(settings.out_dir, job.record.state)
     if summary is None:
         raise TableError(f"--recheck: no finished commissioning in {settings.out_dir} (give "
                          "--out for another directory)")  # fmt: skip
@@ -534,14 +534,14 @@ def _loader(job: Any) -> Any:
     """A step's raw data as commissioning judged it, None where it was not measured."""
 
     def load(step: str):  # type: ignore[no-untyped-def]
-        return job.raw(step) if job.done(step) else None
+        return job.runner.raw(step) if job.record.done(step) else None
 
     return load
 
 
 def _tolerances(job: Any) -> list[str]:
     """The tolerance options that judge this commissioning's axes and plane."""
-    asked = job._asked()
+    asked = job.command.asked()
     return [o for k, o in (("tolerance_um", "--tolerance-um"),
                            ("tolerance_arcsec", "--tolerance-arcsec")) if k in asked]  # fmt: skip
 
@@ -568,9 +568,9 @@ def _options_at(message: str, settings: Any) -> str:
 
 async def _restore(job) -> str:  # type: ignore[no-untyped-def]
     try:
-        return await job.restore()
+        return await job.stager.restore()
     except Exception as exc:  # never hide the first error behind a second
-        return f"your config could not be put back ({exc}): copy {job.original_path} over " \
+        return f"your config could not be put back ({exc}): copy {job.record.original_path} over " \
                f"{job.s.config_path}"
 
 

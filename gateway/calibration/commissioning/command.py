@@ -1,5 +1,5 @@
-"""``compgw commission``'s command before anything moves (a base of
-:class:`.commission.Commission`): the plan it prints; what it asks (budget, rounds, the
+"""``compgw commission``'s command before anything moves (:class:`.commission.Commission`
+asks it first): the plan it prints; what it asks (budget, rounds, the
 tolerances that judge its axes) and commissions (axes and plane); whether the
 commissioning in its directory is this one, and whether it finished with nothing more
 asked.
@@ -8,46 +8,69 @@ asked.
 from __future__ import annotations
 
 import json
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from ..fitting.takeup_fit import MIN_LOST_UM
-from .short import ShortBudget
+
+if TYPE_CHECKING:
+    from .axes import Axes
+    from .planner import Planner
+    from .record import Record
+    from .rotary import RotarySteps
+    from .short import ShortBudget
+    from .thermal import ThermalSteps
+
+Say = Callable[[str], None]
 
 
-class CommandChecks(ShortBudget):
+
+class CommandChecks:
     """The command's plan, and what it asks of the commissioning in its directory."""
+
+    def __init__(self, axes: Axes, record: Record, rotary: RotarySteps, thermal: ThermalSteps,
+                 plans: Planner, short: ShortBudget, say: Say) -> None:
+        self.s = axes.s
+        self.config = axes.config
+        self.axes = axes
+        self.record = record
+        self.rotary = rotary
+        self.thermal = thermal
+        self.plans = plans
+        self.short = short
+        self.say = say
 
     def print_plan(self) -> float:
         """Say what will be measured first and its machine time; returns that time (s)."""
         total = 0.0
-        done = list(self.state.get("steps", {}))
-        ended = self.state.get("finished")
+        done = list(self.record.state.get("steps", {}))
+        ended = self.record.state.get("finished")
         if ended is not None:  # asked for more (:meth:`finished` is None)
-            self.say(f"carrying on the commissioning in {self.dir}, which ended "
+            self.say(f"carrying on the commissioning in {self.record.dir}, which ended "
                      f"'{ended.get('outcome')}': {_count(len(done), 'step')} done, the after-run "
                      "measured again at the end")  # fmt: skip
         elif done:
-            self.say(f"resuming in {self.dir}: {_count(len(done), 'step')} done (the last "
+            self.say(f"resuming in {self.record.dir}: {_count(len(done), 'step')} done (the last "
                      f"{done[-1]}), "
-                     f"{self.used_s / 3600:.2f} h of machine time used; every reading kept, "
+                     f"{self.record.used_s / 3600:.2f} h of machine time used; every reading kept, "
                      "a step begun carries on from its last reading")  # fmt: skip
         self.say(f"commissioning {', '.join(self.s.axes)}"
                  f"{' and the plane ' + '/'.join(self.s.planar) if self.s.planar else ''}: "
-                 f"tolerance {self.tolerance_text()} between the points, budget "
+                 f"tolerance {self.rotary.tolerance_text()} between the points, budget "
                  f"{self.s.budget_s / 3600:.2f} h of machine time")  # fmt: skip
-        for name, plan in self.initial_plans():
-            self._check_limits(plan)
-            t = self.estimate_s(plan)
+        for name, plan in self.plans.initial_plans():
+            self.axes.check_limits(plan)
+            t = self.axes.estimate_s(plan)
             total += t
             self.say(f"  {name:<14} {sum(m.measured for m in plan.moves):>5} readings "
                      f"{len(plan.moves):>5} moves {t / 60:>7.1f} min")  # fmt: skip
-        if any(not self._rotary(a) for a in self.s.axes):
+        if any(not self.axes.rotary(a) for a in self.s.axes):
             self.say(f"  (takeup-*: the reversal ladder, only where the backlash test shows "
                      f"{MIN_LOST_UM:g} µm or more of lost motion and one rung of it, 12 moves, "
                      "shows less than all of it)")  # fmt: skip
         self.say(f"  then verification rounds (before, each round, after) within the budget; "
                  f"first steps: {total / 3600:.2f} h at {self.s.speed_mm_s:g} "
-                 f"{'deg/s' if all(self._rotary(a) for a in self.s.axes) else 'mm/s'} and "
+                 f"{'deg/s' if all(self.axes.rotary(a) for a in self.s.axes) else 'mm/s'} and "
                  f"{self.s.stop_s:g} s per reading")  # fmt: skip
         if total > self.s.budget_s:
             self.say(f"  the budget ({self.s.budget_s / 3600:.2f} h) does not hold these first "
@@ -56,8 +79,8 @@ class CommandChecks(ShortBudget):
                      "the verification rounds")  # fmt: skip
         # decided once, when it began (:meth:`.short.ShortBudget.short`): a
         # resume says what it was (the config then is a phase's own, its estimate another)
-        short = self.state["short"] if "short" in self.state else (
-            not self._zoned() and self._first_need_s() > self.s.budget_s)  # fmt: skip
+        short = self.record.state["short"] if "short" in self.record.state else (
+            not self.thermal.zoned() and self.short.first_need_s() > self.s.budget_s)  # fmt: skip
         if short:
             plane = self.s.planar is not None
             self.say("  a short budget: every axis's ISO runs (and their midpoints where a "
@@ -68,11 +91,11 @@ class CommandChecks(ShortBudget):
                      + ("; no round will refine the plane, so its grid is made as dense as "
                         "the budget then left holds (more readings than the xy-grid line "
                         "above: the budget is spent, not exceeded)" if plane else ""))  # fmt: skip
-        if any(self._rotary(a) for a in self.s.axes) and self.s.tolerance_arcsec < 0.1:
+        if any(self.axes.rotary(a) for a in self.s.axes) and self.s.tolerance_arcsec < 0.1:
             self.say(f"  --tolerance-arcsec {self.s.tolerance_arcsec:g}: below what an angle "
                      "instrument resolves; it is in arcseconds (0.001° is 3.6″)")  # fmt: skip
         ins = self.s.instruments
-        kinds = {self._source_kind(a) for a in self.s.axes}
+        kinds = {self.thermal.source_kind(a) for a in self.s.axes}
         for option, given, used in (("--delta-a", ins.delta_a, kinds - {None, "temperature"}),
                                     ("--temperature", ins.temperature, kinds & {"temperature"})):
             if given is not None and not used:
@@ -84,8 +107,8 @@ class CommandChecks(ShortBudget):
             self.say(f"  your config compensates {', '.join(had)} already (tables from an "
                      "earlier calibration): the identification measures without them and "
                      "the final config has the new ones; yours is kept in "
-                     f"{self.original_path}")  # fmt: skip
-        self.rotary_plan_lines()
+                     f"{self.record.original_path}")  # fmt: skip
+        self.rotary.rotary_plan_lines()
         return total
 
     def _compensated(self, axis: str) -> bool:
@@ -96,13 +119,13 @@ class CommandChecks(ShortBudget):
         return planar or any((comp.pitch, comp.cyclic, comp.linkage, comp.backlash_mm,
                               comp.takeup))  # fmt: skip
 
-    def _asked(self) -> dict[str, float]:
+    def asked(self) -> dict[str, float]:
         """What this command asks of the commissioning: more of any of it carries on a
         finished one (a tolerance only where an axis or the plane is judged by it)."""
         out = {"budget_s": self.s.budget_s, "max_rounds": float(self.s.max_rounds)}
-        if self.s.planar is not None or any(not self._rotary(a) for a in self.s.axes):
+        if self.s.planar is not None or any(not self.axes.rotary(a) for a in self.s.axes):
             out["tolerance_um"] = -self.s.tolerance_um
-        if any(self._rotary(a) for a in self.s.axes):
+        if any(self.axes.rotary(a) for a in self.s.axes):
             out["tolerance_arcsec"] = -self.s.tolerance_arcsec
         return out
 
@@ -112,20 +135,21 @@ class CommandChecks(ShortBudget):
         are that one's (carried on, it crashed on a reference of an axis it never read);
         None when it holds none or this one."""
         # (a state finished by 5dcf6cc's code kept it in "finished")
-        what = self.state.get("what") or (self.state.get("finished") or {}).get("what")
-        if what is None or what == self._what():
+        state = self.record.state
+        what = state.get("what") or (state.get("finished") or {}).get("what")
+        if what is None or what == self.what():
             return None
         axes, plane = what
 
         def name(axes: list[str], plane: list[str] | None) -> str:
             return ", ".join(axes) + (f" and the plane {'/'.join(plane)}" if plane else "")
 
-        return (f"{self.dir} holds the commissioning of {name(axes, plane)}; this command "
-                f"asks for {name(*self._what())}: give --out DIR for another commissioning "
+        return (f"{self.record.dir} holds the commissioning of {name(axes, plane)}; this command "
+                f"asks for {name(*self.what())}: give --out DIR for another commissioning "
                 "(it starts from your config as it is now, the tables of that one in it), or "
                 "the same --axes and plane to carry that one on")  # fmt: skip
 
-    def _what(self) -> list[Any]:
+    def what(self) -> list[Any]:
         """What is commissioned: other axes or another plane are another commissioning."""
         return [list(self.s.axes), list(self.s.planar) if self.s.planar else None]
 
@@ -135,13 +159,14 @@ class CommandChecks(ShortBudget):
         other axes or another plane are refused first, :meth:`other`): run again, it would
         only take the references anew and judge old readings against them, so it is not
         run again."""
-        done = self.state.get("finished")
-        path = self.dir / "summary.json"
+        done = self.record.state.get("finished")
+        path = self.record.dir / "summary.json"
         if done is None or not path.exists() or self.other() is not None:
             return None
-        if any(v > done["asked"].get(k, v) + 1e-9 for k, v in self._asked().items()):
+        if any(v > done["asked"].get(k, v) + 1e-9 for k, v in self.asked().items()):
             return None
         return dict(json.loads(path.read_text()))
+
 
 
 def _count(n: int, what: str) -> str:

@@ -1,18 +1,18 @@
 """Commissioning's drift references: where the machine's thermal state is read between runs.
 
 Two places per linear axis, read before and after each run (and across every config switch,
-:meth:`~.steps.Steps.use`), give each run's drift, which
-:meth:`~.steps.Steps.raw` takes off the readings; logged with the odometer, they
+:meth:`.stager.Stager.use`), give each run's drift, which
+:meth:`.steps.StepRunner.raw` takes off the readings; logged with the odometer, they
 are what heat from motion is fitted to on an axis with no sensor
-(:meth:`DriftRefs.fit_motion_heat`).
+(:meth:`DriftRefs.fit_motion_heat`). A rotary axis has none: the laser sees no angle, and
+its readings are taken as they are.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,7 +21,12 @@ from ...compensation.errors import TableError
 from ...config import GatewayConfig
 from ..thermal.drift_shape import SweptHeat
 from ..thermal.heat_fit import MIN_GROWTH_UM, motion_heat_fit
-from .configs import Tables
+
+if TYPE_CHECKING:
+    from .axes import Axes
+    from .record import Record
+
+Say = Callable[[str], None]
 
 #: readings of each drift reference per reading (their mean is the reference)
 REF_REPEATS = 3
@@ -37,43 +42,32 @@ MEMORY_S = 1000.0
 
 
 class DriftRefs:
-    """The drift references of a commissioning (the base of
-    :class:`~.steps.Steps`, whose state, config and travel they read)."""
+    """The drift references of a commissioning: read, logged in the record, and what they
+    say about the machine's thermal state."""
 
-    s: Any  # steps.Settings
-    state: dict[str, Any]
-    config: GatewayConfig
-    tables: Tables
-    swept: dict[str, SweptHeat]
-    dir: Path
-    say: Callable[[str], None]
-    _refs_read_here: bool
+    def __init__(self, axes: Axes, record: Record, say: Say) -> None:
+        self.s = axes.s
+        self.config = axes.config
+        self.axes = axes
+        self.record = record
+        self.say = say
+        self.read_here = False  # the references read by this process yet
+        kept = record.state.get("swept_heat", {})
+        record.swept.update({
+            a: SweptHeat.from_json(kept[a]) if a in kept else
+            SweptHeat.for_travel(axes.travel(a), MEMORY_S) for a in axes.ref_axes()})  # fmt: skip
 
-    def _save(self) -> None:
-        raise NotImplementedError  # Steps: the state file
+    async def measure_refs(self) -> dict[str, list[float]]:
+        """Deviation (mm) of each commissioned axis at its two drift references (a rotary
+        axis's are zero: the laser sees no angle, its readings are taken as they are)."""
+        linear = self.axes.ref_axes()
+        out = await self._read(linear) if linear else {}
+        out.update({a: [0.0, 0.0] for a in self.s.axes if a not in out})
+        self.record.state["last_refs"] = {"phase": self.record.state.get("phase"), "refs": out,
+                                          "odometer_mm": self.odometer()}  # fmt: skip
+        return out
 
-    def _retried(self, count: int) -> None:
-        """Count requests answered only on a later try (kept with the next save; the
-        summary and the report say how many)."""
-        if count:
-            self.state["retried"] = self.state.get("retried", 0) + count
-
-    def ref_axes(self) -> list[str]:
-        """The axes the drift references read: the linear ones (the laser sees no angle)."""
-        return [a for a in self.s.axes if not self.config.axes[a].rotary]
-
-    def _park(self, axis: str) -> dict[str, float]:
-        """Where the other plane axis stands while ``axis`` is measured: its lower end."""
-        if self.s.planar is None or axis not in self.s.planar:
-            return {}
-        other = self.s.planar[1] if axis == self.s.planar[0] else self.s.planar[0]
-        return {other: float(self.config.axes[other].travel_mm[0])}
-
-    def _travel(self, axis: str) -> tuple[float, float]:
-        lo, hi = self.config.axes[axis].travel_mm
-        return float(lo), float(hi)
-
-    def _ref_commands(self, cfg: GatewayConfig, chain: Chain) -> dict[str, dict[str, Any]]:
+    def ref_commands(self, cfg: GatewayConfig, chain: Chain) -> dict[str, dict[str, Any]]:
         """Per linear axis, what the gateway's config as loaded (``cfg``, its ``chain``)
         commands at its two drift references (mm; approached in +, the other plane axis
         parked, no thermal growth), every axis's command there, and its thermal setting:
@@ -81,10 +75,10 @@ class DriftRefs:
         (``sensor``: its correction is computed at the sensor's reading, see
         :func:`..fitting.adaptive.relinked_base`)."""
         out: dict[str, dict[str, Any]] = {}
-        for a in self.ref_axes():
-            where = {o: [round(x / cfg.axes[o].pulse_mm)] for o, x in self._park(a).items()}
+        for a in self.axes.ref_axes():
+            where = {o: [round(x / cfg.axes[o].pulse_mm)] for o, x in self.axes.park(a).items()}
             mm, every = [], []
-            for x in self._ref_positions(a):
+            for x in self.axes.ref_positions(a):
                 pulses = {**where, a: [round(x / cfg.axes[a].pulse_mm)]}
                 cmd = chain.command_mm_batch(pulses, dict.fromkeys(pulses, 1))
                 mm.append(float(cmd[a][0]))
@@ -97,17 +91,10 @@ class DriftRefs:
                                     src.reference_c]  # fmt: skip
         return out
 
-    def _ref_positions(self, axis: str) -> tuple[float, float]:
-        lo, hi = self._travel(axis)
-        pulse = self.config.axes[axis].pulse_mm
-        return (round((lo + 0.05 * (hi - lo) + 1.0) / pulse) * pulse,
-                round((hi - 0.05 * (hi - lo)) / pulse) * pulse)
-
-    async def _measure_refs(self, repeats: int = REF_REPEATS, axes: Sequence[str] | None = None
-                            ) -> dict[str, list[float]]:  # fmt: skip
-        """Deviation (mm) of each commissioned axis (or of ``axes``) at its two drift
-        references, the mean of ``repeats`` approaches in + from 1 mm below (the other plane
-        axis parked)."""
+    async def _read(self, axes: Sequence[str], repeats: int = REF_REPEATS
+                    ) -> dict[str, list[float]]:  # fmt: skip
+        """Deviation (mm) of each of ``axes`` at its two drift references, the mean of
+        ``repeats`` approaches in + from 1 mm below (the other plane axis parked)."""
         from ...instruments.base import InstrumentError
         from ..measuring.machine import Links, MachineDriver, MachineError
 
@@ -118,17 +105,17 @@ class DriftRefs:
         try:
             link = await links.get(self.s.gateway.host, self.s.gateway.port)
             driver = MachineDriver(link, self.config, self.s.motion)
-            driver.on_move = self._count_travel
+            driver.on_move = self.count_travel
             ins = self.s.instruments
             assert ins.given("laser")
             order = ins.laser_order(self.config)
             laser = await ins.open("laser", links, order=order)
-            for a in self.s.axes if axes is None else axes:
-                park = self._park(a)
+            for a in axes:
+                park = self.axes.park(a)
                 if park:
                     await driver.move(park)
                 devs = []
-                for x in self._ref_positions(a):
+                for x in self.axes.ref_positions(a):
                     readings = []
                     for _ in range(repeats):
                         await driver.move({a: x - 1.0})
@@ -139,28 +126,26 @@ class DriftRefs:
                             raise MachineError(str(exc)) from None
                         readings.append(reading - x)
                     devs.append(float(np.mean(readings)))
-                    self._pool_ref_scatter(a, readings)
-                self._check_channel(a, order, devs)
+                    self.pool_ref_scatter(a, readings)
+                self.check_channel(a, order, devs)
                 out[a] = devs
                 cost += self.refs_cost_s([a], repeats)
         finally:
-            self._retried(links.retried)
+            self.record.retried(links.retried)
             if laser is not None:
                 await laser.close()
             links.close()
-        self.state["refs_s"] = self.state.get("refs_s", 0.0) + cost
-        self._refs_read_here = True
-        self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out,
-                                   "odometer_mm": self._odometer()}  # fmt: skip
+        self.record.state["refs_s"] = self.record.state.get("refs_s", 0.0) + cost
+        self.read_here = True
         return out
 
-    def _check_channel(self, axis: str, order: Sequence[str], devs_mm: Sequence[float]) -> None:
+    def check_channel(self, axis: str, order: Sequence[str], devs_mm: Sequence[float]) -> None:
         """The laser's reading for ``axis`` follows it between its two references (the
         first thing commissioning measures): within 5 % of how far the axis was sent, or
         the channels are not in the order given, or the beam is on another axis."""
         from ..measuring.machine import SetupError
 
-        x0, x1 = self._ref_positions(axis)
+        x0, x1 = self.axes.ref_positions(axis)
         sent = x1 - x0
         seen = sent + devs_mm[1] - devs_mm[0]
         if abs(seen - sent) > 0.05 * abs(sent):
@@ -181,16 +166,17 @@ class DriftRefs:
                              f"while {axis} was sent {sent:.3f} mm: give --laser-axes in the "
                              f"laser's channel order, and check its beam is on {axis}")  # fmt: skip
 
-    def _refs_unmoved(self) -> dict[str, list[float]] | None:
+    def refs_unmoved(self) -> dict[str, list[float]] | None:
         """The drift references read last (mm), when this process read them and nothing has
         moved since, in the same config: a run's after-reading is then the next run's
         before-reading (the same thermal state: reading it again costs machine time and
         adds its own scatter). None otherwise (and after a resume: the machine may have
         been moved by hand)."""
-        last = self.state.get("last_refs")
-        if not (last and self._refs_read_here):
+        last = self.record.state.get("last_refs")
+        if not (last and self.read_here):
             return None
-        if last["phase"] != self.state.get("phase") or last.get("odometer_mm") != self._odometer():
+        if last["phase"] != self.record.state.get("phase") \
+                or last.get("odometer_mm") != self.odometer():  # fmt: skip
             return None
         return last["refs"]
 
@@ -199,8 +185,8 @@ class DriftRefs:
         ``repeats`` approaches each from 1 mm below."""
         return len(axes) * 2 * repeats * (self.s.stop_s + 2.0 / self.s.speed_mm_s)
 
-    def _drift_now(self, refs: dict[str, list[float]]) -> dict[str, list[float]]:
-        base = self.state["drift_base"]["refs"]
+    def drift_now(self, refs: dict[str, list[float]]) -> dict[str, list[float]]:
+        base = self.record.state["drift_base"]["refs"]
         return {a: [refs[a][k] - base[a][k] for k in (0, 1)] for a in self.s.axes}
 
     def drift_taken_off(self, axis: str) -> bool:
@@ -215,12 +201,12 @@ class DriftRefs:
             return self.drift_stands_out(axis)
         return self.replacing_motion(axis) is not None
 
-    def _pool_ref_scatter(self, axis: str, readings_mm: Sequence[float]) -> None:
+    def pool_ref_scatter(self, axis: str, readings_mm: Sequence[float]) -> None:
         """Pool the scatter of one drift reference's back-to-back readings (kept in the
         state as the sum of squares about their mean, mm², and its degrees of freedom)."""
         if len(readings_mm) < 2:
             return
-        pooled = self.state.setdefault("ref_scatter", {}).setdefault(axis, [0.0, 0])
+        pooled = self.record.state.setdefault("ref_scatter", {}).setdefault(axis, [0.0, 0])
         r = np.asarray(readings_mm, dtype=np.float64)
         pooled[0] += float(np.sum((r - r.mean()) ** 2))
         pooled[1] += r.size - 1
@@ -228,7 +214,7 @@ class DriftRefs:
     def ref_scatter_um(self, axis: str) -> float | None:
         """The scatter of one stop at the drift references of ``axis`` (µm), pooled over
         their back-to-back readings (no drift between them); None before MIN_REF_DOF."""
-        squares_mm2, dof = (self.state.get("ref_scatter") or {}).get(axis, (0.0, 0))
+        squares_mm2, dof = (self.record.state.get("ref_scatter") or {}).get(axis, (0.0, 0))
         if dof < MIN_REF_DOF or not squares_mm2 > 0:
             return None
         return 1e3 * float(np.sqrt(squares_mm2 / dof))
@@ -236,7 +222,8 @@ class DriftRefs:
     def iso_scatter_um(self, axis: str) -> float | None:
         """The scatter of one stop of ``axis`` (µm): the ISO runs' pooled standard deviation,
         as the reversal's choice measured it; None before the ISO runs are fitted."""
-        s_um = (self.state.get("identify", {}).get(f"reversal-{axis}") or {}).get("scatter_um")
+        ident = self.record.state.get("identify", {})
+        s_um = (ident.get(f"reversal-{axis}") or {}).get("scatter_um")
         return float(s_um) if s_um is not None and np.isfinite(s_um) and s_um > 0 else None
 
     def drift_stands_out(self, axis: str) -> bool:
@@ -252,7 +239,7 @@ class DriftRefs:
         the tables kept it (mcu1025 Y: a tilt of ±1.2 µm over 41 mm, RMS at the points 1.33
         against 1.06 µm without). No scatter known yet: taken off."""
         s_um = self.ref_scatter_um(axis) or self.iso_scatter_um(axis)
-        log = [e["drift_mm"][axis] for e in self.state.get("drift_log") or []
+        log = [e["drift_mm"][axis] for e in self.record.state.get("drift_log") or []
                if axis in e.get("drift_mm", {})]  # fmt: skip
         if s_um is None or len(log) < 3:
             return True
@@ -270,58 +257,58 @@ class DriftRefs:
     def replacing_motion(self, axis: str) -> dict[str, Any] | None:
         """The heat-from-motion thermal section that replaces ``axis``'s temperature sensor
         (its zone warm-up's fit, :mod:`..thermal.warmup_heat`), or None."""
-        ident = self.state.get("identify", {}).get(f"thermal-{axis}", {})
+        ident = self.record.state.get("identify", {}).get(f"thermal-{axis}", {})
         return (ident.get("motion") or {}).get("config") or None
 
-    def _drift_shapes(self) -> dict[str, list[float]]:
+    def drift_shapes(self) -> dict[str, list[float]]:
         """The heat shape W of each axis whose drift follows it: a spread known, and no
         thermal compensation in the loaded config (the drift is then the growth itself)."""
         out = {}
-        loaded = self.state.get("ref_commands") or {}
-        for a, heat in self.swept.items():
+        loaded = self.record.state.get("ref_commands") or {}
+        for a, heat in self.record.swept.items():
             spread = self.drift_spread_mm(a)
             if spread is not None and (loaded.get(a) or {}).get("thermal") == "None":
                 out[a] = heat.shape(spread)
         return out
 
-    def _count_travel(self, axis: str, x_mm: float) -> None:
+    def count_travel(self, axis: str, x_mm: float) -> None:
         """The odometer: every target commissioning writes, per axis (mm); and where each
         screw was worked, the machine time taken as the move's travel at the
         commissioning speed and a stop."""
-        odo = self.state.setdefault("odometer", {"mm": {}, "at": {}})
+        odo = self.record.state.setdefault("odometer", {"mm": {}, "at": {}})
         last = odo["at"].get(axis)
         if last is not None:
             odo["mm"][axis] = odo["mm"].get(axis, 0.0) + abs(x_mm - last)
         odo["at"][axis] = x_mm
         seconds = (0.0 if last is None else abs(x_mm - last) / self.s.speed_mm_s) + self.s.stop_s
-        for heat in self.swept.values():
+        for heat in self.record.swept.values():
             heat.elapse(seconds)
-        if axis in self.swept:
-            self.swept[axis].move_to(x_mm)
+        if axis in self.record.swept:
+            self.record.swept[axis].move_to(x_mm)
 
-    def _odometer(self) -> dict[str, float]:
+    def odometer(self) -> dict[str, float]:
         """Each commissioned axis's travel so far (mm)."""
-        odo = self.state.get("odometer", {"mm": {}})["mm"]
+        odo = self.record.state.get("odometer", {"mm": {}})["mm"]
         return {a: float(odo.get(a, 0.0)) for a in self.s.axes}
 
-    def _log_drift(self, drift: dict[str, list[float]],
+    def log_drift(self, drift: dict[str, list[float]],
                    odometer_mm: dict[str, float] | None = None) -> None:
         """Keep the drift (mm, at both references) with the odometer when it was read (the
         last references' unless given) and the wall clock: what heat from motion is
         fitted to (heat_fit)."""
-        odo = odometer_mm or (self.state.get("last_refs") or {}).get("odometer_mm")
-        self.state.setdefault("drift_log", []).append(
-            {"odometer_mm": odo or self._odometer(), "wall_s": time.time(),
+        odo = odometer_mm or (self.record.state.get("last_refs") or {}).get("odometer_mm")
+        self.record.state.setdefault("drift_log", []).append(
+            {"odometer_mm": odo or self.odometer(), "wall_s": time.time(),
              "drift_mm": drift})  # fmt: skip
 
     def fit_motion_heat(self) -> None:
         """Heat from motion on every linear axis with no thermal setting of its own, fitted
         to the drift references read so far (once: later drift is what it leaves)."""
-        log = self.state.get("drift_log", [])
+        log = self.record.state.get("drift_log", [])
         for a in self.s.axes:
             axis = self.config.axes[a]
             key = f"motion-{a}"
-            ident = self.state.setdefault("identify", {})
+            ident = self.record.state.setdefault("identify", {})
             if axis.compensation.thermal is not None or axis.rotary or key in ident:
                 continue
             try:
@@ -330,17 +317,18 @@ class DriftRefs:
                         for b in self.s.axes},
                     [e["wall_s"] for e in log],
                     [[d * 1000.0 for d in e["drift_mm"][a]] for e in log],
-                    self._ref_positions(a), dict.fromkeys(self.s.axes, self.s.speed_mm_s),
-                    self._travel(a), min(MIN_GROWTH_UM, self.s.tolerance_um))  # fmt: skip
+                    self.axes.ref_positions(a), dict.fromkeys(self.s.axes, self.s.speed_mm_s),
+                    self.axes.travel(a), min(MIN_GROWTH_UM, self.s.tolerance_um))  # fmt: skip
             except TableError as exc:
                 ident[key] = {"fitted": False, "why": str(exc)}
                 self.say(f"no heat-from-motion model: {exc}")
                 continue
-            self.tables.motion[a] = fit.config()
+            self.record.tables.motion[a] = fit.config()
             ident[key] = {"fitted": True, **fit.config(), "growth_max_um": fit.growth_max_um,
                           "residual_rms_um": fit.residual_rms_um, "points": fit.points}
             self.say(f"{a}: no thermal sensor; heat from its own motion explains the drift "
                      f"({fit.growth_max_um:.1f} µm at most) to {fit.residual_rms_um:.2f} µm "
                      f"RMS: Δa {fit.delta_a_um_per_m:.3g} µm per metre of heat, tau "
                      f"{fit.tau_s:.0f} s, fixed end at {fit.origin_mm:.0f} mm")  # fmt: skip
-        self._save()
+        self.record.save()
+

@@ -39,7 +39,7 @@ def recheck_plans(job: Any, summary: dict[str, Any]) -> list[tuple[str, Plan]]:
     plane = summary.get("xy") and job.s.planar is not None  # (with --xy-device only)
     names = [f"before-{a}" for a in summary["axes"]] + (["before-xy"] if plane else [])
     for name in names:
-        path = job.dir / "plans" / f"{name}.plan"
+        path = job.record.dir / "plans" / f"{name}.plan"
         if path.exists():
             out.append((name.removeprefix("before-"), read_plan(path)))
     return out
@@ -52,15 +52,16 @@ async def recheck(job: Any, summary: dict[str, Any], say: Callable[[str], None] 
     commissioning's tolerance (also written to ``recheck/<date-time>/recheck.json``)."""
     plans = recheck_plans(job, summary)
     if not plans:
-        raise ValueError(f"{job.dir}: no before/after plan to measure again (plans/before-*)")
+        raise ValueError(f"{job.record.dir}: no before/after plan to measure again "
+                         "(plans/before-*)")
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    out_dir = job.dir / "recheck" / stamp
+    out_dir = job.record.dir / "recheck" / stamp
     for k in range(2, 100):  # two in one second: each its own
         if not out_dir.exists():
             break
-        out_dir = job.dir / "recheck" / f"{stamp}-{k}"
+        out_dir = job.record.dir / "recheck" / f"{stamp}-{k}"
     out_dir.mkdir(parents=True)
-    total_s = sum(job.estimate_s(p) for _, p in plans)
+    total_s = sum(job.axes.estimate_s(p) for _, p in plans)
     say(f"recheck of the commissioning finished {summary.get('finished_at', '(undated)')}: "
         f"{sum(sum(m.measured for m in p.moves) for _, p in plans)} readings at its random "
         f"targets, about {total_s / 3600:.2f} h of machine time, the tables as loaded now")
@@ -68,8 +69,8 @@ async def recheck(job: Any, summary: dict[str, Any], say: Callable[[str], None] 
                               "at": time.strftime("%Y-%m-%d %H:%M"), "items": {}}
     for name, plan in plans:
         raw = out_dir / f"{name}.csv"
-        park = {} if name == "xy" else job._park(name)
-        session = Session(job.config, job.config_dir, job.s.gateway, job.s.instruments,
+        park = {} if name == "xy" else job.axes.park(name)
+        session = Session(job.axes.config, job.record.config_dir, job.s.gateway, job.s.instruments,
                           job.s.motion, park)  # fmt: skip
         await session.run(plan, raw, "on")
         result["items"][name] = _judged(name, raw, summary, job)

@@ -1,4 +1,4 @@
-"""``compgw commission``'s refinements (a base of :class:`.commission.Commission`): what a
+"""``compgw commission``'s refinements (what :mod:`.rounds` calls): what a
 round may spend, the new table points in failing spans (short scans where there is a
 cyclic term) and, once per axis, the sweep of the whole travel (:mod:`..fitting.sweep`).
 
@@ -13,11 +13,12 @@ turntable is not (its worm scans and harmonics are its own).
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ...compensation import PitchTable
+from ...compensation import PitchStage, PitchTable
 from ...compensation.cyclic import CyclicModel
 from ...compensation.errors import CompensationError
 from ...config import GatewayConfig
@@ -40,7 +41,17 @@ from ..fitting.table_cv import choose_interpolation
 from ..plans.plans import ROTARY_OVERRUN_DEG, Plan, read_plan, targets_plan
 from ..plans.rawdata import axis_deviations
 from .rotary import SWING_KNOT_GAP_STEPS, SWING_SWEEP_STEPS_DEG
-from .thermal import ThermalSteps
+
+if TYPE_CHECKING:
+    from .axes import Axes
+    from .budget import Budget
+    from .drift import DriftRefs
+    from .record import Record
+    from .rotary import RotarySteps
+    from .stager import Stager
+    from .steps import StepRunner
+
+Say = Callable[[str], None]
 
 #: a table is read along a curve only where its leave-one-out misses at most this fraction
 #: of straight lines' (a near tie is noise of the points; straight lines stay local)
@@ -49,21 +60,46 @@ CURVE_GAIN = 0.97
 SWEEP_PIECE_MM = 120.0
 
 
-class RefineSteps(ThermalSteps):
+class RefineSteps:
     """What a round refines, and how: new points in failing spans, or the sweep."""
 
-    def _refine_allowance_s(self, r: int, sharing: int) -> float:
+    def __init__(self, axes: Axes, record: Record, drift: DriftRefs, stager: Stager,
+                 budget: Budget, runner: StepRunner, rotary: RotarySteps, say: Say) -> None:
+        self.axes = axes
+        self.record = record
+        self.drift = drift
+        self.stager = stager
+        self.budget = budget
+        self.runner = runner
+        self.rotary = rotary
+        self.say = say
+
+    def interpolation_of(self, axis: str) -> str:
+        """The interpolation chosen for ``axis``'s table (a rotary axis's by its fit)."""
+        if not self.axes.rotary(axis):
+            return self.record.tables.interpolation.get(axis, "linear")
+        return str(self.record.state.get("rotary", {}).get(axis, {}).get("interpolation", "linear"))
+
+    def table_stage(self, axis: str, table: PitchTable, method: str | None = None
+                    ) -> PitchStage:  # fmt: skip
+        """The stage the gateway builds from ``table``: the chosen interpolation (or
+        ``method``), the wrap."""
+        return PitchStage(table, method or self.interpolation_of(axis),  # type: ignore[arg-type]
+                          wrap=self.axes.wraps(axis))  # fmt: skip
+
+    def allowance_s(self, r: int, sharing: int) -> float:
         """Machine time (s) each of ``sharing`` refinements may take: what the budget has
         left once the next round's verification (this round's again) and the after-run
         are kept, shared evenly."""
-        verify_s = sum(self.state["steps"][name]["machine_s"] for name in self.state["steps"]
+        steps = self.record.state["steps"]
+        verify_s = sum(steps[name]["machine_s"] for name in steps
                        if name.startswith(f"verify{r}-"))  # fmt: skip
         # and the drift references read around the config switch that loads the new tables
-        switch_s = 2 * self.refs_cost_s(self.ref_axes())
-        left = self.left_s() - verify_s - switch_s
+        switch_s = 2 * self.drift.refs_cost_s(self.axes.ref_axes())
+        left = self.budget.left_s() - verify_s - switch_s
         return max(0.0, left) / max(1, sharing)
 
-    def _affordable(self, r: int, axis: str, verdict: adaptive.AxisVerdict,
+    def affordable(self, r: int, axis: str, verdict: adaptive.AxisVerdict,
                     allowance_s: float) -> adaptive.AxisVerdict:
         """``verdict`` with as many of its worst failing spans as a refinement (and the
         four new midpoints each adds to the next verification) can measure in
@@ -73,7 +109,8 @@ class RefineSteps(ThermalSteps):
         while count > 0:
             v = verdict.worst_first(count)
             plan = self._refine_plan(r, axis, v)
-            cost = 0.0 if plan is None else self.step_cost_s(plan, whole=axis in self.tables.cyclic)
+            whole = axis in self.record.tables.cyclic
+            cost = 0.0 if plan is None else self.budget.step_cost_s(plan, whole=whole)
             if cost + 4 * count * per_target <= allowance_s:
                 return v
             count = count * 2 // 3 if count > 3 else count - 1
@@ -81,66 +118,68 @@ class RefineSteps(ThermalSteps):
 
     def _verify_target_s(self, r: int, axis: str) -> float:
         """Machine time (s) one more verification target of ``axis`` costs (this round's)."""
-        path = self.dir / "plans" / f"verify{r}-{axis}.plan"
+        path = self.record.dir / "plans" / f"verify{r}-{axis}.plan"
         if not path.exists():
             return 0.0
         targets = max(1, len(np.unique(read_plan(path).targets_mm(axis))))
-        return self._verify_s(r, axis) / targets
+        return self.verify_s(r, axis) / targets
 
-    def _verify_s(self, r: int, axis: str) -> float:
+    def verify_s(self, r: int, axis: str) -> float:
         """Machine time (s) of round ``r``'s verification of ``axis`` (0 before it)."""
-        path = self.dir / "plans" / f"verify{r}-{axis}.plan"
-        return self.estimate_s(read_plan(path)) if path.exists() else 0.0
+        path = self.record.dir / "plans" / f"verify{r}-{axis}.plan"
+        return self.axes.estimate_s(read_plan(path)) if path.exists() else 0.0
 
     def _refine_plan(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> Plan | None:
         """The refinement's plan for ``verdict``'s failing spans (None: no point to add)."""
-        table = read_pitch_csv(self.config_dir / self.tables.pitch[axis])
-        mids = self.refine_points(axis, table, verdict)
+        table = read_pitch_csv(self.record.config_dir / self.record.tables.pitch[axis])
+        mids = self.rotary.refine_points(axis, table, verdict)
         if mids.size == 0:
             return None
-        if axis in self.tables.cyclic:
-            lead = read_cyclic(self.config_dir / self.tables.cyclic[axis]).lead_mm
+        if axis in self.record.tables.cyclic:
+            lead = read_cyclic(self.record.config_dir / self.record.tables.cyclic[axis]).lead_mm
             half = 0.5 * adaptive.SCAN_LEADS * lead + 1.0
-            lo, hi = self._travel(axis)
+            lo, hi = self.axes.travel(axis)
             stations = np.unique(np.round(np.clip(mids, lo + half, hi - half), 4))
-            return self._snap(cyclic_plan(axis, (lo, hi), lead, stations.tolist(),
+            return self.axes.snap(cyclic_plan(axis, (lo, hi), lead, stations.tolist(),
                                           per_lead=adaptive.SCAN_PER_LEAD,
                                           leads=adaptive.SCAN_LEADS, kind="refine-scan"))
-        return self._snap(targets_plan(axis, self._travel(axis), mids, self.verify_runs(axis),
+        return self.axes.snap(targets_plan(axis, self.axes.travel(axis), mids,
+                                           self.budget.verify_runs(axis),
                                        kind="iso230-refine", round=r))  # fmt: skip
 
-    async def _refine_axis(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> int:
+    async def refine_axis(self, r: int, axis: str, verdict: adaptive.AxisVerdict) -> int:
         """New table points in the failing spans (each cut in ``REFINE_PARTS``); their values
         from the residual measured there with the table on. With a cyclic term, each new
         point is a short scan over a whole lead: its mean gives the point (no cyclic term
         aliased into it) and its harmonics a new cyclic station. Returns the points added."""
-        path = self.config_dir / self.tables.pitch[axis]
+        path = self.record.config_dir / self.record.tables.pitch[axis]
         table = read_pitch_csv(path)
-        mids = self.refine_points(axis, table, verdict)
+        mids = self.rotary.refine_points(axis, table, verdict)
         if mids.size == 0:
             return 0
-        config, _ = self.staged(self._tables_phase)
+        config, _ = self.stager.staged(self.record.tables_phase)
         stage = self.table_stage(axis, table)
-        cyclic_path = self.config_dir / self.tables.cyclic[axis] if axis in self.tables.cyclic \
+        cyclic = self.record.tables.cyclic
+        cyclic_path = self.record.config_dir / cyclic[axis] if axis in cyclic \
             else None  # fmt: skip
         name = f"refine{r}-{axis}"
-        await self.step(name, lambda: self._refine_plan(r, axis, verdict), "on",  # type: ignore[arg-type,return-value]
-                        self._park(axis), whole=cyclic_path is not None)  # fmt: skip
+        await self.runner.step(name, lambda: self._refine_plan(r, axis, verdict), "on",  # type: ignore[arg-type,return-value]
+                        self.axes.park(axis), whole=cyclic_path is not None)  # fmt: skip
         if cyclic_path is not None:  # one scan per new point: a whole plan between references
             model = read_cyclic(cyclic_path)
-            stations = [float(s) for s in dict(read_plan(self.dir / "plans" / f"{name}.plan")
+            stations = [float(s) for s in dict(read_plan(self.record.dir / "plans" / f"{name}.plan")
                                                .meta)["stations_mm"].split()]  # fmt: skip
-            where, scans = scans_from_raw(self.raw(name), axis, model.lead_mm, stations)
+            where, scans = scans_from_raw(self.runner.raw(name), axis, model.lead_mm, stations)
             ref = adaptive.scan_refinement(table, stage, model, where, scans)
             new, new_model = ref.table, ref.cyclic
         else:
-            dev = axis_deviations(self.raw(name), axis)
+            dev = axis_deviations(self.runner.raw(name), axis)
             new, new_model = adaptive.refined_table(table, stage, dev), None
         if not self._write_tables(axis, config, new, new_model, f"refined in round {r}"):
             return 0
         added = int(new.position_mm.size - table.position_mm.size)
         x = new.position_mm
-        self.state.setdefault("spans", {})[axis] = [
+        self.record.state.setdefault("spans", {})[axis] = [
             int(i) for i in range(x.size - 1)
             if np.any(np.isclose(x[i], mids, atol=1e-3)) or np.any(np.isclose(x[i + 1], mids,
                                                                               atol=1e-3))]
@@ -155,16 +194,16 @@ class RefineSteps(ThermalSteps):
         caller)."""
         from ..fitting.outputs import check_pitch
 
-        scatter = self.iso_scatter_um(axis)
-        if self._rotary(axis) or scatter is None:
+        scatter = self.drift.iso_scatter_um(axis)
+        if self.axes.rotary(axis) or scatter is None:
             return table
-        fit = smoothed_table(table, scatter * 1e-3, self.iso_runs())
+        fit = smoothed_table(table, scatter * 1e-3, self.budget.iso_runs())
         try:
             check_pitch(fit.table, config, axis)
         except CompensationError:
             return table
         # the last write's (the report's identification list)
-        self.state.setdefault("identify", {})[f"smoothed-{axis}"] = {
+        self.record.state.setdefault("identify", {})[f"smoothed-{axis}"] = {
             "change_rms_um": fit.change_rms_mm * 1e3, "weight": max(fit.lambdas)}
         return fit.table
 
@@ -180,19 +219,19 @@ class RefineSteps(ThermalSteps):
         straight between its knots: read along a spline, the coarse tables the random
         machines' sweeps were folded into left more (rough, noise-free at random parks,
         28.61 → 29.89 µm summed over 20 axes)."""
-        if self._rotary(axis):
+        if self.axes.rotary(axis):
             return
         best, scores = "linear", {}
         if curve and table.position_mm.size >= 5:
             best, scores = choose_interpolation(table)
             if scores[best] > CURVE_GAIN * scores["linear"]:  # as good: the local one
                 best = "linear"
-        best = self.within_cap(axis, table, best)
+        best = self.axes.within_cap(axis, table, best)
         if best == "linear":
-            self.tables.interpolation.pop(axis, None)
+            self.record.tables.interpolation.pop(axis, None)
         else:
-            self.tables.interpolation[axis] = best
-        self.state.setdefault("identify", {})[f"interpolation-{axis}"] = {
+            self.record.tables.interpolation[axis] = best
+        self.record.state.setdefault("identify", {})[f"interpolation-{axis}"] = {
             "method": best, "why": "leave-one-out" if curve else "verified between the points",
             "loo_rms_um": {k: v * 1e3 for k, v in scores.items()}}  # fmt: skip
 
@@ -209,12 +248,12 @@ class RefineSteps(ThermalSteps):
             if cyclic is not None:
                 check_cyclic(cyclic, config, axis)
         except Exception as exc:  # a refinement the gateway would refuse: keep the table
-            self.state["notes"].append(f"{axis}: {what}: not applied: {exc}")
+            self.record.state["notes"].append(f"{axis}: {what}: not applied: {exc}")
             return False
-        write_table(self.config_dir / self.tables.pitch[axis], "csv", table,
+        write_table(self.record.config_dir / self.record.tables.pitch[axis], "csv", table,
                     f"compgw commission: {what}")  # fmt: skip
-        if cyclic is not None and axis in self.tables.cyclic:
-            write_cyclic(self.config_dir / self.tables.cyclic[axis], cyclic,
+        if cyclic is not None and axis in self.record.tables.cyclic:
+            write_cyclic(self.record.config_dir / self.record.tables.cyclic[axis], cyclic,
                          {"fitted": f"compgw commission: {what}"})  # fmt: skip
         self.interpolate(axis, table)
         return True
@@ -222,53 +261,53 @@ class RefineSteps(ThermalSteps):
     # -- the sweep -------------------------------------------------------------------------
     def _lead_of(self, axis: str) -> float | None:
         """The lead of an axis's cyclic term (mm), or None without one."""
-        if axis not in self.tables.cyclic:
+        if axis not in self.record.tables.cyclic:
             return None
-        return read_cyclic(self.config_dir / self.tables.cyclic[axis]).lead_mm
+        return read_cyclic(self.record.config_dir / self.record.tables.cyclic[axis]).lead_mm
 
     def _noisy(self, axis: str) -> bool:
         """Whether single stops of ``axis`` scatter more than its tolerance (the ISO runs'
         pooled standard deviation): its sweep may read more densely (``NOISY_STEPS_MM``)."""
-        s_um = self.iso_scatter_um(axis)
-        return s_um is not None and s_um > self.tolerance_of(axis)
+        s_um = self.drift.iso_scatter_um(axis)
+        return s_um is not None and s_um > self.rotary.tolerance_of(axis)
 
-    def _sweep_plan(self, axis: str, coarser: int, lead_mm: float | None = None,
+    def sweep_plan(self, axis: str, coarser: int, lead_mm: float | None = None,
                     estimate: bool = False) -> Plan:  # fmt: skip
         """``axis``'s sweep ``coarser`` steps down its steps (-1: the coarsest); with
         ``estimate``, before its cyclic term and ISO runs exist (the lead ``lead_mm``,
         not noisy)."""
-        travel = self._travel(axis)
-        if self._rotary(axis):  # a swing axis: over the range its table covers
-            targets = sweep_targets_mm(self.table_range(axis), None, margin_mm=0.0,
+        travel = self.axes.travel(axis)
+        if self.axes.rotary(axis):  # a swing axis: over the range its table covers
+            targets = sweep_targets_mm(self.rotary.table_range(axis), None, margin_mm=0.0,
                                        step_mm=self._sweep_steps(axis)[coarser])
-            return self._snap(sweep_plan(axis, travel, targets, piece_mm=SWEEP_PIECE_MM,
+            return self.axes.snap(sweep_plan(axis, travel, targets, piece_mm=SWEEP_PIECE_MM,
                                          overrun_mm=ROTARY_OVERRUN_DEG))  # fmt: skip
         lead = lead_mm if estimate else self._lead_of(axis)
         targets = sweep_targets_mm(travel, lead, coarser=coarser,
                                    noisy=not estimate and self._noisy(axis))  # fmt: skip
-        return self._snap(sweep_plan(axis, travel, targets, piece_mm=SWEEP_PIECE_MM))
+        return self.axes.snap(sweep_plan(axis, travel, targets, piece_mm=SWEEP_PIECE_MM))
 
     def _sweep_steps(self, axis: str) -> tuple[float, ...]:
         """The distances between a sweep's readings of ``axis`` (mm, or degrees), densest
         first."""
-        if self._rotary(axis):
+        if self.axes.rotary(axis):
             return SWING_SWEEP_STEPS_DEG
         return sweep_steps_mm(self._lead_of(axis), self._noisy(axis))
 
-    def _sweeps(self, r: int, axis: str, allowance_s: float) -> int | None:
+    def sweeps(self, r: int, axis: str, allowance_s: float) -> int | None:
         """How coarse round ``r``'s sweep of ``axis`` is (an index into the steps; None: no
         sweep): a linear or swing axis not swept yet (a turntable's worm scans and
         harmonics are its own), the densest step whose sweep and the next round's random
         targets fit in ``allowance_s``; a sweep begun before an interruption carries on as
         it was."""
-        if self._wraps(axis) or axis in self.state.get("swept", []):
+        if self.axes.wraps(axis) or axis in self.record.state.get("swept", []):
             return None
-        begun = self.state.get("sweeping", {}).get(axis)
+        begun = self.record.state.get("sweeping", {}).get(axis)
         if begun is not None:
             return int(begun)
         random_s = adaptive.RANDOM_TARGETS * self._verify_target_s(r, axis)
         for coarser in range(len(self._sweep_steps(axis))):
-            if self.step_cost_s(self._sweep_plan(axis, coarser)) + random_s <= allowance_s:
+            if self.budget.step_cost_s(self.sweep_plan(axis, coarser)) + random_s <= allowance_s:
                 return coarser
         return None
 
@@ -278,10 +317,10 @@ class RefineSteps(ThermalSteps):
         """Sweep step ``name``'s readings of ``axis`` (drift taken off) fitted and added to
         the table and cyclic term it was read with (``method``: the table's interpolation);
         not yet smoothed. Returns the refinement and the readings used."""
-        raw = self.raw(name)
+        raw = self.runner.raw(name)
         rows = np.array([a == axis for a in raw.axis])
         lead = model.lead_mm if model else None
-        gap = SWING_KNOT_GAP_STEPS * step_mm if self._rotary(axis) else adaptive.MIN_SPACING_MM
+        gap = SWING_KNOT_GAP_STEPS * step_mm if self.axes.rotary(axis) else adaptive.MIN_SPACING_MM
         fit = fit_sweep(raw.target_mm[rows], raw.deviation_mm[rows], raw.direction[rows],
                         lead, model.origin_mm if model else 0.0,
                         harmonics_for_step(step_mm, lead), table=table,
@@ -290,30 +329,32 @@ class RefineSteps(ThermalSteps):
         return sweep_refinement(table, self.table_stage(axis, table, method), model, fit), \
             int(rows.sum())  # fmt: skip
 
-    async def _sweep_axis(self, r: int, axis: str, coarser: int) -> int:
+    async def sweep_axis(self, r: int, axis: str, coarser: int) -> int:
         """Sweep ``axis`` with its table and cyclic term on and fold the fit into both;
         returns the table points added."""
-        path = self.config_dir / self.tables.pitch[axis]
-        cyclic_path = self.config_dir / self.tables.cyclic[axis] if axis in self.tables.cyclic \
+        path = self.record.config_dir / self.record.tables.pitch[axis]
+        cyclic = self.record.tables.cyclic
+        cyclic_path = self.record.config_dir / cyclic[axis] if axis in cyclic \
             else None  # fmt: skip
         # the fold starts from the files as they were before the sweep (kept aside once):
         # a resume after the new table was written folds the same readings the same way
-        keep = self.dir / "tables" / f"sweep{r}-{axis}"
+        keep = self.record.dir / "tables" / f"sweep{r}-{axis}"
         keep.mkdir(parents=True, exist_ok=True)
         for f in (path, cyclic_path):
             if f is not None and not (keep / f.name).exists():
                 atomic_write_text(keep / f.name, f.read_text())
-        self.state.setdefault("sweeping", {})[axis] = coarser
+        self.record.state.setdefault("sweeping", {})[axis] = coarser
         # the interpolation the sweep reads the table with (the fold's, on a resume too)
-        method = self.state.setdefault("sweep_interpolation", {}).setdefault(
+        method = self.record.state.setdefault("sweep_interpolation", {}).setdefault(
             axis, self.interpolation_of(axis))
-        self._save()
+        self.record.save()
         table = read_pitch_csv(keep / path.name)
         model = read_cyclic(keep / cyclic_path.name) if cyclic_path is not None else None
         name = f"sweep{r}-{axis}"
-        await self.step(name, lambda: self._sweep_plan(axis, coarser), "on", self._park(axis))
-        self.state["swept"] = [*self.state.get("swept", []), axis]
-        self.state["sweeping"].pop(axis, None)
+        await self.runner.step(name, lambda: self.sweep_plan(axis, coarser), "on",
+                               self.axes.park(axis))  # fmt: skip
+        self.record.state["swept"] = [*self.record.state.get("swept", []), axis]
+        self.record.state["sweeping"].pop(axis, None)
         lead = model.lead_mm if model else None
         step_mm = self._sweep_steps(axis)[coarser]
         ref, readings = self.fold_sweep(name, axis, table, model, method, step_mm)
@@ -325,16 +366,16 @@ class RefineSteps(ThermalSteps):
             "residual_rms_um": fit.residual_rms_um, "level_ptp_um": fit.level_ptp_um,
             "lambdas": list(fit.lambdas), "hold": fit.hold,
             "weighted_out": fit.weighted_out}  # fmt: skip
-        self.state.setdefault("identify", {})[f"sweep-{axis}"] = record
-        config, _ = self.staged(self._tables_phase)
+        self.record.state.setdefault("identify", {})[f"sweep-{axis}"] = record
+        config, _ = self.stager.staged(self.record.tables_phase)
         if not self._write_tables(axis, config, ref.table, ref.cyclic, f"swept in round {r}"):
             return 0
-        self.state.setdefault("spans", {})[axis] = []  # judged at random targets next
-        unit, small = ("°", lambda v: f"{v * ARCSEC_PER_MDEG:.2f}″") if self._rotary(axis) \
+        self.record.state.setdefault("spans", {})[axis] = []  # judged at random targets next
+        unit, small = ("°", lambda v: f"{v * ARCSEC_PER_MDEG:.2f}″") if self.axes.rotary(axis) \
             else (" mm", lambda v: f"{v:.2f} µm")  # fmt: skip
-        scatter = (f"; its stops scatter {small(self.iso_scatter_um(axis))}, more than the "
+        scatter = (f"; its stops scatter {small(self.drift.iso_scatter_um(axis))}, more than the "
                    "tolerance: read densely" if self._noisy(axis) and not lead
-                   and not self._rotary(axis) else "")  # fmt: skip
+                   and not self.axes.rotary(axis) else "")  # fmt: skip
         self.say(f"round {r}: {axis}: swept every {step_mm:g}{unit} ({record['readings']} "
                  f"readings{scatter}): a level "
                  f"{small(fit.level_ptp_um)} peak to peak every "
@@ -346,3 +387,4 @@ class RefineSteps(ThermalSteps):
                  + (f", {fit.weighted_out} readings left out (stops that fell short)"
                     if fit.weighted_out else ""))  # fmt: skip
         return int(ref.table.position_mm.size - table.position_mm.size)
+

@@ -22,24 +22,20 @@ The steps are the linear axes' (:mod:`.commission`), in degrees:
   readings are taken as they are).
 
 Figures are ISO 230-2's in millidegrees internally (the ``_um`` of a degree axis) and
-arcseconds in the summary and the report. This is a base of :class:`.commission.Commission`:
-its hooks are no-ops on linear axes.
+arcseconds in the summary and the report. The other steps call these
+hooks; on a linear axis each does what the linear code does.
 """
 
 from __future__ import annotations
 
-import shutil
-from collections.abc import Sequence
+from collections.abc import Callable
 from dataclasses import replace
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ...compensation import PitchTable
-from ...compensation.errors import TableError
-from ...config_types import read_yaml
 from ..fitting import adaptive
 from ..fitting.iso230 import ARCSEC_PER_MDEG
 from ..fitting.outputs import PitchResult
@@ -54,7 +50,13 @@ from ..plans.plans import (
     targets_plan,
 )
 from ..plans.rawdata import AxisDeviations
-from .steps import Steps
+
+if TYPE_CHECKING:
+    from .axes import Axes
+    from .record import Record
+    from .steps import StepRunner
+
+Say = Callable[[str], None]
 
 TURN_DEG = 360.0
 #: seed 000 in angle (as ``compgw calibrate --backlash`` on a rotary axis): take-up and away
@@ -72,17 +74,25 @@ SWING_SWEEP_STEPS_DEG = (0.25, 0.5)
 SWING_KNOT_GAP_STEPS = 0.4
 
 
-class RotarySteps(Steps):
-    """What rotary axes change in a commissioning (the hooks :class:`.commission.Commission`
-    calls; on a linear axis each does what the linear code did)."""
+class RotarySteps:
+    """What rotary axes change in a commissioning (the hooks the other steps call; on a
+    linear axis each does what the linear code did)."""
+
+    def __init__(self, axes: Axes, record: Record, runner: StepRunner, say: Say) -> None:
+        self.s = axes.s
+        self.config = axes.config
+        self.axes = axes
+        self.record = record
+        self.runner = runner
+        self.say = say
 
     # -- which axes, where -----------------------------------------------------------------
     def table_range(self, axis: str) -> tuple[float, float]:
         """Where the coarse run measures (deg): a turntable's one turn (0…360° when the
         travel leaves room to approach it from both sides), a swing axis's travel less the
         overrun."""
-        lo, hi = self._travel(axis)
-        if not self._wraps(axis) or hi - lo < TURN_DEG + 2 * OVERRUN_DEG:
+        lo, hi = self.axes.travel(axis)
+        if not self.axes.wraps(axis) or hi - lo < TURN_DEG + 2 * OVERRUN_DEG:
             return lo + OVERRUN_DEG, hi - OVERRUN_DEG
         start = 0.0 if lo <= -OVERRUN_DEG and hi >= TURN_DEG + OVERRUN_DEG else lo + OVERRUN_DEG
         return start, start + TURN_DEG
@@ -91,9 +101,9 @@ class RotarySteps(Steps):
         """Where the before/after and the rounds' targets lie (deg): a turntable's turn half
         a turn on (or back), so it crosses the table's 360° ≡ 0°; a swing axis's range."""
         t0, t1 = self.table_range(axis)
-        if not self._wraps(axis) or t1 - t0 < TURN_DEG:
+        if not self.axes.wraps(axis) or t1 - t0 < TURN_DEG:
             return t0, t1
-        lo, hi = self._travel(axis)
+        lo, hi = self.axes.travel(axis)
         for shift in (0.5 * TURN_DEG, -0.5 * TURN_DEG):
             if lo + OVERRUN_DEG <= t0 + shift and t1 + shift <= hi - OVERRUN_DEG:
                 return t0 + shift, t1 + shift
@@ -101,13 +111,13 @@ class RotarySteps(Steps):
 
     def tolerance_of(self, name: str) -> float:
         """The tolerance of an axis (or "XY") in its figures' unit: µm, or millidegrees."""
-        if self._rotary(name):
+        if self.axes.rotary(name):
             return self.s.tolerance_arcsec / ARCSEC_PER_MDEG
         return self.s.tolerance_um
 
     def tolerance_text(self) -> str:
         """The tolerances in words: µm for linear axes and the plane, ″ for rotary ones."""
-        rotary = [a for a in self.s.axes if self._rotary(a)]
+        rotary = [a for a in self.s.axes if self.axes.rotary(a)]
         arcsec = f"{self.s.tolerance_arcsec:g}″"
         if not rotary:
             return f"{self.s.tolerance_um:g} µm"
@@ -134,7 +144,7 @@ class RotarySteps(Steps):
         period = self.s.lead_mm.get(axis)
         targets = iso230_targets_mm((t0, t1), step_mm=adaptive.coarse_step_mm((t0, t1), period),
                                     margin_mm=0.0, seed=self.s.seed, lead_mm=period)  # fmt: skip
-        return targets_plan(axis, self._travel(axis), targets, self.s.runs, OVERRUN_DEG,
+        return targets_plan(axis, self.axes.travel(axis), targets, self.s.runs, OVERRUN_DEG,
                             kind="iso230-linear", unit="deg")  # fmt: skip
 
     def _cyclic_plan_deg(self, axis: str) -> Plan:
@@ -143,38 +153,39 @@ class RotarySteps(Steps):
     def rotary_before_plan(self, axis: str) -> Plan:
         """The targets judged before and after: random over the judging range (a
         turntable's crosses 360°), none within 0.2° of a coarse run's target."""
-        table = read_plan(self.dir / "plans" / f"iso-{axis}.plan").targets_mm(axis)
+        table = read_plan(self.record.dir / "plans" / f"iso-{axis}.plan").targets_mm(axis)
         targets = self._random_deg(axis, 2 * adaptive.RANDOM_TARGETS, 1000 + self.s.seed, table)
-        return targets_plan(axis, self._travel(axis), targets, self.s.verify_runs, OVERRUN_DEG,
+        return targets_plan(axis, self.axes.travel(axis), targets, self.s.verify_runs, OVERRUN_DEG,
                             kind="iso230-verification", note="before-after", unit="deg")
 
     def _random_deg(self, axis: str, count: int, seed: int, avoid: NDArray[np.float64]
                     ) -> NDArray[np.float64]:  # fmt: skip
         return adaptive.random_targets_mm(
             self.judge_range(axis), count, seed, avoid, margin_mm=0.0,
-            clearance_mm=CLEARANCE_DEG, period_mm=TURN_DEG if self._wraps(axis) else None)
+            clearance_mm=CLEARANCE_DEG, period_mm=TURN_DEG if self.axes.wraps(axis) else None)
 
     def _offset(self, axis: str, d: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """A difference of angles: a turntable's the shortest way round (−180…180°)."""
         d = np.asarray(d, dtype=np.float64)
-        return (d + 0.5 * TURN_DEG) % TURN_DEG - 0.5 * TURN_DEG if self._wraps(axis) else d
+        return (d + 0.5 * TURN_DEG) % TURN_DEG - 0.5 * TURN_DEG if self.axes.wraps(axis) else d
 
     # -- 1. identification -------------------------------------------------------------------
     async def identify_rotary(self, axis: str) -> None:
         """Seed 000's backlash, the coarse ISO run, the worm scans, the before-run."""
-        results = self.state.setdefault("identify", {})
-        park = self._park(axis)
-        await self.step(f"backlash-{axis}", lambda: self._backlash_plan(axis), "off", park)
+        results = self.record.state.setdefault("identify", {})
+        park = self.axes.park(axis)
+        await self.runner.step(f"backlash-{axis}", lambda: self._backlash_plan(axis), "off", park)
         self._check_angle_channel(axis, f"backlash-{axis}")
-        b = backlash_from_raw(self.raw(f"backlash-{axis}"), axis)
+        b = backlash_from_raw(self.runner.raw(f"backlash-{axis}"), axis)
         results[f"backlash-{axis}"] = {
             "B_arcsec": float(b.backlash_mm * ARCSEC_PER_DEG),
             "places_arcsec": [float(m * ARCSEC_PER_DEG) for m in b.mean_mm],
             "places_um": [float(m * 1e3) for m in b.mean_mm]}  # millidegrees  # fmt: skip
-        await self.step(f"iso-{axis}", lambda: self._iso_plan_deg(axis), "off", park)
+        await self.runner.step(f"iso-{axis}", lambda: self._iso_plan_deg(axis), "off", park)
         if axis in self.s.lead_mm:
-            await self.step(f"cyclic-{axis}", lambda: self._cyclic_plan_deg(axis), "off", park)
-        await self.step(f"before-{axis}", lambda: self.rotary_before_plan(axis), "off", park)
+            await self.runner.step(f"cyclic-{axis}", lambda: self._cyclic_plan_deg(axis), "off",
+                                   park)  # fmt: skip
+        await self.runner.step(f"before-{axis}", lambda: self.rotary_before_plan(axis), "off", park)
 
     def _check_angle_channel(self, axis: str, name: str) -> None:
         """The angle instrument's reading for ``axis`` follows it over its first step (the
@@ -187,13 +198,13 @@ class RotarySteps(Steps):
         backwards".)"""
         from ..measuring.machine import SetupError
 
-        raw = self.raw(name)
+        raw = self.runner.raw(name)
         # the spread of the deviations, not of the readings: a turntable's reading is taken
         # in its target's turn, so another axis's standing angle follows it a turn at a time
         sent, off = float(np.ptp(raw.target_mm)), float(np.ptp(raw.deviation_mm))
         if off <= 0.05 * sent:
             return
-        self.forget(name)
+        self.runner.forget(name)
         ins = self.s.instruments
         order = ins.angle_order(self.config)
         given = (f"--angle-axes {','.join(order)}" if ins.angle_axes else
@@ -208,10 +219,10 @@ class RotarySteps(Steps):
     def rotary_fitted(self, axis: str, result: PitchResult) -> PitchResult:
         """Record a rotary axis's fit: the interpolation leave-one-out chose (linear when the
         chosen one would not load), the linkage fitted; ``result`` unchanged."""
-        if not self._rotary(axis):
+        if not self.axes.rotary(axis):
             return result
         best, scores = result.interpolation_cv or ("linear", {})
-        best = self.within_cap(axis, result.table, best)
+        best = self.axes.within_cap(axis, result.table, best)
         info: dict[str, Any] = {"interpolation": best,
                                 "loo_rms_arcsec": {k: v * ARCSEC_PER_DEG
                                                    for k, v in scores.items()}}  # fmt: skip
@@ -226,79 +237,30 @@ class RotarySteps(Steps):
             self.say(f"{axis}: linkage fitted ({', '.join(fit.free)}): residual RMS "
                      f"{fit.rms_deg * 3600:.2f}″ (the drawing's values "
                      f"{fit.start_rms_deg * 3600:.2f}″); the table holds the rest")  # fmt: skip
-        elif not self._wraps(axis):
+        elif not self.axes.wraps(axis):
             self.say(f"{axis}: swing axis without compensation.linkage: table only")
         self.say(f"{axis}: {best} interpolation (leave-one-out RMS "
                  + ", ".join(f"{k} {v * 3600:.3f}″" for k, v in scores.items()) + ")")
-        self.state.setdefault("rotary", {})[axis] = info
-        cyclic = self.state.get("identify", {}).get(f"cyclic-{axis}", {})
+        self.record.state.setdefault("rotary", {})[axis] = info
+        cyclic = self.record.state.get("identify", {}).get(f"cyclic-{axis}", {})
         if "peak_um" in cyclic:  # the worm's peak: millidegrees, shown in arcseconds
             cyclic["peak_arcsec"] = cyclic.pop("peak_um") * ARCSEC_PER_MDEG
-        self.state.setdefault("identify", {})[f"fit-{axis}"] = found
+        self.record.state.setdefault("identify", {})[f"fit-{axis}"] = found
         return result
-
-    def _linkage_copy(self, axis: str) -> str | None:
-        """The swing axis's linkage file commissioning fits (a copy of yours, made once under
-        DIR/tables: yours keeps the drawing's values), relative to the config; None without
-        one."""
-        original = self.original()
-        name = ((original["axes"][axis].get("compensation") or {}).get("linkage"))
-        if not name:
-            return None
-        copy = self.dir / "tables" / f"{axis.lower()}_linkage.yaml"
-        if not copy.exists():
-            source = Path(name) if Path(name).is_absolute() else self.config_dir / name
-            read_yaml(source, TableError)  # a missing or broken file: a clear error
-            copy.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(source, copy)
-        return self._rel(copy)
-
-    def phase_config(self, phase: str) -> dict[str, Any]:
-        """Rotary axes: no linkage while identifying; then the table with its chosen
-        interpolation and the linkage commissioning fitted."""
-        data = super().phase_config(phase)
-        for axis in self.s.axes:
-            if not self._rotary(axis):
-                continue
-            comp = data["axes"][axis]["compensation"]
-            if phase in ("identification", "warmup"):
-                comp.pop("linkage", None)
-                continue
-            if isinstance(comp.get("pitch"), dict):
-                info = self.state.get("rotary", {}).get(axis, {})
-                comp["pitch"]["interpolation"] = info.get("interpolation", "linear")
-            link = self._linkage_copy(axis)
-            if link is None:
-                comp.pop("linkage", None)
-            else:
-                comp["linkage"] = link
-        return data
-
-    # -- drift references: linear axes only ----------------------------------------------------
-    async def _measure_refs(self, repeats: int = 3, axes: Sequence[str] | None = None
-                            ) -> dict[str, list[float]]:  # fmt: skip
-        """The laser's drift references of the linear axes; a rotary axis's are zero (the
-        laser sees no angle: its readings are taken as they are)."""
-        linear = self.ref_axes()
-        out = await super()._measure_refs(repeats, linear) if linear else {}
-        out.update({a: [0.0, 0.0] for a in self.s.axes if a not in out})
-        self.state["last_refs"] = {"phase": self.state.get("phase"), "refs": out,
-                                   "odometer_mm": self._odometer()}  # fmt: skip
-        return out
 
     # -- 3. rounds -----------------------------------------------------------------------------
     def _circle(self, axis: str, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """A turntable's table points and the first one a turn on (the last span closes the
         circle); anything else's as they are."""
-        return np.append(x, x[0] + TURN_DEG) if self._wraps(axis) and x.size else x
+        return np.append(x, x[0] + TURN_DEG) if self.axes.wraps(axis) and x.size else x
 
     def rotary_verify_targets(self, r: int, axis: str, table_mm: NDArray[np.float64]
                               ) -> NDArray[np.float64]:  # fmt: skip
         """Round ``r``'s targets: the new spans' midpoints and fresh random targets, over the
         judging range (a turntable's midpoints moved into its turn)."""
-        spans = self.state.get("spans", {}).get(axis)  # None: all spans new
+        spans = self.record.state.get("spans", {}).get(axis)  # None: all spans new
         mids = adaptive.midpoints_mm(self._circle(axis, table_mm), spans)
-        if self._wraps(axis):
+        if self.axes.wraps(axis):
             lo, _ = self.judge_range(axis)
             mids = lo + np.mod(mids - lo, TURN_DEG)
         rand = self._random_deg(axis, adaptive.RANDOM_TARGETS, 100 * r + self.s.seed, table_mm)
@@ -308,19 +270,19 @@ class RotarySteps(Steps):
               ) -> adaptive.AxisVerdict:  # fmt: skip
         """:func:`..fitting.adaptive.judge_axis` against the axis's tolerance; a turntable's targets
         taken into the table's turn, its spans around the circle."""
-        if not self._rotary(axis):
+        if not self.axes.rotary(axis):
             return adaptive.judge_axis(dev, table_mm, self.s.tolerance_um)
         x = self._circle(axis, table_mm)
-        if self._wraps(axis) and x.size:
+        if self.axes.wraps(axis) and x.size:
             dev = replace(dev, target_mm=x[0] + np.mod(dev.target_mm - x[0], TURN_DEG))
         return adaptive.judge_axis(dev, x, self.tolerance_of(axis))
 
     def score_text(self, name: str, score: float) -> str:
         """A round's score (E, or the plane's max vector error) in its unit."""
-        return f"{score * ARCSEC_PER_MDEG:.2f}″" if self._rotary(name) else f"{score:.2f} µm"
+        return f"{score * ARCSEC_PER_MDEG:.2f}″" if self.axes.rotary(name) else f"{score:.2f} µm"
 
     def verdict_text(self, axis: str, v: adaptive.AxisVerdict) -> str:
-        if not self._rotary(axis):
+        if not self.axes.rotary(axis):
             return f"{axis} E {v.E_um:.2f} A {v.A_um:.2f} R {v.R_um:.2f} µm"
         k = ARCSEC_PER_MDEG
         return f"{axis} E {v.E_um * k:.2f} A {v.A_um * k:.2f} R {v.R_um * k:.2f}″"
@@ -331,7 +293,7 @@ class RotarySteps(Steps):
         span too short for that in two), none nearer an existing point than
         ``MIN_SPACING_MM`` (a turntable's the short way round, points taken modulo 360)."""
         x = table.position_mm
-        if not self._rotary(axis):
+        if not self.axes.rotary(axis):
             return adaptive.midpoints_mm(x, verdict.failing_spans, adaptive.REFINE_PARTS)
         xc = self._circle(axis, x)
         spans = list(verdict.failing_spans)
@@ -339,7 +301,7 @@ class RotarySteps(Steps):
         short = [i for i in spans
                  if xc[i + 1] - xc[i] < adaptive.REFINE_PARTS * adaptive.MIN_SPACING_MM]
         mids = np.concatenate([mids, adaptive.midpoints_mm(xc, short, 2)]) if short else mids
-        if self._wraps(axis):
+        if self.axes.wraps(axis):
             mids = np.round(np.mod(mids, TURN_DEG), 4)
         keep = [float(m) for m in mids
                 if np.min(np.abs(self._offset(axis, m - x))) >= adaptive.MIN_SPACING_MM]
@@ -349,34 +311,35 @@ class RotarySteps(Steps):
     def rotary_plan_lines(self) -> None:
         """What the printed plan adds for rotary axes: where, in degrees, and the tolerance."""
         for axis in self.s.axes:
-            if not self._rotary(axis):
+            if not self.axes.rotary(axis):
                 continue
             (t0, t1), (j0, j1) = self.table_range(axis), self.judge_range(axis)
-            kind = "turntable" if self._wraps(axis) else "swing axis"
+            kind = "turntable" if self.axes.wraps(axis) else "swing axis"
             period = self.s.lead_mm.get(axis)
             turn = np.floor((j1 - 1e-9) / TURN_DEG) * TURN_DEG
-            across = f" (across {turn:g}°)" if self._wraps(axis) and j0 < turn < j1 else ""
+            across = f" (across {turn:g}°)" if self.axes.wraps(axis) and j0 < turn < j1 else ""
             self.say(f"  {axis}: {kind}, with the angle instrument: table over {t0:g}…{t1:g}°, "
                      f"judged at targets over {j0:g}…{j1:g}°{across}"
                      + (f", worm scans every {period:g}°" if period else
                         ", no cyclic stage (a worm's: --lead-mm AXIS=360/teeth)"
-                        if self._wraps(axis) else ", no cyclic stage")
+                        if self.axes.wraps(axis) else ", no cyclic stage")
                      + f"; tolerance {self.s.tolerance_arcsec:g}″ (ISO 230-2 E); speeds in "
                      "deg/s")  # fmt: skip
 
     def rotary_summary(self, out: dict[str, Any]) -> None:
         """A rotary axis's summary figures in arcseconds (``*_arcsec``, no ``*_um``), its
         kind, interpolation, linkage and judging range."""
-        rotary = [a for a in self.s.axes if self._rotary(a) and a in out["axes"]]
+        rotary = [a for a in self.s.axes if self.axes.rotary(a) and a in out["axes"]]
         if not rotary:
             return
         out["tolerance_arcsec"] = self.s.tolerance_arcsec
         for axis in rotary:
             entry = out["axes"][axis]
-            entry.update(unit="deg", kind="turntable" if self._wraps(axis) else "swing",
+            entry.update(unit="deg", kind="turntable" if self.axes.wraps(axis) else "swing",
                          judged_deg=list(self.judge_range(axis)))  # fmt: skip
             for phase in ("before", "after"):
                 if phase in entry:
                     entry[phase] = {k[:-3] + "_arcsec": None if v is None else v * ARCSEC_PER_MDEG
                                     for k, v in entry[phase].items()}  # fmt: skip
-            entry.update(self.state.get("rotary", {}).get(axis, {}))
+            entry.update(self.record.state.get("rotary", {}).get(axis, {}))
+

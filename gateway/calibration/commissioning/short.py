@@ -1,4 +1,4 @@
-"""``compgw commission`` on a short budget (a base of :class:`.commission.Commission`):
+"""``compgw commission`` on a short budget (:mod:`.identify` and :mod:`.fit` ask it):
 whether the budget is short, and the plane's first grid, which on a short budget no
 round will refine.
 """
@@ -6,29 +6,50 @@ round will refine.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..fitting import adaptive
 from ..fitting.plans_scans import cyclic_plan
 from ..fitting.table_cv import between_points_ratio
-from ..plans.plans import Plan, backlash_plan, read_plan, targets_plan
+from ..plans.plans import backlash_plan
 from ..plans.rawdata import RawData, axis_deviations
 from ..plans.xy import even_grid
-from .best import BestTables
 from .steps import concat_raw
+
+if TYPE_CHECKING:
+    from .axes import Axes
+    from .budget import Budget
+    from .planner import Planner
+    from .record import Record
+    from .refine import RefineSteps
+    from .steps import StepRunner
+
+Say = Callable[[str], None]
 
 #: a short budget's table is read at its midpoints too where it misses between its points
 #: by more than this many times what its own scatter explains (as a reversal per point)
 BETWEEN_RATIO = 2.0
 
 
-class ShortBudget(BestTables):
+class ShortBudget:
     """What a budget short of the first steps and one round changes in the plan."""
 
-    def short(self) -> bool:
+    def __init__(self, axes: Axes, record: Record, budget: Budget, runner: StepRunner,
+                 plans: Planner, refine: RefineSteps, say: Say) -> None:
+        self.s = axes.s
+        self.axes = axes
+        self.record = record
+        self.budget = budget
+        self.runner = runner
+        self.plans = plans
+        self.refine = refine
+        self.say = say
+
+    def applies(self) -> bool:
         """Whether the budget does not hold the first steps, the before- and after-runs and
-        one round (:meth:`_first_need_s`; decided once, kept in the state): the rounds
+        one round (:meth:`first_need_s`; decided once, kept in the state): the rounds
         would then verify what they cannot afford to refine (at 2 x a manual calibration's
         time sdss-1396 took the normal order, its lead searches and a round with nothing
         added, and ended on a 7 x 5 grid: E cut −36 %, against 54 % at 1.5 x, short).
@@ -36,32 +57,26 @@ class ShortBudget(BestTables):
         first (every linear axis's ISO runs, the plane's grid with their tables on), then
         the backlash tests and the before-runs, and the lead searches and cyclic scans
         last, so that a budget spent on the way leaves each axis a table
-        (:meth:`_fit_identified`) and the plane its model, not one axis a verified table
-        and the others none."""
-        if "short" not in self.state:
-            self.state["short"] = bool(self._first_need_s() > self.s.budget_s)
-            self._save()
-        return bool(self.state["short"])
+        (:meth:`.fit.FitSteps.fit_identified`) and the plane its model, not one axis a
+        verified table and the others none."""
+        if "short" not in self.record.state:
+            self.record.state["short"] = bool(self.first_need_s() > self.s.budget_s)
+            self.record.save()
+        return bool(self.record.state["short"])
 
-    def _first_need_s(self) -> float:
+    def first_need_s(self) -> float:
         """Machine time (s) of the first steps, the before- and after-runs and one round:
         its verification (the before-run's size) and the least refinement it may call for
         (each linear axis swept at its coarsest step, the plane's grid split once), each
         with the drift references read around its runs."""
-        plans = [p for _, p in self.initial_plans()]
-        for a in [a for a in self.s.axes if not self._rotary(a)]:  # (no ISO runs yet)
-            plans += 3 * [self._before_plan(a, avoid_mm=np.zeros(0))]
-            plans.append(self._sweep_plan(a, -1, self.s.lead_mm.get(a), estimate=True))
+        plans = [p for _, p in self.plans.initial_plans()]
+        for a in [a for a in self.s.axes if not self.axes.rotary(a)]:  # (no ISO runs yet)
+            plans += 3 * [self.plans.before_plan(a, avoid_mm=np.zeros(0))]
+            plans.append(self.refine.sweep_plan(a, -1, self.s.lead_mm.get(a), estimate=True))
         if self.s.planar is not None:
-            plans += 3 * [self._before_xy_plan()]
-            plans.append(self._grid_plan(adaptive.denser_grid(*self.s.grid)))
-        return sum(self.estimate_s(p) + self.refs_around_s(p) for p in plans)
-
-    def _midpoints_plan(self, axis: str) -> Plan:
-        """The ISO 230-2 cycle at the midpoints of the first table's points."""
-        first = np.unique(read_plan(self.dir / "plans" / f"iso-{axis}.plan").targets_mm(axis))
-        return targets_plan(axis, self._travel(axis), (first[1:] + first[:-1]) / 2,
-                            self.iso_runs(), kind="iso230-linear", note="midpoints")  # fmt: skip
+            plans += 3 * [self.plans.before_xy_plan()]
+            plans.append(self.plans.grid_plan(adaptive.denser_grid(*self.s.grid)))
+        return sum(self.axes.estimate_s(p) + self.budget.refs_around_s(p) for p in plans)
 
     async def densify(self, axis: str) -> None:
         """On a short budget, whose rounds will not sweep a table between its points: the
@@ -75,19 +90,19 @@ class ShortBudget(BestTables):
         error, which the cyclic scans read and midpoints would alias. Decided once."""
         if axis in self.s.lead_mm:
             return
-        ident = self.state.setdefault("identify", {})  # (the report lists it)
+        ident = self.record.state.setdefault("identify", {})  # (the report lists it)
         key = f"midpoints-{axis}"
         if key not in ident:
-            ratio = between_points_ratio(axis_deviations(self.raw(f"iso-{axis}"), axis))
-            need_s = self.step_cost_s(self._midpoints_plan(axis))
+            ratio = between_points_ratio(axis_deviations(self.runner.raw(f"iso-{axis}"), axis))
+            need_s = self.budget.step_cost_s(self.plans.midpoints_plan(axis))
             keep_s = 0.0
             if self.s.planar is not None and axis in self.s.planar:
-                keep_s = self.step_cost_s(self._grid_plan(self.s.grid))
-                if not self.done("before-xy"):
-                    keep_s += self.step_cost_s(self._before_xy_plan())
+                keep_s = self.budget.step_cost_s(self.plans.grid_plan(self.s.grid))
+                if not self.record.done("before-xy"):
+                    keep_s += self.budget.step_cost_s(self.plans.before_xy_plan())
             misses = ratio is not None and ratio > BETWEEN_RATIO
             ident[key] = {"misses_x_scatter": ratio,
-                          "measured": bool(misses and self.left_s() - need_s >= keep_s)}
+                          "measured": bool(misses and self.budget.left_s() - need_s >= keep_s)}
             if misses:
                 self.say(f"{axis}: the first table misses between its points {ratio:.1f} x "
                          "what its scatter explains: " + (
@@ -95,27 +110,17 @@ class ShortBudget(BestTables):
                              if ident[key]["measured"] else
                              f"its midpoints ({need_s / 60:.1f} min) do not fit beside the "
                              "plane's grid"))  # fmt: skip
-            self._save()
+            self.record.save()
         if ident[key]["measured"]:
-            await self.step(f"iso-mid-{axis}", lambda: self._midpoints_plan(axis), "off",
-                            self._park(axis))  # fmt: skip
-
-    def _iso_steps(self, axis: str) -> list[str]:
-        """The ISO steps of ``axis``: the first table's points, and its midpoints where a
-        short budget read them (:meth:`densify`)."""
-        mid = f"iso-mid-{axis}"
-        return [f"iso-{axis}"] + ([mid] if self.done(mid) else [])
+            await self.runner.step(f"iso-mid-{axis}", lambda: self.plans.midpoints_plan(axis),
+                                   "off",
+                            self.axes.park(axis))  # fmt: skip
 
     def iso_raw(self, axis: str) -> RawData:
-        """The ISO runs of ``axis`` (:meth:`_iso_steps`), as one run set."""
-        return concat_raw([self.raw(n) for n in self._iso_steps(axis)])
+        """The ISO runs of ``axis`` (:meth:`.planner.Planner.iso_steps`), as one run set."""
+        return concat_raw([self.runner.raw(n) for n in self.plans.iso_steps(axis)])
 
-    def iso_targets(self, axis: str) -> np.ndarray:
-        """Every target the ISO runs of ``axis`` read (mm)."""
-        return np.concatenate([read_plan(self.dir / "plans" / f"{n}.plan").targets_mm(axis)
-                               for n in self._iso_steps(axis)])  # fmt: skip
-
-    def _first_grid(self) -> tuple[int, int]:
+    def first_grid(self) -> tuple[int, int]:
         """The plane's first grid (decided once, kept in the state): the configured one;
         on a short budget, whose rounds will not refine it, the densest whose cells are
         about square (the shape of :func:`..plans.xy.even_grid`, :func:`max_grid_in`)
@@ -127,33 +132,35 @@ class ShortBudget(BestTables):
         calibration's time the sdss plates' 7 x 5 grid left their Y at the judge's park
         13.4 µm, the manual's 9 x 7 5.3 µm; 13 x 9, the configured grid split once, left 8.5
         of their 61 minutes unused.)"""
-        if "grid" not in self.state:
+        if "grid" not in self.record.state:
             grid = self.s.grid
-            if self.state.get("short"):
+            if self.record.state.get("short"):
                 def cost_s(g: tuple[int, int]) -> float:
-                    return self.step_cost_s(self._grid_plan(g))
+                    return self.budget.step_cost_s(self.plans.grid_plan(g))
 
-                linear = [a for a in self.s.axes if not self._rotary(a)]
-                after = [[backlash_plan(a, self._travel(a))] for a in linear
-                         if not self.done(f"backlash-{a}")]  # fmt: skip
-                after += [2 * [self._before_plan(a)] for a in linear]  # before and after
-                after += [[cyclic_plan(a, self._travel(a), self.s.lead_mm[a])] for a in linear
-                          if a in self.s.lead_mm and not self.done(f"cyclic-{a}")]  # fmt: skip
-                left_s = self.left_s()
+                linear = [a for a in self.s.axes if not self.axes.rotary(a)]
+                after = [[backlash_plan(a, self.axes.travel(a))] for a in linear
+                         if not self.record.done(f"backlash-{a}")]  # fmt: skip
+                after += [2 * [self.plans.before_plan(a)] for a in linear]  # before and after
+                after += [[cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])] for a in linear
+                          if a in self.s.lead_mm
+                          and not self.record.done(f"cyclic-{a}")]  # fmt: skip
+                left_s = self.budget.left_s()
                 held_s = cost_s(grid)
                 for plans in after:
-                    need_s = sum(self.step_cost_s(p) for p in plans)
+                    need_s = sum(self.budget.step_cost_s(p) for p in plans)
                     if held_s + need_s > left_s:
                         break
                     held_s += need_s
-                (x0, x1), (y0, y1) = self._plane_travel()
+                (x0, x1), (y0, y1) = self.axes.plane_travel()
                 even, room_s = even_grid(x1 - x0, y1 - y0), left_s - held_s + cost_s(grid)
                 if cost_s(even) <= room_s:  # else the configured grid, as it was held
                     grid = max_grid_in(even, cost_s, room_s)
-            self.state["grid"] = list(grid)
-            self._save()
-        nx, ny = self.state["grid"]
+            self.record.state["grid"] = list(grid)
+            self.record.save()
+        nx, ny = self.record.state["grid"]
         return int(nx), int(ny)
+
 
 
 #: the most nodes a grid takes along an axis (as :func:`..fitting.adaptive.denser_grid`)

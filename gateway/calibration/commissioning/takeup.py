@@ -6,7 +6,8 @@ the budget has left."""
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,12 +20,26 @@ from ..fitting.takeup_fit import (
     takeup_plan,
 )
 from ..plans.plans import BacklashResult, Plan
-from .refine import RefineSteps
 from .steps import BudgetSpent
 
+if TYPE_CHECKING:
+    from .axes import Axes
+    from .record import Record
+    from .steps import StepRunner
 
-class TakeUpSteps(RefineSteps):
+Say = Callable[[str], None]
+
+
+
+class TakeUpSteps:
     """The take-up identification, and the short steps of the after-run."""
+
+    def __init__(self, axes: Axes, record: Record, runner: StepRunner, say: Say) -> None:
+        self.s = axes.s
+        self.axes = axes
+        self.record = record
+        self.runner = runner
+        self.say = say
 
     async def identify_takeup(self, a: str, b: BacklashResult) -> None:
         """Whether the lost motion is taken up at once on a reversal, and if not, how: one
@@ -34,14 +49,15 @@ class TakeUpSteps(RefineSteps):
         lost_mm = float(b.mean_mm.max())
         if lost_mm * 1e3 < MIN_LOST_UM:
             return
-        results = self.state.setdefault("identify", {})
-        probe, travel = (round(1.5 * lost_mm, 3),), self._travel(a)
-        await self.step(f"takeup-probe-{a}", lambda: takeup_plan(a, travel, probe), "off",
-                        self._park(a))  # fmt: skip
-        fit = fit_takeup_raw(self.raw(f"takeup-probe-{a}"), a, b, probe)
+        results = self.record.state.setdefault("identify", {})
+        probe, travel = (round(1.5 * lost_mm, 3),), self.axes.travel(a)
+        await self.runner.step(f"takeup-probe-{a}", lambda: takeup_plan(a, travel, probe), "off",
+                        self.axes.park(a))  # fmt: skip
+        fit = fit_takeup_raw(self.runner.raw(f"takeup-probe-{a}"), a, b, probe)
         if fit.curve is not None:
-            await self.step(f"takeup-{a}", lambda: takeup_plan(a, travel), "off", self._park(a))
-            fit = fit_takeup_raw(self.raw(f"takeup-{a}"), a, b, RUNGS_MM)
+            await self.runner.step(f"takeup-{a}", lambda: takeup_plan(a, travel), "off",
+                                   self.axes.park(a))  # fmt: skip
+            fit = fit_takeup_raw(self.runner.raw(f"takeup-{a}"), a, b, RUNGS_MM)
         results[f"takeup-{a}"] = {
             "kept": fit.curve is not None, "why": fit.why, "miss_um": fit.miss_um,
             "lost_um": fit.lost_um, "motor_um": [float(v * 1e3) for v in fit.motor_mm],
@@ -49,9 +65,9 @@ class TakeUpSteps(RefineSteps):
             "fraction": [float(v) for v in fit.fraction]}  # fmt: skip
         section = fit.config()
         if section is None:
-            self.tables.takeup.pop(a, None)
+            self.record.tables.takeup.pop(a, None)
             return
-        self.tables.takeup[a] = section
+        self.record.tables.takeup[a] = section
         whole = full_takeup_um(section)
         self.say(f"{a}: the lost motion ({fit.lost_um:.1f} µm) is taken up over a reversal of "
                  f"about {whole:.0f} µm, not at once ({fit.why}): a take-up curve of "
@@ -59,7 +75,7 @@ class TakeUpSteps(RefineSteps):
 
     def steps_plan(self, axis: str) -> Plan:
         """Random short steps over the middle half of the travel (seeded per run)."""
-        return short_steps_plan(axis, self._travel(axis), 2000 + self.s.seed)
+        return short_steps_plan(axis, self.axes.travel(axis), 2000 + self.s.seed)
 
     async def after_steps(self) -> None:
         """The short steps, everything on (the after-run's config), on every axis with a
@@ -67,23 +83,24 @@ class TakeUpSteps(RefineSteps):
         has left (not reserved: they must not cost a refinement); skipped, and said so,
         when it has not."""
         for a in self.s.axes:
-            if a not in self.tables.takeup:
+            if a not in self.record.tables.takeup:
                 continue
             try:
                 # one stop a run: the drift references around the whole of them, not each
-                await self.step(f"after-steps-{a}", lambda a=a: self.steps_plan(a), "on",
-                                self._park(a), whole=True)  # fmt: skip
+                await self.runner.step(f"after-steps-{a}", lambda a=a: self.steps_plan(a), "on",
+                                self.axes.park(a), whole=True)  # fmt: skip
             except BudgetSpent as exc:
-                self.state["notes"].append(f"{a}: short steps not measured: {exc}")
+                self.record.state["notes"].append(f"{a}: short steps not measured: {exc}")
                 self.say(f"{a}: short steps not measured: {exc}")
 
     def steps_summary(self, axis: str) -> dict[str, Any]:
         """RMS and largest deviation (µm) at the short steps, and what a full switch would
         have missed by after such reversals (the ladder's fit)."""
-        if not self.done(f"after-steps-{axis}"):
+        if not self.record.done(f"after-steps-{axis}"):
             return {}
-        dev_um = self.raw(f"after-steps-{axis}").deviation_mm * 1e3
-        switch = self.state.get("identify", {}).get(f"takeup-{axis}", {}).get("miss_um")
+        dev_um = self.runner.raw(f"after-steps-{axis}").deviation_mm * 1e3
+        switch = self.record.state.get("identify", {}).get(f"takeup-{axis}", {}).get("miss_um")
         return {"short_steps": {"rms_um": float(np.sqrt(np.mean(dev_um**2))),
                                 "max_um": float(np.abs(dev_um).max()),
                                 "stops": int(dev_um.size), "switch_miss_um": switch}}
+

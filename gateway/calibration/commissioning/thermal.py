@@ -1,5 +1,5 @@
 """``compgw commission``'s thermal identification: the warm-up of an axis with a thermal
-source and what is fitted to it (a base of :class:`.commission.Commission`).
+source and what is fitted to it (called by :mod:`.identify`).
 
 - a Δa sensor (``--delta-a``): the thermal length; over a zone (ZONE) with places read cold
   and warm inside and beyond it, also the linear spread or the travel profile
@@ -11,8 +11,9 @@ source and what is fitted to it (a base of :class:`.commission.Commission`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,11 +22,20 @@ from ...compensation.thermal import ThermalStage, delta_a_from_temperature
 from ...formats import read_pitch_csv
 from ..fitting.models import thermal_fit, thermal_gain_fit
 from ..fitting.plans_scans import warmup_plan
-from ..plans.plans import Plan, read_plan
+from ..plans.plans import (
+    Plan,
+    read_plan,
+)
 from ..plans.rawdata import RawData
 from ..thermal.thermal_shape import thermal_shape_fit
 from ..thermal.warmup_heat import warmup_heat_fit
-from .rotary import RotarySteps
+
+if TYPE_CHECKING:
+    from .axes import Axes
+    from .drift import DriftRefs
+    from .record import Record
+
+Say = Callable[[str], None]
 
 #: a zone warm-up (a Δa or temperature sensor) cycles over this share of travel ...
 ZONE = (0.3, 0.7)
@@ -33,26 +43,34 @@ ZONE = (0.3, 0.7)
 ZONE_PLACES = (0.12, 0.22, 0.4, 0.5, 0.6, 0.78, 0.88)
 
 
-class ThermalSteps(RotarySteps):
+class ThermalSteps:
     """The thermal identification: which axes warm up, the warm-up plan and its fit."""
 
-    def _thermal(self, axis: str) -> bool:
+    def __init__(self, axes: Axes, record: Record, drift: DriftRefs, say: Say) -> None:
+        self.s = axes.s
+        self.config = axes.config
+        self.axes = axes
+        self.record = record
+        self.drift = drift
+        self.say = say
+
+    def warms_up(self, axis: str) -> bool:
         """A warm-up identifies this axis's thermal setting: its length from a Δa sensor
         (--delta-a), or its gain from a temperature source (--temperature)."""
-        kind = self._source_kind(axis)
+        kind = self.source_kind(axis)
         if kind is None:  # none, or heat from motion: no sensor to warm up with
             return False
         if kind == "temperature":
             return self.s.instruments.temperature is not None
         return self.s.instruments.delta_a is not None
 
-    def _warmup_plan(self, axis: str) -> Plan:
+    def warmup_plan(self, axis: str) -> Plan:
         """Cycling over the travel; read at the end farthest from the screw's fixed end
         (the thermal origin), where the growth is largest against the noise. With a Δa
         or temperature sensor, over the middle of the travel only (ZONE), the places read
         cold and warm too: is the growth linear from the fixed end, or where the nut
         worked?"""
-        lo, hi = self._travel(axis)
+        lo, hi = self.axes.travel(axis)
         margin = 0.05 * (hi - lo)
         th = self.config.axes[axis].compensation.thermal
         origin = th.origin_mm if th is not None else lo
@@ -66,15 +84,15 @@ class ThermalSteps(RotarySteps):
         return warmup_plan(axis, (lo + margin, hi - margin), self.s.speed_mm_s,
                            self.s.warmup_s, ref)  # fmt: skip
 
-    def _fit_thermal(self, axis: str, raw: RawData) -> dict[str, float]:
+    def fit(self, axis: str, raw: RawData) -> dict[str, float]:
         """The warm-up's fit: a Δa source's length, or a temperature source's gain."""
         th = self.config.axes[axis].compensation.thermal
         assert th is not None
         src = self.config.thermal_sources[th.source]
-        plan = read_plan(self.dir / "plans" / f"warmup-{axis}.plan")
+        plan = read_plan(self.record.dir / "plans" / f"warmup-{axis}.plan")
         if src.kind == "temperature":
             g = thermal_gain_fit(raw, axis, th.origin_mm, src.alpha_per_k)
-            self.tables.thermal_gain[axis] = g.gain
+            self.record.tables.thermal_gain[axis] = g.gain
             self.say(f"{axis}: the screw grows {g.gain:.2f}× what its sensor's "
                      f"{g.temperature_rise_K:.2f} K predict: thermal gain {g.gain:.3f}")
             out = {"gain": g.gain, "growth_max_um": g.growth_max_um,
@@ -84,13 +102,13 @@ class ThermalSteps(RotarySteps):
                 if out["motion"].get("config"):
                     # a gain fitted to heat the sensor cannot place is wrong for the spread
                     # heat of the runs until the after-run: the configured one serves there
-                    self.tables.thermal_gain[axis] = th.gain
+                    self.record.tables.thermal_gain[axis] = th.gain
                     out["gain_used"] = th.gain
             return out
         if dict(plan.meta).get("places_mm"):  # a zone warm-up: the shape too
-            shape = thermal_shape_fit(raw, plan, axis, th, self._travel(axis))
-            self.tables.thermal_length_mm[axis] = shape.length_mm
-            self.tables.thermal_profile[axis] = shape.profile()
+            shape = thermal_shape_fit(raw, plan, axis, th, self.axes.travel(axis))
+            self.record.tables.thermal_length_mm[axis] = shape.length_mm
+            self.record.tables.thermal_profile[axis] = shape.profile()
             self.say(f"{axis}: after the zone warm-up the growth ({shape.growth_max_um:.1f} µm"
                      f" at most) is {'where the nut worked' if shape.profile() else 'linear'}"
                      f": the linear spread leaves {shape.linear_rms_um:.2f} µm RMS, the travel "
@@ -100,7 +118,7 @@ class ThermalSteps(RotarySteps):
                         if shape.profile() and shape.tau_s else ""))  # fmt: skip
             return shape.summary()
         tf = thermal_fit(raw, axis, th.origin_mm, th.length_mm)
-        self.tables.thermal_length_mm[axis] = float(tf.length_mm)
+        self.record.tables.thermal_length_mm[axis] = float(tf.length_mm)
         return {"length_mm": tf.length_mm, "growth_max_um": tf.growth_max_um,
                 "residual_rms_um": tf.residual_rms_um}
 
@@ -110,17 +128,17 @@ class ThermalSteps(RotarySteps):
         explains the zone warm-up clearly better: kept here (``config``) and put in place
         with the other motion models before the after-run (:meth:`motion_for_sensors`)."""
         try:
-            hf = warmup_heat_fit(raw, plan, axis, th, alpha_per_k, self._travel(axis),
+            hf = warmup_heat_fit(raw, plan, axis, th, alpha_per_k, self.axes.travel(axis),
                                  *self._travel_before_warmup(axis))  # fmt: skip
         except TableError as exc:
             return {"fitted": False, "why": str(exc)}
         out = hf.summary()
         if hf.replaces_sensor:
             out["config"] = hf.config(dict.fromkeys(self.s.axes, self.s.speed_mm_s))
-            if hf.spread_mm and axis not in self.tables.sensor_off:
+            if hf.spread_mm and axis not in self.record.tables.sensor_off:
                 # warm where it works: measured with the sensor off until the after-run, so
                 # the drift its references read is the growth, taken off along that shape
-                self.tables.sensor_off.append(axis)
+                self.record.tables.sensor_off.append(axis)
             self.say(f"{axis}: the heat of its own motion explains the zone warm-up "
                      f"({hf.growth_max_um:.1f} µm) to {hf.motion_rms_um:.2f} µm RMS where the "
                      f"sensor explains {hf.sensor_rms_um:.2f}: heat from motion (tau "
@@ -133,7 +151,8 @@ class ThermalSteps(RotarySteps):
         start of commissioning to its warm-up: each axis's travel at the commissioning
         speed, or the wall clock where that is longer (a pause cools too), as the gateway's
         heat from motion counts time."""
-        log = self.state.get("drift_log", [])[: self.state.get("warmup_log", {}).get(axis, 0)]
+        state = self.record.state
+        log = state.get("drift_log", [])[: state.get("warmup_log", {}).get(axis, 0)]
         if len(log) < 2:
             return np.zeros(0), np.zeros(0)
         odo = {b: np.array([e["odometer_mm"].get(b, 0.0) for e in log]) for b in self.s.axes}
@@ -149,9 +168,9 @@ class ThermalSteps(RotarySteps):
         :func:`..fitting.adaptive.relinked_base`). Not on a resume past the start (the machine has
         moved: no longer the start's reading)."""
         ep = self.s.instruments.temperature
-        kept = self.state.setdefault("start_temperature_c", {})
-        axes = [a for a in self.s.axes if a not in kept and self._source_kind(a) == "temperature"]
-        if ep is None or not axes or "drift_base" in self.state:
+        kept = self.record.state.setdefault("start_temperature_c", {})
+        axes = [a for a in self.s.axes if a not in kept and self.source_kind(a) == "temperature"]
+        if ep is None or not axes or "drift_base" in self.record.state:
             return
         from ..measuring.machine import Links, TemperatureSensor
 
@@ -165,9 +184,9 @@ class ThermalSteps(RotarySteps):
                 kept[a] = await sensor.read_c()
         finally:
             links.close()
-        self._save()
+        self.record.save()
 
-    def _source_kind(self, axis: str) -> str | None:
+    def source_kind(self, axis: str) -> str | None:
         """The kind of the axis's thermal source ("temperature", "displacement"), or None: no
         thermal setting, or heat from motion (no sensor)."""
         th = self.config.axes[axis].compensation.thermal
@@ -179,7 +198,7 @@ class ThermalSteps(RotarySteps):
         """What the sensor's compensation took for growth at ``x_mm`` at the cold start (mm,
         the config's own thermal setting; zero at its reference temperature)."""
         th = self.config.axes[axis].compensation.thermal
-        t0 = self.state.get("start_temperature_c", {}).get(axis)
+        t0 = self.record.state.get("start_temperature_c", {}).get(axis)
         if th is None or th.source is None or t0 is None:
             return np.zeros_like(x_mm)
         src = self.config.thermal_sources[th.source]
@@ -202,27 +221,27 @@ class ThermalSteps(RotarySteps):
         where the axis ran without its sensor, its readings taken with it lost that growth
         with their drift (:meth:`raw`) instead."""
         for a in self.s.axes:
-            motion = self.replacing_motion(a)
-            if motion is not None and a not in self.tables.thermal_motion:
-                if self.drift_spread_mm(a) is None:  # else its readings lost it (raw)
+            motion = self.drift.replacing_motion(a)
+            if motion is not None and a not in self.record.tables.thermal_motion:
+                if self.drift.drift_spread_mm(a) is None:  # else its readings lost it (raw)
                     self._add_start_growth(a)
-                self.tables.thermal_motion[a] = motion
+                self.record.tables.thermal_motion[a] = motion
                 note = (f"{a}: heat from motion replaces the temperature sensor in the final "
                         "config; the after-run ran with the sensor (the model starts cold: "
                         "on a warm machine it under-corrects until the screw has cooled)")
-                self.state["notes"].append(note)
+                self.record.state["notes"].append(note)
                 self.say(note)
-        self._save()
+        self.record.save()
 
     def _add_start_growth(self, axis: str) -> None:
         """Put the sensor's cold-start growth back into ``axis``'s table (see
         :meth:`motion_for_sensors`); resumable: the table as it was is kept until written."""
         from ..fitting.outputs import check_pitch, write_table
 
-        if axis not in self.tables.pitch:
+        if axis not in self.record.tables.pitch:
             return
-        path = self.config_dir / self.tables.pitch[axis]
-        pending = self.state.setdefault("start_growth", {})
+        path = self.record.config_dir / self.record.tables.pitch[axis]
+        pending = self.record.state.setdefault("start_growth", {})
         if pending.get(axis, {}).get("written"):
             return
         if axis not in pending:
@@ -231,7 +250,7 @@ class ThermalSteps(RotarySteps):
                              "forward_mm": table.forward_mm.tolist(),
                              "reverse_mm": None if table.reverse_mm is None else
                              table.reverse_mm.tolist()}  # fmt: skip
-            self._save()
+            self.record.save()
         old = pending[axis]
         x = np.asarray(old["position_mm"], dtype=np.float64)
         grown = self._start_growth_mm(axis, x)
@@ -246,17 +265,25 @@ class ThermalSteps(RotarySteps):
         try:  # what the gateway would refuse (the correction cap) stays out, said so
             check_pitch(new, self.config, axis)
         except (TableError, CompensationError) as exc:
-            self.state["notes"].append(f"{axis}: the sensor's cold-start growth not put back: "
+            self.record.state["notes"].append(
+                f"{axis}: the sensor's cold-start growth not put back: "
                                        f"{exc}")  # fmt: skip
             return
         write_table(path, "csv", new, "compgw commission: the sensor's cold-start growth "
                     "put back")  # fmt: skip
         note = (f"{axis}: {1e3 * float(np.abs(grown).max()):.2f} µm at most put back into the "
                 f"table: the sensor's compensation at the cold start "
-                f"({self.state['start_temperature_c'][axis]:.2f} °C), which heat from motion "
+                f"({self.record.state['start_temperature_c'][axis]:.2f} °C), which heat from "
+                "motion "
                 "does not apply")  # fmt: skip
-        self.state["notes"].append(note)
+        self.record.state["notes"].append(note)
         self.say(note)
+
+    def zoned(self) -> list[str]:
+        """The linear axes with a thermal setting: each gets a zone warm-up (on a short
+        budget after the plain calibration's steps, where the budget holds it)."""
+        return [a for a in self.s.axes if not self.axes.rotary(a) and self.warms_up(a)]
+
 
 
 def start_growth_mm(x_mm: np.ndarray, origin_mm: float, length_mm: float, gain: float,

@@ -1,0 +1,241 @@
+"""Commissioning's step 1: the warm-ups and each axis's identification runs."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from ...compensation.errors import TableError
+from ..fitting import adaptive
+from ..fitting.plans_scans import cyclic_plan
+from ..plans.plans import (
+    backlash_from_raw,
+    backlash_plan,
+)
+from ..plans.rawdata import read_raw_csv
+
+if TYPE_CHECKING:
+    from .axes import Axes
+    from .budget import Budget
+    from .fit import FitSteps
+    from .planner import Planner
+    from .record import Record
+    from .rotary import RotarySteps
+    from .short import ShortBudget
+    from .stager import Stager
+    from .steps import StepRunner
+    from .takeup import TakeUpSteps
+    from .thermal import ThermalSteps
+
+Say = Callable[[str], None]
+
+
+class IdentifySteps:
+    """Step 1: the warm-ups and each axis's identification runs, compensation off, and the
+    *before* runs."""
+
+    def __init__(self, axes: Axes, record: Record, stager: Stager, budget: Budget,
+                 runner: StepRunner, rotary: RotarySteps, thermal: ThermalSteps, plans: Planner,
+                 takeup: TakeUpSteps, short: ShortBudget, fit: FitSteps, say: Say) -> None:
+        self.s = axes.s
+        self.axes = axes
+        self.record = record
+        self.stager = stager
+        self.budget = budget
+        self.runner = runner
+        self.rotary = rotary
+        self.thermal = thermal
+        self.plans = plans
+        self.takeup = takeup
+        self.short = short
+        self.fit = fit
+        self.say = say
+
+    async def run(self) -> None:
+        """The warm-ups and each axis's identification runs, ordered so that no axis is
+        measured right after its own zone warm-up: the first zone-warmed axis is identified
+        last, every other one before its warm-up (cold, with the configured thermal
+        setting; the drift references take what it misses). A zone's heat the sensor's
+        model cannot place (a temperature at one spot, the linear spread) then fades for
+        hours before its axis is measured, instead of going into its table. On a short
+        budget the plain calibration's steps come first, and each warm-up after them only
+        where the budget left holds it (:meth:`_plain_steps_first`)."""
+        await self.thermal.read_start_temperatures()
+        await self.stager.use("identification")
+        zoned = self.thermal.zoned()
+        if self.short.applies():  # a plain ISO 230-2 calibration's steps first, warm-ups after
+            await self._plain_steps_first([a for a in self.s.axes if not self.axes.rotary(a)])
+            for a in zoned:  # each where the budget left holds it
+                await self._warm_up_if_affordable(a)
+            for a in self.s.axes:
+                await self._identify_axis(a)
+            await self.before_xy()
+            self.record.save()
+            return
+        if zoned:
+            await self._warm_up(zoned[0])
+        for a in zoned[1:]:
+            await self._identify_axis(a)
+            await self._warm_up(a)
+        rest = [a for a in self.s.axes if a not in zoned] + zoned[:1]
+        for a in rest:
+            await self._identify_axis(a)
+        await self.before_xy()
+        self.record.save()
+
+    async def _find_lead(self, axis: str) -> None:
+        """The lead search of an axis whose lead was not given (--lead-mm); not begun where
+        the budget left holds it but not the cyclic scans a lead found would call for (the
+        sdss plates at 1.5 x a manual calibration's time spent 8 of their 61 minutes on a
+        search whose scans could not have followed)."""
+        leads = self.record.state.setdefault("leads", {})
+        if axis in self.s.lead_mm or axis in leads or self.s.no_lead_search:
+            return
+        scans = cyclic_plan(axis, self.axes.travel(axis), min(adaptive.STANDARD_LEADS_MM))
+        cost_s = self.budget.step_cost_s
+        need_s = cost_s(self.plans.lead_plan(axis)) + cost_s(scans)
+        left_s = self.budget.left_s()
+        if need_s > left_s:
+            note = (f"{axis}: no lead search: it and the cyclic scans it may call for need "
+                    f"{need_s / 60:.1f} min of machine time, {max(0.0, left_s) / 60:.1f} min "
+                    "left (--lead-mm gives the lead)")  # fmt: skip
+            if note not in self.record.state["notes"]:
+                self.say(note)
+                self.record.state["notes"].append(note)
+                self.record.save()
+            return
+        await self.runner.step(f"lead-{axis}", lambda: self.plans.lead_plan(axis), "off",
+                               self.axes.park(axis))  # fmt: skip
+        raw = self.runner.raw(f"lead-{axis}")
+        found = adaptive.find_lead(raw.target_mm, raw.deviation_mm)
+        leads[axis] = found.lead_mm or 0.0
+        self.record.state.setdefault("identify", {})[f"lead-{axis}"] = {
+            "lead_mm": found.lead_mm or 0.0, "amplitude_um": found.amplitude_um,
+            "f_ratio": found.f_ratio}  # fmt: skip
+        if found.lead_mm:
+            self.s.lead_mm[axis] = found.lead_mm
+            self.say(f"{axis}: a periodic error of {found.amplitude_um:.2f} µm every "
+                     f"{found.lead_mm:g} mm, taken as the screw's lead (--lead-mm gives it "
+                     "where you know it); the cyclic stage follows it")  # fmt: skip
+        else:
+            self.say(f"{axis}: no periodic error stands out of the noise: no cyclic stage")
+        self.record.save()
+
+    def _iso_runs_that_fit(self, axes: list[str]) -> None:
+        """On a short budget, before the first ISO run: the runs per target every axis's ISO
+        runs fit in (down to 2, the fewest that show a scatter), so that each axis gets a
+        table rather than the last none (decided once, kept in the state; said). With the
+        configured runs fitting, or not even 2, nothing changes."""
+        if "iso_runs" in self.record.state or any(self.record.done(f"iso-{a}") for a in axes):
+            return
+        def fits(runs: int) -> bool:
+            need_s = sum(self.budget.step_cost_s(self.plans.iso_plan(a, runs)) for a in axes)
+            return need_s <= self.budget.left_s()
+
+        runs = self.s.runs
+        while runs > 2 and not fits(runs):
+            runs -= 1
+        if runs < self.s.runs and fits(runs):
+            self.record.state["iso_runs"] = runs
+            note = (f"{', '.join(axes)}: {runs} ISO runs per target instead of "
+                    f"{self.s.runs}: the budget holds every axis's table only so")
+            self.record.state["notes"].append(note)
+            self.say(note)
+        else:
+            self.record.state["iso_runs"] = self.s.runs
+        self.record.save()
+
+    # -- 1. identification ---------------------------------------------------------------
+
+    async def _plain_steps_first(self, cores: list[str]) -> None:
+        """On a short budget, a plain ISO 230-2 calibration's steps before anything else,
+        thermal settings or not (the zone warm-ups came first and a 0.9 h budget spent 45
+        minutes warming X and ended with no table: issue 54): every linear axis's ISO runs,
+        the plane's grid with their tables on, the backlash tests, the before-runs."""
+        self._iso_runs_that_fit(cores)
+        for a in cores:
+            await self._iso(a)
+        for a in cores:  # where the tables miss between their points
+            await self.short.densify(a)
+        if self.s.planar is not None and set(self.s.planar) <= set(cores):
+            await self.before_xy()  # (what the plane's check and report need)
+            await self.fit.fit_axes(cores, curves=True)
+            await self.fit.plane()
+            await self.stager.use("identification")  # the rest is measured without them
+        for a in cores:  # (the bidirectional tables hold the backlash meanwhile)
+            await self._backlash(a)
+        for a in cores:  # what the report judges them by, before any lead search
+            await self.runner.step(f"before-{a}", lambda a=a: self.plans.before_plan(a), "off",
+                            self.axes.park(a))  # fmt: skip
+
+    async def _warm_up_if_affordable(self, a: str) -> None:
+        """The zone warm-up of ``a`` where the budget left holds it; else said, and the
+        configured thermal setting kept."""
+        if a in self.record.tables.thermal_length_mm or a in self.record.tables.thermal_gain:
+            return
+        cost_s = self.budget.step_cost_s(self.thermal.warmup_plan(a), drift=False)
+        if not self.record.done(f"warmup-{a}") and cost_s > self.budget.left_s():
+            self.record.state.setdefault("identify", {})[f"thermal-{a}"] = {
+                "fitted": False, "why": f"its warm-up ({cost_s / 60:.0f} min) is not in the "
+                f"budget left ({max(self.budget.left_s(), 0.0) / 60:.0f} min)"}  # fmt: skip
+            self.say(f"{a}: thermal setting kept as configured: its warm-up "
+                     f"({cost_s / 60:.0f} min) is not in the budget left")  # fmt: skip
+            return
+        await self._warm_up(a)
+
+    async def before_xy(self) -> None:
+        """The plane's random points before anything is fitted (judged again at the end)."""
+        if self.s.planar is not None:
+            await self.runner.step("before-xy", self.plans.before_xy_plan, "off")
+
+    async def _warm_up(self, a: str) -> None:
+        """The axis's warm-up (thermal off) and its fit; the identification config back."""
+        if a in self.record.tables.thermal_length_mm or a in self.record.tables.thermal_gain:
+            return  # fitted before an interruption
+        results = self.record.state.setdefault("identify", {})
+        await self.stager.use("warmup")
+        # the travel so far (the drift log's odometers): heat still fading in the warm-up
+        self.record.state.setdefault("warmup_log", {}).setdefault(
+            a, len(self.record.state.get("drift_log", [])))
+        raw = await self.runner.step(f"warmup-{a}", lambda: self.thermal.warmup_plan(a), "off",
+                                     drift=False)  # fmt: skip
+        try:
+            results[f"thermal-{a}"] = self.thermal.fit(a, read_raw_csv(raw))
+        except TableError as exc:  # the config's own setting stays
+            results[f"thermal-{a}"] = {"fitted": False, "why": str(exc)}
+            self.say(f"{a}: thermal setting kept as configured: {exc}")
+        await self.stager.use("identification")  # with the length or gain
+
+    async def _backlash(self, a: str) -> None:
+        """The backlash test at three places (seed 000), and the take-up where it shows
+        lost motion; once (a short budget's order asks for it twice)."""
+        if a in self.record.state.get("backlash_fitted", []):
+            return
+        travel = self.axes.travel(a)
+        await self.runner.step(f"backlash-{a}", lambda: backlash_plan(a, travel), "off",
+                               self.axes.park(a))  # fmt: skip
+        b = backlash_from_raw(self.runner.raw(f"backlash-{a}"), a)
+        self.record.state.setdefault("identify", {})[f"backlash-{a}"] = {
+            "B_um": float(b.backlash_mm * 1e3), "places_um": [float(m * 1e3) for m in b.mean_mm]}
+        await self.takeup.identify_takeup(a, b)
+        self.record.state.setdefault("backlash_fitted", []).append(a)
+
+    async def _iso(self, a: str) -> None:
+        await self.runner.step(f"iso-{a}", lambda: self.plans.iso_plan(a), "off", self.axes.park(a))
+
+    async def _identify_axis(self, a: str) -> None:
+        """Backlash, the lead search, the coarse ISO run, the cyclic scans and the *before*
+        run of one axis, compensation off."""
+        if self.axes.rotary(a):  # in degrees, with the angle instrument (rotary.py)
+            await self.rotary.identify_rotary(a)
+            return
+        travel = self.axes.travel(a)
+        await self._backlash(a)  # (each done already on a short budget but the lead search)
+        await self._find_lead(a)
+        await self._iso(a)
+        if a in self.s.lead_mm:
+            await self.runner.step(f"cyclic-{a}", lambda: cyclic_plan(a, travel, self.s.lead_mm[a]),
+                            "off", self.axes.park(a))  # fmt: skip
+        await self.runner.step(f"before-{a}", lambda: self.plans.before_plan(a), "off",
+                               self.axes.park(a))  # fmt: skip
+

@@ -1,0 +1,126 @@
+"""Commissioning's plans: the identification's and the judging runs'."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..fitting import adaptive
+from ..fitting.plans_scans import cyclic_plan
+from ..fitting.takeup_fit import takeup_plan
+from ..plans.plans import (
+    Plan,
+    backlash_plan,
+    iso230_linear_plan,
+    read_plan,
+    targets_plan,
+)
+from ..plans.xy import xy_grid_plan, xy_verification_plan
+
+if TYPE_CHECKING:
+    from .axes import Axes
+    from .budget import Budget
+    from .record import Record
+    from .rotary import RotarySteps
+    from .thermal import ThermalSteps
+
+
+
+class Planner:
+    """The plans of the identification and of the judging runs (pure of the machine: the axes, the
+    settings and the plans already written)."""
+
+    def __init__(self, axes: Axes, record: Record, budget: Budget, rotary: RotarySteps,
+                 thermal: ThermalSteps) -> None:
+        self.s = axes.s
+        self.axes = axes
+        self.record = record
+        self.budget = budget
+        self.rotary = rotary
+        self.thermal = thermal
+
+    def midpoints_plan(self, axis: str) -> Plan:
+        """The ISO 230-2 cycle at the midpoints of the first table's points."""
+        plan = read_plan(self.record.dir / "plans" / f"iso-{axis}.plan")
+        first = np.unique(plan.targets_mm(axis))
+        return targets_plan(axis, self.axes.travel(axis), (first[1:] + first[:-1]) / 2,
+                            self.budget.iso_runs(), kind="iso230-linear",
+                            note="midpoints")  # fmt: skip
+
+    def iso_steps(self, axis: str) -> list[str]:
+        """The ISO steps of ``axis``: the first table's points, and its midpoints where a
+        short budget read them (:meth:`densify`)."""
+        mid = f"iso-mid-{axis}"
+        return [f"iso-{axis}"] + ([mid] if self.record.done(mid) else [])
+
+    def iso_targets(self, axis: str) -> np.ndarray:
+        """Every target the ISO runs of ``axis`` read (mm)."""
+        return np.concatenate([read_plan(self.record.dir / "plans" / f"{n}.plan").targets_mm(axis)
+                               for n in self.iso_steps(axis)])  # fmt: skip
+
+    # -- the whole thing -----------------------------------------------------------------
+    def initial_plans(self) -> list[tuple[str, Plan]]:
+        """The steps before any adaptation, for the printed plan and its estimate."""
+        out: list[tuple[str, Plan]] = []
+        for a in self.s.axes:
+            if self.axes.rotary(a):  # in degrees (rotary.py)
+                out += self.rotary.rotary_plans(a)
+                continue
+            travel = self.axes.travel(a)
+            if self.thermal.warms_up(a):
+                out.append((f"warmup-{a}", self.thermal.warmup_plan(a)))
+            out.append((f"backlash-{a}", backlash_plan(a, travel)))
+            out.append((f"takeup-{a}", takeup_plan(a, travel)))  # if there is lost motion
+            out.append((f"iso-{a}", self.iso_plan(a)))
+            if a in self.s.lead_mm:
+                out.append((f"cyclic-{a}", cyclic_plan(a, travel, self.s.lead_mm[a])))
+            elif not self.s.no_lead_search:
+                out.append((f"lead-{a}", self.lead_plan(a)))
+        if self.s.planar is not None:
+            out.append(("xy-grid", self.grid_plan(self.s.grid)))
+        return [(n, self.axes.snap(p)) for n, p in out]
+
+    def lead_plan(self, axis: str) -> Plan:
+        """A dense scan in + around the middle of the travel, for the lead search."""
+        from ..plans.plans import Move
+
+        targets = adaptive.lead_scan_targets_mm(self.axes.travel(axis))
+        lo = self.axes.travel(axis)[0]
+        moves = [Move(1, -1, "takeup", (max(lo, float(targets[0]) - 1.0),))]
+        moves += [Move(1, +1, "measure", (float(t),)) for t in targets]
+        return Plan("lead-search", (axis,), tuple(moves), (("kind", "lead-search"),
+                                                           ("axis", axis)))  # fmt: skip
+
+    def iso_plan(self, axis: str, runs: int | None = None) -> Plan:
+        lead = self.s.lead_mm.get(axis)
+        return iso230_linear_plan(axis, self.axes.travel(axis),
+                                  step_mm=adaptive.coarse_step_mm(self.axes.travel(axis), lead),
+                                  runs=runs or self.budget.iso_runs(),
+                                  overrun_mm=1.0, lead_mm=lead, seed=self.s.seed)  # fmt: skip
+
+    def grid_plan(self, grid: tuple[int, int], runs: int = 2) -> Plan:
+        (x0, x1), (y0, y1) = self.axes.plane_travel()
+        return xy_grid_plan((x0 + 2, x1 - 2), (y0 + 2, y1 - 2), grid[0], grid[1],
+                            self.s.planar, runs=runs, approach_mm=1.0,
+                            lower_mm=(x0, y0))  # fmt: skip
+
+    def before_xy_plan(self) -> Plan:
+        """The plane's random points judged before anything is fitted and after."""
+        return self.xy_check_plan(10_000 + self.s.seed, self.s.grid)
+
+    def xy_check_plan(self, seed: int, grid: tuple[int, int]) -> Plan:
+        (x0, x1), (y0, y1) = self.axes.plane_travel()
+        return xy_verification_plan((x0 + 2, x1 - 2), (y0 + 2, y1 - 2), grid[0], grid[1],
+                                    self.s.planar, mode="random", count=adaptive.RANDOM_TARGETS,
+                                    seed=seed, approach_mm=1.0, lower_mm=(x0, y0))  # fmt: skip
+
+    def before_plan(self, axis: str, avoid_mm: np.ndarray | None = None) -> Plan:
+        """The targets judged before and after: random, off the coarse table's points
+        (``avoid_mm``, default the ISO runs' targets)."""
+        avoid = self.iso_targets(axis) if avoid_mm is None else avoid_mm
+        targets = adaptive.random_targets_mm(self.axes.travel(axis), 2 * adaptive.RANDOM_TARGETS,
+                                             1000 + self.s.seed, avoid)  # fmt: skip
+        return targets_plan(axis, self.axes.travel(axis), targets, self.s.verify_runs,
+                            kind="iso230-verification", note="before-after")  # fmt: skip
+

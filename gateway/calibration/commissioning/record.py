@@ -1,0 +1,73 @@
+"""What a commissioning has done, kept in ``DIR/commission.json``: what a resume reads."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ...formats import atomic_write_text
+from .configs import Tables
+
+if TYPE_CHECKING:
+    from ..thermal.drift_shape import SweptHeat
+
+STATE = "commission.json"
+
+
+class Record:
+    """What a commissioning has done, on disk (``DIR/commission.json``): the state, the tables,
+    where each screw was worked; what a resume reads."""
+
+    def __init__(self, out_dir: Path, config_dir: Path) -> None:
+        self.dir = out_dir
+        self.config_dir = config_dir
+        self.state_path = out_dir / STATE
+        self.original_path = out_dir / "original.yaml"
+        self.state: dict[str, Any] = {"version": 1, "steps": {}, "rounds": [], "notes": []}
+        if self.state_path.exists():
+            self.state = json.loads(self.state_path.read_text())
+        self.tables = Tables.from_json(self.state.get("tables", {}))
+        #: where each screw has been worked (:class:`.drift.DriftRefs` fills it)
+        self.swept: dict[str, SweptHeat] = {}
+
+    def retried(self, count: int) -> None:
+        """Count requests answered only on a later try (kept with the next save; the
+        summary and the report say how many)."""
+        if count:
+            self.state["retried"] = self.state.get("retried", 0) + count
+
+    # -- state ---------------------------------------------------------------------------
+    def save(self) -> None:
+        self.state["tables"] = self.tables.to_json()
+        self.state["swept_heat"] = {a: h.to_json() for a, h in self.swept.items()}
+        self.dir.mkdir(parents=True, exist_ok=True)
+        # compact: json's C encoder (an indent takes the pure-Python one, 10 x slower on the
+        # drift log of a long run, and the state is written after every run)
+        atomic_write_text(self.state_path, json.dumps(self.state, default=plain_json,
+                                                      separators=(",", ":")))  # fmt: skip
+
+    @property
+    def used_s(self) -> float:
+        steps = sum(step["machine_s"] for step in self.state["steps"].values())
+        return float(steps + self.state.get("refs_s", 0.0))
+
+    def rel(self, path: Path) -> str:
+        return str(path.resolve().relative_to(self.config_dir)) if path.resolve().is_relative_to(
+            self.config_dir) else str(path.resolve())  # fmt: skip
+
+    def done(self, name: str) -> bool:
+        return name in self.state["steps"]
+
+    @property
+    def tables_phase(self) -> str:
+        """The config the fitted tables run in: "full" once the plane is fitted."""
+        return "full" if self.tables.planar_model else "pitch"
+
+
+
+def plain_json(value: Any) -> Any:
+    """numpy scalars (a bool or float from an array) as plain Python for JSON."""
+    if hasattr(value, "item"):
+        return value.item()
+    raise TypeError(f"{type(value).__name__} is not JSON serializable")

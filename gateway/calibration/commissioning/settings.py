@@ -1,0 +1,43 @@
+"""What the command line gives a commissioning, and how one stops early."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..measuring.machine import MotionSettings
+from ..measuring.session import Instruments
+
+
+class BudgetSpent(Exception):
+    """The next step does not fit in the machine-time budget."""
+
+class CommissionAborted(Exception):
+    """Commissioning stopped; the message says where the gateway was left."""
+
+
+@dataclass
+class Settings:
+    """What the command line gives."""
+
+    config_path: Path
+    out_dir: Path
+    gateway: Any  # machine.Endpoint
+    instruments: Instruments
+    axes: tuple[str, ...]
+    planar: tuple[str, str] | None = None
+    lead_mm: dict[str, float] = field(default_factory=dict)
+    tolerance_um: float = 2.0
+    budget_s: float = 8 * 3600.0
+    speed_mm_s: float = 100.0
+    stop_s: float = 2.0
+    motion: MotionSettings = field(default_factory=MotionSettings)
+    seed: int = 0
+    max_rounds: int = 6
+    no_lead_search: bool = False  # axes without a lead get no cyclic stage
+    runs: int = 3  # coarse ISO runs
+    verify_runs: int = 2
+    warmup_s: float = 1800.0
+    grid: tuple[int, int] = (7, 5)
+    tolerance_arcsec: float = 3.0  # rotary axes: ISO 230-2 E between the points
