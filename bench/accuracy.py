@@ -222,7 +222,7 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
 
 HEAD = (f"{'machine':<24}{'E  before':>11}{'after':>7}{'cut %':>7}{'max':>6}{'A-R':>6}"
         f"{'XY before':>10}{'after':>7}{'cut %':>7}{'max':>6}{'offgrid':>8}{'therm off':>10}"
-        f"{'on':>6}{'model':>7}{'mach h':>7}{'×man':>6}  sensor")
+        f"{'on':>6}{'model':>7}{'mach h':>7}{'×ref':>6}  sensor")
 
 
 def row(label: str, s: dict[str, Any], sensor: str) -> str:
@@ -348,9 +348,17 @@ def main() -> int:
     parser.add_argument("--budget-vs-manual", type=float, metavar="F",
                         help="give `compgw commission` F times the machine time the manual "
                              "workflow's plans take on each machine (default: its own 8 h)")
+    parser.add_argument("--budget-vs-plain", type=float, metavar="F",
+                        help="give `compgw commission` F times the machine time the plain "
+                             "workflow's plans take on each machine (ISO runs every 25 mm, 5 "
+                             "runs, cyclic scans, a 9 x 7 grid: issue 54)")
     parser.add_argument("--thermal-profile", action="store_true",
                         help="Δa axes get compensation.thermal.profile (the Δa spread where "
                              "the axis has travelled)")
+    parser.add_argument("--laser-kind", choices=workflows.LASER_KINDS, default="modbus",
+                        help="how `compgw commission` reads the sim's laser: its Modbus "
+                             "registers, or the bridge line protocol over TCP "
+                             "(docs/instruments-bridge.md) (modbus)")
     parser.add_argument("--judge-repeats", type=int, default=1, metavar="N",
                         help="judge the calibrated machine N times (same targets, a cool-down "
                              "before each): the judge's own spread of E cut and A − R")
@@ -366,7 +374,11 @@ def main() -> int:
         return print_table(json.loads(args.table.read_text()))
     workflows.TOLERANCE_UM = args.tolerance_um
     workflows.BUDGET_VS_MANUAL = args.budget_vs_manual
+    workflows.BUDGET_VS_PLAIN = args.budget_vs_plain
+    if args.budget_vs_manual is not None and args.budget_vs_plain is not None:
+        parser.error("--budget-vs-manual and --budget-vs-plain: give one")
     workflows.THERMAL_PROFILE = args.thermal_profile
+    workflows.LASER_KIND = args.laser_kind
     machines = machine_list(args.machines, args.seed, args.real)
     if args.only:
         machines = [m for m in machines if m[0] in args.only.split(",")]
@@ -379,7 +391,8 @@ def main() -> int:
     t0 = time.monotonic()
     results: list[dict[str, Any]] = []
     say = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
-    say(f"{len(machines)} machines, workflow {args.workflow}, {args.jobs} job(s)")
+    say(f"{len(machines)} machines, workflow {args.workflow}, {args.jobs} job(s)"
+        + (f", laser through the {args.laser_kind}" if args.laser_kind != "modbus" else ""))
     say(HEAD)
     if args.jobs > 1:  # a commissioning per core: one BLAS thread each (tests/conftest.py)
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -409,6 +422,8 @@ def main() -> int:
         print(json.dumps({"workflow": args.workflow, "without": without,
                           "tolerance_um": args.tolerance_um,
                           "budget_vs_manual": args.budget_vs_manual,
+                          "budget_vs_plain": args.budget_vs_plain,
+                          "laser_kind": args.laser_kind,
                           "wall_s": round(wall, 1), "groups": stats,
                           "machines": results}, indent=2))  # fmt: skip
     if not args.keep:

@@ -139,6 +139,8 @@ class MachineRun:
     _gateway: subprocess.Popen[str] | None = None
     _gw_log: _Lines | None = None
     _gw_path: Path | None = None
+    #: the sim's laser on the bridge protocol (``LASER_KIND`` "bridge"), as --laser gives it
+    laser_bridge: str | None = None
 
     # -- processes ----------------------------------------------------------------------------
     @classmethod
@@ -162,12 +164,17 @@ class MachineRun:
         data = yaml.safe_load((self.dir / "sim.yaml").read_text())
         data["sim"]["tcp"]["port"] = 0
         data["sim"]["time_scale"] = 0  # the machine's clock moves with requests alone
+        if LASER_KIND == "bridge":  # the same laser on the bridge line protocol too
+            data["sim"]["instruments"]["laser"]["bridge"] = {"host": "127.0.0.1", "port": 0}
         path = self.dir / "sim.run.yaml"  # beside sim.yaml: truth/ paths stay valid
         path.write_text(yaml.safe_dump(data, sort_keys=False))
         self._sim = subprocess.Popen([*compgw_argv(), "sim", "-c", str(path)], text=True,
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      env=child_env())  # fmt: skip
         lines = _Lines(self._sim.stdout)
+        if LASER_KIND == "bridge":
+            found = lines.wait_for(r"laser bridge on ([\d.]+:\d+)")
+            self.laser_bridge = f"bridge:tcp:{found.group(1)}"
         self.machine_port = int(lines.wait_for(r"modbus tcp on [\d.]+:(\d+)").group(1))
         self.sim_port = self.bus_port = self.machine_port
         return data["sim"]
@@ -525,13 +532,16 @@ TOLERANCE_UM = 2.0
 #: commission's machine-time budget as this many times the manual workflow's on the same
 #: machine (its plans' estimate, nothing run); None: commission's own default (8 h)
 BUDGET_VS_MANUAL: float | None = None
+#: ... or as this many times the plain workflow's (``accuracy.py --budget-vs-plain``)
+BUDGET_VS_PLAIN: float | None = None
+#: how commission reads the sim's laser (``accuracy.py --laser-kind``)
+LASER_KINDS = ("modbus", "bridge")
+LASER_KIND = "modbus"
 
 
 def manual_machine_s(run: MachineRun) -> float:
-    """The machine time the manual workflow's plans take on this machine (s): what
-    `compgw calibrate` prints before it moves, asked without a --raw file (so nothing runs)."""
+    """The machine time the manual workflow's plans take on this machine (s)."""
     full, kind = manual_config(run)
-    gw = run.write_config("gw.estimate.yaml", full)
     names = list(full["axes"])
     low = {a: full["axes"][a]["travel_mm"][0] for a in names}
     asks: list[list[str]] = []
@@ -540,6 +550,19 @@ def manual_machine_s(run: MachineRun) -> float:
         asks.append(["--warmup", axis, "--measure-every", "2"])
     asks += [manual_iso(run, axis, low) for axis in names]
     asks.append(list(MANUAL_XY))
+    return estimate_s(run, full, asks)
+
+
+def plain_machine_s(run: MachineRun) -> float:
+    """The machine time the plain workflow's plans take on this machine (s)."""
+    full, _ = plain_config(run)
+    return estimate_s(run, full, plain_asks(run, full))
+
+
+def estimate_s(run: MachineRun, config: dict[str, Any], asks: list[list[str]]) -> float:
+    """The machine time of ``asks`` (each a `compgw calibrate` plan) on ``config`` (s): what
+    `compgw calibrate` prints before it moves, asked without a --raw file (nothing runs)."""
+    gw = run.write_config("gw.estimate.yaml", config)
     total_min = 0.0
     for ask in asks:
         out = subprocess.run([*compgw_argv(), "calibrate", "-c", str(gw), *ask], cwd=run.work,
@@ -550,6 +573,77 @@ def manual_machine_s(run: MachineRun) -> float:
                                 f"{out.stderr.strip()[-200:]}")  # fmt: skip
         total_min += float(found[0])
     return 60.0 * total_min
+
+
+# -- the plain ISO 230-2 calibration (issue 54) ----------------------------------------------------
+#: a table every this many mm, 5 bidirectional runs (calibrate's own defaults)
+PLAIN_STEP_MM = 25.0
+#: the plain workflow's XY grid (with the pitch tables on)
+PLAIN_XY = ("--xy", "--grid", "9", "7", "--grid-runs", "2", "--overrun-mm", "1")
+
+
+def plain_config(run: MachineRun) -> tuple[dict[str, Any], str | None]:
+    """The plain workflow's calibrated config before any fit: the manual one's, and a
+    cyclic file on every axis whose lead the machine's data sheet gives."""
+    full, kind = manual_config(run)
+    for a, info in run.machine["axes"].items():
+        if info.get("lead_mm") and a in full["axes"]:
+            full["axes"][a]["compensation"]["cyclic"] = f"tables/{a.lower()}_cyclic.yaml"
+    return full, kind
+
+
+def plain_asks(run: MachineRun, full: dict[str, Any]) -> list[list[str]]:
+    """The plain workflow's plans: per axis the ISO 230-2 runs (a table every 25 mm, 5
+    runs, the other axis parked low) and, where the lead is known, the dense scans for the
+    once-per-lead error; then the XY grid."""
+    names = list(full["axes"])
+    low = {a: full["axes"][a]["travel_mm"][0] for a in names}
+    asks = []
+    for axis in names:
+        other = next(a for a in names if a != axis)
+        park = ["--park", f"{other}={low[other]:g}"]
+        lead = run.machine["axes"][axis].get("lead_mm")
+        by_lead = ["--lead-mm", f"{lead:g}"] if lead else []
+        asks.append(["--iso", axis, "--step-mm", f"{PLAIN_STEP_MM:g}", "--runs", "5",
+                     "--overrun-mm", "1", *park, *by_lead])  # fmt: skip
+        if lead:
+            asks.append(["--cyclic", axis, *by_lead, *park])
+    asks.append(list(PLAIN_XY))
+    return asks
+
+
+def plain(run: MachineRun) -> WorkflowResult:
+    """The plain ISO 230-2 calibration a technician bills (issue 54), one `compgw
+    calibrate` per step as the manual path in docs/calibration.md has it: each axis's ISO
+    runs and cyclic scans with the identification config, one joint fit, the XY grid with
+    the pitch tables on and its fit. The sensors' thermal settings are kept as configured
+    (no warm-up)."""
+    full, _ = plain_config(run)
+    (run.work / "tables").mkdir(exist_ok=True)
+    names = list(full["axes"])
+    low = {a: full["axes"][a]["travel_mm"][0] for a in names}
+    gw = run.write_config("gw.calibrated.yaml", full)
+    common = ["-c", gw, "--gateway", run.gateway, "--no-progress"]
+    ident = run.work / "ident.yaml"
+    run.compgw("calibrate", "-c", gw, "--identify-config", ident)
+    run.use(ident)
+    run.cool_down()
+    raws, targets = [], []
+    for ask in plain_asks(run, full)[:-1]:
+        raw = run.work / f"{ask[1]}_{ask[0].lstrip('-')}.csv"
+        run.compgw("calibrate", *common, *ask, "--laser", run.instrument(20), "--raw", raw)
+        raws.append(raw)
+        targets.append(measured_targets(raw))
+    run.compgw("fit", *raws, "-c", gw)
+    run.use(without(full, "planar"))
+    xy_raw = run.work / "xy_id.csv"
+    run.compgw("calibrate", *common, *PLAIN_XY, "--xy-device", run.instrument(21),
+               "--raw", xy_raw)  # fmt: skip
+    targets.append(measured_targets(xy_raw))
+    pins = [f"{a}@{b}={low[b]:g}" for a, b in ((names[0], names[1]), (names[1], names[0]))]
+    run.compgw("fit", xy_raw, "-c", gw, "--pitch-line", pins[0], "--pitch-line", pins[1])
+    return WorkflowResult(yaml.safe_load(gw.read_text()), merge_targets(*targets),
+                          [f"plain: {len(raws)} runs fitted jointly, XY 9 x 7"])
 
 
 def commission(run: MachineRun) -> WorkflowResult:
@@ -564,13 +658,15 @@ def commission(run: MachineRun) -> WorkflowResult:
     leads = [f"{a}={info['lead_mm']:g}" for a, info in run.machine["axes"].items()
              if info.get("lead_mm")]  # fmt: skip
     args = ["commission", "-c", run.work / "gw.yaml", "--gateway", run.gateway,
-            "--laser", run.instrument(20), "--xy-device", run.instrument(21),
-            "--tolerance-um", f"{TOLERANCE_UM:g}", "--no-progress"]  # fmt: skip
+            "--laser", run.laser_bridge or run.instrument(20), "--xy-device",
+            run.instrument(21), "--tolerance-um", f"{TOLERANCE_UM:g}", "--no-progress"]  # fmt: skip
     if leads:
         args += ["--lead-mm", ",".join(leads)]
-    if BUDGET_VS_MANUAL is not None:
-        run.manual_s = manual_machine_s(run)
-        budget_h = BUDGET_VS_MANUAL * run.manual_s / 3600
+    if BUDGET_VS_MANUAL is not None or BUDGET_VS_PLAIN is not None:
+        factor = BUDGET_VS_PLAIN if BUDGET_VS_PLAIN is not None else BUDGET_VS_MANUAL
+        run.manual_s = (plain_machine_s if BUDGET_VS_PLAIN is not None
+                        else manual_machine_s)(run)  # fmt: skip
+        budget_h = factor * run.manual_s / 3600  # type: ignore[operator]
         args += ["--budget-h", f"{budget_h:.3f}"]
     if kind == "delta_a":
         args += ["--delta-a", run.instrument(10, 1)]
@@ -597,7 +693,7 @@ def commission(run: MachineRun) -> WorkflowResult:
 
 
 Workflow = Callable[[MachineRun], WorkflowResult]
-WORKFLOWS: dict[str, Workflow] = {"manual": manual, "commission": commission}
+WORKFLOWS: dict[str, Workflow] = {"manual": manual, "plain": plain, "commission": commission}
 
 
 def main() -> int:

@@ -269,3 +269,22 @@ def test_a_short_budget_without_the_plane_says_nothing_of_it(template: Path,
     line = next(s for s in said if "a short budget" in s)
     assert "plane" not in line and line.endswith("as the budget allows"), line
 
+
+
+def test_the_plan_says_what_each_step_is_for_and_what_a_short_budget_buys(
+        template: Path, tmp_path: Path) -> None:  # fmt: skip
+    """Every first step of the printed plan says what it is for, and a budget short of
+    them says what it buys and what the rest needs (issue 54: "with 0.9 h: pitch tables
+    and plane; thermal identification needs 1.0 h more"), before anything moves."""
+    said: list[str] = []
+    job = Commission(Settings(template / "gateway.yaml", tmp_path / "commission", None,  # type: ignore[arg-type]
+                              Instruments(), axes=("X", "Y"), planar=("X", "Y"),
+                              budget_s=1200.0), reload=None, say=said.append)  # type: ignore[arg-type]  # fmt: skip
+    job.command.print_plan()
+    steps = [s for s in said if " readings " in s and " moves " in s]
+    assert steps and all(s.rstrip().endswith(("(ISO 230-2)", "three places", "(XY grid)",
+                                              "(if lost motion)", "(periodic error)",
+                                              "once-per-lead error")) for s in steps), steps
+    bought = next(s for s in said if s.startswith("  with 0.33 h: "))
+    assert bought.startswith("  with 0.33 h: pitch tables, plane"), bought
+    assert "needs" in bought and "h more" in bought, bought

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from ..fitting.takeup_fit import MIN_LOST_UM
+from ..plans.plans import Plan
 
 if TYPE_CHECKING:
     from .axes import Axes
@@ -58,12 +59,14 @@ class CommandChecks:
                  f"{' and the plane ' + '/'.join(self.s.planar) if self.s.planar else ''}: "
                  f"tolerance {self.rotary.tolerance_text()} between the points, budget "
                  f"{self.s.budget_s / 3600:.2f} h of machine time")  # fmt: skip
-        for name, plan in self.plans.initial_plans():
+        first = self.plans.initial_plans()
+        for name, plan in first:
             self.axes.check_limits(plan)
             t = self.axes.estimate_s(plan)
             total += t
             self.say(f"  {name:<14} {sum(m.measured for m in plan.moves):>5} readings "
-                     f"{len(plan.moves):>5} moves {t / 60:>7.1f} min")  # fmt: skip
+                     f"{len(plan.moves):>5} moves {t / 60:>7.1f} min  "
+                     f"{self._purpose(name)}")  # fmt: skip
         if any(not self.axes.rotary(a) for a in self.s.axes):
             self.say(f"  (takeup-*: the reversal ladder, only where the backlash test shows "
                      f"{MIN_LOST_UM:g} µm or more of lost motion and one rung of it, 12 moves, "
@@ -77,6 +80,7 @@ class CommandChecks:
                      "steps: only the axes identified within it get tables, from those runs "
                      f"alone and unverified; give at least {total / 3600:.2f} h, and more for "
                      "the verification rounds")  # fmt: skip
+            self.say("  " + self._bought(first))
         # decided once, when it began (:meth:`.short.ShortBudget.short`): a
         # resume says what it was (the config then is a phase's own, its estimate another)
         short = self.record.state["short"] if "short" in self.record.state else (
@@ -110,6 +114,40 @@ class CommandChecks:
                      f"{self.record.original_path}")  # fmt: skip
         self.rotary.rotary_plan_lines()
         return total
+
+    def _purpose(self, name: str) -> str:
+        """What a first step is for, in a few words (the printed plan's last column)."""
+        kind, _, axis = name.partition("-")
+        if kind == "warmup":
+            source = self.thermal.source_kind(axis)
+            return f"thermal: the {'sensor gain' if source == 'temperature' else 'Δa length'}"
+        return {"backlash": "backlash at three places", "iso": "the pitch table (ISO 230-2)",
+                "cyclic": "the once-per-lead error", "lead": "lead search (periodic error)",
+                "takeup": "reversal ladder (if lost motion)",
+                "xy": "the plane (XY grid)"}.get(kind, "")  # fmt: skip
+
+    def _bought(self, first: list[tuple[str, Plan]]) -> str:
+        """What a budget short of the first steps buys, in the order a short budget takes
+        them (a plain ISO 230-2 calibration's steps first: :mod:`.short`), and what the
+        rest needs: "with 0.90 h: pitch tables, plane; thermal identification needs 0.75 h
+        more". Estimates without the drift references and the before- and after-runs."""
+        groups = (("pitch tables", ("iso",)), ("plane", ("xy",)), ("backlash", ("backlash",)),
+                  ("thermal identification", ("warmup",)),
+                  ("once-per-lead error", ("lead", "cyclic")))  # fmt: skip
+        used_s, got, short = 0.0, [], []
+        for label, kinds in groups:  # each taken where it fits in what is left
+            need_s = sum(self.axes.estimate_s(p) for n, p in first
+                         if n.partition("-")[0] in kinds)  # fmt: skip
+            if need_s <= 0.0:
+                continue
+            if used_s + need_s <= self.s.budget_s:
+                got.append(label)
+                used_s += need_s
+            else:
+                more_s = used_s + need_s - self.s.budget_s
+                short.append(f"{label} needs {more_s / 3600:.2f} h more")
+        head = f"with {self.s.budget_s / 3600:.2f} h: " + (", ".join(got) or "no table")
+        return head + ("; " + ", ".join(short) if short else "")
 
     def _compensated(self, axis: str) -> bool:
         """Whether the user's config has a table stage on ``axis`` (pitch, cyclic, linkage,
