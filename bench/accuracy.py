@@ -140,6 +140,8 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
         out["sensor_axes"] = [a for a, th in thermal.items() if th.get("source")]
         out["model_axes"] = [a for a, th in thermal.items() if th.get("motion")]
         out["commands"] = len(run.commands)
+        if workflow == "commission" and workflows.COMMISSION_AXES:  # judged on these alone
+            out["judged_axes"] = list(workflows.COMMISSION_AXES)
         out["machine_h"] = (result.machine_time_s or run.machine_s) / 3600
         if run.manual_s is not None:
             out["manual_h"] = run.manual_s / 3600
@@ -183,7 +185,7 @@ def _xy_floor(after: dict[str, Any]) -> float:
 def summary(r: dict[str, Any]) -> dict[str, float]:
     """The headline figures of one machine."""
     b, a = r["before"], r["after"]
-    axes = list(a["axes"])
+    axes = r.get("judged_axes") or list(a["axes"])
     worst = min(axes, key=lambda n: 1 - a["axes"][n]["E_um"] / b["axes"][n]["E_um"])
     # the machine's sensors (machine.json), and the axes given heat from motion (none:
     # older runs listed those as sensor axes)
@@ -357,8 +359,13 @@ def main() -> int:
                              "the axis has travelled)")
     parser.add_argument("--laser-kind", choices=workflows.LASER_KINDS, default="modbus",
                         help="how `compgw commission` reads the sim's laser: its Modbus "
-                             "registers, or the bridge line protocol over TCP "
-                             "(docs/instruments-bridge.md) (modbus)")
+                             "registers, the bridge line protocol over TCP "
+                             "(docs/instruments-bridge.md), or the laser software's own "
+                             "recording, .rtx or CSV, of the first --commission-axes axis, "
+                             "made by a scripted technician (sim/technician.py) (modbus)")
+    parser.add_argument("--commission-axes", metavar="X[,Y]",
+                        help="the axes `compgw commission` is given, no plane (default: all "
+                             "and the plane); a recording reads one")
     parser.add_argument("--judge-repeats", type=int, default=1, metavar="N",
                         help="judge the calibrated machine N times (same targets, a cool-down "
                              "before each): the judge's own spread of E cut and A − R")
@@ -379,6 +386,10 @@ def main() -> int:
         parser.error("--budget-vs-manual and --budget-vs-plain: give one")
     workflows.THERMAL_PROFILE = args.thermal_profile
     workflows.LASER_KIND = args.laser_kind
+    workflows.COMMISSION_AXES = args.commission_axes.split(",") if args.commission_axes else None
+    if args.laser_kind.startswith("recording") and workflows.COMMISSION_AXES is None:
+        parser.error(f"--laser-kind {args.laser_kind}: give --commission-axes AXIS (a recording "
+                     "reads one axis)")
     machines = machine_list(args.machines, args.seed, args.real)
     if args.only:
         machines = [m for m in machines if m[0] in args.only.split(",")]

@@ -29,6 +29,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -38,6 +39,8 @@ from typing import Any
 
 import yaml
 from pymodbus.client import ModbusTcpClient
+
+from sim.technician import Technician
 
 ROOT = Path(__file__).resolve().parent.parent
 FAULTS_UNIT, ADVANCE_CLOCK_S = 250, 0x0800
@@ -166,6 +169,11 @@ class MachineRun:
         data["sim"]["time_scale"] = 0  # the machine's clock moves with requests alone
         if LASER_KIND == "bridge":  # the same laser on the bridge line protocol too
             data["sim"]["instruments"]["laser"]["bridge"] = {"host": "127.0.0.1", "port": 0}
+        if LASER_KIND.startswith("recording"):  # ... recording the first commissioned axis
+            axis = (COMMISSION_AXES or list(data["sim"]["axes"]))[0]
+            data["sim"]["instruments"]["laser"]["recording"] = {
+                "dir": str(self.work / "recordings"), "format": LASER_KIND.split("-")[1],
+                "axis": axis, "rate_hz": 500, "unit": "um", "idle_time_scale": 1.0}
         path = self.dir / "sim.run.yaml"  # beside sim.yaml: truth/ paths stay valid
         path.write_text(yaml.safe_dump(data, sort_keys=False))
         self._sim = subprocess.Popen([*compgw_argv(), "sim", "-c", str(path)], text=True,
@@ -340,13 +348,17 @@ class MachineRun:
         finally:
             gw.close()
 
-    def compgw(self, *args: object) -> str:
-        """Run ``compgw ARGS`` in the work directory; its stdout; CommandFailed if non-zero."""
+    def compgw(self, *args: object, technician: Technician | None = None) -> str:
+        """Run ``compgw ARGS`` in the work directory; its stdout; CommandFailed if non-zero.
+        ``technician``: hears every line as it comes and answers on stdin (a recording)."""
         argv = [*lockstep_argv(self.machine_port), *(str(a) for a in args)]
         self.commands.append(" ".join(["compgw", *(str(a) for a in args)]))
         t0 = time.monotonic()
-        out = subprocess.run(argv, cwd=self.work, text=True, capture_output=True,
-                             timeout=COMMAND_TIMEOUT_S, env=child_env())  # fmt: skip
+        if technician is None:
+            out = subprocess.run(argv, cwd=self.work, text=True, capture_output=True,
+                                 timeout=COMMAND_TIMEOUT_S, env=child_env())  # fmt: skip
+        else:
+            out = _with_technician(argv, self.work, technician)
         self.command_wall_s += time.monotonic() - t0
         self.machine_s += 60 * sum(float(m) for m in re.findall(
             r"about ([\d.]+) min of machine time", out.stdout))  # fmt: skip
@@ -355,6 +367,32 @@ class MachineRun:
             raise CommandFailed(f"compgw {' '.join(map(str, args[:3]))}: exit "
                                 f"{out.returncode}: {' | '.join(tail)}")  # fmt: skip
         return out.stdout
+
+
+def _with_technician(argv: list[str], cwd: Path, technician: Technician
+                     ) -> subprocess.CompletedProcess[str]:  # fmt: skip
+    """Run ``argv`` with ``technician`` hearing its stdout line by line (stderr kept apart),
+    bounded by COMMAND_TIMEOUT_S."""
+    deadline = time.monotonic() + COMMAND_TIMEOUT_S
+    with tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen(argv, cwd=cwd, text=True, stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, stderr=err,
+                                env={**child_env(), "PYTHONUNBUFFERED": "1"})  # fmt: skip
+        lines = []
+        try:
+            assert proc.stdout is not None
+            for line in proc.stdout:
+                lines.append(line)
+                technician.hear(line, proc.stdin)
+                if time.monotonic() > deadline:
+                    raise subprocess.TimeoutExpired(argv, COMMAND_TIMEOUT_S)
+            code = proc.wait(timeout=max(1.0, deadline - time.monotonic()))
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        err.seek(0)
+        return subprocess.CompletedProcess(argv, code, "".join(lines), err.read())
 
 
 @dataclass
@@ -535,8 +573,13 @@ BUDGET_VS_MANUAL: float | None = None
 #: ... or as this many times the plain workflow's (``accuracy.py --budget-vs-plain``)
 BUDGET_VS_PLAIN: float | None = None
 #: how commission reads the sim's laser (``accuracy.py --laser-kind``)
-LASER_KINDS = ("modbus", "bridge")
+LASER_KINDS = ("modbus", "bridge", "recording-rtx", "recording-csv")
 LASER_KIND = "modbus"
+#: the axes commission is given (``accuracy.py --commission-axes``; None: all, the plane
+#: too): a recording reads one axis, so it is compared on that axis alone
+COMMISSION_AXES: list[str] | None = None
+#: a recording's stand at each stop (wall s; the sim records it as it is)
+RECORDING_DWELL_S = 0.1
 
 
 def manual_machine_s(run: MachineRun) -> float:
@@ -656,10 +699,23 @@ def commission(run: MachineRun) -> WorkflowResult:
     run.use(data)
     run.cool_down()
     leads = [f"{a}={info['lead_mm']:g}" for a, info in run.machine["axes"].items()
-             if info.get("lead_mm")]  # fmt: skip
+             if info.get("lead_mm") and (COMMISSION_AXES is None or a in COMMISSION_AXES)]
     args = ["commission", "-c", run.work / "gw.yaml", "--gateway", run.gateway,
-            "--laser", run.laser_bridge or run.instrument(20), "--xy-device",
-            run.instrument(21), "--tolerance-um", f"{TOLERANCE_UM:g}", "--no-progress"]  # fmt: skip
+            "--tolerance-um", f"{TOLERANCE_UM:g}", "--no-progress"]  # fmt: skip
+    technician = None
+    if LASER_KIND.startswith("recording"):
+        laser_dir = run.work / "laser"
+        laser_dir.mkdir(exist_ok=True)
+        args += ["--laser", f"recording:{laser_dir}:um", "--dwell-s", f"{RECORDING_DWELL_S:g}",
+                 "--wait-start"]  # fmt: skip
+        technician = Technician("127.0.0.1", run.sim_port, 20, run.work / "recordings",
+                                LASER_KIND.split("-")[1])  # fmt: skip
+    else:
+        args += ["--laser", run.laser_bridge or run.instrument(20)]
+    if COMMISSION_AXES is not None:
+        args += ["--axes", ",".join(COMMISSION_AXES)]
+    else:
+        args += ["--xy-device", run.instrument(21)]
     if leads:
         args += ["--lead-mm", ",".join(leads)]
     if BUDGET_VS_MANUAL is not None or BUDGET_VS_PLAIN is not None:
@@ -676,7 +732,11 @@ def commission(run: MachineRun) -> WorkflowResult:
         args += ["--temperature", run.instrument(unit)]
     notes = []
     try:
-        run.compgw(*args)
+        if technician is None:
+            run.compgw(*args)
+        else:
+            with technician:
+                run.compgw(*args, technician=technician)
     except CommandFailed as exc:  # exit 1: tolerance not met (the evaluator judges anyway)
         notes.append(str(exc))
     out = run.work / "commission"

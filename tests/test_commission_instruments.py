@@ -151,3 +151,64 @@ def test_calibrate_from_the_laser_software_s_own_recording(tmp_path: Path) -> No
         # two visits of each stop: each reading scatters by the machine's repeatability
         # (0.3-0.5 µm here) and the first stop's too, so a few µm between single readings
         assert np.max(np.abs(rec - mod)) < 3.0 and abs(np.mean(rec - mod)) < 1.5, (rec, mod)
+
+
+@pytest.mark.timeout(240)
+def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: Path) -> None:
+    """`compgw commission --axes X --laser recording:DIR`: a scripted technician
+    (sim/technician.py) starts the sim's recording when compgw says so and presses Enter,
+    stops it after the moves and saves it under the name compgw waits for. Every step is one
+    recording, the drift references read in it before and after the runs; short ones of
+    their own across a config switch. The table fitted from them cuts E as the Modbus
+    laser's does (a short budget: the ISO runs, fitted unverified)."""
+    import json
+
+    from sim.technician import Technician
+
+    directory = tmp_path / "t"
+    small_machine(directory, seed=7)
+    sim = yaml.safe_load((directory / "sim.yaml").read_text())
+    sim["sim"]["instruments"]["laser"]["recording"] = {
+        "dir": "recordings", "format": "csv", "axis": "X", "rate_hz": 500, "unit": "um",
+        "idle_time_scale": 1.0}  # fmt: skip
+    (directory / "sim.yaml").write_text(yaml.safe_dump(sim, sort_keys=False))
+    with running(directory, tmp_path / "m") as rig:
+        laser_dir = tmp_path / "laser"
+        laser_dir.mkdir()
+        lead = rig.machine["axes"]["X"]["lead_mm"]
+        argv = [sys.executable, "-m", "gateway.cli", "commission", "-c", str(rig.config),
+                "--gateway", f"127.0.0.1:{rig.gw_port}", "--axes", "X",
+                "--laser", f"recording:{laser_dir}:um", "--lead-mm", f"X={lead:g}",
+                "--dwell-s", "0.08", "--wait-start", "--budget-h", "0.2", "--no-progress"]
+        proc = subprocess.Popen(argv, cwd=ROOT, text=True, stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
+        out = []
+        with Technician("127.0.0.1", rig.sim_port, 20, rig.dir / "recordings", "csv") as tech:
+            assert proc.stdout is not None
+            for line in proc.stdout:
+                out.append(line)
+                tech.hear(line, proc.stdin)
+        text = "".join(out)
+        assert proc.wait(timeout=30) in (0, 1), text
+        saved = {p.name for p in tech.saved}
+        assert {"refs-001.csv", "iso-X.csv", "before-X.csv", "after-X.csv"} <= saved, saved
+        state = json.loads((rig.config.parent / "commission" / "commission.json").read_text())
+        # the references read in the steps' own recordings: one reading before and after each
+        assert len(state["drift_log"]) >= 6 and state["refs_recordings"] >= 1
+        summary = json.loads((rig.config.parent / "commission" / "summary.json").read_text())
+        x = summary["axes"]["X"]
+        assert x["after"]["E_um"] < 0.5 * x["before"]["E_um"], (x, text)
+        assert "tables" in state and state["tables"]["pitch"].get("X"), state["tables"]
+
+
+def test_a_recording_commissions_one_linear_axis(template: Path, tmp_path: Path) -> None:
+    """A recording reads the one axis the laser is set up on: two axes or the plane are
+    refused in one line, before anything is asked or moved."""
+    args = [sys.executable, "-m", "gateway.cli", "commission", "-c",
+            str(template / "gateway.yaml"), "--laser", f"recording:{tmp_path}", "--dry-run"]
+    for extra in ([], ["--axes", "X,Y", "--xy-device", "127.0.0.1:1:21"]):
+        out = subprocess.run([*args, *extra], cwd=ROOT, capture_output=True, text=True,
+                             timeout=60)  # fmt: skip
+        assert out.returncode == 1, out.stdout + out.stderr  # as any other bad option
+        assert "a recording or capture reads one linear axis" in out.stderr
+        assert "--axes X, then --axes Y" in out.stderr

@@ -185,7 +185,8 @@ def find_stops(rec: Recording, band_um: float = DEFAULT_BAND_UM,
                min_s: float = 0.0) -> list[Stop]:  # fmt: skip
     """Every stationary stretch: the samples within ``band_um`` over a window of
     :data:`STILL_WINDOW_S`, lasting at least ``min_s`` (and a few samples). A gap in the
-    times (samples missing) ends a stretch. A fast recording is averaged down to about
+    times (samples missing) ends a stretch, and so does a step between two samples beyond
+    the band (two stops a short move apart are two). A fast recording is averaged down to about
     :data:`WORK_RATE_HZ` first (a stop lasts seconds; 50 kHz samples add nothing)."""
     t_s, v = _decimated(rec.t_s, rec.value_mm, rec.rate_hz)
     rate = rec.rate_hz * t_s.size / max(rec.t_s.size, 1)
@@ -203,7 +204,9 @@ def find_stops(rec: Recording, band_um: float = DEFAULT_BAND_UM,
     first = np.clip(idx - w + 1, 0, still_start.size)
     last = np.clip(idx + 1, 0, still_start.size)
     still = covered[last] - covered[first] > 0
-    gap = np.diff(t_s) > 3.0 / rate
+    # a gap in the times, or a step between two samples larger than the band (a move
+    # shorter than the window: 0.1 mm at 100 mm/s takes 1 ms), ends a stretch
+    gap = (np.diff(t_s) > 3.0 / rate) | (np.abs(np.diff(v)) > band_um / 1000.0)
     out: list[Stop] = []
     i = 0
     while i < n:

@@ -49,8 +49,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--gateway", metavar="HOST:PORT",
                    help="the running gateway (default: the config's upstream.tcp)")
     p.add_argument("--laser", metavar="KIND:ARGS", help="laser interferometer: HOST:PORT:UNIT "
-                   "(Modbus), bridge:tcp:HOST:PORT, bridge:cmd:COMMAND, manual "
-                   "(docs/instruments.md)")
+                   "(Modbus), bridge:tcp:HOST:PORT, bridge:cmd:COMMAND, manual, "
+                   "recording:DIR[:UNIT[:SIGN]], capture:MAPPING.yaml:DIR (one axis at a "
+                   "time; docs/instruments.md)")
+    p.add_argument("--dwell-s", type=above(0, "s"), default=3.0,
+                   help="with a recording or capture: the stand at each stop (s, 3); the "
+                   "machine-time estimates count it as the stop when it is longer")
+    p.add_argument("--wait-start", action=argparse.BooleanOptionalAction, default=None,
+                   help="with a recording or capture: before each step's moves, wait for "
+                   "Enter (the laser records) (default: at a terminal)")
     p.add_argument("--laser-axes", metavar="X,Y", help="laser channel order")
     p.add_argument("--angle", metavar="KIND:ARGS", help="angle instrument of rotary "
                    "axes: int32 µdeg at 2k (axis k), as calibrate --angle")  # fmt: skip
@@ -287,11 +294,14 @@ def main(args: argparse.Namespace) -> int:
         for option, text in (("--laser", args.laser), ("--angle", args.angle),
                              ("--xy-device", args.xy_device)):
             kind = (text or "").partition(":")[0]
-            if kind in ("recording", "capture"):
-                raise TableError(f"{option} {text}: commission reads its instrument between "
-                                 "the steps too (the drift references); a recording or "
-                                 "capture is read after a step's moves: use it with compgw "
-                                 "calibrate, or a bridge here (docs/instruments.md)")
+            if kind in ("recording", "capture") and (
+                    option != "--laser" or len(axes) != 1 or plane is not None
+                    or config.axes[axes[0]].rotary):  # fmt: skip
+                raise TableError(f"{option} {text}: a recording or capture reads one linear "
+                                 "axis, the one the laser is set up on: commission one axis "
+                                 "at a time (--axes X, then --axes Y with the laser moved), "
+                                 "without --xy-device (the plane: compgw calibrate --xy); "
+                                 "or use a bridge (docs/instruments.md)")  # fmt: skip
         if args.laser is None and not all(config.axes[a].rotary for a in axes):
             raise TableError("--laser HOST:PORT:UNIT is required (the axes' instrument)")
         gateway = gateway_endpoint(args, config)
@@ -312,11 +322,15 @@ def main(args: argparse.Namespace) -> int:
                 temperature=Endpoint.device("--temperature", args.temperature),
                 wait_stable=not args.no_wait_stable,
                 kinds=given_kinds(laser=laser_kind, angle=angle_kind, xy=xy_kind),
+                dwell_s=args.dwell_s,
+                wait_start=sys.stdin.isatty() if args.wait_start is None else args.wait_start,
             ),
             axes=axes, planar=plane, lead_mm=parse_leads(args.lead_mm, axes),
             tolerance_um=args.tolerance_um, tolerance_arcsec=args.tolerance_arcsec,
             budget_s=args.budget_h * 3600.0,
-            speed_mm_s=args.estimate_speed_mm_s, stop_s=args.estimate_stop_s,
+            speed_mm_s=args.estimate_speed_mm_s,
+            stop_s=max(args.estimate_stop_s, args.dwell_s) if laser_kind is not None
+            and laser_kind.reads_later else args.estimate_stop_s,
             motion=MotionSettings(args.in_position_bit, args.moving_bit, args.alarm_bit,
                                   args.in_position_pulses, args.timeout_s),
             seed=args.seed, max_rounds=args.max_rounds, warmup_s=args.warmup_min * 60.0,

@@ -19,6 +19,7 @@ import numpy as np
 from ...compensation import Chain
 from ...compensation.errors import TableError
 from ...config import GatewayConfig
+from ..plans.plans import Move, Plan
 from ..thermal.drift_shape import SweptHeat
 from ..thermal.heat_fit import MIN_GROWTH_UM, motion_heat_fit
 
@@ -61,7 +62,10 @@ class DriftRefs:
         """Deviation (mm) of each commissioned axis at its two drift references (a rotary
         axis's are zero: the laser sees no angle, its readings are taken as they are)."""
         linear = self.axes.ref_axes()
-        out = await self._read(linear) if linear else {}
+        if linear and self.recorded():
+            out = await self._read_recorded(linear[0])
+        else:
+            out = await self._read(linear) if linear else {}
         out.update({a: [0.0, 0.0] for a in self.s.axes if a not in out})
         self.record.state["last_refs"] = {"phase": self.record.state.get("phase"), "refs": out,
                                           "odometer_mm": self.odometer()}  # fmt: skip
@@ -89,6 +93,67 @@ class DriftRefs:
             if src is not None and src.kind == "temperature" and th.profile is None:
                 out[a]["sensor"] = [th.origin_mm, th.length_mm, th.gain, src.alpha_per_k,
                                     src.reference_c]  # fmt: skip
+        return out
+
+    # -- from the laser software's own recording or capture ----------------------------------
+    def recorded(self) -> bool:
+        """Whether the laser is read from its own software's file after the moves (a
+        recording or capture): the references are then stops of the same recording as the
+        runs around them (:meth:`.steps.StepRunner.step`), or a short one of their own."""
+        spec = self.s.instruments.kinds.get("laser")
+        return spec is not None and spec.reads_later
+
+    def ref_moves(self, axis: str, run: int = 1, repeats: int = REF_REPEATS) -> list[Move]:
+        """The moves of one reading of ``axis``'s references: each place approached in +
+        from 1 mm below ``repeats`` times, a stop at each (what :meth:`_read` does live)."""
+        out = []
+        for x in self.axes.ref_positions(axis):
+            for _ in range(repeats):
+                out += [Move(run, 1, "takeup", (x - 1.0,)), Move(run, 1, "measure", (x,))]
+        return out
+
+    def take_recorded(self, axis: str, actual_mm: Sequence[float],
+                      odometer_mm: dict[str, float] | None = None) -> dict[str, list[float]]:
+        """The references of ``axis`` from one reading's stops in a recording (positions,
+        mm, in :meth:`ref_moves` order): kept as :meth:`measure_refs` keeps a live reading
+        (their scatter pooled, the channel checked, their machine time counted)."""
+        places = self.axes.ref_positions(axis)
+        readings = np.asarray(actual_mm, dtype=np.float64).reshape(len(places), -1)
+        devs = []
+        for x, read in zip(places, readings):
+            devs.append(float(np.mean(read - x)))
+            self.pool_ref_scatter(axis, list(read - x))
+        self.check_channel(axis, [axis], devs)
+        out = {axis: devs}
+        out.update({a: [0.0, 0.0] for a in self.s.axes if a not in out})
+        state = self.record.state
+        state["refs_s"] = state.get("refs_s", 0.0) + self.refs_cost_s([axis],
+                                                                      readings.shape[1])
+        self.read_here = True
+        state["last_refs"] = {"phase": state.get("phase"), "refs": out,
+                              "odometer_mm": odometer_mm or self.odometer()}  # fmt: skip
+        return out
+
+    async def _read_recorded(self, axis: str) -> dict[str, list[float]]:
+        """A reading of the references as a short recording of its own (``refs-NNN``):
+        across a config switch, where no run's recording holds one."""
+        from ..measuring.session import Session
+        from ..plans.rawdata import read_raw_csv
+
+        count = int(self.record.state.get("refs_recordings", 0))
+        raw = self.record.dir / "raw" / "recorded" / f"refs-{count + 1:03d}.csv"
+        raw.parent.mkdir(parents=True, exist_ok=True)
+        plan = Plan("drift-references", (axis,), tuple(self.ref_moves(axis)),
+                    (("kind", "drift-references"), ("axis", axis)))  # fmt: skip
+        session = Session(self.config, self.record.config_dir, self.s.gateway,
+                          self.s.instruments, self.s.motion, {},
+                          on_move=self.count_travel)  # fmt: skip
+        try:
+            await session.run(plan, raw, "as loaded")
+        finally:
+            self.record.retried(session.retried)
+        out = self.take_recorded(axis, read_raw_csv(raw).actual_mm)
+        self.record.state["refs_recordings"] = count + 1
         return out
 
     async def _read(self, axes: Sequence[str], repeats: int = REF_REPEATS

@@ -18,11 +18,13 @@ import numpy as np
 from ..fitting import adaptive
 from ..measuring.session import Session
 from ..plans.plans import (
+    Move,
     Plan,
     read_plan,
     write_plan,
 )
 from ..plans.rawdata import RawData, read_raw_csv
+from ..plans.runner import join_values_async
 from .budget import split_runs
 from .settings import BudgetSpent, CommissionAborted, Settings
 
@@ -144,6 +146,10 @@ class StepRunner:
                                                               and self.budget.runs_apart())
         parts = split_runs(plan) if drifting and apart else [plan]
         done_parts = self.record.state.setdefault("parts", {}).setdefault(name, [])
+        if self.drift.recorded() and not done_parts:  # one recording holds the whole step
+            done_parts += await self._run_recorded(name, parts, raw, compensation, park,
+                                                   drifting)  # fmt: skip
+            self.record.save()
         for k, part in enumerate(parts):
             if k < len(done_parts):
                 continue
@@ -156,6 +162,76 @@ class StepRunner:
         self.record.state["parts"].pop(name, None)
         self.record.save()
         return raw
+
+    async def _run_recorded(self, name: str, parts: list[Plan], raw: Path, compensation: str,
+                            park: dict[str, float] | None, drifting: bool
+                            ) -> list[dict[str, Any]]:  # fmt: skip
+        """A step read from the laser software's own file: its runs, with a reading of
+        the drift references before the first and after each, run as one plan, so that
+        the technician makes one recording (or capture) per step (``DIR/<step>.rtx``), and
+        cut back into the runs' raw files and the references' readings afterwards. The
+        references are then stops of the same recording as the runs: one zero, one clock."""
+        axis = parts[0].axes[0]
+        refs = self.drift.ref_moves(axis, run=parts[0].moves[0].run) if drifting else []
+        moves: list[Move] = []
+        spans: list[tuple[int | None, int, int]] = []  # (run k or None: references, rows)
+
+        def add(label: int | None, more: Sequence[Move]) -> None:
+            start = sum(m.measured for m in moves)
+            moves.extend(more)
+            spans.append((label, start, start + sum(m.measured for m in more)))
+
+        if drifting:
+            add(None, refs)
+        for k, part in enumerate(parts):
+            add(k, part.moves)
+            if drifting:
+                add(None, refs)
+        whole = self.record.dir / "raw" / "recorded" / f"{name}.csv"
+        whole.parent.mkdir(parents=True, exist_ok=True)
+        odo0 = self.drift.odometer()
+        at0 = (self.record.state.get("odometer") or {}).get("at", {}).get(axis)
+        self.record.state["last_refs"] = None  # the moves change the thermal state
+        session = Session(self.config, self.record.config_dir, self.s.gateway,
+                          self.s.instruments, self.s.motion, park or {},
+                          on_move=self.drift.count_travel)  # fmt: skip
+        try:
+            await session.run(Plan(parts[0].kind, (axis,), tuple(moves), parts[0].meta),
+                              whole, compensation)  # fmt: skip
+        finally:
+            self.record.retried(session.retried)
+        actual = read_raw_csv(whole).actual_mm
+        # the odometer at each row (the travel of the moves up to it), for the drift log
+        xs = np.array([m.target_mm[0] for m in moves])
+        steps = np.abs(np.diff(np.concatenate([[xs[0] if at0 is None else at0], xs])))
+        travel = np.cumsum(steps)[[i for i, m in enumerate(moves) if m.measured]]
+        ending, starting = {}, {}  # each reading of the references by its first and last row
+        for label, a, b in spans:
+            if label is None:
+                odo = {**odo0, axis: odo0.get(axis, 0.0) + float(travel[b - 1])}
+                ending[b] = starting[a] = (self.drift.take_recorded(axis, actual[a:b], odo), odo)
+        entries = []
+        for label, a, b in spans:
+            if label is None:
+                continue
+            part = parts[label]
+            part_raw = raw if len(parts) == 1 else raw.with_name(f"{name}.part{label + 1}.csv")
+            await join_values_async(part, [{axis: float(v)} for v in actual[a:b]], whole,
+                                    part_raw, {"compensation": compensation})  # fmt: skip
+            entry: dict[str, Any] = {"raw": self.record.rel(part_raw)}
+            if drifting:
+                (before, odo_b), (after, odo_a) = ending[a], starting[b]
+                before, after = self.drift.drift_now(before), self.drift.drift_now(after)
+                if label == 0:
+                    self.drift.log_drift(before, odo_b)
+                self.drift.log_drift(after, odo_a)
+                entry["drift"] = {
+                    r: adaptive.Drift(self.axes.ref_positions(r), tuple(before[r]),
+                                      tuple(after[r])).to_json()
+                    for r in self.axes.ref_axes()}  # fmt: skip
+                self.record.state["drift_last"] = after
+            entries.append(entry)
+        return entries
 
     async def _run_part(self, key: str, plan: Plan, raw: Path, compensation: str,
                         park: dict[str, float] | None, drifting: bool) -> dict[str, Any]:

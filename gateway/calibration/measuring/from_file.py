@@ -27,6 +27,7 @@ from .machine import MachineError
 
 Say = Callable[[str], None]
 MoveFn = Callable[[Mapping[str, float]], Awaitable[None]]
+Ready = Callable[[], Awaitable[None]]
 
 #: how often the folder is looked at while compgw waits for the file (s)
 POLL_S = 0.2
@@ -40,10 +41,11 @@ def expected_files(spec: InstrumentSpec, name: str) -> list[Path]:
 
 
 async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: MoveFn,
-                       dwell_s: float, meta: Mapping[str, str], say: Say = print
-                       ) -> RunSummary:  # fmt: skip
+                       dwell_s: float, meta: Mapping[str, str], say: Say = print,
+                       ready: Ready | None = None) -> RunSummary:  # fmt: skip
     """Move through ``plan`` dwelling ``dwell_s`` at each measured stop, then wait for the
-    step's file and join its readings into ``raw_path`` (see the module docstring)."""
+    step's file and join its readings into ``raw_path`` (see the module docstring).
+    ``ready``: awaited before the first move (the technician says the laser records)."""
     if len(plan.axes) != 1:
         raise MachineError(f"--laser {spec.text}: a {spec.kind} reads one axis; this step "
                            f"moves {', '.join(plan.axes)} (give --xy-device for the plane)")
@@ -58,7 +60,10 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
         what = ("recording" if spec.kind == "recording" else "capture (on stationary, "
                 f"dwell under {dwell_s:g} s)")  # fmt: skip
         say(f"{name}: start the laser's {what} now: {len(measured)} stops of {dwell_s:g} s; "
-            f"save it as {files[0]}" + (f" (or {files[1].name})" if len(files) > 1 else ""))
+            f"save it as {files[0]}" + (f" (or {files[1].name})" if len(files) > 1 else "")
+            + ("; press Enter once it records" if ready is not None else ""))
+        if ready is not None:
+            await ready()
         for m in plan.moves:
             await move(dict(zip(plan.axes, m.target_mm)))
             if m.measured:
@@ -98,3 +103,10 @@ def _complete(raw_path: Path, measured: list) -> bool:  # type: ignore[type-arg]
         return len(read_raw_csv(raw_path)) >= len(measured)
     except Exception:
         return False
+
+
+async def enter_pressed() -> None:
+    """Wait for a line on standard input (Enter at the terminal); at its end, go on."""
+    import sys
+
+    await asyncio.to_thread(sys.stdin.readline)

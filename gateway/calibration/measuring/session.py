@@ -38,7 +38,7 @@ from ..plans.plans import Move, Plan
 from ..plans.rawdata import RawData, read_raw_csv
 from ..plans.runner import ProgressFn, RunSummary, run_plan
 from .devices import open_device
-from .from_file import run_for_file
+from .from_file import enter_pressed, run_for_file
 from .machine import (
     DeltaASensor,
     Endpoint,
@@ -74,6 +74,9 @@ class Instruments:
     kinds: Mapping[str, InstrumentSpec] = field(default_factory=dict)
     #: how long compgw stands at each stop for a recording or a capture (s)
     dwell_s: float = 3.0
+    #: before a recording's or capture's moves, wait for a line on stdin (Enter: the laser
+    #: records); the CLI's ``--wait-start``, on by default at a terminal
+    wait_start: bool = False
 
     def given(self, role: str) -> bool:
         """Whether an instrument of ``role`` was given, whatever its kind."""
@@ -142,9 +145,10 @@ class Session:
             if later is not None and later.reads_later:  # from a recording or a capture
                 if self.park:
                     await driver.move(dict(self.park))
-                return await run_for_file(plan, raw_path, later, driver.move,
-                                          self.instruments.dwell_s,
-                                          {"compensation": compensation})  # fmt: skip
+                return await run_for_file(
+                    plan, raw_path, later, driver.move, self.instruments.dwell_s,
+                    {"compensation": compensation},
+                    ready=enter_pressed if self.instruments.wait_start else None)
             read = await self._measure_fn(plan, links)
 
             async def measure(move: Move) -> Mapping[str, float]:
