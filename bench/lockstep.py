@@ -59,7 +59,7 @@ import threading
 import time
 from collections.abc import Callable
 
-FAULTS_UNIT, CLOCK_MS = 250, 0x0802
+FAULTS_UNIT, CLOCK_MS, ADVANCE_MS = 250, 0x0802, 0x0801
 READS = (0x03, 0x04)
 #: function codes that write (the gateway corrects what they carry, or starts a move)
 WRITES = (0x05, 0x06, 0x0F, 0x10, 0x16, 0x17)
@@ -105,6 +105,20 @@ class SimClock:
         hi, lo = struct.unpack(">HH", body[3:7])
         return (hi << 16) | lo
 
+    def advance(self, seconds: float) -> None:
+        """Move the machine's clock on by ``seconds`` (the control block's 0x0801, ms)."""
+        with self._lock:
+            if self._sock is None:
+                self._read_ms()
+            assert self._sock is not None
+            self._tid = (self._tid + 1) & 0xFFFF
+            self._sock.sendall(struct.pack(">HHHBBHH", self._tid, 0, 6, FAULTS_UNIT, 0x06,
+                                           ADVANCE_MS, round(seconds * 1000.0)))  # fmt: skip
+            tid, _, length = struct.unpack(">HHH", _recv_exactly(self._sock, 6))
+            body = _recv_exactly(self._sock, length)
+            if tid != self._tid or body[1] != 0x06:
+                raise ConnectionError(f"the sim's clock advance answered {body.hex()}")
+
     def __call__(self) -> float:
         with self._lock:
             try:
@@ -119,12 +133,21 @@ class SimClock:
 def install(clock: Callable[[], float]) -> None:
     """Make ``clock`` compgw's time: ``time.time`` (commissioning's drift log, the raw
     files' ``time_s``) and the default clock of the gateway's heat from motion and travel
-    profile (gateway/thermal_travel.py). asyncio, bus timeouts and the thermal sources'
+    profile (gateway/thermal_travel.py); a recording's stand at each stop advances the
+    machine's clock instead of sleeping. asyncio, bus timeouts and the thermal sources'
     filter keep the wall clock: every poll at one instant reads the same (``wire``), and
     with ``smoothing: 1`` (the generated machines' sources) the filter's value is that
     reading however often it polled (a smoothing below 1 would count the polls)."""
     real = time.monotonic
     time.time = clock
+    advance = getattr(clock, "advance", None)
+    if advance is not None:  # a recording's stand at each stop: machine time, not wall time
+        from gateway.calibration.measuring import from_file
+
+        async def stand(seconds: float) -> None:
+            await asyncio.to_thread(advance, seconds)
+
+        from_file.stand = stand
     from gateway import thermal_travel
 
     for cls in (thermal_travel.HeatFromMotion, thermal_travel.TravelHistory):

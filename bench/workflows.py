@@ -173,7 +173,7 @@ class MachineRun:
             axis = (COMMISSION_AXES or list(data["sim"]["axes"]))[0]
             data["sim"]["instruments"]["laser"]["recording"] = {
                 "dir": str(self.work / "recordings"), "format": LASER_KIND.split("-")[1],
-                "axis": axis, "rate_hz": 500, "unit": "um", "idle_time_scale": 1.0}
+                "axis": axis, "rate_hz": 500, "unit": "um", "idle_time_scale": 1000.0}
         path = self.dir / "sim.run.yaml"  # beside sim.yaml: truth/ paths stay valid
         path.write_text(yaml.safe_dump(data, sort_keys=False))
         self._sim = subprocess.Popen([*compgw_argv(), "sim", "-c", str(path)], text=True,
@@ -578,8 +578,9 @@ LASER_KIND = "modbus"
 #: the axes commission is given (``accuracy.py --commission-axes``; None: all, the plane
 #: too): a recording reads one axis, so it is compared on that axis alone
 COMMISSION_AXES: list[str] | None = None
-#: a recording's stand at each stop (wall s; the sim records it as it is)
-RECORDING_DWELL_S = 0.1
+#: a recording's stand at each stop (s of the machine's clock: bench/lockstep.py advances
+#: it, no wall time passes): the Modbus path's estimate of a stop, so both cost the same
+RECORDING_DWELL_S = 2.0
 
 
 def manual_machine_s(run: MachineRun) -> float:

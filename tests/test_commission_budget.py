@@ -134,7 +134,8 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         assert "a short budget: every axis's ISO runs (and their midpoints" in proc.text()
         # the same command with more budget carries on: Y's scans, the fit again with both
         # cyclic terms, the plane and the rounds
-        assert "WITHIN 10 µm on every commissioned axis and the plane" in proc.text()
+        assert "WITHIN 10 µm as the laser reads it on every commissioned axis and the plane" \
+            in proc.text()
         def after_x(where: Path) -> list[str]:
             return [f.read_text() for f in sorted(where.glob("after-X*.csv"))]
 

@@ -82,19 +82,21 @@ class AfterSteps:
                 f"points): {why}; your own config is kept")  # fmt: skip
 
     def _after_scores(self) -> dict[str, float] | None:
-        """The after-run judged as a round judges (E per axis, the plane's maximum vector
-        error; drift taken off); None when an axis has no table or was not measured."""
+        """The after-run judged as the customer's laser reads it: E per axis, the plane's
+        maximum vector error, nothing subtracted (the machine's drift while measuring left
+        in); None when an axis has no table or was not measured."""
         scores: dict[str, float] = {}
         for a in self.s.axes:
             if a not in self.record.tables.pitch or not self.record.done(f"after-{a}"):
                 return None
-            table = read_pitch_csv(self.record.config_dir / self.record.tables.pitch[a]).position_mm
-            dev = axis_deviations(self.runner.raw(f"after-{a}"), a)
-            scores[a] = self.rotary.judge(a, dev, table).E_um
+            path = self.record.config_dir / self.record.tables.pitch[a]
+            dev = axis_deviations(self.runner.raw_as_read(f"after-{a}"), a)
+            scores[a] = self.rotary.judge(a, dev, read_pitch_csv(path).position_mm).E_um
         if self.s.planar is not None:
             if not self.record.done("after-xy"):
                 return None
-            scores["XY"] = self.xy_figures("after-xy")["max_um"]
+            scores["XY"] = planar_figures(self.runner.raw_as_read("after-xy"),
+                                          self.s.planar)["max_um"]  # fmt: skip
         return scores
 
     def after_verdict(self, outcome: str) -> str:
@@ -118,7 +120,8 @@ class AfterSteps:
             if not missed:
                 return outcome
             note = ("the rounds read within " + self.rotary.tolerance_text() + " at their random "
-                    "targets; the after-run, at the before-run's, does not: "
+                    "targets (the drift while measuring taken off); the after-run, at the "
+                    "before-run's, as the laser reads it, does not: "
                     + ", ".join(f"{n} {'max' if n == 'XY' else 'E'} {self.rotary.score_text(n, v)}"
                                 for n, v in missed.items()))  # fmt: skip
             self.record.state["notes"].append(note)
@@ -158,7 +161,9 @@ class AfterSteps:
                     # E_read: as read, the drift while measuring in it (a recheck's terms)
                     entry[phase] = {"E_um": iso.E_um, "A_um": iso.A_um, "R_um": iso.R_um,
                                     "B_um": iso.B_um, "M_um": iso.M_um,
-                                    "E_read_um": read.E_um, "runs": iso.runs,
+                                    "E_read_um": read.E_um, "A_read_um": read.A_um,
+                                    "M_read_um": read.M_um, "R_read_um": read.R_um,
+                                    "runs": iso.runs,
                                     "s_pooled_um": pooled_s_um(iso)}  # fmt: skip
             entry.update(self.takeup.steps_summary(a))
             if a in self.record.tables.pitch:

@@ -40,6 +40,11 @@ def expected_files(spec: InstrumentSpec, name: str) -> list[Path]:
     return [spec.directory / f"{name}{s}" for s in suffixes]
 
 
+async def stand(seconds: float) -> None:
+    """Stand still at a stop for ``seconds`` (the laser software sees the axis still)."""
+    await asyncio.sleep(seconds)
+
+
 async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: MoveFn,
                        dwell_s: float, meta: Mapping[str, str], say: Say = print,
                        ready: Ready | None = None) -> RunSummary:  # fmt: skip
@@ -67,7 +72,7 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
         for m in plan.moves:
             await move(dict(zip(plan.axes, m.target_mm)))
             if m.measured:
-                await asyncio.sleep(dwell_s)
+                await stand(dwell_s)
         atomic_write_text(moved, f"{name}: moves done; readings from {files[0]}\n")
     found = next((f for f in files if f.exists()), None)
     if found is None:
