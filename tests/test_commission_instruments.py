@@ -153,14 +153,14 @@ def test_calibrate_from_the_laser_software_s_own_recording(tmp_path: Path) -> No
         assert np.max(np.abs(rec - mod)) < 3.0 and abs(np.mean(rec - mod)) < 1.5, (rec, mod)
 
 
-@pytest.mark.timeout(240)
 def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: Path) -> None:
     """`compgw commission --axes X --laser recording:DIR`: a scripted technician
     (sim/technician.py) starts the sim's recording when compgw says so and presses Enter,
-    stops it after the moves and saves it under the name compgw waits for. Every step is one
-    recording, the drift references read in it before and after the runs; short ones of
-    their own across a config switch. The table fitted from them more than halves E (no
-    lead search: the suite's time)."""
+    stops it after the moves and saves it under the name compgw waits for. A step is one
+    recording, the drift references read in it before and after its runs, at the laser's
+    one zero (the first recording's); a short one of their own across a config switch. A
+    short budget (the suite's time; the bench compares the kinds at full length): the ISO
+    runs, then the table fitted from them."""
     import json
 
     from sim.technician import Technician
@@ -177,8 +177,8 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
         laser_dir.mkdir()
         argv = [sys.executable, "-m", "gateway.cli", "commission", "-c", str(rig.config),
                 "--gateway", f"127.0.0.1:{rig.gw_port}", "--axes", "X",
-                "--laser", f"recording:{laser_dir}:um", "--no-lead-search",
-                "--dwell-s", "0.08", "--wait-start", "--no-progress"]
+                "--laser", f"recording:{laser_dir}:um", "--no-lead-search", "--budget-h",
+                "0.1", "--dwell-s", "0.08", "--wait-start", "--no-progress"]  # fmt: skip
         proc = subprocess.Popen(argv, cwd=ROOT, text=True, stdin=subprocess.PIPE,
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
         out = []
@@ -188,16 +188,19 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
                 out.append(line)
                 tech.hear(line, proc.stdin)
         text = "".join(out)
-        assert proc.wait(timeout=30) in (0, 1), text
-        saved = {p.name for p in tech.saved}
-        assert {"refs-001.csv", "iso-X.csv", "before-X.csv", "after-X.csv"} <= saved, saved
-        state = json.loads((rig.config.parent / "commission" / "commission.json").read_text())
-        # the references read in the steps' own recordings: one reading before and after each
-        assert len(state["drift_log"]) >= 6 and state["refs_recordings"] >= 1
-        summary = json.loads((rig.config.parent / "commission" / "summary.json").read_text())
-        x = summary["axes"]["X"]
-        assert x["after"]["E_um"] < 0.5 * x["before"]["E_um"], (x, text)
-        assert "tables" in state and state["tables"]["pitch"].get("X"), state["tables"]
+        assert proc.wait(timeout=30) == 1, text  # the budget spent: not verified
+        assert [p.name for p in tech.saved][:2] == ["refs-001.csv", "iso-X.csv"], tech.saved
+        done = rig.config.parent / "commission"
+        state = json.loads((done / "commission.json").read_text())
+        assert "laser_datum_mm" in state and state["refs_recordings"] >= 1
+        # the references read in iso-X's own recording: before and after each of its runs
+        parts = state["steps"]["iso-X"]["parts"]
+        assert len(parts) == 3 and all("drift" in part for part in parts), parts
+        assert len(state["drift_log"]) >= 1 + len(parts) + 1, state["drift_log"]
+        summary = json.loads((done / "summary.json").read_text())
+        assert summary["outcome"] == "budget" and "X" in state["tables"]["pitch"], text
+        table = read_raw_csv(done / "raw" / "iso-X.part1.csv")
+        assert np.abs(table.deviation_mm).max() < 0.2  # positions, not the laser's own zero
 
 
 def test_a_recording_commissions_one_linear_axis(template: Path, tmp_path: Path) -> None:

@@ -260,10 +260,23 @@ def plan_stops(rec: Recording, expected: int, dwell_s: float,
 
 
 def align(rec: Recording, stops: Sequence[Stop], targets_mm: Sequence[float],
-          sign: float = 1.0, tolerance_mm: float = STEP_TOLERANCE_MM) -> np.ndarray:  # fmt: skip
-    """Each plan stop's reading (mm, the first stop taken as its target): the stops found
-    matched with the plan's ``targets_mm`` by order and by the steps between them. Refuses
-    (RecordingError, one line) a recording whose stops do not follow the plan."""
+          sign: float = 1.0, tolerance_mm: float = STEP_TOLERANCE_MM,
+          datum_mm: float | None = None) -> np.ndarray:  # fmt: skip
+    """Each plan stop's reading (mm), the stops matched with the plan (:func:`matched`):
+    the first stop taken as its target, or with ``datum_mm`` (what the laser read at the
+    machine's zero in an earlier recording of the same setup, :func:`datum_of`) each
+    reading less the datum: the same zero in every recording."""
+    targets = np.asarray(targets_mm, dtype=float)
+    found = matched(rec, stops, targets, sign, tolerance_mm)
+    return zeroed(found, targets, datum_mm, rec.path)
+
+
+def matched(rec: Recording, stops: Sequence[Stop], targets_mm: Sequence[float],
+            sign: float = 1.0, tolerance_mm: float = STEP_TOLERANCE_MM
+            ) -> np.ndarray:  # fmt: skip
+    """The readings (mm, as the laser read them, at its own zero) of the stops found,
+    matched with the plan's ``targets_mm`` by order and by the steps between them.
+    Refuses (RecordingError, one line) a recording whose stops do not follow the plan."""
     targets = np.asarray(targets_mm, dtype=float)
     found = np.array([s.value_mm for s in stops]) * sign
     name, k, m = rec.path, targets.size, found.size
@@ -274,7 +287,7 @@ def align(rec: Recording, stops: Sequence[Stop], targets_mm: Sequence[float],
     for lead in range(1, m - k + 1):  # the machine standing before the first stop or after
         window = found[lead : lead + k]  # the last one (the laser started early, stopped
         if np.all(np.abs(window - window[0] - steps_plan) <= tolerance_mm):  # late)
-            return targets[0] + window - window[0]
+            return window
     steps_read = found - found[0]
     n = min(k, m)
     off = np.flatnonzero(np.abs(steps_read[:n] - steps_plan[:n]) > tolerance_mm)
@@ -300,7 +313,32 @@ def align(rec: Recording, stops: Sequence[Stop], targets_mm: Sequence[float],
                  f"{m + 1} at {targets[m]:.4f} mm is missing (a stop cut short, or the "
                  "recording ended early?)")  # fmt: skip
         raise RecordingError(f"{name}: found {m} stops, expected {k}: {which}")
-    return targets[0] + steps_read
+    return found
+
+
+#: a recording's first stop this far (mm) from where the datum puts it: the laser was zeroed
+#: again, or its beam broken, since the datum was taken
+DATUM_TOLERANCE_MM = 0.5
+
+
+def datum_of(readings_mm: Sequence[float], targets_mm: Sequence[float]) -> float:
+    """The laser's reading at the machine's zero, from a recording's first stop (its
+    deviation taken as 0): what :func:`align` takes off later recordings of the setup."""
+    return float(readings_mm[0] - targets_mm[0])
+
+
+def zeroed(found: np.ndarray, targets: np.ndarray, datum_mm: float | None,
+           name: Path) -> np.ndarray:  # fmt: skip
+    """The readings of the matched stops (``found``, plan order) as positions (mm)."""
+    if datum_mm is None:
+        return targets[0] + found - found[0]
+    off = float(found[0] - datum_mm - targets[0])
+    if abs(off) > DATUM_TOLERANCE_MM:
+        raise RecordingError(f"{name}: its first stop reads {off:+.3f} mm from where the "
+                             "earlier recordings' zero puts it: the laser was zeroed again "
+                             "or its beam broken since; keep one zero for the whole "
+                             "commissioning (or start it over)")  # fmt: skip
+    return found - datum_mm
 
 
 def _ratio_words(ratio: float) -> str | None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -19,7 +20,9 @@ import numpy as np
 from ...compensation import Chain
 from ...compensation.errors import TableError
 from ...config import GatewayConfig
+from ..measuring.session import Session
 from ..plans.plans import Move, Plan
+from ..plans.runner import read_raw_meta
 from ..thermal.drift_shape import SweptHeat
 from ..thermal.heat_fit import MIN_GROWTH_UM, motion_heat_fit
 
@@ -134,10 +137,24 @@ class DriftRefs:
                               "odometer_mm": odometer_mm or self.odometer()}  # fmt: skip
         return out
 
+    def recorded_session(self, park: dict[str, float] | None = None) -> Session:
+        """A session reading the laser software's files, at the laser's one zero."""
+        return Session(self.config, self.record.config_dir, self.s.gateway,
+                       self.s.instruments, self.s.motion, park or {},
+                       on_move=self.count_travel,
+                       datum_mm=self.record.state.get("laser_datum_mm"))  # fmt: skip
+
+    def keep_datum(self, raw: Path) -> None:
+        """The laser's zero, from the commissioning's first recording (its first stop):
+        every later recording is read at it, so that the drift references of one
+        recording and the next share their zero."""
+        meta = read_raw_meta(raw)
+        if "laser_datum_mm" not in self.record.state and "datum_mm" in meta:
+            self.record.state["laser_datum_mm"] = float(meta["datum_mm"])
+
     async def _read_recorded(self, axis: str) -> dict[str, list[float]]:
         """A reading of the references as a short recording of its own (``refs-NNN``):
         across a config switch, where no run's recording holds one."""
-        from ..measuring.session import Session
         from ..plans.rawdata import read_raw_csv
 
         count = int(self.record.state.get("refs_recordings", 0))
@@ -145,13 +162,12 @@ class DriftRefs:
         raw.parent.mkdir(parents=True, exist_ok=True)
         plan = Plan("drift-references", (axis,), tuple(self.ref_moves(axis)),
                     (("kind", "drift-references"), ("axis", axis)))  # fmt: skip
-        session = Session(self.config, self.record.config_dir, self.s.gateway,
-                          self.s.instruments, self.s.motion, {},
-                          on_move=self.count_travel)  # fmt: skip
+        session = self.recorded_session()
         try:
             await session.run(plan, raw, "as loaded")
         finally:
             self.record.retried(session.retried)
+        self.keep_datum(raw)
         out = self.take_recorded(axis, read_raw_csv(raw).actual_mm)
         self.record.state["refs_recordings"] = count + 1
         return out

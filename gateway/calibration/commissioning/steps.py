@@ -192,14 +192,13 @@ class StepRunner:
         odo0 = self.drift.odometer()
         at0 = (self.record.state.get("odometer") or {}).get("at", {}).get(axis)
         self.record.state["last_refs"] = None  # the moves change the thermal state
-        session = Session(self.config, self.record.config_dir, self.s.gateway,
-                          self.s.instruments, self.s.motion, park or {},
-                          on_move=self.drift.count_travel)  # fmt: skip
+        session = self.drift.recorded_session(park)
         try:
             await session.run(Plan(parts[0].kind, (axis,), tuple(moves), parts[0].meta),
                               whole, compensation)  # fmt: skip
         finally:
             self.record.retried(session.retried)
+        self.drift.keep_datum(whole)
         actual = read_raw_csv(whole).actual_mm
         # the odometer at each row (the travel of the moves up to it), for the drift log
         xs = np.array([m.target_mm[0] for m in moves])

@@ -16,10 +16,12 @@ import asyncio
 from collections.abc import Awaitable, Callable, Mapping
 from pathlib import Path
 
+import numpy as np
+
 from ...formats import atomic_write_text
 from ...instruments.base import InstrumentError
 from ...instruments.capture import PlanStop, load_layout, read_export
-from ...instruments.recording import align, plan_stops, read_recording
+from ...instruments.recording import datum_of, matched, plan_stops, read_recording, zeroed
 from ...instruments.spec import InstrumentSpec
 from ..plans.plans import Plan
 from ..plans.runner import RunSummary, join_values_async, raw_runs
@@ -47,10 +49,14 @@ async def stand(seconds: float) -> None:
 
 async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: MoveFn,
                        dwell_s: float, meta: Mapping[str, str], say: Say = print,
-                       ready: Ready | None = None) -> RunSummary:  # fmt: skip
+                       ready: Ready | None = None, datum_mm: float | None = None
+                       ) -> RunSummary:  # fmt: skip
     """Move through ``plan`` dwelling ``dwell_s`` at each measured stop, then wait for the
     step's file and join its readings into ``raw_path`` (see the module docstring).
-    ``ready``: awaited before the first move (the technician says the laser records)."""
+    ``ready``: awaited before the first move (the technician says the laser records).
+    ``datum_mm``: a recording's readings less it (one zero across recordings, see
+    :func:`..instruments.recording.align`); the datum used is kept in the raw file's meta
+    (``datum_mm``: the first stop's, where none was given)."""
     if len(plan.axes) != 1:
         raise MachineError(f"--laser {spec.text}: a {spec.kind} reads one axis; this step "
                            f"moves {', '.join(plan.axes)} (give --xy-device for the plane)")
@@ -87,7 +93,11 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
         if spec.kind == "recording":
             rec = read_recording(found, spec.unit)
             stops = plan_stops(rec, len(measured), dwell_s)
-            values = align(rec, stops, [m.target_mm[0] for m in measured], spec.sign)
+            targets = np.array([m.target_mm[0] for m in measured])
+            readings = matched(rec, stops, targets, spec.sign)
+            if datum_mm is None:
+                datum_mm = datum_of(readings, targets)
+            values = zeroed(readings, targets, datum_mm, found)
         else:
             assert spec.mapping is not None
             stops_plan = [PlanStop(m.target_mm[0], m.run, m.direction) for m in measured]
@@ -97,8 +107,9 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
                            "the same command again") from None  # fmt: skip
     except OSError as exc:
         raise MachineError(f"{found}: {exc}") from None
+    kept = {"datum_mm": f"{datum_mm:.6f}"} if datum_mm is not None else {}
     return await join_values_async(plan, [{axis: float(v)} for v in values], found, raw_path,
-                                   {**meta, "instrument": spec.kind})  # fmt: skip
+                                   {**meta, "instrument": spec.kind, **kept})  # fmt: skip
 
 
 def _complete(raw_path: Path, measured: list) -> bool:  # type: ignore[type-arg]

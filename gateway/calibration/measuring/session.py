@@ -131,6 +131,9 @@ class Session:
     on_move: Callable[[str, float], None] | None = None
     #: requests answered only on a later try (:data:`.machine.TRANSIENT_CODES`), all runs
     retried: int = 0
+    #: a recording's readings less this (mm): the laser's zero kept across a commissioning's
+    #: recordings (:func:`.from_file.run_for_file`); None: each recording's first stop
+    datum_mm: float | None = None
     #: the instruments a run opened (closed when it ends: a bridge's connection or child)
     _opened: list[Instrument] = field(default_factory=list, repr=False)
 
@@ -148,7 +151,8 @@ class Session:
                 return await run_for_file(
                     plan, raw_path, later, driver.move, self.instruments.dwell_s,
                     {"compensation": compensation},
-                    ready=enter_pressed if self.instruments.wait_start else None)
+                    ready=enter_pressed if self.instruments.wait_start else None,
+                    datum_mm=self.datum_mm)
             read = await self._measure_fn(plan, links)
 
             async def measure(move: Move) -> Mapping[str, float]:
