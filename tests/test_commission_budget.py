@@ -12,6 +12,8 @@ import json
 import re
 import shutil
 import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +24,8 @@ from gateway.calibration.commissioning.commission import Commission
 from gateway.calibration.commissioning.steps import Settings
 from gateway.calibration.measuring.session import Instruments
 from tests.commission_rig import TRAVEL_MM, running, small_machine
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -289,3 +293,22 @@ def test_the_plan_says_what_each_step_is_for_and_what_a_short_budget_buys(
     bought = next(s for s in said if s.startswith("  with 0.33 h: "))
     assert bought.startswith("  with 0.33 h: pitch tables, plane"), bought
     assert "needs" in bought and "h more" in bought, bought
+
+
+def test_a_budget_that_would_end_with_no_table_is_refused_before_anything_moves(
+        template: Path, tmp_path: Path) -> None:  # fmt: skip
+    """Issue 54: "never a plan that ends with no table". A budget short of even one axis's
+    ISO runs at 2 runs per target is refused before anything is asked or moved, naming the
+    least budget that gives a table (no gateway runs here: a dry run and a real one both
+    stop there)."""
+    config = template / "gateway.yaml"
+    for extra in (["--dry-run"], []):
+        out = subprocess.run(
+            [sys.executable, "-m", "gateway.cli", "commission", "-c", str(config),
+             "--laser", "127.0.0.1:1:20", "--gateway", "127.0.0.1:1", "--budget-h", "0.01",
+             "--out",
+             str(tmp_path / "c"), *extra], cwd=ROOT, capture_output=True, text=True,
+            timeout=60)  # fmt: skip
+        assert out.returncode == 1, out.stdout + out.stderr
+        assert "the commissioning would end with no table; give at least" in out.stderr
+        assert not (tmp_path / "c" / "commission.json").exists()

@@ -350,6 +350,9 @@ def main(args: argparse.Namespace) -> int:
                     f"{config_path}: status.remote_control is false, so the gateway refuses to "
                     "reload over Modbus: set status.remote_control: true in its config (then "
                     "restart it or send it SIGHUP), or give --reload-pid or --reload-cmd")
+            short = job.command.too_short()
+            if short is not None:  # nothing asked or moved: no plan that ends with no table
+                raise TableError(short)
             if not args.dry_run:
                 asyncio.run(_answering(settings, config, config_path))
                 job.stager.adopt_edits()  # (refused here, before anything would put a config back)

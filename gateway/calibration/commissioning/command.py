@@ -8,6 +8,7 @@ asked.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -148,6 +149,27 @@ class CommandChecks:
                 short.append(f"{label} needs {more_s / 3600:.2f} h more")
         head = f"with {self.s.budget_s / 3600:.2f} h: " + (", ".join(got) or "no table")
         return head + ("; " + ", ".join(short) if short else "")
+
+    def too_short(self) -> str | None:
+        """Why a fresh commissioning would end with no table: its budget does not hold even
+        the cheapest linear axis's ISO runs at 2 runs per target (the fewest a short budget
+        takes); None when it does, on a resume, or with rotary axes only."""
+        linear = [a for a in self.s.axes if not self.axes.rotary(a)]
+        if self.record.state.get("steps") or not linear:
+            return None
+        costs = {a: self.axes.estimate_s(self.axes.snap(self.plans.iso_plan(a, runs=2)))
+                 for a in linear}  # fmt: skip
+        axis, least_s = min(costs.items(), key=lambda item: item[1])
+        if least_s <= self.s.budget_s:
+            return None
+        def hours(seconds: float) -> str:  # rounded up: the budget that holds it
+            return f"{math.ceil(seconds / 36.0) / 100:.2f} h"
+
+        return (f"--budget-h {self.s.budget_s / 3600:g}: not even one axis's ISO runs fit "
+                f"({axis}'s, at 2 runs per target, take {least_s / 60:.1f} min of machine "
+                "time before the drift references): the commissioning would end with no "
+                f"table; give at least {hours(least_s)} (every axis's: "
+                f"{hours(sum(costs.values()))})")  # fmt: skip
 
     def _compensated(self, axis: str) -> bool:
         """Whether the user's config has a table stage on ``axis`` (pitch, cyclic, linkage,
