@@ -169,7 +169,7 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
     small_machine(directory, seed=7)
     sim = yaml.safe_load((directory / "sim.yaml").read_text())
     sim["sim"]["instruments"]["laser"]["recording"] = {
-        "dir": "recordings", "format": "csv", "axis": "X", "rate_hz": 500, "unit": "um",
+        "dir": "recordings", "format": "csv", "axis": "X", "rate_hz": 250, "unit": "um",
         "idle_time_scale": 1.0}  # fmt: skip
     (directory / "sim.yaml").write_text(yaml.safe_dump(sim, sort_keys=False))
     with running(directory, tmp_path / "m") as rig:
