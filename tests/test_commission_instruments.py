@@ -189,6 +189,7 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
                 tech.hear(line, proc.stdin)
         text = "".join(out)
         assert proc.wait(timeout=30) == 1, text  # the budget spent: not verified
+        assert "plane" not in text.split("commissioning X:")[1], text  # none is commissioned
         assert [p.name for p in tech.saved][:2] == ["refs-001.csv", "iso-X.csv"], tech.saved
         done = rig.config.parent / "commission"
         state = json.loads((done / "commission.json").read_text())

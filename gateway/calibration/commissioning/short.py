@@ -108,8 +108,9 @@ class ShortBudget:
                          "what its scatter explains: " + (
                              f"its midpoints read too ({need_s / 60:.1f} min)"
                              if ident[key]["measured"] else
-                             f"its midpoints ({need_s / 60:.1f} min) do not fit beside the "
-                             "plane's grid"))  # fmt: skip
+                             f"its midpoints ({need_s / 60:.1f} min) do not fit "
+                             + ("beside the plane's grid" if keep_s > 0.0 else
+                                "in the budget left")))  # fmt: skip
             self.record.save()
         if ident[key]["measured"]:
             await self.runner.step(f"iso-mid-{axis}", lambda: self.plans.midpoints_plan(axis),
