@@ -29,7 +29,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -358,7 +357,7 @@ class MachineRun:
             out = subprocess.run(argv, cwd=self.work, text=True, capture_output=True,
                                  timeout=COMMAND_TIMEOUT_S, env=child_env())  # fmt: skip
         else:
-            out = _with_technician(argv, self.work, technician)
+            out = technician.attend(argv, self.work, COMMAND_TIMEOUT_S, child_env())
         self.command_wall_s += time.monotonic() - t0
         self.machine_s += 60 * sum(float(m) for m in re.findall(
             r"about ([\d.]+) min of machine time", out.stdout))  # fmt: skip
@@ -367,32 +366,6 @@ class MachineRun:
             raise CommandFailed(f"compgw {' '.join(map(str, args[:3]))}: exit "
                                 f"{out.returncode}: {' | '.join(tail)}")  # fmt: skip
         return out.stdout
-
-
-def _with_technician(argv: list[str], cwd: Path, technician: Technician
-                     ) -> subprocess.CompletedProcess[str]:  # fmt: skip
-    """Run ``argv`` with ``technician`` hearing its stdout line by line (stderr kept apart),
-    bounded by COMMAND_TIMEOUT_S."""
-    deadline = time.monotonic() + COMMAND_TIMEOUT_S
-    with tempfile.TemporaryFile("w+") as err:
-        proc = subprocess.Popen(argv, cwd=cwd, text=True, stdin=subprocess.PIPE,
-                                stdout=subprocess.PIPE, stderr=err,
-                                env={**child_env(), "PYTHONUNBUFFERED": "1"})  # fmt: skip
-        lines = []
-        try:
-            assert proc.stdout is not None
-            for line in proc.stdout:
-                lines.append(line)
-                technician.hear(line, proc.stdin)
-                if time.monotonic() > deadline:
-                    raise subprocess.TimeoutExpired(argv, COMMAND_TIMEOUT_S)
-            code = proc.wait(timeout=max(1.0, deadline - time.monotonic()))
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-        err.seek(0)
-        return subprocess.CompletedProcess(argv, code, "".join(lines), err.read())
 
 
 @dataclass

@@ -14,8 +14,13 @@ Only pymodbus and the files: the sim never imports compgw's gateway.
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
+import subprocess
+import tempfile
+import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import IO
 
@@ -70,3 +75,29 @@ class Technician:
         shutil.copyfile(made, target.with_suffix(".part"))
         target.with_suffix(".part").replace(target)  # whole, or not there
         self.saved.append(target)
+
+    def attend(self, argv: list[str], cwd: Path, timeout_s: float,
+               env: Mapping[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+        """Run ``argv`` (in ``env``, default this process's, unbuffered) and hear its
+        stdout line by line, answering on its stdin (stderr kept apart); killed past
+        ``timeout_s`` (TimeoutExpired)."""
+        deadline = time.monotonic() + timeout_s
+        with tempfile.TemporaryFile("w+") as err:
+            proc = subprocess.Popen(argv, cwd=cwd, text=True, stdin=subprocess.PIPE,
+                                    stdout=subprocess.PIPE, stderr=err,
+                                    env={**(env or os.environ), "PYTHONUNBUFFERED": "1"})
+            lines = []
+            try:
+                assert proc.stdout is not None
+                for line in proc.stdout:
+                    lines.append(line)
+                    self.hear(line, proc.stdin)
+                    if time.monotonic() > deadline:
+                        raise subprocess.TimeoutExpired(argv, timeout_s)
+                code = proc.wait(timeout=max(1.0, deadline - time.monotonic()))
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+            err.seek(0)
+            return subprocess.CompletedProcess(argv, code, "".join(lines), err.read())

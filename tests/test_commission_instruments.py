@@ -179,16 +179,10 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
                 "--gateway", f"127.0.0.1:{rig.gw_port}", "--axes", "X",
                 "--laser", f"recording:{laser_dir}:um", "--no-lead-search", "--budget-h",
                 "0.1", "--dwell-s", "0.08", "--wait-start", "--no-progress"]  # fmt: skip
-        proc = subprocess.Popen(argv, cwd=ROOT, text=True, stdin=subprocess.PIPE,
-                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
-        out = []
         with Technician("127.0.0.1", rig.sim_port, 20, rig.dir / "recordings", "csv") as tech:
-            assert proc.stdout is not None
-            for line in proc.stdout:
-                out.append(line)
-                tech.hear(line, proc.stdin)
-        text = "".join(out)
-        assert proc.wait(timeout=30) == 1, text  # the budget spent: not verified
+            done_run = tech.attend(argv, ROOT, 200.0)
+        text = done_run.stdout + done_run.stderr
+        assert done_run.returncode == 1, text  # the budget spent: not verified
         assert "plane" not in text.split("commissioning X:")[1], text  # none is commissioned
         assert [p.name for p in tech.saved][:2] == ["refs-001.csv", "iso-X.csv"], tech.saved
         done = rig.config.parent / "commission"

@@ -329,9 +329,10 @@ def datum_of(readings_mm: Sequence[float], targets_mm: Sequence[float]) -> float
 
 def zeroed(found: np.ndarray, targets: np.ndarray, datum_mm: float | None,
            name: Path) -> np.ndarray:  # fmt: skip
-    """The readings of the matched stops (``found``, plan order) as positions (mm)."""
+    """The readings of the matched stops (``found``, plan order) as positions (mm), less
+    ``datum_mm`` (None: the first stop's, :func:`datum_of`)."""
     if datum_mm is None:
-        return targets[0] + found - found[0]
+        datum_mm = datum_of(found, targets)
     off = float(found[0] - datum_mm - targets[0])
     if abs(off) > DATUM_TOLERANCE_MM:
         raise RecordingError(f"{name}: its first stop reads {off:+.3f} mm from where the "

@@ -291,23 +291,22 @@ def main(args: argparse.Namespace) -> int:
             if missing:
                 raise TableError(f"{option} {given}: no channel for axis {missing[0]}, which "
                                  "is commissioned")  # fmt: skip
-        for option, text in (("--laser", args.laser), ("--angle", args.angle),
-                             ("--xy-device", args.xy_device)):
-            kind = (text or "").partition(":")[0]
-            if kind in ("recording", "capture") and (
+        if args.laser is None and not all(config.axes[a].rotary for a in axes):
+            raise TableError("--laser HOST:PORT:UNIT is required (the axes' instrument)")
+        laser, laser_kind = device_option("--laser", args.laser)
+        angle, angle_kind = device_option("--angle", args.angle)
+        xy, xy_kind = device_option("--xy-device", args.xy_device)
+        for option, spec in (("--laser", laser_kind), ("--angle", angle_kind),
+                             ("--xy-device", xy_kind)):
+            if spec is not None and spec.reads_later and (
                     option != "--laser" or len(axes) != 1 or plane is not None
                     or config.axes[axes[0]].rotary):  # fmt: skip
-                raise TableError(f"{option} {text}: a recording or capture reads one linear "
+                raise TableError(f"{option} {spec.text}: a recording or capture reads one linear "
                                  "axis, the one the laser is set up on: commission one axis "
                                  "at a time (--axes X, then --axes Y with the laser moved), "
                                  "without --xy-device (the plane: compgw calibrate --xy); "
                                  "or use a bridge (docs/instruments.md)")  # fmt: skip
-        if args.laser is None and not all(config.axes[a].rotary for a in axes):
-            raise TableError("--laser HOST:PORT:UNIT is required (the axes' instrument)")
         gateway = gateway_endpoint(args, config)
-        laser, laser_kind = device_option("--laser", args.laser)
-        angle, angle_kind = device_option("--angle", args.angle)
-        xy, xy_kind = device_option("--xy-device", args.xy_device)
         settings = Settings(
             config_path=config_path,
             out_dir=Path(args.out) if args.out else config_path.resolve().parent / "commission",

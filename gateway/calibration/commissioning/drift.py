@@ -122,12 +122,7 @@ class DriftRefs:
         (their scatter pooled, the channel checked, their machine time counted)."""
         places = self.axes.ref_positions(axis)
         readings = np.asarray(actual_mm, dtype=np.float64).reshape(len(places), -1)
-        devs = []
-        for x, read in zip(places, readings):
-            devs.append(float(np.mean(read - x)))
-            self.pool_ref_scatter(axis, list(read - x))
-        self.check_channel(axis, [axis], devs)
-        out = {axis: devs}
+        out = {axis: self._kept(axis, [axis], [list(r - x) for x, r in zip(places, readings)])}
         out.update({a: [0.0, 0.0] for a in self.s.axes if a not in out})
         state = self.record.state
         state["refs_s"] = state.get("refs_s", 0.0) + self.refs_cost_s([axis],
@@ -137,8 +132,9 @@ class DriftRefs:
                               "odometer_mm": odometer_mm or self.odometer()}  # fmt: skip
         return out
 
-    def recorded_session(self, park: dict[str, float] | None = None) -> Session:
-        """A session reading the laser software's files, at the laser's one zero."""
+    def session(self, park: dict[str, float] | None = None) -> Session:
+        """A measuring session of this commissioning: every move on the odometer, a
+        recording read at the laser's one zero (:meth:`keep_datum`)."""
         return Session(self.config, self.record.config_dir, self.s.gateway,
                        self.s.instruments, self.s.motion, park or {},
                        on_move=self.count_travel,
@@ -162,7 +158,7 @@ class DriftRefs:
         raw.parent.mkdir(parents=True, exist_ok=True)
         plan = Plan("drift-references", (axis,), tuple(self.ref_moves(axis)),
                     (("kind", "drift-references"), ("axis", axis)))  # fmt: skip
-        session = self.recorded_session()
+        session = self.session()
         try:
             await session.run(plan, raw, "as loaded")
         finally:
@@ -195,7 +191,7 @@ class DriftRefs:
                 park = self.axes.park(a)
                 if park:
                     await driver.move(park)
-                devs = []
+                places = []
                 for x in self.axes.ref_positions(a):
                     readings = []
                     for _ in range(repeats):
@@ -206,10 +202,8 @@ class DriftRefs:
                         except InstrumentError as exc:
                             raise MachineError(str(exc)) from None
                         readings.append(reading - x)
-                    devs.append(float(np.mean(readings)))
-                    self.pool_ref_scatter(a, readings)
-                self.check_channel(a, order, devs)
-                out[a] = devs
+                    places.append(readings)
+                out[a] = self._kept(a, order, places)
                 cost += self.refs_cost_s([a], repeats)
         finally:
             self.record.retried(links.retried)
@@ -219,6 +213,16 @@ class DriftRefs:
         self.record.state["refs_s"] = self.record.state.get("refs_s", 0.0) + cost
         self.read_here = True
         return out
+
+    def _kept(self, axis: str, order: Sequence[str], places: Sequence[Sequence[float]]
+              ) -> list[float]:  # fmt: skip
+        """One reading of ``axis``'s references from the deviations (mm) of the stops at
+        each place: their means, the stops' scatter pooled, the laser's channel checked."""
+        devs = [float(np.mean(stops)) for stops in places]
+        for stops in places:
+            self.pool_ref_scatter(axis, stops)
+        self.check_channel(axis, order, devs)
+        return devs
 
     def check_channel(self, axis: str, order: Sequence[str], devs_mm: Sequence[float]) -> None:
         """The laser's reading for ``axis`` follows it between its two references (the

@@ -16,7 +16,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..fitting import adaptive
-from ..measuring.session import Session
 from ..plans.plans import (
     Move,
     Plan,
@@ -153,9 +152,9 @@ class StepRunner:
         for k, part in enumerate(parts):
             if k < len(done_parts):
                 continue
-            part_raw = raw if len(parts) == 1 else raw.with_name(f"{name}.part{k + 1}.csv")
-            entry = await self._run_part(f"{name}.part{k + 1}", part, part_raw, compensation,
-                                         park, drifting)  # fmt: skip
+            entry = await self._run_part(f"{name}.part{k + 1}", part,
+                                         _part_raw(raw, k, len(parts)), compensation, park,
+                                         drifting)  # fmt: skip
             done_parts.append(entry)
             self.record.save()
         self.record.state["steps"][name] = {"machine_s": cost_s, "parts": done_parts}
@@ -192,7 +191,7 @@ class StepRunner:
         odo0 = self.drift.odometer()
         at0 = (self.record.state.get("odometer") or {}).get("at", {}).get(axis)
         self.record.state["last_refs"] = None  # the moves change the thermal state
-        session = self.drift.recorded_session(park)
+        session = self.drift.session(park)
         try:
             await session.run(Plan(parts[0].kind, (axis,), tuple(moves), parts[0].meta),
                               whole, compensation)  # fmt: skip
@@ -213,10 +212,9 @@ class StepRunner:
         for label, a, b in spans:
             if label is None:
                 continue
-            part = parts[label]
-            part_raw = raw if len(parts) == 1 else raw.with_name(f"{name}.part{label + 1}.csv")
-            await join_values_async(part, [{axis: float(v)} for v in actual[a:b]], whole,
-                                    part_raw, {"compensation": compensation})  # fmt: skip
+            part_raw = _part_raw(raw, label, len(parts))
+            await join_values_async(parts[label], [{axis: float(v)} for v in actual[a:b]],
+                                    whole, part_raw, {"compensation": compensation})  # fmt: skip
             entry: dict[str, Any] = {"raw": self.record.rel(part_raw)}
             if drifting:
                 (before, odo_b), (after, odo_a) = ending[a], starting[b]
@@ -224,11 +222,7 @@ class StepRunner:
                 if label == 0:
                     self.drift.log_drift(before, odo_b)
                 self.drift.log_drift(after, odo_a)
-                entry["drift"] = {
-                    r: adaptive.Drift(self.axes.ref_positions(r), tuple(before[r]),
-                                      tuple(after[r])).to_json()
-                    for r in self.axes.ref_axes()}  # fmt: skip
-                self.record.state["drift_last"] = after
+                self._keep_drift(entry, before, after, {}, {})
             entries.append(entry)
         return entries
 
@@ -245,8 +239,7 @@ class StepRunner:
                 self.drift.log_drift(pending[key])
             self.record.save()
         self.record.state["last_refs"] = None  # the moves change the thermal state
-        session = Session(self.config, self.record.config_dir, self.s.gateway, self.s.instruments,
-                          self.s.motion, park or {}, on_move=self.drift.count_travel)  # fmt: skip
+        session = self.drift.session(park)
         if self.progress is not None:
             name = key.rsplit(".", 1)[0]
             session.progress = lambda k, n: self.progress(name, k, n)  # type: ignore[misc]
@@ -259,23 +252,35 @@ class StepRunner:
             after = self.drift.drift_now(await self.drift.measure_refs())
             self.drift.log_drift(after)
             before = pending.pop(key)
-            shape_before, shape_after = shapes.pop(key, {}), self.drift.drift_shapes()
-            # kept for every axis (taken off where :meth:`drift_taken_off` says), along the
-            # heat shape where :meth:`drift_spread_mm` says the screw is warm where it works
-            loaded = self.record.state.get("ref_commands") or {}
-            start_c = self.record.state.get("start_temperature_c") or {}
-            cold = {a: adaptive.thermal_mm(loaded[a], start_c.get(a)) for a in loaded
-                    if loaded[a].get("sensor") and a in start_c}  # fmt: skip
-            if cold:  # what the sensor commands at the references at the cold start
-                entry["cold_mm"] = cold
-            entry["drift"] = {
-                a: adaptive.Drift(
-                    self.axes.ref_positions(a), tuple(before[a]), tuple(after[a]),
-                    self.axes.travel(a) if a in shape_before and a in shape_after else None,
-                    tuple(shape_before.get(a, ())), tuple(shape_after.get(a, ()))).to_json()
-                for a in self.axes.ref_axes()}  # fmt: skip
-            self.record.state["drift_last"] = after
+            self._keep_drift(entry, before, after, shapes.pop(key, {}),
+                             self.drift.drift_shapes())  # fmt: skip
         return entry
+
+    def _keep_drift(self, entry: dict[str, Any], before: dict[str, list[float]],
+                    after: dict[str, list[float]], shape_before: dict[str, list[float]],
+                    shape_after: dict[str, list[float]]) -> None:  # fmt: skip
+        """A run's drift (mm at the references, before and after it) kept in its ``entry``
+        for every axis (taken off where :meth:`DriftRefs.drift_taken_off` says), along the
+        heat shape where :meth:`DriftRefs.drift_spread_mm` says the screw is warm where it
+        works, and what a temperature sensor commanded at the cold start."""
+        loaded = self.record.state.get("ref_commands") or {}
+        start_c = self.record.state.get("start_temperature_c") or {}
+        cold = {a: adaptive.thermal_mm(loaded[a], start_c.get(a)) for a in loaded
+                if loaded[a].get("sensor") and a in start_c}  # fmt: skip
+        if cold:  # what the sensor commands at the references at the cold start
+            entry["cold_mm"] = cold
+        entry["drift"] = {
+            a: adaptive.Drift(
+                self.axes.ref_positions(a), tuple(before[a]), tuple(after[a]),
+                self.axes.travel(a) if a in shape_before and a in shape_after else None,
+                tuple(shape_before.get(a, ())), tuple(shape_after.get(a, ()))).to_json()
+            for a in self.axes.ref_axes()}  # fmt: skip
+        self.record.state["drift_last"] = after
+
+
+def _part_raw(raw: Path, k: int, count: int) -> Path:
+    """The raw file of run ``k`` of a step's ``count`` (the step's own when it is one)."""
+    return raw if count == 1 else raw.with_name(f"{raw.stem}.part{k + 1}.csv")
 
 
 def concat_raw(parts: Sequence[RawData]) -> RawData:

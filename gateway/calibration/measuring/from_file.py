@@ -13,6 +13,7 @@ again: a marker beside the raw file says they were).
 from __future__ import annotations
 
 import asyncio
+import sys
 from collections.abc import Awaitable, Callable, Mapping
 from pathlib import Path
 
@@ -123,6 +124,4 @@ def _complete(raw_path: Path, measured: list) -> bool:  # type: ignore[type-arg]
 
 async def enter_pressed() -> None:
     """Wait for a line on standard input (Enter at the terminal); at its end, go on."""
-    import sys
-
     await asyncio.to_thread(sys.stdin.readline)
