@@ -360,9 +360,11 @@ def main() -> int:
     parser.add_argument("--laser-kind", choices=workflows.LASER_KINDS, default="modbus",
                         help="how `compgw commission` reads the sim's laser: its Modbus "
                              "registers, the bridge line protocol over TCP "
-                             "(docs/instruments-bridge.md), or the laser software's own "
-                             "recording, .rtx or CSV, of the first --commission-axes axis, "
-                             "made by a scripted technician (sim/technician.py) (modbus)")
+                             "(docs/instruments-bridge.md), the laser software's own "
+                             "recording (.rtx or CSV) or capture on stationary (exported as "
+                             "config/capture-generic.yaml has it) of the first "
+                             "--commission-axes axis, or a gauge read at the prompt (manual), "
+                             "by a scripted technician (sim/technician.py) (modbus)")
     parser.add_argument("--commission-axes", metavar="X[,Y]",
                         help="the axes `compgw commission` is given, no plane (default: all "
                              "and the plane); a recording reads one")
@@ -387,9 +389,9 @@ def main() -> int:
     workflows.THERMAL_PROFILE = args.thermal_profile
     workflows.LASER_KIND = args.laser_kind
     workflows.COMMISSION_AXES = args.commission_axes.split(",") if args.commission_axes else None
-    if args.laser_kind.startswith("recording") and workflows.COMMISSION_AXES is None:
+    if workflows.reads_later() and workflows.COMMISSION_AXES is None:
         parser.error(f"--laser-kind {args.laser_kind}: give --commission-axes AXIS (a recording "
-                     "reads one axis)")
+                     "or capture reads one axis)")
     machines = machine_list(args.machines, args.seed, args.real)
     if args.only:
         machines = [m for m in machines if m[0] in args.only.split(",")]

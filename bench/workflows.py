@@ -39,7 +39,7 @@ from typing import Any
 import yaml
 from pymodbus.client import ModbusTcpClient
 
-from sim.technician import Technician
+from sim.technician import Gauge, Technician
 
 ROOT = Path(__file__).resolve().parent.parent
 FAULTS_UNIT, ADVANCE_CLOCK_S = 250, 0x0800
@@ -168,10 +168,11 @@ class MachineRun:
         data["sim"]["time_scale"] = 0  # the machine's clock moves with requests alone
         if LASER_KIND == "bridge":  # the same laser on the bridge line protocol too
             data["sim"]["instruments"]["laser"]["bridge"] = {"host": "127.0.0.1", "port": 0}
-        if LASER_KIND.startswith("recording"):  # ... recording the first commissioned axis
+        if reads_later():  # ... recording the first commissioned axis (a capture: CSV)
             axis = (COMMISSION_AXES or list(data["sim"]["axes"]))[0]
             data["sim"]["instruments"]["laser"]["recording"] = {
-                "dir": str(self.work / "recordings"), "format": LASER_KIND.split("-")[1],
+                "dir": str(self.work / "recordings"),
+                "format": "csv" if LASER_KIND == "capture" else LASER_KIND.split("-")[1],
                 "axis": axis, "rate_hz": 500, "unit": "um", "idle_time_scale": 1000.0}
         path = self.dir / "sim.run.yaml"  # beside sim.yaml: truth/ paths stay valid
         path.write_text(yaml.safe_dump(data, sort_keys=False))
@@ -347,7 +348,7 @@ class MachineRun:
         finally:
             gw.close()
 
-    def compgw(self, *args: object, technician: Technician | None = None) -> str:
+    def compgw(self, *args: object, technician: Technician | Gauge | None = None) -> str:
         """Run ``compgw ARGS`` in the work directory; its stdout; CommandFailed if non-zero.
         ``technician``: hears every line as it comes and answers on stdin (a recording)."""
         argv = [*lockstep_argv(self.machine_port), *(str(a) for a in args)]
@@ -546,7 +547,7 @@ BUDGET_VS_MANUAL: float | None = None
 #: ... or as this many times the plain workflow's (``accuracy.py --budget-vs-plain``)
 BUDGET_VS_PLAIN: float | None = None
 #: how commission reads the sim's laser (``accuracy.py --laser-kind``)
-LASER_KINDS = ("modbus", "bridge", "recording-rtx", "recording-csv")
+LASER_KINDS = ("modbus", "bridge", "recording-rtx", "recording-csv", "capture", "manual")
 LASER_KIND = "modbus"
 #: the axes commission is given (``accuracy.py --commission-axes``; None: all, the plane
 #: too): a recording reads one axis, so it is compared on that axis alone
@@ -554,6 +555,11 @@ COMMISSION_AXES: list[str] | None = None
 #: a recording's stand at each stop (s of the machine's clock: bench/lockstep.py advances
 #: it, no wall time passes): the Modbus path's estimate of a stop, so both cost the same
 RECORDING_DWELL_S = 2.0
+
+
+def reads_later() -> bool:
+    """Whether commission reads the laser from its software's file after the moves."""
+    return LASER_KIND.startswith("recording") or LASER_KIND == "capture"
 
 
 def manual_machine_s(run: MachineRun) -> float:
@@ -676,14 +682,20 @@ def commission(run: MachineRun) -> WorkflowResult:
              if info.get("lead_mm") and (COMMISSION_AXES is None or a in COMMISSION_AXES)]
     args = ["commission", "-c", run.work / "gw.yaml", "--gateway", run.gateway,
             "--tolerance-um", f"{TOLERANCE_UM:g}", "--no-progress"]  # fmt: skip
-    technician = None
-    if LASER_KIND.startswith("recording"):
+    technician: Technician | Gauge | None = None
+    if reads_later():
         laser_dir = run.work / "laser"
         laser_dir.mkdir(exist_ok=True)
-        args += ["--laser", f"recording:{laser_dir}:um", "--dwell-s", f"{RECORDING_DWELL_S:g}",
-                 "--wait-start"]  # fmt: skip
+        laser = (f"capture:{ROOT / 'config' / 'capture-generic.yaml'}:{laser_dir}"
+                 if LASER_KIND == "capture" else f"recording:{laser_dir}:um")  # fmt: skip
+        args += ["--laser", laser, "--dwell-s", f"{RECORDING_DWELL_S:g}", "--wait-start"]
         technician = Technician("127.0.0.1", run.sim_port, 20, run.work / "recordings",
-                                LASER_KIND.split("-")[1])  # fmt: skip
+                                LASER_KIND.removeprefix("recording-"))  # fmt: skip
+    elif LASER_KIND == "manual":  # a gauge read by eye, to 0.1 µm, typed at the prompt
+        args += ["--laser", "manual:deviation"]
+        sim = yaml.safe_load((run.dir / "sim.yaml").read_text())["sim"]
+        channels = sim["instruments"]["laser"].get("axes") or list(sim["axes"])
+        technician = Gauge("127.0.0.1", run.sim_port, 20, channels)
     else:
         args += ["--laser", run.laser_bridge or run.instrument(20)]
     if COMMISSION_AXES is not None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import subprocess
 import sys
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ import yaml
 
 from gateway.calibration.plans.plans import Move, Plan, write_plan
 from gateway.calibration.plans.rawdata import read_raw_csv
+from sim.technician import attend
 from tests.commission_rig import running, small_machine
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -88,11 +90,14 @@ def test_calibrate_with_a_gauge_typed_at_the_prompt(template: Path, tmp_path: Pa
 
 
 def test_calibrate_from_the_laser_software_s_own_recording(tmp_path: Path) -> None:
-    """The laser software records while compgw stands 0.2 s at each stop (the technician
+    """The laser software records while compgw stands 0.3 s at each stop (the technician
     starts it before and stops it after, on the sim's laser over Modbus); compgw waits for
     the file, finds the stops, and its readings are the Modbus laser's within the machine's
-    repeatability. A recording of another axis is refused naming the file, nothing joined,
-    and the same command carries on once the right file is there."""
+    repeatability. A recording cut short is refused naming the file, nothing joined, and
+    the same command carries on once the whole file is there. The same plan captured on
+    stationary by the laser software (sim/capture.py, against the targets compgw writes),
+    exported as config/capture-generic.yaml has it: an export one row short is refused
+    naming the file and the missing reading; the whole export carries on, no moves."""
     from pymodbus.client import ModbusTcpClient
 
     from tests.test_service_helpers import Proc
@@ -151,6 +156,37 @@ def test_calibrate_from_the_laser_software_s_own_recording(tmp_path: Path) -> No
         # two visits of each stop: each reading scatters by the machine's repeatability
         # (0.3-0.5 µm here) and the first stop's too, so a few µm between single readings
         assert np.max(np.abs(rec - mod)) < 3.0 and abs(np.mean(rec - mod)) < 1.5, (rec, mod)
+
+        from sim.technician import WAITING, Technician
+
+        export = laser_dir / "cap.csv"
+        capture = [sys.executable, *args[:-1], "0.5", "--laser",
+                   f"capture:{ROOT / 'config' / 'capture-generic.yaml'}:{laser_dir}",
+                   "--raw", str(tmp_path / "cap.csv"), "--wait-start"]  # fmt: skip
+        with Technician("127.0.0.1", rig.sim_port, 20, saved, "capture", source="rtx",
+                        still_s=0.2) as tech:  # fmt: skip
+
+            def loses_the_last_row(line: str, stdin: IO[str] | None) -> None:
+                tech.hear(line, stdin)
+                if WAITING.search(line):
+                    whole = export.read_text()
+                    export.write_text(whole[: whole.rstrip("\n").rfind("\n") + 1])
+                    export.with_suffix(".whole").write_text(whole)
+
+            cut = attend(capture, ROOT, 60.0, loses_the_last_row)
+        assert cut.returncode == 3, cut.stdout + cut.stderr
+        assert f"{export}: 5 readings, the plan has 6: the plan's reading 6 at 30.0000 mm " \
+            "(run 1) is missing; nothing fitted" in cut.stderr, cut.stderr  # fmt: skip
+        export.with_suffix(".whole").replace(export)
+        again = subprocess.run(capture, cwd=ROOT, input="", capture_output=True, text=True,
+                               timeout=60)  # the same command: no moves, the file read
+        assert again.returncode == 0 and "start the laser's" not in again.stdout, again.stdout
+        cap = read_raw_csv(tmp_path / "cap.csv")
+        assert np.allclose(cap.target_mm, want.target_mm)
+        # the laser zeroed once, at the first target: deviations from the first one's
+        cap_rel = (cap.deviation_mm - cap.deviation_mm[0]) * 1000
+        assert np.max(np.abs(cap_rel - mod)) < 3.0 and abs(np.mean(cap_rel - mod)) < 1.5, \
+            (cap_rel, mod)  # fmt: skip
 
 
 def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: Path) -> None:

@@ -302,6 +302,7 @@ def calibrate(
                 wait_stable=not args.no_wait_stable,
                 kinds=given_kinds(laser=laser_kind, angle=angle_kind, xy=xy_kind),
                 dwell_s=args.dwell_s or 3.0,
+                wait_start=sys.stdin.isatty() if args.wait_start is None else args.wait_start,
             ),
             MotionSettings(args.in_position_bit, args.moving_bit, args.alarm_bit,
                            args.in_position_pulses, args.timeout_s),
@@ -421,6 +422,9 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     o.add_argument("--dwell-s", type=float, default=0.0, help="warm-up dwell before reading; "
                    "with a recording or capture, the stand at each stop (default 3 s)")
     i = p.add_argument_group("instruments")
+    i.add_argument("--wait-start", action=argparse.BooleanOptionalAction, default=None,
+                   help="with a recording or capture: before the moves, wait for Enter (the "
+                   "laser records) (default: at a terminal)")
     i.add_argument("--laser", metavar="KIND:ARGS", help="laser: HOST:PORT:UNIT (Modbus, int32 "
                    "nm at 2k for axis k), bridge:tcp:HOST:PORT, bridge:cmd:COMMAND, manual")
     i.add_argument("--laser-axes", metavar="X,Y", help="laser channel order (config order)")

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import sys
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +24,7 @@ from ...instruments.base import InstrumentError
 from ...instruments.capture import PlanStop, load_layout, read_export
 from ...instruments.recording import datum_of, matched, plan_stops, read_recording, zeroed
 from ...instruments.spec import InstrumentSpec
-from ..plans.plans import Plan
+from ..plans.plans import Move, Plan
 from ..plans.runner import RunSummary, join_values_async, raw_runs
 from .machine import MachineError
 
@@ -69,8 +69,11 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
     if raw_path.exists() and raw_path.stat().st_size > 0 and _complete(raw_path, measured):
         return RunSummary(raw_path, len(plan.moves), len(plan.moves), 0, True)
     if not moved.exists():
-        what = ("recording" if spec.kind == "recording" else "capture (on stationary, "
-                f"dwell under {dwell_s:g} s)")  # fmt: skip
+        what = "recording"
+        if spec.kind == "capture":
+            listed = write_targets(spec.directory / f"{name}.targets.csv", measured)
+            what = (f"capture (on stationary, dwell under {dwell_s:g} s; its targets: "
+                    f"{listed})")  # fmt: skip
         say(f"{name}: start the laser's {what} now: {len(measured)} stops of {dwell_s:g} s; "
             f"save it as {files[0]}" + (f" (or {files[1].name})" if len(files) > 1 else "")
             + ("; press Enter once it records" if ready is not None else ""))
@@ -111,6 +114,17 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
     kept = {"datum_mm": f"{datum_mm:.6f}"} if datum_mm is not None else {}
     return await join_values_async(plan, [{axis: float(v)} for v in values], found, raw_path,
                                    {**meta, "instrument": spec.kind, **kept})  # fmt: skip
+
+
+def write_targets(path: Path, measured: Sequence[Move]) -> Path:
+    """The step's target list for the laser software (``stop, target_mm, run,
+    direction``, one row per measured stop, in order): what the technician enters, or
+    imports, so that the export's targets, runs and directions are the plan's."""
+    rows = ["stop,target_mm,run,direction"]
+    rows += [f"{k},{m.target_mm[0]:.4f},{m.run},{'+' if m.direction > 0 else '-'}"
+             for k, m in enumerate(measured, start=1)]
+    atomic_write_text(path, "\n".join(rows) + "\n")
+    return path
 
 
 def _complete(raw_path: Path, measured: list) -> bool:  # type: ignore[type-arg]
