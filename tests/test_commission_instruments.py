@@ -27,14 +27,40 @@ def template(tmp_path_factory: pytest.TempPathFactory) -> Path:
     small_machine(directory, seed=7)
     sim = yaml.safe_load((directory / "sim.yaml").read_text())
     sim["sim"]["instruments"]["laser"]["bridge"] = {"host": "127.0.0.1", "port": 0}
+    sim["sim"]["instruments"]["delta_a"] = {"unit": 22, "axis": "X", "a_mm": 0.0,
+                                            "resolution_um": 0.1}  # fmt: skip
     (directory / "sim.yaml").write_text(yaml.safe_dump(sim, sort_keys=False))
     return directory
+
+
+#: a Δa sensor behind a technician's own bridge (docs/instruments-bridge.md): the sim's, read
+#: over Modbus (int32 nm at registers 1-2 of unit 22), answered on channel delta_a
+DELTA_A_BRIDGE = """
+import sys
+from pymodbus.client import ModbusTcpClient
+client = ModbusTcpClient("127.0.0.1", port=int(sys.argv[1]))
+client.connect()
+for line in sys.stdin:
+    words = line.split()
+    if words[0] == "HELLO":
+        print("OK sim-delta-a channels=delta_a unit=um", flush=True)
+    elif words[0] == "READ" and words[1:] == ["delta_a"]:
+        hi, lo = client.read_holding_registers(1, count=2, device_id=22).registers
+        nm = (hi << 16 | lo) - (1 << 32 if hi & 0x8000 else 0)
+        print(f"OK {nm / 1000:.4f} um STABLE", flush=True)
+    elif words[0] == "BYE":
+        print("OK", flush=True)
+        break
+    else:
+        print("ERR not a request of this bridge", flush=True)
+"""
 
 
 def test_a_bridge_named_before_anything_moves_and_read_as_the_modbus_laser(
         template: Path, tmp_path: Path) -> None:  # fmt: skip
     """A bridge that does not answer is named before commissioning moves anything; the
-    sim's laser on the bridge protocol reads as its Modbus laser."""
+    sim's laser on the bridge protocol reads as its Modbus laser, and a Δa sensor behind a
+    bridge of its own as over Modbus."""
     with running(template, tmp_path / "m") as rig:
         hangs = [a if not a.startswith(f"127.0.0.1:{rig.sim_port}:20") else
                  "bridge:cmd:" + f"{sys.executable} -c 'import time; time.sleep(30)'"
@@ -51,20 +77,27 @@ def test_a_bridge_named_before_anything_moves_and_read_as_the_modbus_laser(
         plan = tmp_path / "x.plan"
         write_plan(plan, Plan("iso", ("X",), tuple(Move(1, +1, "measure", (x,))
                                                    for x in (10.0, 40.0, 70.0))))  # fmt: skip
+        (tmp_path / "delta_a_bridge.py").write_text(DELTA_A_BRIDGE)
         raws = {}
-        for name, laser in (("bridge", f"bridge:tcp:127.0.0.1:{port}"),
-                            ("modbus", f"127.0.0.1:{rig.sim_port}:20")):
+        for name, laser, delta_a in (
+                ("bridge", f"bridge:tcp:127.0.0.1:{port}",
+                 f"bridge:cmd:{sys.executable} {tmp_path / 'delta_a_bridge.py'} {rig.sim_port}"),
+                ("modbus", f"127.0.0.1:{rig.sim_port}:20", f"127.0.0.1:{rig.sim_port}:22")):
             raws[name] = tmp_path / f"{name}.csv"
             done = subprocess.run([sys.executable, "-m", "gateway.cli", "calibrate", "-c",
                                    str(rig.config), "--gateway", f"127.0.0.1:{rig.gw_port}",
                                    "--plan", str(plan), "--no-progress", "--laser", laser,
-                                   "--raw", str(raws[name])], cwd=ROOT, capture_output=True,
-                                  text=True, timeout=60)  # fmt: skip
+                                   "--delta-a", delta_a, "--raw", str(raws[name])], cwd=ROOT,
+                                  capture_output=True, text=True, timeout=60)  # fmt: skip
             assert done.returncode == 0, done.stdout + done.stderr
         bridge, modbus = read_raw_csv(raws["bridge"]), read_raw_csv(raws["modbus"])
         assert np.allclose(bridge.target_mm, modbus.target_mm)
         # two visits of each stop: the machine's repeatability (0.3-0.5 µm here) apart
         assert np.max(np.abs(bridge.deviation_mm - modbus.deviation_mm)) * 1000 < 2.0
+        # the screw's growth at point A, a cold machine's: the same through either
+        da = {n: np.asarray(d.extra["delta_a_mm"], float) for n, d in (("bridge", bridge),
+                                                               ("modbus", modbus))}  # fmt: skip
+        assert da["bridge"].size == 3 and np.allclose(da["bridge"], da["modbus"], atol=2e-4), da
 
 
 def test_calibrate_with_a_gauge_typed_at_the_prompt(template: Path, tmp_path: Path) -> None:

@@ -290,17 +290,22 @@ def calibrate(
         laser, laser_kind = device_option("--laser", args.laser)
         angle, angle_kind = device_option("--angle", args.angle)
         xy, xy_kind = device_option("--xy-device", args.xy_device)
+        delta_a, delta_a_kind = device_option("--delta-a", args.delta_a)
+        if delta_a_kind is not None and delta_a_kind.reads_later:
+            raise ValueError(f"--delta-a {delta_a_kind.text}: a Δa sensor is read at each "
+                             "stop: Modbus, a bridge or manual")  # fmt: skip
         session = Session(
             config, config_dir, Endpoint.parse(args.gateway),
             Instruments(
                 laser=laser,
                 laser_axes=args.laser_axes.split(",") if args.laser_axes else None,
                 xy=xy,
-                delta_a=Endpoint.device("--delta-a", args.delta_a),
+                delta_a=delta_a,
                 angle=angle,
                 angle_axes=args.angle_axes.split(",") if args.angle_axes else None,
                 wait_stable=not args.no_wait_stable,
-                kinds=given_kinds(laser=laser_kind, angle=angle_kind, xy=xy_kind),
+                kinds=given_kinds(laser=laser_kind, angle=angle_kind, xy=xy_kind,
+                                  delta_a=delta_a_kind),
                 dwell_s=args.dwell_s or 3.0,
                 wait_start=sys.stdin.isatty() if args.wait_start is None else args.wait_start,
             ),
@@ -430,7 +435,8 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     i.add_argument("--laser-axes", metavar="X,Y", help="laser channel order (config order)")
     i.add_argument("--xy-device", metavar="KIND:ARGS", help="XY device: HOST:PORT:UNIT (X at "
                    "0, Y at 2), or a bridge")
-    i.add_argument("--delta-a", metavar="HOST:PORT:UNIT[:ADDR]", help="Δa sensor (int32 nm)")
+    i.add_argument("--delta-a", metavar="KIND:ARGS", help="Δa sensor: HOST:PORT:UNIT[:ADDR] "
+                   "(Modbus, int32 nm), a bridge (channel delta_a) or manual")
     i.add_argument("--angle", metavar="KIND:ARGS",
                    help="angle instrument of rotary axes: int32 µdeg at 2k (axis k)")
     i.add_argument("--angle-axes", metavar="A,C", help="its channel order (the rotary axes)")

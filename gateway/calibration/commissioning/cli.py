@@ -65,9 +65,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    "config's rotary axes)")  # fmt: skip
     p.add_argument("--xy-device", metavar="KIND:ARGS", help="XY measuring device: "
                    "the plane is commissioned too")  # fmt: skip
-    p.add_argument("--delta-a", metavar="HOST:PORT:UNIT[:ADDRESS]",
+    p.add_argument("--delta-a", metavar="KIND:ARGS",
                    help="Δa sensor: a warm-up fits the thermal length of axes with a "
-                   "thermal source")  # fmt: skip
+                   "thermal source; HOST:PORT:UNIT[:ADDRESS] (Modbus, int32 nm), a bridge "
+                   "(channel delta_a) or manual")  # fmt: skip
     p.add_argument("--temperature", metavar="HOST:PORT:UNIT",
                    help="where the screw temperature sensors answer (their registers: the "
                    "config's thermal sources): a warm-up fits the gain of axes with a "
@@ -296,8 +297,9 @@ def main(args: argparse.Namespace) -> int:
         laser, laser_kind = device_option("--laser", args.laser)
         angle, angle_kind = device_option("--angle", args.angle)
         xy, xy_kind = device_option("--xy-device", args.xy_device)
+        delta_a, delta_a_kind = device_option("--delta-a", args.delta_a)
         for option, spec in (("--laser", laser_kind), ("--angle", angle_kind),
-                             ("--xy-device", xy_kind)):
+                             ("--xy-device", xy_kind), ("--delta-a", delta_a_kind)):
             if spec is not None and spec.reads_later and (
                     option != "--laser" or len(axes) != 1 or plane is not None
                     or config.axes[axes[0]].rotary):  # fmt: skip
@@ -317,10 +319,11 @@ def main(args: argparse.Namespace) -> int:
                 angle=angle,
                 angle_axes=args.angle_axes.split(",") if args.angle_axes else None,
                 xy=xy,
-                delta_a=Endpoint.device("--delta-a", args.delta_a),
+                delta_a=delta_a,
                 temperature=Endpoint.device("--temperature", args.temperature),
                 wait_stable=not args.no_wait_stable,
-                kinds=given_kinds(laser=laser_kind, angle=angle_kind, xy=xy_kind),
+                kinds=given_kinds(laser=laser_kind, angle=angle_kind, xy=xy_kind,
+                                  delta_a=delta_a_kind),
                 dwell_s=args.dwell_s,
                 wait_start=sys.stdin.isatty() if args.wait_start is None else args.wait_start,
             ),

@@ -101,9 +101,11 @@ class CommandChecks:
                      "instrument resolves; it is in arcseconds (0.001° is 3.6″)")  # fmt: skip
         ins = self.s.instruments
         kinds = {self.thermal.source_kind(a) for a in self.s.axes}
-        for option, given, used in (("--delta-a", ins.delta_a, kinds - {None, "temperature"}),
-                                    ("--temperature", ins.temperature, kinds & {"temperature"})):
-            if given is not None and not used:
+        for option, given, used in (("--delta-a", ins.given("delta_a"),
+                                     kinds - {None, "temperature"}),
+                                    ("--temperature", ins.given("temperature"),
+                                     kinds & {"temperature"})):  # fmt: skip
+            if given and not used:
                 self.say(f"  {option} is given, but no commissioned axis's thermal setting "
                          f"reads a source of that kind (axes.<name>.compensation.thermal."
                          "source): no warm-up uses it")  # fmt: skip

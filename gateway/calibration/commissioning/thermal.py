@@ -62,7 +62,7 @@ class ThermalSteps:
             return False
         if kind == "temperature":
             return self.s.instruments.temperature is not None
-        return self.s.instruments.delta_a is not None
+        return self.s.instruments.given("delta_a")
 
     def warmup_plan(self, axis: str) -> Plan:
         """Cycling over the travel; read at the end farthest from the screw's fixed end

@@ -20,6 +20,8 @@ from .machine import Endpoint, Links, MachineError
 
 #: the roles of instruments and their options
 OPTIONS = {"laser": "--laser", "angle": "--angle", "xy": "--xy-device", "delta_a": "--delta-a"}
+#: the channel a Δa sensor of another kind than Modbus is asked for (a bridge's ``READ``)
+DELTA_A_CHANNEL = "delta_a"
 #: what each role is called in messages
 ROLE_NAMES = {"laser": "laser", "angle": "angle instrument", "xy": "XY device",
               "delta_a": "Δa sensor"}

@@ -37,7 +37,7 @@ from ..fitting.plane_frame import reframe_plane, save_frame
 from ..plans.plans import Move, Plan
 from ..plans.rawdata import RawData, read_raw_csv
 from ..plans.runner import ProgressFn, RunSummary, run_plan
-from .devices import open_device
+from .devices import DELTA_A_CHANNEL, open_device
 from .from_file import enter_pressed, run_for_file
 from .machine import (
     DeltaASensor,
@@ -163,7 +163,7 @@ class Session:
             extra, names = None, ()
             if plan.kind == "warmup" and self._warmup_reads_temperature(plan):
                 extra, names = await self._temperature_fn(plan, links)
-            elif plan.kind == "warmup" or self.instruments.delta_a is not None:
+            elif plan.kind == "warmup" or self.instruments.given("delta_a"):
                 extra, names = await self._delta_a_fn(links)
             if self.park:
                 await driver.move(dict(self.park))
@@ -235,7 +235,7 @@ class Session:
                   if thermal is not None and thermal.source else None)  # fmt: skip
         if source is not None:
             return source.kind == "temperature"
-        return ins.delta_a is None
+        return not ins.given("delta_a")
 
     async def _temperature_fn(self, plan: Plan, links: Links):  # type: ignore[no-untyped-def]
         ep = self.instruments.temperature
@@ -252,13 +252,25 @@ class Session:
         return extra, ("temperature_c",)
 
     async def _delta_a_fn(self, links: Links):  # type: ignore[no-untyped-def]
-        ep = self.instruments.delta_a
-        if ep is None:
+        ins = self.instruments
+        if not ins.given("delta_a"):
             raise MachineError("a warm-up run needs the Δa sensor: --delta-a HOST:PORT:UNIT")
-        sensor = DeltaASensor(await links.get(*ep.key), ep.unit, ep.address or 1)
+        if ins.delta_a is not None:  # Modbus: int32 nm at its address
+            ep = ins.delta_a
+            sensor = DeltaASensor(await links.get(*ep.key), ep.unit, ep.address or 1)
+            read = sensor.read_mm
+        else:  # any other kind: its channel "delta_a"
+            dev = await ins.open("delta_a", links, order=(DELTA_A_CHANNEL,))
+            self._opened.append(dev)
+
+            async def read() -> float:
+                try:
+                    return (await dev.read_mm([DELTA_A_CHANNEL]))[DELTA_A_CHANNEL]
+                except InstrumentError as exc:
+                    raise MachineError(str(exc)) from None
 
         async def extra(_: Move) -> Mapping[str, float]:
-            return {"delta_a_mm": await sensor.read_mm()}
+            return {"delta_a_mm": await read()}
 
         return extra, ("delta_a_mm",)
 
