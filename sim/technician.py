@@ -108,7 +108,7 @@ class Technician(_SimLaser):
         suffix = self.source if self.fmt == "capture" else self.fmt
         made = self.recordings / f"rec-{number:03d}.{suffix}"
         folder, name = Path(found.group(3)), found.group(1)
-        target = folder / f"{name}.{found.group(2)}"
+        target = folder / f"{name}.{'csv' if self.fmt == 'capture' else self.fmt}"
         if self.fmt == "capture":
             export(target, made, folder / f"{name}.targets.csv", self.datum, self.still_s)
         else:

@@ -130,7 +130,8 @@ def test_calibrate_from_the_laser_software_s_own_recording(tmp_path: Path) -> No
     the same command carries on once the whole file is there. The same plan captured on
     stationary by the laser software (sim/capture.py, against the targets compgw writes),
     exported as config/capture-generic.yaml has it: an export one row short is refused
-    naming the file and the missing reading; the whole export carries on, no moves."""
+    naming the file and the missing reading; the whole export carries on, no moves, the
+    Δa sensor compgw read at each stop beside the export's readings."""
     from pymodbus.client import ModbusTcpClient
 
     from tests.test_service_helpers import Proc
@@ -141,6 +142,7 @@ def test_calibrate_from_the_laser_software_s_own_recording(tmp_path: Path) -> No
     sim["sim"]["instruments"]["laser"]["recording"] = {
         "dir": "recordings", "format": "rtx", "axis": "X", "rate_hz": 1000, "unit": "um",
         "idle_time_scale": 1.0}  # fmt: skip
+    sim["sim"]["instruments"]["delta_a"] = {"unit": 22, "axis": "X", "a_mm": 0.0}
     (directory / "sim.yaml").write_text(yaml.safe_dump(sim, sort_keys=False))
     with running(directory, tmp_path / "m") as rig:
         plan = tmp_path / "x.plan"
@@ -195,7 +197,8 @@ def test_calibrate_from_the_laser_software_s_own_recording(tmp_path: Path) -> No
         export = laser_dir / "cap.csv"
         capture = [sys.executable, *args[:-1], "0.5", "--laser",
                    f"capture:{ROOT / 'config' / 'capture-generic.yaml'}:{laser_dir}",
-                   "--raw", str(tmp_path / "cap.csv"), "--wait-start"]  # fmt: skip
+                   "--raw", str(tmp_path / "cap.csv"), "--wait-start",
+                   "--delta-a", f"127.0.0.1:{rig.sim_port}:22"]  # fmt: skip
         with Technician("127.0.0.1", rig.sim_port, 20, saved, "capture", source="rtx",
                         still_s=0.2) as tech:  # fmt: skip
 
@@ -216,6 +219,8 @@ def test_calibrate_from_the_laser_software_s_own_recording(tmp_path: Path) -> No
         assert again.returncode == 0 and "start the laser's" not in again.stdout, again.stdout
         cap = read_raw_csv(tmp_path / "cap.csv")
         assert np.allclose(cap.target_mm, want.target_mm)
+        # the Δa sensor read by compgw at each stop, kept through the refusal
+        assert len(cap.extra["delta_a_mm"]) == 6, cap.extra
         # the laser zeroed once, at the first target: deviations from the first one's
         cap_rel = (cap.deviation_mm - cap.deviation_mm[0]) * 1000
         assert np.max(np.abs(cap_rel - mod)) < 3.0 and abs(np.mean(cap_rel - mod)) < 1.5, \
@@ -240,6 +245,7 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
     sim["sim"]["instruments"]["laser"]["recording"] = {
         "dir": "recordings", "format": "csv", "axis": "X", "rate_hz": 250, "unit": "um",
         "idle_time_scale": 1.0}  # fmt: skip
+    sim["sim"]["instruments"]["delta_a"] = {"unit": 22, "axis": "X", "a_mm": 0.0}
     (directory / "sim.yaml").write_text(yaml.safe_dump(sim, sort_keys=False))
     with running(directory, tmp_path / "m") as rig:
         laser_dir = tmp_path / "laser"
@@ -247,7 +253,8 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
         argv = [sys.executable, "-m", "gateway.cli", "commission", "-c", str(rig.config),
                 "--gateway", f"127.0.0.1:{rig.gw_port}", "--axes", "X",
                 "--laser", f"recording:{laser_dir}:um", "--no-lead-search", "--budget-h",
-                "0.1", "--dwell-s", "0.08", "--wait-start", "--no-progress"]  # fmt: skip
+                "0.1", "--dwell-s", "0.08", "--wait-start", "--no-progress",
+                "--delta-a", f"127.0.0.1:{rig.sim_port}:22"]  # fmt: skip
         with Technician("127.0.0.1", rig.sim_port, 20, rig.dir / "recordings", "csv") as tech:
             done_run = tech.attend(argv, ROOT, 200.0)
         text = done_run.stdout + done_run.stderr
@@ -265,6 +272,8 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
         assert summary["outcome"] == "budget" and "X" in state["tables"]["pitch"], text
         table = read_raw_csv(done / "raw" / "iso-X.part1.csv")
         assert np.abs(table.deviation_mm).max() < 0.2  # positions, not the laser's own zero
+        # a sensor compgw read at each stop stays beside the run's readings
+        assert len(table.extra["delta_a_mm"]) == table.target_mm.size, table.extra
 
 
 def test_a_recording_commissions_one_linear_axis(template: Path, tmp_path: Path) -> None:

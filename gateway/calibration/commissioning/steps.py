@@ -198,7 +198,11 @@ class StepRunner:
         finally:
             self.record.retried(session.retried)
         self.drift.keep_datum(whole)
-        actual = read_raw_csv(whole).actual_mm
+        data = read_raw_csv(whole)
+        actual = data.actual_mm
+        # a sensor read at each stop while the laser recorded (a warm-up's temperature or Δa)
+        sensed = tuple(c for c in ("temperature_c", "delta_a_mm") if c in data.extra)
+        extras = [{c: float(data.extra[c][i]) for c in sensed} for i in range(actual.size)]
         # the odometer at each row (the travel of the moves up to it), for the drift log
         xs = np.array([m.target_mm[0] for m in moves])
         steps = np.abs(np.diff(np.concatenate([[xs[0] if at0 is None else at0], xs])))
@@ -214,7 +218,8 @@ class StepRunner:
                 continue
             part_raw = _part_raw(raw, label, len(parts))
             await join_values_async(parts[label], [{axis: float(v)} for v in actual[a:b]],
-                                    whole, part_raw, {"compensation": compensation})  # fmt: skip
+                                    whole, part_raw, {"compensation": compensation},
+                                    extras[a:b], sensed)  # fmt: skip
             entry: dict[str, Any] = {"raw": self.record.rel(part_raw)}
             if drifting:
                 (before, odo_b), (after, odo_a) = ending[a], starting[b]

@@ -13,6 +13,7 @@ again: a marker beside the raw file says they were).
 from __future__ import annotations
 
 import asyncio
+import json
 import sys
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from pathlib import Path
@@ -25,7 +26,7 @@ from ...instruments.capture import PlanStop, load_layout, read_export
 from ...instruments.recording import datum_of, matched, plan_stops, read_recording, zeroed
 from ...instruments.spec import InstrumentSpec
 from ..plans.plans import Move, Plan
-from ..plans.runner import RunSummary, join_values_async, raw_runs
+from ..plans.runner import ExtraFn, RunSummary, join_values_async, raw_runs
 from .machine import MachineError
 
 Say = Callable[[str], None]
@@ -50,14 +51,17 @@ async def stand(seconds: float) -> None:
 
 async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: MoveFn,
                        dwell_s: float, meta: Mapping[str, str], say: Say = print,
-                       ready: Ready | None = None, datum_mm: float | None = None
+                       ready: Ready | None = None, datum_mm: float | None = None,
+                       extra: ExtraFn | None = None, extra_names: tuple[str, ...] = ()
                        ) -> RunSummary:  # fmt: skip
     """Move through ``plan`` dwelling ``dwell_s`` at each measured stop, then wait for the
     step's file and join its readings into ``raw_path`` (see the module docstring).
     ``ready``: awaited before the first move (the technician says the laser records).
     ``datum_mm``: a recording's readings less it (one zero across recordings, see
     :func:`..instruments.recording.align`); the datum used is kept in the raw file's meta
-    (``datum_mm``: the first stop's, where none was given)."""
+    (``datum_mm``: the first stop's, where none was given). ``extra``: read at each stop
+    after the dwell (a Δa or temperature sensor, ``extra_names`` its columns), kept beside
+    the marker until the file comes, then beside the laser's readings."""
     if len(plan.axes) != 1:
         raise MachineError(f"--laser {spec.text}: a {spec.kind} reads one axis; this step "
                            f"moves {', '.join(plan.axes)} (give --xy-device for the plane)")
@@ -65,6 +69,7 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
     name = raw_path.stem
     files = expected_files(spec, name)
     moved = raw_path.with_suffix(".moved")
+    sensors = raw_path.with_suffix(".sensors.json")  # the extra columns, read while moving
     measured = [m for m in plan.moves if m.measured]
     if raw_path.exists() and raw_path.stat().st_size > 0 and _complete(raw_path, measured):
         return RunSummary(raw_path, len(plan.moves), len(plan.moves), 0, True)
@@ -79,10 +84,15 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
             + ("; press Enter once it records" if ready is not None else ""))
         if ready is not None:
             await ready()
+        sensed: list[dict[str, float]] = []
         for m in plan.moves:
             await move(dict(zip(plan.axes, m.target_mm)))
             if m.measured:
                 await stand(dwell_s)
+                if extra is not None:
+                    sensed.append(dict(await extra(m)))
+        if extra_names:
+            atomic_write_text(sensors, json.dumps(sensed))
         atomic_write_text(moved, f"{name}: moves done; readings from {files[0]}\n")
     found = next((f for f in files if f.exists()), None)
     if found is None:
@@ -112,8 +122,10 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
     except OSError as exc:
         raise MachineError(f"{found}: {exc}") from None
     kept = {"datum_mm": f"{datum_mm:.6f}"} if datum_mm is not None else {}
+    sensed = json.loads(sensors.read_text()) if extra_names and sensors.exists() else []
     return await join_values_async(plan, [{axis: float(v)} for v in values], found, raw_path,
-                                   {**meta, "instrument": spec.kind, **kept})  # fmt: skip
+                                   {**meta, "instrument": spec.kind, **kept}, sensed,
+                                   extra_names if sensed else ())  # fmt: skip
 
 
 def write_targets(path: Path, measured: Sequence[Move]) -> Path:

@@ -144,6 +144,11 @@ class Session:
             link = await links.get(self.gateway.host, self.gateway.port)
             driver = MachineDriver(link, self.config, self.motion)
             driver.on_move = self.on_move
+            extra, names = None, ()
+            if plan.kind == "warmup" and self._warmup_reads_temperature(plan):
+                extra, names = await self._temperature_fn(plan, links)
+            elif plan.kind == "warmup" or self.instruments.given("delta_a"):
+                extra, names = await self._delta_a_fn(links)
             later = self.instruments.kinds.get(self._role(plan))
             if later is not None and later.reads_later:  # from a recording or a capture
                 if self.park:
@@ -152,7 +157,7 @@ class Session:
                     plan, raw_path, later, driver.move, self.instruments.dwell_s,
                     {"compensation": compensation},
                     ready=enter_pressed if self.instruments.wait_start else None,
-                    datum_mm=self.datum_mm)
+                    datum_mm=self.datum_mm, extra=extra, extra_names=names)
             read = await self._measure_fn(plan, links)
 
             async def measure(move: Move) -> Mapping[str, float]:
@@ -160,11 +165,6 @@ class Session:
                 await driver.still_at(dict(zip(plan.axes, move.target_mm)))  # else not kept
                 return values
 
-            extra, names = None, ()
-            if plan.kind == "warmup" and self._warmup_reads_temperature(plan):
-                extra, names = await self._temperature_fn(plan, links)
-            elif plan.kind == "warmup" or self.instruments.given("delta_a"):
-                extra, names = await self._delta_a_fn(links)
             if self.park:
                 await driver.move(dict(self.park))
             return await run_plan(

@@ -247,11 +247,15 @@ def join_values(plan: Plan, readings: Sequence[Mapping[str, float]],
 
 async def join_values_async(plan: Plan, readings: Sequence[Mapping[str, float]],
                             source: str | os.PathLike[str], raw_path: str | os.PathLike[str],
-                            meta: Mapping[str, str] | None = None) -> RunSummary:  # fmt: skip
-    """:func:`join_values` in a running event loop."""
+                            meta: Mapping[str, str] | None = None,
+                            extras: Sequence[Mapping[str, float]] = (),
+                            extra_names: tuple[str, ...] = ()) -> RunSummary:  # fmt: skip
+    """:func:`join_values` in a running event loop; ``extras``: each reading's other
+    columns (``extra_names``: a sensor read at the stop), kept beside it."""
     plan, _ = raw_runs(plan)
     measured = [m for m in plan.moves if m.measured]
     by_move = {id(m): values for m, values in zip(measured, readings)}
+    more = {id(m): values for m, values in zip(measured, extras)}
 
     async def no_move(_: Mapping[str, float]) -> None:
         return None
@@ -259,8 +263,12 @@ async def join_values_async(plan: Plan, readings: Sequence[Mapping[str, float]],
     async def measure(move: Move) -> Mapping[str, float]:
         return by_move[id(move)]
 
+    async def extra(move: Move) -> Mapping[str, float]:
+        return more[id(move)]
+
     plan_part = Plan(plan.kind, plan.axes, _through_last(plan, len(readings)), plan.meta)
     return await run_plan(plan_part, raw_path, no_move, measure,
+                          extra=extra if extra_names else None, extra_names=extra_names,
                           meta={"joined": str(source), **(meta or {})})  # fmt: skip
 
 
