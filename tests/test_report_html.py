@@ -224,6 +224,31 @@ def test_the_verdict_is_what_the_laser_reads_the_drift_taken_off_a_diagnosis() -
                              "7.10 → 0.20 µm"), lines
 
 
+def test_no_advice_to_refine_a_warm_machine_or_after_a_round_that_read_worse() -> None:
+    """Issue 52: following "a tighter --tolerance-um carries on refining" on a machine its
+    own runs had warmed made it worse (X E 2.35 → 7.68 µm). Before advising another run the
+    verdict asks whether the references moved and whether the last round read worse."""
+    summary = {"outcome": "after", "tolerance_um": 2.0,
+               "axes": {"X": {"after": {"E_um": 2.74}}},
+               "warmed_um": {"X": 1.2}, "cool_min": 71,
+               "rounds": [{"round": 1, "axes": {"X": {"E_um": 0.8}}, "restored": []}]}
+    assert "a tighter --tolerance-um carries on" in verdict(summary)  # cold, nothing worse
+    summary["warmed_um"]["X"] = 6.3
+    line = verdict(summary)
+    assert "the machine has warmed: its drift references moved X 6.3 µm since it started " \
+        "cold" in line and "Let it cool about 71 minutes at rest (three of its fitted " \
+        "heat time constants)" in line, line  # fmt: skip
+    assert "tighter --tolerance-um" not in line, line
+    summary["warmed_um"]["X"] = 0.4
+    summary["rounds"].append({"round": 2, "axes": {"X": {"E_um": 1.6}}, "restored": ["X"]})
+    line = verdict(summary)
+    assert "round 2 read worse than the one before (X E 0.80 → 1.60 µm): the earlier, " \
+        "better table is loaded for X. More refining on this machine as it is now will " \
+        "not help" in line and "tighter" not in line, line  # fmt: skip
+    summary["rounds"][-1]["axes"]["X"]["E_um"] = 0.95  # within the scatter: not worse
+    assert "tighter --tolerance-um carries on" in verdict(summary)
+
+
 def test_r_from_few_runs_is_said_to_read_high_beside_the_pooled_scatter() -> None:
     """Trial 9: after-run R 4.7-7.2 µm on drives that scatter 0.27-0.47 µm, "the mechanics
     or heat" said; with 2 runs per target R is the largest of many two-stop scatters."""

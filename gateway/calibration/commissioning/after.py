@@ -182,5 +182,23 @@ class AfterSteps:
                         self.s.planar)["max_um"]  # fmt: skip
             out["xy"] = xy
         self.rotary.rotary_summary(out)
+        out.update(self.warmth())
         return out
+
+    def warmth(self) -> dict[str, Any]:
+        """How far the drift references have moved since the machine started cold (µm,
+        per axis, at the last reading: ``warmed_um``) and how long it takes to cool
+        (``cool_min``: three of the slowest fitted heat time constant): what the verdict
+        weighs before advising another run on a warm machine."""
+        log = self.record.state.get("drift_log") or []
+        if not log:
+            return {}
+        warmed = {a: 1000.0 * max(abs(v) for v in d) for a, d in log[-1]["drift_mm"].items()
+                  if d}  # fmt: skip
+        taus = [float(r["motion"]["tau_s"]) for k, r in
+                (self.record.state.get("identify") or {}).items()
+                if k.startswith("motion-") and isinstance(r, dict)
+                and (r.get("motion") or {}).get("tau_s")]  # fmt: skip
+        return {"warmed_um": warmed,
+                "cool_min": round(3 * max(taus) / 60) if taus else None}
 

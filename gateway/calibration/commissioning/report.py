@@ -113,7 +113,61 @@ def verdict(summary: dict[str, Any]) -> str:
         outcome = "after"
     where = f" ({'; '.join(missing)})" if missing else ""
     advice = NEXT["heat"] if missing and heat else NEXT.get(outcome, NEXT["rounds"])
+    if missing and heat and summary.get("cool_min"):
+        advice = advice.replace("an hour or more at rest", f"about {summary['cool_min']} "
+                                "minutes at rest: three of its fitted heat time constants")
+    elif not (missing and heat) and outcome in ("after", "rounds", "budget"):
+        advice = _before_more(summary) or advice
     return (f"NOT within {tol_text}{where}; what was fitted is loaded. Next: {advice}")
+
+
+#: the references moved this much since the cold start (µm, or half the tolerance if more):
+#: the machine is warm, and a refinement run now fits its heat, not its tables
+WARM_UM = 2.0
+
+
+def _before_more(summary: dict[str, Any]) -> str | None:
+    """Advice that never makes it worse: before another run is advised, has the machine
+    warmed (its drift references moved), and did the last round read worse than the one
+    before? Then that, and what to do instead; None when neither."""
+    said = []
+    warmed = summary.get("warmed_um") or {}
+    limit = max(WARM_UM, 0.5 * summary["tolerance_um"])
+    warm = {a: w for a, w in warmed.items() if w > limit}
+    if warm:
+        cool = summary.get("cool_min")
+        said.append("the machine has warmed: its drift references moved "
+                    + ", ".join(f"{a} {w:.1f} µm" for a, w in warm.items())
+                    + " since it started cold, and a run now fits that heat, not the tables. "
+                    f"Let it cool about {cool if cool else 60} minutes at rest"
+                    + (" (three of its fitted heat time constants)" if cool else "")
+                    + ", then run the same command again; a temperature or Δa sensor "
+                    "corrects heat in use")  # fmt: skip
+    worse = _worse_round(summary.get("rounds") or [])
+    if worse:
+        said.append(worse)
+    return "; ".join(said) if said else None
+
+
+def _worse_round(rounds: list[dict[str, Any]]) -> str | None:
+    """The last round against the one before: the axes whose E read worse (more than the
+    larger of 0.2 µm and 10 %), said with what was loaded."""
+    if len(rounds) < 2:
+        return None
+    last, before = rounds[-1], rounds[-2]
+    worse = []
+    for axis, now in (last.get("axes") or {}).items():
+        was = (before.get("axes") or {}).get(axis) or {}
+        e_now, e_was = now.get("E_um"), was.get("E_um")
+        if e_now is not None and e_was is not None and e_now > e_was + max(0.2, 0.1 * e_was):
+            worse.append(f"{axis} E {e_was:.2f} → {e_now:.2f} µm")
+    if not worse:
+        return None
+    kept = last.get("restored") or []
+    return (f"round {last.get('round', len(rounds))} read worse than the one before "
+            f"({', '.join(worse)})"
+            + (f": the earlier, better table is loaded for {', '.join(kept)}" if kept else "")
+            + ". More refining on this machine as it is now will not help")
 
 
 def remains(summary: dict[str, Any]) -> list[str]:
