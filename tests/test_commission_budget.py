@@ -91,15 +91,16 @@ def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path:
 # other worker is busy): the short budget, its recheck twice, the carry-on, its report again
 def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         template: Path, tmp_path: Path) -> None:  # fmt: skip
-    """A budget short of the first steps and the before- and after-runs: every axis's ISO
-    runs, the plane's grid right after them, the backlash tests and the before-runs come
-    before any axis's cyclic scans, so when it is spent each axis has the table a plain
-    ISO 230-2 calibration would give it (with its cyclic term where the scans were made),
-    said to be unverified, the plane its model, and the report its before and after.
-    (Axis by axis, X had a verified table, Y none, and the plane none.) No round's
-    verification fits: the after-run, at random targets no fit used, judges the tables
-    instead, and within the tolerance (10 µm here: Y has no cyclic term) it is the outcome.
-    (A random machine at 2 h ended "budget" with its after-run within 2 µm everywhere.)"""
+    """A budget short of the first steps and the before- and after-runs: a plain ISO
+    230-2 calibration's steps first (every axis's ISO runs, their cyclic scans where the
+    plane's grid still fits beside them, the plane's grid with those tables on), then the
+    before-runs that judge them, the backlash tests last; so when it is spent each axis has
+    the table a plain calibration would give it, cyclic term included, said to be
+    unverified, the plane its model, and the report its before and after. (Axis by axis, X
+    had a verified table, Y none, and the plane none; with the scans last, Y had none.) No
+    round's verification fits: the after-run, at random targets no fit used, judges the
+    tables instead, and within the tolerance (10 µm here) it is the outcome. (A random
+    machine at 2 h ended "budget" with its after-run within 2 µm everywhere.)"""
     with running(template, tmp_path / "m") as rig:
         proc = rig.commission("--budget-h", "0.95", "--tolerance-um", "10")
         assert proc.popen.wait(timeout=300) == 0, proc.text()
@@ -107,23 +108,23 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         summary = json.loads((out / "summary.json").read_text())
         state = json.loads((out / "commission.json").read_text())
         assert summary["outcome"] == "within" and summary["machine_h"] <= 0.95
-        assert "budget spent: cyclic-Y needs" in proc.text() and not summary["rounds"]
+        assert "budget spent: backlash-X needs" in proc.text() and not summary["rounds"]
         judged = next(n for n in summary["notes"] if "the after-run judged the tables" in n)
         assert all(f"{n} " in judged for n in ("X E", "Y E", "XY max")), judged
         assert state["short"]
         done = list(state["steps"])
-        # a plain calibration's steps, then what judges them, then the cyclic scans
-        order = ["iso-Y", "xy-grid", "backlash-Y", "before-X", "before-Y", "cyclic-X"]
+        # a plain calibration's steps, then what judges them, then the backlash tests
+        order = ["iso-Y", "cyclic-X", "cyclic-Y", "xy-grid", "before-X", "before-Y"]
         assert [done.index(s) for s in order] == sorted(done.index(s) for s in order), done
+        assert "backlash-X" not in done
         # no round will refine the plane: its first grid is as dense as the budget allows
-        nx, ny = state["grid"]  # (a square plane's 7 x 7, denser)
-        assert nx > 7 and ny == nx, state["grid"]
+        # (here no denser than the configured one: a square plane's 7 x 7)
+        assert state["grid"] == [7, 7], state["grid"]
         note = next(n for n in summary["notes"] if "identification's runs only" in n)
-        assert note.startswith("X, Y: fitted") and "Y: no cyclic term" in note, note
+        assert note.startswith("X, Y: fitted") and "no cyclic term" not in note, note
         final = yaml.safe_load(rig.config.read_text())["axes"]
-        assert "pitch" in final["X"]["compensation"] and "cyclic" in final["X"]["compensation"]
-        assert "pitch" in final["Y"]["compensation"]
-        assert "cyclic" not in final["Y"]["compensation"]
+        for a in ("X", "Y"):
+            assert {"pitch", "cyclic"} <= set(final[a]["compensation"]), final[a]
         for a in ("X", "Y"):  # no round measures between the points: leave-one-out chooses
             chosen = state["identify"][f"interpolation-{a}"]
             assert chosen["why"] == "leave-one-out" and len(chosen["loo_rms_um"]) == 3, chosen
@@ -136,8 +137,6 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
             assert e["after"]["E_um"] < 0.5 * e["before"]["E_um"], (a, e)
         assert "no round verified them" in proc.text()
         assert "a short budget: every axis's ISO runs (and their midpoints" in proc.text()
-        # the same command with more budget carries on: Y's scans, the fit again with both
-        # cyclic terms, the plane and the rounds
         assert "WITHIN 10 µm as the laser reads it on every commissioned axis and the plane" \
             in proc.text()
         def after_x(where: Path) -> list[str]:
@@ -182,6 +181,8 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         mark = rig.gw.mark()
         rig.gw.signal(signal.SIGHUP)
         rig.gw.wait_line(r"reloaded ", start=mark)
+        # the same command with more budget carries on: the backlash tests, the fit again,
+        # the plane and the rounds
         more = rig.commission("--budget-h", "2", "--tolerance-um", "5")
         assert more.popen.wait(timeout=300) in (0, 1), more.text()
         final = yaml.safe_load(rig.config.read_text())["axes"]

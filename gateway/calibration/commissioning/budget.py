@@ -56,6 +56,21 @@ class Budget:
         drifting = drift and "drift_base" in self.record.state
         return self.axes.estimate_s(plan) + (self.refs_around_s(plan, whole) if drifting else 0.0)
 
+    def step_cost_worst_s(self, plan: Plan) -> float:
+        """:meth:`step_cost_s` with the drift references around every run, as they are
+        once a drift stands out: what a step decided on now may cost when it runs."""
+        if "drift_base" not in self.record.state:
+            return self.axes.estimate_s(plan)
+        return self.axes.estimate_s(plan) + self.refs_worst_s(plan)
+
+    def refs_once_s(self) -> float:
+        """Machine time (s) of one reading of every axis's drift references."""
+        return self.drift.refs_cost_s(self.axes.ref_axes())
+
+    def refs_worst_s(self, plan: Plan) -> float:
+        """Machine time (s) of the drift references around every run of ``plan``."""
+        return (len(split_runs(plan)) + 1) * self.drift.refs_cost_s(self.axes.ref_axes())
+
     def iso_runs(self) -> int:
         """Runs per target of the ISO runs: the configured ones, or fewer where a short
         budget holds every axis's table only so

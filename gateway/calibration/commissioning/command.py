@@ -89,10 +89,11 @@ class CommandChecks:
         if short:
             plane = self.s.planar is not None
             self.say("  a short budget: every axis's ISO runs (and their midpoints where a "
-                     "table misses between its points)"
-                     + (" and the plane's grid" if plane else "") + " first, then "
-                     "the backlash tests and before-runs, the lead searches and cyclic scans "
-                     "last, as the budget allows"
+                     "table misses between its points), the cyclic scans where the lead is "
+                     "known" + (" and the plane's grid beside them" if plane else "")
+                     + (", then the plane's grid" if plane else "") + " first, then "
+                     "the before-runs that judge them and the backlash tests, the lead "
+                     "searches last, as the budget allows"
                      + ("; no round will refine the plane, so its grid is made as dense as "
                         "the budget then left holds (more readings than the xy-grid line "
                         "above: the budget is spent, not exceeded)" if plane else ""))  # fmt: skip

@@ -29,11 +29,11 @@ command again after Ctrl-C, a crash or a power loss carries on where it stopped:
    the plane reads worse with the tables than without), the report written.
 
 A budget short of the first steps, the before- and after-runs and one round (the drift
-references around each counted) takes every axis's ISO runs first, the plane's grid
-right after them (with those tables on, as dense as the budget left allows:
-:mod:`.short`), then the
-backlash tests and the before-runs, and the lead searches and cyclic scans last (a plain
-ISO 230-2 calibration's steps first, then what judges them, then the extras); spent
+references around each counted) takes every axis's ISO runs first, the cyclic scans where
+the lead is known and the plane's grid still fits beside them, the plane's grid (with
+those tables on, as dense as the budget left allows: :mod:`.short`), then the before-runs
+and the backlash tests, and the lead searches last (a plain ISO 230-2 calibration's steps
+first, then what judges them, then the extras); spent
 before the fit, it still fits the axes whose ISO runs were made (no round verified them,
 said so). Where no round judged the tables, the after-run judges them as a round would
 (:meth:`.after.AfterSteps.after_verdict`).

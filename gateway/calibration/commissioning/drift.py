@@ -64,7 +64,7 @@ class DriftRefs:
     async def measure_refs(self) -> dict[str, list[float]]:
         """Deviation (mm) of each commissioned axis at its two drift references (a rotary
         axis's are zero: the laser sees no angle, its readings are taken as they are)."""
-        linear = self.axes.ref_axes()
+        linear = [] if self.off() else self.axes.ref_axes()
         if linear and self.recorded():
             out = await self._read_recorded(linear[0])
         else:
@@ -267,8 +267,16 @@ class DriftRefs:
 
     def refs_cost_s(self, axes: Sequence[str], repeats: int = REF_REPEATS) -> float:
         """Machine time (s) of one reading of the drift references of ``axes``: two places,
-        ``repeats`` approaches each from 1 mm below."""
+        ``repeats`` approaches each from 1 mm below (none where they are :meth:`off`)."""
+        if self.off():
+            return 0.0
         return len(axes) * 2 * repeats * (self.s.stop_s + 2.0 / self.s.speed_mm_s)
+
+    def off(self) -> bool:
+        """Whether the drift references are not read at all: a budget that holds a plain
+        calibration's tables only without them (:meth:`.short.ShortBudget.refs_affordable`);
+        every reading is then zero drift, and costs nothing."""
+        return bool(self.record.state.get("refs_off"))
 
     def drift_now(self, refs: dict[str, list[float]]) -> dict[str, list[float]]:
         base = self.record.state["drift_base"]["refs"]

@@ -92,10 +92,14 @@ class Planner:
         return Plan("lead-search", (axis,), tuple(moves), (("kind", "lead-search"),
                                                            ("axis", axis)))  # fmt: skip
 
-    def iso_plan(self, axis: str, runs: int | None = None) -> Plan:
+    def iso_plan(self, axis: str, runs: int | None = None, points: int | None = None) -> Plan:
+        """The first table's ISO 230-2 runs: ``points`` targets (default: as a short budget
+        decided, else ``adaptive.COARSE_POINTS``), ``runs`` runs."""
         lead = self.s.lead_mm.get(axis)
+        points = points or int(self.record.state.get("iso_points") or 0)
         return iso230_linear_plan(axis, self.axes.travel(axis),
-                                  step_mm=adaptive.coarse_step_mm(self.axes.travel(axis), lead),
+                                  step_mm=adaptive.coarse_step_mm(self.axes.travel(axis), lead,
+                                                                  points),
                                   runs=runs or self.budget.iso_runs(),
                                   overrun_mm=1.0, lead_mm=lead, seed=self.s.seed)  # fmt: skip
 

@@ -28,6 +28,9 @@ if TYPE_CHECKING:
 
 Say = Callable[[str], None]
 
+#: readings of the drift references at config switches on a short budget (the start, the
+#: tables loaded for the plane, back without them, the after-run's)
+SWITCH_READINGS = 4
 #: a short budget's table is read at its midpoints too where it misses between its points
 #: by more than this many times what its own scatter explains (as a reversal per point)
 BETWEEN_RATIO = 2.0
@@ -54,15 +57,48 @@ class ShortBudget:
         time sdss-1396 took the normal order, its lead searches and a round with nothing
         added, and ended on a 7 x 5 grid: E cut −36 %, against 54 % at 1.5 x, short).
         Then a plain ISO 230-2 calibration's steps come
-        first (every linear axis's ISO runs, the plane's grid with their tables on), then
-        the backlash tests and the before-runs, and the lead searches and cyclic scans
-        last, so that a budget spent on the way leaves each axis a table
+        first (every linear axis's ISO runs, its cyclic scans where its lead is known and
+        the plane's grid still fits, the plane's grid with their tables on), then the
+        before-runs that judge them and the backlash tests, and the lead searches last, so
+        that a budget spent on the way leaves each axis a table
         (:meth:`.fit.FitSteps.fit_identified`) and the plane its model, not one axis a
         verified table and the others none."""
         if "short" not in self.record.state:
             self.record.state["short"] = bool(self.first_need_s() > self.s.budget_s)
             self.record.save()
         return bool(self.record.state["short"])
+
+    def refs_affordable(self) -> bool:
+        """Whether the drift references are read (decided once, before the first, kept in
+        the state; said when not): not on a short budget that holds every linear axis's
+        ISO runs at 2 runs per target on the ISO 230-2 least of targets and the plane's
+        configured grid and random points without them but not with them (around every
+        run, at every config switch). They are
+        an identification extra: there a plain calibration's tables are worth more than a
+        drift taken off them. (At the plain calibration's 7.8 minutes, mcu1025's
+        references took 2.4 minutes and Y got no table: E cut 2 % against 69 %.)"""
+        state = self.record.state
+        if "refs_off" not in state:
+            off = False
+            if self.applies():
+                linear = [a for a in self.s.axes if not self.axes.rotary(a)]
+                plans = [self.plans.iso_plan(a, 2, adaptive.ISO_LEAST_POINTS) for a in linear]
+                if self.s.planar is not None and set(self.s.planar) <= set(linear):
+                    plans += [self.plans.grid_plan(self.s.grid), *2 * [self.plans.before_xy_plan()]]
+                bare_s = sum(self.axes.estimate_s(p) for p in plans)
+                refs_s = (sum(self.budget.refs_worst_s(p) for p in plans)
+                          + SWITCH_READINGS * self.budget.refs_once_s())
+                off = bool(linear) and bare_s <= self.s.budget_s < bare_s + refs_s
+                if off:
+                    note = (f"no drift references: with them ({refs_s / 60:.1f} min) the budget "
+                            "does not hold every axis's ISO runs"
+                            + (" and the plane's grid" if len(plans) > len(linear) else "")
+                            + "; the tables keep the drift while measuring")  # fmt: skip
+                    self.say(note)
+                    state["notes"].append(note)
+            state["refs_off"] = off
+            self.record.save()
+        return not state["refs_off"]
 
     def first_need_s(self) -> float:
         """Machine time (s) of the first steps, the before- and after-runs and one round:
@@ -125,14 +161,15 @@ class ShortBudget:
         """The plane's first grid (decided once, kept in the state): the configured one;
         on a short budget, whose rounds will not refine it, the densest whose cells are
         about square (the shape of :func:`..plans.xy.even_grid`, :func:`max_grid_in`)
-        whose run fits in what the budget has left after the steps that come after it and
-        that it will still hold with the configured grid: each
-        linear axis's backlash test, then its before- and after-runs, then its cyclic
-        scans where its lead is known, as far as they fit in that order (a step that does
-        not fit ends the identification, so none after it is counted). (At 1.5 x a manual
-        calibration's time the sdss plates' 7 x 5 grid left their Y at the judge's park
-        13.4 µm, the manual's 9 x 7 5.3 µm; 13 x 9, the configured grid split once, left 8.5
-        of their 61 minutes unused.)"""
+        whose run fits in what the budget has left after the steps that come after it:
+        the cyclic scans not made yet where the lead is known, each linear axis's before-
+        and after-runs (the verdict), its backlash test, each with the drift references a
+        drift would call for, in that order, each held where it fits beside those held
+        before it. (At the plain calibration's machine time smooth-0's grid took 10
+        minutes at 13 x 9: the before-runs, first, did not fit, and nothing after them was
+        held; its Y got no cyclic scans: Y E 7.1 µm at the judge's targets. At 1.5 x a
+        manual calibration's time the sdss plates' 7 x 5 grid left their Y at the judge's
+        park 13.4 µm, the manual's 9 x 7 5.3 µm.)"""
         if "grid" not in self.record.state:
             grid = self.s.grid
             if self.record.state.get("short"):
@@ -140,22 +177,20 @@ class ShortBudget:
                     return self.budget.step_cost_s(self.plans.grid_plan(g))
 
                 linear = [a for a in self.s.axes if not self.axes.rotary(a)]
-                after = [[backlash_plan(a, self.axes.travel(a))] for a in linear
-                         if not self.record.done(f"backlash-{a}")]  # fmt: skip
+                after = [[cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])] for a in linear
+                         if a in self.s.lead_mm and not self.record.done(f"cyclic-{a}")]
                 after += [2 * [self.plans.before_plan(a)] for a in linear]  # before and after
-                after += [[cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])] for a in linear
-                          if a in self.s.lead_mm
-                          and not self.record.done(f"cyclic-{a}")]  # fmt: skip
+                after += [[backlash_plan(a, self.axes.travel(a))] for a in linear
+                          if not self.record.done(f"backlash-{a}")]  # fmt: skip
                 left_s = self.budget.left_s()
                 held_s = cost_s(grid)
-                for plans in after:
-                    need_s = sum(self.budget.step_cost_s(p) for p in plans)
-                    if held_s + need_s > left_s:
-                        break
-                    held_s += need_s
+                for plans in after:  # (their references as a drift would have them)
+                    need_s = sum(self.budget.step_cost_worst_s(p) for p in plans)
+                    if held_s + need_s <= left_s:  # one that does not fit holds nothing
+                        held_s += need_s
                 (x0, x1), (y0, y1) = self.axes.plane_travel()
                 even, room_s = even_grid(x1 - x0, y1 - y0), left_s - held_s + cost_s(grid)
-                if cost_s(even) <= room_s:  # else the configured grid, as it was held
+                if cost_s(even) <= room_s:  # else the configured grid
                     grid = max_grid_in(even, cost_s, room_s)
             self.record.state["grid"] = list(grid)
             self.record.save()

@@ -132,6 +132,9 @@ class Stager:
         await self.reload_fn()
         self.record.state["phase"] = phase
         self.record.state["loaded"] = digest
+        if self.drift.off():  # no references read: no drift known, none taken off
+            self.record.save()
+            return
         after = await self.drift.measure_refs()
         drift = {a: [0.0, 0.0] for a in self.s.axes}
         if base is not None:

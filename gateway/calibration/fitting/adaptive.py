@@ -30,6 +30,8 @@ from .iso230 import iso230_axis
 
 #: the coarse table: about this many points over the travel, at least this far apart
 COARSE_POINTS = 21
+#: the fewest targets ISO 230-2 takes along an axis (a short budget's least)
+ISO_LEAST_POINTS = 5
 #: random verification targets per axis and round, besides the new spans' midpoints
 RANDOM_TARGETS = 16
 #: a table never gets points closer than this (mm): below it noise would set the slope
@@ -39,11 +41,13 @@ MIN_SPACING_MM = 0.5
 REFINE_PARTS = 4
 
 
-def coarse_step_mm(travel_mm: Sequence[float], lead_mm: float | None = None) -> float:
-    """Nominal spacing of the first table: the travel in ``COARSE_POINTS`` − 1 steps, kept
-    clear of a whole number of leads by the plan (uneven spacing)."""
+def coarse_step_mm(travel_mm: Sequence[float], lead_mm: float | None = None,
+                   points: int = 0) -> float:  # fmt: skip
+    """Nominal spacing of the first table: the travel in ``points`` (default
+    ``COARSE_POINTS``) − 1 steps, kept clear of a whole number of leads by the plan (uneven
+    spacing)."""
     lo, hi = float(travel_mm[0]), float(travel_mm[1])
-    step = (hi - lo) / (COARSE_POINTS - 1)
+    step = (hi - lo) / ((points or COARSE_POINTS) - 1)
     if lead_mm:
         turns = step / lead_mm
         if abs(turns - round(turns)) < 0.1 and turns >= 0.5:
