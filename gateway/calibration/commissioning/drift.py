@@ -64,7 +64,12 @@ class DriftRefs:
     async def measure_refs(self) -> dict[str, list[float]]:
         """Deviation (mm) of each commissioned axis at its two drift references (a rotary
         axis's are zero: the laser sees no angle, its readings are taken as they are)."""
-        linear = [] if self.off() else self.axes.ref_axes()
+        linear = self.axes.ref_axes()
+        if self.off():  # none read, but the laser's channels checked once (the first thing)
+            if linear and not self.recorded() and not self.record.state.get("channels_checked"):
+                await self._read(linear, repeats=1)
+                self.record.state["channels_checked"] = True
+            linear = []
         if linear and self.recorded():
             out = await self._read_recorded(linear[0])
         else:

@@ -152,7 +152,8 @@ class IdentifySteps:
             self.record.state["iso_points"] = points
             note = (f"{', '.join(axes)}: {points} ISO targets per axis instead of "
                     f"{adaptive.COARSE_POINTS}: the budget holds every axis's table"
-                    + (" and the plane's grid" if keep_s else "") + " only so")
+                    + (" and the plane's grid" if keep_s else "")
+                    + (" only so" if fits(runs, points) else " not even so"))
             self.record.state["notes"].append(note)
             self.say(note)
         if runs < self.s.runs:

@@ -13,7 +13,7 @@ import numpy as np
 from ..fitting import adaptive
 from ..fitting.plans_scans import cyclic_plan
 from ..fitting.table_cv import between_points_ratio
-from ..plans.plans import backlash_plan
+from ..plans.plans import Plan, backlash_plan
 from ..plans.rawdata import RawData, axis_deviations
 from ..plans.xy import even_grid
 from .steps import concat_raw
@@ -82,13 +82,22 @@ class ShortBudget:
             off = False
             if self.applies():
                 linear = [a for a in self.s.axes if not self.axes.rotary(a)]
-                plans = [self.plans.iso_plan(a, 2, adaptive.ISO_LEAST_POINTS) for a in linear]
+                tables = [self.plans.iso_plan(a, 2, adaptive.ISO_LEAST_POINTS) for a in linear]
+                plane = []
                 if self.s.planar is not None and set(self.s.planar) <= set(linear):
-                    plans += [self.plans.grid_plan(self.s.grid), *2 * [self.plans.before_xy_plan()]]
-                bare_s = sum(self.axes.estimate_s(p) for p in plans)
-                refs_s = (sum(self.budget.refs_worst_s(p) for p in plans)
-                          + SWITCH_READINGS * self.budget.refs_once_s())
-                off = bool(linear) and bare_s <= self.s.budget_s < bare_s + refs_s
+                    plane = [self.plans.grid_plan(self.s.grid), *2 * [self.plans.before_xy_plan()]]
+
+                def costs_s(plans: list[Plan]) -> tuple[float, float]:
+                    """(moves, drift references) of ``plans`` (s)."""
+                    return (sum(self.axes.estimate_s(p) for p in plans),
+                            sum(self.budget.refs_worst_s(p) for p in plans)
+                            + SWITCH_READINGS * self.budget.refs_once_s())  # fmt: skip
+
+                for plans in (tables + plane, tables):  # the plane too if it can, else tables
+                    bare_s, refs_s = costs_s(plans)
+                    if bare_s <= self.s.budget_s:
+                        off = bool(linear) and self.s.budget_s < bare_s + refs_s
+                        break
                 if off:
                     note = (f"no drift references: with them ({refs_s / 60:.1f} min) the budget "
                             "does not hold every axis's ISO runs"

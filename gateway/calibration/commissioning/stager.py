@@ -132,7 +132,8 @@ class Stager:
         await self.reload_fn()
         self.record.state["phase"] = phase
         self.record.state["loaded"] = digest
-        if self.drift.off():  # no references read: no drift known, none taken off
+        if self.drift.off():  # no references read (the channels checked): no drift known
+            await self.drift.measure_refs()
             self.record.save()
             return
         after = await self.drift.measure_refs()
