@@ -12,6 +12,7 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from ..fitting import adaptive
 from ..fitting.takeup_fit import MIN_LOST_UM
 from ..plans.plans import Plan
 
@@ -135,33 +136,40 @@ class CommandChecks:
         them (a plain ISO 230-2 calibration's steps first: :mod:`.short`), and what the
         rest needs: "with 0.90 h: pitch tables, plane; thermal identification needs 0.75 h
         more". Estimates without the drift references and the before- and after-runs."""
-        groups = (("pitch tables", ("iso",)), ("plane", ("xy",)), ("backlash", ("backlash",)),
+        groups = (("pitch tables", ("iso",)), ("once-per-lead error", ("cyclic",)),
+                  ("plane", ("xy",)), ("backlash", ("backlash",)),
                   ("thermal identification", ("warmup",)),
-                  ("once-per-lead error", ("lead", "cyclic")))  # fmt: skip
+                  ("lead search", ("lead",)))  # fmt: skip
+
+        def need_s(kinds: tuple[str, ...]) -> float:
+            return sum(self.axes.estimate_s(p) for n, p in first
+                       if n.partition("-")[0] in kinds)  # fmt: skip
+
         used_s, got, short = 0.0, [], []
         for label, kinds in groups:  # each taken where it fits in what is left
-            need_s = sum(self.axes.estimate_s(p) for n, p in first
-                         if n.partition("-")[0] in kinds)  # fmt: skip
-            if need_s <= 0.0:
+            need = need_s(kinds)
+            if need <= 0.0:
                 continue
-            if used_s + need_s <= self.s.budget_s:
+            # the once-per-lead error only where the plane's grid still fits beside it
+            later_s = need_s(("xy",)) if kinds == ("cyclic",) else 0.0
+            if used_s + need + later_s <= self.s.budget_s:
                 got.append(label)
-                used_s += need_s
+                used_s += need
             else:
-                more_s = used_s + need_s - self.s.budget_s
+                more_s = used_s + need + later_s - self.s.budget_s
                 short.append(f"{label} needs {more_s / 3600:.2f} h more")
         head = f"with {self.s.budget_s / 3600:.2f} h: " + (", ".join(got) or "no table")
         return head + ("; " + ", ".join(short) if short else "")
 
     def too_short(self) -> str | None:
         """Why a fresh commissioning would end with no table: its budget does not hold even
-        the cheapest linear axis's ISO runs at 2 runs per target (the fewest a short budget
-        takes); None when it does, on a resume, or with rotary axes only."""
+        the cheapest linear axis's ISO runs at 2 runs per target on 5 targets (the least a
+        short budget takes); None when it does, on a resume, or with rotary axes only."""
         linear = [a for a in self.s.axes if not self.axes.rotary(a)]
         if self.record.state.get("steps") or not linear:
             return None
-        costs = {a: self.axes.estimate_s(self.axes.snap(self.plans.iso_plan(a, runs=2)))
-                 for a in linear}  # fmt: skip
+        costs = {a: self.axes.estimate_s(self.axes.snap(self.plans.iso_plan(
+            a, runs=2, points=adaptive.ISO_LEAST_POINTS))) for a in linear}  # fmt: skip
         axis, least_s = min(costs.items(), key=lambda item: item[1])
         if least_s <= self.s.budget_s:
             return None
@@ -169,7 +177,7 @@ class CommandChecks:
             return f"{math.ceil(seconds / 36.0) / 100:.2f} h"
 
         return (f"--budget-h {self.s.budget_s / 3600:g}: not even one axis's ISO runs fit "
-                f"({axis}'s, at 2 runs per target, take {least_s / 60:.1f} min of machine "
+                f"({axis}'s, 2 runs on 5 targets, take {least_s / 60:.1f} min of machine "
                 "time before the drift references): the commissioning would end with no "
                 f"table; give at least {hours(least_s)} (every axis's: "
                 f"{hours(sum(costs.values()))})")  # fmt: skip
