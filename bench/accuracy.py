@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 import workflows
 import yaml
-from evaluate import e_floor_um, evaluate, plan, xy_floor_um
+from evaluate import e_floor_um, evaluate, evaluate_warm, plan, xy_floor_um
 from workflows import WORKFLOWS, MachineRun, compgw_argv
 
 REAL_MACHINES = ("slit-11358", "slit-11359", "slit-11361", "mcu1025", "slit-11360-iso",
@@ -88,10 +88,11 @@ def reseed(sim_yaml: Path, sim_seed: int) -> None:
 
 def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed: int,
                 without: list[str] | None = None, judge_repeats: int = 1,
-                sim_seed: int | None = None, oracle: bool = False
+                sim_seed: int | None = None, oracle: bool = False, warm: bool = False
                 ) -> dict[str, Any]:  # fmt: skip
     """Generate, calibrate and evaluate one machine; a dict of its figures (or its error);
-    with ``oracle`` also judge a perfect pitch table in place of the calibrated one."""
+    with ``oracle`` also judge a perfect pitch table in place of the calibrated one; with
+    ``warm`` also the calibrated machine as read after the judge's own warm-up."""
     t0 = time.monotonic()
     mdir = root / label
     shutil.rmtree(mdir, ignore_errors=True)
@@ -134,6 +135,11 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
                 for _ in range(judge_repeats)]  # fmt: skip
             out["oracle"] = out["oracle_repeats"][0]
             run.use(result.config)
+        if warm:  # last: the calibrated config, after the judge's own mixed work
+            out["after_warm"] = asyncio.run(evaluate_warm(run.machine, the_plan, run.sim_port,
+                                                          run.gateway_port, cool))  # fmt: skip
+        out["said"] = next((("NOT within" if "NOT within" in n else "WITHIN")
+                            for n in result.notes if "within" in n.lower()), None)  # fmt: skip
         out["sensor"] = run.machine.get("thermal_sensor", "none")
         thermal = {a: ax.get("compensation", {}).get("thermal") or {}
                    for a, ax in result.config["axes"].items()}  # fmt: skip
@@ -281,6 +287,32 @@ def print_repeats(results: list[dict[str, Any]], say: Any = print) -> None:
             say(f"{group + ' median A − R':<24}" + "  ".join(f"{m:4.2f}" for m in med))
 
 
+def print_warm(results: list[dict[str, Any]], tolerance_um: float, say: Any = print) -> None:
+    """Per machine, each axis as the customer's laser reads it cold (the after-run) and
+    after the judge's own 30 minutes of mixed work (``--warm-judge``), and whether what
+    the workflow said agrees: never WITHIN where the judge reads beyond the tolerance."""
+    rows = [r for r in results if "after_warm" in r]
+    if not rows:
+        return
+    say("")
+    say(f"as read, cold → after the judge's 30 min of mixed work (E, A µm); tolerance "
+        f"{tolerance_um:g} µm")  # fmt: skip
+    for r in rows:
+        axes = r.get("judged_axes") or list(r["after"]["axes"])
+        parts, beyond = [], []
+        for n in axes:
+            cold, warm = r["after"]["axes"][n], r["after_warm"]["axes"][n]
+            parts.append(f"{n} E {cold['E_um']:.2f} → {warm['E_um']:.2f}, A {cold['A_um']:.2f} "
+                         f"→ {warm['A_um']:.2f} (R {warm['R_um']:.2f})")  # fmt: skip
+            if max(cold["E_um"], warm["E_um"]) > tolerance_um:
+                beyond.append(n)
+        said = r.get("said")
+        agree = "" if said is None else (
+            f"; it said {said}" + (": the judge reads beyond on " + ", ".join(beyond)
+                                   if said == "WITHIN" and beyond else ""))  # fmt: skip
+        say(f"{r['machine']:<24}" + "; ".join(parts) + agree)
+
+
 def print_oracle(results: list[dict[str, Any]], say: Any = print) -> None:
     """E cut on each machine's worst axis, the calibration's and a perfect table's, judged at
     the same targets in the same run (``--oracle``)."""
@@ -316,6 +348,7 @@ def print_table(data: dict[str, Any]) -> int:
         print(row(r["machine"], r["summary"], r["sensor"]))
     print_repeats(results)
     print_oracle(results)
+    print_warm(data["machines"], data.get("tolerance_um", 2.0))
     print()
     for group, st in group_stats(results).items():
         for which in ("median", "worst"):
@@ -375,6 +408,10 @@ def main() -> int:
                         help="also judge, at the same targets, each machine's calibrated config "
                              "with its pitch tables replaced by perfect ones read from the "
                              "quiet sim (bench/static_chain.py): what no table could cut")
+    parser.add_argument("--warm-judge", action="store_true",
+                        help="also judge each calibrated machine as read after 30 minutes of "
+                             "the judge's own mixed work at random zones (issue 52), beside "
+                             "what the workflow said")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--table", type=Path, metavar="JSON",
                         help="print the table of an earlier run's --json output and exit")
@@ -411,7 +448,8 @@ def main() -> int:
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         futures = [pool.submit(run_machine, label, gen, args.workflow, root, args.seed, without,
-                               args.judge_repeats, args.sim_seed, args.oracle)
+                               args.judge_repeats, args.sim_seed, args.oracle,
+                               args.warm_judge)
                    for label, gen in machines]  # fmt: skip
         for fut in futures:
             r = fut.result()
@@ -429,6 +467,7 @@ def main() -> int:
             say(row(f"{group} {which}", st[which], "any"))
     print_repeats(results, say)
     print_oracle(results, say)
+    print_warm(results, args.tolerance_um, say)
     print_unrepeatable(results, say)
     say(f"wall time {wall / 60:.1f} min; machine files in {root}")
     if args.json:

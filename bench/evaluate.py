@@ -41,6 +41,8 @@ MOVING_BIT, IN_POSITION_BIT, ALARM_BIT = 2, 4, 0
 LASER_UNIT, XY_UNIT, FAULTS_UNIT, ADVANCE_MS = 20, 21, 250, 0x0801
 SETTLE_STEP_MS, SETTLE_MAX_STEPS = 10, 300
 WARMUP_S, ZONE_FRACTION = 1800.0, 0.4
+#: the warm judge's mixed work: this many blocks of WARMUP_S / MIXED_BLOCKS each
+MIXED_BLOCKS = 10
 #: passes over the thermal points, cold and warm: a point's change is that of its mean, so
 #: one stop's scatter does not pose as heat (rough-1 X, single readings: 0.5-2.4 µm over
 #: four judgings of the same tables; the mean of three: 0.6-0.9 µm)
@@ -256,6 +258,19 @@ def plan(machine: dict[str, Any], avoid: dict[str, list[float]], seed: int) -> d
             "thermal_points": np.sort(_clear_of(rng(k, 4), lo + 2, hi - 2, far, 5, gap,
                                                 pulse)).tolist(),
         }  # fmt: skip
+    mix = rng(len(names), 1)  # the judge's own duty cycle: blocks at random zones
+    blocks = []
+    for _ in range(MIXED_BLOCKS):
+        name = names[int(mix.integers(len(names)))]
+        lo, hi = machine["axes"][name]["travel_mm"]
+        zone_len = float(mix.uniform(0.1, 0.6)) * (hi - lo)
+        z0 = float(mix.uniform(lo, hi - zone_len))
+        strokes = max(2, math.ceil(WARMUP_S / MIXED_BLOCKS * machine["axes"][name]["speed_mm_s"]
+                                   / zone_len))  # fmt: skip
+        pulse = machine["axes"][name]["pulse_mm"]
+        blocks.append({"axis": name, "zone": [_snap(z0, pulse), _snap(z0 + zone_len, pulse)],
+                       "strokes": strokes})  # fmt: skip
+    out["mixed"] = blocks
     (x0, x1), (y0, y1) = (machine["axes"][n]["travel_mm"] for n in names)
     px, py = (machine["axes"][n]["pulse_mm"] for n in names)
     xy = rng(len(names))
@@ -314,6 +329,40 @@ async def _thermal(m: Master, name: str, p: dict[str, Any], speed_mm_s: float,
         await m.move({name: z1 if k % 2 == 0 else z0})
     warm = await at_points()
     return float(np.abs(warm - cold).max())
+
+
+async def evaluate_warm(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: int,
+                        gateway_port: int, cool: Any) -> dict[str, Any]:
+    """The customer's acceptance on a warm machine: cooled, then 30 minutes of machine time
+    of mixed work (MIXED_BLOCKS blocks, each an axis stroking over a random zone of 10-60 %
+    of its travel: not a commissioning's own cycle), then each axis's ISO 230-2 runs as
+    the laser reads them (nothing subtracted): E, A, R per axis."""
+    names = list(machine["axes"])
+    axes = {n: Axis(n, k + 1, machine["axes"][n]["pulse_mm"],
+                    tuple(machine["axes"][n]["travel_mm"]), k)
+            for k, n in enumerate(names)}  # fmt: skip
+    gw = AsyncModbusTcpClient("127.0.0.1", port=gateway_port, timeout=5, retries=0)
+    sim = AsyncModbusTcpClient("127.0.0.1", port=sim_port, timeout=5, retries=0)
+    assert await gw.connect() and await sim.connect()
+    m = Master(gw, sim, axes)  # type: ignore[arg-type]
+    out: dict[str, Any] = {"axes": {}}
+    try:
+        await cool()
+        for block in the_plan["mixed"]:
+            name, (z0, z1) = block["axis"], block["zone"]
+            other = next(a for a in names if a != name)
+            await m.move(the_plan["axes"][other]["park"])
+            for k in range(block["strokes"]):
+                await m.move({name: z1 if k % 2 == 0 else z0})
+        for name in names:
+            p = the_plan["axes"][name]
+            await m.move(p["park"])
+            out["axes"][name] = await _iso_runs(m, name, p)
+        out["moves"], out["retries"] = m.moves, m.retries
+    finally:
+        gw.close()
+        sim.close()
+    return out
 
 
 async def evaluate(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: int,
