@@ -105,7 +105,8 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
     out: dict[str, Any] = {"machine": label, "group": label.split("-")[0]}
     run = None
     try:
-        run = MachineRun.start(mdir, mdir / "work")
+        run = MachineRun.start(mdir, mdir / "work", workflows.LASER_KIND,
+                               (workflows.COMMISSION_AXES or [None])[0])  # fmt: skip
         result = WORKFLOWS[workflow](run)
         out["workflow_s"] = round(time.monotonic() - t0, 1)
         out["notes"] = result.notes
