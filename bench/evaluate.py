@@ -24,10 +24,11 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import AsyncIterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -338,15 +339,8 @@ async def evaluate_warm(machine: dict[str, Any], the_plan: dict[str, Any], sim_p
     of its travel: not a commissioning's own cycle), then each axis's ISO 230-2 runs as
     the laser reads them (nothing subtracted): E, A, R per axis."""
     names = list(machine["axes"])
-    axes = {n: Axis(n, k + 1, machine["axes"][n]["pulse_mm"],
-                    tuple(machine["axes"][n]["travel_mm"]), k)
-            for k, n in enumerate(names)}  # fmt: skip
-    gw = AsyncModbusTcpClient("127.0.0.1", port=gateway_port, timeout=5, retries=0)
-    sim = AsyncModbusTcpClient("127.0.0.1", port=sim_port, timeout=5, retries=0)
-    assert await gw.connect() and await sim.connect()
-    m = Master(gw, sim, axes)  # type: ignore[arg-type]
     out: dict[str, Any] = {"axes": {}}
-    try:
+    async with _master(machine, sim_port, gateway_port) as m:
         await cool()
         for block in the_plan["mixed"]:
             name, (z0, z1) = block["axis"], block["zone"]
@@ -359,25 +353,34 @@ async def evaluate_warm(machine: dict[str, Any], the_plan: dict[str, Any], sim_p
             await m.move(p["park"])
             out["axes"][name] = await _iso_runs(m, name, p)
         out["moves"], out["retries"] = m.moves, m.retries
-    finally:
-        gw.close()
-        sim.close()
     return out
 
 
-async def evaluate(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: int,
-                   gateway_port: int, cool: Any = None) -> dict[str, Any]:
-    """All figures of one phase (the gateway's current config) as a dict."""
+@contextlib.asynccontextmanager
+async def _master(machine: dict[str, Any], sim_port: int,
+                  gateway_port: int) -> AsyncIterator[Master]:  # fmt: skip
+    """The judge's master: the gateway for moves, the sim for its instruments and clock."""
     names = list(machine["axes"])
     axes = {n: Axis(n, k + 1, machine["axes"][n]["pulse_mm"],
                     tuple(machine["axes"][n]["travel_mm"]), k)
             for k, n in enumerate(names)}  # fmt: skip
     gw = AsyncModbusTcpClient("127.0.0.1", port=gateway_port, timeout=5, retries=0)
     sim = AsyncModbusTcpClient("127.0.0.1", port=sim_port, timeout=5, retries=0)
-    assert await gw.connect() and await sim.connect()
-    m = Master(gw, sim, axes)  # type: ignore[arg-type]
-    out: dict[str, Any] = {"axes": {}}
     try:
+        assert await gw.connect() and await sim.connect()
+        yield Master(gw, sim, axes)  # type: ignore[arg-type]
+    finally:
+        gw.close()
+        sim.close()
+
+
+async def evaluate(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: int,
+                   gateway_port: int, cool: Any = None) -> dict[str, Any]:
+    """All figures of one phase (the gateway's current config) as a dict."""
+    names = list(machine["axes"])
+    out: dict[str, Any] = {"axes": {}}
+    async with _master(machine, sim_port, gateway_port) as m:
+        axes = m.axes
         if cool is not None:
             await cool()
         for name in names:
@@ -403,9 +406,6 @@ async def evaluate(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: 
                 speed = machine["axes"][name]["speed_mm_s"]
                 out["axes"][name]["thermal_um"] = await _thermal(m, name, p, speed, cool)
         out["moves"], out["settle_steps"], out["retries"] = m.moves, m.settle_steps, m.retries
-    finally:
-        gw.close()
-        sim.close()
     return out
 
 
