@@ -185,18 +185,6 @@ class RefineSteps:
                                                                               atol=1e-3))]
         return added
 
-    def at_machine_zero(self, axis: str, table: PitchTable) -> PitchTable:
-        """A linear axis's table read from the laser software's recording or capture, whose
-        readings count from the first stop it was zeroed at (:func:`zero_at_origin`); as it
-        is otherwise. (Not a bridge's or a gauge's: the sim's answer absolute positions,
-        and zeroed at the table's first point its smooth-0 read E 0.42 → 0.48 µm, off-grid
-        0.27 → 0.43 and its heat-from-motion model 3.6 → 11.2 µm after the judge's warm-up;
-        why the model moved is not understood yet.)"""
-        spec = self.axes.s.instruments.kinds.get("laser")
-        if self.axes.rotary(axis) or spec is None or not spec.reads_later:
-            return table
-        return zero_at_origin(table)
-
     def smoothed(self, axis: str, table: PitchTable, config: GatewayConfig) -> PitchTable:
         """A linear axis's table smoothed as much as its own leave-one-out says, its points
         moved by no more than the standard error of an ISO point (the ISO runs' scatter
@@ -254,7 +242,7 @@ class RefineSteps:
         (:meth:`interpolate`); False (a note, the files kept) when it would refuse them."""
         from ..fitting.outputs import check_cyclic, check_pitch, write_table
 
-        table = self.at_machine_zero(axis, self.smoothed(axis, table, config))
+        table = self.smoothed(axis, table, config)
         try:
             check_pitch(table, config, axis)
             if cyclic is not None:
@@ -399,16 +387,3 @@ class RefineSteps:
                  + (f", {fit.weighted_out} readings left out (stops that fell short)"
                     if fit.weighted_out else ""))  # fmt: skip
         return int(ref.table.position_mm.size - table.position_mm.size)
-
-
-def zero_at_origin(table: PitchTable) -> PitchTable:
-    """``table`` less its forward deviation at the machine's zero (0 mm, or the table's end
-    nearest it): a laser zeroed anywhere reads every deviation off by the error where it was
-    zeroed, which E does not see but every absolute position does (smooth-1 through a
-    recording: off-grid RMS 4.5 µm against 0.19 through the Modbus laser, its table 4.4 µm
-    low everywhere). A machine's error is zero at its zero by definition."""
-    pos = np.asarray(table.position_mm)
-    shift = float(np.interp(float(np.clip(0.0, pos[0], pos[-1])), pos, table.forward_mm))
-    return PitchTable(pos, table.forward_mm - shift,
-                      None if table.reverse_mm is None else table.reverse_mm - shift,
-                      table.rotary, table.source, table.lines)
