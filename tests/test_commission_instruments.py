@@ -274,6 +274,13 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
         assert np.abs(table.deviation_mm).max() < 0.2  # positions, not the laser's own zero
         # a sensor compgw read at each stop stays beside the run's readings
         assert len(table.extra["delta_a_mm"]) == table.target_mm.size, table.extra
+        # the laser was zeroed at its first stop, anywhere: the table is zero at the
+        # machine's zero, and the laser's zero moved with it
+        from gateway.formats import read_pitch_csv
+
+        pitch = read_pitch_csv(done.parent / state["tables"]["pitch"]["X"])
+        assert pitch.forward_mm[0] == 0.0 and pitch.position_mm[0] <= 1.0, pitch
+        assert "X" in state["zero_moved_mm"], state
 
 
 def test_a_recording_commissions_one_linear_axis(template: Path, tmp_path: Path) -> None:

@@ -118,7 +118,8 @@ class FitSteps:
                 self.record.state.setdefault("identify", {})[f"reversal-{a}"] = r.reversal.summary()
             if model is not None:
                 r = net_pitch(r, model, config)
-            r = replace(r, table=self.refine.smoothed(a, r.table, config))
+            r = replace(r, table=self.runner.drift.move_zero(
+                a, self.refine.smoothed(a, r.table, config)))
             save_pitch(r, "compgw commission: coarse ISO 230-2 run" +
                        (", net of the cyclic term" if model is not None else ""))  # fmt: skip
             self.refine.interpolate(a, r.table, curves)

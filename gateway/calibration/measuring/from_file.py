@@ -58,8 +58,9 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
     step's file and join its readings into ``raw_path`` (see the module docstring).
     ``ready``: awaited before the first move (the technician says the laser records).
     ``datum_mm``: a recording's readings less it (one zero across recordings, see
-    :func:`..instruments.recording.align`); the datum used is kept in the raw file's meta
-    (``datum_mm``: the first stop's, where none was given). ``extra``: read at each stop
+    :func:`..instruments.recording.align`), a capture's too (the zero moved since the
+    technician's, default none); the datum used is kept in the raw file's meta
+    (``datum_mm``: a recording's first stop's, where none was given). ``extra``: read at each stop
     after the dwell (a Δa or temperature sensor, ``extra_names`` its columns), kept beside
     the marker until the file comes, then beside the laser's readings."""
     if len(plan.axes) != 1:
@@ -116,6 +117,7 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
             assert spec.mapping is not None
             stops_plan = [PlanStop(m.target_mm[0], m.run, m.direction) for m in measured]
             values = read_export(found, load_layout(spec.mapping), stops_plan)
+            values = values - (datum_mm or 0.0)  # the zero moved since (one across exports)
     except InstrumentError as exc:
         raise MachineError(f"{exc}; nothing fitted from it: fix or replace the file and run "
                            "the same command again") from None  # fmt: skip
