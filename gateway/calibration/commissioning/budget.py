@@ -69,7 +69,7 @@ class Budget:
 
     def refs_worst_s(self, plan: Plan) -> float:
         """Machine time (s) of the drift references around every run of ``plan``."""
-        return (len(split_runs(plan)) + 1) * self.drift.refs_cost_s(self.axes.ref_axes())
+        return (len(split_runs(plan)) + 1) * self.refs_once_s()
 
     def iso_runs(self) -> int:
         """Runs per target of the ISO runs: the configured ones, or fewer where a short

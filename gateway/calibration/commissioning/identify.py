@@ -100,10 +100,7 @@ class IdentifySteps:
             note = (f"{axis}: no lead search: it and the cyclic scans it may call for need "
                     f"{need_s / 60:.1f} min of machine time, {max(0.0, left_s) / 60:.1f} min "
                     "left (--lead-mm gives the lead)")  # fmt: skip
-            if note not in self.record.state["notes"]:
-                self.say(note)
-                self.record.state["notes"].append(note)
-                self.record.save()
+            self._note(note)
             return
         await self.runner.step(f"lead-{axis}", lambda: self.plans.lead_plan(axis), "off",
                                self.axes.park(axis))  # fmt: skip
@@ -132,10 +129,8 @@ class IdentifySteps:
         no table.)"""
         if "iso_runs" in self.record.state or any(self.record.done(f"iso-{a}") for a in axes):
             return
-        keep_s = 0.0
-        if self.s.planar is not None and set(self.s.planar) <= set(axes):
-            keep_s = (self.budget.step_cost_s(self.plans.grid_plan(self.s.grid))
-                      + 2 * self.budget.step_cost_s(self.plans.before_xy_plan()))  # fmt: skip
+        plane = self.s.planar is not None and set(self.s.planar) <= set(axes)
+        keep_s = self.short.plane_held_s() if plane else 0.0
 
         def fits(runs: int, points: int | None = None) -> bool:
             need_s = sum(self.budget.step_cost_worst_s(self.plans.iso_plan(a, runs, points))
@@ -196,6 +191,12 @@ class IdentifySteps:
         for a in cores:  # (the bidirectional tables hold the backlash meanwhile)
             await self._backlash(a)
 
+    def _note(self, text: str, replacing: str = "") -> None:
+        """Say ``text`` and keep it among the notes, once (:meth:`.record.Record.note`)."""
+        if self.record.note(text, replacing):
+            self.say(text)
+            self.record.save()
+
     async def _before_if_affordable(self, a: str) -> None:
         """On a short budget, the before-run of ``a`` where the budget left holds it and
         its after-run; else said, and the steps after it go on (it ended the
@@ -205,12 +206,8 @@ class IdentifySteps:
                 self.record.state.get("parts") or {}):  # (begun: it carries on)
             need_s = 2 * self.budget.step_cost_s(self.plans.before_plan(a))
             if need_s > self.budget.left_s():
-                note = (f"{a}: no before- and after-run on this budget ({need_s / 60:.1f} min): "
-                        "no verdict on its own axis; its table is fitted all the same")
-                if note not in self.record.state["notes"]:
-                    self.say(note)
-                    self.record.state["notes"].append(note)
-                    self.record.save()
+                self._note(f"{a}: no before- and after-run on this budget ({need_s / 60:.1f} "
+                           "min): no verdict on its own axis; its table is fitted all the same")
                 return
         await self.runner.step(f"before-{a}", lambda: self.plans.before_plan(a), "off",
                                self.axes.park(a))  # fmt: skip
@@ -223,23 +220,15 @@ class IdentifySteps:
             return
         scans = cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])
         need_s = self.budget.step_cost_s(scans)
-        keep_s = 0.0
-        if self.s.planar is not None and a in self.s.planar and not self.record.done("xy-grid"):
-            keep_s = self.budget.step_cost_s(self.plans.grid_plan(self.s.grid))
-            if not self.record.done("before-xy"):  # its points, read before and after
-                keep_s += 2 * self.budget.step_cost_s(self.plans.before_xy_plan())
-        notes = self.record.state["notes"]
+        keep_s = self.short.plane_held_s() if a in (self.s.planar or ()) else 0.0
         said = f"{a}: no cyclic scans on this budget"
         if self.budget.left_s() - need_s < keep_s:
-            note = (f"{said}: they ({need_s / 60:.1f} min) do not "
-                    + ("fit beside the plane's grid" if keep_s else "fit in the budget left"))
-            if note not in notes:
-                self.say(note)
-                notes[:] = [n for n in notes if not n.startswith(said)] + [note]
-                self.record.save()
+            self._note(f"{said}: they ({need_s / 60:.1f} min) do not "
+                       + ("fit beside the plane's grid" if keep_s else "fit in the budget left"),
+                       replacing=said)  # fmt: skip
             return
         await self.runner.step(f"cyclic-{a}", lambda: scans, "off", self.axes.park(a))
-        notes[:] = [n for n in notes if not n.startswith(said)]  # made after all
+        self.record.drop_notes(said)  # made after all
 
     async def _warm_up_if_affordable(self, a: str) -> None:
         """The zone warm-up of ``a`` where the budget left holds it; else said, and the

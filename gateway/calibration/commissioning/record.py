@@ -59,6 +59,21 @@ class Record:
     def done(self, name: str) -> bool:
         return name in self.state["steps"]
 
+    def note(self, text: str, replacing: str = "") -> bool:
+        """Keep ``text`` among the notes once (the report and a resume show them), in place
+        of any note that begins with ``replacing``; True when it is new (to be said)."""
+        notes = self.state["notes"]
+        if text in notes:
+            return False
+        if replacing:
+            self.drop_notes(replacing)
+        notes.append(text)
+        return True
+
+    def drop_notes(self, beginning: str) -> None:
+        """Take back the notes that begin with ``beginning`` (what they said no longer holds)."""
+        self.state["notes"][:] = [n for n in self.state["notes"] if not n.startswith(beginning)]
+
     @property
     def tables_phase(self) -> str:
         """The config the fitted tables run in: "full" once the plane is fitted."""

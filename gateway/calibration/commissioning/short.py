@@ -109,6 +109,19 @@ class ShortBudget:
             self.record.save()
         return not state["refs_off"]
 
+    def plane_held_s(self) -> float:
+        """Machine time (s) a short budget holds for the plane when it decides a step before
+        the plane's grid: the configured grid and its random points, read before and
+        after, as far as they are not made yet (none without a plane)."""
+        if self.s.planar is None:
+            return 0.0
+        held_s = 0.0
+        if not self.record.done("xy-grid"):
+            held_s += self.budget.step_cost_s(self.plans.grid_plan(self.s.grid))
+        if not self.record.done("before-xy"):
+            held_s += 2 * self.budget.step_cost_s(self.plans.before_xy_plan())
+        return held_s
+
     def first_need_s(self) -> float:
         """Machine time (s) of the first steps, the before- and after-runs and one round:
         its verification (the before-run's size) and the least refinement it may call for

@@ -143,8 +143,8 @@ class Stager:
                 drift = self.record.state.get("drift_last", drift)  # known drift carries on
                 note = f"drift references re-linked when {phase} was loaded after an interruption"
                 # (rotary: none)
-                if self.axes.ref_axes() and note not in self.record.state["notes"]:
-                    self.record.state["notes"].append(note)
+                if self.axes.ref_axes():
+                    self.record.note(note)
             else:
                 drift = {a: [before[a][k] - base["refs"][a][k] for k in (0, 1)]
                          for a in self.s.axes}  # fmt: skip
