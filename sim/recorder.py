@@ -42,11 +42,14 @@ import numpy as np
 
 from sim.clock import MachineClock
 from sim.config import LaserRecordingConfig
-from sim.machine import Machine
+from sim.machine import AxisState, Machine
 
-#: after the last move of any axis, every sample is taken from the machine for this long
-#: (motion, the machine's own settling); later ones from knots COARSE_S apart (slow drift)
+#: after the last move of any axis, every sample is taken from the machine while it may
+#: still settle (SETTLED_TAUS of its settling time constant, at most EXACT_S; STILL_S
+#: without settling); later ones from knots COARSE_S apart (slow drift, linear between)
 EXACT_S = 2.0
+SETTLED_TAUS = 8.0
+STILL_S = 0.05
 COARSE_S = 1.0
 _FILE_RE = re.compile(r"rec-(\d{3,})\.(rtx|csv)$")
 
@@ -270,7 +273,7 @@ class Recorder:
             return
         r_s = ks / self.cfg.rate_hz
         ts_s = np.minimum(self._t0_s + r_s - self._idle_s, t_new_s)
-        exact_until_s = max(ax.end_s for ax in self.machine.axes.values()) + EXACT_S
+        exact_until_s = max(ax.end_s + _settling_s(ax) for ax in self.machine.axes.values())
         n_exact = int(np.searchsorted(ts_s, exact_until_s, side="right"))
         pos_um = np.empty(ks.size)
         moving = np.zeros(ks.size, dtype=bool)
@@ -322,3 +325,9 @@ class Recorder:
                                  * np.sin(omega * d))  # fmt: skip
         self._chunks.append(np.round(values, 3))
         self._count += n
+
+
+def _settling_s(ax: AxisState) -> float:
+    """How long after its last stop an axis may still move by its own settling (s)."""
+    st = ax.errors.settling
+    return STILL_S if st is None else min(EXACT_S, SETTLED_TAUS * st.time_constant_s)
