@@ -242,6 +242,25 @@ def test_warmup_raw_numbers_runs_from_one(tmp_path):
     assert data.run[0] == 1 and "run_offset" in read_raw_meta(raw)
 
 
+def test_a_move_listed_twice_is_joined_as_two_stops(tmp_path):
+    """One recording holds the drift references read before and after a run: the same
+    Move objects listed twice. Each stop keeps its own reading (the later one took both,
+    and every drift within a recorded step read zero)."""
+    from gateway.calibration.plans.plans import Move, Plan
+    from gateway.calibration.plans.runner import join_values_async
+
+    refs = [Move(1, 1, "takeup", (9.0,)), Move(1, 1, "measure", (10.0,))]
+    plan = Plan("iso", ("X",), (*refs, Move(1, 1, "measure", (50.0,)), *refs))
+    raw = tmp_path / "r.csv"
+    readings = [{"X": 10.001}, {"X": 50.0}, {"X": 10.004}]
+    times = [{"stop_time_s": t} for t in (1.0, 2.0, 3.0)]
+    asyncio.run(join_values_async(plan, readings, "rec.csv", raw, None, times,
+                                  ("stop_time_s",)))  # fmt: skip
+    data = read_raw_csv(raw)
+    np.testing.assert_allclose(data.actual_mm, [10.001, 50.0, 10.004])
+    assert [float(t) for t in data.extra["stop_time_s"]] == [1.0, 2.0, 3.0]
+
+
 def test_backlash_plan_and_unidirectional_table_use_seed_000s_value(tmp_path, capsys):
     import json
 

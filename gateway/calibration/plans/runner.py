@@ -253,6 +253,9 @@ async def join_values_async(plan: Plan, readings: Sequence[Mapping[str, float]],
     """:func:`join_values` in a running event loop; ``extras``: each reading's other
     columns (``extra_names``: a sensor read at the stop), kept beside it."""
     plan, _ = raw_runs(plan)
+    # each move its own object: a move listed twice (the same drift references read again
+    # in one recording) is two stops, and took the later stop's reading for both
+    plan = Plan(plan.kind, plan.axes, tuple(replace(m) for m in plan.moves), plan.meta)
     measured = [m for m in plan.moves if m.measured]
     by_move = {id(m): values for m, values in zip(measured, readings)}
     more = {id(m): values for m, values in zip(measured, extras)}
