@@ -401,7 +401,11 @@ def main() -> int:
                              "by a scripted technician (sim/technician.py) (modbus)")
     parser.add_argument("--commission-axes", metavar="X[,Y]",
                         help="the axes `compgw commission` is given, no plane (default: all "
-                             "and the plane); a recording reads one")
+                             "and the plane; with a recording or capture, one command per "
+                             "axis, the laser moved between them, the plane with the last)")
+    parser.add_argument("--per-axis", action="store_true",
+                        help="one `compgw commission` per axis, the plane with the last, as a "
+                             "recording or capture has it, whatever --laser-kind")
     parser.add_argument("--judge-repeats", type=int, default=1, metavar="N",
                         help="judge the calibrated machine N times (same targets, a cool-down "
                              "before each): the judge's own spread of E cut and A − R")
@@ -426,10 +430,11 @@ def main() -> int:
         parser.error("--budget-vs-manual and --budget-vs-plain: give one")
     workflows.THERMAL_PROFILE = args.thermal_profile
     workflows.LASER_KIND = args.laser_kind
+    workflows.PER_AXIS = args.per_axis
     workflows.COMMISSION_AXES = args.commission_axes.split(",") if args.commission_axes else None
-    if workflows.reads_later() and workflows.COMMISSION_AXES is None:
-        parser.error(f"--laser-kind {args.laser_kind}: give --commission-axes AXIS (a recording "
-                     "or capture reads one axis)")
+    if workflows.reads_later() and len(workflows.COMMISSION_AXES or ()) > 1:
+        parser.error(f"--laser-kind {args.laser_kind}: give one --commission-axes AXIS, or none "
+                     "(one command per axis, the laser moved between them)")
     machines = machine_list(args.machines, args.seed, args.real)
     if args.only:
         machines = [m for m in machines if m[0] in args.only.split(",")]

@@ -230,6 +230,9 @@ LASER_KIND = "modbus"
 #: the axes commission is given (``accuracy.py --commission-axes``; None: all, the plane
 #: too): a recording reads one axis, so it is compared on that axis alone
 COMMISSION_AXES: list[str] | None = None
+#: one command per axis, the plane with the last, as a recording has it, whatever the laser
+#: (``accuracy.py --per-axis``: what that split costs, apart from the laser's kind)
+PER_AXIS = False
 #: a recording's stand at each stop (s of the machine's clock: bench/lockstep.py advances
 #: it, no wall time passes): the Modbus path's estimate of a stop, so both cost the same
 RECORDING_DWELL_S = 2.0
@@ -350,51 +353,85 @@ def plain(run: MachineRun) -> WorkflowResult:
 def commission(run: MachineRun) -> WorkflowResult:
     """`compgw commission`: one command, the leads from the machine's data sheet
     (machine.json), the Δa or temperature sensors when there are, ``TOLERANCE_UM``;
-    started cold."""
+    started cold. A laser read from its software's file reads the axis it is set up on:
+    then one command per plane axis, the laser moved between them (docs/instruments.md),
+    the plane commissioned with the last."""
     data = run.base_config()
     data["status"]["remote_control"] = True  # it reloads the gateway through the status unit
     kind = thermal_setup(run, data)
     run.use(data)
     run.cool_down()
-    leads = [f"{a}={info['lead_mm']:g}" for a, info in run.machine["axes"].items()
-             if info.get("lead_mm") and (COMMISSION_AXES is None or a in COMMISSION_AXES)]
+    sim = yaml.safe_load((run.dir / "sim.yaml").read_text())["sim"]
+    channels = sim["instruments"]["laser"].get("axes") or list(sim["axes"])
     args = ["commission", "-c", run.work / "gw.yaml", "--gateway", run.gateway,
             "--tolerance-um", f"{TOLERANCE_UM:g}", "--no-progress"]  # fmt: skip
     technician: Technician | Gauge | None = None
     if reads_later():
-        laser_dir = run.work / "laser"
-        laser_dir.mkdir(exist_ok=True)
-        laser = (f"capture:{ROOT / 'config' / 'capture-generic.yaml'}:{laser_dir}"
-                 if LASER_KIND == "capture" else f"recording:{laser_dir}:um")  # fmt: skip
-        args += ["--laser", laser, "--dwell-s", f"{RECORDING_DWELL_S:g}", "--wait-start"]
+        args += ["--dwell-s", f"{RECORDING_DWELL_S:g}", "--wait-start"]
         technician = Technician("127.0.0.1", run.sim_port, 20, run.work / "recordings",
                                 LASER_KIND.removeprefix("recording-"))  # fmt: skip
     elif LASER_KIND == "manual":  # a gauge read by eye, to 0.1 µm, typed at the prompt
         args += ["--laser", "manual:deviation"]
-        sim = yaml.safe_load((run.dir / "sim.yaml").read_text())["sim"]
-        channels = sim["instruments"]["laser"].get("axes") or list(sim["axes"])
         technician = Gauge("127.0.0.1", run.sim_port, 20, channels)
     else:
         args += ["--laser", run.laser_bridge or run.instrument(20)]
-    if COMMISSION_AXES is not None:
-        args += ["--axes", ",".join(COMMISSION_AXES)]
-    else:
-        args += ["--xy-device", run.instrument(21)]
-    if leads:
-        args += ["--lead-mm", ",".join(leads)]
     if BUDGET_VS_MANUAL is not None or BUDGET_VS_PLAIN is not None:
         factor = BUDGET_VS_PLAIN if BUDGET_VS_PLAIN is not None else BUDGET_VS_MANUAL
         run.manual_s = (plain_machine_s if BUDGET_VS_PLAIN is not None
                         else manual_machine_s)(run)  # fmt: skip
-        budget_h = factor * run.manual_s / 3600  # type: ignore[operator]
-        args += ["--budget-h", f"{budget_h:.3f}"]
     if kind == "delta_a":
         args += ["--delta-a", run.instrument(10, 1)]
     elif kind == "temperature":  # the sensors' unit; registers from the thermal sources
         unit = next(s["unit"] for s in data["thermal_sources"].values()
                     if s.get("kind") == "temperature")  # fmt: skip
         args += ["--temperature", run.instrument(unit)]
-    notes = []
+    if COMMISSION_AXES is not None:  # (no plane)
+        commands = [(COMMISSION_AXES, False)]
+    elif reads_later() or PER_AXIS:  # the laser on one axis at a time, the plane with the last
+        plane = list((sim.get("plane") or {}).get("axes") or [])
+        linear = [a for a, c in sim["axes"].items() if not c.get("rotary")]
+        commands = [([a], a == linear[-1] and bool(plane)) for a in linear]
+    else:
+        commands = [(None, True)]
+    notes: list[str] = []
+    outs, machine_h = [], 0.0
+    for axes, plane in commands:
+        more = []
+        if axes is not None:
+            more += ["--axes", ",".join(axes)]
+        if plane:
+            more += ["--xy-device", run.instrument(21)]
+        leads = [f"{a}={info['lead_mm']:g}" for a, info in run.machine["axes"].items()
+                 if info.get("lead_mm") and (axes is None or a in axes)]  # fmt: skip
+        if leads:
+            more += ["--lead-mm", ",".join(leads)]
+        if run.manual_s is not None:  # the budget shared evenly between the commands
+            factor = BUDGET_VS_PLAIN if BUDGET_VS_PLAIN is not None else BUDGET_VS_MANUAL
+            budget_h = factor * run.manual_s / 3600 / len(commands)  # type: ignore[operator]
+            more += ["--budget-h", f"{budget_h:.3f}"]
+        out = run.work / ("commission" if len(commands) == 1 else f"commission-{axes[0]}")
+        if reads_later():  # a folder per laser set-up (its refs-001 is not another's)
+            laser_dir = run.work / ("laser" if len(commands) == 1 else f"laser-{axes[0]}")
+            laser_dir.mkdir(exist_ok=True)
+            more += ["--laser", f"capture:{ROOT / 'config' / 'capture-generic.yaml'}:{laser_dir}"
+                     if LASER_KIND == "capture" else f"recording:{laser_dir}:um"]  # fmt: skip
+        if len(commands) > 1:
+            more += ["--out", out]
+            if isinstance(technician, Technician):
+                technician.set_up_on(channels.index(axes[0]))  # type: ignore[index]
+        summary = _commission_once(run, [*args, *more], technician, out, notes)
+        machine_h += summary["machine_h"]
+        outs.append(out)
+    run.machine_s = machine_h * 3600
+    targets = merge_targets(*(measured_targets(raw) for out in outs
+                              for raw in sorted((out / "raw").glob("*.csv"))))  # fmt: skip
+    return WorkflowResult(yaml.safe_load((run.work / "gw.yaml").read_text()), targets, notes,
+                          machine_h * 3600)  # fmt: skip
+
+
+def _commission_once(run: MachineRun, args: list[object], technician: Technician | Gauge | None,
+                     out: Path, notes: list[str]) -> dict[str, Any]:
+    """One `compgw commission` (``args``); its summary (``out``), said in ``notes``."""
     try:
         if technician is None:
             run.compgw(*args)
@@ -403,17 +440,12 @@ def commission(run: MachineRun) -> WorkflowResult:
                 run.compgw(*args, technician=technician)
     except CommandFailed as exc:  # exit 1: tolerance not met (the evaluator judges anyway)
         notes.append(str(exc))
-    out = run.work / "commission"
     if not (out / "summary.json").exists():
         raise CommandFailed(f"commission ended without a summary: {' | '.join(notes)}")
-    summary = json.loads((out / "summary.json").read_text())
-    run.machine_s = summary["machine_h"] * 3600
-    notes.append(f"commission: {summary['outcome']}, {summary['machine_h']:.2f} h, "
+    summary: dict[str, Any] = json.loads((out / "summary.json").read_text())
+    notes.append(f"commission {out.name}: {summary['outcome']}, {summary['machine_h']:.2f} h, "
                  f"{len(summary['rounds'])} round(s)")  # fmt: skip
-    targets = merge_targets(*(measured_targets(raw) for raw in sorted((out / "raw").glob(
-        "*.csv"))))  # fmt: skip
-    return WorkflowResult(yaml.safe_load((run.work / "gw.yaml").read_text()), targets, notes,
-                          summary["machine_h"] * 3600)  # fmt: skip
+    return summary
 
 
 Workflow = Callable[[MachineRun], WorkflowResult]

@@ -9,9 +9,11 @@ Register maps (0-based addresses; int32 = two registers, high word first, two's 
   ``stable_band_um``), else 0 — a laser's "capture when stable". With
   ``laser.recording`` (sim/recorder.py) it has two holding registers besides: 0x0100 (FC06
   or a one-register FC16: 1 starts a recording, 2 stops it and saves ``DIR/rec-NNN``;
-  reads 1 while recording, else 0) and 0x0101 (read-only: NNN of the last file saved, 0
-  before any); a start while recording or a stop while not is refused with 0x04. Every
-  other write is refused (0x02). The same laser answers the bridge line protocol
+  reads 1 while recording, else 0), 0x0101 (read-only: NNN of the last file saved, 0
+  before any) and 0x0102 (the channel k the laser is set up on, as recorded; written
+  between recordings: the laser moved to another axis); a start while recording, a stop
+  while not or a move while recording is refused with 0x04. Every other write is refused
+  (0x02). The same laser answers the bridge line protocol
   (sim/bridge.py) through :meth:`Laser.reading`.
 * 2-D device (``instruments.xy``): 0-1 true X, 2-3 true Y of the plane axes, int32 nm;
   4, 5: X, Y stable flags as the laser's.
@@ -46,6 +48,7 @@ from sim.recorder import Recorder, RecorderError
 #: the laser's recording control (holding registers; only with ``laser.recording``)
 REC_CONTROL = 0x0100  # write 1: start, 2: stop and save; reads 1 while recording
 REC_LAST = 0x0101  # the number NNN of the last rec-NNN file saved
+REC_AXIS = 0x0102  # the channel the laser is set up on (recorded); written between recordings
 REC_START, REC_STOP = 1, 2
 
 
@@ -115,16 +118,25 @@ class Laser(Instrument):
         """Readings (no control registers in the span), or the recording control."""
         if self.recorder is None or address + count <= REC_CONTROL:
             return super().read(table, address, count)
-        if address < REC_CONTROL or address + count > REC_LAST + 1:
-            raise ModbusError(ILLEGAL_ADDRESS, "readings, or 0x0100-0x0101")
-        regs = [int(self.recorder.recording), self.recorder.last_number & 0xFFFF]
+        if address < REC_CONTROL or address + count > REC_AXIS + 1:
+            raise ModbusError(ILLEGAL_ADDRESS, "readings, or 0x0100-0x0102")
+        regs = [int(self.recorder.recording), self.recorder.last_number & 0xFFFF,
+                self.axes.index(self.recorder.axis)]  # fmt: skip
         return regs[address - REC_CONTROL : address - REC_CONTROL + count]
 
     def write(self, address: int, values: list[int], function_code: int) -> None:
-        """Only the recording control takes a write (one register at 0x0100)."""
-        if (self.recorder is None or address != REC_CONTROL or len(values) != 1
-                or function_code not in (0x06, 0x10)):
+        """Only the recording control takes a write (one register at 0x0100, or the axis
+        at 0x0102)."""
+        if (self.recorder is None or address not in (REC_CONTROL, REC_AXIS)
+                or len(values) != 1 or function_code not in (0x06, 0x10)):
             raise ModbusError(ILLEGAL_ADDRESS, "read-only")  # fmt: skip
+        if address == REC_AXIS:
+            if values[0] >= len(self.axes):
+                raise ModbusError(ILLEGAL_VALUE, f"channels 0-{len(self.axes) - 1}")
+            if self.recorder.recording:
+                raise ModbusError(DEVICE_FAILURE, "recording: stop it before moving the laser")
+            self.recorder.axis = self.axes[values[0]]
+            return
         try:
             if values[0] == REC_START:
                 self.recorder.start()

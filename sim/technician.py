@@ -33,7 +33,7 @@ from typing import IO
 from pymodbus.client import ModbusTcpClient
 
 from sim.capture import STILL_S, Datum, export
-from sim.instruments import REC_CONTROL, REC_LAST, REC_START, REC_STOP
+from sim.instruments import REC_AXIS, REC_CONTROL, REC_LAST, REC_START, REC_STOP
 
 START = re.compile(r"start the laser's (recording|capture)")
 WAITING = re.compile(r"waiting for (\S+?)\.(rtx|csv) in (\S+)")
@@ -86,10 +86,16 @@ class Technician(_SimLaser):
         self.saved: list[Path] = []
         self.datum = Datum()
 
-    def _write(self, value: int) -> None:
-        answer = self.client.write_register(REC_CONTROL, value, device_id=self.unit)
+    def _write(self, value: int, address: int = REC_CONTROL) -> None:
+        answer = self.client.write_register(address, value, device_id=self.unit)
         if answer.isError():
-            raise RuntimeError(f"the sim's recorder refused {value}: {answer}")
+            raise RuntimeError(f"the sim's recorder refused {value} at {address:#x}: {answer}")
+
+    def set_up_on(self, channel: int) -> None:
+        """The laser moved to the axis of ``channel`` (the sim laser's order) and zeroed
+        there anew, between two commissionings."""
+        self._write(channel, REC_AXIS)
+        self.datum = Datum()
 
     def hear(self, line: str, stdin: IO[str] | None) -> None:
         """Act on one line compgw printed (``stdin``: its input, where Enter goes)."""

@@ -234,7 +234,8 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
     recording, the drift references read in it before and after its runs, at the laser's
     one zero (the first recording's); a short one of their own across a config switch. A
     short budget (the suite's time; the bench compares the kinds at full length): the ISO
-    runs, then the table fitted from them."""
+    runs, then the table fitted from them. Then the laser set up on Y, in a folder of its
+    own, and the plane commissioned with it (the XY device read live)."""
     import json
 
     from sim.technician import Technician
@@ -257,6 +258,19 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
                 "--delta-a", f"127.0.0.1:{rig.sim_port}:22"]  # fmt: skip
         with Technician("127.0.0.1", rig.sim_port, 20, rig.dir / "recordings", "csv") as tech:
             done_run = tech.attend(argv, ROOT, 200.0)
+            # then the laser moved to Y, and the plane with it (the XY device read live)
+            tech.set_up_on(1)
+            argv_y = [*argv[:argv.index("--axes")], "--axes", "Y", "--xy-device",
+                      f"127.0.0.1:{rig.sim_port}:21", "--out", str(rig.config.parent / "y"),
+                      *argv[argv.index("--axes") + 2:]]  # fmt: skip
+            argv_y[argv_y.index("--budget-h") + 1] = "0.15"
+            stale = tech.attend(argv_y, ROOT, 60.0)  # X's folder: its refs-001 is not Y's
+            assert stale.returncode == 3 and f"{laser_dir / 'refs-001.csv'}: there before the " \
+                "moves it is to record" in stale.stderr, stale.stdout + stale.stderr
+            laser_y = tmp_path / "laser-Y"
+            laser_y.mkdir()
+            argv_y[argv_y.index("--laser") + 1] = f"recording:{laser_y}:um"
+            plane_run = tech.attend(argv_y, ROOT, 200.0)
         text = done_run.stdout + done_run.stderr
         assert done_run.returncode == 1, text  # the budget spent: not verified
         assert "plane" not in text.split("commissioning X:")[1], text  # none is commissioned
@@ -281,6 +295,18 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
         pitch = read_pitch_csv(done.parent / state["tables"]["pitch"]["X"])
         assert pitch.forward_mm[0] == 0.0 and pitch.position_mm[0] <= 1.0, pitch
         assert "X" in state["zero_moved_mm"], state
+        # Y with the plane: X keeps its table, the plane is fitted over both, the XY
+        # device's steps read live between recordings of Y's references
+        text = plane_run.stdout + plane_run.stderr
+        assert plane_run.returncode == 1 and "XY max vector error" in text, text
+        config = yaml.safe_load(rig.config.read_text())
+        assert config["axes"]["X"]["compensation"]["pitch"]["file"] == \
+            state["tables"]["pitch"]["X"]  # fmt: skip
+        assert config["planar"]["axes"] == ["X", "Y"], config.get("planar")
+        saved = [p.name for p in tech.saved if p.parent == laser_y]
+        assert "iso-Y.csv" in saved and not any("xy" in n for n in saved), saved
+        grids = sorted((rig.config.parent / "y" / "raw").glob("xy-grid*.csv"))
+        assert grids and set(read_raw_csv(grids[0]).axis) == {"X", "Y"}, grids
 
 
 def test_a_recording_commissions_one_linear_axis(template: Path, tmp_path: Path) -> None:

@@ -237,7 +237,7 @@ def test_a_rotary_axis_needs_the_angle_instrument(tmp_path: Path) -> None:
              "127.0.0.1:5020", "--dry-run")  # fmt: skip
     for extra, said in (
             (("--xy-device", "127.0.0.1:5021:21"), "--xy-device: the plane needs two "
-             "commissioned linear axes (--plane –; linear: none)"),
+             "linear axes, at least one of them commissioned (--plane –; commissioned: none)"),
             (("--angle-axes", "C,C"), "--angle-axes C,C: the instrument's channels in order, "
              "each named once, a rotary axis of"),
             (("--angle-axes", "C,Q"), "--angle-axes C,Q: no channel for axis A, which is "

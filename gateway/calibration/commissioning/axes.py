@@ -30,6 +30,11 @@ class Axes:
         """The axes the drift references read: the linear ones (the laser sees no angle)."""
         return [a for a in self.s.axes if not self.config.axes[a].rotary]
 
+    def plane_with(self, axes: list[str]) -> bool:
+        """Whether the plane is commissioned once ``axes`` are identified: every plane axis
+        commissioned here is among them (one that is not had its table before)."""
+        return self.s.planar is not None and set(self.s.planar) & set(self.s.axes) <= set(axes)
+
     def park(self, axis: str) -> dict[str, float]:
         """Where the other plane axis stands while ``axis`` is measured: its lower end."""
         if self.s.planar is None or axis not in self.s.planar:

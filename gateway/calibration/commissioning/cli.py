@@ -269,13 +269,7 @@ def main(args: argparse.Namespace) -> int:
         plane = None
         linear = [a for a in axes if not config.axes[a].rotary]
         if args.xy_device:
-            names = (args.plane.split(",") if args.plane else
-                     list(config.planar.axes) if config.planar else linear[:2])  # fmt: skip
-            if len(names) != 2 or any(n not in linear for n in names):
-                raise TableError(f"--xy-device: the plane needs two commissioned linear axes "
-                                 f"(--plane {','.join(names) or '–'}; linear: "
-                                 f"{', '.join(linear) or 'none'})")  # fmt: skip
-            plane = (names[0], names[1])
+            plane = _plane_axes(args.plane, config, config_path, linear)
         for option, given, kind in (("--laser-axes", args.laser_axes, False),
                                     ("--angle-axes", args.angle_axes, True)):  # fmt: skip
             if not given:
@@ -301,13 +295,12 @@ def main(args: argparse.Namespace) -> int:
         for option, spec in (("--laser", laser_kind), ("--angle", angle_kind),
                              ("--xy-device", xy_kind), ("--delta-a", delta_a_kind)):
             if spec is not None and spec.reads_later and (
-                    option != "--laser" or len(axes) != 1 or plane is not None
-                    or config.axes[axes[0]].rotary):  # fmt: skip
+                    option != "--laser" or len(axes) != 1 or config.axes[axes[0]].rotary):
                 raise TableError(f"{option} {spec.text}: a recording or capture reads one linear "
                                  "axis, the one the laser is set up on: commission one axis "
-                                 "at a time (--axes X, then --axes Y with the laser moved), "
-                                 "without --xy-device (the plane: compgw calibrate --xy); "
-                                 "or use a bridge (docs/instruments.md)")  # fmt: skip
+                                 "at a time (--axes X, then --axes Y with the laser moved and "
+                                 "--xy-device for the plane); or use a bridge "
+                                 "(docs/instruments.md)")  # fmt: skip
         gateway = gateway_endpoint(args, config)
         settings = Settings(
             config_path=config_path,
@@ -507,6 +500,26 @@ async def _kinds_answering(settings: Any) -> None:
         finally:
             await device.close()
             links.close()
+
+
+def _plane_axes(given: str | None, config: GatewayConfig, config_path: Path,
+                linear: list[str]) -> tuple[str, str]:
+    """The plane's two axes for --xy-device: two linear axes, at least one commissioned
+    here; one that is not must have its table in the config already (commissioned before:
+    one laser set up on one axis at a time, the plane with the last)."""
+    every = [a for a, c in config.axes.items() if not c.rotary]
+    names = (given.split(",") if given else list(config.planar.axes) if config.planar
+             else linear[:2] if len(linear) > 1 else every[:2])  # fmt: skip
+    if len(names) != 2 or any(n not in every for n in names) or not set(names) & set(linear):
+        raise TableError(f"--xy-device: the plane needs two linear axes, at least one of them "
+                         f"commissioned (--plane {','.join(names) or '–'}; commissioned: "
+                         f"{', '.join(linear) or 'none'})")  # fmt: skip
+    for n in names:
+        if n not in linear and config.axes[n].compensation.pitch is None:
+            raise TableError(f"--xy-device: the plane's axis {n} is not commissioned here and "
+                             f"has no pitch table in {config_path}: commission it first "
+                             f"(--axes {n}), or give it with --axes")  # fmt: skip
+    return names[0], names[1]
 
 
 def _loads_whole(config: GatewayConfig, path: Path) -> None:

@@ -190,7 +190,9 @@ class DriftRefs:
         raw.parent.mkdir(parents=True, exist_ok=True)
         plan = Plan("drift-references", (axis,), tuple(self.ref_moves(axis)),
                     (("kind", "drift-references"), ("axis", axis)))  # fmt: skip
-        session = self.session()
+        # the other plane axis parked, as a live reading has it (Y's references read where X
+        # stood read its straightness: 4.4 µm on smooth-0, and Y got no heat model)
+        session = self.session(self.axes.park(axis))
         try:
             await session.run(plan, raw, "as loaded")
         finally:
@@ -417,14 +419,15 @@ class DriftRefs:
         return {a: float(odo.get(a, 0.0)) for a in self.s.axes}
 
     def log_drift(self, drift: dict[str, list[float]],
-                   odometer_mm: dict[str, float] | None = None) -> None:
+                   odometer_mm: dict[str, float] | None = None,
+                   wall_s: float | None = None) -> None:
         """Keep the drift (mm, at both references) with the odometer when it was read (the
-        last references' unless given) and the wall clock: what heat from motion is
-        fitted to (heat_fit)."""
+        last references' unless given) and the wall clock (now unless given: a recording's
+        stop was read before its file came): what heat from motion is fitted to."""
         odo = odometer_mm or (self.record.state.get("last_refs") or {}).get("odometer_mm")
         self.record.state.setdefault("drift_log", []).append(
-            {"odometer_mm": odo or self.odometer(), "wall_s": time.time(),
-             "drift_mm": drift})  # fmt: skip
+            {"odometer_mm": odo or self.odometer(),
+             "wall_s": time.time() if wall_s is None else wall_s, "drift_mm": drift})
 
     def fit_motion_heat(self) -> None:
         """Heat from motion on every linear axis with no thermal setting of its own, fitted

@@ -129,7 +129,7 @@ class IdentifySteps:
         no table.)"""
         if "iso_runs" in self.record.state or any(self.record.done(f"iso-{a}") for a in axes):
             return
-        plane = self.s.planar is not None and set(self.s.planar) <= set(axes)
+        plane = self.axes.plane_with(axes)
         keep_s = self.short.plane_held_s() if plane else 0.0
 
         def fits(runs: int, points: int | None = None) -> bool:
@@ -179,7 +179,7 @@ class IdentifySteps:
             await self.short.densify(a)
         for a in cores:  # the once-per-lead error, before the plane is measured on the tables
             await self._cyclic_beside_plane(a)
-        if self.s.planar is not None and set(self.s.planar) <= set(cores):
+        if self.axes.plane_with(cores):
             await self.before_xy()  # (what the plane's check and report need)
             await self.fit.fit_axes(cores, curves=True)
             await self.fit.plane()

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..fitting import adaptive
+from ..measuring.from_file import STOP_TIME
 from ..plans.plans import (
     Move,
     Plan,
@@ -145,7 +146,8 @@ class StepRunner:
                                                               and self.budget.runs_apart())
         parts = split_runs(plan) if drifting and apart else [plan]
         done_parts = self.record.state.setdefault("parts", {}).setdefault(name, [])
-        if self.drift.recorded() and not done_parts:  # one recording holds the whole step
+        # one recording holds the whole step the laser reads (the XY device's are read live)
+        if self.drift.recorded() and len(plan.axes) == 1 and not done_parts:
             done_parts += await self._run_recorded(name, parts, raw, compensation, park,
                                                    drifting)  # fmt: skip
             self.record.save()
@@ -203,6 +205,8 @@ class StepRunner:
         # a sensor read at each stop while the laser recorded (a warm-up's temperature or Δa)
         sensed = tuple(c for c in ("temperature_c", "delta_a_mm") if c in data.extra)
         extras = [{c: float(data.extra[c][i]) for c in sensed} for i in range(actual.size)]
+        # when each stop was read (the recording came later): the drift log's clock
+        times = data.extra.get(STOP_TIME)
         # the odometer at each row (the travel of the moves up to it), for the drift log
         xs = np.array([m.target_mm[0] for m in moves])
         steps = np.abs(np.diff(np.concatenate([[xs[0] if at0 is None else at0], xs])))
@@ -211,7 +215,9 @@ class StepRunner:
         for label, a, b in spans:
             if label is None:
                 odo = {**odo0, axis: odo0.get(axis, 0.0) + float(travel[b - 1])}
-                ending[b] = starting[a] = (self.drift.take_recorded(axis, actual[a:b], odo), odo)
+                when = float(times[b - 1]) if times else None
+                ending[b] = starting[a] = (self.drift.take_recorded(axis, actual[a:b], odo),
+                                           odo, when)  # fmt: skip
         entries = []
         for label, a, b in spans:
             if label is None:
@@ -222,11 +228,11 @@ class StepRunner:
                                     extras[a:b], sensed)  # fmt: skip
             entry: dict[str, Any] = {"raw": self.record.rel(part_raw)}
             if drifting:
-                (before, odo_b), (after, odo_a) = ending[a], starting[b]
+                (before, odo_b, at_b), (after, odo_a, at_a) = ending[a], starting[b]
                 before, after = self.drift.drift_now(before), self.drift.drift_now(after)
                 if label == 0:
-                    self.drift.log_drift(before, odo_b)
-                self.drift.log_drift(after, odo_a)
+                    self.drift.log_drift(before, odo_b, at_b)
+                self.drift.log_drift(after, odo_a, at_a)
                 self._keep_drift(entry, before, after, {}, {})
             entries.append(entry)
         return entries

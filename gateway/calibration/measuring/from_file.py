@@ -15,6 +15,7 @@ from __future__ import annotations
 import asyncio
 import json
 import sys
+import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from pathlib import Path
 
@@ -49,6 +50,11 @@ async def stand(seconds: float) -> None:
     await asyncio.sleep(seconds)
 
 
+#: the column of the wall clock (s, time.time) at each stop after its dwell: when the
+#: laser read it, as compgw keeps the time of a live reading (the drift log's)
+STOP_TIME = "stop_time_s"
+
+
 async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: MoveFn,
                        dwell_s: float, meta: Mapping[str, str], say: Say = print,
                        ready: Ready | None = None, datum_mm: float | None = None,
@@ -75,6 +81,11 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
     if raw_path.exists() and raw_path.stat().st_size > 0 and _complete(raw_path, measured):
         return RunSummary(raw_path, len(plan.moves), len(plan.moves), 0, True)
     if not moved.exists():
+        stale = next((f for f in files if f.exists()), None)
+        if stale is not None:  # (a folder shared with another commissioning: its refs-001)
+            raise MachineError(f"{stale}: there before the moves it is to record (a file of "
+                               "another run): move it away or give the laser another folder, "
+                               "then run the same command again; nothing moved for it")
         what = "recording"
         if spec.kind == "capture":
             listed = write_targets(spec.directory / f"{name}.targets.csv", measured)
@@ -90,10 +101,9 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
             await move(dict(zip(plan.axes, m.target_mm)))
             if m.measured:
                 await stand(dwell_s)
-                if extra is not None:
-                    sensed.append(dict(await extra(m)))
-        if extra_names:
-            atomic_write_text(sensors, json.dumps(sensed))
+                read = dict(await extra(m)) if extra is not None else {}
+                sensed.append({**read, STOP_TIME: time.time()})
+        atomic_write_text(sensors, json.dumps(sensed))
         atomic_write_text(moved, f"{name}: moves done; readings from {files[0]}\n")
     found = next((f for f in files if f.exists()), None)
     if found is None:
@@ -124,10 +134,11 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
     except OSError as exc:
         raise MachineError(f"{found}: {exc}") from None
     kept = {"datum_mm": f"{datum_mm:.6f}"} if datum_mm is not None else {}
-    sensed = json.loads(sensors.read_text()) if extra_names and sensors.exists() else []
+    sensed = json.loads(sensors.read_text()) if sensors.exists() else []
+    names = (*extra_names, STOP_TIME) if sensed and STOP_TIME in sensed[0] else extra_names
     return await join_values_async(plan, [{axis: float(v)} for v in values], found, raw_path,
                                    {**meta, "instrument": spec.kind, **kept}, sensed,
-                                   extra_names if sensed else ())  # fmt: skip
+                                   names if sensed else ())  # fmt: skip
 
 
 def write_targets(path: Path, measured: Sequence[Move]) -> Path:
