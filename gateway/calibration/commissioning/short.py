@@ -70,22 +70,28 @@ class ShortBudget:
 
     def refs_affordable(self) -> bool:
         """Whether the drift references are read (decided once, before the first, kept in
-        the state; said when not): not on a short budget that holds every linear axis's
-        ISO runs at 2 runs per target on the ISO 230-2 least of targets and the plane's
-        configured grid and random points without them but not with them (around every
-        run, at every config switch). They are
-        an identification extra: there a plain calibration's tables are worth more than a
-        drift taken off them. (At the plain calibration's 7.8 minutes, mcu1025's
-        references took 2.4 minutes and Y got no table: E cut 2 % against 69 %.)"""
+        the state; said when not): not on a short budget that holds a plain calibration's
+        steps without them but not with them (around every run, at every config switch):
+        every linear axis's ISO runs and cyclic scans where its lead is known and the
+        plane's configured grid and random points; else, at the least, every axis's ISO
+        runs at 2 runs per target on the ISO 230-2 least of targets and the plane's grid,
+        or those runs alone. They are an identification extra: there a plain calibration's
+        tables are worth more than a drift taken off them. (At the plain calibration's 7.8
+        minutes, mcu1025's references took 2.4 minutes and Y got no table: E cut 2 %
+        against 69 %; at its 0.6 h, the random machines' references left no room for Y's
+        cyclic scans, Y E cut 65 % against 94 %.)"""
         state = self.record.state
         if "refs_off" not in state:
-            off = False
+            off, held = False, ""
             if self.applies():
                 linear = [a for a in self.s.axes if not self.axes.rotary(a)]
                 tables = [self.plans.iso_plan(a, 2, adaptive.ISO_LEAST_POINTS) for a in linear]
                 plane = []
-                if self.s.planar is not None and set(self.s.planar) <= set(linear):
+                if self.axes.plane_with(linear):
                     plane = [self.plans.grid_plan(self.s.grid), *2 * [self.plans.before_xy_plan()]]
+                plain = [self.plans.iso_plan(a) for a in linear] + [
+                    cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])
+                    for a in linear if a in self.s.lead_mm] + plane  # fmt: skip
 
                 def costs_s(plans: list[Plan]) -> tuple[float, float]:
                     """(moves, drift references) of ``plans`` (s)."""
@@ -93,16 +99,21 @@ class ShortBudget:
                             sum(self.budget.refs_worst_s(p) for p in plans)
                             + SWITCH_READINGS * self.budget.refs_once_s())  # fmt: skip
 
-                for plans in (tables + plane, tables):  # the plane too if it can, else tables
+                # a plain calibration's steps if it can, else the tables and the plane, else
+                # the tables alone
+                for plans, what in ((plain, "a plain calibration's steps (ISO runs, cyclic "
+                                     "scans, the plane's grid)"),
+                                    (tables + plane, "every axis's ISO runs" + (
+                                        " and the plane's grid" if plane else "")),
+                                    (tables, "every axis's ISO runs")):  # fmt: skip
                     bare_s, refs_s = costs_s(plans)
                     if bare_s <= self.s.budget_s:
                         off = bool(linear) and self.s.budget_s < bare_s + refs_s
+                        held = what
                         break
                 if off:
                     note = (f"no drift references: with them ({refs_s / 60:.1f} min) the budget "
-                            "does not hold every axis's ISO runs"
-                            + (" and the plane's grid" if len(plans) > len(linear) else "")
-                            + "; the tables keep the drift while measuring")  # fmt: skip
+                            f"does not hold {held}; the tables keep the drift while measuring")
                     self.say(note)
                     state["notes"].append(note)
             state["refs_off"] = off
