@@ -264,8 +264,10 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
                       f"127.0.0.1:{rig.sim_port}:21", "--out", str(rig.config.parent / "y"),
                       *argv[argv.index("--axes") + 2:]]  # fmt: skip
             argv_y[argv_y.index("--budget-h") + 1] = "0.15"
-            stale = tech.attend(argv_y, ROOT, 60.0)  # X's folder: its refs-001 is not Y's
-            assert stale.returncode == 3 and f"{laser_dir / 'refs-001.csv'}: there before the " \
+            # X's folder, an iso-Y left there by an earlier try: never read as this one's
+            (laser_dir / "iso-Y.csv").write_bytes((laser_dir / "iso-X.csv").read_bytes())
+            stale = tech.attend(argv_y, ROOT, 60.0)
+            assert stale.returncode == 3 and f"{laser_dir / 'iso-Y.csv'}: there before the " \
                 "moves it is to record" in stale.stderr, stale.stdout + stale.stderr
             laser_y = tmp_path / "laser-Y"
             laser_y.mkdir()

@@ -20,6 +20,7 @@ import numpy as np
 from ...compensation import Chain, PitchTable
 from ...compensation.errors import TableError
 from ...config import GatewayConfig
+from ..measuring.from_file import STOP_TIME
 from ..measuring.session import Session
 from ..plans.plans import Move, Plan
 from ..plans.runner import read_raw_meta
@@ -75,8 +76,10 @@ class DriftRefs:
         else:
             out = await self._read(linear) if linear else {}
         out.update({a: [0.0, 0.0] for a in self.s.axes if a not in out})
+        last = self.record.state.get("last_refs") or {}
+        at_s = last.get("at_s") if linear and self.recorded() else time.time()
         self.record.state["last_refs"] = {"phase": self.record.state.get("phase"), "refs": out,
-                                          "odometer_mm": self.odometer()}  # fmt: skip
+                                          "odometer_mm": self.odometer(), "at_s": at_s}  # fmt: skip
         return out
 
     def ref_commands(self, cfg: GatewayConfig, chain: Chain) -> dict[str, dict[str, Any]]:
@@ -121,10 +124,12 @@ class DriftRefs:
         return out
 
     def take_recorded(self, axis: str, actual_mm: Sequence[float],
-                      odometer_mm: dict[str, float] | None = None) -> dict[str, list[float]]:
+                      odometer_mm: dict[str, float] | None = None,
+                      at_s: float | None = None) -> dict[str, list[float]]:
         """The references of ``axis`` from one reading's stops in a recording (positions,
-        mm, in :meth:`ref_moves` order): kept as :meth:`measure_refs` keeps a live reading
-        (their scatter pooled, the channel checked, their machine time counted)."""
+        mm, in :meth:`ref_moves` order; ``at_s``: the wall clock at the last, s): kept as
+        :meth:`measure_refs` keeps a live reading (their scatter pooled, the channel
+        checked, their machine time counted)."""
         places = self.axes.ref_positions(axis)
         readings = np.asarray(actual_mm, dtype=np.float64).reshape(len(places), -1)
         out = {axis: self._kept(axis, [axis], [list(r - x) for x, r in zip(places, readings)])}
@@ -134,7 +139,8 @@ class DriftRefs:
                                                                       readings.shape[1])
         self.read_here = True
         state["last_refs"] = {"phase": state.get("phase"), "refs": out,
-                              "odometer_mm": odometer_mm or self.odometer()}  # fmt: skip
+                              "odometer_mm": odometer_mm or self.odometer(),
+                              "at_s": time.time() if at_s is None else at_s}  # fmt: skip
         return out
 
     def session(self, park: dict[str, float] | None = None) -> Session:
@@ -198,7 +204,9 @@ class DriftRefs:
         finally:
             self.record.retried(session.retried)
         self.keep_datum(raw)
-        out = self.take_recorded(axis, read_raw_csv(raw).actual_mm)
+        data = read_raw_csv(raw)
+        times = data.extra.get(STOP_TIME)
+        out = self.take_recorded(axis, data.actual_mm, at_s=float(times[-1]) if times else None)
         self.record.state["refs_recordings"] = count + 1
         return out
 
@@ -421,13 +429,16 @@ class DriftRefs:
     def log_drift(self, drift: dict[str, list[float]],
                    odometer_mm: dict[str, float] | None = None,
                    wall_s: float | None = None) -> None:
-        """Keep the drift (mm, at both references) with the odometer when it was read (the
-        last references' unless given) and the wall clock (now unless given: a recording's
-        stop was read before its file came): what heat from motion is fitted to."""
-        odo = odometer_mm or (self.record.state.get("last_refs") or {}).get("odometer_mm")
+        """Keep the drift (mm, at both references) with the odometer and the wall clock when
+        it was read (the last references' unless given: a recording's stops were read before
+        its file came, minutes at a technician's pace): what heat from motion is fitted to."""
+        last = self.record.state.get("last_refs") or {}
+        odo = odometer_mm or last.get("odometer_mm")
+        at_s = wall_s if wall_s is not None else last.get("at_s") if odometer_mm is None \
+            else None  # fmt: skip
         self.record.state.setdefault("drift_log", []).append(
             {"odometer_mm": odo or self.odometer(),
-             "wall_s": time.time() if wall_s is None else wall_s, "drift_mm": drift})
+             "wall_s": time.time() if at_s is None else at_s, "drift_mm": drift})
 
     def fit_motion_heat(self) -> None:
         """Heat from motion on every linear axis with no thermal setting of its own, fitted

@@ -121,13 +121,14 @@ class Stager:
                 and self.s.config_path.read_text() == text
                 and self.record.state.get("loaded") == digest):
             return  # loaded already, tables and all: nothing to switch
-        before, before_odo = None, None
+        before, before_odo, before_at = None, None, None
         if base is not None and self.record.state.get("phase") == base["phase"]:
             last = self.record.state.get("last_refs")  # read since the last moves: the same state
             if not (last and last["phase"] == base["phase"]):
                 await self.drift.measure_refs()
                 last = self.record.state["last_refs"]
             before, before_odo = last["refs"], last.get("odometer_mm")
+            before_at = last.get("at_s")
         atomic_write_text(self.s.config_path, text)
         await self.reload_fn()
         self.record.state["phase"] = phase
@@ -167,7 +168,8 @@ class Stager:
         self.record.state["drift_base"] = {"phase": phase, "refs": new_base}
         self.record.state["drift_last"] = drift
         if base is None or before is not None:  # at every switch too (the odometer when the
-            self.drift.log_drift(drift, before_odo)  # drift was read): a warm-up is its own stretch
+            self.drift.log_drift(drift, before_odo, before_at)  # drift was read): a warm-up is its
+            # own stretch
         self.record.save()
 
     def _digest(self, text: str) -> str:

@@ -216,8 +216,8 @@ class StepRunner:
             if label is None:
                 odo = {**odo0, axis: odo0.get(axis, 0.0) + float(travel[b - 1])}
                 when = float(times[b - 1]) if times else None
-                ending[b] = starting[a] = (self.drift.take_recorded(axis, actual[a:b], odo),
-                                           odo, when)  # fmt: skip
+                ending[b] = starting[a] = (self.drift.take_recorded(axis, actual[a:b], odo,
+                                                                    when), odo, when)  # fmt: skip
         entries = []
         for label, a, b in spans:
             if label is None:
