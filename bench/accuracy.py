@@ -215,6 +215,10 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
         # the most any correction could cut there: the largest of the points' scatter
         "xy_cut_max_pct": 100 * (1 - _xy_floor(a) / b["xy"]["max_um"]),
         "offgrid_rms_um": max(a["axes"][n]["offgrid_rms_um"] for n in axes),
+        # as a laser zeroed at the first stop reads them (the truth's error there off)
+        "offgrid_zeroed_rms_um": max(a["axes"][n].get("offgrid_zeroed_rms_um", np.nan)
+                                     for n in axes),
+        "xy_zeroed_after_um": a["xy"].get("max_zeroed_um", np.nan),
         # thermal: on the axes with a sensor (all axes when there is none: the drift)
         "thermal_off_um": max(b["axes"][n]["thermal_um"] for n in sensed or axes),
         "thermal_on_um": max(a["axes"][n]["thermal_um"] for n in sensed or axes),
@@ -231,7 +235,7 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
 
 HEAD = (f"{'machine':<24}{'E  before':>11}{'after':>7}{'cut %':>7}{'max':>6}{'A-R':>6}"
         f"{'XY before':>10}{'after':>7}{'cut %':>7}{'max':>6}{'offgrid':>8}{'therm off':>10}"
-        f"{'on':>6}{'model':>7}{'mach h':>7}{'×ref':>6}  sensor")
+        f"{'on':>6}{'model':>7}{'mach h':>7}{'×ref':>6}{'off0':>6}{'XY0':>6}  sensor")
 
 
 def row(label: str, s: dict[str, Any], sensor: str) -> str:
@@ -243,7 +247,8 @@ def row(label: str, s: dict[str, Any], sensor: str) -> str:
             f"{s['offgrid_rms_um']:8.2f}{s['thermal_off_um']:10.1f}{on}"
             f"{s.get('model_on_um', float('nan')):7.1f}"
             f"{s.get('machine_h', float('nan')):7.2f}{s.get('vs_manual', float('nan')):6.2f}"
-            f"  {sensor}")  # fmt: skip
+            f"{s.get('offgrid_zeroed_rms_um', float('nan')):6.2f}"
+            f"{s.get('xy_zeroed_after_um', float('nan')):6.2f}  {sensor}")  # fmt: skip
 
 
 def group_stats(results: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, float]]]:
@@ -403,6 +408,10 @@ def main() -> int:
                         help="the axes `compgw commission` is given, no plane (default: all "
                              "and the plane; with a recording or capture, one command per "
                              "axis, the laser moved between them, the plane with the last)")
+    parser.add_argument("--then-tolerance-um", type=float, metavar="T",
+                        help="after `compgw commission`, the same command with --tolerance-um T "
+                             "(its own advice, issue 52); the notes set both runs' figures as "
+                             "read side by side")
     parser.add_argument("--per-axis", action="store_true",
                         help="one `compgw commission` per axis, the plane with the last, as a "
                              "recording or capture has it, whatever --laser-kind")
@@ -431,6 +440,7 @@ def main() -> int:
     workflows.THERMAL_PROFILE = args.thermal_profile
     workflows.LASER_KIND = args.laser_kind
     workflows.PER_AXIS = args.per_axis
+    workflows.THEN_TOLERANCE_UM = args.then_tolerance_um
     workflows.COMMISSION_AXES = args.commission_axes.split(",") if args.commission_axes else None
     if workflows.reads_later() and len(workflows.COMMISSION_AXES or ()) > 1:
         parser.error(f"--laser-kind {args.laser_kind}: give one --commission-axes AXIS, or none "

@@ -296,15 +296,22 @@ async def _iso_runs(m: Master, name: str, p: dict[str, Any], runs: int = 5) -> d
         for i in reversed(range(len(targets))):
             await m.move({name: targets[i]})
             down[i, j] = await m.deviation_um(name, targets[i])
-    return iso230(up, down)
+    fig = iso230(up, down)
+    # where a laser is zeroed: the first stop, approached in + (the mean of the runs)
+    fig["zero_um"] = float(np.mean(up[0]))
+    return fig
 
 
-async def _offgrid_rms(m: Master, name: str, p: dict[str, Any]) -> float:
+async def _offgrid_rms(m: Master, name: str, p: dict[str, Any],
+                       zero_um: float = 0.0) -> tuple[float, float]:  # fmt: skip
+    """RMS of the deviations at the off-grid positions (µm): as the truth has them, and as
+    a laser zeroed at the ISO runs' first stop reads them (``zero_um`` off)."""
     devs = []
     for pos in p["offgrid"]:
         await m.move({name: pos})
         devs.append(await m.deviation_um(name, pos))
-    return float(np.sqrt(np.mean(np.square(devs))))
+    return (float(np.sqrt(np.mean(np.square(devs)))),
+            float(np.sqrt(np.mean(np.square(np.subtract(devs, zero_um))))))
 
 
 async def _thermal(m: Master, name: str, p: dict[str, Any], speed_mm_s: float,
@@ -390,16 +397,21 @@ async def evaluate(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: 
             # the drive's finest step (µm): where a perfect correction can stop
             fig["step_um"] = 1000.0 * axes[name].pulse_mm / machine["axes"][name].get(
                 "command_scale", 1)  # fmt: skip
-            fig["offgrid_rms_um"] = await _offgrid_rms(m, name, p)
+            fig["offgrid_rms_um"], fig["offgrid_zeroed_rms_um"] = await _offgrid_rms(
+                m, name, p, fig["zero_um"])  # fmt: skip
             out["axes"][name] = fig
-        errs = []
+        errs, vecs = [], []
         for x, y in the_plan["xy_points"]:
             await m.move({names[0]: x, names[1]: y})
             tx, ty = await m.xy_mm()
             ax, ay = axes[names[0]], axes[names[1]]
-            errs.append(math.hypot(tx - _snap(x, ax.pulse_mm), ty - _snap(y, ay.pulse_mm)) * 1e3)
+            vecs.append((tx - _snap(x, ax.pulse_mm), ty - _snap(y, ay.pulse_mm)))
+            errs.append(math.hypot(*vecs[-1]) * 1e3)
+        # as a device zeroed at the point nearest the machine's zero reads them
+        near = int(np.argmin([math.hypot(x, y) for x, y in the_plan["xy_points"]]))
+        zeroed = np.hypot(*(np.array(vecs) - vecs[near]).T) * 1e3
         out["xy"] = {"max_um": float(max(errs)), "rms_um": float(np.sqrt(np.mean(np.square(errs)))),
-                     "points": len(errs)}  # fmt: skip
+                     "points": len(errs), "max_zeroed_um": float(zeroed.max())}  # fmt: skip
         if cool is not None:  # last: the warm-ups heat the machine
             for name in names:
                 p = the_plan["axes"][name]
