@@ -401,8 +401,8 @@ def main() -> int:
                              "registers, the bridge line protocol over TCP "
                              "(docs/instruments-bridge.md), the laser software's own "
                              "recording (.rtx or CSV) or capture on stationary (exported as "
-                             "config/capture-generic.yaml has it) of the first "
-                             "--commission-axes axis, or a gauge read at the prompt (manual), "
+                             "config/capture-generic.yaml has it) of the axis the laser is "
+                             "set up on, or a gauge read at the prompt (manual), "
                              "by a scripted technician (sim/technician.py) (modbus)")
     parser.add_argument("--commission-axes", metavar="X[,Y]",
                         help="the axes `compgw commission` is given, no plane (default: all "
