@@ -14,7 +14,7 @@ from scipy.stats import ttest_rel
 
 from ...compensation import GridModel, PlanarMeasurement, PolyModel
 from ...compensation.errors import TableError
-from ...compensation.planar import PARSIMONY, PlanarModel, poly_loo_mm
+from ...compensation.planar import MAX_POLY_DEGREE, PARSIMONY, PlanarModel, poly_loo_mm
 from ..plans.rawdata import RawData
 from .grid_smooth import MIN_LINES, smooth_grid
 
@@ -97,6 +97,18 @@ class PlanarChoice:
     pinned: str | None = None  # the family pinned to the pitch lines (then kind is grid)
 
 
+def poly_degree_cap(meas: PlanarMeasurement) -> int:
+    """The highest polynomial degree a grid's nodes hold: two fewer than its fewest lines in
+    either direction (a degree-(n − 1) polynomial through n nodes of a line swings between
+    them; leave-one-out at the nodes does not see it: rough-1's 8 × 6 grid at the plain
+    calibration's time chose degree 5, 1.74 µm there, and read 13.5 µm at random points).
+    Scattered points: the polynomial's own limit."""
+    lines = min(len(np.unique(np.round(meas.command_mm[:, k], 6))) for k in range(2))
+    if lines * lines > 2 * len(meas.command_mm):  # not a grid: no lines to count
+        return MAX_POLY_DEGREE
+    return max(1, min(MAX_POLY_DEGREE, lines - 2))
+
+
 def choose_planar_model(meas: PlanarMeasurement, kind: str = "auto") -> PlanarChoice:
     """Grid (bicubic) or polynomial (degree by LOO), whichever predicts left-out points best.
     A full grid is smoothed first, as much as its own leave-one-out says (the points then
@@ -111,7 +123,7 @@ def choose_planar_model(meas: PlanarMeasurement, kind: str = "auto") -> PlanarCh
     scores: dict[str, float] = {}
     models: dict[str, PlanarModel] = {}
     if kind in ("auto", "poly"):
-        poly = PolyModel.fit(pts)
+        poly = PolyModel.fit(pts, max_degree=poly_degree_cap(pts))
         for d, s in sorted(poly.loo_rms_mm.items()):
             scores[f"poly{d}"] = s * UM_PER_MM
         models["poly"] = poly
