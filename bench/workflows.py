@@ -409,7 +409,6 @@ def commission(run: MachineRun) -> WorkflowResult:
         if leads:
             more += ["--lead-mm", ",".join(leads)]
         if run.manual_s is not None:  # the budget shared evenly between the commands
-            factor = BUDGET_VS_PLAIN if BUDGET_VS_PLAIN is not None else BUDGET_VS_MANUAL
             budget_h = factor * run.manual_s / 3600 / len(commands)  # type: ignore[operator]
             more += ["--budget-h", f"{budget_h:.3f}"]
         out = run.work / ("commission" if len(commands) == 1 else f"commission-{axes[0]}")

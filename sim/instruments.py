@@ -130,15 +130,12 @@ class Laser(Instrument):
         if (self.recorder is None or address not in (REC_CONTROL, REC_AXIS)
                 or len(values) != 1 or function_code not in (0x06, 0x10)):
             raise ModbusError(ILLEGAL_ADDRESS, "read-only")  # fmt: skip
-        if address == REC_AXIS:
-            if values[0] >= len(self.axes):
-                raise ModbusError(ILLEGAL_VALUE, f"channels 0-{len(self.axes) - 1}")
-            if self.recorder.recording:
-                raise ModbusError(DEVICE_FAILURE, "recording: stop it before moving the laser")
-            self.recorder.axis = self.axes[values[0]]
-            return
+        if address == REC_AXIS and values[0] >= len(self.axes):
+            raise ModbusError(ILLEGAL_VALUE, f"channels 0-{len(self.axes) - 1}")
         try:
-            if values[0] == REC_START:
+            if address == REC_AXIS:
+                self.recorder.set_axis(self.axes[values[0]])
+            elif values[0] == REC_START:
                 self.recorder.start()
             elif values[0] == REC_STOP:
                 self.recorder.stop()

@@ -95,6 +95,12 @@ class Recorder:
         clock.listeners.append(self._on_advance)
 
     # ------------------------------------------------------------ control
+    def set_axis(self, axis: str) -> None:
+        """Record ``axis`` from the next start on (the laser set up on another axis)."""
+        if self.recording:
+            raise RecorderError("recording: stop it before moving the laser")
+        self.axis = axis
+
     def start(self) -> None:
         """Start a new recording at the current machine time (the old samples go)."""
         if self.recording:

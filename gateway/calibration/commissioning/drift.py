@@ -20,6 +20,7 @@ import numpy as np
 from ...compensation import Chain, PitchTable
 from ...compensation.errors import TableError
 from ...config import GatewayConfig
+from ..fitting.fit import zeroed_at_origin
 from ..measuring.from_file import STOP_TIME
 from ..measuring.session import Session
 from ..plans.plans import Move, Plan
@@ -173,8 +174,7 @@ class DriftRefs:
         moved = self.record.state.setdefault("zero_moved_mm", {})
         if spec is None or not spec.reads_later or self.axes.rotary(axis) or axis in moved:
             return table
-        pos = np.asarray(table.position_mm)
-        shift = float(np.interp(float(np.clip(0.0, pos[0], pos[-1])), pos, table.forward_mm))
+        shift, table = zeroed_at_origin(table)
         state = self.record.state
         state["laser_datum_mm"] = float(state.get("laser_datum_mm") or 0.0) + shift
         for key in ("drift_base", "last_refs"):
@@ -182,9 +182,7 @@ class DriftRefs:
             if axis in refs:
                 refs[axis] = [v - shift for v in refs[axis]]
         moved[axis] = shift
-        return PitchTable(pos, table.forward_mm - shift,
-                          None if table.reverse_mm is None else table.reverse_mm - shift,
-                          table.rotary, table.source, table.lines)
+        return table
 
     async def _read_recorded(self, axis: str) -> dict[str, list[float]]:
         """A reading of the references as a short recording of its own (``refs-NNN``):
@@ -434,11 +432,11 @@ class DriftRefs:
         its file came, minutes at a technician's pace): what heat from motion is fitted to."""
         last = self.record.state.get("last_refs") or {}
         odo = odometer_mm or last.get("odometer_mm")
-        at_s = wall_s if wall_s is not None else last.get("at_s") if odometer_mm is None \
-            else None  # fmt: skip
+        if wall_s is None and odometer_mm is None:  # the last reading's own
+            wall_s = last.get("at_s")
         self.record.state.setdefault("drift_log", []).append(
             {"odometer_mm": odo or self.odometer(),
-             "wall_s": time.time() if at_s is None else at_s, "drift_mm": drift})
+             "wall_s": time.time() if wall_s is None else wall_s, "drift_mm": drift})
 
     def fit_motion_heat(self) -> None:
         """Heat from motion on every linear axis with no thermal setting of its own, fitted

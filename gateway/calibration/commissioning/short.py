@@ -114,8 +114,8 @@ class ShortBudget:
                 if off:
                     note = (f"no drift references: with them ({refs_s / 60:.1f} min) the budget "
                             f"does not hold {held}; the tables keep the drift while measuring")
-                    self.say(note)
-                    state["notes"].append(note)
+                    if self.record.note(note):
+                        self.say(note)
             state["refs_off"] = off
             self.record.save()
         return not state["refs_off"]

@@ -167,9 +167,10 @@ class Stager:
         self.record.state["ref_commands"] = commands
         self.record.state["drift_base"] = {"phase": phase, "refs": new_base}
         self.record.state["drift_last"] = drift
-        if base is None or before is not None:  # at every switch too (the odometer when the
-            self.drift.log_drift(drift, before_odo, before_at)  # drift was read): a warm-up is its
-            # own stretch
+        # at every switch too, with the odometer and clock of the reading that gave the
+        # drift: a warm-up is its own stretch
+        if base is None or before is not None:
+            self.drift.log_drift(drift, before_odo, before_at)
         self.record.save()
 
     def _digest(self, text: str) -> str:

@@ -336,3 +336,14 @@ def as_axis_table(table: PitchTable, rotary: bool, wrap: bool) -> PitchTable:
         pos, fwd = merged(pos), merged(fwd)
         rev = None if rev is None else merged(rev)
     return PitchTable(pos, fwd, rev, True, table.source)
+
+
+def zeroed_at_origin(table: PitchTable) -> tuple[float, PitchTable]:
+    """(its forward deviation at the machine's zero, ``table`` less it): 0 mm, or the
+    table's end nearest it (mm). A laser zeroed anywhere reads every deviation off by the
+    error where it was zeroed; a machine's error is zero at its zero by definition."""
+    pos = np.asarray(table.position_mm)
+    shift = float(np.interp(float(np.clip(0.0, pos[0], pos[-1])), pos, table.forward_mm))
+    return shift, PitchTable(pos, table.forward_mm - shift,
+                             None if table.reverse_mm is None else table.reverse_mm - shift,
+                             table.rotary, table.source, table.lines)
