@@ -96,7 +96,9 @@ class Planner:
         """The first table's ISO 230-2 runs: ``points`` targets (default: as a short budget
         decided, else ``adaptive.COARSE_POINTS``), ``runs`` runs."""
         lead = self.s.lead_mm.get(axis)
-        points = points or int(self.record.state.get("iso_points") or 0)
+        if not points:
+            chosen = self.record.state.get("iso_points") or {}
+            points = int((chosen.get(axis) if isinstance(chosen, dict) else chosen) or 0)
         return iso230_linear_plan(axis, self.axes.travel(axis),
                                   step_mm=adaptive.coarse_step_mm(self.axes.travel(axis), lead,
                                                                   points),

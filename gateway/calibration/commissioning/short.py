@@ -5,7 +5,8 @@ round will refine.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -34,6 +35,9 @@ SWITCH_READINGS = 4
 #: a short budget's table is read at its midpoints too where it misses between its points
 #: by more than this many times what its own scatter explains (as a reversal per point)
 BETWEEN_RATIO = 2.0
+#: the fewest runs per target a short budget reads a plain calibration's table at (else the
+#: coarse table at up to the configured runs; :meth:`.identify.IdentifySteps._iso_runs_that_fit`)
+DENSE_LEAST_RUNS = 2
 
 
 class ShortBudget:
@@ -119,6 +123,13 @@ class ShortBudget:
             state["refs_off"] = off
             self.record.save()
         return not state["refs_off"]
+
+    def plain_points(self, axes: list[str]) -> dict[str, int]:
+        """Each axis's targets in a plain calibration's table
+        (:func:`..fitting.adaptive.plain_points`), where that is more than the coarse
+        table's on one of ``axes`` at least; else none (the coarse table is as dense)."""
+        dense = {a: adaptive.plain_points(self.axes.travel(a)) for a in axes}
+        return dense if any(n > adaptive.COARSE_POINTS for n in dense.values()) else {}
 
     def plane_held_s(self) -> float:
         """Machine time (s) a short budget holds for the plane when it decides a step before
@@ -230,6 +241,41 @@ class ShortBudget:
         nx, ny = self.record.state["grid"]
         return int(nx), int(ny)
 
+
+
+@dataclass(frozen=True)
+class TableReading:
+    """How densely and how often a short budget reads each axis's first table."""
+
+    points: Mapping[str, int]  # targets per axis; empty: the coarse table's
+    runs: int  # runs per target
+    dense: bool  # a plain calibration's table
+    fits: bool  # whether the budget holds it (else the least there is)
+
+
+def first_table_reading(axes: list[str], runs: int, dense: Mapping[str, int],
+                        cost_s: Callable[[int, Mapping[str, int | None]], float],
+                        room_s: float, scans_s: float) -> TableReading:  # fmt: skip
+    """The first table's reading on a short budget, whose rounds will not sweep between its
+    points: a plain calibration's table (``dense``, per axis; empty where the coarse one
+    is as dense) at ``runs`` down to DENSE_LEAST_RUNS where it fits in ``room_s`` beside
+    the cyclic scans (``scans_s``); else the coarse table at the runs that fit (down to 2,
+    the fewest that show a scatter), then fewer targets down to the ISO 230-2 least.
+    ``cost_s(runs, points)`` is every axis's ISO runs' machine time (s; a point count of
+    None: the coarse table's)."""
+    if dense:
+        for r in range(runs, DENSE_LEAST_RUNS - 1, -1):
+            if cost_s(r, dense) + scans_s <= room_s:
+                return TableReading(dict(dense), r, True, True)
+    coarse: dict[str, int | None] = dict.fromkeys(axes)
+    while runs > 2 and cost_s(runs, coarse) > room_s:
+        runs -= 1
+    if cost_s(runs, coarse) <= room_s:
+        return TableReading({}, runs, False, True)
+    for n in range(adaptive.COARSE_POINTS - 1, adaptive.ISO_LEAST_POINTS - 1, -1):
+        if cost_s(runs, dict.fromkeys(axes, n)) <= room_s:
+            return TableReading(dict.fromkeys(axes, n), runs, False, True)
+    return TableReading(dict.fromkeys(axes, adaptive.ISO_LEAST_POINTS), runs, False, False)
 
 
 #: the most nodes a grid takes along an axis (as :func:`..fitting.adaptive.denser_grid`)

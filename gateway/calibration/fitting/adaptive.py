@@ -32,6 +32,8 @@ from .iso230 import iso230_axis
 COARSE_POINTS = 21
 #: the fewest targets ISO 230-2 takes along an axis (a short budget's least)
 ISO_LEAST_POINTS = 5
+#: a plain ISO 230-2 calibration's target spacing (mm; ``compgw calibrate --step-mm``)
+PLAIN_STEP_MM = 25.0
 #: random verification targets per axis and round, besides the new spans' midpoints
 RANDOM_TARGETS = 16
 #: a table never gets points closer than this (mm): below it noise would set the slope
@@ -39,6 +41,14 @@ MIN_SPACING_MM = 0.5
 #: a failing span is cut into this many pieces: structure a few centimetres long (a screw's
 #: waviness) is followed after one refinement, not after several halvings
 REFINE_PARTS = 4
+
+
+def plain_points(travel_mm: Sequence[float]) -> int:
+    """Targets of a plain calibration's table over ``travel_mm`` (one every
+    ``PLAIN_STEP_MM``), at least ``COARSE_POINTS``: what a short budget reads first where
+    it fits, since no round of its own will sweep between the points."""
+    span_mm = float(travel_mm[1]) - float(travel_mm[0])
+    return max(COARSE_POINTS, math.ceil(span_mm / PLAIN_STEP_MM - 1e-9) + 1)
 
 
 def coarse_step_mm(travel_mm: Sequence[float], lead_mm: float | None = None,
