@@ -152,7 +152,7 @@ def test_a_short_budget_reads_a_plain_calibration_s_table_before_it_thins_runs_o
     """Issue 54: at the plain calibration's machine time rough-0's 700 mm X got 21 targets
     at 3 runs (E 11.5 µm at the judge's targets, the plain calibration's 29 targets 5.3
     µm): no round on a short budget sweeps between them. A plain calibration's table (one
-    target every 25 mm) comes first, at fewer runs if need be (down to 3), with the cyclic
+    target every 25 mm) comes first, at fewer runs if need be (down to 2), with the cyclic
     scans held beside it; then the coarse table at fewer runs; then fewer targets."""
     assert plain_points((0.0, 700.0)) == 29 and plain_points((0.0, 450.0)) == 21
 
@@ -164,9 +164,11 @@ def test_a_short_budget_reads_a_plain_calibration_s_table_before_it_thins_runs_o
     assert (got.dense, got.runs, dict(got.points)) == (True, 3, dense)
     got = first_table_reading(axes, 5, dense, cost_s, cost_s(5, dense) + scans_s, scans_s)
     assert (got.dense, got.runs) == (True, 5)
+    got = first_table_reading(axes, 5, dense, cost_s, cost_s(2, dense) + scans_s, scans_s)
+    assert (got.dense, got.runs) == (True, 2)
     # the scans are held: without room for them the coarse table
-    got = first_table_reading(axes, 5, dense, cost_s, cost_s(3, dense), scans_s)
-    assert (got.dense, got.runs, dict(got.points), got.fits) == (False, 3, {}, True)
+    got = first_table_reading(axes, 5, dense, cost_s, cost_s(2, dense), scans_s)
+    assert (got.dense, got.runs, dict(got.points), got.fits) == (False, 2, {}, True)
     # no plain table denser than the coarse one: as before, runs then targets
     room = cost_s(2, {"X": 12, "Y": 12})
     got = first_table_reading(axes, 5, {}, cost_s, room, scans_s)
