@@ -57,7 +57,7 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 
 FAULTS_UNIT, CLOCK_MS, ADVANCE_MS = 250, 0x0802, 0x0801
 READS = (0x03, 0x04)
@@ -148,6 +148,7 @@ def install(clock: Callable[[], float]) -> None:
             await asyncio.to_thread(advance, seconds)
 
         from_file.stand = stand
+        _stops_on_clock(clock, advance)
     from gateway import thermal_travel
 
     for cls in (thermal_travel.HeatFromMotion, thermal_travel.TravelHistory):
@@ -155,6 +156,35 @@ def install(clock: Callable[[], float]) -> None:
         if real not in defaults:
             raise RuntimeError(f"{cls.__name__}: no time.monotonic default clock to replace")
         cls.__init__.__defaults__ = tuple(clock if d is real else d for d in defaults)
+
+
+#: machine time (s) of a live reading at a stop: settling and the instrument's averaging,
+#: what compgw's estimates count (``plan_time_s``'s ``stop_s``) and a recording's stand
+STOP_S = 2.0
+#: the instruments whose readings stand at a stop (a Δa sensor is read at the same stop)
+STANDING_ROLES = ("laser", "xy", "angle")
+
+
+def _stops_on_clock(clock: Callable[[], float], advance: Callable[[float], None]) -> None:
+    """A live instrument's reading at a stop lasts ``STOP_S`` of the machine's clock, as a
+    recording's stand does: the sim's settling is over in a few reads of its clock, and
+    the machine would not cool while a Modbus laser or a bridge is read (smooth-0's X
+    commissioning spanned 259 s of the machine's clock through the Modbus laser and 2122 s
+    through a recording, for 0.52 and 0.55 h of estimated machine time)."""
+    from gateway.instruments.base import Instrument
+
+    plain = Instrument.read_mm
+
+    async def read_mm(self: Instrument, axes: Sequence[str],
+                      near_mm: Mapping[str, float] | None = None) -> dict[str, float]:
+        began_s = clock()
+        values = await plain(self, axes, near_mm)
+        left_s = STOP_S - (clock() - began_s)
+        if self.name.startswith(STANDING_ROLES) and left_s > 0:
+            await asyncio.to_thread(advance, left_s)
+        return values
+
+    Instrument.read_mm = read_mm  # type: ignore[method-assign]
 
 
 # -- the wire ------------------------------------------------------------------------------------
