@@ -171,16 +171,18 @@ def _stops_on_clock(clock: Callable[[], float], advance: Callable[[float], None]
     the machine would not cool while a Modbus laser or a bridge is read (smooth-0's X
     commissioning spanned 259 s of the machine's clock through the Modbus laser and 2122 s
     through a recording, for 0.52 and 0.55 h of estimated machine time)."""
+    from gateway.calibration.measuring.devices import ROLE_NAMES
     from gateway.instruments.base import Instrument
 
     plain = Instrument.read_mm
+    standing = tuple(f"{ROLE_NAMES[r]} (" for r in STANDING_ROLES)  # (Instrument.name)
 
     async def read_mm(self: Instrument, axes: Sequence[str],
                       near_mm: Mapping[str, float] | None = None) -> dict[str, float]:
         began_s = clock()
         values = await plain(self, axes, near_mm)
         left_s = STOP_S - (clock() - began_s)
-        if self.name.startswith(STANDING_ROLES) and left_s > 0:
+        if self.name.startswith(standing) and left_s > 0:
             await asyncio.to_thread(advance, left_s)
         return values
 
