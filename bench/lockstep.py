@@ -161,28 +161,26 @@ def install(clock: Callable[[], float]) -> None:
 #: machine time (s) of a live reading at a stop: settling and the instrument's averaging,
 #: what compgw's estimates count (``plan_time_s``'s ``stop_s``) and a recording's stand
 STOP_S = 2.0
-#: the instruments whose readings stand at a stop (a Δa sensor is read at the same stop)
-STANDING_ROLES = ("laser", "xy", "angle")
 
 
 def _stops_on_clock(clock: Callable[[], float], advance: Callable[[float], None]) -> None:
-    """A live instrument's reading at a stop lasts ``STOP_S`` of the machine's clock, as a
+    """A live instrument's reading at a stop (a laser, an XY device, an angle instrument;
+    not the Δa sensor read at the same stop) lasts ``STOP_S`` of the machine's clock, as a
     recording's stand does: the sim's settling is over in a few reads of its clock, and
     the machine would not cool while a Modbus laser or a bridge is read (smooth-0's X
     commissioning spanned 259 s of the machine's clock through the Modbus laser and 2122 s
     through a recording, for 0.52 and 0.55 h of estimated machine time)."""
-    from gateway.calibration.measuring.devices import ROLE_NAMES
+    from gateway.calibration.measuring.devices import DELTA_A_CHANNEL
     from gateway.instruments.base import Instrument
 
     plain = Instrument.read_mm
-    standing = tuple(f"{ROLE_NAMES[r]} (" for r in STANDING_ROLES)  # (Instrument.name)
 
     async def read_mm(self: Instrument, axes: Sequence[str],
                       near_mm: Mapping[str, float] | None = None) -> dict[str, float]:
         began_s = clock()
         values = await plain(self, axes, near_mm)
         left_s = STOP_S - (clock() - began_s)
-        if self.name.startswith(standing) and left_s > 0:
+        if DELTA_A_CHANNEL not in axes and left_s > 0:  # (a Δa sensor: read at the stop)
             await asyncio.to_thread(advance, left_s)
         return values
 
