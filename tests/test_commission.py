@@ -59,12 +59,18 @@ def wait_for_steps(state: Path, count: int, proc, timeout_s: float = 60.0) -> No
     raise AssertionError(f"no {count} steps in {state}")
 
 
+def state_steps(out: Path) -> list[str]:
+    """The steps a commissioning in ``out`` ran."""
+    return list(json.loads((out / "commission.json").read_text())["steps"])
+
+
 def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
     with running(template, tmp_path / "m") as rig:
         original = rig.config.read_text()
-        # (1.7 h: not a short budget, round 1's sweep and round 2's doubled runs fit; the
-        # rounds after those, 0.5 h of machine time, would add nothing this test checks)
-        proc = rig.commission("--tolerance-um", "1", "--budget-h", "1.7")
+        # (2.2 h: not a short budget; X's warm-up (10 min of strokes), round 1's sweep and
+        # round 2's doubled runs fit; the rounds after those, 0.5 h of machine time, would add
+        # nothing this test checks)
+        proc = rig.commission("--tolerance-um", "1", "--budget-h", "2.2", "--warmup-min", "10")
         rc = proc.popen.wait(timeout=300)
         text = proc.text()
         assert rc in (0, 1), text
@@ -93,8 +99,16 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         check = subprocess.run([sys.executable, "-m", "gateway.cli", "check", "-c",
                                 str(rig.config)], cwd=ROOT, capture_output=True, text=True)
         assert check.returncode == 0, check.stdout + check.stderr
-        # no thermal sensor: heat from motion fitted from the drift references (or why not),
-        # and the final config carries what was fitted
+        # no thermal sensor: X's references drifted (11 µm), so its zone warm-up, read by
+        # the laser, gave its heat from motion, checked on the drift of the runs after it;
+        # Y's hardly moved (under 1 µm): no warm-up, said why
+        ident = summary["identify"]
+        assert ident["motion-X"].get("from") == "warm-up", ident["motion-X"]
+        assert ident["thermal-X"]["drift_check"]["holds"], ident["thermal-X"]
+        assert ident["thermal-X"]["tau_s"] > 0 and "warmup-X" in state_steps(out)
+        assert "too little heat" in ident["thermal-Y"]["why"], ident["thermal-Y"]
+        assert "warmup-Y" not in state_steps(out)
+        # heat from motion (or why not), and the final config carries what was fitted
         final = yaml.safe_load(rig.config.read_text())["axes"]
         for axis in ("X", "Y"):
             heat = summary["identify"][f"motion-{axis}"]

@@ -305,3 +305,81 @@ def test_the_travel_before_a_warm_up_comes_from_the_drift_log() -> None:
     np.testing.assert_allclose(elapsed_s, [2005.0, 300.0, 3600.0])
     record.state["warmup_log"] = {}
     assert steps._travel_before_warmup("Y")[0].size == 0  # no warm-up begun
+
+
+def _no_sensor_plan():
+    """The zone warm-up of an axis with no sensor: both references, beyond the zone."""
+    return warmup_plan("X", (180.0, 420.0), SPEED, 1800.0, 570.0, places_mm=PLACES,
+                       also_mm=60.0, sensor=False)  # fmt: skip
+
+
+def test_an_axis_with_no_sensor_gets_its_heat_from_a_zone_warm_up_read_by_the_laser() -> None:
+    """No sensor column: the laser's readings alone give the time constant (the two
+    references' rise), the screw's fixed end (the linear growth's zero) and its Δa per
+    metre; the section loads as the gateway's heat from motion."""
+    from gateway.calibration.thermal.warmup_motion import warmup_motion_fit
+
+    plan = _no_sensor_plan()
+    assert sum(m.measured for m in plan.moves) > 2 * len(PLACES) + 10
+    fit = warmup_motion_fit(_raw(plan, _EvenHeat(), 0.3, 7), plan, "X", TRAVEL)
+    assert fit.spread_mm is None, fit  # one temperature along the screw: linear
+    assert fit.tau_s == pytest.approx(600.0, rel=0.1)
+    assert fit.origin_mm == pytest.approx(SCREW[0], abs=25.0)  # 0.3 µm of noise: ±20 mm
+    assert fit.linear_rms_um < 0.6
+    section = fit.config({"X": SPEED})
+    assert AxisThermal.model_validate(section).motion is not None
+
+
+@pytest.mark.parametrize("zone", [(0.0, 240.0), (360.0, 600.0)])
+def test_heat_from_motion_with_no_sensor_holds_on_a_zone_it_was_not_fitted_on(zone) -> None:
+    """The sim's screw warm where its nut runs, no sensor: fitted on the commissioning's
+    zone, the model follows the judge's warm-up on another zone to 15 % of its growth."""
+    from gateway.calibration.thermal.warmup_motion import warmup_motion_fit
+
+    plan = _no_sensor_plan()
+    fit = warmup_motion_fit(_raw(plan, _NutHeat(), 0.3, 8), plan, "X", TRAVEL)
+    assert fit.spread_mm is not None, fit  # where it travelled
+    real, pred = _predicted_after_zone(fit.config({"X": SPEED}), zone,
+                                       [30.0, 150.0, 300.0, 450.0, 580.0])  # fmt: skip
+    assert np.abs(real).max() > 10.0
+    assert np.abs(pred - real).max() < 0.15 * np.abs(real).max(), (real, pred)
+
+
+def test_a_warm_up_with_no_growth_gives_no_model_and_says_why() -> None:
+    from gateway.calibration.thermal.warmup_motion import warmup_motion_fit
+
+    plan = _no_sensor_plan()
+    with pytest.raises(TableError, match=r"warmup-X.csv: axis X: .*under 3 µm"):
+        warmup_motion_fit(_raw(plan, _Cold(), 0.3, 9), plan, "X", TRAVEL)
+
+
+class _Cold(_EvenHeat):
+    """A screw that does not warm."""
+
+    def __call__(self, x: float, t: float) -> float:
+        return 0.0
+
+
+def test_a_warm_up_model_is_checked_on_the_drift_of_other_runs() -> None:
+    """The drift references of the runs after the warm-up judge its model, nothing
+    refitted: the model they were made by leaves the noise, one that cools 4 x too slowly
+    leaves most of the drift."""
+    from gateway.calibration.thermal.heat_fit import drift_left_um
+    from gateway.compensation.thermal import motion_heat_series_m
+
+    rng = np.random.default_rng(3)
+    section = {"origin_mm": -40.0, "length_mm": 640.0,
+               "motion": {"delta_a_um_per_m": 0.9, "tau_s": 900.0, "speeds_mm_s": {"X": 100.0}}}
+    strokes = rng.uniform(0.0, 30.0, 60)  # m of travel between readings, 120 s apart
+    odo_m = np.cumsum(strokes)
+    wall = np.arange(60) * 120.0 + 120.0
+    heat = motion_heat_series_m(strokes, np.maximum(strokes * 10.0, 120.0), 900.0)
+    refs = (60.0, 570.0)
+    growth = 0.9 * heat[:, None] * (np.array(refs) + 40.0)[None, :] / 640.0
+    growth += rng.normal(0.0, 0.2, growth.shape)
+    good = drift_left_um("X", section, {"X": odo_m}, wall, growth, refs)
+    slow = {**section, "motion": {**section["motion"], "tau_s": 3600.0}}
+    bad = drift_left_um("X", slow, {"X": odo_m}, wall, growth, refs)
+    spread = float(np.sqrt(np.mean((growth - growth[0]) ** 2)))
+    assert spread > 5.0
+    assert good < 0.4 and bad > 0.5 * spread, (good, bad, spread)

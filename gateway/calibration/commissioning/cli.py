@@ -96,6 +96,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    help="verification rounds at most (default 6)")
     p.add_argument("--warmup-min", type=above(0, "minutes"), default=30.0,
                    help="warm-up length (30)")
+    p.add_argument("--no-heat-warmup", action="store_true",
+                   help="an axis with no thermal sensor: no zone warm-up; its heat from motion "
+                        "is fitted to the drift references alone (less machine time, a "
+                        "less certain cooling time)")
     p.add_argument("--seed", type=int, default=0, help="random verification targets")
     p.add_argument("--dry-run", action="store_true", help="print the plan and stop")
     p.add_argument("--recheck", action="store_true",
@@ -329,7 +333,7 @@ def main(args: argparse.Namespace) -> int:
             motion=MotionSettings(args.in_position_bit, args.moving_bit, args.alarm_bit,
                                   args.in_position_pulses, args.timeout_s),
             seed=args.seed, max_rounds=args.max_rounds, warmup_s=args.warmup_min * 60.0,
-            no_lead_search=args.no_lead_search,
+            no_lead_search=args.no_lead_search, heat_warmup=not args.no_heat_warmup,
         )  # fmt: skip
         reload = make_reload(args, config, gateway)
         job = Commission(settings, reload, print, None)

@@ -73,6 +73,11 @@ class CommandChecks:
             self.say(f"  (takeup-*: the reversal ladder, only where the backlash test shows "
                      f"{MIN_LOST_UM:g} µm or more of lost motion and one rung of it, 12 moves, "
                      "shows less than all of it)")  # fmt: skip
+        if self.thermal.heat_zoned():
+            self.say("  (warmup-* with no sensor: after the pitch runs, only where their drift "
+                     f"references moved {self.thermal.least_growth_um():g} µm or more (the "
+                     "screw warms) and the budget left holds it; --no-heat-warmup leaves it "
+                     "out)")  # fmt: skip
         self.say(f"  then verification rounds (before, each round, after) within the budget; "
                  f"first steps: {total / 3600:.2f} h at {self.s.speed_mm_s:g} "
                  f"{'deg/s' if all(self.axes.rotary(a) for a in self.s.axes) else 'mm/s'} and "
@@ -125,6 +130,8 @@ class CommandChecks:
         kind, _, axis = name.partition("-")
         if kind == "warmup":
             source = self.thermal.source_kind(axis)
+            if source is None:
+                return "thermal: heat from motion (no sensor)"
             return f"thermal: the {'sensor gain' if source == 'temperature' else 'Δa length'}"
         return {"backlash": "backlash at three places", "iso": "the pitch table (ISO 230-2)",
                 "cyclic": "the once-per-lead error", "lead": "lead search (periodic error)",

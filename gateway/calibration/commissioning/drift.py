@@ -26,7 +26,13 @@ from ..measuring.session import Session
 from ..plans.plans import Move, Plan
 from ..plans.runner import read_raw_meta
 from ..thermal.drift_shape import SweptHeat
-from ..thermal.heat_fit import MIN_GROWTH_UM, motion_heat_fit
+from ..thermal.heat_fit import (
+    MAX_RESIDUAL_SHARE,
+    MIN_GROWTH_UM,
+    drift_left_um,
+    motion_heat_fit,
+)
+from ..thermal.thermal_shape import NOISE_UM
 
 if TYPE_CHECKING:
     from .axes import Axes
@@ -379,6 +385,12 @@ class DriftRefs:
         spread_um2 = float(np.mean(np.var(np.asarray(log) * 1e3, axis=0)))
         return spread_um2 > DRIFT_RATIO * s_um**2 / REF_REPEATS
 
+    def grown_um(self, axis: str) -> float:
+        """The most ``axis``'s drift references have moved since commissioning began (µm)."""
+        log = [e["drift_mm"][axis] for e in self.record.state.get("drift_log") or []
+               if axis in e.get("drift_mm", {})]  # fmt: skip
+        return 1e3 * float(np.abs(np.asarray(log, dtype=np.float64)).max(initial=0.0))
+
     def drift_spread_mm(self, axis: str) -> float | None:
         """How far the heat of ``axis``'s moves spreads along its screw (mm), where its zone
         warm-up showed the screw warm where its nut works (heat from motion, spread where it
@@ -439,8 +451,10 @@ class DriftRefs:
              "wall_s": time.time() if wall_s is None else wall_s, "drift_mm": drift})
 
     def fit_motion_heat(self) -> None:
-        """Heat from motion on every linear axis with no thermal setting of its own, fitted
-        to the drift references read so far (once: later drift is what it leaves)."""
+        """Heat from motion on every linear axis with no thermal setting of its own (once:
+        later drift is what it leaves): its zone warm-up's model where it had one and it
+        holds on the drift references read since (another duty cycle, nothing refitted),
+        else the model fitted to those references."""
         log = self.record.state.get("drift_log", [])
         for a in self.s.axes:
             axis = self.config.axes[a]
@@ -448,14 +462,21 @@ class DriftRefs:
             ident = self.record.state.setdefault("identify", {})
             if axis.compensation.thermal is not None or axis.rotary or key in ident:
                 continue
+            odometer_m = {b: [e["odometer_mm"].get(b, 0.0) / 1000.0 for e in log]
+                          for b in self.s.axes}  # fmt: skip
+            wall_s = [e["wall_s"] for e in log]
+            growth_um = [[d * 1000.0 for d in e["drift_mm"][a]] for e in log]
+            warm = ident.get(f"thermal-{a}") or {}
+            if warm.get("fitted") and self._warmup_holds(a, warm, odometer_m, wall_s,
+                                                         growth_um):  # fmt: skip
+                self.record.tables.motion[a] = warm["config"]
+                ident[key] = {"fitted": True, "from": "warm-up", **warm["config"]}
+                continue
             try:
                 fit = motion_heat_fit(
-                    a, {b: [e["odometer_mm"].get(b, 0.0) / 1000.0 for e in log]
-                        for b in self.s.axes},
-                    [e["wall_s"] for e in log],
-                    [[d * 1000.0 for d in e["drift_mm"][a]] for e in log],
-                    self.axes.ref_positions(a), dict.fromkeys(self.s.axes, self.s.speed_mm_s),
-                    self.axes.travel(a), min(MIN_GROWTH_UM, self.s.tolerance_um))  # fmt: skip
+                    a, odometer_m, wall_s, growth_um, self.axes.ref_positions(a),
+                    dict.fromkeys(self.s.axes, self.s.speed_mm_s), self.axes.travel(a),
+                    min(MIN_GROWTH_UM, self.s.tolerance_um))  # fmt: skip
             except TableError as exc:
                 ident[key] = {"fitted": False, "why": str(exc)}
                 self.say(f"no heat-from-motion model: {exc}")
@@ -469,3 +490,21 @@ class DriftRefs:
                      f"{fit.tau_s:.0f} s, fixed end at {fit.origin_mm:.0f} mm")  # fmt: skip
         self.record.save()
 
+    def _warmup_holds(self, axis: str, warm: dict[str, Any], odometer_m: dict[str, list[float]],
+                      wall_s: list[float], growth_um: list[list[float]]) -> bool:
+        """Does the zone warm-up's heat from motion hold on the drift the runs after it
+        read (leaving at most MAX_RESIDUAL_SHARE of it, or under the noise where it grew
+        too little to tell)? Said either way, and kept in the identification results."""
+        try:
+            left = drift_left_um(axis, warm["config"], odometer_m, wall_s, growth_um,
+                                 self.axes.ref_positions(axis))  # fmt: skip
+        except TableError:  # no drift read after it: nothing tells against it
+            return True
+        g = np.asarray(growth_um, dtype=np.float64).reshape(-1, 2)
+        spread = float(np.sqrt(np.mean((g - g[0]) ** 2)))
+        holds = left <= max(MAX_RESIDUAL_SHARE * spread, NOISE_UM)
+        warm["drift_check"] = {"left_rms_um": left, "drift_rms_um": spread, "holds": holds}
+        self.say(f"{axis}: the warm-up's heat from motion leaves {left:.2f} µm RMS of the "
+                 f"{spread:.2f} µm its drift references read in the runs after it"
+                 + ("" if holds else ": it does not hold; the references' own fit is tried"))
+        return holds

@@ -60,7 +60,8 @@ class IdentifySteps:
         model cannot place (a temperature at one spot, the linear spread) then fades for
         hours before its axis is measured, instead of going into its table. On a short
         budget the plain calibration's steps come first, and each warm-up after them only
-        where the budget left holds it (:meth:`_plain_steps_first`)."""
+        where the budget left holds it (:meth:`_plain_steps_first`). An axis with no sensor
+        gets its zone warm-up after every axis's pitch runs (:meth:`_heat_warm_ups`)."""
         await self.thermal.read_start_temperatures()
         self.short.refs_affordable()  # (before the first reading of the references)
         await self.stager.use("identification")
@@ -71,6 +72,7 @@ class IdentifySteps:
                 await self._warm_up_if_affordable(a)
             for a in self.s.axes:
                 await self._identify_axis(a)
+            await self._heat_warm_ups()
             await self.before_xy()
             self.record.save()
             return
@@ -82,6 +84,7 @@ class IdentifySteps:
         rest = [a for a in self.s.axes if a not in zoned] + zoned[:1]
         for a in rest:
             await self._identify_axis(a)
+        await self._heat_warm_ups()
         await self.before_xy()
         self.record.save()
 
@@ -238,16 +241,19 @@ class IdentifySteps:
 
     async def _warm_up_if_affordable(self, a: str) -> None:
         """The zone warm-up of ``a`` where the budget left holds it; else said, and the
-        configured thermal setting kept."""
-        if a in self.record.tables.thermal_length_mm or a in self.record.tables.thermal_gain:
+        configured thermal setting kept (no sensor: heat from motion from the drift
+        references alone)."""
+        if self._warmed(a):
             return
         cost_s = self.budget.step_cost_s(self.thermal.warmup_plan(a), drift=False)
         if not self.record.done(f"warmup-{a}") and cost_s > self.budget.left_s():
             self.record.state.setdefault("identify", {})[f"thermal-{a}"] = {
                 "fitted": False, "why": f"its warm-up ({cost_s / 60:.0f} min) is not in the "
                 f"budget left ({max(self.budget.left_s(), 0.0) / 60:.0f} min)"}  # fmt: skip
-            self.say(f"{a}: thermal setting kept as configured: its warm-up "
-                     f"({cost_s / 60:.0f} min) is not in the budget left")  # fmt: skip
+            kept = ("heat from motion from the drift references alone"
+                    if self.thermal.heat_warms_up(a) else "thermal setting kept as configured")
+            self.say(f"{a}: {kept}: its warm-up ({cost_s / 60:.0f} min) is not in the budget "
+                     "left")  # fmt: skip
             return
         await self._warm_up(a)
 
@@ -258,7 +264,7 @@ class IdentifySteps:
 
     async def _warm_up(self, a: str) -> None:
         """The axis's warm-up (thermal off) and its fit; the identification config back."""
-        if a in self.record.tables.thermal_length_mm or a in self.record.tables.thermal_gain:
+        if self._warmed(a):
             return  # fitted before an interruption
         results = self.record.state.setdefault("identify", {})
         await self.stager.use("warmup")
@@ -273,6 +279,31 @@ class IdentifySteps:
             results[f"thermal-{a}"] = {"fitted": False, "why": str(exc)}
             self.say(f"{a}: thermal setting kept as configured: {exc}")
         await self.stager.use("identification")  # with the length or gain
+
+    async def _heat_warm_ups(self) -> None:
+        """The zone warm-up of each axis with no sensor, after every axis's pitch runs: only
+        where their drift references show the screw warming (a cold machine's tables need
+        no heat model, nor its technician an hour of warm-up), and where the budget left
+        holds it. Its fit is checked on the drift the runs after it read
+        (:meth:`.drift.DriftRefs.fit_motion_heat`)."""
+        for a in self.thermal.heat_zoned():
+            if self._warmed(a):
+                continue
+            why = self.thermal.too_little_heat(a)
+            if why is not None:
+                self.record.state.setdefault("identify", {})[f"thermal-{a}"] = {
+                    "fitted": False, "why": why}  # fmt: skip
+                self.say(f"{a}: no warm-up: {why}")
+                continue
+            await self._warm_up_if_affordable(a)
+
+    def _warmed(self, a: str) -> bool:
+        """Its warm-up fitted already (before an interruption)."""
+        tables = self.record.tables
+        if a in tables.thermal_length_mm or a in tables.thermal_gain:
+            return True
+        return self.thermal.heat_warms_up(a) and f"thermal-{a}" in self.record.state.get(
+            "identify", {})  # fmt: skip
 
     async def _backlash(self, a: str) -> None:
         """The backlash test at three places (seed 000), and the take-up where it shows

@@ -60,8 +60,10 @@ class Planner:
                                for n in self.iso_steps(axis)])  # fmt: skip
 
     # -- the whole thing -----------------------------------------------------------------
-    def initial_plans(self) -> list[tuple[str, Plan]]:
-        """The steps before any adaptation, for the printed plan and its estimate."""
+    def initial_plans(self, heat: bool = True) -> list[tuple[str, Plan]]:
+        """The steps before any adaptation, for the printed plan and its estimate;
+        ``heat`` False: without the zone warm-ups of axes with no sensor (each only where
+        the pitch runs showed heat, and where the budget then left holds it)."""
         out: list[tuple[str, Plan]] = []
         for a in self.s.axes:
             if self.axes.rotary(a):  # in degrees (rotary.py)
@@ -77,6 +79,9 @@ class Planner:
                 out.append((f"cyclic-{a}", cyclic_plan(a, travel, self.s.lead_mm[a])))
             elif not self.s.no_lead_search:
                 out.append((f"lead-{a}", self.lead_plan(a)))
+        # with no sensor: after every axis's pitch runs, where their references drifted
+        out += [(f"warmup-{a}", self.thermal.warmup_plan(a))
+                for a in (self.thermal.heat_zoned() if heat else ())]  # fmt: skip
         if self.s.planar is not None:
             out.append(("xy-grid", self.grid_plan(self.s.grid)))
         return [(n, self.axes.snap(p)) for n, p in out]

@@ -39,5 +39,7 @@ class Settings:
     runs: int = 3  # coarse ISO runs
     verify_runs: int = 2
     warmup_s: float = 1800.0
+    #: an axis with no thermal sensor gets a zone warm-up read by the laser (heat from motion)
+    heat_warmup: bool = True
     grid: tuple[int, int] = (7, 5)
     tolerance_arcsec: float = 3.0  # rotary axes: ISO 230-2 E between the points

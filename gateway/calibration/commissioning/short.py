@@ -149,14 +149,16 @@ class ShortBudget:
         its verification (the before-run's size) and the least refinement it may call for
         (each linear axis swept at its coarsest step, the plane's grid split once), each
         with the drift references read around its runs."""
-        plans = [p for _, p in self.plans.initial_plans()]
+        plans = [p for _, p in self.plans.initial_plans(heat=False)]
         for a in [a for a in self.s.axes if not self.axes.rotary(a)]:  # (no ISO runs yet)
             plans += 3 * [self.plans.before_plan(a, avoid_mm=np.zeros(0))]
             plans.append(self.refine.sweep_plan(a, -1, self.s.lead_mm.get(a), estimate=True))
         if self.s.planar is not None:
             plans += 3 * [self.plans.before_xy_plan()]
             plans.append(self.plans.grid_plan(adaptive.denser_grid(*self.s.grid)))
-        return sum(self.axes.estimate_s(p) + self.budget.refs_around_s(p) for p in plans)
+        return sum(self.axes.estimate_s(p) + (0.0 if p.kind == "warmup" else
+                                              self.budget.refs_around_s(p))
+                   for p in plans)  # (a warm-up reads no drift references)
 
     async def densify(self, axis: str) -> None:
         """On a short budget, whose rounds will not sweep a table between its points: the

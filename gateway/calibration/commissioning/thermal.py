@@ -6,7 +6,11 @@ source and what is fitted to it (called by :mod:`.identify`).
   (:mod:`..thermal.thermal_shape`) and how fast old zones fade (``memory_s``);
 - a temperature source (``--temperature``): the thermal gain; over the zone, also whether
   the heat of the axis's own motion explains the growth clearly better than the sensor at
-  one spot (:mod:`..thermal.warmup_heat`), in which case it replaces the sensor from the tables on.
+  one spot (:mod:`..thermal.warmup_heat`), in which case it replaces the sensor from the tables on;
+- no sensor (no thermal setting): heat from the axis's own motion, its time constant, fixed
+  end and shape read by the laser over the zone (:mod:`..thermal.warmup_motion`); the drift
+  references of the runs after it check it on a duty cycle it was not fitted on
+  (:meth:`.drift.DriftRefs.fit_motion_heat`).
 """
 
 from __future__ import annotations
@@ -27,8 +31,10 @@ from ..plans.plans import (
     read_plan,
 )
 from ..plans.rawdata import RawData
+from ..thermal.heat_fit import MIN_GROWTH_UM
 from ..thermal.thermal_shape import thermal_shape_fit
 from ..thermal.warmup_heat import warmup_heat_fit
+from ..thermal.warmup_motion import warmup_motion_fit
 
 if TYPE_CHECKING:
     from .axes import Axes
@@ -41,6 +47,9 @@ Say = Callable[[str], None]
 ZONE = (0.3, 0.7)
 #: ... and reads these places cold and warm: inside the zone and beyond it on both sides
 ZONE_PLACES = (0.12, 0.22, 0.4, 0.5, 0.6, 0.78, 0.88)
+#: with no sensor, the references (the outermost places) are read every this many strokes:
+#: each reading is a trip beyond both ends of the zone (at 5, a third of the warm-up's time)
+HEAT_MEASURE_EVERY = 10
 
 
 class ThermalSteps:
@@ -64,32 +73,44 @@ class ThermalSteps:
             return self.s.instruments.temperature is not None
         return self.s.instruments.given("delta_a")
 
+    def heat_warms_up(self, axis: str) -> bool:
+        """A zone warm-up read by the laser fits this axis's heat from motion: a linear axis
+        with no thermal setting (no sensor), unless --no-heat-warmup."""
+        th = self.config.axes[axis].compensation.thermal
+        return self.s.heat_warmup and th is None and not self.axes.rotary(axis)
+
     def warmup_plan(self, axis: str) -> Plan:
         """Cycling over the travel; read at the end farthest from the screw's fixed end
         (the thermal origin), where the growth is largest against the noise. With a Δa
         or temperature sensor, over the middle of the travel only (ZONE), the places read
         cold and warm too: is the growth linear from the fixed end, or where the nut
-        worked?"""
+        worked? With no sensor (heat from motion), the same zone, its fixed end not known:
+        the outermost places both read as references, every HEAT_MEASURE_EVERY strokes."""
         lo, hi = self.axes.travel(axis)
         margin = 0.05 * (hi - lo)
         th = self.config.axes[axis].compensation.thermal
         origin = th.origin_mm if th is not None else lo
         ref = hi - margin if abs(hi - origin) >= abs(lo - origin) else lo + 2 * margin
+        pulse = self.config.axes[axis].pulse_mm
+        places = [round((lo + f * (hi - lo)) / pulse) * pulse for f in ZONE_PLACES]
+        zone = [lo + f * (hi - lo) for f in ZONE]
         if th is not None and th.source is not None:  # a Δa or temperature sensor
-            pulse = self.config.axes[axis].pulse_mm
-            return warmup_plan(axis, [lo + f * (hi - lo) for f in ZONE], self.s.speed_mm_s,
-                               self.s.warmup_s, ref, places_mm=[
-                                   round((lo + f * (hi - lo)) / pulse) * pulse
-                                   for f in ZONE_PLACES])  # fmt: skip
+            return warmup_plan(axis, zone, self.s.speed_mm_s, self.s.warmup_s, ref,
+                               places_mm=places)  # fmt: skip
+        if self.heat_warms_up(axis):
+            return warmup_plan(axis, zone, self.s.speed_mm_s, self.s.warmup_s, places[-1],
+                               HEAT_MEASURE_EVERY, places_mm=places, also_mm=places[0],
+                               sensor=False)  # fmt: skip
         return warmup_plan(axis, (lo + margin, hi - margin), self.s.speed_mm_s,
                            self.s.warmup_s, ref)  # fmt: skip
 
     def fit(self, axis: str, raw: RawData) -> dict[str, float]:
         """The warm-up's fit: a Δa source's length, or a temperature source's gain."""
         th = self.config.axes[axis].compensation.thermal
-        assert th is not None
-        src = self.config.thermal_sources[th.source]
         plan = read_plan(self.record.dir / "plans" / f"warmup-{axis}.plan")
+        if th is None:
+            return self._motion_fit(axis, raw, plan)
+        src = self.config.thermal_sources[th.source]
         if src.kind == "temperature":
             g = thermal_gain_fit(raw, axis, th.origin_mm, src.alpha_per_k)
             self.record.tables.thermal_gain[axis] = g.gain
@@ -121,6 +142,26 @@ class ThermalSteps:
         self.record.tables.thermal_length_mm[axis] = float(tf.length_mm)
         return {"length_mm": tf.length_mm, "growth_max_um": tf.growth_max_um,
                 "residual_rms_um": tf.residual_rms_um}
+
+    def _motion_fit(self, axis: str, raw: RawData, plan: Plan) -> dict[str, Any]:
+        """Heat from motion on an axis with no sensor, from its zone warm-up: kept as the
+        axis's thermal setting (checked later against the drift references,
+        :meth:`.drift.DriftRefs.fit_motion_heat`); where the warm-up shows none, the drift
+        references alone are fitted then."""
+        try:
+            mf = warmup_motion_fit(raw, plan, axis, self.axes.travel(axis),
+                                   *self._travel_before_warmup(axis))  # fmt: skip
+        except TableError as exc:
+            self.say(f"{axis}: no heat from motion from the warm-up: {exc}; the drift "
+                     "references will be fitted instead")  # fmt: skip
+            return {"fitted": False, "why": str(exc)}
+        config = mf.config(dict.fromkeys(self.s.axes, self.s.speed_mm_s))
+        self.record.tables.motion[axis] = config
+        self.say(f"{axis}: no thermal sensor; its zone warm-up grew {mf.growth_max_um:.1f} µm "
+                 f"at most: heat from its own motion leaves {mf.rms_um:.2f} µm RMS at the "
+                 f"places read warm ({'where it travelled' if mf.spread_mm else 'linear'}, "
+                 f"tau {mf.tau_s:.0f} s, fixed end at {mf.origin_mm:.0f} mm)")  # fmt: skip
+        return {"fitted": True, **mf.summary(), "config": config}
 
     def _heat_instead(self, axis: str, raw: RawData, plan: Plan, th: Any,
                       alpha_per_k: float) -> dict[str, Any]:  # fmt: skip
@@ -283,6 +324,24 @@ class ThermalSteps:
         """The linear axes with a thermal setting: each gets a zone warm-up (on a short
         budget after the plain calibration's steps, where the budget holds it)."""
         return [a for a in self.s.axes if not self.axes.rotary(a) and self.warms_up(a)]
+
+    def heat_zoned(self) -> list[str]:
+        """The linear axes with no sensor whose heat from motion a zone warm-up fits."""
+        return [a for a in self.s.axes if self.heat_warms_up(a)]
+
+    def least_growth_um(self) -> float:
+        """The drift (µm) an axis with no sensor must show before its zone warm-up is
+        worth its machine time: what heat from motion models at all."""
+        return min(MIN_GROWTH_UM, self.s.tolerance_um)
+
+    def too_little_heat(self, axis: str) -> str | None:
+        """Why an axis with no sensor gets no zone warm-up: its drift references, read
+        around its pitch runs, moved less than :meth:`least_growth_um` (None: it warms)."""
+        grown = self.drift.grown_um(axis)
+        if grown >= self.least_growth_um():
+            return None
+        return (f"its drift references moved {grown:.1f} µm in the runs so far (under "
+                f"{self.least_growth_um():g}): too little heat for a warm-up")
 
 
 

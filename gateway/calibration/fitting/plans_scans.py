@@ -27,6 +27,8 @@ def warmup_plan(
     measure_every: int = 5,
     dwell_s: float = 1.0,
     places_mm: Sequence[float] = (),
+    also_mm: float | None = None,
+    sensor: bool = True,
 ) -> Plan:
     """Repeated long moves between ``ends_mm`` at ``speed_mm_s`` for about ``duration_s``.
 
@@ -35,6 +37,9 @@ def warmup_plan(
     against the Δa sensor. Run number = cycle (0 for the cold reading). ``places_mm`` (a
     zone warm-up, ``ends_mm`` inside the travel) are read cold and after the last cycle too,
     each approached in + from 1 mm below: where the growth is, inside the zone and beyond.
+    ``also_mm`` (with places): a second reference, read right after the first each time
+    (with no sensor the fixed end is not known: one of the two is far from it).
+    ``sensor`` False: the laser's readings alone (heat from motion), no sensor column.
     """
     a, b = _travel(ends_mm)
     if speed_mm_s <= 0 or duration_s <= 0 or measure_every < 1:
@@ -54,10 +59,15 @@ def warmup_plan(
                     Move(run, +1, "measure", (p,), None, dwell_s)]  # fmt: skip
         return out
 
+    refs = [ref] + ([float(_round(also_mm))] if also_mm is not None and places else [])
+
     def at_ref(run: int) -> list[Move]:
-        approach = [Move(run, -1, "move", (ref - WARMUP_APPROACH_MM,), speed_mm_s)] \
-            if places else []  # fmt: skip
-        return [*approach, Move(run, +1, "measure", (ref,), None, dwell_s)]
+        out: list[Move] = []
+        for r in refs:
+            if places:
+                out.append(Move(run, -1, "move", (r - WARMUP_APPROACH_MM,), speed_mm_s))
+            out.append(Move(run, +1, "measure", (r,), None, dwell_s))
+        return out
 
     moves: list[Move] = [*survey(0), Move(0, -1, "move", (a,), speed_mm_s), *at_ref(0)]
     for k in range(1, cycles + 1):
@@ -69,7 +79,9 @@ def warmup_plan(
     moves += survey(cycles)
     meta = _meta(kind="warmup", axis=axis, ends_mm=(a, b), speed_mm_s=speed_mm_s,
                  duration_s=duration_s, reference_mm=ref, measure_every=measure_every,
-                 cycles=cycles, places_mm=places or None)  # fmt: skip
+                 cycles=cycles, places_mm=places or None,
+                 also_mm=refs[1] if len(refs) > 1 else None,
+                 sensor=None if sensor else "none")  # fmt: skip
     return Plan("warmup", (axis,), tuple(moves), meta)
 
 

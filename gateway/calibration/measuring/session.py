@@ -145,7 +145,9 @@ class Session:
             driver = MachineDriver(link, self.config, self.motion)
             driver.on_move = self.on_move
             extra, names = None, ()
-            if plan.kind == "warmup" and self._warmup_reads_temperature(plan):
+            if plan.kind == "warmup" and dict(plan.meta).get("sensor") == "none":
+                pass  # heat from motion: the laser's readings alone
+            elif plan.kind == "warmup" and self._warmup_reads_temperature(plan):
                 extra, names = await self._temperature_fn(plan, links)
             elif plan.kind == "warmup" or self.instruments.given("delta_a"):
                 extra, names = await self._delta_a_fn(links)

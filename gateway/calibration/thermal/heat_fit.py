@@ -18,6 +18,7 @@ Pure: arrays in, numbers out.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -141,3 +142,30 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
                          f"{origin:.0f} mm, far off the travel: not the screw's growth")
     return MotionHeatFit(axis, origin, length, per_mm * length, tau, speeds_mm_s,
                          peak, rms, n)  # fmt: skip
+
+
+def drift_left_um(axis: str, thermal: dict[str, Any], odometer_m: dict[str, ArrayLike],
+                  wall_s: ArrayLike, growth_um: ArrayLike, refs_mm: tuple[float, float]
+                  ) -> float:  # fmt: skip
+    """What a heat-from-motion ``thermal`` section (fitted elsewhere: a zone warm-up) leaves
+    of the drift read at the references (µm RMS, shape (k, 2) as :func:`motion_heat_fit`
+    takes it): the same model judged on another duty cycle, nothing refitted. The growth
+    is taken linear from the fixed end at the references (a profile's heat, spread over
+    the runs' whole travel, nearly is)."""
+    motion = thermal["motion"]
+    speeds = motion.get("speeds_mm_s") or {}
+    wall = np.asarray(wall_s, dtype=np.float64)
+    odo = {a: np.asarray(v, dtype=np.float64) for a, v in odometer_m.items()}
+    g = np.asarray(growth_um, dtype=np.float64).reshape(-1, 2)
+    if g.shape[0] < 2:
+        raise TableError(f"axis {axis}: {g.shape[0]} drift readings: nothing to check on")
+    travel = np.diff(odo[axis], prepend=0.0).clip(min=0.0)
+    moving = sum(np.diff(v, prepend=0.0).clip(min=0.0) * 1000.0 / float(speeds[a])
+                 for a, v in odo.items() if speeds.get(a))  # fmt: skip
+    idle = np.diff(wall, prepend=wall[0]).clip(min=0.0)
+    heat = motion_heat_series_m(travel, np.maximum(moving, idle), float(motion["tau_s"]))
+    lever = (np.asarray(refs_mm, dtype=np.float64) - float(thermal["origin_mm"])) / float(
+        thermal["length_mm"])  # fmt: skip
+    pred = float(motion["delta_a_um_per_m"]) * heat[:, None] * lever[None, :]
+    left = (g - g[0]) - (pred - pred[0])
+    return float(np.sqrt(np.mean(left**2)))

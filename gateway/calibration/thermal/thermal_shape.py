@@ -108,15 +108,16 @@ def rise_tau_s(t_s: NDArray[np.float64], delta_a: NDArray[np.float64]) -> float 
     return None if best == TAU_GRID_S.size - 1 else float(TAU_GRID_S[best])
 
 
-def survey_changes(raw: RawData, axis: str, column: str
+def survey_changes(raw: RawData, axis: str, column: str | None
                    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64],
                               NDArray[np.float64], NDArray[np.float64]]:  # fmt: skip
     """A zone warm-up's readings of ``axis`` after the cold survey: their row numbers among
     the axis's rows, those of the cold reading at the same place, the place (mm), the
-    growth since the cold reading (mm) and the sensor ``column``'s change since then."""
+    growth since the cold reading (mm) and the sensor ``column``'s change since then (zero
+    without one: heat from motion)."""
     rows = np.flatnonzero(np.array(raw.axis) == axis)
     place = np.round(raw.target_mm[rows], 6)
-    sensor = raw.column_mm(column)[rows]
+    sensor = np.zeros(rows.size) if column is None else raw.column_mm(column)[rows]
     cold: dict[float, int] = {}
     for k, p in enumerate(place):
         cold.setdefault(float(p), k)

@@ -97,6 +97,34 @@ def _own_travel(plan: Plan, axis: str) -> tuple[NDArray[np.float64], NDArray[np.
     return np.asarray(out_d), np.asarray(out_t)
 
 
+def heat_changes(plan: Plan, axis: str, warm: NDArray[np.int64], first: NDArray[np.int64],
+                 prior_m: ArrayLike = (), prior_s: ArrayLike = (),
+                 times_s: ArrayLike | None = None,
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:  # fmt: skip
+    """Per warm reading and per τ on TAU_GRID_S (shape (readings, τ), metres of travel):
+    the change since its cold reading of the heat the warm-up's own travel put in, and of
+    the heat from before the warm-up (``prior_m``, ``prior_s``: travel and time, stretch by
+    stretch), which only fades. ``times_s``: when each measured stop was read (the raw
+    file's clock); a stretch lasts that long where it is longer than the plan says (a
+    slower axis, a pause), as the gateway counts its heat."""
+    d_m, t_s = _own_travel(plan, axis)
+    if times_s is not None:
+        read = np.asarray(times_s, dtype=np.float64).reshape(-1)
+        if read.size == t_s.size:
+            t_s = np.maximum(t_s, np.diff(read, prepend=read[0]))
+    before_m = np.asarray(prior_m, dtype=np.float64).reshape(-1)
+    before_s = np.asarray(prior_s, dtype=np.float64).reshape(-1)
+    if before_m.size != before_s.size:
+        raise TableError(f"axis {axis}: prior travel and times differ in length")
+    heat = motion_heat_series_m(d_m, t_s[:, None] * np.ones(TAU_GRID_S.size), TAU_GRID_S)
+    start = np.zeros(TAU_GRID_S.size)
+    if before_m.size:
+        start = motion_heat_series_m(before_m, before_s[:, None] * np.ones(TAU_GRID_S.size),
+                                     TAU_GRID_S)[-1]  # fmt: skip
+    fading = start[None, :] * np.exp(-np.cumsum(t_s)[:, None] / TAU_GRID_S[None, :])
+    return heat[warm] - heat[first], fading[warm] - fading[first]
+
+
 def _ls(design: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[float, float]:
     """Least squares of y = c·design: (c, sum of squares left)."""
     den = float(np.dot(design, design))
@@ -127,21 +155,7 @@ def warmup_heat_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
     gain, _ = _ls(alpha_per_k * d_temp * lever, growth)
     sensor_rms = float(np.sqrt(np.mean((growth - gain * alpha_per_k * d_temp * lever)[survey]
                                        ** 2)))  # fmt: skip
-    # heat in metres of travel at every stop, per τ; a reading's change since its cold one
-    d_m, t_s = _own_travel(plan, axis)
-    before_m = np.asarray(prior_m, dtype=np.float64).reshape(-1)
-    before_s = np.asarray(prior_s, dtype=np.float64).reshape(-1)
-    if before_m.size != before_s.size:
-        raise TableError(f"axis {axis}: prior travel and times differ in length")
-    # the warm-up's own heat, and the heat from before: at its start, then only fading
-    heat = motion_heat_series_m(d_m, t_s[:, None] * np.ones(TAU_GRID_S.size), TAU_GRID_S)
-    start = np.zeros(TAU_GRID_S.size)
-    if before_m.size:
-        start = motion_heat_series_m(before_m, before_s[:, None] * np.ones(TAU_GRID_S.size),
-                                     TAU_GRID_S)[-1]  # fmt: skip
-    fading = start[None, :] * np.exp(-np.cumsum(t_s)[:, None] / TAU_GRID_S[None, :])
-    d_heat = heat[warm] - heat[first]  # (readings, τ)
-    d_fade = fading[warm] - fading[first]
+    d_heat, d_fade = heat_changes(plan, axis, warm, first, prior_m, prior_s)
     length = float(thermal.length_mm)
     sse = [_ls((d_heat[:, j] + d_fade[:, j]) * lever / length, growth)[1]
            for j in range(TAU_GRID_S.size)]  # fmt: skip

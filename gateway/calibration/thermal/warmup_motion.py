@@ -1,0 +1,158 @@
+"""Heat from motion fitted to a zone warm-up on an axis with no thermal sensor.
+
+Without a sensor, the drift references read between commissioning's runs are all that
+shows the screw's heat, and those runs heat it in a way that hardly pins how fast it
+cools (τ) or where the screw is fixed. A zone warm-up read by the laser itself does: the
+axis strokes a zone (the middle of its travel) for a set time, two references beyond the
+zone, one on each side, are read every few strokes (the rise over time: τ), and places
+inside and beyond the zone are read cold and warm (the shape: linear from the screw's
+fixed end, or where the nut worked).
+
+The model is the gateway's own heat from motion (:func:`~gateway.compensation.thermal.
+motion_heat_m`): growth(x) = c · H · lever(x), H the heat in metres of travel with τ. For
+each τ on a grid the linear shape is a least-squares fit in (c, c · fixed end); the τ with
+the least residual wins. The travel profile (heat spread where the axis travelled) is
+tried at that τ with the fixed end on the side the linear fit found, and taken when it
+leaves clearly less at the places surveyed warm. Pure: readings and a plan in, numbers
+out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ...compensation.errors import TableError
+from ...config import AxisThermal, MotionHeat, TravelProfile
+from ..plans.plans import Plan
+from ..plans.rawdata import RawData
+from .heat_fit import FAR_ENDS, TAU_GRID_S
+from .thermal_shape import NOISE_UM, PROFILE_SHARE, SPREADS_MM, profile_fractions, survey_changes
+from .warmup_heat import heat_changes
+
+UM_PER_MM = 1000.0
+#: growth (µm) below which a warm-up shows nothing worth a model
+MIN_GROWTH_UM = 3.0
+
+
+@dataclass(frozen=True)
+class WarmupMotionFit:
+    """Heat from motion as a zone warm-up showed it on an axis with no sensor."""
+
+    axis: str
+    origin_mm: float  # the screw's fixed end, axis coordinates
+    length_mm: float
+    delta_a_um_per_m: float  # Δa at length_mm per metre of travel whose heat is in the screw
+    tau_s: float
+    spread_mm: float | None  # the travel profile's; None: linear from the fixed end
+    memory_mm: float
+    linear_rms_um: float  # at the places surveyed warm
+    profile_rms_um: float
+    growth_max_um: float
+    points: int
+
+    @property
+    def rms_um(self) -> float:
+        """What the chosen shape leaves at the places surveyed warm (µm RMS)."""
+        return self.profile_rms_um if self.spread_mm is not None else self.linear_rms_um
+
+    def config(self, speeds_mm_s: dict[str, float]) -> dict[str, Any]:
+        """The axis's ``compensation.thermal`` section (no source)."""
+        out: dict[str, Any] = {
+            "origin_mm": round(self.origin_mm, 2), "length_mm": round(self.length_mm, 2),
+            "motion": {"delta_a_um_per_m": float(f"{self.delta_a_um_per_m:.5g}"),
+                       "tau_s": round(self.tau_s, 1),
+                       "speeds_mm_s": {a: float(v) for a, v in speeds_mm_s.items()}}}
+        if self.spread_mm is not None:
+            out["profile"] = {"spread_mm": self.spread_mm, "memory_mm": self.memory_mm,
+                              "memory_s": round(self.tau_s, 1)}  # fmt: skip
+        return out
+
+    def summary(self) -> dict[str, Any]:
+        return {"tau_s": self.tau_s, "origin_mm": self.origin_mm,
+                "delta_a_um_per_m": self.delta_a_um_per_m, "spread_mm": self.spread_mm,
+                "linear_rms_um": self.linear_rms_um, "profile_rms_um": self.profile_rms_um,
+                "growth_max_um": self.growth_max_um, "points": self.points}  # fmt: skip
+
+
+def _lstsq(design: NDArray[np.float64], y: NDArray[np.float64]
+           ) -> tuple[NDArray[np.float64], float]:  # fmt: skip
+    coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+    return coef, float(np.sum((y - design @ coef) ** 2))
+
+
+def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[float, float],
+                      prior_m: ArrayLike = (), prior_s: ArrayLike = ()
+                      ) -> WarmupMotionFit:  # fmt: skip
+    """Heat from motion (τ, fixed end, Δa per metre, linear or profiled) from a zone warm-up
+    with no sensor column (``plan`` as it ran: its measured stops are ``raw``'s rows of
+    ``axis`` in order). ``prior_m``, ``prior_s``: the axis's travel (m) and time (s), stretch
+    by stretch, since the screw was last cold and before the warm-up (still fading in it).
+    Raises TableError (naming file and axis) where the warm-up shows no heat to model."""
+    warm, first, place, growth, _ = survey_changes(raw, axis, None)
+    measured = sum(m.measured for m in plan.moves)
+    if measured != int(np.sum(np.array(raw.axis) == axis)):
+        raise TableError(f"{raw.source}: axis {axis}: {measured} stops planned, not the rows "
+                         "read: the warm-up did not run as planned")  # fmt: skip
+    if not np.ptp(growth) * UM_PER_MM >= MIN_GROWTH_UM:
+        raise TableError(f"{raw.source}: axis {axis}: the warm-up's growth is under "
+                         f"{MIN_GROWTH_UM:g} µm: no heat-from-motion model")  # fmt: skip
+    rows = np.flatnonzero(np.array(raw.axis) == axis)
+    times = raw.column_mm("time_s")[rows] if "time_s" in raw.extra else None
+    d_heat, d_fade = heat_changes(plan, axis, warm, first, prior_m, prior_s, times)
+    heat = d_heat + d_fade  # (readings, τ): metres of travel still in the screw, as changed
+    fits = [_lstsq(np.column_stack([heat[:, j] * place, heat[:, j]]), growth)
+            for j in range(TAU_GRID_S.size)]  # fmt: skip
+    j = int(np.argmin([sse for _, sse in fits]))
+    if j == TAU_GRID_S.size - 1:
+        raise TableError(f"{raw.source}: axis {axis}: the warm-up's growth does not level off: "
+                         "no time constant (a longer --warmup-min shows it)")  # fmt: skip
+    (per_mm, offset), _ = fits[j]  # growth = per_mm · H · (x − origin)
+    if not per_mm > 0:
+        raise TableError(f"{raw.source}: axis {axis}: the growth does not follow the travel "
+                         "(a screw that shrinks with use: still cooling from before?)")
+    origin = -offset / per_mm
+    lo, hi = travel_mm
+    if not lo - FAR_ENDS * (hi - lo) <= origin <= hi + FAR_ENDS * (hi - lo):
+        raise TableError(f"{raw.source}: axis {axis}: the warm-up puts the screw's fixed end "
+                         f"at {origin:.0f} mm, far off the travel: not the screw's growth")
+    tau = float(TAU_GRID_S[j])
+    # the places read once cold and once warm (the references' series cannot tell a shape)
+    places, counts = np.unique(place, return_counts=True)
+    survey = np.isin(place, places[counts == 1])
+    if not survey.any():
+        survey = np.ones(place.size, dtype=bool)
+    length = max(abs(lo - origin), abs(hi - origin))
+    lin_rms = float(np.sqrt(np.mean((growth - per_mm * heat[:, j] * (place - origin))[survey]
+                                    ** 2)))  # fmt: skip
+    # the profile: the fixed end on the side the linear fit put it (inside the travel, the
+    # growth was flat there: the nearer end of the travel)
+    fixed = origin if not lo < origin < hi else (lo if origin - lo < hi - origin else hi)
+    speed = float(dict(plan.meta).get("speed_mm_s", 0) or 0)
+    memory = round(max(speed, 1.0) * tau, -2)
+    base = AxisThermal(motion=MotionHeat(delta_a_um_per_m=1.0, tau_s=tau),
+                       origin_mm=fixed, length_mm=max(length, 1.0))  # fmt: skip
+    best = (np.inf, 0.0, length, SPREADS_MM[0])
+    for spread in SPREADS_MM:
+        prof = TravelProfile(spread_mm=spread, memory_mm=memory)
+        whole = max(abs(lo - fixed), abs(hi - fixed)) + 3.0 * spread
+        f = profile_fractions(plan, axis, base, prof, travel_mm, whole)[warm]
+        model = d_heat[:, j] * f + d_fade[:, j] * (place - fixed) / whole
+        coef, _ = _lstsq(model[:, None], growth)
+        rms = float(np.sqrt(np.mean((growth - coef[0] * model)[survey] ** 2)))
+        if rms < best[0] and coef[0] > 0:
+            best = (rms, float(coef[0]), whole, spread)
+    prof_rms, c_prof, whole, spread = best
+    profiled = prof_rms < PROFILE_SHARE * lin_rms and (lin_rms - prof_rms) * UM_PER_MM > NOISE_UM
+    if profiled:
+        return WarmupMotionFit(axis, float(fixed), float(whole), c_prof * UM_PER_MM, tau,
+                               spread, float(memory), lin_rms * UM_PER_MM,
+                               prof_rms * UM_PER_MM, float(np.abs(growth).max() * UM_PER_MM),
+                               int(warm.size))  # fmt: skip
+    return WarmupMotionFit(axis, float(origin), float(length),
+                           float(per_mm * length * UM_PER_MM), tau, None, float(memory),
+                           lin_rms * UM_PER_MM, prof_rms * UM_PER_MM,
+                           float(np.abs(growth).max() * UM_PER_MM), int(warm.size))  # fmt: skip
