@@ -349,7 +349,7 @@ def test_a_warm_up_with_no_growth_gives_no_model_and_says_why() -> None:
     from gateway.calibration.thermal.warmup_motion import warmup_motion_fit
 
     plan = _no_sensor_plan()
-    with pytest.raises(TableError, match=r"warmup-X.csv: axis X: .*under 3 µm"):
+    with pytest.raises(TableError, match=r"warmup-X.csv: axis X: .*under 3 µm: too little heat"):
         warmup_motion_fit(_raw(plan, _Cold(), 0.3, 9), plan, "X", TRAVEL)
 
 

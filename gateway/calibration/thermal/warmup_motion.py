@@ -99,7 +99,7 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
                          "read: the warm-up did not run as planned")  # fmt: skip
     if not np.ptp(growth) * UM_PER_MM >= MIN_GROWTH_UM:
         raise TableError(f"{raw.source}: axis {axis}: the warm-up's growth is under "
-                         f"{MIN_GROWTH_UM:g} µm: no heat-from-motion model")  # fmt: skip
+                         f"{MIN_GROWTH_UM:g} µm: too little heat to model")  # fmt: skip
     rows = np.flatnonzero(np.array(raw.axis) == axis)
     times = raw.column_mm("time_s")[rows] if "time_s" in raw.extra else None
     d_heat, d_fade = heat_changes(plan, axis, warm, first, prior_m, prior_s, times)
