@@ -151,6 +151,14 @@ class Commission:
             await self.after.run()
         except BudgetSpent as exc:
             self.record.state["notes"].append(f"no after-run: {exc}")
+        try:  # heat from motion, last: no table is measured on the screw it warms
+            await self.identify.heat_warm_ups()
+        except BudgetSpent as exc:
+            self.record.state["notes"].append(f"no warm-up: {exc}")
+        except (MachineError, OSError) as exc:
+            where = await self.stager.restore(exc)
+            raise CommissionAborted(f"{exc}; {where}") from exc
+        self.drift.adopt_warmed_motion()
         self.thermal.motion_for_sensors()  # after the after-run: see its docstring
         worse = self.after.plane_worse()
         if worse is not None:

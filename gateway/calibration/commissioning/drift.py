@@ -451,10 +451,9 @@ class DriftRefs:
              "wall_s": time.time() if wall_s is None else wall_s, "drift_mm": drift})
 
     def fit_motion_heat(self) -> None:
-        """Heat from motion on every linear axis with no thermal setting of its own (once:
-        later drift is what it leaves): its zone warm-up's model where it had one and it
-        holds on the drift references read since (another duty cycle, nothing refitted),
-        else the model fitted to those references."""
+        """Heat from motion on every linear axis with no thermal setting of its own, fitted
+        to the drift references read so far (once: later drift is what it leaves); a zone
+        warm-up's model may replace it at the end (:meth:`adopt_warmed_motion`)."""
         log = self.record.state.get("drift_log", [])
         for a in self.s.axes:
             axis = self.config.axes[a]
@@ -466,12 +465,6 @@ class DriftRefs:
                           for b in self.s.axes}  # fmt: skip
             wall_s = [e["wall_s"] for e in log]
             growth_um = [[d * 1000.0 for d in e["drift_mm"][a]] for e in log]
-            warm = ident.get(f"thermal-{a}") or {}
-            if warm.get("fitted") and self._warmup_holds(a, warm, odometer_m, wall_s,
-                                                         growth_um):  # fmt: skip
-                self.record.tables.motion[a] = warm["config"]
-                ident[key] = {"fitted": True, "from": "warm-up", **warm["config"]}
-                continue
             try:
                 fit = motion_heat_fit(
                     a, odometer_m, wall_s, growth_um, self.axes.ref_positions(a),
@@ -488,6 +481,29 @@ class DriftRefs:
                      f"({fit.growth_max_um:.1f} µm at most) to {fit.residual_rms_um:.2f} µm "
                      f"RMS: Δa {fit.delta_a_um_per_m:.3g} µm per metre of heat, tau "
                      f"{fit.tau_s:.0f} s, fixed end at {fit.origin_mm:.0f} mm")  # fmt: skip
+        self.record.save()
+
+    def adopt_warmed_motion(self) -> None:
+        """Each axis's zone warm-up model (no sensor, :meth:`.identify.IdentifySteps.
+        heat_warm_ups`) in place of the one fitted to the drift references, where it holds
+        on their drift: the whole commissioning's duty cycle, which it was not fitted on."""
+        log = self.record.state.get("drift_log", [])
+        ident = self.record.state.setdefault("identify", {})
+        for a in self.s.axes:
+            warm = ident.get(f"thermal-{a}") or {}
+            if self.config.axes[a].compensation.thermal is not None or not warm.get("fitted") \
+                    or (ident.get(f"motion-{a}") or {}).get("from") == "warm-up":  # fmt: skip
+                continue
+            odometer_m = {b: [e["odometer_mm"].get(b, 0.0) / 1000.0 for e in log]
+                          for b in self.s.axes}  # fmt: skip
+            growth_um = [[d * 1000.0 for d in e["drift_mm"][a]] for e in log]
+            if not self._warmup_holds(a, warm, odometer_m, [e["wall_s"] for e in log],
+                                      growth_um):  # fmt: skip
+                continue
+            before = ident.get(f"motion-{a}") or {}
+            self.record.tables.motion[a] = warm["config"]
+            ident[f"motion-{a}"] = {"fitted": True, "from": "warm-up", **warm["config"],
+                                    "instead_of": before}  # fmt: skip
         self.record.save()
 
     def _warmup_holds(self, axis: str, warm: dict[str, Any], odometer_m: dict[str, list[float]],

@@ -61,7 +61,7 @@ class IdentifySteps:
         hours before its axis is measured, instead of going into its table. On a short
         budget the plain calibration's steps come first, and each warm-up after them only
         where the budget left holds it (:meth:`_plain_steps_first`). An axis with no sensor
-        gets its zone warm-up after every axis's pitch runs (:meth:`_heat_warm_ups`)."""
+        gets its zone warm-up last (:meth:`heat_warm_ups`)."""
         await self.thermal.read_start_temperatures()
         self.short.refs_affordable()  # (before the first reading of the references)
         await self.stager.use("identification")
@@ -72,16 +72,14 @@ class IdentifySteps:
                 await self._warm_up_if_affordable(a)
             for a in self.s.axes:
                 await self._identify_axis(a)
-            await self._heat_warm_ups()
             await self.before_xy()
             self.record.save()
             return
-        zoned += self.thermal.heat_zoned()  # (each where the budget holds it beside the rest)
         if zoned:
-            await self._warm_up_first(zoned[0])
+            await self._warm_up(zoned[0])
         for a in zoned[1:]:
             await self._identify_axis(a)
-            await self._warm_up_first(a)
+            await self._warm_up(a)
         rest = [a for a in self.s.axes if a not in zoned] + zoned[:1]
         for a in rest:
             await self._identify_axis(a)
@@ -280,44 +278,15 @@ class IdentifySteps:
             self.say(f"{a}: thermal setting kept as configured: {exc}")
         await self.stager.use("identification")  # with the length or gain
 
-    async def _warm_up_first(self, a: str) -> None:
-        """A warm-up before the pitch runs (a budget that holds the first steps): a sensor's
-        always; one for heat from motion (no sensor) where the budget holds it beside the
-        first steps and no earlier such warm-up found a screw that does not warm (the
-        machine's other screws are the same build). Not after the pitch runs: the rounds
-        then ran on a warm machine and their sweeps took its heat into the tables (smooth-3
-        X: E 0.46 → 1.97 µm at the judge's targets, rough-3 X 0.66 → 2.45)."""
-        if not self.thermal.heat_warms_up(a):
-            await self._warm_up(a)
-            return
-        if self._warmed(a):
-            return
-        cold = [b for b in self.thermal.heat_zoned() if "too little" in str(
-            self.record.state.get("identify", {}).get(f"thermal-{b}", {}).get("why", ""))]
-        if cold:
-            why = (f"{cold[0]}'s warm-up found too little heat: the screws of this machine do "
-                   "not warm enough to model")  # fmt: skip
-            self.record.state.setdefault("identify", {})[f"thermal-{a}"] = {
-                "fitted": False, "why": why}  # fmt: skip
-            self.say(f"{a}: no warm-up: {why}")
-            return
-        cost_s = self.budget.step_cost_s(self.thermal.warmup_plan(a), drift=False)
-        if not self.record.done(f"warmup-{a}") and \
-                cost_s > self.budget.left_s() - self.short.first_need_s():  # fmt: skip
-            self.record.state.setdefault("identify", {})[f"thermal-{a}"] = {
-                "fitted": False, "why": f"its warm-up ({cost_s / 60:.0f} min) and the first "
-                "steps are not in the budget"}  # fmt: skip
-            self.say(f"{a}: heat from motion from the drift references alone: its warm-up "
-                     f"({cost_s / 60:.0f} min) and the first steps are not in the budget")
-            return
-        await self._warm_up(a)
-
-    async def _heat_warm_ups(self) -> None:
-        """On a short budget, the zone warm-up of each axis with no sensor, after every
-        axis's pitch runs: only where their drift references show the screw warming (a cold
-        machine's tables need no heat model, nor its technician an hour of warm-up), and
-        where the budget left holds it. Its fit is checked on the drift the runs after it
-        read (:meth:`.drift.DriftRefs.fit_motion_heat`)."""
+    async def heat_warm_ups(self) -> None:
+        """The zone warm-up of each axis with no sensor, last: after the after-run, so that
+        no run that fits or judges a table measures a screw it warmed (before the rounds,
+        their sweeps took its heat into the tables: smooth-3 X E 0.46 → 1.97 µm, rough-3 X
+        0.66 → 2.45 at the judge's targets). Only where the drift references read so far
+        show the screw warming (a cold machine's tables need no heat model, nor its
+        technician an hour of warm-up), and where the budget left holds it. Its model
+        replaces the one fitted to the drift references where it holds on their drift
+        (:meth:`.drift.DriftRefs.adopt_warmed_motion`)."""
         for a in self.thermal.heat_zoned():
             if self._warmed(a):
                 continue

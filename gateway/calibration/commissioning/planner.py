@@ -70,7 +70,7 @@ class Planner:
                 out += self.rotary.rotary_plans(a)
                 continue
             travel = self.axes.travel(a)
-            if self.thermal.warms_up(a) or (heat and self.thermal.heat_warms_up(a)):
+            if self.thermal.warms_up(a):
                 out.append((f"warmup-{a}", self.thermal.warmup_plan(a)))
             out.append((f"backlash-{a}", backlash_plan(a, travel)))
             out.append((f"takeup-{a}", takeup_plan(a, travel)))  # if there is lost motion
@@ -81,6 +81,9 @@ class Planner:
                 out.append((f"lead-{a}", self.lead_plan(a)))
         if self.s.planar is not None:
             out.append(("xy-grid", self.grid_plan(self.s.grid)))
+        # with no sensor: last, where the drift references show the screw warming
+        out += [(f"warmup-{a}", self.thermal.warmup_plan(a))
+                for a in (self.thermal.heat_zoned() if heat else ())]  # fmt: skip
         return [(n, self.axes.snap(p)) for n, p in out]
 
     def lead_plan(self, axis: str) -> Plan:
