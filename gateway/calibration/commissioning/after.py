@@ -195,8 +195,12 @@ class AfterSteps:
             return {}
         warmed = {a: 1000.0 * max(abs(v) for v in d) for a, d in log[-1]["drift_mm"].items()
                   if d}  # fmt: skip
-        taus = [float(r["motion"]["tau_s"]) for k, r in
-                (self.record.state.get("identify") or {}).items()
+        ident = self.record.state.get("identify") or {}
+        for a in self.s.axes:  # a heat warm-up last (no sensor): the screw is that warm now
+            heat = ident.get(f"thermal-{a}") or {}
+            if heat.get("fitted") and heat.get("drift_check") is not None:
+                warmed[a] = max(warmed.get(a, 0.0), float(heat.get("growth_max_um", 0.0)))
+        taus = [float(r["motion"]["tau_s"]) for k, r in ident.items()
                 if k.startswith("motion-") and isinstance(r, dict)
                 and (r.get("motion") or {}).get("tau_s")]  # fmt: skip
         return {"warmed_um": warmed,

@@ -155,7 +155,10 @@ class ThermalSteps:
             self.say(f"{axis}: no heat from motion from the warm-up: {exc}; the drift "
                      "references will be fitted instead")  # fmt: skip
             return {"fitted": False, "why": str(exc)}
-        config = mf.config(dict.fromkeys(self.s.axes, self.s.speed_mm_s))
+        # the readings' own clock: time_s where the raw file has it (the plan's estimated
+        # speed otherwise, as its config's speeds then say)
+        timed = "time_s" in raw.extra
+        config = mf.config(None if timed else dict.fromkeys(self.s.axes, self.s.speed_mm_s))
         self.record.tables.motion[axis] = config
         self.say(f"{axis}: no thermal sensor; its zone warm-up grew {mf.growth_max_um:.1f} µm "
                  f"at most: heat from its own motion leaves {mf.rms_um:.2f} µm RMS at the "

@@ -61,20 +61,30 @@ class WarmupHeatFit:
 
     def config(self, speeds_mm_s: dict[str, float]) -> dict[str, Any]:
         """The axis's ``compensation.thermal`` section (no source)."""
-        out: dict[str, Any] = {
-            "origin_mm": round(self.origin_mm, 2), "length_mm": round(self.length_mm, 2),
-            "motion": {"delta_a_um_per_m": float(f"{self.delta_a_um_per_m:.5g}"),
-                       "tau_s": round(self.tau_s, 1), "speeds_mm_s": dict(speeds_mm_s)}}
-        if self.spread_mm is not None:
-            out["profile"] = {"spread_mm": self.spread_mm, "memory_mm": self.memory_mm,
-                              "memory_s": round(self.tau_s, 1)}  # fmt: skip
-        return out
+        return motion_section(self.origin_mm, self.length_mm, self.delta_a_um_per_m,
+                              self.tau_s, self.spread_mm, self.memory_mm, speeds_mm_s)
 
     def summary(self) -> dict[str, Any]:
         return {"replaces_sensor": self.replaces_sensor, "tau_s": self.tau_s,
                 "delta_a_um_per_m": self.delta_a_um_per_m, "spread_mm": self.spread_mm,
                 "motion_rms_um": self.motion_rms_um, "sensor_rms_um": self.sensor_rms_um,
                 "growth_max_um": self.growth_max_um}  # fmt: skip
+
+
+def motion_section(origin_mm: float, length_mm: float, delta_a_um_per_m: float, tau_s: float,
+                   spread_mm: float | None, memory_mm: float,
+                   speeds_mm_s: dict[str, float]) -> dict[str, Any]:  # fmt: skip
+    """A ``compensation.thermal`` section of heat from motion (no source) as a zone warm-up
+    fitted it: linear from the fixed end, or spread where the axis travelled."""
+    out: dict[str, Any] = {
+        "origin_mm": round(origin_mm, 2), "length_mm": round(length_mm, 2),
+        "motion": {"delta_a_um_per_m": float(f"{delta_a_um_per_m:.5g}"),
+                   "tau_s": round(tau_s, 1),
+                   "speeds_mm_s": {a: float(v) for a, v in speeds_mm_s.items()}}}
+    if spread_mm is not None:
+        out["profile"] = {"spread_mm": spread_mm, "memory_mm": memory_mm,
+                          "memory_s": round(tau_s, 1)}  # fmt: skip
+    return out
 
 
 def _own_travel(plan: Plan, axis: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -105,13 +115,14 @@ def heat_changes(plan: Plan, axis: str, warm: NDArray[np.int64], first: NDArray[
     the change since its cold reading of the heat the warm-up's own travel put in, and of
     the heat from before the warm-up (``prior_m``, ``prior_s``: travel and time, stretch by
     stretch), which only fades. ``times_s``: when each measured stop was read (the raw
-    file's clock); a stretch lasts that long where it is longer than the plan says (a
-    slower axis, a pause), as the gateway counts its heat."""
+    file's clock): the stretches last that long, not what the plan's estimated speed says
+    (smooth-8's X runs at 200 mm/s, its Y at 60, against 100 estimated), as the gateway's
+    clock counts a model with no speeds."""
     d_m, t_s = _own_travel(plan, axis)
     if times_s is not None:
         read = np.asarray(times_s, dtype=np.float64).reshape(-1)
         if read.size == t_s.size:
-            t_s = np.maximum(t_s, np.diff(read, prepend=read[0]))
+            t_s = np.concatenate([t_s[:1], np.diff(read).clip(min=0.0)])
     before_m = np.asarray(prior_m, dtype=np.float64).reshape(-1)
     before_s = np.asarray(prior_s, dtype=np.float64).reshape(-1)
     if before_m.size != before_s.size:

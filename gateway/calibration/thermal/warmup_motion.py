@@ -31,7 +31,7 @@ from ..plans.plans import Plan
 from ..plans.rawdata import RawData
 from .heat_fit import FAR_ENDS, TAU_GRID_S
 from .thermal_shape import NOISE_UM, PROFILE_SHARE, SPREADS_MM, profile_fractions, survey_changes
-from .warmup_heat import heat_changes
+from .warmup_heat import heat_changes, motion_section
 
 UM_PER_MM = 1000.0
 #: growth (µm) below which a warm-up shows nothing worth a model
@@ -59,17 +59,12 @@ class WarmupMotionFit:
         """What the chosen shape leaves at the places surveyed warm (µm RMS)."""
         return self.profile_rms_um if self.spread_mm is not None else self.linear_rms_um
 
-    def config(self, speeds_mm_s: dict[str, float]) -> dict[str, Any]:
-        """The axis's ``compensation.thermal`` section (no source)."""
-        out: dict[str, Any] = {
-            "origin_mm": round(self.origin_mm, 2), "length_mm": round(self.length_mm, 2),
-            "motion": {"delta_a_um_per_m": float(f"{self.delta_a_um_per_m:.5g}"),
-                       "tau_s": round(self.tau_s, 1),
-                       "speeds_mm_s": {a: float(v) for a, v in speeds_mm_s.items()}}}
-        if self.spread_mm is not None:
-            out["profile"] = {"spread_mm": self.spread_mm, "memory_mm": self.memory_mm,
-                              "memory_s": round(self.tau_s, 1)}  # fmt: skip
-        return out
+    def config(self, speeds_mm_s: dict[str, float] | None = None) -> dict[str, Any]:
+        """The axis's ``compensation.thermal`` section (no source). Fitted on the readings'
+        own clock, it needs no speeds (``speeds_mm_s`` None: the gateway counts the
+        clock alone)."""
+        return motion_section(self.origin_mm, self.length_mm, self.delta_a_um_per_m,
+                              self.tau_s, self.spread_mm, self.memory_mm, speeds_mm_s or {})
 
     def summary(self) -> dict[str, Any]:
         return {"tau_s": self.tau_s, "origin_mm": self.origin_mm,
