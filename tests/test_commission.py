@@ -103,7 +103,7 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         # motion, checked on the drift the whole commissioning read; Y's did not fit in the
         # budget left: none, said why
         ident = summary["identify"]
-        assert ident["motion-X"].get("from") == "warm-up", ident["motion-X"]
+        assert ident["motion-X"].get("from") == "warm-up", (ident["thermal-X"], text)
         assert ident["thermal-X"]["drift_check"]["holds"], ident["thermal-X"]
         assert ident["thermal-X"]["tau_s"] > 0 and "warmup-X" in state_steps(out)
         assert not ident["thermal-Y"]["fitted"] and ident["thermal-Y"]["why"], ident

@@ -383,3 +383,21 @@ def test_a_warm_up_model_is_checked_on_the_drift_of_other_runs() -> None:
     spread = float(np.sqrt(np.mean((growth - growth[0]) ** 2)))
     assert spread > 5.0
     assert good < 0.4 and bad > 0.5 * spread, (good, bad, spread)
+
+
+def test_a_warm_up_is_timed_by_the_readings_clock_only_where_it_is_the_machine_s() -> None:
+    """The raw file's time_s times the fit where it spans the plan's time (a real machine);
+    a simulator's clock that runs with its moves, not with the computer's, spans seconds:
+    the plan's estimated times then (the config's speeds count them)."""
+    from gateway.calibration.thermal.thermal_shape import stop_times_s
+    from gateway.calibration.thermal.warmup_motion import readings_clock_s
+
+    plan = _no_sensor_plan()
+    raw = _raw(plan, _EvenHeat(), 0.3, 10)
+    assert readings_clock_s(raw, plan, "X") is None  # no time_s column
+    planned = stop_times_s(plan, "X")
+    for scale, used in ((1.3, True), (0.01, False)):
+        timed = RawData(raw.axis, raw.run, raw.direction, raw.target_mm, raw.actual_mm,
+                        {"time_s": tuple(f"{1e9 + scale * t:.3f}" for t in planned)},
+                        raw.lines, raw.source)  # fmt: skip
+        assert (readings_clock_s(timed, plan, "X") is not None) == used, scale

@@ -34,7 +34,7 @@ from ..plans.rawdata import RawData
 from ..thermal.heat_fit import MIN_GROWTH_UM
 from ..thermal.thermal_shape import thermal_shape_fit
 from ..thermal.warmup_heat import warmup_heat_fit
-from ..thermal.warmup_motion import warmup_motion_fit
+from ..thermal.warmup_motion import readings_clock_s, warmup_motion_fit
 
 if TYPE_CHECKING:
     from .axes import Axes
@@ -155,9 +155,9 @@ class ThermalSteps:
             self.say(f"{axis}: no heat from motion from the warm-up: {exc}; the drift "
                      "references will be fitted instead")  # fmt: skip
             return {"fitted": False, "why": str(exc)}
-        # the readings' own clock: time_s where the raw file has it (the plan's estimated
-        # speed otherwise, as its config's speeds then say)
-        timed = "time_s" in raw.extra
+        # fitted on the readings' own clock where it is the machine's: no speeds; else on
+        # the plan's estimated speed, which its config's speeds then count
+        timed = readings_clock_s(raw, plan, axis) is not None
         config = mf.config(None if timed else dict.fromkeys(self.s.axes, self.s.speed_mm_s))
         self.record.tables.motion[axis] = config
         self.say(f"{axis}: no thermal sensor; its zone warm-up grew {mf.growth_max_um:.1f} µm "

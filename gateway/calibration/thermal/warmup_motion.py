@@ -30,7 +30,14 @@ from ...config import AxisThermal, MotionHeat, TravelProfile
 from ..plans.plans import Plan
 from ..plans.rawdata import RawData
 from .heat_fit import FAR_ENDS, TAU_GRID_S
-from .thermal_shape import NOISE_UM, PROFILE_SHARE, SPREADS_MM, profile_fractions, survey_changes
+from .thermal_shape import (
+    NOISE_UM,
+    PROFILE_SHARE,
+    SPREADS_MM,
+    profile_fractions,
+    stop_times_s,
+    survey_changes,
+)
 from .warmup_heat import heat_changes, motion_section
 
 UM_PER_MM = 1000.0
@@ -73,6 +80,20 @@ class WarmupMotionFit:
                 "growth_max_um": self.growth_max_um, "points": self.points}  # fmt: skip
 
 
+def readings_clock_s(raw: RawData, plan: Plan, axis: str) -> NDArray[np.float64] | None:
+    """When each of ``axis``'s stops was read (s, the raw file's ``time_s``) where that is
+    the machine's clock: it spans at least half the plan's estimated time. None without
+    the column, or where it does not (a simulator whose clock runs with its moves, not
+    with the computer's): the plan's times then, and the config's speeds count them."""
+    if "time_s" not in raw.extra:
+        return None
+    read = raw.column_mm("time_s")[np.flatnonzero(np.array(raw.axis) == axis)]
+    planned = stop_times_s(plan, axis)
+    if read.size != planned.size or read.size < 2:
+        return None
+    return read if np.ptp(read) >= 0.5 * np.ptp(planned) else None
+
+
 def _lstsq(design: NDArray[np.float64], y: NDArray[np.float64]
            ) -> tuple[NDArray[np.float64], float]:  # fmt: skip
     coef, *_ = np.linalg.lstsq(design, y, rcond=None)
@@ -95,9 +116,8 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
     if not np.ptp(growth) * UM_PER_MM >= MIN_GROWTH_UM:
         raise TableError(f"{raw.source}: axis {axis}: the warm-up's growth is under "
                          f"{MIN_GROWTH_UM:g} µm: too little heat to model")  # fmt: skip
-    rows = np.flatnonzero(np.array(raw.axis) == axis)
-    times = raw.column_mm("time_s")[rows] if "time_s" in raw.extra else None
-    d_heat, d_fade = heat_changes(plan, axis, warm, first, prior_m, prior_s, times)
+    d_heat, d_fade = heat_changes(plan, axis, warm, first, prior_m, prior_s,
+                                  readings_clock_s(raw, plan, axis))  # fmt: skip
     heat = d_heat + d_fade  # (readings, τ): metres of travel still in the screw, as changed
     fits = [_lstsq(np.column_stack([heat[:, j] * place, heat[:, j]]), growth)
             for j in range(TAU_GRID_S.size)]  # fmt: skip
