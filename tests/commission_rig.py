@@ -53,16 +53,20 @@ class Rig:
     gw_port: int
     config: Path  # the file the gateway runs (commissioning writes over it)
 
-    def commission_args(self, *extra: str) -> list[str]:
+    def commission_args(self, *extra: str, heat_warmup: bool = False) -> list[str]:
+        """``compgw commission`` on this rig; without the no-sensor axes' zone warm-up
+        unless ``heat_warmup`` (the end-to-end test has it; the others test other things,
+        and the suite's time is counted)."""
         leads = ",".join(f"{a}={v['lead_mm']:g}" for a, v in self.machine["axes"].items())
         return ["-m", "gateway.cli", "commission", "-c", str(self.config),
                 "--gateway", f"127.0.0.1:{self.gw_port}",
                 "--laser", f"127.0.0.1:{self.sim_port}:20",
                 "--xy-device", f"127.0.0.1:{self.sim_port}:21",
-                "--lead-mm", leads, "--no-progress", *extra]  # fmt: skip
+                "--lead-mm", leads, "--no-progress",
+                *(() if heat_warmup else ("--no-heat-warmup",)), *extra]  # fmt: skip
 
-    def commission(self, *extra: str) -> Proc:
-        return Proc(self.commission_args(*extra))
+    def commission(self, *extra: str, heat_warmup: bool = False) -> Proc:
+        return Proc(self.commission_args(*extra, heat_warmup=heat_warmup))
 
 
 @contextlib.contextmanager

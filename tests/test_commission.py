@@ -70,7 +70,8 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         # (2.6 h: not a short budget; round 1's sweep, round 2's doubled runs and, last, X's
         # warm-up (10 min of strokes) fit; the rounds after those, 0.5 h of machine time,
         # would add nothing this test checks)
-        proc = rig.commission("--tolerance-um", "1", "--budget-h", "2.6", "--warmup-min", "10")
+        proc = rig.commission("--tolerance-um", "1", "--budget-h", "2.6", "--warmup-min", "10",
+                              heat_warmup=True)
         rc = proc.popen.wait(timeout=300)
         text = proc.text()
         assert rc in (0, 1), text
