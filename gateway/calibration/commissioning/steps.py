@@ -205,8 +205,12 @@ class StepRunner:
         # a sensor read at each stop while the laser recorded (a warm-up's temperature or Δa)
         sensed = tuple(c for c in ("temperature_c", "delta_a_mm") if c in data.extra)
         extras = [{c: float(data.extra[c][i]) for c in sensed} for i in range(actual.size)]
-        # when each stop was read (the recording came later): the drift log's clock
+        # when each stop was read (the recording came later): the drift log's clock, and
+        # kept with its row (a warm-up with no sensor is timed by it)
         times = data.extra.get(STOP_TIME)
+        if times:
+            sensed = (*sensed, STOP_TIME)
+            extras = [{**e, STOP_TIME: float(times[i])} for i, e in enumerate(extras)]
         # the odometer at each row (the travel of the moves up to it), for the drift log
         xs = np.array([m.target_mm[0] for m in moves])
         steps = np.abs(np.diff(np.concatenate([[xs[0] if at0 is None else at0], xs])))

@@ -26,6 +26,7 @@ from ...compensation.thermal import ThermalStage, delta_a_from_temperature
 from ...formats import read_pitch_csv
 from ..fitting.models import thermal_fit, thermal_gain_fit
 from ..fitting.plans_scans import warmup_plan
+from ..measuring.from_file import STOP_TIME
 from ..plans.plans import (
     Plan,
     read_plan,
@@ -47,6 +48,9 @@ Say = Callable[[str], None]
 ZONE = (0.3, 0.7)
 #: ... and reads these places cold and warm: inside the zone and beyond it on both sides
 ZONE_PLACES = (0.12, 0.22, 0.4, 0.5, 0.6, 0.78, 0.88)
+#: the raw columns that time a warm-up's stops: a live reading's clock, or when a recorded
+#: step's stop was stood at (its recording came later)
+CLOCK_COLUMNS = ("time_s", STOP_TIME)
 #: with no sensor, the references (the outermost places) are read every this many strokes:
 #: each reading is a trip beyond both ends of the zone (at 5, a third of the warm-up's time)
 HEAT_MEASURE_EVERY = 10
@@ -150,14 +154,14 @@ class ThermalSteps:
         references alone are fitted then."""
         try:
             mf = warmup_motion_fit(raw, plan, axis, self.axes.travel(axis),
-                                   *self._travel_before_warmup(axis))  # fmt: skip
+                                   *self._travel_before_warmup(axis), clock=CLOCK_COLUMNS)
         except TableError as exc:
             self.say(f"{axis}: no heat from motion from the warm-up: {exc}; the drift "
                      "references will be fitted instead")  # fmt: skip
             return {"fitted": False, "why": str(exc)}
         # fitted on the readings' own clock where it is the machine's: no speeds; else on
         # the plan's estimated speed, which its config's speeds then count
-        timed = readings_clock_s(raw, plan, axis) is not None
+        timed = readings_clock_s(raw, plan, axis, CLOCK_COLUMNS) is not None
         config = mf.config(None if timed else dict.fromkeys(self.s.axes, self.s.speed_mm_s))
         self.record.tables.motion[axis] = config
         self.say(f"{axis}: no thermal sensor; its zone warm-up grew {mf.growth_max_um:.1f} µm "

@@ -80,18 +80,20 @@ class WarmupMotionFit:
                 "growth_max_um": self.growth_max_um, "points": self.points}  # fmt: skip
 
 
-def readings_clock_s(raw: RawData, plan: Plan, axis: str) -> NDArray[np.float64] | None:
-    """When each of ``axis``'s stops was read (s, the raw file's ``time_s``) where that is
-    the machine's clock: it spans at least half the plan's estimated time. None without
-    the column, or where it does not (a simulator whose clock runs with its moves, not
-    with the computer's): the plan's times then, and the config's speeds count them."""
-    if "time_s" not in raw.extra:
-        return None
-    read = raw.column_mm("time_s")[np.flatnonzero(np.array(raw.axis) == axis)]
+def readings_clock_s(raw: RawData, plan: Plan, axis: str,
+                     columns: tuple[str, ...] = ("time_s",)) -> NDArray[np.float64] | None:
+    """When each of ``axis``'s stops was read (s, the first of the raw file's ``columns``
+    that is the machine's clock: it spans at least half the plan's estimated time). None
+    where none does (no such column, a recording's joined rows, a simulator whose clock
+    runs with its moves, not with the computer's): the plan's times then, and the
+    config's speeds count them."""
     planned = stop_times_s(plan, axis)
-    if read.size != planned.size or read.size < 2:
-        return None
-    return read if np.ptp(read) >= 0.5 * np.ptp(planned) else None
+    rows = np.flatnonzero(np.array(raw.axis) == axis)
+    for name in (c for c in columns if c in raw.extra):
+        read = raw.column_mm(name)[rows]
+        if read.size == planned.size >= 2 and np.ptp(read) >= 0.5 * np.ptp(planned):
+            return read
+    return None
 
 
 def _lstsq(design: NDArray[np.float64], y: NDArray[np.float64]
@@ -101,12 +103,13 @@ def _lstsq(design: NDArray[np.float64], y: NDArray[np.float64]
 
 
 def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[float, float],
-                      prior_m: ArrayLike = (), prior_s: ArrayLike = ()
-                      ) -> WarmupMotionFit:  # fmt: skip
+                      prior_m: ArrayLike = (), prior_s: ArrayLike = (),
+                      clock: tuple[str, ...] = ("time_s",)) -> WarmupMotionFit:  # fmt: skip
     """Heat from motion (τ, fixed end, Δa per metre, linear or profiled) from a zone warm-up
     with no sensor column (``plan`` as it ran: its measured stops are ``raw``'s rows of
     ``axis`` in order). ``prior_m``, ``prior_s``: the axis's travel (m) and time (s), stretch
     by stretch, since the screw was last cold and before the warm-up (still fading in it).
+    ``clock``: the raw columns that may time the stops (:func:`readings_clock_s`).
     Raises TableError (naming file and axis) where the warm-up shows no heat to model."""
     warm, first, place, growth, _ = survey_changes(raw, axis, None)
     measured = sum(m.measured for m in plan.moves)
@@ -117,7 +120,7 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
         raise TableError(f"{raw.source}: axis {axis}: the warm-up's growth is under "
                          f"{MIN_GROWTH_UM:g} µm: too little heat to model")  # fmt: skip
     d_heat, d_fade = heat_changes(plan, axis, warm, first, prior_m, prior_s,
-                                  readings_clock_s(raw, plan, axis))  # fmt: skip
+                                  readings_clock_s(raw, plan, axis, clock))  # fmt: skip
     heat = d_heat + d_fade  # (readings, τ): metres of travel still in the screw, as changed
     fits = [_lstsq(np.column_stack([heat[:, j] * place, heat[:, j]]), growth)
             for j in range(TAU_GRID_S.size)]  # fmt: skip
