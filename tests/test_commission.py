@@ -67,10 +67,10 @@ def state_steps(out: Path) -> list[str]:
 def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
     with running(template, tmp_path / "m") as rig:
         original = rig.config.read_text()
-        # (2.6 h: not a short budget; round 1's sweep, round 2's doubled runs and, last, X's
-        # warm-up (10 min of strokes) fit; the rounds after those, 0.5 h of machine time,
-        # would add nothing this test checks)
-        proc = rig.commission("--tolerance-um", "1", "--budget-h", "2.6", "--warmup-min", "10",
+        # (2.5 h: not a short budget; round 1's sweep, round 2's doubled runs and, last, X's
+        # warm-up (6 min of strokes, 13 with its readings) fit; the rounds after those, 0.5 h
+        # of machine time, would add nothing this test checks)
+        proc = rig.commission("--tolerance-um", "1", "--budget-h", "2.5", "--warmup-min", "6",
                               heat_warmup=True)
         rc = proc.popen.wait(timeout=300)
         text = proc.text()
