@@ -73,6 +73,9 @@ async def live(say: Any = print) -> dict[str, Any]:
                     instruments=Instruments(laser=Endpoint.parse(f"{sim_ep}:20"),
                                             xy=Endpoint.parse(f"{sim_ep}:21")),
                     axes=("X", "Y"), planar=("X", "Y"), lead_mm=leads,
+                    # the demo's seconds: no zone warm-up for heat from motion at the end
+                    # (it would triple them); the drift references' fit stands
+                    heat_warmup=False,
                 )  # fmt: skip
                 job = Commission(settings, reload, say)
                 say(f"compgw commission on random machine {SEED} (smooth), its travel cut "
