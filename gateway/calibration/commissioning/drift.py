@@ -450,21 +450,26 @@ class DriftRefs:
             {"odometer_mm": odo or self.odometer(),
              "wall_s": time.time() if wall_s is None else wall_s, "drift_mm": drift})
 
+    def _logged(self, axis: str) -> tuple[dict[str, list[float]], list[float], list[list[float]]]:
+        """The drift log as heat from motion is fitted to it and checked on: each
+        commissioned axis's odometer (m), the clock (s), ``axis``'s drift at both
+        references (µm)."""
+        log = self.record.state.get("drift_log", [])
+        return ({b: [e["odometer_mm"].get(b, 0.0) / 1000.0 for e in log] for b in self.s.axes},
+                [e["wall_s"] for e in log],
+                [[d * 1000.0 for d in e["drift_mm"][axis]] for e in log])  # fmt: skip
+
     def fit_motion_heat(self) -> None:
         """Heat from motion on every linear axis with no thermal setting of its own, fitted
         to the drift references read so far (once: later drift is what it leaves); a zone
         warm-up's model may replace it at the end (:meth:`adopt_warmed_motion`)."""
-        log = self.record.state.get("drift_log", [])
         for a in self.s.axes:
             axis = self.config.axes[a]
             key = f"motion-{a}"
             ident = self.record.state.setdefault("identify", {})
             if axis.compensation.thermal is not None or axis.rotary or key in ident:
                 continue
-            odometer_m = {b: [e["odometer_mm"].get(b, 0.0) / 1000.0 for e in log]
-                          for b in self.s.axes}  # fmt: skip
-            wall_s = [e["wall_s"] for e in log]
-            growth_um = [[d * 1000.0 for d in e["drift_mm"][a]] for e in log]
+            odometer_m, wall_s, growth_um = self._logged(a)
             try:
                 fit = motion_heat_fit(
                     a, odometer_m, wall_s, growth_um, self.axes.ref_positions(a),
@@ -487,18 +492,13 @@ class DriftRefs:
         """Each axis's zone warm-up model (no sensor, :meth:`.identify.IdentifySteps.
         heat_warm_ups`) in place of the one fitted to the drift references, where it holds
         on their drift: the whole commissioning's duty cycle, which it was not fitted on."""
-        log = self.record.state.get("drift_log", [])
         ident = self.record.state.setdefault("identify", {})
         for a in self.s.axes:
             warm = ident.get(f"thermal-{a}") or {}
             if self.config.axes[a].compensation.thermal is not None or not warm.get("fitted") \
                     or (ident.get(f"motion-{a}") or {}).get("from") == "warm-up":  # fmt: skip
                 continue
-            odometer_m = {b: [e["odometer_mm"].get(b, 0.0) / 1000.0 for e in log]
-                          for b in self.s.axes}  # fmt: skip
-            growth_um = [[d * 1000.0 for d in e["drift_mm"][a]] for e in log]
-            if not self._warmup_holds(a, warm, odometer_m, [e["wall_s"] for e in log],
-                                      growth_um):  # fmt: skip
+            if not self._warmup_holds(a, warm, *self._logged(a)):
                 continue
             before = ident.get(f"motion-{a}") or {}
             self.record.tables.motion[a] = warm["config"]

@@ -9,8 +9,8 @@ source and what is fitted to it (called by :mod:`.identify`).
   one spot (:mod:`..thermal.warmup_heat`), in which case it replaces the sensor from the tables on;
 - no sensor (no thermal setting): heat from the axis's own motion, its time constant, fixed
   end and shape read by the laser over the zone (:mod:`..thermal.warmup_motion`); the drift
-  references of the runs after it check it on a duty cycle it was not fitted on
-  (:meth:`.drift.DriftRefs.fit_motion_heat`).
+  references of the whole commissioning check it on a duty cycle it was not fitted on
+  (:meth:`.drift.DriftRefs.adopt_warmed_motion`).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from ..plans.rawdata import RawData
 from ..thermal.heat_fit import MIN_GROWTH_UM
 from ..thermal.thermal_shape import thermal_shape_fit
 from ..thermal.warmup_heat import warmup_heat_fit
-from ..thermal.warmup_motion import readings_clock_s, warmup_motion_fit
+from ..thermal.warmup_motion import warmup_motion_fit
 
 if TYPE_CHECKING:
     from .axes import Axes
@@ -148,22 +148,20 @@ class ThermalSteps:
                 "residual_rms_um": tf.residual_rms_um}
 
     def _motion_fit(self, axis: str, raw: RawData, plan: Plan) -> dict[str, Any]:
-        """Heat from motion on an axis with no sensor, from its zone warm-up: kept as the
-        axis's thermal setting (checked later against the drift references,
-        :meth:`.drift.DriftRefs.fit_motion_heat`); where the warm-up shows none, the drift
-        references alone are fitted then."""
+        """Heat from motion on an axis with no sensor, from its zone warm-up: kept in the
+        identification results, and made the axis's thermal setting only where it holds on
+        the drift references (:meth:`.drift.DriftRefs.adopt_warmed_motion`); otherwise
+        the references' own fit stands."""
         try:
             mf = warmup_motion_fit(raw, plan, axis, self.axes.travel(axis),
                                    *self._travel_before_warmup(axis), clock=CLOCK_COLUMNS)
         except TableError as exc:
             self.say(f"{axis}: no heat from motion from the warm-up: {exc}; the drift "
-                     "references will be fitted instead")  # fmt: skip
+                     "references' fit stands")  # fmt: skip
             return {"fitted": False, "why": str(exc)}
-        # fitted on the readings' own clock where it is the machine's: no speeds; else on
+        # timed by the readings' own clock where it is the machine's: no speeds; else by
         # the plan's estimated speed, which its config's speeds then count
-        timed = readings_clock_s(raw, plan, axis, CLOCK_COLUMNS) is not None
-        config = mf.config(None if timed else dict.fromkeys(self.s.axes, self.s.speed_mm_s))
-        self.record.tables.motion[axis] = config
+        config = mf.config(None if mf.timed else dict.fromkeys(self.s.axes, self.s.speed_mm_s))
         self.say(f"{axis}: no thermal sensor; its zone warm-up grew {mf.growth_max_um:.1f} µm "
                  f"at most: heat from its own motion leaves {mf.rms_um:.2f} µm RMS at the "
                  f"places read warm ({'where it travelled' if mf.spread_mm else 'linear'}, "

@@ -60,6 +60,7 @@ class WarmupMotionFit:
     profile_rms_um: float
     growth_max_um: float
     points: int
+    timed: bool = False  # by the readings' own clock (:func:`readings_clock_s`)
 
     @property
     def rms_um(self) -> float:
@@ -119,8 +120,8 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
     if not np.ptp(growth) * UM_PER_MM >= MIN_GROWTH_UM:
         raise TableError(f"{raw.source}: axis {axis}: the warm-up's growth is under "
                          f"{MIN_GROWTH_UM:g} µm: too little heat to model")  # fmt: skip
-    d_heat, d_fade = heat_changes(plan, axis, warm, first, prior_m, prior_s,
-                                  readings_clock_s(raw, plan, axis, clock))  # fmt: skip
+    times = readings_clock_s(raw, plan, axis, clock)
+    d_heat, d_fade = heat_changes(plan, axis, warm, first, prior_m, prior_s, times)
     heat = d_heat + d_fade  # (readings, τ): metres of travel still in the screw, as changed
     fits = [_lstsq(np.column_stack([heat[:, j] * place, heat[:, j]]), growth)
             for j in range(TAU_GRID_S.size)]  # fmt: skip
@@ -169,8 +170,9 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
         return WarmupMotionFit(axis, float(fixed), float(whole), c_prof * UM_PER_MM, tau,
                                spread, float(memory), lin_rms * UM_PER_MM,
                                prof_rms * UM_PER_MM, float(np.abs(growth).max() * UM_PER_MM),
-                               int(warm.size))  # fmt: skip
+                               int(warm.size), times is not None)  # fmt: skip
     return WarmupMotionFit(axis, float(origin), float(length),
                            float(per_mm * length * UM_PER_MM), tau, None, float(memory),
                            lin_rms * UM_PER_MM, prof_rms * UM_PER_MM,
-                           float(np.abs(growth).max() * UM_PER_MM), int(warm.size))  # fmt: skip
+                           float(np.abs(growth).max() * UM_PER_MM), int(warm.size),
+                           times is not None)  # fmt: skip
