@@ -390,7 +390,7 @@ def test_a_warm_up_is_timed_by_the_readings_clock_only_where_it_is_the_machine_s
     a simulator's clock that runs with its moves, not with the computer's, spans seconds:
     the plan's estimated times then (the config's speeds count them)."""
     from gateway.calibration.thermal.thermal_shape import stop_times_s
-    from gateway.calibration.thermal.warmup_motion import readings_clock_s
+    from gateway.calibration.thermal.warmup_heat import readings_clock_s
 
     plan = _no_sensor_plan()
     raw = _raw(plan, _EvenHeat(), 0.3, 10)

@@ -175,12 +175,13 @@ class ThermalSteps:
         with the other motion models before the after-run (:meth:`motion_for_sensors`)."""
         try:
             hf = warmup_heat_fit(raw, plan, axis, th, alpha_per_k, self.axes.travel(axis),
-                                 *self._travel_before_warmup(axis))  # fmt: skip
+                                 *self._travel_before_warmup(axis), clock=CLOCK_COLUMNS)
         except TableError as exc:
             return {"fitted": False, "why": str(exc)}
         out = hf.summary()
-        if hf.replaces_sensor:
-            out["config"] = hf.config(dict.fromkeys(self.s.axes, self.s.speed_mm_s))
+        if hf.replaces_sensor:  # timed by the readings' clock: no speeds (as _motion_fit)
+            out["config"] = hf.config(
+                None if hf.timed else dict.fromkeys(self.s.axes, self.s.speed_mm_s))
             if hf.spread_mm and axis not in self.record.tables.sensor_off:
                 # warm where it works: measured with the sensor off until the after-run, so
                 # the drift its references read is the growth, taken off along that shape

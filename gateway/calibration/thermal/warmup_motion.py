@@ -35,10 +35,9 @@ from .thermal_shape import (
     PROFILE_SHARE,
     SPREADS_MM,
     profile_fractions,
-    stop_times_s,
     survey_changes,
 )
-from .warmup_heat import heat_changes, motion_section
+from .warmup_heat import heat_changes, motion_section, readings_clock_s
 
 UM_PER_MM = 1000.0
 #: growth (µm) below which a warm-up shows nothing worth a model
@@ -79,22 +78,6 @@ class WarmupMotionFit:
                 "delta_a_um_per_m": self.delta_a_um_per_m, "spread_mm": self.spread_mm,
                 "linear_rms_um": self.linear_rms_um, "profile_rms_um": self.profile_rms_um,
                 "growth_max_um": self.growth_max_um, "points": self.points}  # fmt: skip
-
-
-def readings_clock_s(raw: RawData, plan: Plan, axis: str,
-                     columns: tuple[str, ...] = ("time_s",)) -> NDArray[np.float64] | None:
-    """When each of ``axis``'s stops was read (s, the first of the raw file's ``columns``
-    that is the machine's clock: it spans at least half the plan's estimated time). None
-    where none does (no such column, a recording's joined rows, a simulator whose clock
-    runs with its moves, not with the computer's): the plan's times then, and the
-    config's speeds count them."""
-    planned = stop_times_s(plan, axis)
-    rows = np.flatnonzero(np.array(raw.axis) == axis)
-    for name in (c for c in columns if c in raw.extra):
-        read = raw.column_mm(name)[rows]
-        if read.size == planned.size >= 2 and np.ptp(read) >= 0.5 * np.ptp(planned):
-            return read
-    return None
 
 
 def _lstsq(design: NDArray[np.float64], y: NDArray[np.float64]
