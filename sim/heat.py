@@ -19,7 +19,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solve_banded
 
 from sim.config_truth import ScrewHeat
 
@@ -119,6 +118,9 @@ class ScrewHeatModel:
 
     def advance(self, t_s: float) -> None:
         """Step the profile forward to machine time ``t_s`` (never backwards)."""
+        # scipy.linalg is most of the sim's start (0.4-0.7 s): imported once heat is stepped
+        from scipy.linalg import solve_banded
+
         while self.t_s < t_s - 1e-12:
             heating = any(s.end_s > self.t_s for s in self.sources)
             step = HEATING_STEP_S if heating else COOLING_STEP_S

@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.interpolate import RBFInterpolator
 
 from sim.machine_files import AxisSpec, MachineSpec
 
@@ -129,6 +128,8 @@ def _plate(root: Path, name: str, file: str) -> MachineSpec:
     data = np.array([v for v in values if len(v) == 6])
     nominal, err_um = data[:, 2:4], data[:, 4:6] * 1000.0
     err_um = err_um - err_um.mean(axis=0)  # where the plate sat on the CMM: not the machine
+    from scipy.interpolate import RBFInterpolator  # (a plate's machine only: the sim's start)
+
     surface = RBFInterpolator(nominal, err_um, kernel="thin_plate_spline",
                               smoothing=PLATE_SMOOTHING)  # fmt: skip
     nodes = np.arange(-PLATE_HALF_MM, PLATE_HALF_MM + 1e-9, PLATE_NODE_MM)

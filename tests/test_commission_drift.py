@@ -172,3 +172,42 @@ def _budget(log_um: np.ndarray, s_um: float | None, sensor: bool = False,
     """The budget over :func:`_fake`'s drift references."""
     drift = _fake(log_um, s_um, sensor, short)
     return Budget(drift.axes, drift.record, drift)
+
+
+def test_a_warm_up_model_replaces_the_references_fit_only_where_it_holds(tmp_path: Path):
+    """An axis with no sensor: its zone warm-up's heat from motion becomes its thermal
+    setting only where it leaves under half of the drift the commissioning's references
+    read (another duty cycle than its strokes). One that cools 4 x too slowly does not:
+    the references' own fit stays in the tables, and the check is kept, said failed."""
+    from gateway.compensation.thermal import motion_heat_series_m
+
+    rng = np.random.default_rng(3)
+    truth = {"origin_mm": -40.0, "length_mm": 640.0,
+             "motion": {"delta_a_um_per_m": 0.9, "tau_s": 900.0, "speeds_mm_s": {"X": 100.0}}}
+    strokes = rng.uniform(0.0, 30.0, 40)  # m of travel between readings, 120 s apart
+    heat = motion_heat_series_m(strokes, np.maximum(strokes * 10.0, 120.0), 900.0)
+    refs_mm = np.array([31.0, 570.0])  # Axes.ref_positions on 0-600 mm
+    growth_um = 0.9 * heat[:, None] * (refs_mm + 40.0)[None, :] / 640.0
+    growth_um += rng.normal(0.0, 0.2, growth_um.shape)
+    log = [{"odometer_mm": {"X": 1000.0 * m}, "wall_s": 120.0 * (i + 1),
+            "drift_mm": {"X": list(g * 1e-3)}}
+           for i, (m, g) in enumerate(zip(np.cumsum(strokes), growth_um))]  # fmt: skip
+    refs_fit = {**truth, "motion": {**truth["motion"], "tau_s": 1200.0}}
+    slow = {**truth, "motion": {**truth["motion"], "tau_s": 3600.0}}
+    for warm, adopted in ((truth, True), (slow, False)):
+        comp = types.SimpleNamespace(thermal=None)
+        config = types.SimpleNamespace(axes={"X": types.SimpleNamespace(
+            rotary=False, compensation=comp, travel_mm=(0.0, 600.0), pulse_mm=0.001)})  # fmt: skip
+        axes = Axes(types.SimpleNamespace(axes=("X",)), config)  # type: ignore[arg-type]
+        record = Record(tmp_path, tmp_path)
+        record.state.update({"drift_log": log, "identify": {
+            "motion-X": {"fitted": True, **refs_fit},
+            "thermal-X": {"fitted": True, "config": warm}}})  # fmt: skip
+        record.tables.motion["X"] = refs_fit
+        said: list[str] = []
+        DriftRefs(axes, record, said.append).adopt_warmed_motion()
+        ident = record.state["identify"]
+        assert ident["thermal-X"]["drift_check"]["holds"] is adopted, said
+        assert record.tables.motion["X"] == (warm if adopted else refs_fit)
+        assert (ident["motion-X"].get("from") == "warm-up") is adopted
+        assert ("does not hold" in said[-1]) is not adopted, said

@@ -17,7 +17,6 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.interpolate import CubicSpline, PchipInterpolator
 
 from .errors import TableError, where
 from .monotone_map import MonotoneMap
@@ -296,6 +295,10 @@ def _resample_spline(
     x: NDArray[np.float64], e: NDArray[np.float64], kind: str, periodic: bool
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Dense piecewise-linear twin of the spline through (x, e), within the tolerance."""
+    # scipy.interpolate is half a second of every process's start (check, status, the
+    # gateway on linear tables): imported where a spline table is loaded
+    from scipy.interpolate import CubicSpline, PchipInterpolator
+
     if kind == "smooth":
         spline = CubicSpline(x, e, bc_type="periodic" if periodic else "not-a-knot")
     else:

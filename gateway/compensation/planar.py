@@ -23,7 +23,6 @@ from typing import Literal
 import numpy as np
 from numpy.polynomial import legendre
 from numpy.typing import ArrayLike, NDArray
-from scipy.interpolate import CloughTocher2DInterpolator, RectBivariateSpline
 
 from .errors import ConvergenceError, TableError, where
 
@@ -133,6 +132,8 @@ class GridModel(PlanarModel):
         object.__setattr__(self, "upper_mm", np.array([x[-1], y[-1]]))
         kx = 3 if (self.method == "cubic" and x.size >= 4) else 1
         ky = 3 if (self.method == "cubic" and y.size >= 4) else 1
+        from scipy.interpolate import RectBivariateSpline  # (its start: pitch.py says why)
+
         splines = tuple(
             RectBivariateSpline(x, y, np.asarray(values, np.float64).T, kx=kx, ky=ky, s=0)
             for values in (self.ex_mm, self.ey_mm)
@@ -163,6 +164,8 @@ class GridModel(PlanarModel):
             ys = np.linspace(ys[0], ys[-1], 33)
         gx, gy = np.meshgrid(xs, ys)
         nodes = np.column_stack([gx.ravel(), gy.ravel()])
+        from scipy.interpolate import CloughTocher2DInterpolator  # (pitch.py says why)
+
         inside = CloughTocher2DInterpolator(cmd, err)(nodes)
         nearest = np.argmin(((nodes[:, None, :] - cmd[None, :, :]) ** 2).sum(axis=2), axis=1)
         filled = np.where(np.isfinite(inside), inside, err[nearest])

@@ -508,8 +508,8 @@ class DriftRefs:
 
     def _warmup_holds(self, axis: str, warm: dict[str, Any], odometer_m: dict[str, list[float]],
                       wall_s: list[float], growth_um: list[list[float]]) -> bool:
-        """Does the zone warm-up's heat from motion hold on the drift the runs after it
-        read (leaving at most MAX_RESIDUAL_SHARE of it, or under the noise where it grew
+        """Does the zone warm-up's heat from motion hold on the drift the commissioning's runs
+        read before it (another duty cycle than its strokes; leaving at most MAX_RESIDUAL_SHARE of it, or under the noise where it grew
         too little to tell)? Said either way, and kept in the identification results."""
         try:
             left = drift_left_um(axis, warm["config"], odometer_m, wall_s, growth_um,
@@ -521,6 +521,6 @@ class DriftRefs:
         holds = left <= max(MAX_RESIDUAL_SHARE * spread, NOISE_UM)
         warm["drift_check"] = {"left_rms_um": left, "drift_rms_um": spread, "holds": holds}
         self.say(f"{axis}: the warm-up's heat from motion leaves {left:.2f} µm RMS of the "
-                 f"{spread:.2f} µm its drift references read in the runs after it"
+                 f"{spread:.2f} µm its drift references read in the commissioning's runs"
                  + ("" if holds else ": it does not hold; the references' own fit is tried"))
         return holds
