@@ -509,8 +509,9 @@ class DriftRefs:
     def _warmup_holds(self, axis: str, warm: dict[str, Any], odometer_m: dict[str, list[float]],
                       wall_s: list[float], growth_um: list[list[float]]) -> bool:
         """Does the zone warm-up's heat from motion hold on the drift the commissioning's runs
-        read before it (another duty cycle than its strokes; leaving at most MAX_RESIDUAL_SHARE of it, or under the noise where it grew
-        too little to tell)? Said either way, and kept in the identification results."""
+        read before it (another duty cycle than its strokes)? It holds where it leaves at
+        most MAX_RESIDUAL_SHARE of that drift, or under the noise where it grew too little
+        to tell. Said either way, and kept in the identification results."""
         try:
             left = drift_left_um(axis, warm["config"], odometer_m, wall_s, growth_um,
                                  self.axes.ref_positions(axis))  # fmt: skip
