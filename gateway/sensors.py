@@ -71,7 +71,7 @@ from .modbus.frames import (
     parse_read_registers_response,
     unpack_int32,
 )
-from .thermal_travel import HeatFromMotion
+from .thermal_travel import HeatFromMotion, MoveLog
 
 log = logging.getLogger(__name__)
 
@@ -496,6 +496,8 @@ class SensorSet:
         self.axis_thermal: dict[str, AxisThermal] = {}
         #: axes whose Δa comes from their own motion (thermal.motion): their screw's heat
         self.motion: dict[str, HeatFromMotion] = {}
+        #: every target since the start: where a model loaded later begins
+        self.moves = MoveLog()
         self.set_axis_thermal(axis_thermal or {})
 
     def set_axis_thermal(self, axis_thermal: Mapping[str, AxisThermal]) -> None:
@@ -508,8 +510,9 @@ class SensorSet:
         motion = {}
         for axis, thermal in axis_thermal.items():
             if thermal.motion is not None:  # the screw's heat survives a reload
-                motion[axis] = self.motion.get(axis) or HeatFromMotion(axis, thermal.motion)
-                motion[axis].motion = thermal.motion
+                kept = self.motion.get(axis)
+                motion[axis] = (kept if kept is not None and kept.motion == thermal.motion
+                                else HeatFromMotion.from_log(axis, thermal.motion, self.moves))
         self.motion = motion
 
     def saved_heat(self) -> dict[str, dict[str, float]]:
@@ -530,6 +533,7 @@ class SensorSet:
 
     def moved(self, axis: str, x_mm: float) -> None:
         """The gateway sent ``axis`` to ``x_mm``: axes heated by motion count it."""
+        self.moves.moved(axis, x_mm)
         for heat in self.motion.values():
             heat.moved(axis, x_mm)
 

@@ -82,6 +82,40 @@ def test_a_reload_keeps_the_screws_heat_and_gain_scales_it() -> None:
     assert sensors.axis_delta_a_mm("Y") is None
 
 
+def test_a_model_loaded_later_starts_from_the_heat_the_moves_before_it_put_in() -> None:
+    """Commissioning loads heat from motion after hours of its own runs: the gateway counted
+    every target since it started, so the model begins from that heat, as one loaded at
+    the start that saw every move would have it (to the stretches' rounding), not from
+    a cold screw; loaded again with another τ, the heat is counted again in that τ."""
+    rng = np.random.default_rng(11)
+    clock = Clock()
+    motion = MotionHeat(delta_a_um_per_m=20.0, tau_s=900.0, speeds_mm_s={"X": 100, "Y": 50})
+    th = AxisThermal(length_mm=600, motion=motion)
+    sensors = SensorSet({}, {})
+    sensors.moves.clock = clock
+    witnesses = {tau: HeatFromMotion("X", motion.model_copy(update={"tau_s": tau}), clock)
+                 for tau in (900.0, 300.0)}  # fmt: skip
+    for _ in range(3000):  # an hour and more of runs of both axes, pauses between some
+        axis = "X" if rng.uniform() < 0.6 else "Y"
+        to = float(rng.uniform(0.0, 500.0))
+        clock.t += float(rng.choice([0.0, 0.5, 20.0], p=[0.6, 0.3, 0.1]))
+        sensors.moved(axis, to)
+        for heat in witnesses.values():
+            heat.moved(axis, to)
+    clock.t += 60.0
+    assert witnesses[900.0].delta_a_mm() > 5e-3  # µm of heat: a warm screw
+    sensors.set_axis_thermal({"X": th})
+    assert sensors.axis_delta_a_mm("X") == pytest.approx(witnesses[900.0].delta_a_mm(),
+                                                          rel=0.02)  # fmt: skip
+    faster = th.model_copy(update={"motion": motion.model_copy(update={"tau_s": 300.0})})
+    sensors.set_axis_thermal({"X": faster})
+    assert sensors.axis_delta_a_mm("X") == pytest.approx(witnesses[300.0].delta_a_mm(),
+                                                          rel=0.02)  # fmt: skip
+    cold = SensorSet({}, {"X": th})  # a gateway that saw none of it: a cold screw
+    cold.moves.clock = clock
+    assert cold.axis_delta_a_mm("X") == 0.0
+
+
 def test_thermal_takes_a_source_or_motion_not_both() -> None:
     motion = {"delta_a_um_per_m": 1.0, "tau_s": 10.0}
     with pytest.raises(ValueError, match="either source"):
