@@ -30,6 +30,8 @@ from ..thermal.heat_fit import (
     MAX_RESIDUAL_SHARE,
     MIN_GROWTH_UM,
     drift_left_um,
+    heat_at_readings_m,
+    modelled_growth_um,
     motion_heat_fit,
 )
 from ..thermal.thermal_shape import NOISE_UM
@@ -111,6 +113,30 @@ class DriftRefs:
             if src is not None and src.kind == "temperature" and th.profile is None:
                 out[a]["sensor"] = [th.origin_mm, th.length_mm, th.gain, src.alpha_per_k,
                                     src.reference_c]  # fmt: skip
+            if th is not None and th.motion is not None:  # heat from motion: its section
+                out[a]["motion"] = {"origin_mm": th.origin_mm, "length_mm": th.length_mm,
+                                    "gain": th.gain, "motion": th.motion.model_dump()}  # fmt: skip
+        return out
+
+    def modelled_growth_um(self, odometer_mm: dict[str, float], wall_s: float
+                           ) -> dict[str, list[float]]:  # fmt: skip
+        """Per axis whose loaded config corrects heat from motion (the last switch's
+        ``ref_commands``), the growth it takes off at the references (µm) at a reading with
+        this odometer (mm) and clock (s): the heat counted from the cold start through the
+        drift log, as the gateway counts it from every move since it started (its
+        MoveLog). What the references no longer read under that config."""
+        log = self.record.state.get("drift_log", [])
+        out: dict[str, list[float]] = {}
+        for a, cmds in (self.record.state.get("ref_commands") or {}).items():
+            section = cmds.get("motion")
+            if not section:
+                continue
+            odo = {b: [e["odometer_mm"].get(b, 0.0) / 1000.0 for e in log]
+                   + [odometer_mm.get(b, 0.0) / 1000.0] for b in self.s.axes}  # fmt: skip
+            heat = heat_at_readings_m(section["motion"], a, odo,
+                                      [e["wall_s"] for e in log] + [wall_s])[-1:]  # fmt: skip
+            out[a] = [float(g) for g in modelled_growth_um(section, heat,
+                                                           self.axes.ref_positions(a))[0]]
         return out
 
     # -- from the laser software's own recording or capture ----------------------------------
@@ -443,12 +469,19 @@ class DriftRefs:
         it was read (the last references' unless given: a recording's stops were read before
         its file came, minutes at a technician's pace): what heat from motion is fitted to."""
         last = self.record.state.get("last_refs") or {}
-        odo = odometer_mm or last.get("odometer_mm")
+        odo = odometer_mm or last.get("odometer_mm") or self.odometer()
         if wall_s is None and odometer_mm is None:  # the last reading's own
             wall_s = last.get("at_s")
-        self.record.state.setdefault("drift_log", []).append(
-            {"odometer_mm": odo or self.odometer(),
-             "wall_s": time.time() if wall_s is None else wall_s, "drift_mm": drift})
+        wall = time.time() if wall_s is None else wall_s
+        entry: dict[str, Any] = {"odometer_mm": odo, "wall_s": wall, "drift_mm": drift}
+        # the log is the growth since the cold start: under a config that corrects heat
+        # from motion, the references read what it leaves; what it takes off is put back
+        modelled = self.modelled_growth_um(odo, wall)
+        if modelled:
+            entry["drift_mm"] = {a: ([d + g / 1000.0 for d, g in zip(v, modelled[a])]
+                                     if a in modelled else v) for a, v in drift.items()}
+            entry["modelled_um"] = modelled
+        self.record.state.setdefault("drift_log", []).append(entry)
 
     def _logged(self, axis: str) -> tuple[dict[str, list[float]], list[float], list[list[float]]]:
         """The drift log as heat from motion is fitted to it and checked on: each

@@ -164,13 +164,13 @@ class Stager:
             None if base is None or before is None else base["refs"], after, drift,
             old_commands, commands, self.record.state.get("start_temperature_c"),
             moved)  # fmt: skip
+        # at every switch too, with the odometer and clock of the reading that gave the
+        # drift (a warm-up is its own stretch), as read under the config before it
+        if base is None or before is not None:
+            self.drift.log_drift(drift, before_odo, before_at)
         self.record.state["ref_commands"] = commands
         self.record.state["drift_base"] = {"phase": phase, "refs": new_base}
         self.record.state["drift_last"] = drift
-        # at every switch too, with the odometer and clock of the reading that gave the
-        # drift: a warm-up is its own stretch
-        if base is None or before is not None:
-            self.drift.log_drift(drift, before_odo, before_at)
         self.record.save()
 
     def _digest(self, text: str) -> str:

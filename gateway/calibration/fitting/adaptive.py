@@ -411,10 +411,13 @@ def reading_moved_mm(model: Chain, axis: str, old: Sequence[Mapping[str, float]]
 
 
 def thermal_mm(commands: dict, temperature_c: float | None) -> list[float] | None:
-    """What a config's thermal stage adds to the commands at the references (mm): nothing
-    without one, a temperature source's correction at ``temperature_c``; None where it
-    cannot be computed (a Δa or heat from motion: the gateway's own state)."""
-    if commands["thermal"] == "None":
+    """What a config's thermal stage adds to the commands at the references (mm) on the
+    machine as commissioning began: nothing without one, nor for heat from motion (no
+    heat in a cold screw: the gateway counts it from the moves it relays since its start,
+    so the references read what the model leaves of the growth), a temperature source's
+    correction at ``temperature_c``; None where it cannot be computed (a Δa: the sensor's
+    own state)."""
+    if commands["thermal"] == "None" or commands.get("motion"):
         return [0.0, 0.0]
     sensor = commands.get("sensor")
     if sensor is None or temperature_c is None:

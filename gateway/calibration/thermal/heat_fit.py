@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from ...compensation.errors import TableError
 from ...compensation.thermal import motion_heat_series_m
@@ -152,20 +152,37 @@ def drift_left_um(axis: str, thermal: dict[str, Any], odometer_m: dict[str, Arra
     takes it): the same model judged on another duty cycle, nothing refitted. The growth
     is taken linear from the fixed end at the references (a profile's heat, spread over
     the runs' whole travel, nearly is)."""
-    motion = thermal["motion"]
-    speeds = motion.get("speeds_mm_s") or {}
-    wall = np.asarray(wall_s, dtype=np.float64)
-    odo = {a: np.asarray(v, dtype=np.float64) for a, v in odometer_m.items()}
     g = np.asarray(growth_um, dtype=np.float64).reshape(-1, 2)
     if g.shape[0] < 2:
         raise TableError(f"axis {axis}: {g.shape[0]} drift readings: nothing to check on")
+    pred = modelled_growth_um(thermal, heat_at_readings_m(thermal["motion"], axis, odometer_m,
+                                                          wall_s), refs_mm)  # fmt: skip
+    left = (g - g[0]) - (pred - pred[0])
+    return float(np.sqrt(np.mean(left**2)))
+
+
+def heat_at_readings_m(motion: dict[str, Any], axis: str, odometer_m: dict[str, ArrayLike],
+                       wall_s: ArrayLike) -> NDArray[np.float64]:  # fmt: skip
+    """The heat (m of travel) in ``axis``'s screw at each reading (each axis's odometer, m,
+    and the clock, s, at it; from a cold screw at the first), as the gateway counts it for
+    a ``thermal.motion`` section: each stretch lasts its moves' travel over
+    ``speeds_mm_s`` or the clock, whichever is longer."""
+    speeds = motion.get("speeds_mm_s") or {}
+    wall = np.asarray(wall_s, dtype=np.float64)
+    odo = {a: np.asarray(v, dtype=np.float64) for a, v in odometer_m.items()}
     travel = np.diff(odo[axis], prepend=0.0).clip(min=0.0)
     moving = sum(np.diff(v, prepend=0.0).clip(min=0.0) * 1000.0 / float(speeds[a])
                  for a, v in odo.items() if speeds.get(a))  # fmt: skip
     idle = np.diff(wall, prepend=wall[0]).clip(min=0.0)
-    heat = motion_heat_series_m(travel, np.maximum(moving, idle), float(motion["tau_s"]))
+    return motion_heat_series_m(travel, np.maximum(moving, idle), float(motion["tau_s"]))
+
+
+def modelled_growth_um(thermal: dict[str, Any], heat_m: ArrayLike,
+                       refs_mm: tuple[float, float]) -> NDArray[np.float64]:  # fmt: skip
+    """The growth a heat-from-motion ``thermal`` section predicts at the references (µm,
+    shape (k, 2)) for the heat ``heat_m`` (m of travel, k readings): linear from its fixed
+    end (a profile's heat, spread over the runs' whole travel, nearly is)."""
     lever = (np.asarray(refs_mm, dtype=np.float64) - float(thermal["origin_mm"])) / float(
         thermal["length_mm"])  # fmt: skip
-    pred = float(motion["delta_a_um_per_m"]) * heat[:, None] * lever[None, :]
-    left = (g - g[0]) - (pred - pred[0])
-    return float(np.sqrt(np.mean(left**2)))
+    per_m = float(thermal.get("gain", 1.0)) * float(thermal["motion"]["delta_a_um_per_m"])
+    return per_m * np.asarray(heat_m, dtype=np.float64).reshape(-1)[:, None] * lever[None, :]
