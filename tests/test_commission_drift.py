@@ -10,6 +10,7 @@ import types
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from gateway.calibration.commissioning.axes import Axes
 from gateway.calibration.commissioning.budget import Budget
@@ -18,7 +19,11 @@ from gateway.calibration.commissioning.record import Record
 from gateway.calibration.commissioning.steps import StepRunner
 from gateway.calibration.fitting import adaptive
 from gateway.calibration.plans.rawdata import RawWriter
-from gateway.compensation.thermal import ThermalStage, delta_a_from_temperature
+from gateway.compensation.thermal import (
+    ThermalStage,
+    delta_a_from_temperature,
+    motion_heat_series_m,
+)
 
 REFS = (31.0, 570.0)
 ORIGIN, LENGTH, GAIN, ALPHA, REF_C, START_C = -40.0, 640.0, 1.0, 11.5e-6, 20.0, 23.0
@@ -211,3 +216,38 @@ def test_a_warm_up_model_replaces_the_references_fit_only_where_it_holds(tmp_pat
         assert record.tables.motion["X"] == (warm if adopted else refs_fit)
         assert (ident["motion-X"].get("from") == "warm-up") is adopted
         assert ("does not hold" in said[-1]) is not adopted, said
+
+
+def test_under_heat_from_motion_the_log_keeps_the_growth_and_a_switch_is_computed(
+        tmp_path: Path) -> None:  # fmt: skip
+    """Once a config corrects heat from motion, the references read what it leaves: the
+    drift log puts back what the model takes off (the heat counted from the cold start
+    through the log, as the gateway counts it from its start), so the growth fitted and
+    checked on stays the growth; a switch onto such a config is computed, not read (the
+    model commands nothing on the cold machine), so the drift taken off a run under it is
+    what the model leaves, not the whole growth again."""
+    section = {"origin_mm": -40.0, "length_mm": 640.0, "gain": 1.0,
+               "motion": {"delta_a_um_per_m": 0.9, "tau_s": 900.0, "speeds_mm_s": {}}}
+    comp = types.SimpleNamespace(thermal=None)
+    config = types.SimpleNamespace(axes={"X": types.SimpleNamespace(
+        rotary=False, compensation=comp, travel_mm=(0.0, 600.0), pulse_mm=0.001)})  # fmt: skip
+    axes = Axes(types.SimpleNamespace(axes=("X",)), config)  # type: ignore[arg-type]
+    record = Record(tmp_path, tmp_path)
+    drift = DriftRefs(axes, record, print)
+    drift.log_drift({"X": [0.0, 0.0]}, {"X": 0.0}, 0.0)
+    drift.log_drift({"X": [2e-3, 9e-3]}, {"X": 20000.0}, 600.0)  # 20 m in 10 min
+    assert "modelled_um" not in record.state["drift_log"][-1]  # no model loaded: as read
+    record.state["ref_commands"] = {"X": {"mm": [31.0, 570.0], "thermal": "motion",
+                                          "motion": section}}  # fmt: skip
+    drift.log_drift({"X": [0.1e-3, 0.2e-3]}, {"X": 40000.0}, 1200.0)
+    entry = record.state["drift_log"][-1]
+    heat_m = motion_heat_series_m([0.0, 20.0, 20.0], [0.0, 600.0, 600.0], 900.0)[-1]
+    want_um = 0.9 * heat_m * (np.array([31.0, 570.0]) + 40.0) / 640.0
+    assert entry["modelled_um"]["X"] == pytest.approx(want_um, rel=1e-9)
+    assert np.array(entry["drift_mm"]["X"]) * 1e3 == pytest.approx(want_um + np.array([0.1, 0.2]))
+    assert min(want_um) > 2.0  # µm: a warm screw the references no longer read
+    motion = {"mm": [31.0, 570.0], "thermal": "motion", "motion": section}
+    off = {"mm": [31.0, 570.0], "thermal": "None"}
+    base0, after = {"X": [0.0, 0.0]}, {"X": [0.5e-3, 0.4e-3]}  # read after the switch
+    got = adaptive.relinked_base(base0, after, {"X": [9e-3, 30e-3]}, {"X": off}, {"X": motion})
+    assert got == {"X": [0.0, 0.0]}  # computed: the cold machine reads the same
