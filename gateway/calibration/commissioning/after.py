@@ -45,7 +45,7 @@ class AfterSteps:
     async def run(self) -> None:
         if not self.record.tables.pitch:
             return
-        self.record.tables.sensor_off.clear()  # the after-run with the sensors (motion_for_sensors)
+        self.record.tables.sensor_off.clear()  # the final config's heat (motion_for_sensors)
         await self.stager.use(self.record.tables_phase)
         for a in self.s.axes:  # where the before-run was made (a budget spent may stop it)
             if a in self.record.tables.pitch and self.record.done(f"before-{a}"):

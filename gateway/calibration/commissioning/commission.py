@@ -147,6 +147,7 @@ class Commission:
             where = await self.stager.restore(exc)
             raise CommissionAborted(f"{exc}; {where}") from exc
         self.drift.fit_motion_heat()
+        self.thermal.motion_for_sensors()  # the after-run judges the final config's heat
         try:
             await self.after.run()
         except BudgetSpent as exc:
@@ -159,7 +160,6 @@ class Commission:
             where = await self.stager.restore(exc)
             raise CommissionAborted(f"{exc}; {where}") from exc
         self.drift.adopt_warmed_motion()
-        self.thermal.motion_for_sensors()  # after the after-run: see its docstring
         worse = self.after.plane_worse()
         if worse is not None:
             self.record.state["notes"].append(worse)

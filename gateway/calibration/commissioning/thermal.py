@@ -253,13 +253,14 @@ class ThermalSteps:
                                float(t0), src.reference_c)  # fmt: skip
 
     def motion_for_sensors(self) -> None:
-        """The heat-from-motion models that replace a temperature sensor, in the final
-        config. Not in the runs before: the model starts cold at a reload, on a screw the
-        commissioning has warmed, so the rounds would judge the tables against that
-        mismatch and the after-run would report it (rough-9 X: E 22 µm there, 2.7 µm in a
-        judge after a cool-down); those runs keep the sensor, or run without it where the
-        heat was spread where the axis travelled (``Tables.sensor_off``: their drift is
-        then the growth, taken off along that shape), and the after-run keeps it.
+        """The heat-from-motion models that replace a temperature sensor, from the
+        after-run on (it judges the final config). Not in the rounds: their tables were
+        measured with the sensor, or without it where the heat was spread where the axis
+        travelled (``Tables.sensor_off``: their drift is then the growth, taken off along
+        that shape). The gateway counts the model's heat from every move since it started
+        (:class:`~gateway.thermal_travel.MoveLog`); when it began cold at a reload instead,
+        the after-run read the heat of the hours before it (rough-9 X: E 22 µm there, 2.7
+        µm in a judge after a cool-down), so the after-run kept the sensor until then.
 
         Tables measured with the sensor's compensation on, which at the cold start already
         took the screw for grown by the sensor's distance from its reference temperature,
@@ -273,9 +274,8 @@ class ThermalSteps:
                 if self.drift.drift_spread_mm(a) is None:  # else its readings lost it (raw)
                     self._add_start_growth(a)
                 self.record.tables.thermal_motion[a] = motion
-                note = (f"{a}: heat from motion replaces the temperature sensor in the final "
-                        "config; the after-run ran with the sensor (the model starts cold: "
-                        "on a warm machine it under-corrects until the screw has cooled)")
+                note = (f"{a}: heat from motion replaces the temperature sensor from the "
+                        "after-run on, and in the final config")
                 self.record.state["notes"].append(note)
                 self.say(note)
         self.record.save()
