@@ -16,7 +16,7 @@ clock, and at three places the wall clock reached the figures:
   number of polls before them.
 
 ``clock`` runs one compgw command with the machine's clock (``time.time()`` and the
-gateway's heat-from-motion and travel-profile clocks, each a read of the sim's control
+gateway's heat-from-motion, travel-profile and move-log clocks, each a read of the sim's control
 block 0x0802-0x0803, ms): ``python bench/lockstep.py clock HOST:PORT -- run -c gw.yaml``.
 compgw's code is not changed: a real machine's clock and its computer's agree, and here
 the computer gets the machine's.
@@ -132,8 +132,8 @@ class SimClock:
 
 def install(clock: Callable[[], float]) -> None:
     """Make ``clock`` compgw's time: ``time.time`` (commissioning's drift log, the raw
-    files' ``time_s``) and the default clock of the gateway's heat from motion and travel
-    profile (gateway/thermal_travel.py); a recording's stand at each stop advances the
+    files' ``time_s``) and the default clock of the gateway's heat from motion, travel
+    profile and move log (gateway/thermal_travel.py); a recording's stand at each stop advances the
     machine's clock instead of sleeping. asyncio, bus timeouts and the thermal sources'
     filter keep the wall clock: every poll at one instant reads the same (``wire``), and
     with ``smoothing: 1`` (the generated machines' sources) the filter's value is that
@@ -151,7 +151,8 @@ def install(clock: Callable[[], float]) -> None:
         _stops_on_clock(clock, advance)
     from gateway import thermal_travel
 
-    for cls in (thermal_travel.HeatFromMotion, thermal_travel.TravelHistory):
+    for cls in (thermal_travel.HeatFromMotion, thermal_travel.TravelHistory,
+                thermal_travel.MoveLog):
         defaults = cls.__init__.__defaults__ or ()
         if real not in defaults:
             raise RuntimeError(f"{cls.__name__}: no time.monotonic default clock to replace")
