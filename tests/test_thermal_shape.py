@@ -195,7 +195,8 @@ def _times(plan) -> list[float]:
     return [t for _, _, t in _stops(plan, None)]
 
 
-def _predicted_after_zone(section: dict, zone_mm: tuple[float, float], places: list[float]
+def _predicted_after_zone(section: dict, zone_mm: tuple[float, float], places: list[float],
+                          truth: _NutHeat | None = None, travel: tuple[float, float] = TRAVEL,
                           ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """The bench judge's warm-up on a fresh screw: cycle ``zone_mm`` for 30 min, then the
     growth at ``places`` (µm), as the sim's heat equation makes it and as the gateway's
@@ -207,8 +208,8 @@ def _predicted_after_zone(section: dict, zone_mm: tuple[float, float], places: l
     t = [0.0]
     clock = lambda: t[0]  # noqa: E731
     heat = HeatFromMotion("X", th.motion, clock=clock)
-    history = TravelHistory(th, th.profile, TRAVEL, clock=clock) if th.profile else None
-    truth = _NutHeat()
+    history = TravelHistory(th, th.profile, travel, clock=clock) if th.profile else None
+    truth = truth or _NutHeat()
     pos = zone_mm[0]
     for x in [pos] + [zone_mm[k % 2 == 0] for k in range(int(1800 * SPEED / np.ptp(zone_mm)))]:
         dt = abs(x - pos) / SPEED
@@ -343,6 +344,38 @@ def test_heat_from_motion_with_no_sensor_holds_on_a_zone_it_was_not_fitted_on(zo
                                        [30.0, 150.0, 300.0, 450.0, 580.0])  # fmt: skip
     assert np.abs(real).max() > 10.0
     assert np.abs(pred - real).max() < 0.15 * np.abs(real).max(), (real, pred)
+
+
+class _FarEndNut(_NutHeat):
+    """Random rough machine 0's X screw: fixed at the far end, just beyond a 700 mm travel,
+    its heat from the sim's own parameters."""
+
+    def __init__(self) -> None:
+        self.model = ScrewHeatModel(ScrewHeat(lead_mm=5.0, drag_torque_Nm=0.0205,
+                                              diameter_mm=20.0, nut_length_mm=41.0,
+                                              h_W_m2K=24.95, screw_mm=(-41.0, 741.0),
+                                              fixed_end_mm=741.0), (0.0, 700.0))  # fmt: skip
+
+
+def test_a_linear_growth_that_changes_sign_in_the_travel_is_taken_as_the_zone_s_shape() -> None:
+    """Read with a rough machine's scatter, the zone's growth looked nearly linear, its
+    zero 30-40 mm inside the travel: taken linear, the judge's warm-ups on other zones
+    kept 29-61 % of their growth. No screw's heat makes a growth that changes sign along
+    the travel: the profile, or linear from the nearer end, whichever leaves less."""
+    from gateway.calibration.thermal.warmup_motion import warmup_motion_fit
+
+    travel = (0.0, 700.0)
+    places = [700 * f for f in (0.05, 0.12, 0.22, 0.5, 0.78, 0.88, 0.95)]
+    plan = warmup_plan("X", (210.0, 490.0), SPEED, 1800.0, places[-1], 10, places_mm=places,
+                       also_mm=places[0], sensor=False)  # fmt: skip
+    for seed in (1, 2):  # the draws whose linear zero fell inside the travel
+        fit = warmup_motion_fit(_raw(plan, _FarEndNut(), 0.8, seed), plan, "X", travel)
+        assert fit.spread_mm is not None and fit.origin_mm == 700.0, fit
+        for zone in ((0.0, 240.0), (460.0, 700.0), (120.0, 360.0)):
+            real, pred = _predicted_after_zone(fit.config({"X": SPEED}), zone,
+                                               [30.0, 150.0, 300.0, 450.0, 600.0, 680.0],
+                                               _FarEndNut(), travel)  # fmt: skip
+            assert np.abs(pred - real).max() < 0.3 * np.abs(real).max(), (seed, zone)
 
 
 def test_a_warm_up_with_no_growth_gives_no_model_and_says_why() -> None:
