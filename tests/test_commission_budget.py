@@ -201,6 +201,12 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         assert not any("the after-run judged the tables" in n or "budget spent" in n
                        for n in again["notes"]), again["notes"]  # fmt: skip
         assert "carried on after 'within' at 0.9" in " ".join(again["notes"])
+        # each figure set against the run before's, as read, and whether its tables changed
+        was = again["run_before"]
+        assert set(was) == {"X", "Y", "XY"}, was
+        assert was["X"]["before_um"] == summary["axes"]["X"]["after"]["E_read_um"], was
+        assert was["X"]["now_um"] == again["axes"]["X"]["after"]["E_read_um"], was
+        assert all(isinstance(r["same_tables"], bool) for r in was.values()), was
         lines = more.text().strip().splitlines()
         verdict = lines[lines.index(next(n for n in lines if n.startswith("report: "))) - 1]
         assert verdict.startswith(("WITHIN 5 µm", "NOT within 5 µm")), verdict

@@ -268,3 +268,23 @@ def test_r_from_few_runs_is_said_to_read_high_beside_the_pooled_scatter() -> Non
             and f"a stop scatters {pooled:.2f} µm (±2s: {4 * pooled:.2f} µm)" in text), text
     summary["axes"]["X"]["after"]["runs"] = 5
     assert "Here R rests" not in " ".join(remains(summary))
+
+
+def test_a_rerun_that_reads_worse_on_the_tables_it_kept_says_so() -> None:
+    """Random machine 3, the tighter rerun after a commissioning that ended with its warm-up:
+    X's table not refined, read 0.73 → 2.01 µm as read. The verdict says the tables are
+    the run before's, so the difference is not taken for them; a refined one is not."""
+    summary = {"outcome": "floor", "tolerance_um": 1.0,
+               "axes": {"X": {"after": {"E_um": 2.01, "E_read_um": 2.01}},
+                        "Y": {"after": {"E_um": 1.02, "E_read_um": 1.02}}},
+               "run_before": {"X": {"before_um": 0.73, "now_um": 2.01, "same_tables": True},
+                              "Y": {"before_um": 0.70, "now_um": 1.02,
+                                    "same_tables": False}}}  # fmt: skip
+    line = verdict(summary)
+    assert line.startswith("NOT within 1 µm (X E 2.01 µm; Y E 1.02 µm)"), line
+    assert line.endswith("; X 0.73 → 2.01 µm as read on the tables the run before left as "
+                         "they were: the machine (its heat, its scatter) reads otherwise "
+                         "now, not the tables"), line
+    assert "Y 0.70" not in line
+    summary["run_before"]["X"]["now_um"] = 0.75  # within the reading's rounding: not said
+    assert "run before" not in verdict(summary)

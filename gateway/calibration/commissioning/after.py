@@ -183,7 +183,22 @@ class AfterSteps:
             out["xy"] = xy
         self.rotary.rotary_summary(out)
         out.update(self.warmth())
+        out.update(self._against_run_before(out))
         return out
+
+    def _against_run_before(self, out: dict[str, Any]) -> dict[str, Any]:
+        """A carried-on run's after-run against the run before's, as read (µm), per axis
+        and the plane, and whether the tables are the same (``same_tables``): a figure
+        that reads worse on the same tables is the machine (heat, scatter), not them."""
+        before = self.record.state.get("run_before") or {}
+        now = {a: (e.get("after") or {}).get("E_read_um") for a, e in out["axes"].items()
+               if e.get("unit") != "deg"}  # (a rotary axis's figures are angles)
+        now["XY"] = ((out.get("xy") or {}).get("after") or {}).get("max_read_um")
+        against = {n: {"before_um": was["read"], "now_um": float(now[n]),
+                       "same_tables": was["tables"] == self.record.tables.digest(
+                           n, self.record.config_dir)}
+                   for n, was in before.items() if now.get(n) is not None}  # fmt: skip
+        return {"run_before": against} if against else {}
 
     def warmth(self) -> dict[str, Any]:
         """How far the drift references have moved since the machine started cold (µm,

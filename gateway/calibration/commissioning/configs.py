@@ -11,7 +11,10 @@ everything else is the user's, untouched. Table paths are relative to the config
 from __future__ import annotations
 
 import copy
+import hashlib
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 HEADER = ("# written by compgw commission ({phase} config): your own config is kept in "
@@ -52,6 +55,23 @@ class Tables:
                 "thermal_profile": self.thermal_profile,
                 "thermal_motion": self.thermal_motion, "sensor_off": self.sensor_off,
                 "takeup": self.takeup, "interpolation": self.interpolation}  # fmt: skip
+
+    def digest(self, name: str, config_dir: Path) -> str:
+        """What corrects axis ``name`` (``"XY"``: the plane), files' contents included: a
+        carried-on run tells a table it changed from one it left as it was."""
+        if name == "XY":
+            parts: list[Any] = [self.planar_model, self.planar_axes]
+            files = [self.planar_model]
+        else:
+            parts = [self.pitch.get(name), self.cyclic.get(name), self.takeup.get(name),
+                     self.interpolation.get(name), self.motion.get(name),
+                     self.thermal_motion.get(name)]  # fmt: skip
+            files = [self.pitch.get(name), self.cyclic.get(name)]
+        for f in files:
+            path = config_dir / f if f else None
+            parts.append(hashlib.sha1(path.read_bytes()).hexdigest()
+                         if path is not None and path.is_file() else None)  # fmt: skip
+        return hashlib.sha1(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> Tables:
