@@ -115,7 +115,8 @@ class DriftRefs:
                                     src.reference_c]  # fmt: skip
             if th is not None and th.motion is not None:  # heat from motion: its section
                 out[a]["motion"] = {"origin_mm": th.origin_mm, "length_mm": th.length_mm,
-                                    "gain": th.gain, "motion": th.motion.model_dump()}  # fmt: skip
+                                    "gain": th.gain, "motion": th.motion.model_dump(),
+                                    "profile": th.profile is not None}  # fmt: skip
         return out
 
     def modelled_growth_um(self, odometer_mm: dict[str, float], wall_s: float
@@ -135,8 +136,8 @@ class DriftRefs:
                    + [odometer_mm.get(b, 0.0) / 1000.0] for b in self.s.axes}  # fmt: skip
             heat = heat_at_readings_m(section["motion"], a, odo,
                                       [e["wall_s"] for e in log] + [wall_s])[-1:]  # fmt: skip
-            out[a] = [float(g) for g in modelled_growth_um(section, heat,
-                                                           self.axes.ref_positions(a))[0]]
+            out[a] = [float(g) for g in modelled_growth_um(
+                section, heat, self.axes.ref_positions(a), self.axes.travel(a))[0]]
         return out
 
     # -- from the laser software's own recording or capture ----------------------------------
@@ -547,7 +548,7 @@ class DriftRefs:
         to tell. Said either way, and kept in the identification results."""
         try:
             left = drift_left_um(axis, warm["config"], odometer_m, wall_s, growth_um,
-                                 self.axes.ref_positions(axis))  # fmt: skip
+                                 self.axes.ref_positions(axis), self.axes.travel(axis))
         except TableError:  # no drift read after it: nothing tells against it
             return True
         g = np.asarray(growth_um, dtype=np.float64).reshape(-1, 2)

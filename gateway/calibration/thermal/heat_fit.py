@@ -145,8 +145,8 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
 
 
 def drift_left_um(axis: str, thermal: dict[str, Any], odometer_m: dict[str, ArrayLike],
-                  wall_s: ArrayLike, growth_um: ArrayLike, refs_mm: tuple[float, float]
-                  ) -> float:  # fmt: skip
+                  wall_s: ArrayLike, growth_um: ArrayLike, refs_mm: tuple[float, float],
+                  travel_mm: tuple[float, float] | None = None) -> float:  # fmt: skip
     """What a heat-from-motion ``thermal`` section (fitted elsewhere: a zone warm-up) leaves
     of the drift read at the references (µm RMS, shape (k, 2) as :func:`motion_heat_fit`
     takes it): the same model judged on another duty cycle, nothing refitted. The growth
@@ -156,7 +156,7 @@ def drift_left_um(axis: str, thermal: dict[str, Any], odometer_m: dict[str, Arra
     if g.shape[0] < 2:
         raise TableError(f"axis {axis}: {g.shape[0]} drift readings: nothing to check on")
     pred = modelled_growth_um(thermal, heat_at_readings_m(thermal["motion"], axis, odometer_m,
-                                                          wall_s), refs_mm)  # fmt: skip
+                                                          wall_s), refs_mm, travel_mm)
     left = (g - g[0]) - (pred - pred[0])
     return float(np.sqrt(np.mean(left**2)))
 
@@ -178,11 +178,18 @@ def heat_at_readings_m(motion: dict[str, Any], axis: str, odometer_m: dict[str, 
 
 
 def modelled_growth_um(thermal: dict[str, Any], heat_m: ArrayLike,
-                       refs_mm: tuple[float, float]) -> NDArray[np.float64]:  # fmt: skip
+                       refs_mm: tuple[float, float], travel_mm: tuple[float, float] | None = None
+                       ) -> NDArray[np.float64]:  # fmt: skip
     """The growth a heat-from-motion ``thermal`` section predicts at the references (µm,
     shape (k, 2)) for the heat ``heat_m`` (m of travel, k readings): linear from its fixed
-    end (a profile's heat, spread over the runs' whole travel, nearly is)."""
-    lever = (np.asarray(refs_mm, dtype=np.float64) - float(thermal["origin_mm"])) / float(
-        thermal["length_mm"])  # fmt: skip
+    end. With a travel ``profile``, Δa is the elongation past all the heat (``length_mm``
+    reaches beyond it); the runs spread that heat over the travel (``travel_mm``), so the
+    growth is linear over the travel's reach from the fixed end instead: taken over
+    ``length_mm``, the check left half of rough-0 X's drift and refused the model."""
+    origin = float(thermal["origin_mm"])
+    span = float(thermal["length_mm"])
+    if thermal.get("profile") and travel_mm is not None:
+        span = max(abs(travel_mm[0] - origin), abs(travel_mm[1] - origin), 1.0)
+    lever = (np.asarray(refs_mm, dtype=np.float64) - origin) / span
     per_m = float(thermal.get("gain", 1.0)) * float(thermal["motion"]["delta_a_um_per_m"])
     return per_m * np.asarray(heat_m, dtype=np.float64).reshape(-1)[:, None] * lever[None, :]
