@@ -308,6 +308,28 @@ def test_the_travel_before_a_warm_up_comes_from_the_drift_log() -> None:
     assert steps._travel_before_warmup("Y")[0].size == 0  # no warm-up begun
 
 
+def test_a_warm_up_not_timed_by_a_clock_counts_the_other_axes_at_the_speeds_found() -> None:
+    """No clock (a sim at time_scale 0): the warm-up's model counts its own axis at the
+    estimated speed and each other axis at the ratio a drift references' fit found
+    between them (random machine 7: X at 50 mm/s, Y at 120; X's fit found Y 1.9 times
+    faster), not at the same estimate."""
+    from types import SimpleNamespace
+
+    from gateway.calibration.commissioning.record import Record
+    from gateway.calibration.commissioning.thermal import ThermalSteps
+
+    record = Record(Path("/nonexistent"), Path("/nonexistent"))
+    record.state["identify"] = {
+        "motion-X": {"fitted": True, "motion": {"speeds_mm_s": {"X": 100.0, "Y": 190.0}}},
+        "motion-Y": {"fitted": True, "motion": {"speeds_mm_s": {"X": 100.0, "Y": 100.0}}}}
+    axes = SimpleNamespace(s=SimpleNamespace(axes=("X", "Y"), speed_mm_s=100.0), config=None)
+    steps = ThermalSteps(axes, record, None, print)  # type: ignore[arg-type]
+    assert steps._estimated_speeds("Y") == pytest.approx({"X": 100.0 / 1.9, "Y": 100.0})
+    assert steps._estimated_speeds("X") == pytest.approx({"X": 100.0, "Y": 190.0})
+    record.state["identify"] = {}  # no fit found a ratio: the estimate for every axis
+    assert steps._estimated_speeds("Y") == {"X": 100.0, "Y": 100.0}
+
+
 def _no_sensor_plan():
     """The zone warm-up of an axis with no sensor: both references, beyond the zone."""
     return warmup_plan("X", (180.0, 420.0), SPEED, 1800.0, 570.0, places_mm=PLACES,

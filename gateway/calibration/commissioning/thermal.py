@@ -161,12 +161,32 @@ class ThermalSteps:
             return {"fitted": False, "why": str(exc)}
         # timed by the readings' own clock where it is the machine's: no speeds; else by
         # the plan's estimated speed, which its config's speeds then count
-        config = mf.config(None if mf.timed else dict.fromkeys(self.s.axes, self.s.speed_mm_s))
+        config = mf.config(None if mf.timed else self._estimated_speeds(axis))
         self.say(f"{axis}: no thermal sensor; its zone warm-up grew {mf.growth_max_um:.1f} µm "
                  f"at most: heat from its own motion leaves {mf.rms_um:.2f} µm RMS at the "
                  f"places read warm ({'where it travelled' if mf.spread_mm else 'linear'}, "
                  f"tau {mf.tau_s:.0f} s, fixed end at {mf.origin_mm:.0f} mm)")  # fmt: skip
         return {"fitted": True, **mf.summary(), "config": config}
+
+    def _estimated_speeds(self, axis: str) -> dict[str, float]:
+        """The speeds (mm/s) a warm-up's model not timed by a clock counts moves by: its
+        own axis at the plan's estimate (``--estimate-speed-mm-s``, its τ is in those
+        seconds), each other axis at the ratio a drift references' fit found between the
+        two (the axis's own first), else the estimate too. A sim at ``time_scale: 0``
+        without a clock: random machine 7's X runs at 50 mm/s, its Y at 120; Y's model,
+        counting X at 100, took a 25-minute X sweep for half that and read 7 µm."""
+        est = self.s.speed_mm_s
+        speeds = dict.fromkeys(self.s.axes, est)
+        ident = self.record.state.get("identify") or {}
+        fits = [ident.get(f"motion-{a}") or {} for a in (axis, *self.s.axes)]
+        for fit in fits:
+            found = ((fit.get("instead_of") or fit).get("motion") or {}).get("speeds_mm_s") or {}
+            if axis not in found or len(set(found.values())) < 2:
+                continue  # no ratio to this axis fitted there
+            for b in self.s.axes:
+                if b != axis and b in found and speeds[b] == est:
+                    speeds[b] = est * float(found[b]) / float(found[axis])
+        return speeds
 
     def _heat_instead(self, axis: str, raw: RawData, plan: Plan, th: Any,
                       alpha_per_k: float) -> dict[str, Any]:  # fmt: skip
