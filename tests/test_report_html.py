@@ -11,7 +11,12 @@ import numpy as np
 import pytest
 
 from gateway.calibration.commissioning.ident_text import identification_rows
-from gateway.calibration.commissioning.report import remains, summary_lines, verdict
+from gateway.calibration.commissioning.report import (
+    remains,
+    summary_lines,
+    verdict,
+    warm_rerun,
+)
 from gateway.calibration.fitting.iso230 import JSON_KEYS
 from gateway.calibration.plans.plans import iso230_linear_plan
 from gateway.calibration.plans.rawdata import RawWriter
@@ -288,3 +293,17 @@ def test_a_rerun_that_reads_worse_on_the_tables_it_kept_says_so() -> None:
     assert "Y 0.70" not in line
     summary["run_before"]["X"]["now_um"] = 0.75  # within the reading's rounding: not said
     assert "run before" not in verdict(summary)
+
+
+def test_a_rerun_on_a_machine_the_run_before_left_warm_is_told_before_it_moves() -> None:
+    """Random machine 7: the tighter rerun right after its warm-up read Y 0.56 → 3.53 µm on
+    the table the run before left. The carried-on run says first that the machine is warm
+    and how long to let it cool; nothing where the references hardly moved."""
+    summary = {"tolerance_um": 2.0, "warmed_um": {"X": 29.7, "Y": 1.1}, "cool_min": 124}
+    line = warm_rerun(summary)
+    assert line is not None and line.startswith(
+        "the run before left the machine warm: its drift references had moved X 29.7 µm "
+        "since it started cold"), line  # fmt: skip
+    assert "Y 1.1" not in line and "let it cool about 124 minutes" in line, line
+    assert warm_rerun({"tolerance_um": 2.0, "warmed_um": {"X": 1.5}}) is None
+

@@ -64,6 +64,7 @@ from .identify import IdentifySteps
 from .planner import Planner
 from .record import Record, plain_json
 from .refine import RefineSteps
+from .report import warm_rerun
 from .rotary import RotarySteps
 from .rounds import Rounds
 from .short import ShortBudget
@@ -185,6 +186,12 @@ class Commission:
         after-run measured again at the end, with the tables then loaded (its readings
         moved to ``raw/superseded/``); a note says where it carried on from."""
         self.record.state["run_before"] = self._run_before()
+        try:  # a machine its run before left warm: said before anything moves
+            warm = warm_rerun(json.loads((self.record.dir / "summary.json").read_text()))
+        except (OSError, ValueError):
+            warm = None
+        if warm is not None:
+            self.say(warm)
         notes = self.record.state["notes"]
         del notes[int(done.get("notes_from", len(notes))):]
         for name in [n for n in self.record.state["steps"] if n.startswith("after-")]:
