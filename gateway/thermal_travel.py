@@ -20,6 +20,7 @@ import numpy as np
 
 from .compensation.thermal import (
     ThermalStage,
+    motion_heat_after_m,
     motion_heat_one_m,
     travel_delta_a_mm,
     travel_integral,
@@ -120,12 +121,8 @@ class MoveLog:
         speed = np.array([motion.speeds_mm_s.get(a, 0.0) for a in self.codes])[code]
         moving = np.divide(travel, speed, out=np.zeros(n), where=speed > 0)
         elapsed = np.maximum(moving, np.diff(at, prepend=at[0]))
-        x = elapsed / motion.tau_s
-        tiny = x < 1e-12
-        share = np.where(tiny, 1.0, -np.expm1(-x) / np.where(tiny, 1.0, x))  # (1 − e^-x)/x
         own_m = np.where(code == self.codes[axis], travel / 1000.0, 0.0)
-        since = np.cumsum(elapsed[::-1])[::-1] - elapsed  # from each move's end to the last's
-        return float(np.sum(own_m * share * np.exp(-since / motion.tau_s))), float(at[-1])
+        return motion_heat_after_m(own_m, elapsed, motion.tau_s), float(at[-1])
 
 
 class HeatFromMotion:

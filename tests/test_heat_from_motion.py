@@ -10,7 +10,12 @@ import pytest
 
 from gateway.calibration.thermal.heat_fit import motion_heat_fit
 from gateway.compensation.errors import TableError
-from gateway.compensation.thermal import motion_heat_m, motion_heat_one_m, motion_heat_series_m
+from gateway.compensation.thermal import (
+    motion_heat_after_m,
+    motion_heat_m,
+    motion_heat_one_m,
+    motion_heat_series_m,
+)
 from gateway.config import AxisThermal, MotionHeat
 from gateway.sensors import SensorSet
 from gateway.thermal_travel import HeatFromMotion
@@ -42,6 +47,18 @@ def test_one_screw_in_plain_floats_is_the_array_form() -> None:
     for bad in ((0.0, -0.1, 1.0, 300.0), (0.0, 0.1, -1.0, 300.0), (0.0, 0.1, 1.0, 0.0)):
         with pytest.raises(Exception, match="tau > 0"):
             motion_heat_one_m(*bad)
+
+
+def test_the_heat_after_a_sequence_at_once_is_the_series_last() -> None:
+    """What a model loaded mid-run starts from (hundreds of thousands of moves counted at a
+    reload): the series' last value, to rounding, pauses and stretches of many τ included."""
+    rng = np.random.default_rng(9)
+    travel = rng.uniform(0, 0.5, 3000) * (rng.uniform(size=3000) < 0.7)
+    elapsed = np.where(rng.uniform(size=3000) < 0.05, 2000.0, rng.uniform(0, 5, 3000))
+    for tau in (60.0, 900.0, 1e5):
+        assert motion_heat_after_m(travel, elapsed, tau) == pytest.approx(
+            motion_heat_series_m(travel, elapsed, tau)[-1], rel=1e-10)  # fmt: skip
+    assert motion_heat_after_m([], [], 900.0) == 0.0
 
 
 class Clock:

@@ -158,6 +158,17 @@ def motion_heat_one_m(heat_m: float, travel_m: float, elapsed_s: float, tau_s: f
     return heat_m * math.exp(-x) + travel_m * share
 
 
+def motion_heat_after_m(travel_m: ArrayLike, elapsed_s: ArrayLike, tau_s: float) -> float:
+    """Heat (m of travel) after a sequence of stretches from a cold screw: the last of
+    :func:`motion_heat_series_m`, at once: each stretch's own deposit, cooled for the time
+    of the stretches after it. The gateway counts a model loaded mid-run from hundreds of
+    thousands of moves at a reload (:class:`~gateway.thermal_travel.MoveLog`)."""
+    t = np.asarray(elapsed_s, dtype=np.float64)
+    own = motion_heat_m(0.0, travel_m, t, tau_s)
+    after_s = np.cumsum(t[::-1])[::-1] - t
+    return float(np.sum(own * np.exp(-after_s / tau_s)))
+
+
 def motion_heat_series_m(travel_m: ArrayLike, elapsed_s: ArrayLike,
                          tau_s: ArrayLike) -> NDArray[np.float64]:
     """Heat (m of travel, see :func:`motion_heat_m`) after each of a sequence of stretches
