@@ -15,6 +15,7 @@ from ..fitting.iso230 import iso230_axis, pooled_s_um
 from ..measuring.session import planar_figures
 from ..plans.plans import read_plan
 from ..plans.rawdata import axis_deviations
+from .report import as_read_figures
 
 if TYPE_CHECKING:
     from .axes import Axes
@@ -191,13 +192,11 @@ class AfterSteps:
         and the plane, and whether the tables are the same (``same_tables``): a figure
         that reads worse on the same tables is the machine (heat, scatter), not them."""
         before = self.record.state.get("run_before") or {}
-        now = {a: (e.get("after") or {}).get("E_read_um") for a, e in out["axes"].items()
-               if e.get("unit") != "deg"}  # (a rotary axis's figures are angles)
-        now["XY"] = ((out.get("xy") or {}).get("after") or {}).get("max_read_um")
-        against = {n: {"before_um": was["read"], "now_um": float(now[n]),
+        now = as_read_figures(out)
+        against = {n: {"before_um": was["read"], "now_um": now[n],
                        "same_tables": was["tables"] == self.record.tables.digest(
                            n, self.record.config_dir)}
-                   for n, was in before.items() if now.get(n) is not None}  # fmt: skip
+                   for n, was in before.items() if n in now}  # fmt: skip
         return {"run_before": against} if against else {}
 
     def warmth(self) -> dict[str, Any]:

@@ -64,7 +64,7 @@ from .identify import IdentifySteps
 from .planner import Planner
 from .record import Record, plain_json
 from .refine import RefineSteps
-from .report import warm_rerun
+from .report import as_read_figures, warm_rerun
 from .rotary import RotarySteps
 from .rounds import Rounds
 from .short import ShortBudget
@@ -185,32 +185,22 @@ class Commission:
         what its ending said is dropped (a budget spent, an after-run's verdict) and its
         after-run measured again at the end, with the tables then loaded (its readings
         moved to ``raw/superseded/``); a note says where it carried on from."""
-        self.record.state["run_before"] = self._run_before()
-        try:  # a machine its run before left warm: said before anything moves
-            warm = warm_rerun(json.loads((self.record.dir / "summary.json").read_text()))
+        try:
+            summary = json.loads((self.record.dir / "summary.json").read_text())
         except (OSError, ValueError):
-            warm = None
+            summary = {}
+        # what this run's after-run is set against: the run before's, with its tables
+        self.record.state["run_before"] = {
+            n: {"read": v, "tables": self.record.tables.digest(n, self.record.config_dir)}
+            for n, v in as_read_figures(summary).items()}  # fmt: skip
+        warm = warm_rerun(summary)  # a machine the run before left warm: said before moving
         if warm is not None:
             self.say(warm)
         notes = self.record.state["notes"]
         del notes[int(done.get("notes_from", len(notes))):]
         for name in [n for n in self.record.state["steps"] if n.startswith("after-")]:
             self.runner.forget(name, keep_in=self.record.dir / "raw" / "superseded")
-        used = done.get("machine_h")  # (the after-run's figures: run_before)
+        used = done.get("machine_h")
         notes.append(f"carried on after '{done.get('outcome')}'"
                      + (f" at {used:.2f} h of machine time" if used is not None else ""))
         self.record.save()
-
-    def _run_before(self) -> dict[str, dict[str, Any]]:
-        """The finished run's after-run as read (E per axis, the plane's maximum), each
-        with a digest of the tables it read: what this run's verdict is set against."""
-        try:
-            summary = json.loads((self.record.dir / "summary.json").read_text())
-        except (OSError, ValueError):
-            return {}
-        figures = {a: (e.get("after") or {}).get("E_read_um")
-                   for a, e in summary.get("axes", {}).items() if e.get("unit") != "deg"}
-        figures["XY"] = ((summary.get("xy") or {}).get("after") or {}).get("max_read_um")
-        return {n: {"read": float(v),
-                    "tables": self.record.tables.digest(n, self.record.config_dir)}
-                for n, v in figures.items() if v is not None}  # fmt: skip

@@ -126,16 +126,16 @@ class DriftRefs:
         this odometer (mm) and clock (s): the heat counted from the cold start through the
         drift log, as the gateway counts it from every move since it started (its
         MoveLog). What the references no longer read under that config."""
-        log = self.record.state.get("drift_log", [])
+        sections = {a: cmds["motion"] for a, cmds in
+                    (self.record.state.get("ref_commands") or {}).items() if cmds.get("motion")}
+        if not sections:
+            return {}
+        odo, wall = self._log_clock()  # the log so far, and this reading
+        odo = {b: [*v, odometer_mm.get(b, 0.0) / 1000.0] for b, v in odo.items()}
+        wall = [*wall, wall_s]
         out: dict[str, list[float]] = {}
-        for a, cmds in (self.record.state.get("ref_commands") or {}).items():
-            section = cmds.get("motion")
-            if not section:
-                continue
-            odo = {b: [e["odometer_mm"].get(b, 0.0) / 1000.0 for e in log]
-                   + [odometer_mm.get(b, 0.0) / 1000.0] for b in self.s.axes}  # fmt: skip
-            heat = heat_at_readings_m(section["motion"], a, odo,
-                                      [e["wall_s"] for e in log] + [wall_s])[-1:]  # fmt: skip
+        for a, section in sections.items():
+            heat = heat_at_readings_m(section["motion"], a, odo, wall)[-1:]
             out[a] = [float(g) for g in modelled_growth_um(
                 section, heat, self.axes.ref_positions(a), self.axes.travel(a))[0]]
         return out
@@ -489,9 +489,14 @@ class DriftRefs:
         commissioned axis's odometer (m), the clock (s), ``axis``'s drift at both
         references (µm)."""
         log = self.record.state.get("drift_log", [])
+        return (*self._log_clock(), [[d * 1000.0 for d in e["drift_mm"][axis]] for e in log])
+
+    def _log_clock(self) -> tuple[dict[str, list[float]], list[float]]:
+        """The drift log's odometer per commissioned axis (m) and clock (s), reading by
+        reading."""
+        log = self.record.state.get("drift_log", [])
         return ({b: [e["odometer_mm"].get(b, 0.0) / 1000.0 for e in log] for b in self.s.axes},
-                [e["wall_s"] for e in log],
-                [[d * 1000.0 for d in e["drift_mm"][axis]] for e in log])  # fmt: skip
+                [e["wall_s"] for e in log])
 
     def fit_motion_heat(self) -> None:
         """Heat from motion on every linear axis with no thermal setting of its own, fitted

@@ -140,15 +140,30 @@ def _same_tables_worse(summary: dict[str, Any]) -> str:
 WARM_UM = 2.0
 
 
+def as_read_figures(summary: dict[str, Any]) -> dict[str, float]:
+    """A summary's after-run as read (µm): E per linear axis, the plane's maximum as
+    ``"XY"``; what a carried-on run's after-run is set against."""
+    figures = {a: (e.get("after") or {}).get("E_read_um")
+               for a, e in summary.get("axes", {}).items()
+               if e.get("unit") != "deg"}  # (a rotary axis's figures are angles)
+    figures["XY"] = ((summary.get("xy") or {}).get("after") or {}).get("max_read_um")
+    return {n: float(v) for n, v in figures.items() if v is not None}
+
+
+def _warm_axes(summary: dict[str, Any]) -> dict[str, float]:
+    """The axes whose drift references moved more than WARM_UM (or half the tolerance)
+    since the cold start (µm)."""
+    limit = max(WARM_UM, 0.5 * summary.get("tolerance_um", 0.0))
+    return {a: w for a, w in (summary.get("warmed_um") or {}).items() if w > limit}
+
+
 def warm_rerun(summary: dict[str, Any]) -> str | None:
     """Said before a carried-on run moves anything, where the run before left the machine
     warm (its drift references moved more than WARM_UM, or half the tolerance): what this
     run reads carries heat its models may not follow, and how long to let it cool (random
     machine 7, a tighter rerun right after its warm-up: Y 0.56 → 3.53 µm as read on the
     table the run before left). None where it is not warm."""
-    warmed = summary.get("warmed_um") or {}
-    limit = max(WARM_UM, 0.5 * summary.get("tolerance_um", 0.0))
-    warm = {a: w for a, w in warmed.items() if w > limit}
+    warm = _warm_axes(summary)
     if not warm:
         return None
     cool = summary.get("cool_min")
@@ -165,9 +180,7 @@ def _before_more(summary: dict[str, Any]) -> str | None:
     warmed (its drift references moved), and did the last round read worse than the one
     before? Then that, and what to do instead; None when neither."""
     said = []
-    warmed = summary.get("warmed_um") or {}
-    limit = max(WARM_UM, 0.5 * summary["tolerance_um"])
-    warm = {a: w for a, w in warmed.items() if w > limit}
+    warm = _warm_axes(summary)
     if warm:
         cool = summary.get("cool_min")
         said.append("the machine has warmed: its drift references moved "

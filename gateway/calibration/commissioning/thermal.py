@@ -200,8 +200,7 @@ class ThermalSteps:
             return {"fitted": False, "why": str(exc)}
         out = hf.summary()
         if hf.replaces_sensor:  # timed by the readings' clock: no speeds (as _motion_fit)
-            out["config"] = hf.config(
-                None if hf.timed else dict.fromkeys(self.s.axes, self.s.speed_mm_s))
+            out["config"] = hf.config(None if hf.timed else self._estimated_speeds(axis))
             if hf.spread_mm and axis not in self.record.tables.sensor_off:
                 # warm where it works: measured with the sensor off until the after-run, so
                 # the drift its references read is the growth, taken off along that shape

@@ -190,7 +190,7 @@ def warmup_heat_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
     gain, _ = _ls(alpha_per_k * d_temp * lever, growth)
     sensor_rms = float(np.sqrt(np.mean((growth - gain * alpha_per_k * d_temp * lever)[survey]
                                        ** 2)))  # fmt: skip
-    times = readings_clock_s(raw, plan, axis, clock) if clock else None
+    times = readings_clock_s(raw, plan, axis, clock)
     d_heat, d_fade = heat_changes(plan, axis, warm, first, prior_m, prior_s, times)
     length = float(thermal.length_mm)
     sse = [_ls((d_heat[:, j] + d_fade[:, j]) * lever / length, growth)[1]

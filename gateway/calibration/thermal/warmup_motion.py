@@ -156,7 +156,7 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
         # of 700 and kept it linear: 37 % of the judge's warm-up left; its own heat
         # equation synthesised, 29-61 % so, the profile 1-12 %)
         lever = heat[:, j] * (place - fixed)
-        per_mm = float(np.dot(lever, growth) / np.dot(lever, lever))
+        (per_mm,), _ = _lstsq(lever[:, None], growth)
         origin, length = fixed, max(abs(lo - fixed), abs(hi - fixed))
         lin_rms = float(np.sqrt(np.mean((growth - per_mm * lever)[survey] ** 2)))
         profiled = prof_rms < lin_rms
