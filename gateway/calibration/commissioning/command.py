@@ -74,7 +74,7 @@ class CommandChecks:
                      f"{MIN_LOST_UM:g} µm or more of lost motion and one rung of it, 12 moves, "
                      "shows less than all of it)")  # fmt: skip
         if self.thermal.heat_zoned():
-            self.say("  (warmup-* with no sensor: heat from motion, last, after the after-run: "
+            self.say("  (warmup-* with no sensor: heat from motion, after the rounds, before the after-run: "
                      "only where the drift references show the screw warming and the budget "
                      "left holds it; --no-heat-warmup leaves it out)")  # fmt: skip
         self.say(f"  then verification rounds (before, each round, after) within the budget; "

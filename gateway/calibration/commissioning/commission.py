@@ -23,7 +23,9 @@ command again after Ctrl-C, a crash or a power loss carries on where it stopped:
    stands out of the repeatability the span gets new table points (their values: the
    table's own plus the residual), a failing plane a denser grid; until within tolerance,
    out of rounds, or out of budget;
-4. the *before* targets measured again with everything on (before / after on the same
+4. per axis with no sensor whose screw warmed, its zone warm-up for heat from motion
+   (:meth:`.identify.IdentifySteps.heat_warm_ups`); then the *before* targets measured
+   again with everything on, on the screw it left warm (before / after on the same
    points), then random short steps on an axis with a take-up curve in what the budget
    has left (:mod:`.after`), the full config left loaded (the user's own where
    the plane reads worse with the tables than without), the report written.
@@ -148,12 +150,7 @@ class Commission:
             where = await self.stager.restore(exc)
             raise CommissionAborted(f"{exc}; {where}") from exc
         self.drift.fit_motion_heat()
-        self.thermal.motion_for_sensors()  # the after-run judges the final config's heat
-        try:
-            await self.after.run()
-        except BudgetSpent as exc:
-            self.record.state["notes"].append(f"no after-run: {exc}")
-        try:  # heat from motion, last: no table is measured on the screw it warms
+        try:  # heat from motion after the tables: no table is measured on the screw it warms
             await self.identify.heat_warm_ups()
         except BudgetSpent as exc:
             self.record.state["notes"].append(f"no warm-up: {exc}")
@@ -161,6 +158,11 @@ class Commission:
             where = await self.stager.restore(exc)
             raise CommissionAborted(f"{exc}; {where}") from exc
         self.drift.adopt_warmed_motion()
+        self.thermal.motion_for_sensors()  # the after-run judges the final config's heat
+        try:  # on the screw the warm-up left warm: as the customer's laser will meet it
+            await self.after.run()
+        except BudgetSpent as exc:
+            self.record.state["notes"].append(f"no after-run: {exc}")
         worse = self.after.plane_worse()
         if worse is not None:
             self.record.state["notes"].append(worse)
