@@ -176,6 +176,10 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
                 assert len({m.run for m in plan.moves}) == n, (r, a, n)
         report = (out / "report" / "report.html").read_text()
         assert "id='summary'" in report and "What remains" in report
+        # what each step cost: every second of the machine time counted once
+        spent_s = sum(summary["spent_s"].values()) + summary["refs_s"]
+        assert spent_s == pytest.approx(3600.0 * summary["machine_h"]), summary["spent_s"]
+        assert "id='spent'" in report and "X zone warm-up" in report
         # the figures as read beside the judged ones (trial 8: only on the terminal)
         summ = json.loads((out / "summary.json").read_text())
         x_read = summ["axes"]["X"]["after"]["E_read_um"]

@@ -152,6 +152,10 @@ class AfterSteps:
                                "identify": self.record.state.get("identify", {}),
                                "config": str(self.s.config_path),
                                "retried": self.record.state.get("retried", 0),
+                               # machine time per step (s), in the order run: what each cost
+                               "spent_s": {name: step["machine_s"] for name, step
+                                           in self.record.state["steps"].items()},
+                               "refs_s": self.record.state.get("refs_s", 0.0),
                                "finished_at": time.strftime("%Y-%m-%d %H:%M")}  # fmt: skip
         for a in self.s.axes:
             entry: dict[str, Any] = {}

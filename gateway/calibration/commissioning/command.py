@@ -74,9 +74,9 @@ class CommandChecks:
                      f"{MIN_LOST_UM:g} µm or more of lost motion and one rung of it, 12 moves, "
                      "shows less than all of it)")  # fmt: skip
         if self.thermal.heat_zoned():
-            self.say("  (warmup-* with no sensor: heat from motion, after the rounds, before the after-run: "
-                     "only where the drift references show the screw warming and the budget "
-                     "left holds it; --no-heat-warmup leaves it out)")  # fmt: skip
+            self.say("  (warmup-* with no sensor: heat from motion, after the rounds, before "
+                     "the after-run: only where the drift references show the screw warming "
+                     "and the budget left holds it; --no-heat-warmup leaves it out)")  # fmt: skip
         self.say(f"  then verification rounds (before, each round, after) within the budget; "
                  f"first steps: {total / 3600:.2f} h at {self.s.speed_mm_s:g} "
                  f"{'deg/s' if all(self.axes.rotary(a) for a in self.s.axes) else 'mm/s'} and "

@@ -56,6 +56,13 @@ def _thermal(r: Record, u: Fmt = _um) -> str:
         text = (f"temperature gain {r['gain']:.3g}: {r['growth_max_um']:.1f} µm of growth "
                 f"over {r.get('rise_K', 0.0):.1f} K, the model misses by "
                 f"{r['residual_rms_um']:.2f} µm RMS")  # fmt: skip
+    elif "delta_a_um_per_m" in r:  # no sensor: the zone warm-up's heat from motion
+        shape = (f"spread where the nut worked ({r['spread_mm']:.0f} mm)" if r.get("spread_mm")
+                 else "linear from the fixed end")  # fmt: skip
+        rms = r.get("profile_rms_um") if r.get("spread_mm") else r.get("linear_rms_um")
+        text = (f"heat from motion, read by the laser: {_motion_text(r)}, fixed end at "
+                f"{r['origin_mm']:.0f} mm, {shape}: {r['growth_max_um']:.1f} µm of growth, "
+                f"the model misses by {float(rms or 0.0):.2f} µm RMS")  # fmt: skip
     elif "length_mm" in r:
         text = (f"thermal length {r['length_mm']:.0f} mm: {r['growth_max_um']:.1f} µm of "
                 f"growth, the model misses by {r['residual_rms_um']:.2f} µm RMS")  # fmt: skip
@@ -171,10 +178,15 @@ def identification_rows(identify: dict[str, Any], rotary: frozenset[str] = froze
     out: dict[str, list[tuple[str, str]]] = {}
     for key, record in identify.items():
         kind, _, axis = key.partition("-")
-        what, text = kind, short(record)
-        if kind in KINDS and isinstance(record, dict):
-            what, sentence = KINDS[kind]
-            with contextlib.suppress(KeyError, TypeError, ValueError):
-                text = sentence(record, _arcsec if axis in rotary else _um)  # (else as stored)
-        out.setdefault(axis or "–", []).append((what, text))
+        what = KINDS[kind][0] if kind in KINDS else kind
+        out.setdefault(axis or "–", []).append((what, sentence(kind, record, axis in rotary)))
     return out
+
+
+def sentence(kind: str, record: Any, rotary: bool = False) -> str:
+    """One identification record (``kind`` as in ``kind-AXIS``) in a sentence; as stored
+    where its kind or fields are not the expected."""
+    if kind in KINDS and isinstance(record, dict):
+        with contextlib.suppress(KeyError, TypeError, ValueError):
+            return KINDS[kind][1](record, _arcsec if rotary else _um)
+    return short(record)

@@ -26,6 +26,7 @@ from ..reporting.report import (
     write_report,
 )
 from .ident_text import identification_rows
+from .spent import spent_rows
 
 #: a step's raw data as commissioning judged it, or None
 Load = Callable[[str], "RawData | None"]
@@ -393,6 +394,15 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
                     + "</table>" if rrows else
                     "<p id='rounds'>No round ran: the budget was spent before the first "
                     "verification (see what remains, above).</p>"))  # fmt: skip
+    spent = spent_rows(summary)
+    if spent:
+        used_min = sum(m for _, m, _ in spent)
+        cells = "".join(f"<tr><th>{html.escape(step)}</th><td>{m:.1f}</td>"
+                        f"<td>{100.0 * m / used_min:.0f} %</td><td>{html.escape(bought)}</td></tr>"
+                        for step, m, bought in spent)  # fmt: skip
+        parts.append("<h2>Machine time: what each step cost and bought</h2><table id='spent'>"
+                     "<tr><th>step</th><th>machine min</th><th>share</th><th>bought</th></tr>"
+                     + cells + "</table>")  # fmt: skip
     ident = identification_rows(summary.get("identify", {}), frozenset(
         a for a, e in summary["axes"].items() if _angular(e)))  # fmt: skip
     if ident:
