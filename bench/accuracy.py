@@ -141,7 +141,9 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
                                                           run.gateway_port, cool))  # fmt: skip
         out["said"] = next((("NOT within" if "NOT within" in n else "WITHIN")
                             for n in result.notes if "within" in n.lower()), None)  # fmt: skip
-        out["sensor"] = run.machine.get("thermal_sensor", "none")
+        # the sensor given to the workflow (--no-sensors: none, whatever the machine has)
+        out["sensor"] = ("none" if workflow == "commission" and workflows.NO_SENSORS
+                         else run.machine.get("thermal_sensor", "none"))  # fmt: skip
         thermal = {a: ax.get("compensation", {}).get("thermal") or {}
                    for a, ax in result.config["axes"].items()}  # fmt: skip
         out["sensor_axes"] = [a for a, th in thermal.items() if th.get("source")]
@@ -396,6 +398,9 @@ def main() -> int:
     parser.add_argument("--thermal-profile", action="store_true",
                         help="Δa axes get compensation.thermal.profile (the Δa spread where "
                              "the axis has travelled)")
+    parser.add_argument("--no-sensors", action="store_true",
+                        help="`compgw commission` is not given the machine's Δa or temperature "
+                             "sensors (issue 54): its axes have no thermal setting")
     parser.add_argument("--laser-kind", choices=workflows.LASER_KINDS, default="modbus",
                         help="how `compgw commission` reads the sim's laser: its Modbus "
                              "registers, the bridge line protocol over TCP "
@@ -438,6 +443,7 @@ def main() -> int:
     if args.budget_vs_manual is not None and args.budget_vs_plain is not None:
         parser.error("--budget-vs-manual and --budget-vs-plain: give one")
     workflows.THERMAL_PROFILE = args.thermal_profile
+    workflows.NO_SENSORS = args.no_sensors
     workflows.LASER_KIND = args.laser_kind
     workflows.PER_AXIS = args.per_axis
     workflows.THEN_TOLERANCE_UM = args.then_tolerance_um
@@ -491,7 +497,7 @@ def main() -> int:
                           "tolerance_um": args.tolerance_um,
                           "budget_vs_manual": args.budget_vs_manual,
                           "budget_vs_plain": args.budget_vs_plain,
-                          "laser_kind": args.laser_kind,
+                          "laser_kind": args.laser_kind, "no_sensors": args.no_sensors,
                           "wall_s": round(wall, 1), "groups": stats,
                           "machines": results}, indent=2))  # fmt: skip
     if not args.keep:

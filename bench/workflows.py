@@ -71,6 +71,9 @@ def without(data: dict[str, Any], *stages: str) -> dict[str, Any]:
 
 #: Δa axes get ``thermal.profile`` (the travel-shaped spread); accuracy.py --thermal-profile
 THERMAL_PROFILE = False
+#: `compgw commission` not given the machine's Δa or temperature sensors (issue 54's "1 x
+#: without them"): no thermal setting configured, heat from motion where the screw warms
+NO_SENSORS = False
 
 
 def thermal_setup(run: MachineRun, data: dict[str, Any]) -> str | None:
@@ -361,7 +364,7 @@ def commission(run: MachineRun) -> WorkflowResult:
     the plane commissioned with the last."""
     data = run.base_config()
     data["status"]["remote_control"] = True  # it reloads the gateway through the status unit
-    kind = thermal_setup(run, data)
+    kind = None if NO_SENSORS else thermal_setup(run, data)
     run.use(data)
     run.cool_down()
     sim = yaml.safe_load((run.dir / "sim.yaml").read_text())["sim"]
