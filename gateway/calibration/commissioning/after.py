@@ -214,7 +214,7 @@ class AfterSteps:
         warmed = {a: 1000.0 * max(abs(v) for v in d) for a, d in log[-1]["drift_mm"].items()
                   if d}  # fmt: skip
         ident = self.record.state.get("identify") or {}
-        for a in self.s.axes:  # a heat warm-up last (no sensor): the screw is that warm now
+        for a in self.s.axes:  # a heat warm-up (no sensor) near the end: about that warm now
             heat = ident.get(f"thermal-{a}") or {}
             if heat.get("fitted") and heat.get("drift_check") is not None:
                 warmed[a] = max(warmed.get(a, 0.0), float(heat.get("growth_max_um", 0.0)))
