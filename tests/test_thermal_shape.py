@@ -11,7 +11,13 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway.calibration.commissioning.configs import Tables, identification, with_tables
+from gateway.calibration.commissioning.configs import (
+    HEADER,
+    Tables,
+    identification,
+    own_config_path,
+    with_tables,
+)
 from gateway.calibration.fitting.plans_scans import warmup_plan
 from gateway.calibration.plans.rawdata import RawData
 from gateway.calibration.thermal.thermal_shape import thermal_shape_fit
@@ -456,3 +462,18 @@ def test_a_warm_up_is_timed_by_the_readings_clock_only_where_it_is_the_machine_s
                         {"time_s": tuple(f"{1e9 + scale * t:.3f}" for t in planned)},
                         raw.lines, raw.source)  # fmt: skip
         assert (readings_clock_s(timed, plan, "X") is not None) == used, scale
+
+
+def test_a_carried_on_run_decides_from_the_users_own_config(tmp_path: Path) -> None:
+    """A run carried on (or resumed) finds the gateway running a config commissioning
+    wrote, with the heat-from-motion model the run before fitted: what the user set is in
+    the copy kept before it began, and that is what decides (an axis with no thermal
+    setting of its own keeps its drift taken off)."""
+    config, original = tmp_path / "gw.yaml", tmp_path / "commission" / "original.yaml"
+    config.write_text("axes: {}\n")
+    assert own_config_path(config, original) == config  # nothing kept yet: the file itself
+    original.parent.mkdir()
+    original.write_text("axes: {}\n")
+    assert own_config_path(config, original) == config  # the user's own, edited or not
+    config.write_text(HEADER.format(phase="full", original=original) + "axes: {}\n")
+    assert own_config_path(config, original) == original

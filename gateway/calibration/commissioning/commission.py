@@ -60,6 +60,7 @@ from .axes import Axes
 from .best import BestTables
 from .budget import Budget
 from .command import CommandChecks
+from .configs import own_config_path
 from .drift import DriftRefs
 from .fit import FitSteps
 from .identify import IdentifySteps
@@ -89,7 +90,8 @@ class Commission:
         for axis, lead in record.state.get("leads", {}).items():  # found by a lead search
             if lead and axis not in settings.lead_mm:
                 settings.lead_mm[axis] = float(lead)
-        axes = Axes(settings, load_config(settings.config_path))
+        axes = Axes(settings, load_config(own_config_path(settings.config_path,
+                                                          record.original_path)))
         # the shared collaborators: what is done, the drift references, the configs, time
         self.record, self.axes = record, axes
         self.drift = drift = DriftRefs(axes, record, say)

@@ -17,7 +17,7 @@ from ...formats import atomic_write_text
 from ...tables import build_chain
 from ..fitting import adaptive
 from ..fitting.plane_frame import reframe_plane
-from .configs import HEADER, identification, with_tables
+from .configs import HEADER, WRITTEN, identification, with_tables
 
 if TYPE_CHECKING:
     from .axes import Axes
@@ -59,7 +59,7 @@ class Stager:
         if not self.record.original_path.exists():
             return
         text = self.s.config_path.read_text()
-        if text.startswith("# written by compgw commission") or \
+        if text.startswith(WRITTEN) or \
                 text == self.record.original_path.read_text():  # fmt: skip
             return
         mine, kept = read_yaml(self.s.config_path, TableError), self.original()
