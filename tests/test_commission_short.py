@@ -175,3 +175,34 @@ def test_a_short_budget_reads_a_plain_calibration_s_table_before_it_thins_runs_o
     assert (got.runs, dict(got.points), got.fits) == (2, {"X": 12, "Y": 12}, True)
     got = first_table_reading(axes, 5, {}, cost_s, 1.0, scans_s)
     assert (got.runs, dict(got.points), got.fits) == (2, {"X": 5, "Y": 5}, False)
+
+
+def test_a_short_budget_holds_a_backlash_test_only_where_the_iso_runs_read_lost_motion() -> None:
+    """Issue 54: a backlash test is no plain calibration's step. The plane's first grid on
+    a short budget held one per axis, and sdss-1396 (its reversal 0.2 µm) read a 7 x 7
+    grid where the plain calibration reads 9 x 7 (Y E cut −1 % against 51 %). Held only
+    where the ISO runs read a reversal of MIN_LOST_UM or more, which a take-up may follow."""
+    from types import SimpleNamespace
+
+    from gateway.calibration.commissioning.short import ShortBudget
+    from gateway.calibration.fitting.takeup_fit import MIN_LOST_UM
+    from gateway.calibration.plans.rawdata import RawData
+
+    targets = np.linspace(0.0, 400.0, 11)
+
+    def iso_runs(reversal_um: float) -> RawData:
+        rows = [(run, d, t) for run in (1, 2, 3) for d in (1, -1) for t in targets[::d]]
+        run, direction, target = (np.array(c) for c in zip(*rows))
+        actual = target + 1e-3 * (0.5 * reversal_um * direction + 0.02 * run)
+        return RawData(("X",) * len(rows), run.astype(np.int64), direction.astype(np.int8),
+                       target.astype(np.float64), actual, {}, tuple(range(len(rows))))
+
+    for reversal_um, held in ((0.2, False), (MIN_LOST_UM + 1.0, True)):
+        raw = iso_runs(reversal_um)
+        short = ShortBudget.__new__(ShortBudget)
+        short.record = SimpleNamespace(done=lambda name: True)
+        short.plans = SimpleNamespace(iso_steps=lambda axis: [f"iso-{axis}"])
+        short.runner = SimpleNamespace(raw=lambda name, raw=raw: raw)
+        assert short.lost_motion("X") is held, reversal_um
+    short.record = SimpleNamespace(done=lambda name: False)  # not read yet: held
+    assert short.lost_motion("X")
