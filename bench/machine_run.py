@@ -253,9 +253,14 @@ class MachineRun:
                 self.unsynced = int(found.group(1))
 
     # -- configs ------------------------------------------------------------------------------
-    def base_config(self) -> dict[str, Any]:
-        """The machine's gateway.yaml on this run's ports (uncalibrated)."""
+    def base_config(self, sensors: bool = False) -> dict[str, Any]:
+        """The machine's gateway.yaml on this run's ports (uncalibrated): no compensation
+        at all, or with ``sensors`` the axes' thermal settings on the sensors mounted on
+        their screws, as the machine's gateway.yaml points them."""
         data = yaml.safe_load((self.dir / "gateway.yaml").read_text())
+        if not sensors:
+            for axis in data["axes"].values():
+                (axis.get("compensation") or {}).pop("thermal", None)
         data["upstream"]["tcp"]["port"] = 0
         for bus in data["buses"].values():
             bus["tcp"]["port"] = self.bus_port

@@ -76,30 +76,18 @@ THERMAL_PROFILE = False
 NO_SENSORS = False
 
 
-def thermal_setup(run: MachineRun, data: dict[str, Any]) -> str | None:
-    """Point each axis with a sensor at its thermal source (origin at the screw's fixed end);
-    the sensor kind (``delta_a``, ``temperature``) or None."""
-    sources = data.get("thermal_sources") or {}
-    kind = None
-    for name, axis in data["axes"].items():
-        info = run.machine["axes"][name]
-        origin = info.get("screw_fixed_end_mm")
-        lo, hi = axis["travel_mm"]
-        for src_name, src in sources.items():
-            displacement = src.get("kind", "displacement") == "displacement"
-            if displacement and src_name == f"{name.lower()}_ref":
-                a_mm = run.machine["instruments"]["delta_a"]["a_mm"]
-                axis["compensation"]["thermal"] = {"source": src_name, "origin_mm": origin,
-                                                   "length_mm": abs(a_mm - origin)}  # fmt: skip
-                if THERMAL_PROFILE:
-                    axis["compensation"]["thermal"]["profile"] = {}
-                kind = "delta_a"
-            elif src.get("kind") == "temperature" and src_name == f"{name.lower()}_screw":
-                far = hi if abs(hi - origin) >= abs(lo - origin) else lo
-                axis["compensation"]["thermal"] = {"source": src_name, "origin_mm": origin,
-                                                   "length_mm": abs(far - origin)}  # fmt: skip
-                kind = "temperature"
-    return kind
+def thermal_setup(run: MachineRun) -> tuple[dict[str, Any], str | None]:
+    """The uncalibrated config with each axis that has a sensor pointed at it, as the
+    machine's gateway.yaml has it (origin at the screw's fixed end); the sensor kind
+    (``delta_a``, ``temperature``) or None."""
+    data = run.base_config(sensors=True)
+    sensed = [a for a in data["axes"].values() if (a.get("compensation") or {}).get("thermal")]
+    if not sensed:
+        return data, None
+    if THERMAL_PROFILE and run.machine.get("thermal_sensor") == "delta_a":
+        for axis in sensed:
+            axis["compensation"]["thermal"]["profile"] = {}
+    return data, run.machine.get("thermal_sensor")
 
 
 def measured_targets(raw_path: Path) -> dict[str, list[float]]:
@@ -151,13 +139,13 @@ def manual_iso(run: MachineRun, axis: str, low: dict[str, float]) -> list[str]:
 def manual_config(run: MachineRun) -> tuple[dict[str, Any], str | None]:
     """The manual workflow's calibrated config before any fit (its table paths, the plane,
     the thermal source) and the thermal sensor kind."""
-    full = run.base_config()
+    full, kind = thermal_setup(run)
     names = list(full["axes"])
     for a in names:
         full["axes"][a]["compensation"]["pitch"] = {"file": f"tables/{a.lower()}_pitch.csv",
                                                     "interpolation": "smooth"}  # fmt: skip
     full["planar"] = {"axes": names, "model": "tables/xy_model.yaml", "commit": "on_trigger"}
-    return full, thermal_setup(run, full)
+    return full, kind
 
 
 # -- the workflows -------------------------------------------------------------------------------
@@ -362,9 +350,8 @@ def commission(run: MachineRun) -> WorkflowResult:
     started cold. A laser read from its software's file reads the axis it is set up on:
     then one command per plane axis, the laser moved between them (docs/instruments.md),
     the plane commissioned with the last."""
-    data = run.base_config()
+    data, kind = (run.base_config(), None) if NO_SENSORS else thermal_setup(run)
     data["status"]["remote_control"] = True  # it reloads the gateway through the status unit
-    kind = None if NO_SENSORS else thermal_setup(run, data)
     run.use(data)
     run.cool_down()
     sim = yaml.safe_load((run.dir / "sim.yaml").read_text())["sim"]

@@ -167,8 +167,24 @@ def largest_error_um(spec: MachineSpec) -> float:
     return worst
 
 
+def _sensed(axis: dict[str, Any], source: str, ax: AxisSpec, a_mm: float | None) -> None:
+    """Point an axis at the sensor mounted on its screw, as the technician who mounted it
+    writes it: from the screw's fixed end to the Δa sensor (``a_mm``), or to the travel's
+    far end for a temperature; commissioning fits the length or gain
+    (`compgw commission --delta-a/--temperature`, which the printed command gives)."""
+    if ax.fixed_end_mm is None:
+        return
+    origin = float(ax.fixed_end_mm)
+    if a_mm is None:
+        lo, hi = ax.travel_mm
+        a_mm = hi if abs(hi - origin) >= abs(lo - origin) else lo
+    axis["compensation"]["thermal"] = {"source": source, "origin_mm": origin,
+                                       "length_mm": abs(float(a_mm) - origin)}
+
+
 def gateway_config(spec: MachineSpec) -> dict[str, Any]:
-    """The uncalibrated gateway config: drives, registers, travel, resolution, sensors."""
+    """The uncalibrated gateway config: drives, registers, travel, resolution, and the
+    thermal sensors with each axis pointed at its own (no table, nothing fitted)."""
     cap_mm = max(0.2, math.ceil(1.5 * largest_error_um(spec) / 50.0) * 0.05)
     axes = {}
     for ax in spec.axes:
@@ -190,20 +206,25 @@ def gateway_config(spec: MachineSpec) -> dict[str, Any]:
     # polls, so poll often, take each reading as it is and allow fast changes
     fast = {"poll_s": 0.01, "smoothing": 1.0, "max_rate_mm_s": 1.0}
     sensor = spec.sensor or {}
+    by_name = {ax.name: ax for ax in spec.axes}
     if sensor.get("kind") == "delta_a":
-        sources[f"{sensor['axis'].lower()}_ref"] = {
+        name = f"{sensor['axis'].lower()}_ref"
+        sources[name] = {
             "bus": "line1", "unit": DELTA_A_UNIT,
             "register": {"address": 1, "table": "input", "words": 2, "order": "hi_lo"},
             "scale_mm": 1.0e-6, "noise_mm": 0.0005, **fast,
         }  # fmt: skip
+        _sensed(axes[sensor["axis"]], name, by_name[sensor["axis"]], sensor["a_mm"])
     elif sensor.get("kind") == "temperature":
         for k, ax in enumerate(spec.axes):
-            sources[f"{ax.name.lower()}_screw"] = {
+            name = f"{ax.name.lower()}_screw"
+            sources[name] = {
                 "bus": "line1", "unit": TEMPERATURE_UNIT,
                 "register": {"address": k, "table": "input", "words": 1},
                 "kind": "temperature", "scale_c": 0.01, "reference_c": 20.0,
                 "alpha_per_k": 11.5e-6, "noise_mm": 0.0005, **fast,
             }  # fmt: skip
+            _sensed(axes[ax.name], name, ax, None)
     if sources:
         doc["thermal_sources"] = sources
     doc["passthrough"] = {LASER_UNIT: {"bus": "line1", "unit": LASER_UNIT},

@@ -34,10 +34,11 @@ def small_machine(directory: Path, seed: int = 7, roughness: str = "smooth") -> 
     gw = yaml.safe_load((directory / "gateway.yaml").read_text())
     for axis in gw["axes"].values():
         axis["travel_mm"] = list(TRAVEL_MM)
+        axis["compensation"].pop("thermal", None)
     gw["upstream"]["tcp"]["port"] = 0
     gw["status"]["remote_control"] = True
-    # no axis uses it and the tests give no --delta-a: not polled 100 times a second (the
-    # gateway's and the sim's 7 % of a CPU while each test commissions)
+    # the tests give no --delta-a (an axis without a sensor): not polled 100 times a second
+    # (the gateway's and the sim's 7 % of a CPU while each test commissions)
     gw.pop("thermal_sources", None)
     (directory / "gateway.yaml").write_text(yaml.safe_dump(gw, sort_keys=False))
     return json.loads((directory / "machine.json").read_text())

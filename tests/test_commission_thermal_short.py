@@ -25,12 +25,11 @@ def test_a_short_budget_with_a_thermal_sensor_takes_the_plain_steps_first(
 
     proc = Proc(["-m", "gateway.cli", "sim", "--random-machine", "7", "--out", str(fresh)])
     assert proc.popen.wait(timeout=60) == 0, proc.text()
-    sources = yaml.safe_load((fresh / "gateway.yaml").read_text())["thermal_sources"]
-    original["thermal_sources"] = sources  # the Δa sensor back (small_machine drops it)
+    written = yaml.safe_load((fresh / "gateway.yaml").read_text())
+    original["thermal_sources"] = written["thermal_sources"]  # the Δa sensor back, X on it
+    original["axes"]["X"]["compensation"]["thermal"] = written["axes"]["X"]["compensation"][
+        "thermal"]  # (small_machine drops both)  # fmt: skip
     delta_a = machine["instruments"]["delta_a"]
-    origin = machine["axes"]["X"]["screw_fixed_end_mm"]
-    original["axes"]["X"]["compensation"]["thermal"] = {  # as bench/workflows.py sets it
-        "source": "x_ref", "origin_mm": origin, "length_mm": abs(delta_a["a_mm"] - origin)}
     (directory / "gateway.yaml").write_text(yaml.safe_dump(original, sort_keys=False))
     with running(directory, tmp_path / "m") as rig:
         proc = rig.commission("--budget-h", "0.2", "--delta-a",

@@ -86,7 +86,23 @@ def test_rough_carries_structure_no_stage_models_smooth_does_not(tmp_path):
         sim_r = yaml.safe_load((rough / "sim.yaml").read_text())["sim"]["machine"]["X"]
         assert "thermal" in sim_s and "heat" in sim_r
         assert "lost_motion" not in sim_s and sim_r["lost_motion"]["takeup"]["curve"] == "smooth"
-        sensors.add(yaml.safe_load((smooth / "machine.json").read_text())["thermal_sensor"])
+        machine = yaml.safe_load((smooth / "machine.json").read_text())
+        sensors.add(machine["thermal_sensor"])
+        # a sensor's axes point at it, as whoever mounted it writes (commissioning fits the
+        # length or gain): from the screw's fixed end, to the Δa sensor or the far end
+        gw = yaml.safe_load((smooth / "gateway.yaml").read_text())
+        thermal = {a: ax["compensation"].get("thermal") for a, ax in gw["axes"].items()}
+        if machine["thermal_sensor"] == "none":
+            assert not any(thermal.values()) and "thermal_sources" not in gw, gw
+        for axis, th in thermal.items():
+            if th is None:
+                continue
+            assert th["source"] in gw["thermal_sources"], gw
+            origin = machine["axes"][axis]["screw_fixed_end_mm"]
+            reach = machine["instruments"]["delta_a"]["a_mm"] if th["source"].endswith(
+                "_ref") else max(machine["axes"][axis]["travel_mm"], key=lambda e: abs(e - origin))
+            assert th["origin_mm"] == origin and th["length_mm"] == abs(reach - origin), th
+        assert compgw(["check", "-c", str(smooth / "gateway.yaml")]) == 0
         load_config(smooth / "sim.yaml")
         load_config(rough / "sim.yaml")
         assert compgw(["check", "-c", str(rough / "gateway.yaml")]) == 0
