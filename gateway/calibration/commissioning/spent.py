@@ -57,7 +57,7 @@ def _round_bought(summary: dict[str, Any], number: int) -> str:
         done.append(f"XY grid {this['grid'][0]}×{this['grid'][1]}")
     nxt = rounds.get(number + 1)
     if not done:
-        return f"verified: {this.get('outcome') or 'judged'}" if nxt is None else "verified"
+        return "verified (nothing refined)"
     if nxt is None:
         return "; ".join(done) + ": judged by the after-run"
     figures = [f"{a} E {_arrow(v.get('E_um'), (nxt['axes'].get(a) or {}).get('E_um'))}"
