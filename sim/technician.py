@@ -100,7 +100,11 @@ class Technician(_SimLaser):
     def hear(self, line: str, stdin: IO[str] | None) -> None:
         """Act on one line compgw printed (``stdin``: its input, where Enter goes)."""
         if START.search(line):
-            self._write(REC_START)
+            try:
+                self._write(REC_START)
+            except RuntimeError:  # still recording for a run that aborted: anew, as one would
+                self._write(REC_STOP)
+                self._write(REC_START)
             if stdin is not None:
                 stdin.write("\n")
                 stdin.flush()
