@@ -534,8 +534,10 @@ def _loopback(host: str) -> bool:
         return False
 
 
-#: the first line ``compgw commission`` writes into the configs it makes the gateway run
-_COMMISSION_LINE = re.compile(r"# written by compgw commission \((?P<phase>[\w ,-]+) config\): "
+#: how the first line of every config ``compgw commission`` makes the gateway run begins
+COMMISSION_WRITTEN = "# written by compgw commission"
+_COMMISSION_LINE = re.compile(re.escape(COMMISSION_WRITTEN)
+                              + r" \((?P<phase>[\w ,-]+) config\): "
                               r"your own config is kept in (?P<original>.+)$")
 
 

@@ -17,9 +17,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-#: how every config commissioning writes over the user's begins
-WRITTEN = "# written by compgw commission"
-HEADER = (WRITTEN + " ({phase} config): your own config is kept in {original}\n")
+from ...config import COMMISSION_WRITTEN as WRITTEN
+
+#: the first line of every config commissioning writes over the user's (gateway.config
+#: recognises it: ``compgw check`` warns of one left behind)
+HEADER = WRITTEN + " ({phase} config): your own config is kept in {original}\n"
 
 
 def own_config_path(config_path: Path, original_path: Path) -> Path:

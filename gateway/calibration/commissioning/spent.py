@@ -11,7 +11,7 @@ from typing import Any
 from .ident_text import sentence
 
 #: a round's steps: its verification, and what it refined (sweeps, new points, a denser grid)
-_ROUND = re.compile(r"^(verify|sweep|refine|densify)(\d+)-")
+_ROUND = re.compile(r"^(verify|sweep|refine)(\d+)-")
 
 
 def step_group(name: str) -> tuple[str, str]:
