@@ -282,9 +282,10 @@ class IdentifySteps:
         """The zone warm-up of each axis with no sensor, after the rounds, so that no run
         that fits a table measures a screw it warmed (before the rounds,
         their sweeps took its heat into the tables: smooth-3 X E 0.46 → 1.97 µm, rough-3 X
-        0.66 → 2.45 at the judge's targets). Only where the drift references read so far
-        show the screw warming (a cold machine's tables need no heat model, nor its
-        technician an hour of warm-up), and where the budget left holds it. Its model
+        0.66 → 2.45 at the judge's targets). Not where the drift references read so far
+        rule out the heat it would show (:meth:`.thermal.ThermalSteps.too_little_heat`: a
+        cold machine's technician needs no hour of warm-up), and where the budget left
+        holds it. Its model
         replaces the one fitted to the drift references where it holds on their drift
         (:meth:`.drift.DriftRefs.adopt_warmed_motion`). The after-run follows, on the screw
         it left warm, with the final config: as the customer's laser meets the machine

@@ -360,24 +360,31 @@ class ThermalSteps:
         return min(MIN_GROWTH_UM, self.s.tolerance_um)
 
     def too_little_heat(self, axis: str) -> str | None:
-        """Why an axis with no sensor gets no zone warm-up (None: it warms): its drift
-        references, read around its pitch runs, moved within their own scatter, or by so
-        little per metre of its travel so far that the warm-up's travel would grow it less
-        than :meth:`least_growth_um` (the pitch runs are light work: smooth-0 Y moved
-        1.8 µm in 24 m, then 22 µm in the bench judge's 30 minutes of work)."""
+        """Why an axis with no sensor gets no zone warm-up (None: it warms): the most its
+        drift references can have grown so far (what they moved, plus twice the scatter
+        of one reading), scaled from its travel so far to the warm-up's, grows it less
+        than :meth:`least_growth_um`. What the references cannot rule out is warmed up:
+        the pitch runs are light work, and a drift within the references' scatter over
+        them is no bound on a working day's (smooth-2 Y moved 0.8 µm in 19 m, within its
+        0.4 µm scatter; then 3.2 µm in the bench judge's 30 minutes of work, none of it
+        modelled; smooth-0 Y 1.8 µm in 24 m, then 22 µm)."""
         grown = self.drift.grown_um(axis)
         so_far_m = self.drift.odometer()[axis] / 1000.0
         plan = self.warmup_plan(axis)
         k = plan.axes.index(axis)
         x = np.array([m.target_mm[k] for m in plan.moves])
         warm_m = float(np.abs(np.diff(x)).sum()) / 1000.0
-        expected = grown * max(1.0, warm_m / max(so_far_m, 1e-3))
-        if self.drift.drift_stands_out(axis) and expected >= self.least_growth_um():
+        scale = max(1.0, warm_m / max(so_far_m, 1e-3))
+        s_um = self.drift.ref_scatter_um(axis) or self.drift.iso_scatter_um(axis)
+        if s_um is None:
+            return None  # nothing known of the references' scatter: nothing ruled out
+        most_um = (grown + 2.0 * s_um) * scale
+        if most_um >= self.least_growth_um():
             return None
         return (f"its drift references moved {grown:.1f} µm in {so_far_m:.0f} m of its travel "
-                f"(about {expected:.1f} µm over the warm-up's {warm_m:.0f} m, under "
-                f"{self.least_growth_um():g}, or within their scatter): too little heat for "
-                "a warm-up")
+                f"(their scatter {s_um:.1f} µm): at most about {most_um:.1f} µm over the "
+                f"warm-up's {warm_m:.0f} m, under {self.least_growth_um():g}: too little heat "
+                "for a warm-up")
 
 
 
