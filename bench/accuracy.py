@@ -221,6 +221,8 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
         "offgrid_zeroed_rms_um": max(a["axes"][n].get("offgrid_zeroed_rms_um", np.nan)
                                      for n in axes),
         "xy_zeroed_after_um": a["xy"].get("max_zeroed_um", np.nan),
+        # the plane's shape: its mean offset off (the constant a home and work offset take)
+        "xy_centred_after_um": a["xy"].get("max_centred_um", np.nan),
         # thermal: on the axes with a sensor (all axes when there is none: the drift)
         "thermal_off_um": max(b["axes"][n]["thermal_um"] for n in sensed or axes),
         "thermal_on_um": max(a["axes"][n]["thermal_um"] for n in sensed or axes),
@@ -237,7 +239,7 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
 
 HEAD = (f"{'machine':<24}{'E  before':>11}{'after':>7}{'cut %':>7}{'max':>6}{'A-R':>6}"
         f"{'XY before':>10}{'after':>7}{'cut %':>7}{'max':>6}{'offgrid':>8}{'therm off':>10}"
-        f"{'on':>6}{'model':>7}{'mach h':>7}{'×ref':>6}{'off0':>6}{'XY0':>6}  sensor")
+        f"{'on':>6}{'model':>7}{'mach h':>7}{'×ref':>6}{'off0':>6}{'XY0':>6}{'XYc':>6}  sensor")
 
 
 def row(label: str, s: dict[str, Any], sensor: str) -> str:
@@ -250,7 +252,8 @@ def row(label: str, s: dict[str, Any], sensor: str) -> str:
             f"{s.get('model_on_um', float('nan')):7.1f}"
             f"{s.get('machine_h', float('nan')):7.2f}{s.get('vs_manual', float('nan')):6.2f}"
             f"{s.get('offgrid_zeroed_rms_um', float('nan')):6.2f}"
-            f"{s.get('xy_zeroed_after_um', float('nan')):6.2f}  {sensor}")  # fmt: skip
+            f"{s.get('xy_zeroed_after_um', float('nan')):6.2f}"
+            f"{s.get('xy_centred_after_um', float('nan')):6.2f}  {sensor}")  # fmt: skip
 
 
 def group_stats(results: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, float]]]:
