@@ -186,6 +186,7 @@ class IdentifySteps:
             await self.short.densify(a)
         for a in cores:  # the once-per-lead error, before the plane is measured on the tables
             await self._cyclic_beside_plane(a)
+        await self.short.more_runs(cores)  # a plain calibration's runs, where time is left
         if self.axes.plane_with(cores):
             await self.before_xy()  # (what the plane's check and report need)
             await self.fit.fit_axes(cores, curves=True)

@@ -48,11 +48,22 @@ class Planner:
                             self.budget.iso_runs(), kind="iso230-linear",
                             note="midpoints")  # fmt: skip
 
+    def more_runs_plan(self, axis: str, more: int) -> Plan:
+        """The first table's ISO runs again: ``more`` runs on the same targets, numbered on
+        from its own (a short budget's time left after a plain calibration's steps,
+        :meth:`.short.ShortBudget.more_runs`)."""
+        first = self.budget.iso_runs()
+        whole = self.iso_plan(axis, runs=first + more)
+        meta = tuple((k, str(more) if k == "runs" else v) for k, v in whole.meta)
+        return Plan(whole.kind, whole.axes, tuple(m for m in whole.moves if m.run > first),
+                    (*meta, ("first_run", str(first + 1))))  # fmt: skip
+
     def iso_steps(self, axis: str) -> list[str]:
-        """The ISO steps of ``axis``: the first table's points, and its midpoints where a
-        short budget read them (:meth:`densify`)."""
-        mid = f"iso-mid-{axis}"
-        return [f"iso-{axis}"] + ([mid] if self.record.done(mid) else [])
+        """The ISO steps of ``axis``: the first table's points, its midpoints and more runs
+        where a short budget read them (:meth:`.short.ShortBudget.densify`,
+        :meth:`.short.ShortBudget.more_runs`)."""
+        steps = [f"iso-{axis}", f"iso-mid-{axis}", f"iso-more-{axis}"]
+        return steps[:1] + [n for n in steps[1:] if self.record.done(n)]
 
     def iso_targets(self, axis: str) -> np.ndarray:
         """Every target the ISO runs of ``axis`` read (mm)."""
