@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -206,3 +207,61 @@ def test_a_short_budget_holds_a_backlash_test_only_where_the_iso_runs_read_lost_
         assert short.lost_motion("X") is held, reversal_um
     short.record = SimpleNamespace(done=lambda name: False)  # not read yet: held
     assert short.lost_motion("X")
+
+
+def test_time_left_after_a_plain_calibration_s_steps_reads_more_runs_before_the_plane() -> None:
+    """Issue 54: at the plain calibration's machine time smooth-8, rough-3 and rough-4 read
+    2-3 ISO runs (decided on costs with the drift references around every run) and left
+    20-24 % of the budget unused; the plain calibration reads 5. After the ISO runs and
+    the cyclic scans, the runs again on the same targets, as many as the budget left
+    holds beside the plane's grid (held), numbered on from the first, up to the
+    configured runs; decided once."""
+    import asyncio
+    from types import SimpleNamespace
+
+    from gateway.calibration.commissioning.planner import Planner
+    from gateway.calibration.commissioning.short import ShortBudget
+
+    state: dict = {"iso_runs": 2, "iso_points": {"X": 29}}
+    budget = SimpleNamespace(iso_runs=lambda: state["iso_runs"], left_s=lambda: left[0],
+                             step_cost_worst_s=lambda plan: 1.0 * sum(m.measured
+                                                                      for m in plan.moves))
+    axes = SimpleNamespace(travel=lambda a: (0.0, 700.0), plane_with=lambda axes: True,
+                           park=lambda a: {})  # fmt: skip
+    settings = SimpleNamespace(lead_mm={}, seed=3, runs=5)
+    planner = Planner.__new__(Planner)
+    planner.s, planner.axes, planner.budget = settings, axes, budget
+    planner.record = SimpleNamespace(state=state)
+    first = planner.iso_plan("X", runs=2)
+    more = planner.more_runs_plan("X", 2)
+    assert sorted({m.run for m in more.moves}) == [3, 4]
+    assert np.array_equal(np.sort(more.targets_mm("X")), np.sort(first.targets_mm("X")))
+
+    def short_with(left_s: float) -> tuple[ShortBudget, list]:
+        steps: list = []
+        short = ShortBudget.__new__(ShortBudget)
+        short.s, short.axes, short.budget, short.plans = settings, axes, budget, planner
+        short.record = SimpleNamespace(state={}, done=lambda name: False, save=lambda: None)
+        short.plane_held_s = lambda: 100.0  # the grid and its random points
+        short.say = lambda text: None
+
+        async def step(name: str, plan: Any, *args: Any) -> None:
+            steps.append((name, plan()))
+
+        short.runner = SimpleNamespace(step=step)
+        left[0] = left_s
+        return short, steps
+
+    left = [0.0]
+    per_run_s = 2 * 29  # a reading a second, both ways
+    short, steps = short_with(100.0 + 2 * per_run_s + 10.0)  # two more runs fit
+    asyncio.run(short.more_runs(["X"]))
+    assert short.record.state["identify"]["more_runs"] == 2
+    assert [n for n, _ in steps] == ["iso-more-X"]
+    assert sorted({m.run for m in steps[0][1].moves}) == [3, 4]
+    short, steps = short_with(100.0 + 10 * per_run_s)  # room for more: never past 5 runs
+    asyncio.run(short.more_runs(["X"]))
+    assert short.record.state["identify"]["more_runs"] == 3
+    short, steps = short_with(100.0 + 0.5 * per_run_s)  # the grid first: none
+    asyncio.run(short.more_runs(["X"]))
+    assert short.record.state["identify"]["more_runs"] == 0 and steps == []

@@ -78,14 +78,18 @@ class ShortBudget:
         """Whether the drift references are read (decided once, before the first, kept in
         the state; said when not): not on a short budget that holds a plain calibration's
         steps without them but not with them (around every run, at every config switch):
-        every linear axis's ISO runs and cyclic scans where its lead is known and the
-        plane's configured grid and random points; else, at the least, every axis's ISO
+        every linear axis's ISO runs (a plain calibration's table, at the configured runs)
+        and cyclic scans where its lead is known and the plane's configured grid and random
+        points; else, at the least, every axis's ISO
         runs at 2 runs per target on the ISO 230-2 least of targets and the plane's grid,
         or those runs alone. They are an identification extra: there a plain calibration's
         tables are worth more than a drift taken off them. (At the plain calibration's 7.8
         minutes, mcu1025's references took 2.4 minutes and Y got no table: E cut 2 %
         against 69 %; at its 0.6 h, the random machines' references left no room for Y's
-        cyclic scans, Y E cut 65 % against 94 %.)"""
+        cyclic scans, Y E cut 65 % against 94 %; held beside the coarse table's targets
+        instead of the plain calibration's, they took 485-533 s of the 0.7-0.8 h of rough-3,
+        rough-4, rough-8, smooth-8 and smooth-9, whose ISO runs fell to 2-3 per target:
+        rough-3 X E cut 87 % against 92 %.)"""
         state = self.record.state
         if "refs_off" not in state:
             off, held = False, ""
@@ -95,7 +99,8 @@ class ShortBudget:
                 plane = []
                 if self.axes.plane_with(linear):
                     plane = [self.plans.grid_plan(self.s.grid), *2 * [self.plans.before_xy_plan()]]
-                plain = [self.plans.iso_plan(a) for a in linear] + [
+                dense = self.plain_points(linear)  # (its table's targets, its runs)
+                plain = [self.plans.iso_plan(a, self.s.runs, dense.get(a)) for a in linear] + [
                     cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])
                     for a in linear if a in self.s.lead_mm] + plane  # fmt: skip
 
