@@ -68,7 +68,8 @@ def test_a_short_budget_reads_a_coarse_table_along_the_curve_it_prefers(tmp_path
         # readings show that they only scatter, Y's ISO runs and the plane's two grid runs
         # get one pair each
         steps, apart = state["steps"], state["apart"]
-        assert apart["iso-X"] and len(steps["iso-X"]["parts"]) == 3, apart
+        assert apart["iso-X"] and len(steps["iso-X"]["parts"]) == state["iso_runs"], apart
+        assert state["iso_runs"] == 3  # the configured runs first (the midpoints before more)
         for name in ("iso-Y", "xy-grid"):
             assert not apart[name] and len(steps[name]["parts"]) == 1, (name, apart)
         # Y's first table misses its sharp minimum between its points: read at their

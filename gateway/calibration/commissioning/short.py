@@ -38,7 +38,7 @@ SWITCH_READINGS = 4
 #: by more than this many times what its own scatter explains (as a reversal per point)
 BETWEEN_RATIO = 2.0
 #: the fewest runs per target a short budget reads a plain calibration's table at (else the
-#: coarse table at up to the configured runs; :meth:`.identify.IdentifySteps._iso_runs_that_fit`)
+#: coarse table at up to its runs; :meth:`.identify.IdentifySteps._iso_runs_that_fit`)
 DENSE_LEAST_RUNS = 2
 
 
@@ -78,7 +78,7 @@ class ShortBudget:
         """Whether the drift references are read (decided once, before the first, kept in
         the state; said when not): not on a short budget that holds a plain calibration's
         steps without them but not with them (around every run, at every config switch):
-        every linear axis's ISO runs (a plain calibration's table, at the configured runs)
+        every linear axis's ISO runs (a plain calibration's table, at its runs)
         and cyclic scans where its lead is known and the plane's configured grid and random
         points; else, at the least, every axis's ISO
         runs at 2 runs per target on the ISO 230-2 least of targets and the plane's grid,
@@ -100,7 +100,8 @@ class ShortBudget:
                 if self.axes.plane_with(linear):
                     plane = [self.plans.grid_plan(self.s.grid), *2 * [self.plans.before_xy_plan()]]
                 dense = self.plain_points(linear)  # (its table's targets, its runs)
-                plain = [self.plans.iso_plan(a, self.s.runs, dense.get(a)) for a in linear] + [
+                plain = [self.plans.iso_plan(a, self.table_runs(), dense.get(a))
+                         for a in linear] + [
                     cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])
                     for a in linear if a in self.s.lead_mm] + plane  # fmt: skip
 
@@ -137,6 +138,16 @@ class ShortBudget:
         table's on one of ``axes`` at least; else none (the coarse table is as dense)."""
         dense = {a: adaptive.plain_points(self.axes.travel(a)) for a in axes}
         return dense if any(n > adaptive.COARSE_POINTS for n in dense.values()) else {}
+
+    def table_runs(self) -> int:
+        """Runs per target a short budget's table is read at in the end, where the budget
+        holds them: a plain calibration's (``adaptive.PLAIN_RUNS``), or the configured runs
+        where more. The first runs are the configured ones at most (3: a round would verify
+        and refine them); the rest come after the midpoints and the cyclic scans
+        (:meth:`more_runs`), which buy more where the table misses (slit-11358's Y misses 46
+        times its scatter between its points; read at 5 runs first, its midpoints no longer
+        fitted beside the plane's grid)."""
+        return max(self.s.runs, adaptive.PLAIN_RUNS)
 
     def plane_held_s(self) -> float:
         """Machine time (s) a short budget holds for the plane when it decides a step before
@@ -209,12 +220,11 @@ class ShortBudget:
     async def more_runs(self, axes: list[str]) -> None:
         """On a short budget, after a plain calibration's ISO runs and cyclic scans and
         before the plane's grid: the ISO runs again on the same targets, as many more (up
-        to the configured runs) as the budget left holds beside the plane's configured grid
+        to :meth:`table_runs`) as the budget left holds beside the plane's configured grid
         (and its random points) and the scans not made yet. The first runs were decided on
         what the steps would cost with the drift references around every run; where they
-        cost less, that time reads the tables a plain calibration reads (5 runs), before
-        any step a plain calibration does not take (at 1 x its time smooth-8, rough-3 and
-        rough-4 read 2-3 runs and left 20-24 % of the budget unused). Decided once."""
+        cost less, that time reads the runs a plain calibration reads, before any step it
+        does not take. Decided once."""
         ident = self.record.state.setdefault("identify", {})
         if "more_runs" not in ident:
             first = self.budget.iso_runs()
@@ -224,7 +234,7 @@ class ShortBudget:
                 for a in axes if a in self.s.lead_mm and not self.record.done(f"cyclic-{a}"))
             room_s = self.budget.left_s() - held_s
             more = 0
-            for k in range(self.s.runs - first, 0, -1):
+            for k in range(self.table_runs() - first, 0, -1):
                 cost_s = sum(self.budget.step_cost_worst_s(self.plans.more_runs_plan(a, k))
                              for a in axes)  # fmt: skip
                 if cost_s <= room_s:

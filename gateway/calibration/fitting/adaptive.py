@@ -34,6 +34,8 @@ COARSE_POINTS = 21
 ISO_LEAST_POINTS = 5
 #: a plain ISO 230-2 calibration's target spacing (mm; ``compgw calibrate --step-mm``)
 PLAIN_STEP_MM = 25.0
+#: ... and its runs per target (``compgw calibrate --runs``; ISO 230-2's five)
+PLAIN_RUNS = 5
 #: random verification targets per axis and round, besides the new spans' midpoints
 RANDOM_TARGETS = 16
 #: a table never gets points closer than this (mm): below it noise would set the slope
