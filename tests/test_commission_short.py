@@ -229,7 +229,7 @@ def test_time_left_after_a_plain_calibration_s_steps_reads_more_runs_before_the_
                                                                       for m in plan.moves))
     axes = SimpleNamespace(travel=lambda a: (0.0, 700.0), plane_with=lambda axes: True,
                            park=lambda a: {})  # fmt: skip
-    settings = SimpleNamespace(lead_mm={}, seed=3, runs=5)
+    settings = SimpleNamespace(lead_mm={}, seed=3, runs=5, grid=(7, 5))
     planner = Planner.__new__(Planner)
     planner.s, planner.axes, planner.budget = settings, axes, budget
     planner.record = SimpleNamespace(state=state)
@@ -244,6 +244,9 @@ def test_time_left_after_a_plain_calibration_s_steps_reads_more_runs_before_the_
         short.s, short.axes, short.budget, short.plans = settings, axes, budget, planner
         short.record = SimpleNamespace(state={}, done=lambda name: False, save=lambda: None)
         short.plane_held_s = lambda: 100.0  # the grid and its random points
+        short.plain_grid = lambda: (9, 7)  # ... and the plain calibration's grid: 30 s more
+        planner.grid_plan = lambda grid: grid  # type: ignore[method-assign]
+        budget.step_cost_s = lambda grid: 30.0 if grid == (9, 7) else 0.0
         short.say = lambda text: None
 
         async def step(name: str, plan: Any, *args: Any) -> None:
@@ -255,14 +258,14 @@ def test_time_left_after_a_plain_calibration_s_steps_reads_more_runs_before_the_
 
     left = [0.0]
     per_run_s = 2 * 29  # a reading a second, both ways
-    short, steps = short_with(100.0 + 2 * per_run_s + 10.0)  # two more runs fit
+    short, steps = short_with(130.0 + 2 * per_run_s + 10.0)  # two more runs fit
     asyncio.run(short.more_runs(["X"]))
     assert short.record.state["identify"]["more_runs"] == 2
     assert [n for n, _ in steps] == ["iso-more-X"]
     assert sorted({m.run for m in steps[0][1].moves}) == [3, 4]
-    short, steps = short_with(100.0 + 10 * per_run_s)  # room for more: never past 5 runs
+    short, steps = short_with(130.0 + 10 * per_run_s)  # room for more: never past 5 runs
     asyncio.run(short.more_runs(["X"]))
     assert short.record.state["identify"]["more_runs"] == 3
-    short, steps = short_with(100.0 + 0.5 * per_run_s)  # the grid first: none
+    short, steps = short_with(100.0 + 1.2 * per_run_s)  # a plain calibration's grid first
     asyncio.run(short.more_runs(["X"]))
     assert short.record.state["identify"]["more_runs"] == 0 and steps == []

@@ -37,6 +37,8 @@ SWITCH_READINGS = 4
 #: a short budget's table is read at its midpoints too where it misses between its points
 #: by more than this many times what its own scatter explains (as a reversal per point)
 BETWEEN_RATIO = 2.0
+#: nodes along the longer travel of a grid the size of a plain calibration's (9 x 7)
+PLAIN_GRID_LINES = 9
 #: the fewest runs per target a short budget reads a plain calibration's table at (else the
 #: coarse table at up to its runs; :meth:`.identify.IdentifySteps._iso_runs_that_fit`)
 DENSE_LEAST_RUNS = 2
@@ -152,6 +154,13 @@ class ShortBudget:
         fitted beside the plane's grid)."""
         return max(self.s.runs, adaptive.PLAIN_RUNS)
 
+    def plain_grid(self) -> tuple[int, int]:
+        """A grid of about a plain calibration's nodes (9 along the longer travel, its cells
+        about square; the plain calibration's 9 x 7), or the configured one where denser."""
+        (x0, x1), (y0, y1) = self.axes.plane_travel()
+        even = even_grid(x1 - x0, y1 - y0, lines=PLAIN_GRID_LINES)
+        return even if even[0] * even[1] > self.s.grid[0] * self.s.grid[1] else self.s.grid
+
     def plane_held_s(self) -> float:
         """Machine time (s) a short budget holds for the plane when it decides a step before
         the plane's grid: the configured grid and its random points, read before and
@@ -223,15 +232,20 @@ class ShortBudget:
     async def more_runs(self, axes: list[str]) -> None:
         """On a short budget, after a plain calibration's ISO runs and cyclic scans and
         before the plane's grid: the ISO runs again on the same targets, as many more (up
-        to :meth:`table_runs`) as the budget left holds beside the plane's configured grid
-        (and its random points) and the scans not made yet. The first runs were decided on
-        what the steps would cost with the drift references around every run; where they
-        cost less, that time reads the runs a plain calibration reads, before any step it
-        does not take. Decided once."""
+        to :meth:`table_runs`) as the budget left holds beside a grid of as many nodes as a
+        plain calibration's (:meth:`plain_grid`; and its random points) and the scans not
+        made yet: a plain calibration's runs and grid before any step it does not take, a
+        denser grid after. (At 1 x its time smooth-8 read 2 runs on a 13 x 10 grid, E cut
+        1.7 points under the plain calibration's, XY 13.9 over; its runs beside the
+        configured 7 x 5 grid alone: 5 runs, E 1.0 under, XY 0.3 over.) Decided once."""
         ident = self.record.state.setdefault("identify", {})
         if "more_runs" not in ident:
             first = self.budget.iso_runs()
-            held_s = self.plane_held_s() if self.axes.plane_with(axes) else 0.0
+            held_s = 0.0
+            if self.axes.plane_with(axes):
+                held_s = self.plane_held_s() + max(0.0, self.budget.step_cost_s(
+                    self.plans.grid_plan(self.plain_grid()))
+                    - self.budget.step_cost_s(self.plans.grid_plan(self.s.grid)))
             held_s += sum(self.budget.step_cost_worst_s(
                 cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a]))
                 for a in axes if a in self.s.lead_mm and not self.record.done(f"cyclic-{a}"))
