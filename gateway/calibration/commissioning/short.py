@@ -80,18 +80,16 @@ class ShortBudget:
         """Whether the drift references are read (decided once, before the first, kept in
         the state; said when not): not on a short budget that holds a plain calibration's
         steps without them but not with them (around every run, at every config switch):
-        every linear axis's ISO runs (a plain calibration's table at its 5 runs, else at the
-        first table's 3) and cyclic scans where its lead is known and the plane's configured
-        grid and random points; else, at the least, every axis's ISO
+        every linear axis's ISO runs and cyclic scans where its lead is known and the
+        plane's configured grid and random points; else, at the least, every axis's ISO
         runs at 2 runs per target on the ISO 230-2 least of targets and the plane's grid,
         or those runs alone. They are an identification extra: there a plain calibration's
         tables are worth more than a drift taken off them. (At the plain calibration's 7.8
         minutes, mcu1025's references took 2.4 minutes and Y got no table: E cut 2 %
         against 69 %; at its 0.6 h, the random machines' references left no room for Y's
-        cyclic scans, Y E cut 65 % against 94 %; held beside the coarse table's targets
-        instead of the plain calibration's, they took 485-533 s of the 0.7-0.8 h of rough-3,
-        rough-4, rough-8, smooth-8 and smooth-9, whose ISO runs fell to 2-3 per target:
-        rough-3 X E cut 87 % against 92 %.)"""
+        cyclic scans, Y E cut 65 % against 94 %. Held only beside a plain calibration's
+        table at its 5 runs, none were read on five machines at 1 x its time: the Δa
+        machines' grids kept their drift, rough-8 XY cut 92 → 77 %.)"""
         state = self.record.state
         if "refs_off" not in state:
             off, held = False, ""
@@ -101,13 +99,9 @@ class ShortBudget:
                 plane = []
                 if self.axes.plane_with(linear):
                     plane = [self.plans.grid_plan(self.s.grid), *2 * [self.plans.before_xy_plan()]]
-                dense = self.plain_points(linear)  # (its table's targets)
-                scans = [cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])
-                         for a in linear if a in self.s.lead_mm]  # fmt: skip
-
-                def plain(runs: int) -> list[Plan]:
-                    return [self.plans.iso_plan(a, runs, dense.get(a)) for a in linear] + \
-                        scans + plane  # fmt: skip
+                plain = [self.plans.iso_plan(a) for a in linear] + [
+                    cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])
+                    for a in linear if a in self.s.lead_mm] + plane  # fmt: skip
 
                 def costs_s(plans: list[Plan]) -> tuple[float, float]:
                     """(moves, drift references) of ``plans`` (s)."""
@@ -115,11 +109,10 @@ class ShortBudget:
                             sum(self.budget.refs_worst_s(p) for p in plans)
                             + SWITCH_READINGS * self.budget.refs_once_s())  # fmt: skip
 
-                # a plain calibration's steps if it can (at its runs, else at the first
-                # table's), else the tables and the plane, else the tables alone
-                steps = "a plain calibration's steps (ISO runs, cyclic scans, the plane's grid)"
-                for plans, what in ((plain(self.table_runs()), steps),
-                                    (plain(self.s.runs), steps),
+                # a plain calibration's steps if it can, else the tables and the plane, else
+                # the tables alone
+                for plans, what in ((plain, "a plain calibration's steps (ISO runs, cyclic "
+                                     "scans, the plane's grid)"),
                                     (tables + plane, "every axis's ISO runs" + (
                                         " and the plane's grid" if plane else "")),
                                     (tables, "every axis's ISO runs")):  # fmt: skip
