@@ -224,15 +224,19 @@ def test_time_left_after_a_plain_calibration_s_steps_reads_more_runs_before_the_
     from gateway.calibration.commissioning.short import ShortBudget
 
     state: dict = {"iso_runs": 2, "iso_points": {"X": 29}}
+    def worst_s(plan: Any) -> float:  # a reading a second; a before-run: before_s
+        return before_s[0] if plan == "before" else 1.0 * sum(m.measured for m in plan.moves)
+
+    before_s = [1e6]  # (a before- and after-run that does not fit is not held)
     budget = SimpleNamespace(iso_runs=lambda: state["iso_runs"], left_s=lambda: left[0],
-                             step_cost_worst_s=lambda plan: 1.0 * sum(m.measured
-                                                                      for m in plan.moves))
+                             step_cost_worst_s=worst_s)
     axes = SimpleNamespace(travel=lambda a: (0.0, 700.0), plane_with=lambda axes: True,
                            park=lambda a: {})  # fmt: skip
     settings = SimpleNamespace(lead_mm={}, seed=3, runs=5, grid=(7, 5))
     planner = Planner.__new__(Planner)
     planner.s, planner.axes, planner.budget = settings, axes, budget
     planner.record = SimpleNamespace(state=state)
+    planner.before_plan = lambda a: "before"  # type: ignore[method-assign]
     first = planner.iso_plan("X", runs=2)
     more = planner.more_runs_plan("X", 2)
     assert sorted({m.run for m in more.moves}) == [3, 4]
@@ -269,3 +273,7 @@ def test_time_left_after_a_plain_calibration_s_steps_reads_more_runs_before_the_
     short, steps = short_with(100.0 + 1.2 * per_run_s)  # a plain calibration's grid first
     asyncio.run(short.more_runs(["X"]))
     assert short.record.state["identify"]["more_runs"] == 0 and steps == []
+    before_s[0] = 2 * per_run_s / 2  # the verdict's before- and after-run fit: held first
+    short, steps = short_with(130.0 + 2 * per_run_s + 10.0)
+    asyncio.run(short.more_runs(["X"]))
+    assert short.record.state["identify"]["more_runs"] == 0

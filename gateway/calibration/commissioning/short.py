@@ -225,24 +225,34 @@ class ShortBudget:
     async def more_runs(self, axes: list[str]) -> None:
         """On a short budget, after a plain calibration's ISO runs and cyclic scans and
         before the plane's grid: the ISO runs again on the same targets, as many more (up
-        to :meth:`table_runs`) as the budget left holds beside a grid of as many nodes as a
-        plain calibration's (:meth:`plain_grid`; and its random points) and the scans not
-        made yet: a plain calibration's runs and grid before any step it does not take, a
-        denser grid after. (At 1 x its time smooth-8 read 2 runs on a 13 x 10 grid, E cut
-        1.7 points under the plain calibration's, XY 13.9 over; its runs beside the
-        configured 7 x 5 grid alone: 5 runs, E 1.0 under, XY 0.3 over.) Decided once."""
+        to :meth:`table_runs`) as the budget left holds beside the plane's configured grid
+        (and its random points), the scans not made yet, and where they fit each axis's
+        before- and after-runs (the verdict: with 2 more runs at 0.95 h the test machine's
+        Y had none) and a grid of as many nodes as a plain calibration's
+        (:meth:`plain_grid`): a plain calibration's runs before the extras, a denser grid
+        after. (At 1 x its time smooth-8 read 2 runs on a
+        13 x 10 grid, E cut 1.7 points under the plain calibration's, XY 13.9 over; its runs
+        beside the configured 7 x 5 grid alone: 5 runs, E 1.0 under, XY 0.3 over.) Decided
+        once."""
         ident = self.record.state.setdefault("identify", {})
         if "more_runs" not in ident:
             first = self.budget.iso_runs()
-            held_s = 0.0
-            if self.axes.plane_with(axes):
-                held_s = self.plane_held_s() + max(0.0, self.budget.step_cost_s(
-                    self.plans.grid_plan(self.plain_grid()))
-                    - self.budget.step_cost_s(self.plans.grid_plan(self.s.grid)))
+            plane = self.axes.plane_with(axes)
+            held_s = self.plane_held_s() if plane else 0.0
             held_s += sum(self.budget.step_cost_worst_s(
                 cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a]))
                 for a in axes if a in self.s.lead_mm and not self.record.done(f"cyclic-{a}"))
-            room_s = self.budget.left_s() - held_s
+            left_s = self.budget.left_s()
+            extras = [2 * self.budget.step_cost_worst_s(self.plans.before_plan(a))
+                      for a in axes if not self.record.done(f"before-{a}")]  # the verdict
+            if plane:  # then a grid of a plain calibration's nodes
+                extras.append(max(0.0, self.budget.step_cost_s(self.plans.grid_plan(
+                    self.plain_grid())) - self.budget.step_cost_s(self.plans.grid_plan(
+                        self.s.grid))))  # fmt: skip
+            for need_s in extras:  # each where it fits beside those held before it
+                if held_s + need_s <= left_s:
+                    held_s += need_s
+            room_s = left_s - held_s
             more = 0
             for k in range(self.table_runs() - first, 0, -1):
                 cost_s = sum(self.budget.step_cost_worst_s(self.plans.more_runs_plan(a, k))
