@@ -409,10 +409,11 @@ async def evaluate(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: 
             errs.append(math.hypot(*vecs[-1]) * 1e3)
         # as a device zeroed at the point nearest the machine's zero reads them
         near = int(np.argmin([math.hypot(x, y) for x, y in the_plan["xy_points"]]))
-        zeroed = np.hypot(*(np.array(vecs) - vecs[near]).T) * 1e3
+        vec = np.array(vecs)
+        zeroed = np.hypot(*(vec - vec[near]).T) * 1e3
         # the plane's shape alone: its mean offset off (where the machine's zero lands is
         # its home's and the work offset's; no instrument on site reads it)
-        centred = np.hypot(*(np.array(vecs) - np.mean(vecs, axis=0)).T) * 1e3
+        centred = np.hypot(*(vec - vec.mean(axis=0)).T) * 1e3
         out["xy"] = {"max_um": float(max(errs)), "rms_um": float(np.sqrt(np.mean(np.square(errs)))),
                      "points": len(errs), "max_zeroed_um": float(zeroed.max()),
                      "max_centred_um": float(centred.max())}  # fmt: skip

@@ -139,9 +139,7 @@ class IdentifySteps:
             return
         plane = self.axes.plane_with(axes)
         keep_s = self.short.plane_held_s() if plane else 0.0
-        scans_s = sum(self.budget.step_cost_worst_s(
-            cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a]))
-            for a in axes if a in self.s.lead_mm and not self.record.done(f"cyclic-{a}"))
+        scans_s = self.short.scans_left_s(axes)
 
         def cost_s(runs: int, points: Mapping[str, int | None]) -> float:
             return sum(self.budget.step_cost_worst_s(self.plans.iso_plan(a, runs, points[a]))

@@ -154,6 +154,13 @@ class ShortBudget:
         even = even_grid(x1 - x0, y1 - y0, lines=PLAIN_GRID_LINES)
         return even if even[0] * even[1] > self.s.grid[0] * self.s.grid[1] else self.s.grid
 
+    def scans_left_s(self, axes: list[str]) -> float:
+        """Machine time (s) of the cyclic scans not made yet on ``axes`` whose lead is
+        known, with the drift references a drift would call for."""
+        return sum(self.budget.step_cost_worst_s(
+            cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a]))
+            for a in axes if a in self.s.lead_mm and not self.record.done(f"cyclic-{a}"))
+
     def plane_held_s(self) -> float:
         """Machine time (s) a short budget holds for the plane when it decides a step before
         the plane's grid: the configured grid and its random points, read before and
@@ -238,10 +245,7 @@ class ShortBudget:
         if "more_runs" not in ident:
             first = self.budget.iso_runs()
             plane = self.axes.plane_with(axes)
-            held_s = self.plane_held_s() if plane else 0.0
-            held_s += sum(self.budget.step_cost_worst_s(
-                cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a]))
-                for a in axes if a in self.s.lead_mm and not self.record.done(f"cyclic-{a}"))
+            held_s = (self.plane_held_s() if plane else 0.0) + self.scans_left_s(axes)
             left_s = self.budget.left_s()
             extras = [2 * self.budget.step_cost_worst_s(self.plans.before_plan(a))
                       for a in axes if not self.record.done(f"before-{a}")]  # the verdict
@@ -249,10 +253,7 @@ class ShortBudget:
                 extras.append(max(0.0, self.budget.step_cost_s(self.plans.grid_plan(
                     self.plain_grid())) - self.budget.step_cost_s(self.plans.grid_plan(
                         self.s.grid))))  # fmt: skip
-            for need_s in extras:  # each where it fits beside those held before it
-                if held_s + need_s <= left_s:
-                    held_s += need_s
-            room_s = left_s - held_s
+            room_s = left_s - hold_each(held_s, extras, left_s)
             more = 0
             for k in range(self.table_runs() - first, 0, -1):
                 cost_s = sum(self.budget.step_cost_worst_s(self.plans.more_runs_plan(a, k))
@@ -266,11 +267,9 @@ class ShortBudget:
                          f"({first + more} in all): the budget holds them beside the plane")
             self.record.save()
         more = int(ident["more_runs"])
-        for a in axes:
-            if more:
-                await self.runner.step(f"iso-more-{a}",
-                                       lambda a=a: self.plans.more_runs_plan(a, more), "off",
-                                       self.axes.park(a))  # fmt: skip
+        for a in axes if more else ():
+            await self.runner.step(f"iso-more-{a}", lambda a=a: self.plans.more_runs_plan(a, more),
+                                   "off", self.axes.park(a))  # fmt: skip
 
     def lost_motion(self, axis: str) -> bool:
         """Whether the ISO runs of ``axis`` read a reversal (ISO 230-2 B) of at least
@@ -314,11 +313,9 @@ class ShortBudget:
                 after += [[backlash_plan(a, self.axes.travel(a))] for a in linear
                           if not self.record.done(f"backlash-{a}") and self.lost_motion(a)]
                 left_s = self.budget.left_s()
-                held_s = cost_s(grid)
-                for plans in after:  # (their references as a drift would have them)
-                    need_s = sum(self.budget.step_cost_worst_s(p) for p in plans)
-                    if held_s + need_s <= left_s:  # one that does not fit holds nothing
-                        held_s += need_s
+                held_s = hold_each(cost_s(grid), [  # (their references as a drift would have)
+                    sum(self.budget.step_cost_worst_s(p) for p in plans) for plans in after],
+                    left_s)  # fmt: skip
                 (x0, x1), (y0, y1) = self.axes.plane_travel()
                 even, room_s = even_grid(x1 - x0, y1 - y0), left_s - held_s + cost_s(grid)
                 if cost_s(even) <= room_s:  # else the configured grid
@@ -367,6 +364,15 @@ def first_table_reading(axes: list[str], runs: int, dense: Mapping[str, int],
 
 #: the most nodes a grid takes along an axis (as :func:`..fitting.adaptive.denser_grid`)
 MAX_NODES = 33
+
+
+def hold_each(held_s: float, needs_s: list[float], left_s: float) -> float:
+    """Machine time (s) held: ``held_s`` and each of ``needs_s`` in turn where it fits
+    in ``left_s`` beside those held before it (one that does not fit holds nothing)."""
+    for need_s in needs_s:
+        if held_s + need_s <= left_s:
+            held_s += need_s
+    return held_s
 
 
 def max_grid_in(grid: tuple[int, int], cost_s: Callable[[tuple[int, int]], float],
