@@ -258,6 +258,8 @@ class MachineRun:
         at all, or with ``sensors`` the axes' thermal settings on the sensors mounted on
         their screws, as the machine's gateway.yaml points them."""
         data = yaml.safe_load((self.dir / "gateway.yaml").read_text())
+        # the lock-step (bench/lockstep.py) gives the gateway the machine's clock its own way
+        data.pop("machine_clock", None)
         if not sensors:
             for axis in data["axes"].values():
                 (axis.get("compensation") or {}).pop("thermal", None)

@@ -37,6 +37,7 @@ from .config import (
     load_config,
 )
 from .config import warnings as config_warnings
+from .machine_clock import MachineTime, wall_clock_s
 from .metrics import MetricsServer
 from .metrics import build as build_metrics
 from .modbus.downstream import Bus, RtuBus, TcpBus
@@ -117,15 +118,22 @@ class GatewayApp:
             name: make_bus(name, cfg, bus_silence_s(config, name))
             for name, cfg in config.buses.items()
         }
-        self.sensors = SensorSet.from_config(config.thermal_sources, self.buses, axes=config.axes)
+        clock = config.machine_clock
+        self.machine_time = (None if clock is None
+                             else MachineTime(clock, self.buses[clock.bus]))  # fmt: skip
+        heat_clock = wall_clock_s if self.machine_time is None else self.machine_time.now_s
+        self.sensors = SensorSet.from_config(config.thermal_sources, self.buses, axes=config.axes,
+                                             motion_clock=heat_clock)  # fmt: skip
         self.gateway = Gateway(
             config, chain, self.buses, delta_a_mm=self.sensors.axis_delta_a_mm,
-            moved=self.sensors.moved,
+            moved=self.sensors.moved, clock=heat_clock,
+            before_correct=None if self.machine_time is None else self.machine_time.refresh,
         )
         self.status = StatusUnit(
             self.gateway,
             self.sensors,
             lambda: any(not bus.connected for bus in self.buses.values()),
+            machine_time=self.machine_time,
         )
         self.gateway.status_handler = self.status.handle
         if source is not None:
@@ -250,7 +258,7 @@ class GatewayApp:
         Listeners, buses, thermal sources, the metrics endpoint and the state file stay:
         changing those sections needs a restart, and is refused here with a log line.
         """
-        fixed = ("upstream", "buses", "thermal_sources", "metrics", "state_file")
+        fixed = ("upstream", "buses", "thermal_sources", "metrics", "state_file", "machine_clock")
         changed = [key for key in fixed if getattr(config, key) != getattr(self.config, key)]
         if changed:
             raise ConfigError(f"{', '.join(changed)} cannot change on reload; restart instead")

@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import struct
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Awaitable, Callable, Iterable
 from contextlib import AbstractAsyncContextManager
 from typing import TYPE_CHECKING
 
@@ -79,6 +79,7 @@ class AxisWrites:
     counters: GatewayCounters
     _axes: dict[str, AxisRuntime]
     on_state_change: Callable[[], None]
+    before_correct: Callable[[], Awaitable[None]] | None
 
     if TYPE_CHECKING:  # provided by the Gateway
         def _axis_locks(self, names: Iterable[str | None]
@@ -386,6 +387,8 @@ class AxisWrites:
         correction above the cap) sends nothing at all.
         """
         plans: list[tuple[str, int, int, bool, MotionState]] = []
+        if self.before_correct is not None:
+            await self.before_correct()
         for name in [*partners, owner]:
             state = self._axes[name].state
             if not (state.shadow_known or state.halves_written):

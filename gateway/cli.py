@@ -75,7 +75,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
     from pymodbus.exceptions import ModbusException
 
     from .config import ConfigError, config_crc, file_warnings, load_config
-    from .status import INPUT_SIZE, format_status
+    from .status import INPUT_SIZE, MACHINE_CLOCK_REGISTER, format_status
 
     try:
         config = load_config(args.config)
@@ -121,8 +121,13 @@ def _cmd_status(args: argparse.Namespace) -> int:
         try:
             if not await client.connect():
                 return None
-            return await client.read_input_registers(
-                0, count=INPUT_SIZE, device_id=config.status.upstream_unit)  # fmt: skip
+            unit = config.status.upstream_unit
+            head = await client.read_input_registers(0, count=1, device_id=unit)
+            if head.isError():
+                return head
+            # a gateway before map v4 has no machine clock after its 120 registers
+            count = INPUT_SIZE if head.registers[0] >= 4 else MACHINE_CLOCK_REGISTER
+            return await client.read_input_registers(0, count=count, device_id=unit)
         finally:
             client.close()
 

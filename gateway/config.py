@@ -421,6 +421,17 @@ class ThermalSource(Model):
         return self
 
 
+class MachineClockSource(Model):
+    """The machine's clock where it is not the computer's: a simulator's (``compgw sim``
+    at ``time_scale: 0``, control unit 250, 0x0802-0x0803, ms). The gateway counts heat
+    from motion and the travel profile's time by it (:mod:`gateway.machine_clock`)."""
+
+    bus: str
+    unit: Annotated[int, in_range(1, 255)]  # the sim's control unit is 250, above 247
+    source_register: SourceRegister = Field(alias="register")
+    scale_s: float = Field(default=0.001, gt=0.0)
+
+
 class Status(Model):
     upstream_unit: UnitId = 247
     remote_control: bool = False
@@ -459,6 +470,8 @@ class GatewayConfig(Model):
     passthrough: dict[UnitId, Passthrough] = Field(default_factory=dict)
     metrics: Metrics = Field(default_factory=Metrics)
     write_protect: list[WriteProtect] = Field(default_factory=list)
+    #: the machine's clock where it is not the computer's (a simulator): none, the computer's
+    machine_clock: MachineClockSource | None = None
     #: where each axis's last target, command and direction are kept, so a restarted
     #: gateway (a crash, an update) carries on where the drives are; relative to the config
     #: file; best on tmpfs (``/run/compgw/state.json``); none: a restart starts afresh
@@ -483,6 +496,8 @@ class GatewayConfig(Model):
                                      "does not say how much the screw grew")  # fmt: skip
         for name, src in self.thermal_sources.items():
             _require(self.buses, src.bus, ("thermal_sources", name, "bus"), "buses")
+        if self.machine_clock is not None:
+            _require(self.buses, self.machine_clock.bus, ("machine_clock", "bus"), "buses")
         seen: dict[int, str] = {self.status.upstream_unit: "status.upstream_unit"}
         for name, axis in self.axes.items():
             _claim(seen, axis.upstream, f"axes.{name}")

@@ -97,12 +97,18 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
         delta_a_mm: DeltaA = _no_thermal,
         moved: Callable[[str, float], None] = _no_move,
         status_handler: Callable[[bytes], Awaitable[bytes]] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        before_correct: Callable[[], Awaitable[None]] | None = None,
     ) -> None:
         self.buses = buses
         self.delta_a_mm = delta_a_mm
         #: told of every target sent on (axis, mm): heat from motion counts it
         self.moved = moved
         self.status_handler = status_handler
+        #: times the travel profiles (the machine's clock, :mod:`gateway.machine_clock`)
+        self.clock = clock
+        #: awaited before targets are corrected (the machine's clock is read)
+        self.before_correct = before_correct
         self.counters = GatewayCounters()
         #: called after axis state changed (a commit, a homing): the state file's hook
         self.on_state_change: Callable[[], None] = _nothing
@@ -132,7 +138,7 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
             span = (float(axis.travel_mm[0]), float(axis.travel_mm[1]))
             kept = self._travel.get(name)  # the same screw keeps its history
             travel[name] = kept if kept is not None and kept.same_screw(th, span) else \
-                TravelHistory(th, th.profile, span)  # fmt: skip
+                TravelHistory(th, th.profile, span, self.clock)  # fmt: skip
         self._travel = travel
 
     def axis_state(self, name: str) -> AxisState:

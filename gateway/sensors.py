@@ -491,13 +491,14 @@ class SensorSet:
     """All thermal sources of a config, and Δa per axis for the router."""
 
     def __init__(self, sensors: Mapping[str, ThermalSensor],
-                 axis_thermal: Mapping[str, AxisThermal] | None = None) -> None:
+                 axis_thermal: Mapping[str, AxisThermal] | None = None, *,
+                 motion_clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
         self.sensors = dict(sensors)
         self.axis_thermal: dict[str, AxisThermal] = {}
         #: axes whose Δa comes from their own motion (thermal.motion): their screw's heat
         self.motion: dict[str, HeatFromMotion] = {}
         #: every target since the start: where a model loaded later begins
-        self.moves = MoveLog()
+        self.moves = MoveLog(motion_clock)
         self.set_axis_thermal(axis_thermal or {})
 
     def set_axis_thermal(self, axis_thermal: Mapping[str, AxisThermal]) -> None:
@@ -545,9 +546,11 @@ class SensorSet:
     @classmethod
     def from_config(cls, sources: Mapping[str, ThermalSource], buses: Mapping[str, Bus], *,
                     axes: Mapping[str, Axis] | None = None,
-                    clock: Callable[[], float] = time.monotonic) -> SensorSet:
+                    clock: Callable[[], float] = time.monotonic,
+                    motion_clock: Callable[[], float] = time.monotonic) -> SensorSet:
         """One sensor per source on the caller's buses; temperature sources take the
-        longest axis length that uses them as reference length."""
+        longest axis length that uses them as reference length. ``motion_clock`` times
+        heat from motion (the machine's clock, :mod:`gateway.machine_clock`)."""
         sensors: dict[str, ThermalSensor] = {}
         lengths = {name: [ax.compensation.thermal.length_mm for ax in (axes or {}).values()
                           if ax.compensation.thermal is not None
@@ -558,7 +561,7 @@ class SensorSet:
             sensors[name] = ThermalSensor(name, src, buses[src.bus], clock=clock,
                                           reference_length_mm=max(lengths[name], default=None),
                                           noise_mm=src.noise_mm)
-        out = cls(sensors)
+        out = cls(sensors, motion_clock=motion_clock)
         out.set_axes(axes or {})
         return out
 

@@ -31,6 +31,10 @@ address    meaning
 80 + 4s    thermal source s (config order): state 0 starting, 1 ok, 2 holding, 3 alarm
 81 + 4s    source s: Δa (reference length), int32 in 0.1 µm (81-82)
 83 + 4s    source s: failed reads (uint16, saturating)
+120        the machine's clock (``machine_clock``): 0 none (the computer's is the
+           machine's), 1 read, 2 its last read failed (it stands where it was)
+121-122    the machine's clock, ms (uint32, wraps after 49.7 days); read afresh for
+           each read of these registers
 =========  ==========================================================================
 
 Holding registers (FC03 read, FC06/FC16 write): address k = 1 to switch compensation of
@@ -47,6 +51,7 @@ import logging
 from collections.abc import Awaitable, Callable
 
 from .config import corrects
+from .machine_clock import MachineTime
 from .modbus.frames import (
     ILLEGAL_DATA_ADDRESS,
     ILLEGAL_DATA_VALUE,
@@ -68,10 +73,12 @@ from .sensors import SensorSet
 
 log = logging.getLogger(__name__)
 
-MAP_VERSION = 3  # 2: the config's CRC-32 at 14-15; 3: silent drives, axes given nothing
+MAP_VERSION = 4  # 2: the config's CRC-32 at 14-15; 3: silent drives, axes given nothing;
+# 4: the machine's clock at 120-122
 AXIS_BASE, AXIS_STRIDE = 16, 8
 SOURCE_BASE, SOURCE_STRIDE = 80, 4
-INPUT_SIZE = 120  # one FC04 reads it all (at most 125 registers)
+INPUT_SIZE = 123  # one FC04 reads it all (at most 125 registers)
+MACHINE_CLOCK_REGISTER = 120
 RELOAD_REGISTER = 100
 GENERATION_REGISTER = 11
 CONFIG_CRC_REGISTER = 14
@@ -92,9 +99,11 @@ class StatusUnit:
     """Answers requests addressed to the gateway itself."""
 
     def __init__(
-        self, gateway: Gateway, sensors: SensorSet, buses_down: Callable[[], bool] = lambda: False
+        self, gateway: Gateway, sensors: SensorSet, buses_down: Callable[[], bool] = lambda: False,
+        *, machine_time: MachineTime | None = None,
     ) -> None:
         self.gateway = gateway
+        self.machine_time = machine_time
         self.sensors = sensors
         self.buses_down = buses_down
         self.reloader: Reloader | None = None  # set by whoever knows the config file
@@ -141,12 +150,17 @@ class StatusUnit:
             regs[base + 7] = min(silent[k], 0xFFFF)
         for s, name in enumerate(self.sensors):
             base = SOURCE_BASE + SOURCE_STRIDE * s
-            if base + SOURCE_STRIDE > INPUT_SIZE:
+            if base + SOURCE_STRIDE > MACHINE_CLOCK_REGISTER:
                 break
             sensor = self.sensors[name]
             regs[base] = int(sensor.state)
             regs[base + 1 : base + 3] = _s32((sensor.delta_a_mm or 0.0) * 1e4)
             regs[base + 3] = min(sensor.counters.failures, 0xFFFF)
+        clock = self.machine_time
+        if clock is not None:
+            regs[MACHINE_CLOCK_REGISTER] = 1 if clock.ok else 2
+            regs[MACHINE_CLOCK_REGISTER + 1 : MACHINE_CLOCK_REGISTER + 3] = \
+                _u32(round(clock.now_s() * 1000.0) & 0xFFFFFFFF)  # fmt: skip
         return regs
 
     def holding_registers(self) -> list[int]:
@@ -166,12 +180,15 @@ class StatusUnit:
         except FrameError as exc:
             raise ModbusError(str(exc), ILLEGAL_DATA_VALUE) from None
         if req.function in (READ_INPUT_REGISTERS, READ_HOLDING_REGISTERS):
+            start, count = req.read_address or 0, req.read_count
+            if (self.machine_time is not None and req.function == READ_INPUT_REGISTERS
+                    and start + count > MACHINE_CLOCK_REGISTER):
+                await self.machine_time.refresh()
             image = (
                 self.input_registers()
                 if req.function == READ_INPUT_REGISTERS
                 else self.holding_registers()
             )
-            start, count = req.read_address or 0, req.read_count
             if start + count > len(image):
                 raise ModbusError("beyond the status map", ILLEGAL_DATA_ADDRESS)
             return build_read_registers_response(req.function, image[start : start + count])
@@ -269,4 +286,8 @@ def format_status(names: list[str], sources: list[str], regs: list[int],
             f"thermal source {name}: {state}, Δa {s32(base + 1) / 10:.1f} µm, "
             f"failed reads {regs[base + 3]}"
         )
+    if len(regs) > MACHINE_CLOCK_REGISTER + 2 and regs[MACHINE_CLOCK_REGISTER]:
+        read = "read" if regs[MACHINE_CLOCK_REGISTER] == 1 else "its LAST READ FAILED"
+        lines.append(f"machine clock: {u32(MACHINE_CLOCK_REGISTER + 1) / 3.6e6:.3f} h "
+                     f"({read})")  # fmt: skip
     return "\n".join(lines)

@@ -21,6 +21,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from sim.faults import ADDR_CLOCK_MS
+
 SIM_PORT, GATEWAY_PORT = 5021, 5020
 LASER_UNIT, XY_UNIT, DELTA_A_UNIT, TEMPERATURE_UNIT, FAULTS_UNIT = 20, 21, 10, 23, 250
 #: the example sim's drive registers (Leadshine-like PR mode), as the gateway sees them
@@ -230,6 +232,12 @@ def gateway_config(spec: MachineSpec) -> dict[str, Any]:
     doc["passthrough"] = {LASER_UNIT: {"bus": "line1", "unit": LASER_UNIT},
                           XY_UNIT: {"bus": "line1", "unit": XY_UNIT}}  # fmt: skip
     doc["status"] = {"upstream_unit": 247, "remote_control": False}
+    # the sim's clock runs hours of machine time in minutes: the gateway counts the heat
+    # of motion (and commissioning its drift log) by it, read from the control unit
+    doc["machine_clock"] = {"bus": "line1", "unit": FAULTS_UNIT,
+                            "register": {"address": ADDR_CLOCK_MS, "table": "holding",
+                                         "words": 2, "signed": False},
+                            "scale_s": 0.001}  # fmt: skip
     return _clean(doc)
 
 

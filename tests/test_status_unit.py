@@ -38,7 +38,7 @@ def test_status_reports_state_counters_and_sources(tmp_path: Path):
             rr = await master.read_input_registers(0, count=120, device_id=STATUS_UNIT)
             assert not rr.isError()
             regs = rr.registers
-            assert regs[0] == 3 and regs[1] == 2
+            assert regs[0] == 4 and regs[1] == 2
             assert regs[2] & 0b100 == 0  # every drive answers
             assert unpack_int32(regs[3:5], "hi_lo", signed=False) == 3  # commits
             x = regs[16:24]

@@ -10,7 +10,6 @@ its readings are taken as they are.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -22,6 +21,7 @@ from ...compensation.errors import TableError
 from ...config import GatewayConfig
 from ..fitting.fit import zeroed_at_origin
 from ..measuring.from_file import STOP_TIME
+from ..measuring.machine import GatewayClock
 from ..measuring.session import Session
 from ..plans.plans import Move, Plan
 from ..plans.runner import read_raw_meta
@@ -66,6 +66,9 @@ class DriftRefs:
         self.record = record
         self.say = say
         self.read_here = False  # the references read by this process yet
+        #: the machine's clock (the gateway's status unit shows it on a simulator), read
+        #: after each move; the computer's clock where none is shown
+        self.clock = GatewayClock()
         kept = record.state.get("swept_heat", {})
         record.swept.update({
             a: SweptHeat.from_json(kept[a]) if a in kept else
@@ -86,7 +89,7 @@ class DriftRefs:
             out = await self._read(linear) if linear else {}
         out.update({a: [0.0, 0.0] for a in self.s.axes if a not in out})
         last = self.record.state.get("last_refs") or {}
-        at_s = last.get("at_s") if linear and self.recorded() else time.time()
+        at_s = last.get("at_s") if linear and self.recorded() else self.clock.now_s()
         self.record.state["last_refs"] = {"phase": self.record.state.get("phase"), "refs": out,
                                           "odometer_mm": self.odometer(), "at_s": at_s}  # fmt: skip
         return out
@@ -174,7 +177,7 @@ class DriftRefs:
         self.read_here = True
         state["last_refs"] = {"phase": state.get("phase"), "refs": out,
                               "odometer_mm": odometer_mm or self.odometer(),
-                              "at_s": time.time() if at_s is None else at_s}  # fmt: skip
+                              "at_s": self.clock.now_s() if at_s is None else at_s}  # fmt: skip
         return out
 
     def session(self, park: dict[str, float] | None = None) -> Session:
@@ -183,7 +186,8 @@ class DriftRefs:
         return Session(self.config, self.record.config_dir, self.s.gateway,
                        self.s.instruments, self.s.motion, park or {},
                        on_move=self.count_travel,
-                       datum_mm=self.record.state.get("laser_datum_mm"))  # fmt: skip
+                       datum_mm=self.record.state.get("laser_datum_mm"),
+                       clock=self.clock)  # fmt: skip
 
     def keep_datum(self, raw: Path) -> None:
         """The laser's zero, from the commissioning's first recording (its first stop):
@@ -473,7 +477,7 @@ class DriftRefs:
         odo = odometer_mm or last.get("odometer_mm") or self.odometer()
         if wall_s is None and odometer_mm is None:  # the last reading's own
             wall_s = last.get("at_s")
-        wall = time.time() if wall_s is None else wall_s
+        wall = self.clock.now_s() if wall_s is None else wall_s
         entry: dict[str, Any] = {"odometer_mm": odo, "wall_s": wall, "drift_mm": drift}
         # the log is the growth since the cold start: under a config that corrects heat
         # from motion, the references read what it leaves; what it takes off is put back

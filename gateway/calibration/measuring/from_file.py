@@ -50,16 +50,17 @@ async def stand(seconds: float) -> None:
     await asyncio.sleep(seconds)
 
 
-#: the column of the wall clock (s, time.time) at each stop after its dwell: when the
-#: laser read it, as compgw keeps the time of a live reading (the drift log's)
+#: the column of compgw's clock (s: time.time, or the machine's where the gateway shows
+#: one) at each stop after its dwell: when the laser read it, as compgw keeps the time of
+#: a live reading (the drift log's)
 STOP_TIME = "stop_time_s"
 
 
 async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: MoveFn,
                        dwell_s: float, meta: Mapping[str, str], say: Say = print,
                        ready: Ready | None = None, datum_mm: float | None = None,
-                       extra: ExtraFn | None = None, extra_names: tuple[str, ...] = ()
-                       ) -> RunSummary:  # fmt: skip
+                       extra: ExtraFn | None = None, extra_names: tuple[str, ...] = (),
+                       clock: Callable[[], float] = time.time) -> RunSummary:  # fmt: skip
     """Move through ``plan`` dwelling ``dwell_s`` at each measured stop, then wait for the
     step's file and join its readings into ``raw_path`` (see the module docstring).
     ``ready``: awaited before the first move (the technician says the laser records).
@@ -68,7 +69,8 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
     technician's, default none); the datum used is kept in the raw file's meta
     (``datum_mm``: a recording's first stop's, where none was given). ``extra``: read at each stop
     after the dwell (a Δa or temperature sensor, ``extra_names`` its columns), kept beside
-    the marker until the file comes, then beside the laser's readings."""
+    the marker until the file comes, then beside the laser's readings. ``clock`` (s) times
+    each stop (the machine's, where it is not the computer's)."""
     if len(plan.axes) != 1:
         raise MachineError(f"--laser {spec.text}: a {spec.kind} reads one axis; this step "
                            f"moves {', '.join(plan.axes)} (give --xy-device for the plane)")
@@ -102,7 +104,7 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
             if m.measured:
                 await stand(dwell_s)
                 read = dict(await extra(m)) if extra is not None else {}
-                sensed.append({**read, STOP_TIME: time.time()})
+                sensed.append({**read, STOP_TIME: clock()})
         atomic_write_text(sensors, json.dumps(sensed))
         atomic_write_text(moved, f"{name}: moves done; readings from {files[0]}\n")
     found = next((f for f in files if f.exists()), None)

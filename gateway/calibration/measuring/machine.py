@@ -21,6 +21,7 @@ own address, e.g. ``--laser 127.0.0.1:5020:20``.
 from __future__ import annotations
 
 import asyncio
+import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -36,6 +37,7 @@ from ...modbus.frames import (
     pack_int32,
     unpack_int32,
 )
+from ...status import MACHINE_CLOCK_REGISTER
 from ..cli_common import FROM_CONFIG
 
 #: Status bits of the sim's default (Leadshine-like) profile; override per run.
@@ -232,6 +234,44 @@ class Links:
         self._links.clear()
 
 
+class GatewayClock:
+    """The machine's clock as the gateway's status unit shows it (``machine_clock``: a
+    simulator running hours in minutes), read after each move; the computer's clock
+    (``time.time``) where the gateway shows none. What a commissioning's drift log and its
+    readings' ``time_s`` count heat by: the screw heats and cools on the machine's clock."""
+
+    def __init__(self) -> None:
+        self._ms: int | None = None  # unwrapped machine ms, as last read
+        self._raw: int | None = None
+        self.shown: bool | None = None  # None: not asked yet
+
+    def now_s(self) -> float:
+        """The machine's clock (s) as last read, else the computer's."""
+        return time.time() if self._ms is None else self._ms / 1000.0
+
+    async def refresh(self, link: Link, unit: int) -> None:
+        """Read the gateway's status unit ``unit`` (registers 120-122); a gateway that
+        shows no machine clock (older than map v4, or none configured) is asked once."""
+        if self.shown is False:
+            return
+        try:
+            regs = await link.read(unit, MACHINE_CLOCK_REGISTER, 3, "input")
+        except MachineError as exc:
+            if exc.code is None:  # no reply at all: not an answer about the clock
+                raise
+            regs = [0, 0, 0]
+        if not regs[0]:
+            self.shown, self._ms = False, None
+            return
+        self.shown = True
+        raw = unpack_int32(regs[1:3], "hi_lo", signed=False)
+        if self._raw is None or self._ms is None:
+            self._ms = raw
+        else:
+            self._ms += (raw - self._raw) % (1 << 32)
+        self._raw = raw
+
+
 @dataclass(frozen=True)
 class MotionSettings:
     """How in-position is recognised: status bits of the drive, feedback tolerance, timeout.
@@ -250,11 +290,14 @@ class MachineDriver:
     """Moves the axes of a gateway config through the gateway, as an upper computer does."""
 
     def __init__(
-        self, link: Link, config: GatewayConfig, settings: MotionSettings | None = None
+        self, link: Link, config: GatewayConfig, settings: MotionSettings | None = None,
+        clock: GatewayClock | None = None,
     ) -> None:
         self.link = link
         self.config = config
         self.settings = settings or MotionSettings()
+        #: read after each move (the machine's clock, where the gateway shows one)
+        self.clock = clock
         #: told of every target written (axis, mm): commissioning's odometer
         self.on_move: Callable[[str, float], None] | None = None
 
@@ -391,6 +434,8 @@ class MachineDriver:
         for name, position in targets_mm.items():
             await self.trigger(name)
             await self.wait_in_position(name, position)
+        if self.clock is not None:
+            await self.clock.refresh(self.link, self.config.status.upstream_unit)
 
 
 # -- instruments ----------------------------------------------------------------------------

@@ -14,6 +14,7 @@ gateway) is also compensation off. The raw file records ``# compensation: off|on
 from __future__ import annotations
 
 import copy
+import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +43,7 @@ from .from_file import enter_pressed, run_for_file
 from .machine import (
     DeltaASensor,
     Endpoint,
+    GatewayClock,
     Links,
     MachineDriver,
     MachineError,
@@ -134,6 +136,9 @@ class Session:
     #: a recording's readings less this (mm): the laser's zero kept across a commissioning's
     #: recordings (:func:`.from_file.run_for_file`); None: each recording's first stop
     datum_mm: float | None = None
+    #: the machine's clock as the gateway shows it, read after each move: what the
+    #: readings' ``time_s`` counts (None: the computer's)
+    clock: GatewayClock | None = None
     #: the instruments a run opened (closed when it ends: a bridge's connection or child)
     _opened: list[Instrument] = field(default_factory=list, repr=False)
 
@@ -142,7 +147,7 @@ class Session:
         links = Links()
         try:
             link = await links.get(self.gateway.host, self.gateway.port)
-            driver = MachineDriver(link, self.config, self.motion)
+            driver = MachineDriver(link, self.config, self.motion, self.clock)
             driver.on_move = self.on_move
             extra, names = None, ()
             if plan.kind == "warmup" and dict(plan.meta).get("sensor") == "none":
@@ -159,7 +164,8 @@ class Session:
                     plan, raw_path, later, driver.move, self.instruments.dwell_s,
                     {"compensation": compensation},
                     ready=enter_pressed if self.instruments.wait_start else None,
-                    datum_mm=self.datum_mm, extra=extra, extra_names=names)
+                    datum_mm=self.datum_mm, extra=extra, extra_names=names,
+                    clock=time.time if self.clock is None else self.clock.now_s)
             read = await self._measure_fn(plan, links)
 
             async def measure(move: Move) -> Mapping[str, float]:
@@ -172,6 +178,7 @@ class Session:
             return await run_plan(
                 plan, raw_path, driver.move, measure, extra=extra, extra_names=names,
                 meta={"compensation": compensation}, progress=self.progress, dwell=self.dwell,
+                clock=time.time if self.clock is None else self.clock.now_s,
             )  # fmt: skip
         finally:
             self.retried += links.retried
