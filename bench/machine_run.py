@@ -37,6 +37,10 @@ START_TIMEOUT_S, COMMAND_TIMEOUT_S = 60.0, 3600.0
 #: the gateway's bus timeout here (s): a late answer is waited for, never asked again (a
 #: trigger sent twice is a second stop: another draw of the stop's scatter)
 BUS_TIMEOUT_S = 10.0
+#: how long compgw's requests wait for their answer here (s): a write waits in the wire
+#: until the gateway has polled its sensors (bench/lockstep.py SYNC_TIMEOUT_S), seconds on
+#: two loaded cores, where compgw's default 2 s aborted runs
+REQUEST_TIMEOUT_S = 30.0
 #: how often the gateway polls its thermal sources here (s): a write through the wire waits
 #: for two polls (bench/lockstep.py), the figures do not depend on it
 SOURCE_POLL_S = 0.002

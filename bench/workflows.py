@@ -36,6 +36,7 @@ from typing import Any
 import yaml
 from machine_run import (  # noqa: F401  (re-exported: the workflows' tools)
     COMMAND_TIMEOUT_S,
+    REQUEST_TIMEOUT_S,
     ROOT,
     CommandFailed,
     MachineRun,
@@ -160,7 +161,8 @@ def manual(run: MachineRun) -> WorkflowResult:
     low = {a: full["axes"][a]["travel_mm"][0] for a in names}
     gw = run.write_config("gw.calibrated.yaml", full)
     laser = run.instrument(20)
-    common = ["-c", gw, "--gateway", run.gateway, "--no-progress"]
+    common = ["-c", gw, "--gateway", run.gateway, "--no-progress",
+              "--request-timeout-s", f"{REQUEST_TIMEOUT_S:g}"]
     targets: list[dict[str, list[float]]] = []
 
     # 1. warm-up with nothing on: the thermal length (a Δa sensor only)
@@ -323,7 +325,8 @@ def plain(run: MachineRun) -> WorkflowResult:
     names = list(full["axes"])
     low = {a: full["axes"][a]["travel_mm"][0] for a in names}
     gw = run.write_config("gw.calibrated.yaml", full)
-    common = ["-c", gw, "--gateway", run.gateway, "--no-progress"]
+    common = ["-c", gw, "--gateway", run.gateway, "--no-progress",
+              "--request-timeout-s", f"{REQUEST_TIMEOUT_S:g}"]
     ident = run.work / "ident.yaml"
     run.compgw("calibrate", "-c", gw, "--identify-config", ident)
     run.use(ident)
@@ -359,7 +362,8 @@ def commission(run: MachineRun) -> WorkflowResult:
     sim = yaml.safe_load((run.dir / "sim.yaml").read_text())["sim"]
     channels = sim["instruments"]["laser"].get("axes") or list(sim["axes"])
     args = ["commission", "-c", run.work / "gw.yaml", "--gateway", run.gateway,
-            "--tolerance-um", f"{TOLERANCE_UM:g}", "--no-progress"]  # fmt: skip
+            "--tolerance-um", f"{TOLERANCE_UM:g}", "--no-progress",
+            "--request-timeout-s", f"{REQUEST_TIMEOUT_S:g}"]  # fmt: skip
     technician: Technician | Gauge | None = None
     if reads_later():
         args += ["--dwell-s", f"{RECORDING_DWELL_S:g}", "--wait-start"]

@@ -310,7 +310,8 @@ def calibrate(
                 wait_start=sys.stdin.isatty() if args.wait_start is None else args.wait_start,
             ),
             MotionSettings(args.in_position_bit, args.moving_bit, args.alarm_bit,
-                           args.in_position_pulses, args.timeout_s),
+                           args.in_position_pulses, args.timeout_s,
+                           request_timeout_s=args.request_timeout_s),
             park,
         )  # fmt: skip
     except (ConfigError, TableError, CompensationError, ValueError, OSError) as exc:
@@ -460,6 +461,8 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
                    help="its alarm bit (default: registers.status.alarm_bit, else 0)")
     m.add_argument("--in-position-pulses", type=float, default=2.0)
     m.add_argument("--timeout-s", type=above(0, "s"), default=120.0, help="per move")
+    m.add_argument("--request-timeout-s", type=above(0, "s"), default=2.0,
+                   help="per request to the gateway or an instrument (s, default 2)")
     m.add_argument("--no-progress", action="store_true")
     m.add_argument("--progress", action="store_true", help="progress bar even without a tty")
     v = p.add_argument_group("verify and iterate (seed 001)")

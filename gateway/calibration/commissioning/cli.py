@@ -128,6 +128,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--timeout-s", type=above(0, "s"), default=120.0,
                    help="a move not in position this long after it was sent stops the run "
                    "(s, default 120)")
+    p.add_argument("--request-timeout-s", type=above(0, "s"), default=2.0,
+                   help="how long one request to the gateway or an instrument waits for its "
+                   "answer (s, default 2): longer for a gateway on a slow serial line")
     p.add_argument("--progress", action="store_true", help="progress bar even off a terminal")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=main)
@@ -331,7 +334,8 @@ def main(args: argparse.Namespace) -> int:
             stop_s=max(args.estimate_stop_s, args.dwell_s) if laser_kind is not None
             and laser_kind.reads_later else args.estimate_stop_s,
             motion=MotionSettings(args.in_position_bit, args.moving_bit, args.alarm_bit,
-                                  args.in_position_pulses, args.timeout_s),
+                                  args.in_position_pulses, args.timeout_s,
+                                  request_timeout_s=args.request_timeout_s),
             seed=args.seed, max_rounds=args.max_rounds, warmup_s=args.warmup_min * 60.0,
             no_lead_search=args.no_lead_search, heat_warmup=not args.no_heat_warmup,
         )  # fmt: skip

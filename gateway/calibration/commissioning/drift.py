@@ -252,13 +252,13 @@ class DriftRefs:
         from ...instruments.base import InstrumentError
         from ..measuring.machine import Links, MachineDriver, MachineError
 
-        links = Links()
+        links = Links(self.s.motion.request_timeout_s)
         out: dict[str, list[float]] = {}
         cost = 0.0
         laser = None
         try:
             link = await links.get(self.s.gateway.host, self.s.gateway.port)
-            driver = MachineDriver(link, self.config, self.s.motion)
+            driver = MachineDriver(link, self.config, self.s.motion, self.clock)
             driver.on_move = self.count_travel
             ins = self.s.instruments
             assert ins.given("laser")

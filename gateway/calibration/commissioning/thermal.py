@@ -240,7 +240,7 @@ class ThermalSteps:
             return
         from ..measuring.machine import Links, TemperatureSensor
 
-        links = Links()
+        links = Links(self.s.motion.request_timeout_s)
         try:
             for a in axes:
                 th = self.config.axes[a].compensation.thermal

@@ -212,13 +212,14 @@ class Link:
 class Links:
     """Connections by (host, port), opened on first use, closed together."""
 
-    def __init__(self) -> None:
+    def __init__(self, timeout_s: float = 2.0) -> None:
         self._links: dict[tuple[str, int], Link] = {}
+        self.timeout_s = timeout_s  # per request
 
     async def get(self, host: str, port: int) -> Link:
         link = self._links.get((host, port))
         if link is None:
-            link = Link(host, port)
+            link = Link(host, port, self.timeout_s)
             await link.connect()
             self._links[(host, port)] = link
         return link
@@ -284,6 +285,9 @@ class MotionSettings:
     in_position_pulses: float = 2.0
     timeout_s: float = 120.0
     poll_s: float = 0.005
+    #: how long one request waits for its answer (s): a gateway on a slow serial line,
+    #: or one a busy computer runs, answers a write after its drive has
+    request_timeout_s: float = 2.0
 
 
 class MachineDriver:

@@ -144,7 +144,7 @@ class Session:
 
     async def run(self, plan: Plan, raw_path: Path, compensation: str) -> RunSummary:
         """Run ``plan`` into ``raw_path`` (resuming), measuring with the right instrument."""
-        links = Links()
+        links = Links(self.motion.request_timeout_s)
         try:
             link = await links.get(self.gateway.host, self.gateway.port)
             driver = MachineDriver(link, self.config, self.motion, self.clock)
