@@ -201,7 +201,7 @@ def test_eight_pipelining_masters_lose_and_mix_nothing(tmp_path: Path):
             start, count = (i * 7 + m) % 5, 1 + (i + m) % 4
             if i % 10 == 9:  # some to the status unit: no bus involved
                 pdu = read_pdu(4, 0, 2)
-                return 247, pdu, b"\x04\x04\x00\x03\x00\x02"  # map version 3, 2 axes
+                return 247, pdu, b"\x04\x04\x00\x04\x00\x02"  # map version 4, 2 axes
             words = truth[unit][start : start + count]
             body = bytes([3, 2 * count]) + b"".join(w.to_bytes(2, "big") for w in words)
             return unit, read_pdu(3, 0x6200 + start, count), body

@@ -38,7 +38,7 @@ FUZZ_SETTINGS = settings(max_examples=EXAMPLES, derandomize=True, deadline=None,
                          suppress_health_check=list(HealthCheck))
 
 PROBE_PDU = read_pdu(4, 0, 2)  # status unit: map version, N axes
-PROBE_REPLY = b"\x04\x04\x00\x03\x00\x02"  # map version 3, 2 axes
+PROBE_REPLY = b"\x04\x04\x00\x04\x00\x02"  # map version 4, 2 axes
 SEEDS = [
     read_pdu(3, 0x6200, 4), read_pdu(3, 0x6201, 2), read_pdu(4, 0x602A, 2),
     read_pdu(3, 0x602A, 2), read_pdu(1, 0, 8), read_pdu(2, 0, 8),
