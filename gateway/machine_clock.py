@@ -4,8 +4,8 @@ A simulator at ``time_scale: 0`` runs hours of machine time in minutes: its scre
 and cool by its own clock. The gateway's heat from motion and travel profile count time
 (a screw cools while it stands), and so does ``compgw commission``'s drift log; on the
 wall clock they would see minutes where the screw lived hours. With ``machine_clock``
-the gateway reads the machine's clock before it corrects a target and before it answers
-a read of its status unit, counts heat by it, and shows it on the status unit
+the gateway reads the machine's clock before it corrects a target (one request more per
+move), counts heat by it, and shows it on the status unit as that read found it
 (:mod:`gateway.status`, registers 120-122), where commissioning reads it. On a real
 machine the computer's clock is the machine's: leave ``machine_clock`` out.
 """
@@ -27,7 +27,7 @@ class MachineTime:
     """The machine's clock (s), as last read.
 
     Between two reads it stands still: a simulator's clock jumps by whole moves, and each
-    correction and status read reads it first. A counter that goes past its top and back
+    correction reads it first. A counter that goes past its top and back
     to 0 (32 bits of ms: 49.7 days) goes on counting. A read that fails keeps the clock
     where it was (counted in ``failures``, logged once per run of failures)."""
 

@@ -33,8 +33,8 @@ address    meaning
 83 + 4s    source s: failed reads (uint16, saturating)
 120        the machine's clock (``machine_clock``): 0 none (the computer's is the
            machine's), 1 read, 2 its last read failed (it stands where it was)
-121-122    the machine's clock, ms (uint32, wraps after 49.7 days); read afresh for
-           each read of these registers
+121-122    the machine's clock, ms (uint32, wraps after 49.7 days), as read before the
+           last corrected target (read for this read before the first, or after a failure)
 =========  ==========================================================================
 
 Holding registers (FC03 read, FC06/FC16 write): address k = 1 to switch compensation of
@@ -181,9 +181,10 @@ class StatusUnit:
             raise ModbusError(str(exc), ILLEGAL_DATA_VALUE) from None
         if req.function in (READ_INPUT_REGISTERS, READ_HOLDING_REGISTERS):
             start, count = req.read_address or 0, req.read_count
-            if (self.machine_time is not None and req.function == READ_INPUT_REGISTERS
+            if (self.machine_time is not None and not self.machine_time.ok
+                    and req.function == READ_INPUT_REGISTERS
                     and start + count > MACHINE_CLOCK_REGISTER):
-                await self.machine_time.refresh()
+                await self.machine_time.refresh()  # (else as the last correction read it)
             image = (
                 self.input_registers()
                 if req.function == READ_INPUT_REGISTERS

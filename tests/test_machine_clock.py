@@ -71,13 +71,15 @@ async def _work_and_rest(r) -> tuple[float, float, list[int], list[int]]:
         await move(master, 1, pulses)
     warm = await _status(master)
     await _advance_s(direct, int(5 * TAU_S))
+    await move(master, 2, 1_000)  # Y (no heat of its own) moves: the clock is read for it
     rested = await _status(master)
     return _x_delta_a_um(warm), _x_delta_a_um(rested), warm, rested
 
 
 def test_heat_from_motion_cools_on_the_machines_clock(tmp_path: Path):
     """With ``machine_clock`` the screw cools while the machine stands, by the machine's
-    clock; without it the gateway's wall clock saw a few ms and the heat stays."""
+    clock; without it the gateway's wall clock saw a few ms and the heat stays. The status
+    unit shows the clock as the last correction read it (a move of Y after the rest)."""
 
     async def body():
         async with rig(tmp_path / "clock", with_motion_heat(True)) as r:
@@ -98,8 +100,10 @@ def test_heat_from_motion_cools_on_the_machines_clock(tmp_path: Path):
     # the status unit shows the machine's clock, read afresh for the read
     assert before[MACHINE_CLOCK_REGISTER] == after[MACHINE_CLOCK_REGISTER] == 1
     ms = [unpack_int32(regs[121:123], "hi_lo", signed=False) for regs in (before, after)]
-    assert ms[1] - ms[0] == pytest.approx(5 * TAU_S * 1000, abs=5)
-    assert ms[1] / 1000.0 == pytest.approx(sim_s, abs=0.01)
+    # the first image: as read before the last move of X (3 s of it since); the second:
+    # the rest and that move
+    assert ms[1] - ms[0] == pytest.approx(5 * TAU_S * 1000 + 3000, abs=100)
+    assert ms[1] / 1000.0 == pytest.approx(sim_s, abs=0.05)  # (less Y's move)
     assert "machine clock: " in format_status(["X", "Y"], [], after)
     assert wall_regs[MACHINE_CLOCK_REGISTER : MACHINE_CLOCK_REGISTER + 3] == [0, 0, 0]
     assert "machine clock" not in format_status(["X", "Y"], [], wall_regs)
@@ -108,7 +112,8 @@ def test_heat_from_motion_cools_on_the_machines_clock(tmp_path: Path):
 def test_commissioning_reads_the_machines_clock_through_the_gateway_past_its_wrap(
         tmp_path: Path):  # fmt: skip
     """`compgw commission` times its drift log and readings by what the status unit shows,
-    read after each move; a 32-bit ms counter wraps after 49.7 days and the time goes on.
+    read after each move (as the gateway read it for the move's target); a 32-bit ms
+    counter wraps after 49.7 days and the time goes on.
     A gateway that shows no machine clock is asked once: the computer's clock counts."""
 
     async def body():
@@ -123,6 +128,7 @@ def test_commissioning_reads_the_machines_clock_through_the_gateway_past_its_wra
                 first_s = clock.now_s()
                 sim_first_s = await _sim_clock_s(direct)
                 await _advance_s(direct, 50)
+                await move(r["master"], 1, 0)  # the gateway reads the clock for a target
                 await clock.refresh(link, STATUS_UNIT)
                 return clock.shown, first_s, sim_first_s, clock.now_s(), \
                     await _sim_clock_s(direct)  # fmt: skip
@@ -134,6 +140,7 @@ def test_commissioning_reads_the_machines_clock_through_the_gateway_past_its_wra
     assert first_s == pytest.approx(sim_first_s, abs=0.01)
     assert sim_then_s < sim_first_s  # the sim's register wrapped
     assert then_s - first_s == pytest.approx(50.0, abs=0.01)  # the time went on
+    assert then_s == pytest.approx(sim_first_s + 50.0, abs=0.01)
 
     async def without():
         async with rig(tmp_path / "none") as r:
