@@ -134,6 +134,12 @@ def describe(config: GatewayConfig, chain: Chain) -> str:
                  else "metrics: off")  # fmt: skip
     lines.append(f"state file: {config.state_file}" if config.state_file else
                  "state file: none (a restart starts every axis afresh)")  # fmt: skip
+    clock = config.machine_clock
+    if clock is not None:  # a simulator's: on a real machine the computer's clock is it
+        reg = clock.source_register
+        lines.append(f"machine clock: {clock.bus} unit {clock.unit} {reg.table} "
+                     f"{_hex(reg.address)}, {clock.scale_s:g} s per count (a simulator's; "
+                     "heat from motion counts it)")  # fmt: skip
     return "\n".join(lines)
 
 

@@ -163,3 +163,26 @@ async def _wall_now() -> float:
     import time
 
     return time.time()
+
+
+def test_check_names_the_machine_clock_and_a_reload_cannot_change_it(tmp_path: Path):
+    """`compgw check` says the gateway counts a simulator's clock; a reload that adds or
+    drops it is refused (the heat counted so far is in one clock's seconds)."""
+    import yaml
+
+    from gateway.app import load
+    from gateway.setup_report import describe
+
+    async def body():
+        async with rig(tmp_path, with_motion_heat(True)) as r:
+            path = r["config_path"]
+            config, chain = load(path)
+            text = describe(config, chain)
+            data = yaml.safe_load(path.read_text())
+            data.pop("machine_clock")
+            path.write_text(yaml.safe_dump(data))
+            return text, await r["app"].reload_file()
+
+    text, refused = run(body())
+    assert "machine clock: line1 unit 250 holding 0x802, 0.001 s per count" in text
+    assert refused is not None and "machine_clock cannot change on reload" in refused

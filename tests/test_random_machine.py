@@ -102,6 +102,9 @@ def test_rough_carries_structure_no_stage_models_smooth_does_not(tmp_path):
             reach = machine["instruments"]["delta_a"]["a_mm"] if th["source"].endswith(
                 "_ref") else max(machine["axes"][axis]["travel_mm"], key=lambda e: abs(e - origin))
             assert th["origin_mm"] == origin and th["length_mm"] == abs(reach - origin), th
+        # the gateway counts heat by the sim's clock (the control unit's ms), not the wall's
+        assert gw["machine_clock"]["unit"] == 250, gw
+        assert gw["machine_clock"]["register"]["address"] == 0x0802, gw
         assert compgw(["check", "-c", str(smooth / "gateway.yaml")]) == 0
         load_config(smooth / "sim.yaml")
         load_config(rough / "sim.yaml")
