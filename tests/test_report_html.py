@@ -304,6 +304,15 @@ def test_a_rerun_on_a_machine_the_run_before_left_warm_is_told_before_it_moves()
     assert line is not None and line.startswith(
         "the run before left the machine warm: its drift references had moved X 29.7 µm "
         "since it started cold"), line  # fmt: skip
-    assert "Y 1.1" not in line and "let it cool about 124 minutes" in line, line
+    assert "Y 1.1" not in line and "let it cool about 124 more minutes" in line, line
     assert warm_rerun({"tolerance_um": 2.0, "warmed_um": {"X": 1.5}}) is None
+    # run again after it stood: told what is left of the time to cool, nothing once cooled
+    # (on the clock the run before ended on: the machine's where the gateway shows one)
+    summary.update({"ended_clock_s": 50_000.0, "clock": "machine"})
+    line = warm_rerun(summary, 50_000.0 + 100 * 60, "machine")
+    assert line is not None and "(it has stood 100 minutes since)" in line, line
+    assert "let it cool about 24 more minutes" in line, line
+    assert warm_rerun(summary, 50_000.0 + 124 * 60, "machine") is None
+    # another clock than the one it ended on says nothing of the time since
+    assert "about 124 more minutes" in warm_rerun(summary, 1.8e9, "computer")
 

@@ -18,6 +18,7 @@ from ..plans.rawdata import axis_deviations
 from .report import as_read_figures
 
 if TYPE_CHECKING:
+    from ..measuring.machine import GatewayClock
     from .axes import Axes
     from .record import Record
     from .rotary import RotarySteps
@@ -33,8 +34,10 @@ class AfterSteps:
     """The after-run, the plane's last word on the tables, and the summary."""
 
     def __init__(self, axes: Axes, record: Record, stager: Stager, runner: StepRunner,
-                 rotary: RotarySteps, takeup: TakeUpSteps, say: Say) -> None:
+                 rotary: RotarySteps, takeup: TakeUpSteps, say: Say,
+                 clock: GatewayClock | None = None) -> None:  # fmt: skip
         self.s = axes.s
+        self.clock = clock  # when the run ended (how long the machine cooled since)
         self.axes = axes
         self.record = record
         self.stager = stager
@@ -221,6 +224,8 @@ class AfterSteps:
         taus = [float(r["motion"]["tau_s"]) for k, r in ident.items()
                 if k.startswith("motion-") and isinstance(r, dict)
                 and (r.get("motion") or {}).get("tau_s")]  # fmt: skip
+        ended = {} if self.clock is None else {"ended_clock_s": round(self.clock.now_s(), 1),
+                                               "clock": self.clock.kind()}  # fmt: skip
         return {"warmed_um": warmed,
-                "cool_min": round(3 * max(taus) / 60) if taus else None}
+                "cool_min": round(3 * max(taus) / 60) if taus else None, **ended}
 

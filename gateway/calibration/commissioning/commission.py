@@ -108,7 +108,8 @@ class Commission:
                                            say=say)  # fmt: skip
         self.takeup = takeup = TakeUpSteps(axes, record, runner=runner, say=say)
         self.after = after = AfterSteps(axes, record, stager=stager, runner=runner,
-                                        rotary=rotary, takeup=takeup, say=say)  # fmt: skip
+                                        rotary=rotary, takeup=takeup, say=say,
+                                        clock=drift.clock)  # fmt: skip
         self.best = best = BestTables(axes, record)
         self.short = short = ShortBudget(axes, record, budget=budget, runner=runner,
                                          plans=plans, refine=refine, say=say)  # fmt: skip
@@ -129,6 +130,7 @@ class Commission:
         CommissionAborted (after restoring the user's config) on a machine fault."""
         done = self.record.state.pop("finished", None)
         if done is not None:  # asked for more: carries on
+            await self.drift.read_clock()  # how long the machine has cooled since
             self._carry_on(done)
         if "what" not in self.record.state:
             self.record.state["what"] = self.command.what()
@@ -197,7 +199,8 @@ class Commission:
         self.record.state["run_before"] = {
             n: {"read": v, "tables": self.record.tables.digest(n, self.record.config_dir)}
             for n, v in as_read_figures(summary).items()}  # fmt: skip
-        warm = warm_rerun(summary)  # a machine the run before left warm: said before moving
+        # a machine the run before left warm, and not cooled since: said before moving
+        warm = warm_rerun(summary, self.drift.clock.now_s(), self.drift.clock.kind())
         if warm is not None:
             self.say(warm)
         notes = self.record.state["notes"]

@@ -74,6 +74,18 @@ class DriftRefs:
             a: SweptHeat.from_json(kept[a]) if a in kept else
             SweptHeat.for_travel(axes.travel(a), MEMORY_S) for a in axes.ref_axes()})  # fmt: skip
 
+    async def read_clock(self) -> None:
+        """Read the machine's clock now (the gateway's status unit, where it shows one;
+        else the computer's clock needs no reading)."""
+        from ..measuring.machine import Links
+
+        links = Links(self.s.motion.request_timeout_s)
+        try:
+            link = await links.get(self.s.gateway.host, self.s.gateway.port)
+            await self.clock.refresh(link, self.config.status.upstream_unit)
+        finally:
+            links.close()
+
     async def measure_refs(self) -> dict[str, list[float]]:
         """Deviation (mm) of each commissioned axis at its two drift references (a rotary
         axis's are zero: the laser sees no angle, its readings are taken as they are)."""

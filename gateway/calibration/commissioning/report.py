@@ -158,21 +158,32 @@ def _warm_axes(summary: dict[str, Any]) -> dict[str, float]:
     return {a: w for a, w in (summary.get("warmed_um") or {}).items() if w > limit}
 
 
-def warm_rerun(summary: dict[str, Any]) -> str | None:
+def warm_rerun(summary: dict[str, Any], now_s: float | None = None,
+               clock: str | None = None) -> str | None:
     """Said before a carried-on run moves anything, where the run before left the machine
-    warm (its drift references moved more than WARM_UM, or half the tolerance): what this
-    run reads carries heat its models may not follow, and how long to let it cool (random
-    machine 7, a tighter rerun right after its warm-up: Y 0.56 → 3.53 µm as read on the
-    table the run before left). None where it is not warm."""
+    warm (its drift references moved more than WARM_UM, or half the tolerance) and it has
+    not stood the time to cool since (``now_s`` on the ``clock`` the run before ended on,
+    :meth:`.measuring.machine.GatewayClock.kind`): what this run reads carries heat its
+    models may not follow, and how long to let it cool (random machine 7, a tighter rerun
+    right after its warm-up: Y 0.56 → 3.53 µm as read on the table the run before left).
+    None where it is not warm, or has cooled."""
     warm = _warm_axes(summary)
     if not warm:
         return None
-    cool = summary.get("cool_min")
+    cool = summary.get("cool_min") or 60
+    ended = summary.get("ended_clock_s")
+    rested_min = None
+    if ended is not None and now_s is not None and clock == summary.get("clock"):
+        rested_min = max(0.0, (now_s - float(ended)) / 60.0)
+        if rested_min >= cool:
+            return None
+    left = cool if rested_min is None else max(1, round(cool - rested_min))
+    rested = "" if not rested_min else f" (it has stood {rested_min:.0f} minutes since)"
     return ("the run before left the machine warm: its drift references had moved "
             + ", ".join(f"{a} {w:.1f} µm" for a, w in warm.items())
-            + " since it started cold. What this run reads carries that heat, and the "
-            "figures may read worse on tables it leaves as they are. Best: stop now (Ctrl-C) "
-            f"and let it cool about {cool if cool else 60} minutes at rest, then run the same "
+            + f" since it started cold{rested}. What this run reads carries that heat, and "
+            "the figures may read worse on tables it leaves as they are. Best: stop now "
+            f"(Ctrl-C) and let it cool about {left} more minutes at rest, then run the same "
             "command again; it carries on either way")  # fmt: skip
 
 

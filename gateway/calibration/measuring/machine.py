@@ -250,6 +250,10 @@ class GatewayClock:
         """The machine's clock (s) as last read, else the computer's."""
         return time.time() if self._ms is None else self._ms / 1000.0
 
+    def kind(self) -> str:
+        """Which clock :meth:`now_s` reads: ``"machine"`` or ``"computer"``."""
+        return "computer" if self._ms is None else "machine"
+
     async def refresh(self, link: Link, unit: int) -> None:
         """Read the gateway's status unit ``unit`` (registers 120-122); a gateway that
         shows no machine clock (older than map v4, or none configured) is asked once."""
