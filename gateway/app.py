@@ -37,7 +37,7 @@ from .config import (
     load_config,
 )
 from .config import warnings as config_warnings
-from .machine_clock import MachineTime, wall_clock_s
+from .machine_clock import MachineTime
 from .metrics import MetricsServer
 from .metrics import build as build_metrics
 from .modbus.downstream import Bus, RtuBus, TcpBus
@@ -121,7 +121,9 @@ class GatewayApp:
         clock = config.machine_clock
         self.machine_time = (None if clock is None
                              else MachineTime(clock, self.buses[clock.bus]))  # fmt: skip
-        heat_clock = wall_clock_s if self.machine_time is None else self.machine_time.now_s
+        # None: the heat classes' own default clock, the computer's (bench/lockstep.py puts
+        # the simulated machine's in its place)
+        heat_clock = None if self.machine_time is None else self.machine_time.now_s
         self.sensors = SensorSet.from_config(config.thermal_sources, self.buses, axes=config.axes,
                                              motion_clock=heat_clock)  # fmt: skip
         self.gateway = Gateway(

@@ -387,8 +387,7 @@ class AxisWrites:
         correction above the cap) sends nothing at all.
         """
         plans: list[tuple[str, int, int, bool, MotionState]] = []
-        if self.before_correct is not None:
-            await self.before_correct()
+        before = self.before_correct  # (once, and only where a target is corrected)
         for name in [*partners, owner]:
             state = self._axes[name].state
             if not (state.shadow_known or state.halves_written):
@@ -397,6 +396,9 @@ class AxisWrites:
             pending = bool(state.halves_written) or state.last_nominal_pulses != nominal
             if not pending and not (block is not None and name == owner):
                 continue
+            if before is not None:
+                await before()
+                before = None
             homed = await self._homed(name, setup.config.axes[name])
             seen = own = None
             if state.enabled and homed:

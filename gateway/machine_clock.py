@@ -13,7 +13,6 @@ machine the computer's clock is the machine's: leave ``machine_clock`` out.
 from __future__ import annotations
 
 import logging
-import time
 
 from .config import MachineClockSource
 from .modbus.downstream import Bus
@@ -64,7 +63,3 @@ class MachineTime:
         self._last = counts
         self.ok = True
 
-
-def wall_clock_s() -> float:
-    """The computer's monotonic clock (s): the machine's where no ``machine_clock`` is set."""
-    return time.monotonic()

@@ -97,7 +97,7 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
         delta_a_mm: DeltaA = _no_thermal,
         moved: Callable[[str, float], None] = _no_move,
         status_handler: Callable[[bytes], Awaitable[bytes]] | None = None,
-        clock: Callable[[], float] = time.monotonic,
+        clock: Callable[[], float] | None = None,
         before_correct: Callable[[], Awaitable[None]] | None = None,
     ) -> None:
         self.buses = buses
@@ -105,7 +105,8 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
         #: told of every target sent on (axis, mm): heat from motion counts it
         self.moved = moved
         self.status_handler = status_handler
-        #: times the travel profiles (the machine's clock, :mod:`gateway.machine_clock`)
+        #: times the travel profiles (the machine's clock, :mod:`gateway.machine_clock`;
+        #: None: TravelHistory's own default, the computer's)
         self.clock = clock
         #: awaited before targets are corrected (the machine's clock is read)
         self.before_correct = before_correct
@@ -138,7 +139,8 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
             span = (float(axis.travel_mm[0]), float(axis.travel_mm[1]))
             kept = self._travel.get(name)  # the same screw keeps its history
             travel[name] = kept if kept is not None and kept.same_screw(th, span) else \
-                TravelHistory(th, th.profile, span, self.clock)  # fmt: skip
+                TravelHistory(th, th.profile, span, **({} if self.clock is None
+                                                      else {"clock": self.clock}))  # fmt: skip
         self._travel = travel
 
     def axis_state(self, name: str) -> AxisState:

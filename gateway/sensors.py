@@ -492,13 +492,14 @@ class SensorSet:
 
     def __init__(self, sensors: Mapping[str, ThermalSensor],
                  axis_thermal: Mapping[str, AxisThermal] | None = None, *,
-                 motion_clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
+                 motion_clock: Callable[[], float] | None = None) -> None:  # fmt: skip
         self.sensors = dict(sensors)
         self.axis_thermal: dict[str, AxisThermal] = {}
         #: axes whose Δa comes from their own motion (thermal.motion): their screw's heat
         self.motion: dict[str, HeatFromMotion] = {}
         #: every target since the start: where a model loaded later begins
-        self.moves = MoveLog(motion_clock)
+        # (None: MoveLog's own default clock, the computer's)
+        self.moves = MoveLog() if motion_clock is None else MoveLog(motion_clock)
         self.set_axis_thermal(axis_thermal or {})
 
     def set_axis_thermal(self, axis_thermal: Mapping[str, AxisThermal]) -> None:
@@ -547,7 +548,7 @@ class SensorSet:
     def from_config(cls, sources: Mapping[str, ThermalSource], buses: Mapping[str, Bus], *,
                     axes: Mapping[str, Axis] | None = None,
                     clock: Callable[[], float] = time.monotonic,
-                    motion_clock: Callable[[], float] = time.monotonic) -> SensorSet:
+                    motion_clock: Callable[[], float] | None = None) -> SensorSet:
         """One sensor per source on the caller's buses; temperature sources take the
         longest axis length that uses them as reference length. ``motion_clock`` times
         heat from motion (the machine's clock, :mod:`gateway.machine_clock`)."""

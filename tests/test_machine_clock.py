@@ -186,3 +186,28 @@ def test_check_names_the_machine_clock_and_a_reload_cannot_change_it(tmp_path: P
     text, refused = run(body())
     assert "machine clock: line1 unit 250 holding 0x802, 0.001 s per count" in text
     assert refused is not None and "machine_clock cannot change on reload" in refused
+
+
+def test_without_a_machine_clock_the_heat_keeps_its_classes_default_clock(tmp_path: Path):
+    """No ``machine_clock``: the move log and travel profiles keep their classes' own
+    default clock (the computer's). bench/lockstep.py puts the simulated machine's clock
+    in those defaults; a clock passed in their place went past it, and the bench's
+    gateway counted rough-0's heat on the wall clock (X E 27.6 µm as read, 3.4 with the
+    drift taken off)."""
+    from gateway.thermal_travel import MoveLog, TravelHistory
+
+    def with_profile(data):
+        with_motion_heat(False)(data)
+        data["axes"]["Y"]["compensation"]["thermal"] = {
+            "length_mm": 800, "motion": {"delta_a_um_per_m": 20.0, "tau_s": TAU_S},
+            "profile": {"spread_mm": 50.0, "memory_s": 600.0}}  # fmt: skip
+
+    async def body():
+        async with rig(tmp_path, with_profile) as r:
+            app = r["app"]
+            return app.sensors.moves.clock, [t.clock for t in app.gateway._travel.values()]
+
+    moves_clock, travel_clocks = run(body())
+    assert moves_clock is MoveLog.__init__.__defaults__[0]
+    assert travel_clocks and all(c is TravelHistory.__init__.__defaults__[0]
+                                 for c in travel_clocks)  # fmt: skip
