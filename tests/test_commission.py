@@ -65,7 +65,7 @@ def state_steps(out: Path) -> list[str]:
 
 
 def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
-    with running(template, tmp_path / "m", machine_clock=True) as rig:
+    with running(template, tmp_path / "m") as rig:
         original = rig.config.read_text()
         # (2.5 h: not a short budget; round 1's sweep, round 2's doubled runs and then X's
         # warm-up (6 min of strokes, 13 with its readings) fit; the rounds after those, 0.5 h

@@ -211,3 +211,39 @@ def test_without_a_machine_clock_the_heat_keeps_its_classes_default_clock(tmp_pa
     assert moves_clock is MoveLog.__init__.__defaults__[0]
     assert travel_clocks and all(c is TravelHistory.__init__.__defaults__[0]
                                  for c in travel_clocks)  # fmt: skip
+
+
+def test_a_measuring_session_times_its_readings_by_the_machines_clock(tmp_path: Path):
+    """The readings' ``time_s`` (what a warm-up's heat fit is timed by) counts the
+    machine's clock as the gateway shows it: seconds of moves at the sim's 100 mm/s,
+    where the computer's clock saw milliseconds (a move late: heat takes minutes)."""
+    from gateway.app import load
+    from gateway.calibration.measuring.machine import Endpoint
+    from gateway.calibration.measuring.session import Instruments, Session
+    from gateway.calibration.plans.plans import targets_plan
+    from gateway.calibration.plans.rawdata import read_raw_csv
+
+    async def body():
+        async with rig(tmp_path, with_motion_heat(True)) as r:
+            config, _ = load(r["config_path"])
+            gateway = Endpoint("127.0.0.1", r["app"].tcp_port, 1)
+            laser = Instruments(laser=Endpoint("127.0.0.1", r["sim"].tcp_port, 20))
+            plan = targets_plan("X", (0.0, 800.0), [100.0, 300.0, 500.0], runs=1)
+            spans = {}
+            for label, clock in (("machine", GatewayClock()), ("computer", None)):
+                raw = tmp_path / f"{label}.csv"
+                start_s = await _sim_clock_s(r["direct"])
+                await Session(config, tmp_path, gateway, laser, clock=clock).run(plan, raw,
+                                                                                 "off")
+                t = [float(v) for v in read_raw_csv(raw).extra["time_s"]]
+                spans[label] = (float(t[-1] - t[0]), await _sim_clock_s(r["direct"]) - start_s)
+            return spans
+
+    spans = run(body())
+    span_s, sim_s = spans["machine"]
+    # each reading timed as the gateway read the clock for its move's target: from the
+    # start of the move to the first reading (100 mm) to the start of the move to the
+    # last (back from 300 mm), 603 mm at 100 mm/s; the whole run took longer
+    assert span_s == pytest.approx(6.03, abs=0.05) and span_s < sim_s, spans
+    wall_s, _ = spans["computer"]
+    assert wall_s < span_s / 2, spans  # the computer's clock: the moves took no time
