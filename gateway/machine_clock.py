@@ -22,6 +22,25 @@ from .sensors import decode_response, read_request
 log = logging.getLogger(__name__)
 
 
+class WrappingCount:
+    """A counter of ``span`` values (a 32-bit ms register: 49.7 days) read now and then:
+    the count since 0, going on past each return to 0 (reads closer than one span)."""
+
+    def __init__(self, span: int) -> None:
+        self.span = span
+        self.total: int | None = None  # None before the first read
+        self._last = 0
+
+    def update(self, raw: int) -> int:
+        """The count after a read of ``raw``."""
+        if self.total is None:
+            self.total = raw
+        else:
+            self.total += (raw - self._last) % self.span
+        self._last = raw
+        return self.total
+
+
 class MachineTime:
     """The machine's clock (s), as last read.
 
@@ -34,17 +53,13 @@ class MachineTime:
         self.source = source
         self.bus = bus
         self._request = read_request(source.source_register)
-        self._last: int | None = None
-        self._wraps = 0
+        self._counts = WrappingCount(1 << (16 * source.source_register.words))
         self.failures = 0
         self.ok = False  # the last read answered
 
     def now_s(self) -> float:
         """The machine's clock (s) as last read; 0 before the first read."""
-        if self._last is None:
-            return 0.0
-        span = 1 << (16 * self.source.source_register.words)
-        return (self._last + self._wraps * span) * self.source.scale_s
+        return (self._counts.total or 0) * self.source.scale_s
 
     async def refresh(self) -> None:
         """Read the clock once; a failure leaves it where it was."""
@@ -58,8 +73,6 @@ class MachineTime:
             self.failures += 1
             self.ok = False
             return
-        if self._last is not None and counts < self._last:
-            self._wraps += 1
-        self._last = counts
+        self._counts.update(counts)
         self.ok = True
 

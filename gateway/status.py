@@ -77,8 +77,8 @@ MAP_VERSION = 4  # 2: the config's CRC-32 at 14-15; 3: silent drives, axes given
 # 4: the machine's clock at 120-122
 AXIS_BASE, AXIS_STRIDE = 16, 8
 SOURCE_BASE, SOURCE_STRIDE = 80, 4
-INPUT_SIZE = 123  # one FC04 reads it all (at most 125 registers)
 MACHINE_CLOCK_REGISTER = 120
+INPUT_SIZE = MACHINE_CLOCK_REGISTER + 3  # one FC04 reads it all (at most 125 registers)
 RELOAD_REGISTER = 100
 GENERATION_REGISTER = 11
 CONFIG_CRC_REGISTER = 14

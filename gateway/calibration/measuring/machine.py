@@ -29,6 +29,7 @@ from typing import Any
 from pymodbus.client import AsyncModbusTcpClient
 
 from ...config import Axis, GatewayConfig, SourceRegister, ThermalSource
+from ...machine_clock import WrappingCount
 from ...modbus.frames import (
     GATEWAY_PATH_UNAVAILABLE,
     GATEWAY_TARGET_NO_RESPONSE,
@@ -242,17 +243,16 @@ class GatewayClock:
     readings' ``time_s`` count heat by: the screw heats and cools on the machine's clock."""
 
     def __init__(self) -> None:
-        self._ms: int | None = None  # unwrapped machine ms, as last read
-        self._raw: int | None = None
+        self._ms = WrappingCount(1 << 32)  # the status unit's uint32 ms
         self.shown: bool | None = None  # None: not asked yet
 
     def now_s(self) -> float:
         """The machine's clock (s) as last read, else the computer's."""
-        return time.time() if self._ms is None else self._ms / 1000.0
+        return (self._ms.total or 0) / 1000.0 if self.shown else time.time()
 
     def kind(self) -> str:
         """Which clock :meth:`now_s` reads: ``"machine"`` or ``"computer"``."""
-        return "computer" if self._ms is None else "machine"
+        return "machine" if self.shown else "computer"
 
     async def refresh(self, link: Link, unit: int) -> None:
         """Read the gateway's status unit ``unit`` (registers 120-122); a gateway that
@@ -265,16 +265,9 @@ class GatewayClock:
             if exc.code is None:  # no reply at all: not an answer about the clock
                 raise
             regs = [0, 0, 0]
-        if not regs[0]:
-            self.shown, self._ms = False, None
-            return
-        self.shown = True
-        raw = unpack_int32(regs[1:3], "hi_lo", signed=False)
-        if self._raw is None or self._ms is None:
-            self._ms = raw
-        else:
-            self._ms += (raw - self._raw) % (1 << 32)
-        self._raw = raw
+        self.shown = bool(regs[0])
+        if self.shown:
+            self._ms.update(unpack_int32(regs[1:3], "hi_lo", signed=False))
 
 
 @dataclass(frozen=True)

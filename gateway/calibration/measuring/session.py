@@ -145,6 +145,7 @@ class Session:
     async def run(self, plan: Plan, raw_path: Path, compensation: str) -> RunSummary:
         """Run ``plan`` into ``raw_path`` (resuming), measuring with the right instrument."""
         links = Links(self.motion.request_timeout_s)
+        clock = time.time if self.clock is None else self.clock.now_s  # the readings' time
         try:
             link = await links.get(self.gateway.host, self.gateway.port)
             driver = MachineDriver(link, self.config, self.motion, self.clock)
@@ -165,7 +166,7 @@ class Session:
                     {"compensation": compensation},
                     ready=enter_pressed if self.instruments.wait_start else None,
                     datum_mm=self.datum_mm, extra=extra, extra_names=names,
-                    clock=time.time if self.clock is None else self.clock.now_s)
+                    clock=clock)
             read = await self._measure_fn(plan, links)
 
             async def measure(move: Move) -> Mapping[str, float]:
@@ -178,7 +179,7 @@ class Session:
             return await run_plan(
                 plan, raw_path, driver.move, measure, extra=extra, extra_names=names,
                 meta={"compensation": compensation}, progress=self.progress, dwell=self.dwell,
-                clock=time.time if self.clock is None else self.clock.now_s,
+                clock=clock,
             )  # fmt: skip
         finally:
             self.retried += links.retried
