@@ -192,7 +192,7 @@ class AxisState:
     def nut_at(self, t_s: float) -> float:
         """Nut coordinate (mm) after the play operator at the motor's current position."""
         motor_mm = self.motor_pulses(t_s) * self.cfg.pulse_mm
-        return float(np.clip(self.nut_mm, motor_mm, motor_mm + self.backlash_mm(motor_mm)))
+        return min(max(float(self.nut_mm), motor_mm), motor_mm + self.backlash_mm(motor_mm))
 
 
 class Machine:

@@ -73,7 +73,10 @@ class Curve:
             self._akima = Akima1DInterpolator(x, y, method="makima")
 
     def __call__(self, x: np.ndarray | float) -> np.ndarray:
-        xc = np.clip(np.asarray(x, dtype=float), self.x[0], self.x[-1])
+        if isinstance(x, float):  # the drives' one position at a time: no array to clip
+            xc: np.ndarray | float = min(max(x, float(self.x[0])), float(self.x[-1]))
+        else:
+            xc = np.clip(np.asarray(x, dtype=float), self.x[0], self.x[-1])
         if self._akima is None:
             return np.interp(xc, self.x, self.y)
         return np.asarray(self._akima(xc))

@@ -111,6 +111,31 @@ def test_killed_writer_loses_no_written_row(tmp_path) -> None:
     assert os.path.getsize(path) == len(path.read_bytes())
 
 
+def test_a_fast_writer_syncs_once_a_second_and_at_its_close(tmp_path, monkeypatch) -> None:
+    """A simulated machine's readings come a hundred a second: the disk is asked once a
+    second (and at the close), not at each; a machine's, seconds apart: at each."""
+    import gateway.calibration.plans.rawdata as rawdata
+
+    synced: list[int] = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(rawdata.os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd)))
+    clock = [100.0]
+    monkeypatch.setattr(rawdata.time, "monotonic", lambda: clock[0])
+    with RawWriter(tmp_path / "raw.csv") as w:  # the header: synced
+        for k in range(30):  # 10 ms apart: 0.3 s
+            clock[0] += 0.01
+            w.append("X", 1, "+", float(k), k + 0.001)
+        assert len(synced) == 1
+        clock[0] += 0.7  # a second after the header
+        w.append("X", 2, "+", 0.0, 0.001)
+        assert len(synced) == 2
+        for k in range(3):  # a machine's: 2 s apart
+            clock[0] += 2.0
+            w.append("X", 3, "+", float(k), k + 0.001)
+        assert len(synced) == 5
+    assert len(synced) == 6 and len(read_raw_csv(tmp_path / "raw.csv")) == 34
+
+
 def test_arrangement_per_target_run_direction(tmp_path) -> None:
     lines = [HEADER.strip()]
     rng = np.random.default_rng(3)

@@ -1,6 +1,6 @@
 """``compgw commission``: one command from an uncalibrated machine to verified tables.
 
-The steps, each a plan run through the running gateway (readings appended and fsynced by
+The steps, each a plan run through the running gateway (readings appended and flushed by
 :mod:`..plans.runner`), each recorded in ``DIR/commission.json`` once done, so running the same
 command again after Ctrl-C, a crash or a power loss carries on where it stopped:
 

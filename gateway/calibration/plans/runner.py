@@ -2,10 +2,11 @@
 
 The runner is transport-free: it is given a ``move`` coroutine (targets → machine at rest)
 and a ``measure`` coroutine (move → measured positions), so the same loop runs against a
-gateway (:mod:`..measuring.machine`), and tests can drive it with anything. Each reading is appended
-and fsynced by :class:`~.rawdata.RawWriter` before the next move, so an interruption
-(Ctrl-C, a crash, a cancelled task) loses nothing already measured; running the same plan
-into the same raw file again continues at the first move not yet measured
+gateway (:mod:`..measuring.machine`), and tests can drive it with anything. Each reading
+is appended and flushed by :class:`~.rawdata.RawWriter` before the next move, so an
+interruption (Ctrl-C, a crash, a cancelled task) loses nothing already measured (a power
+cut, at most the last second's); running the same plan into the same raw file again
+continues at the first move not yet measured
 (:func:`~.plans.resume_index`), after going to the previous move's target so the move is
 approached from the planned side.
 
