@@ -79,6 +79,16 @@ class Rounds:
                 scores["XY"] = xy["max_um"]
             last = rounds[-1] if rounds else {}
             swept = set(last.get("swept") or [])
+            for name in [a for a in verdicts if a not in settled and a in best
+                         and best[a]["round"] < r and not _refined(last, a)]:  # fmt: skip
+                was = best[name]["score"]
+                now = self.best.read_again(name, scores.pop(name), r)
+                self.say(f"round {r}: {name}: round {best[name]['round']}'s table read again: "
+                         f"{self.rotary.score_text(name, now)} over its "
+                         f"{len(best[name]['reads'])} verifications (was "
+                         f"{self.rotary.score_text(name, was)})")  # fmt: skip
+                if now <= self.rotary.tolerance_of(name):  # within, twice over: settled
+                    settled.append(name)
             restored = [name for name, score in scores.items() if name not in settled
                         and not self.best.keep_best(name, score, r,
                                                 xy["rms_um"] if name == "XY" and xy else None,
@@ -88,10 +98,8 @@ class Rounds:
             more_runs: dict[str, int] = {}
             for name in restored:
                 what = "model" if name == "XY" else "table"
-                refined = (name in swept or (last.get("added") or {}).get(name)
-                           or (name == "XY" and "grid" in last))  # fmt: skip
                 self.say(f"round {r}: {name}: " + (
-                    "the last refinement did not pay; back to round " if refined else
+                    "the last refinement did not pay; back to round " if _refined(last, name) else
                     f"read {self.rotary.score_text(name, scores[name])}, not refined since round ")
                     + f"{best[name]['round']}'s {what} "
                     f"({self.rotary.score_text(name, best[name]['score'])})")  # fmt: skip
@@ -242,3 +250,8 @@ class Rounds:
         self.record.state["grid"] = list(grid)
         return grid
 
+
+def _refined(last: dict[str, Any], name: str) -> bool:
+    """Whether round ``last`` changed this axis's table (or, "XY", the plane's model)."""
+    return bool(name in (last.get("swept") or []) or (last.get("added") or {}).get(name)
+                or (name == "XY" and "grid" in last))
