@@ -440,7 +440,8 @@ def test_pin_fades_within_a_node_step_of_the_line():
         assert np.abs(on_line[:, 0]).max() < 1e-9  # X's own table rules its line
         raw = choice.model.error_mm(pts)
         far = (pts[:, 1] > 3 * np.diff(ys)[0]) & (pts[:, 0] > 3 * np.diff(xs)[0])
-        assert np.abs(pinned.error_mm(pts)[far] - raw[far]).max() < 2e-6  # mm: nothing off
+        # far from the lines nothing is taken off but the line's level (the zeros)
+        assert np.ptp(pinned.error_mm(pts)[far] - raw[far], axis=0).max() < 2e-6  # mm
         line_x, line_y = pts.copy(), pts.copy()
         line_x[:, 1], line_y[:, 0] = 2.0, 2.0  # the grid's edge lines, next to the pitch lines
         full = raw - np.column_stack([choice.model.error_mm(line_x)[:, 0],
@@ -448,6 +449,31 @@ def test_pin_fades_within_a_node_step_of_the_line():
         for out, model in ((rms_fade, pinned.error_mm(pts)), (rms_full, full)):
             out.append(float(np.sqrt(np.mean(np.sum((model - truth) ** 2, axis=1)))) * 1e3)
     assert np.mean(rms_fade) < 0.8 * np.mean(rms_full), (rms_fade, rms_full)
+
+
+def test_a_grid_device_zeroed_elsewhere_than_the_laser_makes_no_step_in_the_plane():
+    """The laser (the tables) and the XY device are zeroed at different places: the grid
+    reads X's error 2.4 µm off along X's own pitch line, and everywhere. Pinned with a fade,
+    the plane kept that level far from the line and made a 2.4 µm step of it (rough-0
+    through the laser's recordings, zeroed at their first stop). The level is taken off
+    everywhere: the plane holds the field's shape, whatever the zeros."""
+    xs, ys = np.linspace(2, 448, 25), np.linspace(2, 448, 17)
+    cmd = _grid_points(xs, ys)
+
+    def field(p):  # the X component zero on X's line (Y = 0), the Y component on Y's (X = 0)
+        on_x, on_y = p.copy(), p.copy()
+        on_x[:, 1], on_y[:, 0] = 0.0, 0.0
+        return _wavy_mm(p) - np.column_stack([_wavy_mm(on_x)[:, 0], _wavy_mm(on_y)[:, 1]])
+
+    zeros_mm = np.array([2.4e-3, -1.1e-3])  # where the device reads each axis's zero
+    pts = np.random.default_rng(6).uniform(3, 447, (400, 2))
+    for offset in (np.zeros(2), zeros_mm):
+        choice = choose_planar_model(PlanarMeasurement(cmd, cmd + field(cmd) + offset))
+        assert choice.kind == "grid"
+        pinned = GridModel.from_measurement(pinned_measurement(
+            choice.model, ("X", "Y"), {"X": 0.0, "Y": 0.0}, nodes=(xs, ys)))
+        miss_um = np.abs(pinned.error_mm(pts) - field(pts)).max(axis=0) * 1e3
+        assert miss_um.max() < 0.3, (offset, miss_um)
 
 
 def test_fit_smooth_moves_noisy_points_no_further_than_their_error(tmp_path, capsys):

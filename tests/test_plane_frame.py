@@ -77,7 +77,7 @@ def test_a_table_change_is_kept_off_the_line_and_the_grid_reading_kept(tmp_path)
     # then: table (bow) + plane; now: table (flat) + re-expressed plane: the same there
     # (the bow as X's 10 mm table interpolates it: within 2 nm of the sine at the nodes)
     np.testing.assert_allclose(after.error_mm(far)[:, 0], before.error_mm(far)[:, 0]
-                               + bow_nodes, atol=5e-6)  # fmt: skip
+                               + bow_nodes - np.mean(bow_nodes), atol=5e-6)  # fmt: skip
     # ... which is the squareness the grid read, the bow's miss gone with the bow
     np.testing.assert_allclose(after.error_mm(far)[:, 0], 2e-5 * ys[-1], atol=2e-5)
     on_line = np.column_stack([xs, np.zeros(xs.size)])
@@ -108,7 +108,9 @@ def test_reframe_plane_rewrites_the_points_once_per_change(tmp_path):
     assert reframe_plane(config, tmp_path)
     err_um = read_planar_csv(points_path).error_mm * 1e3
     far = cmd[:, 1] > 200
-    np.testing.assert_allclose(err_um[far, 0], 2.0 * np.sin(np.pi * cmd[far, 0] / 450),
+    bow_um = 2.0 * np.sin(np.pi * xs / 450)  # the change at the frame's nodes, less its
+    np.testing.assert_allclose(err_um[far, 0],  # level (the plane never holds a level)
+                               2.0 * np.sin(np.pi * cmd[far, 0] / 450) - np.mean(bow_um),
                                atol=2e-3)  # fmt: skip
     assert np.abs(err_um[:, 1]).max() < 1e-9  # Y's table did not change
     assert not reframe_plane(config, tmp_path)  # done once
@@ -121,8 +123,10 @@ def test_reframe_plane_rewrites_the_points_once_per_change(tmp_path):
 
 def test_compgw_fit_keeps_a_faded_plane_in_line_with_a_table_it_writes(tmp_path, capsys):
     """`compgw fit xy.csv --pitch-line …` writes a smoothed grid pinned with a fade and its
-    frame; `compgw fit X_on.csv --residual` then folds 1 µm into X's table, and the plane
-    gives that 1 µm back off X's pitch line (where the table alone rules, nothing moves)."""
+    frame; `compgw fit X_on.csv --residual` then folds a 1 µm tilt into X's table, and the
+    plane gives that tilt back off X's pitch line, less its level (where the table alone
+    rules, nothing moves). A level folded alone re-expresses nothing: the whole plane
+    moves with it."""
     from gateway.calibration.fitting.plane_frame import FRAME_FILE
     from gateway.calibration.plans.rawdata import RawWriter
     from gateway.cli import main
@@ -144,19 +148,26 @@ def test_compgw_fit_keeps_a_faded_plane_in_line_with_a_table_it_writes(tmp_path,
     points = tmp_path / "tables" / "xy_points.csv"
     assert (tmp_path / "tables" / FRAME_FILE).exists(), capsys.readouterr().out
     before = read_planar_csv(points)
-    with RawWriter(tmp_path / "x_on.csv") as w:  # X with its table on: 1 µm long everywhere
-        for run in (1, 2):
-            for sign, targets in (("+", np.arange(0, 451, 10.0)), ("-", np.arange(450, -1, -10.0))):
-                for t in targets:
-                    w.append("X", run, sign, float(t), float(t) + 1e-3)
-    capsys.readouterr()
-    assert main(["fit", str(tmp_path / "x_on.csv"), "-c", gw, "--residual"]) == 0
-    assert "re-expressed" in capsys.readouterr().out
+    def fold(name, miss_mm):  # X read with its table on, ``miss_mm(t)`` long, folded in
+        with RawWriter(tmp_path / name) as w:
+            for run in (1, 2):
+                for sign, targets in (("+", np.arange(0, 451, 10.0)),
+                                      ("-", np.arange(450, -1, -10.0))):  # fmt: skip
+                    for t in targets:
+                        w.append("X", run, sign, float(t), float(t) + miss_mm(t))
+        capsys.readouterr()
+        assert main(["fit", str(tmp_path / name), "-c", gw, "--residual"]) == 0
+        return capsys.readouterr().out
+
+    assert "re-expressed" not in fold("x_level.csv", lambda t: 1e-3)  # a level: none
+    np.testing.assert_array_equal(read_planar_csv(points).error_mm, before.error_mm)
+    assert "re-expressed" in fold("x_tilt.csv", lambda t: 1e-3 * t / 450)  # a tilt
     after = read_planar_csv(points)
     np.testing.assert_array_equal(after.command_mm, before.command_mm)
     shift_um = (after.error_mm - before.error_mm) * 1e3
     far = before.command_mm[:, 1] > 100.0
     on_line = before.command_mm[:, 1] == 0.0
-    np.testing.assert_allclose(shift_um[far, 0], -1.0, atol=1e-6)
+    tilt_um = before.command_mm[far, 0] / 450 - np.mean(xs / 450)
+    np.testing.assert_allclose(shift_um[far, 0], -tilt_um, atol=5e-3)  # (held past the nodes)
     assert np.abs(shift_um[on_line, 0]).max() < 1e-9
     assert np.abs(shift_um[:, 1]).max() < 1e-9  # Y's table did not change

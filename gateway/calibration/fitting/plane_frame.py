@@ -4,15 +4,17 @@ change.
 An XY grid is read with the pitch tables on, so a grid model holds what the tables left:
 M = T − A_fit (per component: X's error less X's table, which depends on x only). Pinned
 with a fade (:func:`.models.pinned_measurement`), the model keeps M far from the pitch
-lines, the tables' own error at the grid's resolution included. When a table changes
+lines, the tables' own error at the grid's resolution included (less its level along the
+line: a level is where the instruments were zeroed, never the plane's). When a table changes
 afterwards by Δ = A_now − A_fit (a sweep, a refinement, a table put back), the model far
 from the line would undo the change there; pinned without a fade (a polynomial) Δ cancels
 and nothing is needed. So the tables' values at the grid's nodes are kept beside the
 model (the *frame*, ``xy_frame.json``, with the points as fitted, ``xy_points_fitted.csv``),
 and before the model runs with other tables it is re-expressed: the fitted points, each
-component less (1 − fade) · S(Δ), S(Δ) the cubic through Δ at the grid's nodes (what the
-grid would have read of it), the fade the pin's own. Always from the fitted points, never
-from the last re-expression: an interrupted write is simply done again.
+component less (1 − fade) · S(Δ), S(Δ) the cubic through Δ (less its mean) at the grid's
+nodes (what the grid would have read of it), the fade the pin's own. Always from the
+fitted points, never from the last re-expression: an interrupted write is simply done
+again.
 
 Pure functions on arrays and one small file; the tables' values come from the gateway's
 own chain (:func:`table_deviation_mm`).
@@ -118,10 +120,13 @@ def save_frame(points_path: Path, frame: PlaneFrame | None) -> None:
 def reframed(points: PlanarMeasurement, frame: PlaneFrame, axes: tuple[str, str],
              table_now_mm: dict[str, NDArray[np.float64]]) -> PlanarMeasurement:  # fmt: skip
     """A faded model's points re-expressed against tables that now take off
-    ``table_now_mm`` at the frame's nodes: each component less (1 − fade) · S(Δ)."""
+    ``table_now_mm`` at the frame's nodes: each component less (1 − fade) · S(Δ), Δ less
+    its mean over the nodes (a level is never the plane's: the pin took the level the
+    grid read along the line off everywhere, :func:`.models.pinned_measurement`)."""
     err = points.error_mm.copy()
     for k, a in enumerate(axes):
         delta = np.asarray(table_now_mm[a], np.float64) - frame.table_mm[a]
+        delta = delta - float(np.mean(delta)) if delta.size else delta
         nodes = frame.nodes_mm[a]
         if nodes.size < 2 or not np.any(delta):
             continue
