@@ -56,6 +56,7 @@ class MachineTime:
         self._counts = WrappingCount(1 << (16 * source.source_register.words))
         self.failures = 0
         self.ok = False  # the last read answered
+        self.reads = 0  # reads answered so far
 
     def now_s(self) -> float:
         """The machine's clock (s) as last read; 0 before the first read."""
@@ -75,4 +76,5 @@ class MachineTime:
             return
         self._counts.update(counts)
         self.ok = True
+        self.reads += 1
 

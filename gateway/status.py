@@ -34,7 +34,8 @@ address    meaning
 120        the machine's clock (``machine_clock``): 0 none (the computer's is the
            machine's), 1 read, 2 its last read failed (it stands where it was)
 121-122    the machine's clock, ms (uint32, wraps after 49.7 days), as read before the
-           last corrected target (read for this read before the first, or after a failure)
+           last corrected target; read for this read where no correction read it since
+           the last read of it here (the first, a machine that stood), or after a failure
 =========  ==========================================================================
 
 Holding registers (FC03 read, FC06/FC16 write): address k = 1 to switch compensation of
@@ -104,6 +105,10 @@ class StatusUnit:
     ) -> None:
         self.gateway = gateway
         self.machine_time = machine_time
+        #: the machine clock's reads when a master last read it here: none since, and
+        #: this read asks for a fresh one (commissioning carried on after the machine
+        #: stood 3 h read "it has stood 0 minutes": nothing had moved to read it)
+        self._clock_reads_shown = -1
         self.sensors = sensors
         self.buses_down = buses_down
         self.reloader: Reloader | None = None  # set by whoever knows the config file
@@ -181,10 +186,12 @@ class StatusUnit:
             raise ModbusError(str(exc), ILLEGAL_DATA_VALUE) from None
         if req.function in (READ_INPUT_REGISTERS, READ_HOLDING_REGISTERS):
             start, count = req.read_address or 0, req.read_count
-            if (self.machine_time is not None and not self.machine_time.ok
-                    and req.function == READ_INPUT_REGISTERS
+            clock = self.machine_time
+            if (clock is not None and req.function == READ_INPUT_REGISTERS
                     and start + count > MACHINE_CLOCK_REGISTER):
-                await self.machine_time.refresh()  # (else as the last correction read it)
+                if not clock.ok or clock.reads == self._clock_reads_shown:
+                    await clock.refresh()  # (else as the last correction read it)
+                self._clock_reads_shown = clock.reads
             image = (
                 self.input_registers()
                 if req.function == READ_INPUT_REGISTERS

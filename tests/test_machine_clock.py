@@ -159,6 +159,35 @@ def test_commissioning_reads_the_machines_clock_through_the_gateway_past_its_wra
     assert shown is False and now_s == pytest.approx(loop_s, abs=30.0)
 
 
+def test_a_machine_that_stood_shows_its_clock_read_afresh(tmp_path: Path):
+    """Issue 52's README trial, cooled: the sim's clock advanced 3 h between two runs, and
+    the run carried on said "it has stood 0 minutes since": the status unit showed the
+    clock as the last correction read it, and nothing had moved. Where no correction read
+    it since a master last read it there, the status unit reads it for the read."""
+
+    def ms(regs: list[int]) -> int:
+        return unpack_int32(regs[121:123], "hi_lo", signed=False)
+
+    async def body():
+        async with rig(tmp_path, with_motion_heat(True)) as r:
+            master, direct = r["master"], r["direct"]
+            await move(master, 1, 100_000)  # 1 s of it after the correction read the clock
+            after_move = await _status(master)  # as that correction read it
+            moved_s = await _sim_clock_s(direct)
+            await _advance_s(direct, 10_800)  # the machine stands 3 h
+            stood = await _status(master)  # nothing moved since: read afresh
+            again = await _status(master)
+            await move(master, 1, 0)
+            moving = await _status(master)  # as the correction read it: before the move
+            return after_move, moved_s, stood, again, moving, await _sim_clock_s(direct)
+
+    after_move, moved_s, stood, again, moving, end_s = run(body())
+    assert ms(after_move) == pytest.approx((moved_s - 1.0) * 1000, abs=50)
+    assert ms(stood) == pytest.approx((moved_s + 10_800) * 1000, abs=50)
+    assert ms(again) == ms(stood)
+    assert ms(moving) == ms(stood) and end_s == pytest.approx(moved_s + 10_801, abs=0.05)
+
+
 async def _wall_now() -> float:
     import time
 
