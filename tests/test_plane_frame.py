@@ -77,11 +77,15 @@ def test_a_table_change_is_kept_off_the_line_and_the_grid_reading_kept(tmp_path)
     # then: table (bow) + plane; now: table (flat) + re-expressed plane: the same there
     # (the bow as X's 10 mm table interpolates it: within 2 nm of the sine at the nodes)
     np.testing.assert_allclose(after.error_mm(far)[:, 0], before.error_mm(far)[:, 0]
-                               + bow_nodes - np.mean(bow_nodes), atol=5e-6)  # fmt: skip
+                               + bow_nodes, atol=5e-6)  # fmt: skip
     # ... which is the squareness the grid read, the bow's miss gone with the bow
     np.testing.assert_allclose(after.error_mm(far)[:, 0], 2e-5 * ys[-1], atol=2e-5)
+    # on the line the table rules, but for its level: the plane moves with that (no step)
     on_line = np.column_stack([xs, np.zeros(xs.size)])
-    np.testing.assert_allclose(after.error_mm(on_line), before.error_mm(on_line), atol=1e-12)
+    np.testing.assert_allclose(after.error_mm(on_line)[:, 0],
+                               before.error_mm(on_line)[:, 0] + np.mean(bow_nodes), atol=1e-6)
+    np.testing.assert_allclose(after.error_mm(on_line)[:, 1], before.error_mm(on_line)[:, 1],
+                               atol=1e-12)  # fmt: skip
     # no change, no re-expression
     same = reframed(points, frame, ("X", "Y"), frame.table_mm)
     np.testing.assert_array_equal(same.error_mm, points.error_mm)
@@ -108,9 +112,7 @@ def test_reframe_plane_rewrites_the_points_once_per_change(tmp_path):
     assert reframe_plane(config, tmp_path)
     err_um = read_planar_csv(points_path).error_mm * 1e3
     far = cmd[:, 1] > 200
-    bow_um = 2.0 * np.sin(np.pi * xs / 450)  # the change at the frame's nodes, less its
-    np.testing.assert_allclose(err_um[far, 0],  # level (the plane never holds a level)
-                               2.0 * np.sin(np.pi * cmd[far, 0] / 450) - np.mean(bow_um),
+    np.testing.assert_allclose(err_um[far, 0], 2.0 * np.sin(np.pi * cmd[far, 0] / 450),
                                atol=2e-3)  # fmt: skip
     assert np.abs(err_um[:, 1]).max() < 1e-9  # Y's table did not change
     assert not reframe_plane(config, tmp_path)  # done once
@@ -124,9 +126,9 @@ def test_reframe_plane_rewrites_the_points_once_per_change(tmp_path):
 def test_compgw_fit_keeps_a_faded_plane_in_line_with_a_table_it_writes(tmp_path, capsys):
     """`compgw fit xy.csv --pitch-line …` writes a smoothed grid pinned with a fade and its
     frame; `compgw fit X_on.csv --residual` then folds a 1 µm tilt into X's table, and the
-    plane gives that tilt back off X's pitch line, less its level (where the table alone
-    rules, nothing moves). A level folded alone re-expresses nothing: the whole plane
-    moves with it."""
+    plane gives that tilt back off X's pitch line (where the table alone rules, nothing
+    moves but the tilt's level). A level folded alone is given back everywhere, on the
+    line too: a step there would be the laser's zero against the grid device's."""
     from gateway.calibration.fitting.plane_frame import FRAME_FILE
     from gateway.calibration.plans.rawdata import RawWriter
     from gateway.cli import main
@@ -159,15 +161,17 @@ def test_compgw_fit_keeps_a_faded_plane_in_line_with_a_table_it_writes(tmp_path,
         assert main(["fit", str(tmp_path / name), "-c", gw, "--residual"]) == 0
         return capsys.readouterr().out
 
-    assert "re-expressed" not in fold("x_level.csv", lambda t: 1e-3)  # a level: none
-    np.testing.assert_array_equal(read_planar_csv(points).error_mm, before.error_mm)
-    assert "re-expressed" in fold("x_tilt.csv", lambda t: 1e-3 * t / 450)  # a tilt
-    after = read_planar_csv(points)
-    np.testing.assert_array_equal(after.command_mm, before.command_mm)
-    shift_um = (after.error_mm - before.error_mm) * 1e3
     far = before.command_mm[:, 1] > 100.0
     on_line = before.command_mm[:, 1] == 0.0
-    tilt_um = before.command_mm[far, 0] / 450 - np.mean(xs / 450)
-    np.testing.assert_allclose(shift_um[far, 0], -tilt_um, atol=5e-3)  # (held past the nodes)
-    assert np.abs(shift_um[on_line, 0]).max() < 1e-9
-    assert np.abs(shift_um[:, 1]).max() < 1e-9  # Y's table did not change
+    assert "re-expressed" in fold("x_level.csv", lambda t: 1e-3)  # a level: everywhere
+    level_um = (read_planar_csv(points).error_mm - before.error_mm) * 1e3
+    np.testing.assert_allclose(level_um[:, 0], -1.0, atol=1e-6)
+    assert np.abs(level_um[:, 1]).max() < 1e-9  # Y's table did not change
+    assert "re-expressed" in fold("x_tilt.csv", lambda t: 1e-3 * t / 450)  # and a tilt
+    after = read_planar_csv(points)
+    np.testing.assert_array_equal(after.command_mm, before.command_mm)
+    shift_um = (after.error_mm - before.error_mm) * 1e3 - level_um
+    tilt_um = before.command_mm[:, 0] / 450
+    np.testing.assert_allclose(shift_um[far, 0], -tilt_um[far], atol=5e-3)  # (held past
+    np.testing.assert_allclose(shift_um[on_line, 0], -np.mean(xs / 450), atol=1e-9)  # nodes)
+    assert np.abs(shift_um[:, 1]).max() < 1e-9

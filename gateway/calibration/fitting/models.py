@@ -260,13 +260,14 @@ def pinned_measurement(
     subdivided ``subdivide`` times) for a cubic grid model. A faded model keeps what the
     tables it was read with left; :mod:`.plane_frame` keeps it in line when they change.
 
-    The model's mean on the line is taken off everywhere, faded or not: a level the grid
-    reads along a pitch line is where the grid's device and the laser were zeroed, not an
-    error of the table (a table's level is where the machine homes, and nobody's laser
-    reads it). Faded, it stayed far from the line and made a step of it: rough-0 read by
-    the laser's own recordings, zeroed at their first stop, 2.4 µm from where the XY device
-    reads X's zero, read the plane's vector error 1.3 µm worse than through the Modbus
-    laser, which the simulator zeroes where the XY device is.
+    The model's mean on the line (its level) is not taken off: the model holds it on the
+    line too, everywhere the same. A level the grid reads along a pitch line is where the
+    grid's device and the laser were zeroed, not a shape; taken off the line only, it made
+    a step of it between the line and a few node steps away: rough-0 read by the laser's
+    own recordings, zeroed at their first stop, 2.4 µm from where the XY device reads X's
+    zero, read the plane's vector error 1.3 µm worse than through the Modbus laser, which
+    the simulator zeroes where the XY device is. Held everywhere, the machine follows the
+    XY device's zero along the lines as off them.
     """
     if nodes is None:
         nodes = model.nodes_hint_mm()
@@ -289,8 +290,8 @@ def pinned_measurement(
         line[:, j] = lines[name]
         fade = pin_fade(model.kind, mesh[:, j] - lines[name], float(step[j]))
         on_line = _continued(model, line, lower, upper, step)[:, k]
-        level = float(np.mean(on_line))  # the instruments' zeros (see above)
-        err[:, k] -= level + fade * (on_line - level)
+        level = float(np.mean(on_line))  # the instruments' zeros: held (see above)
+        err[:, k] -= fade * (on_line - level)
     return PlanarMeasurement(mesh, mesh + err, source=f"{model.kind} model pinned to pitch lines")
 
 

@@ -4,15 +4,17 @@ change.
 An XY grid is read with the pitch tables on, so a grid model holds what the tables left:
 M = T − A_fit (per component: X's error less X's table, which depends on x only). Pinned
 with a fade (:func:`.models.pinned_measurement`), the model keeps M far from the pitch
-lines, the tables' own error at the grid's resolution included (less its level along the
-line: a level is where the instruments were zeroed, never the plane's). When a table changes
+lines, the tables' own error at the grid's resolution included, and its level along the
+line everywhere (where the instruments were zeroed: no step at the line). When a table changes
 afterwards by Δ = A_now − A_fit (a sweep, a refinement, a table put back), the model far
 from the line would undo the change there; pinned without a fade (a polynomial) Δ cancels
 and nothing is needed. So the tables' values at the grid's nodes are kept beside the
 model (the *frame*, ``xy_frame.json``, with the points as fitted, ``xy_points_fitted.csv``),
 and before the model runs with other tables it is re-expressed: the fitted points, each
-component less (1 − fade) · S(Δ), S(Δ) the cubic through Δ (less its mean) at the grid's
-nodes (what the grid would have read of it), the fade the pin's own. Always from the
+component less (1 − fade) · S(Δ) + fade · mean(Δ), S(Δ) the cubic through Δ at the grid's
+nodes (what the grid would have read of it), the fade the pin's own: far from the line
+table and plane still add up to what the grid read, and on it the table's level change is
+given back too (a table's level moves the whole plane, never a step). Always from the
 fitted points, never from the last re-expression: an interrupted write is simply done
 again.
 
@@ -120,13 +122,12 @@ def save_frame(points_path: Path, frame: PlaneFrame | None) -> None:
 def reframed(points: PlanarMeasurement, frame: PlaneFrame, axes: tuple[str, str],
              table_now_mm: dict[str, NDArray[np.float64]]) -> PlanarMeasurement:  # fmt: skip
     """A faded model's points re-expressed against tables that now take off
-    ``table_now_mm`` at the frame's nodes: each component less (1 − fade) · S(Δ), Δ less
-    its mean over the nodes (a level is never the plane's: the pin took the level the
-    grid read along the line off everywhere, :func:`.models.pinned_measurement`)."""
+    ``table_now_mm`` at the frame's nodes: each component less (1 − fade) · S(Δ) +
+    fade · mean(Δ) (a level is held on the line as off it:
+    :func:`.models.pinned_measurement`)."""
     err = points.error_mm.copy()
     for k, a in enumerate(axes):
         delta = np.asarray(table_now_mm[a], np.float64) - frame.table_mm[a]
-        delta = delta - float(np.mean(delta)) if delta.size else delta
         nodes = frame.nodes_mm[a]
         if nodes.size < 2 or not np.any(delta):
             continue
@@ -134,7 +135,8 @@ def reframed(points: PlanarMeasurement, frame: PlaneFrame, axes: tuple[str, str]
             lambda x, n=nodes, d=delta: np.interp(x, n, d))  # fmt: skip
         along = np.clip(points.command_mm[:, k], nodes[0], nodes[-1])
         away = points.command_mm[:, 1 - k] - frame.line_mm[a]
-        err[:, k] -= (1.0 - pin_fade("grid", away, frame.step_mm(a))) * smooth(along)
+        fade = pin_fade("grid", away, frame.step_mm(a))
+        err[:, k] -= (1.0 - fade) * smooth(along) + fade * float(np.mean(delta))
     return PlanarMeasurement(points.command_mm, points.command_mm + err, points.source)
 
 
