@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import json
+import math
 import re
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
+from gateway.calibration.commissioning.after import heat_left_um, warmed_um
 from gateway.calibration.commissioning.ident_text import identification_rows
 from gateway.calibration.commissioning.report import (
     remains,
@@ -315,4 +318,42 @@ def test_a_rerun_on_a_machine_the_run_before_left_warm_is_told_before_it_moves()
     assert warm_rerun(summary, 50_000.0 + 124 * 60, "machine") is None
     # another clock than the one it ended on says nothing of the time since
     assert "about 124 more minutes" in warm_rerun(summary, 1.8e9, "computer")
+
+
+def test_warm_is_the_heat_the_correction_leaves_and_a_warm_up_cools() -> None:
+    """Random machine 3, the tighter rerun after three hours at rest: its screws grew 9-11
+    µm in the rerun's own runs, its heat-from-motion models left 0.3 µm of it at the
+    references, and the verdict still said the machine was warm by the warm-up of three
+    hours before (19.6 µm) and to let it cool 52 minutes."""
+    ident = {"thermal-X": {"fitted": True, "tau_s": 1040.0, "growth_max_um": 19.6,
+                           "drift_check": {"left_rms_um": 0.72, "drift_rms_um": 7.47,
+                                           "holds": True}}}  # fmt: skip
+
+    def log(wall_s: float, grown_um: float, modelled: bool) -> list[dict[str, Any]]:
+        warmup = {"wall_s": 2300.0, "drift_mm": {"X": [0.002, 0.02]}}
+        last = {"wall_s": wall_s, "drift_mm": {"X": [0.001, grown_um / 1000.0]}}
+        if modelled:
+            last["modelled_um"] = {"X": [1.0, grown_um]}
+        return [warmup, last]
+
+    # right after the warm-up: as warm as it grew; three hours later: what runs since left
+    assert warmed_um(log(2400.0, 8.0, True), ident, {"X": 0})["X"] == pytest.approx(
+        19.6 * math.exp(-100.0 / 1040.0))  # fmt: skip
+    late = log(2300.0 + 3 * 3600.0, 9.0, True)
+    assert warmed_um(late, ident, {"X": 0})["X"] == pytest.approx(9.0)
+    left = heat_left_um(warmed_um(late, ident, {"X": 0}), late, ident)
+    assert left["X"] == pytest.approx(9.0 * 0.72 / 7.47)
+    summary = {"outcome": "after", "tolerance_um": 1.0, "cool_min": 52,
+               "axes": {"X": {"after": {"E_um": 1.19}}},
+               "warmed_um": {"X": 9.0}, "heat_left_um": left}  # fmt: skip
+    assert "has warmed" not in verdict(summary) and warm_rerun(summary) is None
+    # no model loaded (or one that does not hold): all of the growth is left
+    bare = log(2300.0 + 3 * 3600.0, 9.0, False)
+    summary["heat_left_um"] = heat_left_um(warmed_um(bare, ident, {"X": 0}), bare, ident)
+    line = verdict(summary)
+    assert "the machine has warmed: its drift references moved X 9.0 µm" in line, line
+    # a model that leaves some: said beside the growth
+    summary["heat_left_um"] = {"X": 2.6}
+    assert "moved X 9.0 µm (its heat correction is expected to leave about X 2.6 µm of " \
+        "it) since it started cold" in verdict(summary)  # fmt: skip
 

@@ -152,10 +152,25 @@ def as_read_figures(summary: dict[str, Any]) -> dict[str, float]:
 
 
 def _warm_axes(summary: dict[str, Any]) -> dict[str, float]:
-    """The axes whose drift references moved more than WARM_UM (or half the tolerance)
-    since the cold start (µm)."""
+    """The axes whose growth since the cold start, as their heat correction is expected
+    to leave it (``heat_left_um``; older summaries: the growth itself), is more than
+    WARM_UM (or half the tolerance) (µm: the growth)."""
     limit = max(WARM_UM, 0.5 * summary.get("tolerance_um", 0.0))
-    return {a: w for a, w in (summary.get("warmed_um") or {}).items() if w > limit}
+    grown = summary.get("warmed_um") or {}
+    left = summary.get("heat_left_um") or grown
+    return {a: grown.get(a, w) for a, w in left.items() if w > limit}
+
+
+def _warm_text(summary: dict[str, Any], warm: dict[str, float], moved: str) -> str:
+    """How far the warm axes' references moved, and what their heat correction is expected
+    to leave of it where that is less."""
+    left = summary.get("heat_left_um") or {}
+    less = {a: left[a] for a in warm if a in left and left[a] < warm[a] - 0.05}
+    return (f"its drift references {moved} "
+            + ", ".join(f"{a} {w:.1f} µm" for a, w in warm.items())
+            + (" (its heat correction is expected to leave about "
+               + ", ".join(f"{a} {v:.1f} µm" for a, v in less.items()) + " of it)"
+               if less else ""))  # fmt: skip
 
 
 def warm_rerun(summary: dict[str, Any], now_s: float | None = None,
@@ -179,8 +194,7 @@ def warm_rerun(summary: dict[str, Any], now_s: float | None = None,
             return None
     left = cool if rested_min is None else max(1, round(cool - rested_min))
     rested = "" if not rested_min else f" (it has stood {rested_min:.0f} minutes since)"
-    return ("the run before left the machine warm: its drift references had moved "
-            + ", ".join(f"{a} {w:.1f} µm" for a, w in warm.items())
+    return ("the run before left the machine warm: " + _warm_text(summary, warm, "had moved")
             + f" since it started cold{rested}. What this run reads carries that heat, and "
             "the figures may read worse on tables it leaves as they are. Best: stop now "
             f"(Ctrl-C) and let it cool about {left} more minutes at rest, then run the same "
@@ -195,8 +209,7 @@ def _before_more(summary: dict[str, Any]) -> str | None:
     warm = _warm_axes(summary)
     if warm:
         cool = summary.get("cool_min")
-        said.append("the machine has warmed: its drift references moved "
-                    + ", ".join(f"{a} {w:.1f} µm" for a, w in warm.items())
+        said.append("the machine has warmed: " + _warm_text(summary, warm, "moved")
                     + " since it started cold, and a run now fits that heat, not the tables. "
                     f"Let it cool about {cool if cool else 60} minutes at rest"
                     + (" (three of its fitted heat time constants)" if cool else "")
