@@ -352,6 +352,12 @@ def test_warm_is_the_heat_the_correction_leaves_and_a_warm_up_cools() -> None:
     summary["heat_left_um"] = heat_left_um(warmed_um(bare, ident, {"X": 0}), bare, ident)
     line = verdict(summary)
     assert "the machine has warmed: its drift references moved X 9.0 µm" in line, line
+    # a sensor loaded (random machine 7's X, Δa): what its warm-up's fit left of the growth
+    sensor = {"thermal-X": {"shape": "linear", "linear_rms_um": 0.61, "profile_rms_um": 1.74,
+                            "growth_max_um": 32.4}}  # fmt: skip
+    assert heat_left_um({"X": 7.7}, bare, sensor, {"X"})["X"] == pytest.approx(
+        7.7 * 2 * 0.61 / 32.4)  # fmt: skip
+    assert heat_left_um({"X": 7.7}, bare, sensor)["X"] == pytest.approx(7.7)  # not loaded
     # a model that leaves some: said beside the growth
     summary["heat_left_um"] = {"X": 2.6}
     assert "moved X 9.0 µm (its heat correction is expected to leave about X 2.6 µm of " \

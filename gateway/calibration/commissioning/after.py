@@ -56,18 +56,30 @@ def warmed_um(log: list[dict[str, Any]], identify: dict[str, Any],
 
 
 def heat_left_um(warmed: dict[str, float], log: list[dict[str, Any]],
-                 identify: dict[str, Any]) -> dict[str, float]:
-    """Of each axis's growth (``warmed``, µm), what its correction is expected to leave:
-    times the share of the drift its heat-from-motion model left on the commissioning's
+                 identify: dict[str, Any], sensed: set[str] | frozenset[str] = frozenset(),
+                 ) -> dict[str, float]:  # fmt: skip
+    """Of each axis's growth (``warmed``, µm), what its heat correction is expected to
+    leave: the share of the drift its heat-from-motion model left on the commissioning's
     runs (its ``drift_check``) where that model is loaded at the last reading and holds;
-    all of it elsewhere. Random machine 3 after its rerun: grown 9-11 µm, its models
-    expected to leave 0.9 and 0.4 µm (its references read 0.4 and 0.1)."""
+    on an axis whose sensor is loaded (``sensed``), twice the RMS its warm-up's fit left
+    over the growth it read (a rise's RMS is about half its peak); all of it elsewhere.
+    Random machine 3 after its rerun: grown 9-11 µm, its models expected to leave 0.9
+    and 0.4 µm (its references read 0.4 and 0.1); random machine 7's X, a Δa sensor whose
+    warm-up fit left 0.6 µm RMS of 32 µm: 7.7 µm grown, 0.3 expected left."""
     modelled = log[-1].get("modelled_um") or {} if log else {}
     out = dict(warmed)
     for a in out:
-        check = (identify.get(f"thermal-{a}") or {}).get("drift_check") or {}
+        heat = identify.get(f"thermal-{a}") or {}
+        check = heat.get("drift_check") or {}
         if a in modelled and check.get("holds") and check.get("drift_rms_um"):
-            out[a] *= min(1.0, float(check["left_rms_um"]) / float(check["drift_rms_um"]))
+            share = float(check["left_rms_um"]) / float(check["drift_rms_um"])
+        elif a in sensed and heat.get("growth_max_um"):
+            rms = heat.get("residual_rms_um", heat.get(
+                "profile_rms_um" if heat.get("shape") == "profile" else "linear_rms_um"))
+            share = 1.0 if rms is None else 2.0 * float(rms) / float(heat["growth_max_um"])
+        else:
+            share = 1.0
+        out[a] *= min(1.0, share)
     return out
 
 
@@ -258,7 +270,9 @@ class AfterSteps:
             return {}
         ident = self.record.state.get("identify") or {}
         warmed = warmed_um(log, ident, self.record.state.get("warmup_log") or {})
-        left = heat_left_um(warmed, log, ident)
+        sensed = {a for a, c in (self.record.state.get("ref_commands") or {}).items()
+                  if c.get("source")}  # fmt: skip
+        left = heat_left_um(warmed, log, ident, sensed)
         taus = [float(r["motion"]["tau_s"]) for k, r in ident.items()
                 if k.startswith("motion-") and isinstance(r, dict)
                 and (r.get("motion") or {}).get("tau_s")]  # fmt: skip

@@ -123,7 +123,8 @@ class DriftRefs:
                 mm.append(float(cmd[a][0]))
                 every.append({o: float(c[0]) for o, c in cmd.items()})
             th = cfg.axes[a].compensation.thermal
-            out[a] = {"mm": mm, "thermal": repr(th), "commands_mm": every}
+            out[a] = {"mm": mm, "thermal": repr(th), "commands_mm": every,
+                      "source": None if th is None else th.source}
             src = None if th is None or th.source is None else cfg.thermal_sources[th.source]
             if src is not None and src.kind == "temperature" and th.profile is None:
                 out[a]["sensor"] = [th.origin_mm, th.length_mm, th.gain, src.alpha_per_k,
