@@ -294,6 +294,9 @@ def test_a_rerun_that_reads_worse_on_the_tables_it_kept_says_so() -> None:
                          "they were: the machine (its heat, its scatter) reads otherwise "
                          "now, not the tables"), line
     assert "Y 0.70" not in line
+    summary["run_before"]["X"]["scatter_um"] = 0.85  # 2 s / √runs: s 0.6 µm, 2 runs
+    assert "X 0.73 → 2.01 µm (a target's mean over its runs scatters ±0.85 µm there) as " \
+        "read on the tables the run before left" in verdict(summary)  # fmt: skip
     summary["run_before"]["X"]["now_um"] = 0.75  # within the reading's rounding: not said
     assert "run before" not in verdict(summary)
 

@@ -257,6 +257,10 @@ class AfterSteps:
                        "same_tables": was["tables"] == self.record.tables.digest(
                            n, self.record.config_dir)}
                    for n, was in before.items() if n in now}  # fmt: skip
+        for n, r in against.items():  # how far a target's mean scatters (±2σ) on this axis
+            after = ((out.get("axes") or {}).get(n) or {}).get("after") or {}
+            if after.get("s_pooled_um") and after.get("runs"):
+                r["scatter_um"] = 2.0 * float(after["s_pooled_um"]) / math.sqrt(after["runs"])
         return {"run_before": against} if against else {}
 
     def warmth(self) -> dict[str, Any]:

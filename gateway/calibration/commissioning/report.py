@@ -131,9 +131,11 @@ def _same_tables_worse(summary: dict[str, Any]) -> str:
              if r["same_tables"] and r["now_um"] > r["before_um"] + 0.05]
     if not worse:
         return ""
-    return ("; " + ", ".join(f"{n} {r['before_um']:.2f} → {r['now_um']:.2f} µm" for n, r in worse)
+    return ("; " + ", ".join(f"{n} {r['before_um']:.2f} → {r['now_um']:.2f} µm" + (
+        f" (a target's mean over its runs scatters ±{r['scatter_um']:.2f} µm there)"
+        if r.get("scatter_um") else "") for n, r in worse)
             + " as read on the tables the run before left as they were: the machine (its heat, "
-            "its scatter) reads otherwise now, not the tables")
+            "its scatter) reads otherwise now, not the tables")  # fmt: skip
 
 
 #: the references moved this much since the cold start (µm, or half the tolerance if more):
