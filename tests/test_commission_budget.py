@@ -207,6 +207,9 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         assert was["X"]["before_um"] == summary["axes"]["X"]["after"]["E_read_um"], was
         assert was["X"]["now_um"] == again["axes"]["X"]["after"]["E_read_um"], was
         assert all(isinstance(r["same_tables"], bool) for r in was.values()), was
+        after = again["axes"]["X"]["after"]  # and how far a target's mean scatters there
+        assert was["X"]["scatter_um"] == pytest.approx(
+            2 * after["s_pooled_um"] / after["runs"] ** 0.5), was  # fmt: skip
         lines = more.text().strip().splitlines()
         verdict = lines[lines.index(next(n for n in lines if n.startswith("report: "))) - 1]
         assert verdict.startswith(("WITHIN 5 µm", "NOT within 5 µm")), verdict
