@@ -196,6 +196,23 @@ def test_csv_series_errors_name_the_line(tmp_path: Path):
         read_rtx(path, "furlong")
 
 
+def test_a_csv_series_reads_alike_plain_quoted_with_blank_rows_and_columns_swapped(
+        tmp_path: Path):  # fmt: skip
+    """numpy's parser reads the plain file (hours at 500 Hz: millions of rows); a quoted or
+    ragged one is read row by row, to the same numbers."""
+    t = np.arange(0.0, 2.0, 0.002)
+    v = 1000.0 * np.sin(t)
+    plain = tmp_path / "plain.csv"
+    plain.write_text("time_s,position_um\n" + "".join(f"{a:.3f},{b:.4f}\n" for a, b in zip(t, v)))
+    other = tmp_path / "other.csv"
+    other.write_text('"position_um","time_ms"\n\n' + "".join(
+        f'"{b:.4f}","{1000 * a:.0f}"\n' for a, b in zip(t, v)))  # fmt: skip
+    a, b = read_csv_series(plain, "um"), read_csv_series(other, "um")
+    assert a.t_s.size == b.t_s.size == t.size and a.rate_hz == pytest.approx(500.0)
+    assert np.allclose(a.t_s, b.t_s) and np.allclose(a.value_mm, b.value_mm)
+    assert np.allclose(a.value_mm, v / 1000.0, atol=1e-7)
+
+
 # -- capture exports ----------------------------------------------------------------------------
 def plan_stops_of(targets: np.ndarray) -> list[PlanStop]:
     half = targets.size // 2

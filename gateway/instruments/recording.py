@@ -134,10 +134,10 @@ def read_csv_series(path: str | Path, unit: str, value_column: str | None = None
     unit = unit_of(unit, str(path))
     name = str(path)
     with open(path, newline="", encoding="utf-8-sig") as f:
-        rows = list(csv.reader(f))
-    if len(rows) < 2:
+        lines = f.read().splitlines()
+    if len(lines) < 2:
         raise RecordingError(f"{name}: no samples (a header row and one row per sample)")
-    head = [h.strip() for h in rows[0]]
+    head = [h.strip() for h in next(csv.reader(lines[:1]))]
     times = [i for i, h in enumerate(head) if "time" in h.lower()]
     if len(times) != 1:
         raise RecordingError(f"{name}: {len(times)} columns named like a time in {head}: "
@@ -153,6 +153,25 @@ def read_csv_series(path: str | Path, unit: str, value_column: str | None = None
             raise RecordingError(f"{name}: columns {head}: say which holds the reading")
         vi = others[0]
     scale_s = 1e-3 if "ms" in head[ti].lower() else 1.0
+    try:  # numpy's own parser: a recording of hours at 500 Hz is millions of rows
+        both = np.loadtxt(lines[1:], delimiter=",", usecols=(ti, vi), ndmin=2, dtype=float)
+        t, v = both[:, 0] * scale_s, both[:, 1]
+    except (ValueError, IndexError):  # row by row, to name the line that is wrong
+        t, v = _series_rows(list(csv.reader(lines)), ti, vi, scale_s, name)
+    t_s, value = np.asarray(t), np.asarray(v) * to_mm(1.0, unit)
+    dt = np.diff(t_s)
+    if np.any(dt <= 0):
+        i = int(np.flatnonzero(dt <= 0)[0])
+        raise RecordingError(f"{name}: line {i + 3}: time {t_s[i + 1]:g} s does not follow "
+                             f"{t_s[i]:g} s")
+    rate = 1.0 / float(np.median(dt)) if dt.size else 1.0
+    return Recording(name, t_s - t_s[0], value, rate, {})
+
+
+def _series_rows(rows: list[list[str]], ti: int, vi: int, scale_s: float,
+                 name: str) -> tuple[list[float], list[float]]:
+    """A CSV series's time (s) and value columns row by row (blank rows skipped); raises
+    RecordingError naming the first line that is not a time and a number."""
     t, v = [], []
     for n, row in enumerate(rows[1:], start=2):
         if not any(cell.strip() for cell in row):
@@ -163,14 +182,7 @@ def read_csv_series(path: str | Path, unit: str, value_column: str | None = None
         except (ValueError, IndexError):
             raise RecordingError(f"{name}: line {n}: {row!r} is not a time and a number") \
                 from None  # fmt: skip
-    t_s, value = np.asarray(t), np.asarray(v) * to_mm(1.0, unit)
-    dt = np.diff(t_s)
-    if np.any(dt <= 0):
-        i = int(np.flatnonzero(dt <= 0)[0])
-        raise RecordingError(f"{name}: line {i + 3}: time {t_s[i + 1]:g} s does not follow "
-                             f"{t_s[i]:g} s")
-    rate = 1.0 / float(np.median(dt)) if dt.size else 1.0
-    return Recording(name, t_s - t_s[0], value, rate, {})
+    return t, v
 
 
 def read_recording(path: str | Path, unit: str) -> Recording:
