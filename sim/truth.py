@@ -10,6 +10,7 @@ nodes, the take-up is a hysteresis state between the two contact flanks of the n
 
 from __future__ import annotations
 
+import bisect
 import csv
 import math
 from dataclasses import dataclass
@@ -71,15 +72,29 @@ class Curve:
             from scipy.interpolate import Akima1DInterpolator
 
             self._akima = Akima1DInterpolator(x, y, method="makima")
+            # its cubic pieces as plain floats: one position at a time (the drives', a
+            # recording's 500 samples a second) evaluated without scipy's per-call cost
+            self._breaks = [float(v) for v in self._akima.x]
+            self._pieces = [[float(v) for v in row] for row in self._akima.c]
 
     def __call__(self, x: np.ndarray | float) -> np.ndarray:
         if isinstance(x, float):  # the drives' one position at a time: no array to clip
             xc: np.ndarray | float = min(max(x, float(self.x[0])), float(self.x[-1]))
+            if self._akima is not None:
+                return np.float64(self._one(xc))  # type: ignore[return-value]
         else:
             xc = np.clip(np.asarray(x, dtype=float), self.x[0], self.x[-1])
         if self._akima is None:
             return np.interp(xc, self.x, self.y)
         return np.asarray(self._akima(xc))
+
+    def _one(self, x: float) -> float:
+        """The Akima curve at one position, by Horner on its piece (as scipy's PPoly)."""
+        b = self._breaks
+        i = min(max(bisect.bisect_right(b, x) - 1, 0), len(b) - 2)
+        d = x - b[i]
+        c3, c2, c1, c0 = self._pieces
+        return ((c3[i] * d + c2[i]) * d + c1[i]) * d + c0[i]
 
 
 def load_deviation(cfg: DeviationTable, base_dir: str | Path) -> tuple[Curve, Curve | None]:
@@ -139,6 +154,10 @@ class CyclicTruth:
 
     def error_mm(self, x_mm: np.ndarray | float) -> np.ndarray:
         """The turn-by-turn lead variation at x, mm."""
+        if isinstance(x_mm, float):  # one position (a drive, a recording's sample)
+            th = 2.0 * math.pi * (x_mm - self.origin_mm) / self.lead_mm
+            return np.float64(sum(max(float(amp(x_mm)), 0.0) * math.sin(k * th + float(phase(x_mm)))
+                                  for k, amp, phase in self.terms))  # type: ignore[return-value]
         x = np.asarray(x_mm, dtype=float)
         theta = 2.0 * np.pi * (x - self.origin_mm) / self.lead_mm
         out = np.zeros_like(x)
