@@ -290,28 +290,23 @@ def test_heat_left_by_the_runs_before_the_warm_up_is_counted() -> None:
 
 
 def test_the_travel_before_a_warm_up_comes_from_the_drift_log() -> None:
-    """What the commission hands the fit (ThermalSteps._travel_before_warmup): the axis's
-    travel between drift readings up to its warm-up's start, and the time they took: every
-    axis's travel at the commissioning speed, or the wall clock where that is longer. The
-    readings after the warm-up began are not its prior."""
-    from types import SimpleNamespace
-
-    from gateway.calibration.commissioning.record import Record
-    from gateway.calibration.commissioning.thermal import ThermalSteps
+    """What the commission hands the fit (:func:`travel_before_warmup` of the drift log up
+    to the warm-up's start): the axis's travel between drift readings and the time they
+    took. Not timed by the machine's clock: every axis's travel at the commissioning
+    speed, or the clock where that is longer. Timed by it: the clock alone, as the
+    gateway counts a model fitted on it."""
+    from gateway.calibration.commissioning.thermal import travel_before_warmup
 
     log = [{"odometer_mm": {"X": x, "Y": y}, "wall_s": w} for x, y, w in
            ((0.0, 0.0, 0.0), (200_000.0, 500.0, 1.0), (200_000.0, 30_500.0, 2.0),
-            (200_000.0, 30_500.0, 3602.0), (200_000.0, 230_500.0, 3603.0))]  # fmt: skip
-    record = Record(Path("/nonexistent"), Path("/nonexistent"))
-    record.state.update({"drift_log": log, "warmup_log": {"Y": 4}})
-    axes = SimpleNamespace(s=SimpleNamespace(axes=("X", "Y"), speed_mm_s=100.0), config=None)
-    steps = ThermalSteps(axes, record, None, print)  # type: ignore[arg-type]
-    travel_m, elapsed_s = steps._travel_before_warmup("Y")
+            (200_000.0, 30_500.0, 3602.0))]  # fmt: skip
+    travel_m, elapsed_s = travel_before_warmup(log, "Y", ("X", "Y"), 100.0, timed=False)
     np.testing.assert_allclose(travel_m, [0.5, 30.0, 0.0])
     # X's 200 m warm-up took 2000 s of Y's cooling; an hour's pause counts by the clock
     np.testing.assert_allclose(elapsed_s, [2005.0, 300.0, 3600.0])
-    record.state["warmup_log"] = {}
-    assert steps._travel_before_warmup("Y")[0].size == 0  # no warm-up begun
+    travel_m, elapsed_s = travel_before_warmup(log, "Y", ("X", "Y"), 100.0, timed=True)
+    np.testing.assert_allclose(elapsed_s, [1.0, 1.0, 3600.0])
+    assert travel_before_warmup(log[:1], "Y", ("X", "Y"), 100.0, timed=True)[0].size == 0
 
 
 def test_a_warm_up_not_timed_by_a_clock_counts_the_other_axes_at_the_speeds_found() -> None:
