@@ -299,6 +299,14 @@ def test_a_rerun_that_reads_worse_on_the_tables_it_kept_says_so() -> None:
         "read on the tables the run before left" in verdict(summary)  # fmt: skip
     summary["run_before"]["X"]["now_um"] = 0.75  # within the reading's rounding: not said
     assert "run before" not in verdict(summary)
+    # the rounds read within and the after-run not, again after carrying on (random 3 and
+    # 7, the tighter rerun): no tighter tolerance again, a recheck
+    summary["outcome"] = "after"
+    line = verdict(summary)
+    assert "again after carrying on: --recheck reads the after-run's targets once more" in \
+        line and "carries on refining" not in line, line  # fmt: skip
+    del summary["run_before"]
+    assert "a tighter --tolerance-um carries on refining" in verdict(summary)
 
 
 def test_a_rerun_on_a_machine_the_run_before_left_warm_is_told_before_it_moves() -> None:

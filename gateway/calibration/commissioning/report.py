@@ -72,6 +72,10 @@ NEXT = {
     "after": "the rounds' random targets read within, the after-run's did not: the same "
              "command with a tighter --tolerance-um carries on refining from here (every "
              "reading is kept), or --recheck reads the after-run's targets again",
+    "after_again": "the rounds' random targets read within, the after-run's did not, "
+                   "again after carrying on: --recheck reads the after-run's targets once "
+                   "more; a tighter --tolerance-um again would refine on this machine's "
+                   "scatter and heat, not on its tables",
     "heat": "the tables hold, the machine's heat does not: it drifted while the after-run "
             "measured. Let it cool (an hour or more at rest), then --recheck reads the "
             "after-run's targets again; a temperature or Δa sensor corrects heat in use. "
@@ -113,11 +117,13 @@ def verdict(summary: dict[str, Any]) -> str:
     if outcome == "within":  # the rounds' word against the after-run's: never WITHIN then
         outcome = "after"
     where = f" ({'; '.join(missing)})" if missing else ""
+    if outcome == "after" and summary.get("run_before"):  # carried on, and missed again
+        outcome = "after_again"
     advice = NEXT["heat"] if missing and heat else NEXT.get(outcome, NEXT["rounds"])
     if missing and heat and summary.get("cool_min"):
         advice = advice.replace("an hour or more at rest", f"about {summary['cool_min']} "
                                 "minutes at rest: three of its fitted heat time constants")
-    elif not (missing and heat) and outcome in ("after", "rounds", "budget"):
+    elif not (missing and heat) and outcome in ("after", "after_again", "rounds", "budget"):
         advice = _before_more(summary) or advice
     return (f"NOT within {tol_text}{where}; what was fitted is loaded. Next: {advice}"
             + _same_tables_worse(summary))
