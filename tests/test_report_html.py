@@ -232,6 +232,18 @@ def test_the_verdict_is_what_the_laser_reads_the_drift_taken_off_a_diagnosis() -
                              "7.10 → 0.20 µm"), lines
 
 
+def test_a_delta_a_sensor_s_zone_fit_reads_as_a_sentence() -> None:
+    """A Δa sensor's zone warm-up (random machine 7's X) kept its shape's RMS under two
+    names and none the report reads: its row was the record as stored."""
+    from gateway.calibration.thermal.thermal_shape import ThermalShapeFit
+
+    fit = ThermalShapeFit("X", "linear", 747.0, None, 0.61, 1.74, 32.4, 72, 373.0)
+    row = dict(identification_rows({"thermal-X": fit.summary()})["X"])["warm-up (thermal)"]
+    assert row == "thermal length 747 mm: 32.4 µm of growth, the model misses by 0.61 µm RMS"
+    assert ThermalShapeFit("X", "profile", 747.0, 125.0, 0.61, 0.3, 32.4, 72).summary()[
+        "residual_rms_um"] == 0.3  # fmt: skip
+
+
 def test_no_advice_to_refine_a_warm_machine_or_after_a_round_that_read_worse() -> None:
     """Issue 52: following "a tighter --tolerance-um carries on refining" on a machine its
     own runs had warmed made it worse (X E 2.35 → 7.68 µm). Before advising another run the
@@ -365,7 +377,7 @@ def test_warm_is_the_heat_the_correction_leaves_and_a_warm_up_cools() -> None:
     assert "the machine has warmed: its drift references moved X 9.0 µm" in line, line
     # a sensor loaded (random machine 7's X, Δa): what its warm-up's fit left of the growth
     sensor = {"thermal-X": {"shape": "linear", "linear_rms_um": 0.61, "profile_rms_um": 1.74,
-                            "growth_max_um": 32.4}}  # fmt: skip
+                            "residual_rms_um": 0.61, "growth_max_um": 32.4}}  # fmt: skip
     assert heat_left_um({"X": 7.7}, bare, sensor, {"X"})["X"] == pytest.approx(
         7.7 * 2 * 0.61 / 32.4)  # fmt: skip
     assert heat_left_um({"X": 7.7}, bare, sensor)["X"] == pytest.approx(7.7)  # not loaded

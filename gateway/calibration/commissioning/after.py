@@ -73,10 +73,8 @@ def heat_left_um(warmed: dict[str, float], log: list[dict[str, Any]],
         check = heat.get("drift_check") or {}
         if a in modelled and check.get("holds") and check.get("drift_rms_um"):
             share = float(check["left_rms_um"]) / float(check["drift_rms_um"])
-        elif a in sensed and heat.get("growth_max_um"):
-            rms = heat.get("residual_rms_um", heat.get(
-                "profile_rms_um" if heat.get("shape") == "profile" else "linear_rms_um"))
-            share = 1.0 if rms is None else 2.0 * float(rms) / float(heat["growth_max_um"])
+        elif a in sensed and heat.get("growth_max_um") and "residual_rms_um" in heat:
+            share = 2.0 * float(heat["residual_rms_um"]) / float(heat["growth_max_um"])
         else:
             share = 1.0
         out[a] *= min(1.0, share)

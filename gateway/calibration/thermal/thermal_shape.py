@@ -71,9 +71,15 @@ class ThermalShapeFit:
             out |= {"memory_mm": self.memory_mm, "memory_s": self.tau_s}
         return out
 
+    @property
+    def residual_rms_um(self) -> float:
+        """What the shape kept left at the places surveyed warm (µm RMS)."""
+        return self.profile_rms_um if self.shape == "profile" else self.linear_rms_um
+
     def summary(self) -> dict[str, Any]:
         return {"shape": self.shape, "length_mm": self.length_mm, "spread_mm": self.spread_mm,
                 "linear_rms_um": self.linear_rms_um, "profile_rms_um": self.profile_rms_um,
+                "residual_rms_um": self.residual_rms_um,
                 "growth_max_um": self.growth_max_um, "points": self.points,
                 "tau_s": self.tau_s}  # fmt: skip
 
