@@ -80,16 +80,15 @@ class ShortBudget:
         """Whether the drift references are read (decided once, before the first, kept in
         the state; said when not): not on a short budget that holds a plain calibration's
         steps without them but not with them (around every run, at every config switch):
-        every linear axis's ISO runs and cyclic scans where its lead is known and the
-        plane's configured grid and random points; else, at the least, every axis's ISO
-        runs at 2 runs per target on the ISO 230-2 least of targets and the plane's grid,
-        or those runs alone. They are an identification extra: there a plain calibration's
-        tables are worth more than a drift taken off them. (At the plain calibration's 7.8
-        minutes, mcu1025's references took 2.4 minutes and Y got no table: E cut 2 %
-        against 69 %; at its 0.6 h, the random machines' references left no room for Y's
-        cyclic scans, Y E cut 65 % against 94 %. Held only beside a plain calibration's
-        table at its 5 runs, none were read on five machines at 1 x its time: the Δa
-        machines' grids kept their drift, rough-8 XY cut 92 → 77 %.)"""
+        :meth:`plain_plans`, its 5 runs included; else, at the least, every axis's ISO
+        runs at 2 runs per target on the ISO 230-2 least of targets and the plane's
+        configured grid, or those runs alone. They are an identification extra: there a
+        plain calibration's tables are worth more than a drift taken off them. (At the
+        plain calibration's 7.8 minutes, mcu1025's references took 2.4 minutes and Y got
+        no table: E cut 2 % against 69 %; at its 0.6 h, the random machines' references
+        left no room for Y's cyclic scans, Y E cut 65 % against 94 %, and held beside a
+        table at 3 runs, rough-3's left it 2 runs, E 1.98 µm at the judge's targets
+        against the plain calibration's 1.24.)"""
         state = self.record.state
         if "refs_off" not in state:
             off, held = False, ""
@@ -98,10 +97,8 @@ class ShortBudget:
                 tables = [self.plans.iso_plan(a, 2, adaptive.ISO_LEAST_POINTS) for a in linear]
                 plane = []
                 if self.axes.plane_with(linear):
-                    plane = [self.plans.grid_plan(self.s.grid), *2 * [self.plans.before_xy_plan()]]
-                plain = [self.plans.iso_plan(a) for a in linear] + [
-                    cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])
-                    for a in linear if a in self.s.lead_mm] + plane  # fmt: skip
+                    plane = [self.plans.grid_plan(self.s.grid)]
+                plain = self.plain_plans(linear)
 
                 def costs_s(plans: list[Plan]) -> tuple[float, float]:
                     """(moves, drift references) of ``plans`` (s)."""
@@ -137,6 +134,20 @@ class ShortBudget:
         dense = {a: adaptive.plain_points(self.axes.travel(a)) for a in axes}
         return dense if any(n > adaptive.COARSE_POINTS for n in dense.values()) else {}
 
+    def plain_plans(self, linear: list[str]) -> list[Plan]:
+        """A plain ISO 230-2 calibration's steps on ``linear``: each axis's table at its
+        targets (:meth:`plain_points`) and runs (:meth:`table_runs`), its cyclic scans
+        where its lead is known, the plane's grid of a plain calibration's nodes
+        (:meth:`plain_grid`) where the axes make one. What a short budget buys before
+        any extra."""
+        dense = self.plain_points(linear)
+        plans = [self.plans.iso_plan(a, self.table_runs(), dense.get(a)) for a in linear]
+        plans += [cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])
+                  for a in linear if a in self.s.lead_mm]  # fmt: skip
+        if self.axes.plane_with(linear):
+            plans.append(self.plans.grid_plan(self.plain_grid()))
+        return plans
+
     def table_runs(self) -> int:
         """Runs per target a short budget's table is read at in the end, where the budget
         holds them: a plain calibration's (``adaptive.PLAIN_RUNS``), or the configured runs
@@ -163,16 +174,12 @@ class ShortBudget:
 
     def plane_held_s(self) -> float:
         """Machine time (s) a short budget holds for the plane when it decides a step before
-        the plane's grid: the configured grid and its random points, read before and
-        after, as far as they are not made yet (none without a plane)."""
-        if self.s.planar is None:
+        the plane's grid: a grid of a plain calibration's nodes (:meth:`plain_grid`), if not
+        made yet (none without a plane). The plane's random points, read before and after,
+        are its verdict: an extra, bought after a plain calibration's steps."""
+        if self.s.planar is None or self.record.done("xy-grid"):
             return 0.0
-        held_s = 0.0
-        if not self.record.done("xy-grid"):
-            held_s += self.budget.step_cost_s(self.plans.grid_plan(self.s.grid))
-        if not self.record.done("before-xy"):
-            held_s += 2 * self.budget.step_cost_s(self.plans.before_xy_plan())
-        return held_s
+        return self.budget.step_cost_s(self.plans.grid_plan(self.plain_grid()))
 
     def first_need_s(self) -> float:
         """Machine time (s) of the first steps, the before- and after-runs and one round:
@@ -194,8 +201,8 @@ class ShortBudget:
         """On a short budget, whose rounds will not sweep a table between its points: the
         ISO runs again at the midpoints of the first table's points where that table misses
         between them by more than BETWEEN_RATIO times what its scatter explains
-        (:func:`..fitting.table_cv.between_points_ratio`) and the budget then still holds the
-        plane's configured grid (and the random points it is judged at). At 1.5 x a manual
+        (:func:`..fitting.table_cv.between_points_ratio`) and the budget then still holds a
+        plane's grid of a plain calibration's nodes (:meth:`plane_held_s`). At 1.5 x a manual
         calibration's time slit-11358's Y kept a dip of 3.5 µm over 2 mm between two of its
         points (E 4.4 µm at the judge's targets, its scatter 0.3 µm). Not on an axis whose
         lead is known: what its table misses between its points is in part the periodic
@@ -209,9 +216,7 @@ class ShortBudget:
             need_s = self.budget.step_cost_s(self.plans.midpoints_plan(axis))
             keep_s = 0.0
             if self.s.planar is not None and axis in self.s.planar:
-                keep_s = self.budget.step_cost_s(self.plans.grid_plan(self.s.grid))
-                if not self.record.done("before-xy"):
-                    keep_s += self.budget.step_cost_s(self.plans.before_xy_plan())
+                keep_s = self.plane_held_s()
             misses = ratio is not None and ratio > BETWEEN_RATIO
             ident[key] = {"misses_x_scatter": ratio,
                           "measured": bool(misses and self.budget.left_s() - need_s >= keep_s)}
@@ -230,30 +235,20 @@ class ShortBudget:
                             self.axes.park(axis))  # fmt: skip
 
     async def more_runs(self, axes: list[str]) -> None:
-        """On a short budget, after a plain calibration's ISO runs and cyclic scans and
-        before the plane's grid: the ISO runs again on the same targets, as many more (up
-        to :meth:`table_runs`) as the budget left holds beside the plane's configured grid
-        (and its random points), the scans not made yet, and where they fit each axis's
-        before- and after-runs (the verdict: with 2 more runs at 0.95 h the test machine's
-        Y had none) and a grid of as many nodes as a plain calibration's
-        (:meth:`plain_grid`): a plain calibration's runs before the extras, a denser grid
-        after. (At 1 x its time smooth-8 read 2 runs on a
-        13 x 10 grid, E cut 1.7 points under the plain calibration's, XY 13.9 over; its runs
-        beside the configured 7 x 5 grid alone: 5 runs, E 1.0 under, XY 0.3 over.) Decided
-        once."""
+        """On a short budget, after the first ISO runs and the cyclic scans and before the
+        plane's grid: the ISO runs again on the same targets, as many more (up to
+        :meth:`table_runs`) as the budget left holds beside the scans not made yet and a
+        plane's grid of a plain calibration's nodes: a plain calibration's steps before
+        any extra, the verdict's before- and after-runs included. (At 1 x its time,
+        holding the verdict first, smooth-0 read 4 runs and then had no room for the
+        verdict after all; rough-3 read 2; the plain calibration reads 5: E 0.83 and 1.98
+        µm at the judge's targets against 0.56 and 1.24.) Decided once."""
         ident = self.record.state.setdefault("identify", {})
         if "more_runs" not in ident:
             first = self.budget.iso_runs()
             plane = self.axes.plane_with(axes)
             held_s = (self.plane_held_s() if plane else 0.0) + self.scans_left_s(axes)
-            left_s = self.budget.left_s()
-            extras = [2 * self.budget.step_cost_worst_s(self.plans.before_plan(a))
-                      for a in axes if not self.record.done(f"before-{a}")]  # the verdict
-            if plane:  # then a grid of a plain calibration's nodes
-                extras.append(max(0.0, self.budget.step_cost_s(self.plans.grid_plan(
-                    self.plain_grid())) - self.budget.step_cost_s(self.plans.grid_plan(
-                        self.s.grid))))  # fmt: skip
-            room_s = left_s - hold_each(held_s, extras, left_s)
+            room_s = self.budget.left_s() - held_s
             more = 0
             for k in range(self.table_runs() - first, 0, -1):
                 cost_s = sum(self.budget.step_cost_worst_s(self.plans.more_runs_plan(a, k))
@@ -286,40 +281,41 @@ class ShortBudget:
 
     def first_grid(self) -> tuple[int, int]:
         """The plane's first grid (decided once, kept in the state): the configured one;
-        on a short budget, whose rounds will not refine it, the densest whose cells are
-        about square (the shape of :func:`..plans.xy.even_grid`, :func:`max_grid_in`)
-        whose run fits in what the budget has left after the steps that come after it:
-        the cyclic scans not made yet where the lead is known, each linear axis's before-
-        and after-runs (the verdict), its backlash test, each with the drift references a
-        drift would call for, in that order, each held where it fits beside those held
-        before it. (At the plain calibration's machine time smooth-0's grid took 10
-        minutes at 13 x 9: the before-runs, first, did not fit, and nothing after them was
-        held; its Y got no cyclic scans: Y E 7.1 µm at the judge's targets. At 1.5 x a
-        manual calibration's time the sdss plates' 7 x 5 grid left their Y at the judge's
-        park 13.4 µm, the manual's 9 x 7 5.3 µm.) A backlash test is held only where the
-        ISO runs read a reversal it could take up (:meth:`lost_motion`): not a plain
-        calibration's step, its three minutes kept sdss-1396 at 1 x on 7 x 7 where the
-        plain calibration reads 9 x 7 (its reversal 0.2 µm; Y E cut -1 % against 51 %)."""
+        on a short budget, whose rounds will not refine it, a plain calibration's
+        (:meth:`plain_grid`) where the budget left holds it beside the cyclic scans not
+        made yet, else the densest of its shape that fits there (:func:`fitting_grid`);
+        a denser one (:func:`max_grid_in`) only with what is left after the extras that
+        come after it, each held where it fits beside those held before it: the plane's
+        verdict (its random points before and after), each linear axis's before- and
+        after-runs, its backlash test, each with the drift references a drift would call
+        for. (At the plain calibration's machine time smooth-0's grid took 10 minutes at
+        13 x 9 and its Y got no cyclic scans: Y E 7.1 µm at the judge's targets. At 1.5 x
+        a manual calibration's time the sdss plates' 7 x 5 grid left their Y at the
+        judge's park 13.4 µm, the manual's 9 x 7 5.3 µm.) A backlash test is held only
+        where the ISO runs read a reversal it could take up (:meth:`lost_motion`)."""
         if "grid" not in self.record.state:
             grid = self.s.grid
             if self.record.state.get("short"):
                 def cost_s(g: tuple[int, int]) -> float:
                     return self.budget.step_cost_s(self.plans.grid_plan(g))
 
+                def worst_s(plans: list[Plan]) -> float:  # (with the references a drift
+                    return sum(self.budget.step_cost_worst_s(p) for p in plans)  # calls for)
+
                 linear = [a for a in self.s.axes if not self.axes.rotary(a)]
-                after = [[cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])] for a in linear
-                         if a in self.s.lead_mm and not self.record.done(f"cyclic-{a}")]
-                after += [2 * [self.plans.before_plan(a)] for a in linear]  # before and after
-                after += [[backlash_plan(a, self.axes.travel(a))] for a in linear
-                          if not self.record.done(f"backlash-{a}") and self.lost_motion(a)]
-                left_s = self.budget.left_s()
-                held_s = hold_each(cost_s(grid), [  # (their references as a drift would have)
-                    sum(self.budget.step_cost_worst_s(p) for p in plans) for plans in after],
-                    left_s)  # fmt: skip
-                (x0, x1), (y0, y1) = self.axes.plane_travel()
-                even, room_s = even_grid(x1 - x0, y1 - y0), left_s - held_s + cost_s(grid)
-                if cost_s(even) <= room_s:  # else the configured grid
-                    grid = max_grid_in(even, cost_s, room_s)
+                room_s = self.budget.left_s() - self.scans_left_s(linear)
+                plain = self.plain_grid()
+                if cost_s(plain) <= room_s:
+                    extras = ([] if self.record.done("before-xy") else
+                              [2 * [self.plans.before_xy_plan()]])  # fmt: skip
+                    extras += [2 * [self.plans.before_plan(a)] for a in linear
+                               if not self.record.done(f"before-{a}")]  # before and after
+                    extras += [[backlash_plan(a, self.axes.travel(a))] for a in linear
+                               if not self.record.done(f"backlash-{a}") and self.lost_motion(a)]
+                    held_s = hold_each(cost_s(plain), [worst_s(p) for p in extras], room_s)
+                    grid = max_grid_in(plain, cost_s, room_s - held_s + cost_s(plain))
+                else:
+                    grid = fitting_grid(plain, cost_s, room_s) or self.s.grid
             self.record.state["grid"] = list(grid)
             self.record.save()
         nx, ny = self.record.state["grid"]
@@ -375,16 +371,32 @@ def hold_each(held_s: float, needs_s: list[float], left_s: float) -> float:
     return held_s
 
 
+def grid_of_shape(grid: tuple[int, int], nodes_x: int) -> tuple[int, int]:
+    """``nodes_x`` nodes along x, along y in the proportion of ``grid``'s cells."""
+    nx, ny = grid
+    return nodes_x, min(MAX_NODES, max(2, 1 + round((ny - 1) * (nodes_x - 1) / max(1, nx - 1))))
+
+
+def fitting_grid(grid: tuple[int, int], cost_s: Callable[[tuple[int, int]], float],
+                 left_s: float) -> tuple[int, int] | None:
+    """The densest grid of ``grid``'s shape, at most as dense, whose ``cost_s`` is within
+    ``left_s`` (at least 3 nodes along x); None where none is."""
+    for kx in range(grid[0], 2, -1):
+        cand = grid if kx == grid[0] else grid_of_shape(grid, kx)
+        if cost_s(cand) <= left_s:
+            return cand
+    return None
+
+
 def max_grid_in(grid: tuple[int, int], cost_s: Callable[[tuple[int, int]], float],
                 left_s: float) -> tuple[int, int]:
     """The densest grid of ``grid``'s shape (nodes along x from its own up, along y in the
     same proportion of cells) whose ``cost_s`` is within ``left_s``; ``grid`` itself if
     none denser is. Every size between, not only the configured grid split in two each
     way: a budget that holds 13 x 9 and not 25 x 17 is spent on 17 x 12."""
-    nx, ny = grid
     best = grid
-    for kx in range(nx + 1, MAX_NODES + 1):
-        cand = (kx, min(MAX_NODES, 1 + round((ny - 1) * (kx - 1) / max(1, nx - 1))))
+    for kx in range(grid[0] + 1, MAX_NODES + 1):
+        cand = grid_of_shape(grid, kx)
         if cost_s(cand) > left_s:
             break
         best = cand
