@@ -19,8 +19,12 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway.calibration.commissioning.short import first_table_reading, max_grid_in
-from gateway.calibration.fitting.adaptive import plain_points
+from gateway.calibration.commissioning.short import (
+    first_table_reading,
+    fitting_grid,
+    max_grid_in,
+)
+from gateway.calibration.fitting.adaptive import ISO_LEAST_POINTS, plain_points
 from gateway.calibration.plans.xy import even_grid
 from gateway.compensation import PitchStage
 from gateway.formats import read_pitch_csv
@@ -139,6 +143,19 @@ def test_the_first_grid_takes_every_size_the_budget_holds() -> None:
     assert max_grid_in((7, 5), cost, 1e9) == (33, 22)  # at most 33 nodes along an axis
 
 
+def test_a_short_budget_too_short_for_a_plain_grid_reads_the_densest_of_its_shape() -> None:
+    """A budget that does not hold a plain calibration's 9 x 7 grid beside the cyclic scans
+    reads the densest grid of its shape that fits, down to 3 nodes along x; none fits:
+    None (the plane gets no model, its random points judge the tables alone)."""
+    def cost(g: tuple[int, int]) -> float:  # s: two runs of 2.4 s a node
+        return 2 * 2.4 * g[0] * g[1]
+
+    assert fitting_grid((9, 7), cost, cost((9, 7))) == (9, 7)
+    assert fitting_grid((9, 7), cost, cost((9, 7)) - 1.0) == (8, 6)
+    assert fitting_grid((9, 7), cost, cost((5, 4)) + 1.0) == (5, 4)
+    assert fitting_grid((9, 7), cost, cost((3, 3)) - 1.0) is None
+
+
 def test_a_short_budget_grid_keeps_its_cells_about_square() -> None:
     """The shape a short budget's grid is made densest in: 7 nodes along the longer
     travel, along the shorter as many as keep the cells about square, never fewer than 5."""
@@ -157,6 +174,8 @@ def test_a_short_budget_reads_a_plain_calibration_s_table_before_it_thins_runs_o
     target every 25 mm) comes first, at fewer runs if need be (down to 2), with the cyclic
     scans held beside it; then the coarse table at fewer runs; then fewer targets."""
     assert plain_points((0.0, 700.0)) == 29 and plain_points((0.0, 450.0)) == 21
+    # where the lead is known (its cyclic scans read the short waves): every 25 mm alone
+    assert plain_points((0.0, 150.0), ISO_LEAST_POINTS) == 7
 
     def cost_s(runs: int, points: Mapping[str, int | None]) -> float:  # 1.2 s a stop
         return sum(1.2 * 2 * runs * (n or 21) for n in points.values())

@@ -93,14 +93,15 @@ class CommandChecks:
             not self.thermal.zoned() and self.short.first_need_s() > self.s.budget_s)  # fmt: skip
         if short:
             plane = self.s.planar is not None
-            self.say("  a short budget: every axis's ISO runs (and their midpoints where a "
-                     "table misses between its points), the cyclic scans where the lead is "
-                     "known" + (" and the plane's grid beside them" if plane else "")
-                     + (", then the plane's grid" if plane else "") + " first, then "
-                     "the before-runs that judge them and the backlash tests, the lead "
-                     "searches last, as the budget allows"
-                     + ("; no round will refine the plane, so its grid is made as dense as "
-                        "the budget then left holds (more readings than the xy-grid line "
+            self.say("  a short budget: a plain calibration's steps first: every axis's ISO runs "
+                     "(and their midpoints where a table misses between its points), the "
+                     "cyclic scans where the lead is known, up to 5 runs per target"
+                     + (", then the plane's grid (9 nodes along the longer travel)" if plane
+                        else "") + "; then, as the budget allows, the verdict ("
+                     + ("the plane's random points, " if plane else "") + "each axis's "
+                     "before-run), the backlash tests, the warm-ups, the lead searches"
+                     + ("; no round will refine the plane, so its grid is made denser with "
+                        "what the budget then leaves (more readings than the xy-grid line "
                         "above: the budget is spent, not exceeded)" if plane else ""))  # fmt: skip
         if any(self.axes.rotary(a) for a in self.s.axes) and self.s.tolerance_arcsec < 0.1:
             self.say(f"  --tolerance-arcsec {self.s.tolerance_arcsec:g}: below what an angle "

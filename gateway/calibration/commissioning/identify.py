@@ -189,6 +189,8 @@ class IdentifySteps:
         await self.short.more_runs(cores)  # a plain calibration's runs, where time is left
         plane = self.axes.plane_with(cores)
         if plane:
+            if not self.short.grid_affordable():  # no model: the tables alone are what the
+                await self._before_xy_if_affordable()  # plane gets, judged there for safety
             await self.fit.fit_axes(cores, curves=True)
             await self.fit.plane()
             await self.stager.use("identification")  # the rest is measured without them

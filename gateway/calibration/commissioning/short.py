@@ -78,49 +78,31 @@ class ShortBudget:
 
     def refs_affordable(self) -> bool:
         """Whether the drift references are read (decided once, before the first, kept in
-        the state; said when not): not on a short budget that holds a plain calibration's
-        steps without them but not with them (around every run, at every config switch):
-        :meth:`plain_plans`, its 5 runs included; else, at the least, every axis's ISO
-        runs at 2 runs per target on the ISO 230-2 least of targets and the plane's
-        configured grid, or those runs alone. They are an identification extra: there a
-        plain calibration's tables are worth more than a drift taken off them. (At the
-        plain calibration's 7.8 minutes, mcu1025's references took 2.4 minutes and Y got
-        no table: E cut 2 % against 69 %; at its 0.6 h, the random machines' references
-        left no room for Y's cyclic scans, Y E cut 65 % against 94 %, and held beside a
-        table at 3 runs, rough-3's left it 2 runs, E 1.98 µm at the judge's targets
-        against the plain calibration's 1.24.)"""
+        the state; said when not): on a short budget, only where it holds a plain
+        calibration's steps (:meth:`plain_plans`, its 5 runs included) with them (around
+        every run, at every config switch). They are an identification extra: a plain
+        calibration's tables are worth more than a drift taken off them. (At the plain
+        calibration's 7.8 minutes, mcu1025's references took 2.4 minutes and Y got no
+        table: E cut 2 % against 69 %; at its 0.6 h, the random machines' references left
+        no room for Y's cyclic scans, Y E cut 65 % against 94 %, and held beside a table
+        at 3 runs, rough-3's left it 2 runs, E 1.98 µm at the judge's targets against the
+        plain calibration's 1.24.)"""
         state = self.record.state
         if "refs_off" not in state:
-            off, held = False, ""
+            off = False
             if self.applies():
                 linear = [a for a in self.s.axes if not self.axes.rotary(a)]
-                tables = [self.plans.iso_plan(a, 2, adaptive.ISO_LEAST_POINTS) for a in linear]
-                plane = []
-                if self.axes.plane_with(linear):
-                    plane = [self.plans.grid_plan(self.s.grid)]
                 plain = self.plain_plans(linear)
-
-                def costs_s(plans: list[Plan]) -> tuple[float, float]:
-                    """(moves, drift references) of ``plans`` (s)."""
-                    return (sum(self.axes.estimate_s(p) for p in plans),
-                            sum(self.budget.refs_worst_s(p) for p in plans)
-                            + SWITCH_READINGS * self.budget.refs_once_s())  # fmt: skip
-
-                # a plain calibration's steps if it can, else the tables and the plane, else
-                # the tables alone
-                for plans, what in ((plain, "a plain calibration's steps (ISO runs, cyclic "
-                                     "scans, the plane's grid)"),
-                                    (tables + plane, "every axis's ISO runs" + (
-                                        " and the plane's grid" if plane else "")),
-                                    (tables, "every axis's ISO runs")):  # fmt: skip
-                    bare_s, refs_s = costs_s(plans)
-                    if bare_s <= self.s.budget_s:
-                        off = bool(linear) and self.s.budget_s < bare_s + refs_s
-                        held = what
-                        break
+                bare_s = sum(self.axes.estimate_s(p) for p in plain)
+                refs_s = (sum(self.budget.refs_worst_s(p) for p in plain)
+                          + SWITCH_READINGS * self.budget.refs_once_s())  # fmt: skip
+                off = bool(linear) and self.s.budget_s < bare_s + refs_s
                 if off:
-                    note = (f"no drift references: with them ({refs_s / 60:.1f} min) the budget "
-                            f"does not hold {held}; the tables keep the drift while measuring")
+                    note = ("no drift references: " + (
+                        f"with them ({refs_s / 60:.1f} min) the budget does not hold"
+                        if bare_s <= self.s.budget_s else "the budget does not hold even")
+                        + " a plain calibration's steps (ISO runs, cyclic scans, the plane's "
+                        "grid); the tables keep the drift while measuring")  # fmt: skip
                     if self.record.note(note):
                         self.say(note)
             state["refs_off"] = off
@@ -129,10 +111,17 @@ class ShortBudget:
 
     def plain_points(self, axes: list[str]) -> dict[str, int]:
         """Each axis's targets in a plain calibration's table
-        (:func:`..fitting.adaptive.plain_points`), where that is more than the coarse
-        table's on one of ``axes`` at least; else none (the coarse table is as dense)."""
-        dense = {a: adaptive.plain_points(self.axes.travel(a)) for a in axes}
-        return dense if any(n > adaptive.COARSE_POINTS for n in dense.values()) else {}
+        (:func:`..fitting.adaptive.plain_points`): one every 25 mm where the axis's lead is
+        known (its cyclic scans read the once-per-lead error, the table the long waves), at
+        least the coarse table's 21 where it is not (the table reads the short waves
+        itself); none where every axis's is the coarse table's. (At 1 x a plain
+        calibration's time smooth-2's 150 mm Y read 21 targets at 2 runs, its reversal
+        noisy: 0.74 µm left on the quiet machine against the plain calibration's 7 targets
+        at 5 runs, 0.25 µm.)"""
+        dense = {a: adaptive.plain_points(self.axes.travel(a), adaptive.ISO_LEAST_POINTS
+                                          if a in self.s.lead_mm else adaptive.COARSE_POINTS)
+                 for a in axes}  # fmt: skip
+        return dense if any(n != adaptive.COARSE_POINTS for n in dense.values()) else {}
 
     def plain_plans(self, linear: list[str]) -> list[Plan]:
         """A plain ISO 230-2 calibration's steps on ``linear``: each axis's table at its
@@ -278,6 +267,18 @@ class ShortBudget:
     def iso_raw(self, axis: str) -> RawData:
         """The ISO runs of ``axis`` (:meth:`.planner.Planner.iso_steps`), as one run set."""
         return concat_raw([self.runner.raw(n) for n in self.plans.iso_steps(axis)])
+
+    def grid_affordable(self) -> bool:
+        """Whether the budget left holds a plane's grid (:func:`fitting_grid` of a plain
+        calibration's shape) beside the cyclic scans not made yet: where not, the plane
+        gets no model and its random points judge what the tables alone do to it (fitted
+        on their lines, they may make it worse: :mod:`.after` then keeps them unloaded)."""
+        if self.record.done("xy-grid"):
+            return True
+        linear = [a for a in self.s.axes if not self.axes.rotary(a)]
+        room_s = self.budget.left_s() - self.scans_left_s(linear)
+        return fitting_grid(self.plain_grid(), lambda g: self.budget.step_cost_s(
+            self.plans.grid_plan(g)), room_s) is not None  # fmt: skip
 
     def first_grid(self) -> tuple[int, int]:
         """The plane's first grid (decided once, kept in the state): the configured one;

@@ -45,12 +45,12 @@ MIN_SPACING_MM = 0.5
 REFINE_PARTS = 4
 
 
-def plain_points(travel_mm: Sequence[float]) -> int:
+def plain_points(travel_mm: Sequence[float], least: int = COARSE_POINTS) -> int:
     """Targets of a plain calibration's table over ``travel_mm`` (one every
-    ``PLAIN_STEP_MM``), at least ``COARSE_POINTS``: what a short budget reads first where
-    it fits, since no round of its own will sweep between the points."""
+    ``PLAIN_STEP_MM``), at least ``least``: what a short budget reads first where it fits,
+    since no round of its own will sweep between the points."""
     span_mm = float(travel_mm[1]) - float(travel_mm[0])
-    return max(COARSE_POINTS, math.ceil(span_mm / PLAIN_STEP_MM - 1e-9) + 1)
+    return max(least, math.ceil(span_mm / PLAIN_STEP_MM - 1e-9) + 1)
 
 
 def coarse_step_mm(travel_mm: Sequence[float], lead_mm: float | None = None,
