@@ -12,6 +12,8 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from ..fitting import adaptive
 from ..fitting.takeup_fit import MIN_LOST_UM
 from ..plans.plans import Plan
@@ -142,14 +144,22 @@ class CommandChecks:
         """What a budget short of the first steps buys, in the order a short budget takes
         them (a plain ISO 230-2 calibration's steps first: :mod:`.short`), and what the
         rest needs: "with 0.90 h: pitch tables, plane; thermal identification needs 0.75 h
-        more". Estimates without the drift references and the before- and after-runs."""
+        more". Estimates without the drift references; the verdict is the before- and
+        after-runs."""
         groups = (("pitch tables", ("iso",)), ("once-per-lead error", ("cyclic",)),
-                  ("plane", ("xy",)), ("backlash", ("backlash",)),
+                  ("plane", ("xy",)), ("verdict", ("before",)), ("backlash", ("backlash",)),
                   ("thermal identification", ("warmup",)),
                   ("lead search", ("lead",)))  # fmt: skip
+        # the verdict: each linear axis's before-run and the plane's random points, each
+        # read again after
+        verdict = [("before-" + a, self.plans.before_plan(a, avoid_mm=np.zeros(0)))
+                   for a in self.s.axes if not self.axes.rotary(a)]
+        if self.s.planar is not None:
+            verdict.append(("before-xy", self.plans.before_xy_plan()))
+        steps = [*first, *2 * verdict]
 
         def need_s(kinds: tuple[str, ...]) -> float:
-            return sum(self.axes.estimate_s(p) for n, p in first
+            return sum(self.axes.estimate_s(p) for n, p in steps
                        if n.partition("-")[0] in kinds)  # fmt: skip
 
         used_s, got, short = 0.0, [], []
