@@ -122,10 +122,11 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         order = ["iso-Y", "cyclic-X", "cyclic-Y", "xy-grid", "before-X", "before-Y"]
         assert [done.index(s) for s in order] == sorted(done.index(s) for s in order), done
         assert "backlash-X" not in done
-        # no round will refine the plane: its first grid is a plain calibration's (9 nodes
-        # along the longer travel: a square plane's 9 x 9), denser only with what the
-        # verdict and the backlash tests leave (here nothing)
-        assert state["grid"] == [9, 9], state["grid"]
+        # no round will refine the plane: its first grid is at least a plain calibration's
+        # (9 nodes along the longer travel: a square plane's 9 x 9), denser with what the
+        # verdict and the backlash tests leave
+        nx, ny = state["grid"]
+        assert nx == ny >= 9, state["grid"]
         note = next(n for n in summary["notes"] if "identification's runs only" in n)
         assert note.startswith("X, Y: fitted") and "no cyclic term" not in note, note
         final = yaml.safe_load(rig.config.read_text())["axes"]

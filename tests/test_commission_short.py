@@ -116,7 +116,7 @@ def test_the_plain_calibration_s_time_gives_every_axis_a_table_and_the_plane_its
         proc = _commission(rig, 0.13)
         assert proc.popen.wait(timeout=300) == 1, proc.text()  # the budget, not the tolerance
         state = json.loads((rig.dir / "commission" / "commission.json").read_text())
-        assert state["refs_off"] and "no drift references: with them" in proc.text()
+        assert state["refs_off"] and "no drift references: " in proc.text()
         assert not any(v for e in state.get("drift_log", []) for d in e["drift_mm"].values()
                        for v in d), state["drift_log"]  # nothing read: no drift
         points = set(state["iso_points"].values())

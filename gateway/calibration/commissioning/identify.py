@@ -122,30 +122,30 @@ class IdentifySteps:
         self.record.save()
 
     def _iso_runs_that_fit(self, axes: list[str]) -> None:
-        """On a short budget, before the first ISO run: how densely and how often each
-        axis's ISO runs read (decided once, kept in the state; said). First a plain
-        calibration's table (a target every ``adaptive.PLAIN_STEP_MM``, where that is more
-        than ``adaptive.COARSE_POINTS``) at the configured runs down to
-        ``DENSE_LEAST_RUNS``, where it fits beside a plane's grid of a plain calibration's
-        nodes and the cyclic scans where the lead is known: no round will sweep
-        between a short budget's points (at the plain calibration's time rough-0's X read
-        21 points, 3 runs each, E 11.5 µm at the judge's targets, against the plain
-        calibration's 29 points and 5.3 µm). Else the coarse table at the runs that fit
-        beside the plane (down to 2, the fewest that show a scatter), then fewer targets,
-        so that each axis gets a table and the plane its model rather than the last none
-        (at the same time mcu1025's X took 3 runs and Y got no table). Each step with the
-        drift references a drift would call for."""
+        """On a short budget, before the first ISO run: how densely and how often each axis's
+        ISO runs read (decided once, kept in the state; said). First a plain calibration's
+        table (:meth:`.short.ShortBudget.plain_points`) at its first runs
+        (:meth:`.short.ShortBudget.first_runs`) down to ``DENSE_LEAST_RUNS``, where it fits
+        beside the plane's configured grid and the cyclic scans where the lead is known: no
+        round will sweep between a short budget's points (at the plain calibration's time
+        rough-0's X read 21 points, 3 runs each, E 11.5 µm at the judge's targets, against
+        the plain calibration's 29 points and 5.3 µm). Else the coarse table at the runs
+        that fit beside the plane (down to 2, the fewest that show a scatter), then fewer
+        targets, so that each axis gets a table and the plane its model rather than the last
+        none (at the same time mcu1025's X took 3 runs and Y got no table). Each step with
+        the drift references a drift would call for."""
         if "iso_runs" in self.record.state or any(self.record.done(f"iso-{a}") for a in axes):
             return
         plane = self.axes.plane_with(axes)
-        keep_s = self.short.plane_held_s() if plane else 0.0
+        keep_s = self.short.plane_held_s(plain=False) if plane else 0.0
         scans_s = self.short.scans_left_s(axes)
 
         def cost_s(runs: int, points: Mapping[str, int | None]) -> float:
             return sum(self.budget.step_cost_worst_s(self.plans.iso_plan(a, runs, points[a]))
                        for a in axes)  # fmt: skip
 
-        got = first_table_reading(axes, self.s.runs, self.short.plain_points(axes), cost_s,
+        got = first_table_reading(axes, self.short.first_runs(axes),
+                                  self.short.plain_points(axes), cost_s,
                                   self.budget.left_s() - keep_s, scans_s)  # fmt: skip
         if got.dense:
             self._note(", ".join(f"{a}: {n} ISO targets" for a, n in got.points.items())
@@ -228,13 +228,13 @@ class IdentifySteps:
 
     async def _cyclic_beside_plane(self, a: str) -> None:
         """The cyclic scans of ``a`` where its lead is known and the budget left holds them
-        and still a plane's grid of a plain calibration's nodes; else said: the
+        and still the plane's configured grid; else said: the
         plane's model cuts far more than a once-per-lead term."""
         if a not in self.s.lead_mm or self.record.done(f"cyclic-{a}"):
             return
         scans = cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])
         need_s = self.budget.step_cost_s(scans)
-        keep_s = self.short.plane_held_s() if a in (self.s.planar or ()) else 0.0
+        keep_s = self.short.plane_held_s(plain=False) if a in (self.s.planar or ()) else 0.0
         said = f"{a}: no cyclic scans on this budget"
         if self.budget.left_s() - need_s < keep_s:
             self._note(f"{said}: they ({need_s / 60:.1f} min) do not "

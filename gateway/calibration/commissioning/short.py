@@ -101,8 +101,9 @@ class ShortBudget:
                     note = ("no drift references: " + (
                         f"with them ({refs_s / 60:.1f} min) the budget does not hold"
                         if bare_s <= self.s.budget_s else "the budget does not hold even")
-                        + " a plain calibration's steps (ISO runs, cyclic scans, the plane's "
-                        "grid); the tables keep the drift while measuring")  # fmt: skip
+                        + " a plain calibration's steps (ISO runs, cyclic scans"
+                        + (", the plane's grid" if self.axes.plane_with(linear) else "")
+                        + "); the tables keep the drift while measuring")  # fmt: skip
                     if self.record.note(note):
                         self.say(note)
             state["refs_off"] = off
@@ -147,11 +148,24 @@ class ShortBudget:
         fitted beside the plane's grid)."""
         return max(self.s.runs, adaptive.PLAIN_RUNS)
 
+    def first_runs(self, axes: list[str]) -> int:
+        """Runs per target of the first ISO runs on a short budget: a plain calibration's
+        (:meth:`table_runs`) where every one of ``axes`` has a known lead (no midpoints
+        will be read between its points), read at once; else the configured runs, the
+        rest after the midpoints (:meth:`more_runs`). (Read 3 runs, then 2 more after the
+        cyclic scans, rough-3's X table mixed two heats: 1.72 µm left on the quiet machine
+        against the plain calibration's 1.09.)"""
+        return self.table_runs() if all(a in self.s.lead_mm for a in axes) else self.s.runs
+
     def plain_grid(self) -> tuple[int, int]:
-        """A grid of about a plain calibration's nodes (9 along the longer travel, its cells
-        about square; the plain calibration's 9 x 7), or the configured one where denser."""
+        """A grid of a plain calibration's nodes (its 9 x 7 at most: 9 along the longer
+        travel, its cells about square, fewer on a square plane), or the configured one
+        where denser. (9 x 9 on rough-3's square plane cost it a fifth ISO run at 1 x a
+        plain calibration's time.)"""
         (x0, x1), (y0, y1) = self.axes.plane_travel()
         even = even_grid(x1 - x0, y1 - y0, lines=PLAIN_GRID_LINES)
+        nodes = 1.05 * PLAIN_GRID_LINES * (PLAIN_GRID_LINES - 2)  # (8 x 8 on a square plane)
+        even = fitting_grid(even, lambda g: float(g[0] * g[1]), nodes) or even
         return even if even[0] * even[1] > self.s.grid[0] * self.s.grid[1] else self.s.grid
 
     def scans_left_s(self, axes: list[str]) -> float:
@@ -161,14 +175,19 @@ class ShortBudget:
             cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a]))
             for a in axes if a in self.s.lead_mm and not self.record.done(f"cyclic-{a}"))
 
-    def plane_held_s(self) -> float:
+    def plane_held_s(self, plain: bool = True) -> float:
         """Machine time (s) a short budget holds for the plane when it decides a step before
-        the plane's grid: a grid of a plain calibration's nodes (:meth:`plain_grid`), if not
-        made yet (none without a plane). The plane's random points, read before and after,
-        are its verdict: an extra, bought after a plain calibration's steps."""
+        the plane's grid, if not made yet (none without a plane): a grid of a plain
+        calibration's nodes (:meth:`plain_grid`), or with ``plain`` False the configured
+        one (the least: where the table's reading is decided, whose targets matter more
+        than the grid's nodes; at 0.13 h slit-11358 held a 9 x 9 grid and read 8 targets
+        instead of 21: E 46 µm at the judge's targets against 9). The plane's random
+        points, read before and after, are its verdict: an extra, bought after a plain
+        calibration's steps."""
         if self.s.planar is None or self.record.done("xy-grid"):
             return 0.0
-        return self.budget.step_cost_s(self.plans.grid_plan(self.plain_grid()))
+        grid = self.plain_grid() if plain else self.s.grid
+        return self.budget.step_cost_s(self.plans.grid_plan(grid))
 
     def first_need_s(self) -> float:
         """Machine time (s) of the first steps, the before- and after-runs and one round:
@@ -191,7 +210,7 @@ class ShortBudget:
         ISO runs again at the midpoints of the first table's points where that table misses
         between them by more than BETWEEN_RATIO times what its scatter explains
         (:func:`..fitting.table_cv.between_points_ratio`) and the budget then still holds a
-        plane's grid of a plain calibration's nodes (:meth:`plane_held_s`). At 1.5 x a manual
+        plane's configured grid (:meth:`plane_held_s`). At 1.5 x a manual
         calibration's time slit-11358's Y kept a dip of 3.5 µm over 2 mm between two of its
         points (E 4.4 µm at the judge's targets, its scatter 0.3 µm). Not on an axis whose
         lead is known: what its table misses between its points is in part the periodic
@@ -205,7 +224,7 @@ class ShortBudget:
             need_s = self.budget.step_cost_s(self.plans.midpoints_plan(axis))
             keep_s = 0.0
             if self.s.planar is not None and axis in self.s.planar:
-                keep_s = self.plane_held_s()
+                keep_s = self.plane_held_s(plain=False)
             misses = ratio is not None and ratio > BETWEEN_RATIO
             ident[key] = {"misses_x_scatter": ratio,
                           "measured": bool(misses and self.budget.left_s() - need_s >= keep_s)}
@@ -248,7 +267,8 @@ class ShortBudget:
             ident["more_runs"] = more
             if more:
                 self.say(f"{', '.join(axes)}: {more} more ISO run(s) on the same targets "
-                         f"({first + more} in all): the budget holds them beside the plane")
+                         f"({first + more} in all): the budget holds them"
+                         + (" beside the plane's grid" if plane else ""))  # fmt: skip
             self.record.save()
         more = int(ident["more_runs"])
         for a in axes if more else ():
