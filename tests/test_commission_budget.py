@@ -313,6 +313,8 @@ def test_the_plan_says_what_each_step_is_for_and_what_a_short_budget_buys(
     bought = next(s for s in said if s.startswith("  with 0.33 h: "))
     assert bought.startswith("  with 0.33 h: pitch tables, plane"), bought
     assert "needs" in bought and "h more" in bought, bought
+    # a plain calibration's tables (5 runs) and grid come first, the verdict after them
+    assert "verdict needs" in bought, bought
 
 
 def test_a_budget_that_would_end_with_no_table_is_refused_before_anything_moves(

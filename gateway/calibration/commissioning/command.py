@@ -144,25 +144,41 @@ class CommandChecks:
         """What a budget short of the first steps buys, in the order a short budget takes
         them (a plain ISO 230-2 calibration's steps first: :mod:`.short`), and what the
         rest needs: "with 0.90 h: pitch tables, plane; thermal identification needs 0.75 h
-        more". Estimates without the drift references; the verdict is the before- and
-        after-runs."""
+        more". Estimates without the drift references, the tables and the grid a plain
+        calibration's (:meth:`.short.ShortBudget.plain_plans`); the verdict is the before-
+        and after-runs."""
         groups = (("pitch tables", ("iso",)), ("once-per-lead error", ("cyclic",)),
                   ("plane", ("xy",)), ("verdict", ("before",)), ("backlash", ("backlash",)),
                   ("thermal identification", ("warmup",)),
                   ("lead search", ("lead",)))  # fmt: skip
-        # the verdict: each linear axis's before-run and the plane's random points, each
-        # read again after
+        # a plain calibration's tables (its targets, 5 runs) and grid, as a short budget
+        # reads them; the verdict: each linear axis's before-run and the plane's random
+        # points, each read again after
+        linear = [a for a in self.s.axes if not self.axes.rotary(a)]
+        dense = self.short.plain_points(linear)
+
+        def tables(runs: int) -> list[tuple[str, Plan]]:
+            return [(f"iso-{a}", self.axes.snap(self.plans.iso_plan(a, runs, dense.get(a))))
+                    for a in linear]  # fmt: skip
+
+        steps = [(n, p) for n, p in first if n.partition("-")[0] not in ("iso", "xy")]
+        steps += tables(self.short.table_runs())
         verdict = [("before-" + a, self.plans.before_plan(a, avoid_mm=np.zeros(0)))
-                   for a in self.s.axes if not self.axes.rotary(a)]
-        if self.s.planar is not None:
+                   for a in linear]  # fmt: skip
+        if self.axes.plane_with(linear):
+            steps.append(("xy-grid", self.axes.snap(self.plans.grid_plan(
+                self.short.plain_grid()))))  # fmt: skip
             verdict.append(("before-xy", self.plans.before_xy_plan()))
-        steps = [*first, *2 * verdict]
+        steps += 2 * verdict
 
         def need_s(kinds: tuple[str, ...]) -> float:
             return sum(self.axes.estimate_s(p) for n, p in steps
                        if n.partition("-")[0] in kinds)  # fmt: skip
 
         used_s, got, short = 0.0, [], []
+        if need_s(("iso",)) > self.s.budget_s:  # then the tables at fewer runs
+            steps = [(n, p) for n, p in steps if not n.startswith("iso-")] + tables(2)
+            groups = (("pitch tables (at fewer runs)", ("iso",)), *groups[1:])
         for label, kinds in groups:  # each taken where it fits in what is left
             need = need_s(kinds)
             if need <= 0.0:
