@@ -301,10 +301,17 @@ class ShortBudget:
         on their lines, they may make it worse: :mod:`.after` then keeps them unloaded)."""
         if self.record.done("xy-grid"):
             return True
+        return fitting_grid(self.plain_grid(), self._grid_cost_s, self._grid_room_s()) is not None
+
+    def _grid_cost_s(self, grid: tuple[int, int]) -> float:
+        """Machine time (s) of a plane grid's run."""
+        return self.budget.step_cost_s(self.plans.grid_plan(grid))
+
+    def _grid_room_s(self) -> float:
+        """Machine time (s) the budget left holds for the plane's grid: what the cyclic
+        scans not made yet leave."""
         linear = [a for a in self.s.axes if not self.axes.rotary(a)]
-        room_s = self.budget.left_s() - self.scans_left_s(linear)
-        return fitting_grid(self.plain_grid(), lambda g: self.budget.step_cost_s(
-            self.plans.grid_plan(g)), room_s) is not None  # fmt: skip
+        return self.budget.left_s() - self.scans_left_s(linear)
 
     def first_grid(self) -> tuple[int, int]:
         """The plane's first grid (decided once, kept in the state): the configured one;
@@ -323,14 +330,13 @@ class ShortBudget:
         if "grid" not in self.record.state:
             grid = self.s.grid
             if self.record.state.get("short"):
-                def cost_s(g: tuple[int, int]) -> float:
-                    return self.budget.step_cost_s(self.plans.grid_plan(g))
+                cost_s = self._grid_cost_s
 
                 def worst_s(plans: list[Plan]) -> float:  # (with the references a drift
                     return sum(self.budget.step_cost_worst_s(p) for p in plans)  # calls for)
 
                 linear = [a for a in self.s.axes if not self.axes.rotary(a)]
-                room_s = self.budget.left_s() - self.scans_left_s(linear)
+                room_s = self._grid_room_s()
                 plain = self.plain_grid()
                 if cost_s(plain) <= room_s:
                     extras = ([] if self.record.done("before-xy") else
