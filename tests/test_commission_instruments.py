@@ -255,7 +255,7 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
         argv = [sys.executable, "-m", "gateway.cli", "commission", "-c", str(rig.config),
                 "--gateway", f"127.0.0.1:{rig.gw_port}", "--axes", "X",
                 "--laser", f"recording:{laser_dir}:um", "--no-lead-search", "--budget-h",
-                "0.2", "--dwell-s", "0.08", "--wait-start", "--no-progress",
+                "0.3", "--dwell-s", "0.08", "--wait-start", "--no-progress",
                 "--delta-a", f"127.0.0.1:{rig.sim_port}:22"]  # fmt: skip
         with Technician("127.0.0.1", rig.sim_port, 20, rig.dir / "recordings", "csv") as tech:
             done_run = tech.attend(argv, ROOT, 200.0)
@@ -264,7 +264,7 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
             argv_y = [*argv[:argv.index("--axes")], "--axes", "Y", "--xy-device",
                       f"127.0.0.1:{rig.sim_port}:21", "--out", str(rig.config.parent / "y"),
                       *argv[argv.index("--axes") + 2:]]  # fmt: skip
-            argv_y[argv_y.index("--budget-h") + 1] = "0.35"
+            argv_y[argv_y.index("--budget-h") + 1] = "0.2"
             # X's folder, an iso-Y left there by an earlier try: never read as this one's
             (laser_dir / "iso-Y.csv").write_bytes((laser_dir / "iso-X.csv").read_bytes())
             stale = tech.attend(argv_y, ROOT, 60.0)
