@@ -315,6 +315,10 @@ def test_the_plan_says_what_each_step_is_for_and_what_a_short_budget_buys(
     assert "needs" in bought and "h more" in bought, bought
     # a plain calibration's tables (5 runs) and grid come first, the verdict after them
     assert "verdict needs" in bought, bought
+    # and the steps it reads instead, each with its machine time and what it is for
+    at = said.index("  where it holds them, it reads instead of the lines above:")
+    instead = said[at + 1:at + 4]
+    assert [s.split()[0] for s in instead] == ["iso-X", "iso-Y", "xy-grid"], instead
 
 
 def test_a_budget_that_would_end_with_no_table_is_refused_before_anything_moves(

@@ -105,6 +105,13 @@ class CommandChecks:
                      + ("; no round will refine the plane, so its grid is made denser with "
                         "what the budget then leaves (more readings than the xy-grid line "
                         "above: the budget is spent, not exceeded)" if plane else ""))  # fmt: skip
+            if ended is None and not done:
+                self.say("  where it holds them, it reads instead of the lines above:")
+                for name, plan in self._plain_steps(self.short.table_runs()):
+                    self.say(f"  {name:<14} {sum(m.measured for m in plan.moves):>5} readings "
+                             f"{len(plan.moves):>5} moves "
+                             f"{self.axes.estimate_s(plan) / 60:>7.1f} min  "
+                             f"{self._purpose(name)}")  # fmt: skip
         if any(self.axes.rotary(a) for a in self.s.axes) and self.s.tolerance_arcsec < 0.1:
             self.say(f"  --tolerance-arcsec {self.s.tolerance_arcsec:g}: below what an angle "
                      "instrument resolves; it is in arcseconds (0.001° is 3.6″)")  # fmt: skip
@@ -151,23 +158,14 @@ class CommandChecks:
                   ("plane", ("xy",)), ("verdict", ("before",)), ("backlash", ("backlash",)),
                   ("thermal identification", ("warmup",)),
                   ("lead search", ("lead",)))  # fmt: skip
-        # a plain calibration's tables (its targets, 5 runs) and grid, as a short budget
-        # reads them; the verdict: each linear axis's before-run and the plane's random
-        # points, each read again after
+        # the verdict: each linear axis's before-run and the plane's random points, each
+        # read again after
         linear = [a for a in self.s.axes if not self.axes.rotary(a)]
-        dense = self.short.plain_points(linear)
-
-        def tables(runs: int) -> list[tuple[str, Plan]]:
-            return [(f"iso-{a}", self.axes.snap(self.plans.iso_plan(a, runs, dense.get(a))))
-                    for a in linear]  # fmt: skip
-
         steps = [(n, p) for n, p in first if n.partition("-")[0] not in ("iso", "xy")]
-        steps += tables(self.short.table_runs())
+        steps += self._plain_steps(self.short.table_runs())
         verdict = [("before-" + a, self.plans.before_plan(a, avoid_mm=np.zeros(0)))
                    for a in linear]  # fmt: skip
         if self.axes.plane_with(linear):
-            steps.append(("xy-grid", self.axes.snap(self.plans.grid_plan(
-                self.short.plain_grid()))))  # fmt: skip
             verdict.append(("before-xy", self.plans.before_xy_plan()))
         steps += 2 * verdict
 
@@ -177,7 +175,8 @@ class CommandChecks:
 
         used_s, got, short = 0.0, [], []
         if need_s(("iso",)) > self.s.budget_s:  # then the tables at fewer runs
-            steps = [(n, p) for n, p in steps if not n.startswith("iso-")] + tables(2)
+            steps = [(n, p) for n, p in steps if not n.startswith("iso-")] + [
+                (n, p) for n, p in self._plain_steps(2) if n.startswith("iso-")]
             groups = (("pitch tables (at fewer runs)", ("iso",)), *groups[1:])
         for label, kinds in groups:  # each taken where it fits in what is left
             need = need_s(kinds)
@@ -193,6 +192,18 @@ class CommandChecks:
                 short.append(f"{label} needs {more_s / 3600:.2f} h more")
         head = f"with {self.s.budget_s / 3600:.2f} h: " + (", ".join(got) or "no table")
         return head + ("; " + ", ".join(short) if short else "")
+
+    def _plain_steps(self, runs: int) -> list[tuple[str, Plan]]:
+        """A plain calibration's tables (its targets, ``runs`` runs) and grid, as a short
+        budget reads them (:meth:`.short.ShortBudget.plain_plans`)."""
+        linear = [a for a in self.s.axes if not self.axes.rotary(a)]
+        dense = self.short.plain_points(linear)
+        steps = [(f"iso-{a}", self.axes.snap(self.plans.iso_plan(a, runs, dense.get(a))))
+                 for a in linear]  # fmt: skip
+        if self.axes.plane_with(linear):
+            steps.append(("xy-grid", self.axes.snap(self.plans.grid_plan(
+                self.short.plain_grid()))))  # fmt: skip
+        return steps
 
     def too_short(self) -> str | None:
         """Why a fresh commissioning would end with no table: its budget does not hold even
