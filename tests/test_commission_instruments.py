@@ -264,7 +264,7 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
             argv_y = [*argv[:argv.index("--axes")], "--axes", "Y", "--xy-device",
                       f"127.0.0.1:{rig.sim_port}:21", "--out", str(rig.config.parent / "y"),
                       *argv[argv.index("--axes") + 2:]]  # fmt: skip
-            argv_y[argv_y.index("--budget-h") + 1] = "0.2"
+            argv_y[argv_y.index("--budget-h") + 1] = "0.15"
             # X's folder, an iso-Y left there by an earlier try: never read as this one's
             (laser_dir / "iso-Y.csv").write_bytes((laser_dir / "iso-X.csv").read_bytes())
             stale = tech.attend(argv_y, ROOT, 60.0)
