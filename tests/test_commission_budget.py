@@ -360,7 +360,7 @@ def test_a_budget_that_holds_a_plain_calibration_only_without_references_reads_n
         return commission, said
 
     probe, _ = job(0.45, "probe")
-    plain = probe.short.plain_plans(["X", "Y"])
+    plain = [p for _, p in probe.short.plain_steps(["X", "Y"])]
     assert sorted(p.kind for p in plain).count("iso230-linear") == 2, plain
     bare_h = sum(probe.axes.estimate_s(p) for p in plain) / 3600.0
     refs_h = (sum(probe.short.budget.refs_worst_s(p) for p in plain)

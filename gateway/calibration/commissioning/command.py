@@ -107,7 +107,7 @@ class CommandChecks:
                         "above: the budget is spent, not exceeded)" if plane else ""))  # fmt: skip
             if ended is None and not done:
                 self.say("  where it holds them, it reads instead of the lines above:")
-                for name, plan in self._plain_steps(self.short.table_runs()):
+                for name, plan in self._plain_steps():
                     self.say(f"  {name:<14} {sum(m.measured for m in plan.moves):>5} readings "
                              f"{len(plan.moves):>5} moves "
                              f"{self.axes.estimate_s(plan) / 60:>7.1f} min  "
@@ -152,7 +152,7 @@ class CommandChecks:
         them (a plain ISO 230-2 calibration's steps first: :mod:`.short`), and what the
         rest needs: "with 0.90 h: pitch tables, plane; thermal identification needs 0.75 h
         more". Estimates without the drift references, the tables and the grid a plain
-        calibration's (:meth:`.short.ShortBudget.plain_plans`); the verdict is the before-
+        calibration's (:meth:`.short.ShortBudget.plain_steps`); the verdict is the before-
         and after-runs."""
         groups = (("pitch tables", ("iso",)), ("once-per-lead error", ("cyclic",)),
                   ("plane", ("xy",)), ("verdict", ("before",)), ("backlash", ("backlash",)),
@@ -161,8 +161,8 @@ class CommandChecks:
         # the verdict: each linear axis's before-run and the plane's random points, each
         # read again after
         linear = [a for a in self.s.axes if not self.axes.rotary(a)]
-        steps = [(n, p) for n, p in first if n.partition("-")[0] not in ("iso", "xy")]
-        steps += self._plain_steps(self.short.table_runs())
+        steps = [(n, p) for n, p in first if n.partition("-")[0] not in ("iso", "cyclic", "xy")]
+        steps += self._plain_steps()
         verdict = [("before-" + a, self.plans.before_plan(a, avoid_mm=np.zeros(0)))
                    for a in linear]  # fmt: skip
         if self.axes.plane_with(linear):
@@ -176,7 +176,7 @@ class CommandChecks:
         used_s, got, short = 0.0, [], []
         if need_s(("iso",)) > self.s.budget_s:  # then the tables at fewer runs
             steps = [(n, p) for n, p in steps if not n.startswith("iso-")] + [
-                (n, p) for n, p in self._plain_steps(2) if n.startswith("iso-")]
+                (n, p) for n, p in self._plain_steps(runs=2) if n.startswith("iso-")]
             groups = (("pitch tables (at fewer runs)", ("iso",)), *groups[1:])
         for label, kinds in groups:  # each taken where it fits in what is left
             need = need_s(kinds)
@@ -193,17 +193,11 @@ class CommandChecks:
         head = f"with {self.s.budget_s / 3600:.2f} h: " + (", ".join(got) or "no table")
         return head + ("; " + ", ".join(short) if short else "")
 
-    def _plain_steps(self, runs: int) -> list[tuple[str, Plan]]:
-        """A plain calibration's tables (its targets, ``runs`` runs) and grid, as a short
-        budget reads them (:meth:`.short.ShortBudget.plain_plans`)."""
+    def _plain_steps(self, runs: int | None = None) -> list[tuple[str, Plan]]:
+        """A plain calibration's steps as a short budget reads them
+        (:meth:`.short.ShortBudget.plain_steps`), snapped as the printed plan's are."""
         linear = [a for a in self.s.axes if not self.axes.rotary(a)]
-        dense = self.short.plain_points(linear)
-        steps = [(f"iso-{a}", self.axes.snap(self.plans.iso_plan(a, runs, dense.get(a))))
-                 for a in linear]  # fmt: skip
-        if self.axes.plane_with(linear):
-            steps.append(("xy-grid", self.axes.snap(self.plans.grid_plan(
-                self.short.plain_grid()))))  # fmt: skip
-        return steps
+        return [(n, self.axes.snap(p)) for n, p in self.short.plain_steps(linear, runs)]
 
     def too_short(self) -> str | None:
         """Why a fresh commissioning would end with no table: its budget does not hold even

@@ -9,6 +9,7 @@ from ...compensation.errors import TableError
 from ..fitting import adaptive
 from ..fitting.plans_scans import cyclic_plan
 from ..plans.plans import (
+    Plan,
     backlash_from_raw,
     backlash_plan,
 )
@@ -216,15 +217,23 @@ class IdentifySteps:
         its after-run; else said, and the steps after it go on (it ended the
         identification there: smooth-0 at the plain calibration's time left 5 minutes
         unused, its backlash tests not made)."""
-        if not self.record.done(f"before-{a}") and f"before-{a}" not in (
-                self.record.state.get("parts") or {}):  # (begun: it carries on)
-            need_s = 2 * self.budget.step_cost_s(self.plans.before_plan(a))
-            if need_s > self.budget.left_s():
-                self._note(f"{a}: no before- and after-run on this budget ({need_s / 60:.1f} "
-                           "min): no verdict on its own axis; its table is fitted all the same")
-                return
-        await self.runner.step(f"before-{a}", lambda: self.plans.before_plan(a), "off",
-                               self.axes.park(a))  # fmt: skip
+        if self._verdict_fits(f"before-{a}", self.plans.before_plan(a),
+                              f"{a}: no before- and after-run on this budget ({{min:.1f}} min): "
+                              "no verdict on its own axis; its table is fitted all the same"):
+            await self.runner.step(f"before-{a}", lambda: self.plans.before_plan(a), "off",
+                                   self.axes.park(a))  # fmt: skip
+
+    def _verdict_fits(self, name: str, plan: Plan, said: str) -> bool:
+        """Whether the verdict's step ``name`` goes on: made or begun already (it carries
+        on), or ``plan`` read before and after fits in the budget left; else ``said``
+        (formatted with ``min``, what it needs in minutes) is said and kept."""
+        if self.record.done(name) or name in (self.record.state.get("parts") or {}):
+            return True
+        need_s = 2 * self.budget.step_cost_s(plan)
+        if need_s <= self.budget.left_s():
+            return True
+        self._note(said.format(min=need_s / 60))
+        return False
 
     async def _cyclic_beside_plane(self, a: str) -> None:
         """The cyclic scans of ``a`` where its lead is known and the budget left holds them
@@ -265,15 +274,11 @@ class IdentifySteps:
     async def _before_xy_if_affordable(self) -> None:
         """On a short budget, the plane's random points (its verdict) where the budget left
         holds them before and after; else said."""
-        if not self.record.done("before-xy") and "before-xy" not in (
-                self.record.state.get("parts") or {}):  # (begun: it carries on)
-            need_s = 2 * self.budget.step_cost_s(self.plans.before_xy_plan())
-            if need_s > self.budget.left_s():
-                self._note(f"the plane: no random points before and after on this budget "
-                           f"({need_s / 60:.1f} min): no verdict on the plane; its model is "
-                           "fitted all the same")  # fmt: skip
-                return
-        await self.before_xy()
+        if self._verdict_fits("before-xy", self.plans.before_xy_plan(),
+                              "the plane: no random points before and after on this budget "
+                              "({min:.1f} min): no verdict on the plane; its model is fitted "
+                              "all the same"):
+            await self.before_xy()
 
     async def before_xy(self) -> None:
         """The plane's random points before anything is fitted (judged again at the end)."""

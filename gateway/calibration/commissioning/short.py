@@ -79,7 +79,7 @@ class ShortBudget:
     def refs_affordable(self) -> bool:
         """Whether the drift references are read (decided once, before the first, kept in
         the state; said when not): on a short budget, only where it holds a plain
-        calibration's steps (:meth:`plain_plans`, its 5 runs included, and on an axis
+        calibration's steps (:meth:`plain_steps`, its 5 runs included, and on an axis
         whose lead is not known its table's midpoints, :meth:`densify`) with them (around
         every run, at every config switch). They are an identification extra: a plain
         calibration's tables are worth more than a drift taken off them. (At the plain
@@ -95,10 +95,10 @@ class ShortBudget:
             off = False
             if self.applies():
                 linear = [a for a in self.s.axes if not self.axes.rotary(a)]
-                dense = self.plain_points(linear)
-                plain = self.plain_plans(linear) + [  # and the midpoints it may read
-                    self.plans.iso_plan(a, self.table_runs(), dense.get(a))
-                    for a in linear if a not in self.s.lead_mm]  # fmt: skip
+                steps = self.plain_steps(linear)
+                plain = [p for _, p in steps] + [  # and the midpoints it may read
+                    p for n, p in steps
+                    if n.startswith("iso-") and n.removeprefix("iso-") not in self.s.lead_mm]
                 bare_s = sum(self.axes.estimate_s(p) for p in plain)
                 refs_s = (sum(self.budget.refs_worst_s(p) for p in plain)
                           + SWITCH_READINGS * self.budget.refs_once_s())  # fmt: skip
@@ -130,19 +130,21 @@ class ShortBudget:
                  for a in axes}  # fmt: skip
         return dense if any(n != adaptive.COARSE_POINTS for n in dense.values()) else {}
 
-    def plain_plans(self, linear: list[str]) -> list[Plan]:
-        """A plain ISO 230-2 calibration's steps on ``linear``: each axis's table at its
-        targets (:meth:`plain_points`) and runs (:meth:`table_runs`), its cyclic scans
-        where its lead is known, the plane's grid of a plain calibration's nodes
-        (:meth:`plain_grid`) where the axes make one. What a short budget buys before
-        any extra."""
+    def plain_steps(self, linear: list[str], runs: int | None = None
+                    ) -> list[tuple[str, Plan]]:  # fmt: skip
+        """A plain ISO 230-2 calibration's steps on ``linear``, named as the steps that read
+        them: each axis's table at its targets (:meth:`plain_points`) and ``runs`` runs
+        (default :meth:`table_runs`), its cyclic scans where its lead is known, the
+        plane's grid of a plain calibration's nodes (:meth:`plain_grid`) where the axes
+        make one. What a short budget buys before any extra."""
         dense = self.plain_points(linear)
-        plans = [self.plans.iso_plan(a, self.table_runs(), dense.get(a)) for a in linear]
-        plans += [cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])
+        steps = [(f"iso-{a}", self.plans.iso_plan(a, runs or self.table_runs(), dense.get(a)))
+                 for a in linear]  # fmt: skip
+        steps += [(f"cyclic-{a}", cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a]))
                   for a in linear if a in self.s.lead_mm]  # fmt: skip
         if self.axes.plane_with(linear):
-            plans.append(self.plans.grid_plan(self.plain_grid()))
-        return plans
+            steps.append(("xy-grid", self.plans.grid_plan(self.plain_grid())))
+        return steps
 
     def table_runs(self) -> int:
         """Runs per target a short budget's table is read at in the end, where the budget
