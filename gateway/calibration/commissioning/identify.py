@@ -183,10 +183,12 @@ class IdentifySteps:
         self._iso_runs_that_fit(cores)
         for a in cores:
             await self._iso(a)
-        for a in cores:  # where the tables miss between their points
+        for a in cores:  # where the tables miss between their points (lead not known)
             await self.short.densify(a)
         for a in cores:  # the once-per-lead error, before the plane is measured on the tables
             await self._cyclic_beside_plane(a)
+        for a in cores:  # where the tables miss between their points net of it (lead known)
+            await self.short.densify(a)
         await self.short.more_runs(cores)  # a plain calibration's runs, where time is left
         plane = self.axes.plane_with(cores)
         if plane:

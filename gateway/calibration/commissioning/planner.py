@@ -40,12 +40,13 @@ class Planner:
         self.rotary = rotary
         self.thermal = thermal
 
-    def midpoints_plan(self, axis: str) -> Plan:
-        """The ISO 230-2 cycle at the midpoints of the first table's points."""
+    def midpoints_plan(self, axis: str, runs: int | None = None) -> Plan:
+        """The ISO 230-2 cycle at the midpoints of the first table's points, ``runs`` runs
+        per target (default: the first table's)."""
         plan = read_plan(self.record.dir / "plans" / f"iso-{axis}.plan")
         first = np.unique(plan.targets_mm(axis))
         return targets_plan(axis, self.axes.travel(axis), (first[1:] + first[:-1]) / 2,
-                            self.budget.iso_runs(), kind="iso230-linear",
+                            runs or self.budget.iso_runs(), kind="iso230-linear",
                             note="midpoints")  # fmt: skip
 
     def more_runs_plan(self, axis: str, more: int) -> Plan:

@@ -13,15 +13,18 @@ import numpy as np
 
 from ..fitting import adaptive
 from ..fitting.iso230 import iso230_axis
+from ..fitting.outputs import scanned_cyclic
 from ..fitting.plans_scans import cyclic_plan
-from ..fitting.table_cv import between_points_ratio
+from ..fitting.table_cv import between_points_ratio, levelled_midpoints
 from ..fitting.takeup_fit import MIN_LOST_UM
 from ..plans.plans import Plan, backlash_plan
 from ..plans.rawdata import RawData, axis_deviations
+from ..plans.runner import read_raw_meta
 from ..plans.xy import even_grid
 from .steps import concat_raw
 
 if TYPE_CHECKING:
+    from ...compensation.cyclic import CyclicModel
     from .axes import Axes
     from .budget import Budget
     from .planner import Planner
@@ -79,8 +82,8 @@ class ShortBudget:
     def refs_affordable(self) -> bool:
         """Whether the drift references are read (decided once, before the first, kept in
         the state; said when not): on a short budget, only where it holds a plain
-        calibration's steps (:meth:`plain_steps`, its 5 runs included, and on an axis
-        whose lead is not known its table's midpoints, :meth:`densify`) with them (around
+        calibration's steps (:meth:`plain_steps`, its 5 runs included, and each axis's
+        table's midpoints, :meth:`densify`) with them (around
         every run, at every config switch). They are an identification extra: a plain
         calibration's tables are worth more than a drift taken off them. (At the plain
         calibration's 7.8 minutes, mcu1025's references took 2.4 minutes and Y got no
@@ -217,38 +220,65 @@ class ShortBudget:
         """On a short budget, whose rounds will not sweep a table between its points: the
         ISO runs again at the midpoints of the first table's points where that table misses
         between them by more than BETWEEN_RATIO times what its scatter explains
-        (:func:`..fitting.table_cv.between_points_ratio`) and the budget then still holds a
-        plane's configured grid (:meth:`plane_held_s`). At 1.5 x a manual
-        calibration's time slit-11358's Y kept a dip of 3.5 µm over 2 mm between two of its
-        points (E 4.4 µm at the judge's targets, its scatter 0.3 µm). Not on an axis whose
-        lead is known: what its table misses between its points is in part the periodic
-        error, which the cyclic scans read and midpoints would alias. Decided once."""
-        if axis in self.s.lead_mm:
+        (:func:`..fitting.table_cv.between_points_ratio`), at as many of the first table's
+        runs as the budget left holds (down to DENSE_LEAST_RUNS) beside the plane's grid.
+        Decided once.
+
+        - Lead not known: first, beside the plane's configured grid (at 1.5 x a manual
+          calibration's time slit-11358's Y kept a dip of 3.5 µm over 2 mm between two of
+          its points: E 4.4 µm at the judge's targets, its scatter 0.3 µm).
+        - Lead known: after its cyclic scans, the points judged net of the once-per-lead
+          term they read (a table every few leads reads it at one phase, its midpoints at
+          another), at DENSE_LEAST_RUNS, beside a plain calibration's grid and the
+          plane's verdict: an extra after them. (At 1.5 x
+          rough-9's X, waviness of 15-80 mm, missed 1.6 µm RMS between its points 25 mm
+          apart against a scatter of 0.23 µm: E 3.33 µm at the judge's targets, a perfect
+          table 0.80.) No scans read: none (the term would alias)."""
+        known = axis in self.s.lead_mm
+        if known and not self.record.done(f"cyclic-{axis}"):
             return
         ident = self.record.state.setdefault("identify", {})  # (the report lists it)
         key = f"midpoints-{axis}"
         if key not in ident:
-            ratio = between_points_ratio(axis_deviations(self.runner.raw(f"iso-{axis}"), axis))
-            need_s = self.budget.step_cost_s(self.plans.midpoints_plan(axis))
+            ratio = between_points_ratio(axis_deviations(self.runner.raw(f"iso-{axis}"), axis),
+                                         self.scanned(axis))  # fmt: skip
             keep_s = 0.0
             if self.s.planar is not None and axis in self.s.planar:
-                keep_s = self.plane_held_s(plain=False)
+                keep_s = self.plane_held_s(plain=known)
+                if known and not self.record.done("before-xy"):  # and the plane's verdict
+                    keep_s += 2 * self.budget.step_cost_s(self.plans.before_xy_plan())
             misses = ratio is not None and ratio > BETWEEN_RATIO
-            ident[key] = {"misses_x_scatter": ratio,
-                          "measured": bool(misses and self.budget.left_s() - need_s >= keep_s)}
+            runs = self._midpoint_runs(axis, keep_s) if misses else 0
+            ident[key] = {"misses_x_scatter": ratio, "measured": bool(runs), "runs": runs}
             if misses:
+                need_s = self.budget.step_cost_s(self.plans.midpoints_plan(axis, DENSE_LEAST_RUNS))
                 self.say(f"{axis}: the first table misses between its points {ratio:.1f} x "
-                         "what its scatter explains: " + (
-                             f"its midpoints read too ({need_s / 60:.1f} min)"
-                             if ident[key]["measured"] else
-                             f"its midpoints ({need_s / 60:.1f} min) do not fit "
-                             + ("beside the plane's grid" if keep_s > 0.0 else
-                                "in the budget left")))  # fmt: skip
+                         "what its scatter explains" + (" (net of its once-per-lead error)"
+                                                        if known else "") + ": " + (
+                             f"its midpoints read too, {runs} runs each" if runs else
+                             f"its midpoints ({need_s / 60:.1f} min at {DENSE_LEAST_RUNS} runs) "
+                             "do not fit " + ("beside the plane's grid" if keep_s > 0.0 else
+                                              "in the budget left")))  # fmt: skip
             self.record.save()
+        runs = int(ident[key].get("runs") or 0) if ident[key]["measured"] else 0
         if ident[key]["measured"]:
-            await self.runner.step(f"iso-mid-{axis}", lambda: self.plans.midpoints_plan(axis),
-                                   "off",
-                            self.axes.park(axis))  # fmt: skip
+            await self.runner.step(f"iso-mid-{axis}",
+                                   lambda: self.plans.midpoints_plan(axis, runs or None), "off",
+                                   self.axes.park(axis))  # fmt: skip
+
+    def _midpoint_runs(self, axis: str, keep_s: float) -> int:
+        """The most runs per target at which the midpoints of ``axis`` fit in the budget
+        left beside ``keep_s``, 0 where none fit: the first table's down to
+        DENSE_LEAST_RUNS where the lead is not known (more runs follow on the first
+        targets), DENSE_LEAST_RUNS where it is (the first table's 5 runs read the scatter
+        and the reversal; the midpoints read the waves between, and leave room for the
+        other axis's: at 4 runs rough-9's X left Y's none)."""
+        most = DENSE_LEAST_RUNS if axis in self.s.lead_mm else self.budget.iso_runs()
+        for runs in range(most, DENSE_LEAST_RUNS - 1, -1):
+            need_s = self.budget.step_cost_worst_s(self.plans.midpoints_plan(axis, runs))
+            if self.budget.left_s() - need_s >= keep_s:
+                return runs
+        return 0
 
     async def more_runs(self, axes: list[str]) -> None:
         """On a short budget, after the first ISO runs and the cyclic scans and before the
@@ -293,8 +323,24 @@ class ShortBudget:
         return b_um is None or b_um >= MIN_LOST_UM
 
     def iso_raw(self, axis: str) -> RawData:
-        """The ISO runs of ``axis`` (:meth:`.planner.Planner.iso_steps`), as one run set."""
-        return concat_raw([self.runner.raw(n) for n in self.plans.iso_steps(axis)])
+        """The ISO runs of ``axis`` (:meth:`.planner.Planner.iso_steps`), as one run set, the
+        midpoints put on the level of the first table's readings
+        (:func:`..fitting.table_cv.levelled_midpoints`, net of the once-per-lead term)."""
+        names = self.plans.iso_steps(axis)
+        parts = {n: self.runner.raw(n) for n in names}
+        mid = f"iso-mid-{axis}"
+        if mid in parts:
+            first = concat_raw([r for n, r in parts.items() if n != mid])
+            parts[mid] = levelled_midpoints(first, parts[mid], axis, self.scanned(axis))
+        return concat_raw(list(parts.values()))
+
+    def scanned(self, axis: str) -> CyclicModel | None:
+        """The once-per-lead term the cyclic scans of ``axis`` read, if they were read
+        (:func:`..fitting.outputs.scanned_cyclic`)."""
+        if axis not in self.s.lead_mm or not self.record.done(f"cyclic-{axis}"):
+            return None
+        path = self.runner.raw_paths(f"cyclic-{axis}")[0]
+        return scanned_cyclic(self.runner.raw(f"cyclic-{axis}"), read_raw_meta(path), axis)
 
     def grid_affordable(self) -> bool:
         """Whether the budget left holds a plane's grid (:func:`fitting_grid` of a plain

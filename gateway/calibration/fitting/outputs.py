@@ -359,6 +359,15 @@ def fit_cyclic_raw(
     return CyclicResult(axis, path, fit, model, residual)
 
 
+def scanned_cyclic(raw: RawData, meta: dict[str, str], axis: str) -> CyclicModel | None:
+    """The once-per-lead term of ``axis`` a cyclic plan's raw file reads, fitted as
+    :func:`fit_cyclic_raw` fits it (no file beside it, unchecked); None where the scans show
+    none. For what a coarse table's points read net of it."""
+    lead, stations, origin = cyclic_meta(meta, raw.source)
+    where, scans = scans_from_raw(raw, axis, lead, stations)
+    return fit_cyclic(where, scans, lead, origin).model
+
+
 def check_cyclic(model: CyclicModel, config: GatewayConfig, axis: str) -> None:
     """The gateway's load checks of a cyclic term: its stage builds, and the cap."""
     comp = config.axes[axis].compensation

@@ -13,12 +13,15 @@ coarsely) straight lines. A turntable's table (``wrap``) is scored around the ci
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import CubicSpline, PchipInterpolator
 
 from ...compensation import PitchTable
-from ..plans.rawdata import AxisDeviations, pooled_variance
+from ...compensation.cyclic import CyclicModel
+from ..plans.rawdata import AxisDeviations, RawData, axis_deviations, pooled_variance
 
 METHODS = ("linear", "smooth", "pchip")
 TURN_DEG = 360.0
@@ -65,17 +68,20 @@ def choose_interpolation(table: PitchTable, wrap: bool = False) -> tuple[str, di
     return best, scores
 
 
-def between_points_ratio(dev: AxisDeviations) -> float | None:
+def between_points_ratio(dev: AxisDeviations, cyclic: CyclicModel | None = None
+                         ) -> float | None:  # fmt: skip
     """How much more a table through the ISO runs' means misses between its points than
     their scatter explains: each inner mean predicted by the straight line through its two
     neighbours (per direction of approach), the RMS of those misses over the RMS the means'
     own standard errors give them (s²(1/nᵢ + (1−w)²/nᵢ₋₁ + w²/nᵢ₊₁), s pooled over the runs).
     About 1 where the table follows the screw as closely as its points allow; the real-data
     slits' first tables read 7-39 (slit-11358's Y, 38: a dip of 3.5 µm over 2 mm between
-    points 3.5 mm apart), the sdss plates' 1.0-2.0. None with fewer than 3 targets or 2
-    runs."""
+    points 3.5 mm apart), the sdss plates' 1.0-2.0. With ``cyclic``, of the deviations net
+    of that once-per-lead term (a table every few leads reads it at one phase, its
+    midpoints at another). None with fewer than 3 targets or 2 runs."""
     x = dev.target_mm
-    series = [d for d in (dev.up_mm, dev.down_mm) if d is not None]
+    cyc = np.zeros_like(x) if cyclic is None else cyclic.error_mm(x)
+    series = [d - cyc[:, None] for d in (dev.up_mm, dev.down_mm) if d is not None]
     if x.size < 3 or not series:
         return None
     n = [np.sum(np.isfinite(d), axis=1) for d in series]
@@ -90,3 +96,42 @@ def between_points_ratio(dev: AxisDeviations) -> float | None:
         miss2 += float(np.sum(miss**2))
         var += float(np.sum(s2 * (1 / k[1:-1] + (1 - w) ** 2 / k[:-2] + w**2 / k[2:])))
     return float(np.sqrt(miss2 / var)) if var > 0 else None
+
+
+def levelled_midpoints(first: RawData, mid: RawData, axis: str,
+                       cyclic: CyclicModel | None = None) -> RawData:  # fmt: skip
+    """The midpoints' readings of ``axis`` (``mid``) put onto the level of the first table's
+    (``first``): per run, the straight line in position that best fits their deviations
+    minus the first table's means interpolated there (per direction of approach) taken off.
+    The midpoints are read later, on a machine that has warmed or cooled meanwhile; a line
+    in position is what a screw's growth puts between the two sets (not what they read
+    between the points, which a line through many midpoints leaves). With ``cyclic``, both
+    compared net of that once-per-lead term (the midpoints read it at another phase, and
+    its amplitude changes along the travel)."""
+    dev = axis_deviations(first, axis)
+    cyc_first = np.zeros_like(dev.target_mm) if cyclic is None else cyclic.error_mm(dev.target_mm)
+    means = {s: None if d is None else np.nanmean(d, axis=1) - cyc_first
+             for s, d in ((1, dev.up_mm), (-1, dev.down_mm))}  # fmt: skip
+    cyc_mid = np.zeros_like(mid.target_mm) if cyclic is None else cyclic.error_mm(mid.target_mm)
+    actual = mid.actual_mm.copy()
+    rows = np.flatnonzero(np.array(mid.axis) == axis)
+    for run in np.unique(mid.run[rows]):
+        sel = rows[mid.run[rows] == run]
+        miss, keep = np.zeros(sel.size), np.zeros(sel.size, dtype=bool)
+        for sign, m in means.items():
+            here = mid.direction[sel] == sign
+            if m is None or not here.any():
+                continue
+            ok = np.isfinite(m)
+            miss[here] = mid.deviation_mm[sel[here]] - cyc_mid[sel[here]] - np.interp(
+                mid.target_mm[sel[here]], dev.target_mm[ok], m[ok])
+            keep[here] = True
+        if keep.sum() < 2:
+            continue
+        x = mid.target_mm[sel][keep]
+        design = np.column_stack([np.ones_like(x), x - x.mean()] if np.ptp(x) > 0 else
+                                 [np.ones_like(x)])  # fmt: skip
+        coef, *_ = np.linalg.lstsq(design, miss[keep], rcond=None)
+        line = coef[0] + (coef[1] * (mid.target_mm[sel] - x.mean()) if coef.size > 1 else 0.0)
+        actual[sel] = np.where(keep, actual[sel] - line, actual[sel])
+    return replace(mid, actual_mm=actual)
