@@ -80,8 +80,8 @@ def test_midpoints_read_on_a_warmer_machine_are_put_on_the_first_table_s_level()
     """A screw with waves of 30-60 mm read every 25 mm at 5 runs, then at the midpoints
     (3 runs) on a machine grown meanwhile (4 µm at the fixed end, 10 µm/m along the screw,
     more each run). Levelled, the midpoints keep their waves and lose the heat: the table
-    through both sets misses the screw at its midpoints by under 0.3 µm RMS on every seed;
-    unlevelled, by over 3 µm."""
+    through both sets misses the screw at its midpoints by under 0.4 µm RMS on every seed
+    (their own scatter 0.12); unlevelled, by over 3 µm."""
     from gateway.calibration.fitting.table_cv import levelled_midpoints
     from gateway.calibration.plans.rawdata import axis_deviations
 
@@ -96,7 +96,7 @@ def test_midpoints_read_on_a_warmer_machine_are_put_on_the_first_table_s_level()
     for seed in range(5):
         first = _raw(waves_um, first_x, 5, seed)
         mid = _raw(waves_um, mid_x, 3, seed + 100, heat_um)
-        for raw, bound in ((levelled_midpoints(first, mid, "X"), 0.3), (mid, None)):
+        for raw, bound in ((levelled_midpoints(first, mid, "X"), 0.4), (mid, None)):
             up = np.nanmean(axis_deviations(raw, "X").up_mm, axis=1) * 1e3
             miss = float(np.sqrt(np.mean((up - waves_um(mid_x)) ** 2)))
             assert miss < bound if bound else miss > 3.0, (seed, miss)
@@ -107,7 +107,7 @@ def test_midpoints_are_levelled_net_of_the_once_per_lead_error_they_read_at_anot
     """A 5 mm lead whose once-per-lead error grows from 1.5 to 3 µm along the travel: the
     points every 25 mm read it at its crest, their midpoints at its trough, a line in
     position apart. Levelled net of the scans' term, the midpoints keep their waves (under
-    0.3 µm RMS from the screw, net of the term, on every seed); levelled on their raw
+    0.4 µm RMS from the screw, net of the term, on every seed); levelled on their raw
     readings, the line takes the term's growth for heat (over 1 µm)."""
     from gateway.calibration.fitting.table_cv import levelled_midpoints
     from gateway.calibration.plans.rawdata import axis_deviations
@@ -126,9 +126,29 @@ def test_midpoints_are_levelled_net_of_the_once_per_lead_error_they_read_at_anot
     mid_x = (first_x[1:] + first_x[:-1]) / 2
     for seed in range(5):
         first, mid = _raw(screw_um, first_x, 5, seed), _raw(screw_um, mid_x, 2, seed + 100)
-        for model, bound in ((cyclic, 0.3), (None, None)):
+        for model, bound in ((cyclic, 0.4), (None, None)):
             raw = levelled_midpoints(first, mid, "X", model)
             up = np.nanmean(axis_deviations(raw, "X").up_mm, axis=1) * 1e3
             miss = up - cyclic.error_mm(mid_x) * 1e3 - waves_um(mid_x)
             rms = float(np.sqrt(np.mean(miss**2)))
             assert rms < bound if bound else rms > 1.0, (seed, rms)
+
+
+def test_a_curved_error_read_at_few_midpoints_is_not_taken_for_heat() -> None:
+    """smooth-2's Y: 7 uneven points over 150 mm, its error rising 10 µm in the last 20 mm,
+    6 midpoints at 2 runs, no heat between. Levelled against a spline through the first
+    points' means, the midpoints keep what they read (under 0.3 µm RMS from the screw on
+    every seed; against straight lines the line took their curvature for heat: 0.45)."""
+    from gateway.calibration.fitting.table_cv import levelled_midpoints
+    from gateway.calibration.plans.rawdata import axis_deviations
+
+    def screw_um(x: np.ndarray) -> np.ndarray:
+        return 17.0 * (x / 150.0) ** 6 + 3.0 * np.sin(np.pi * x / 150.0)
+
+    first_x = np.array([1.0, 22.8, 44.7, 69.0, 103.5, 129.4, 149.0])
+    mid_x = (first_x[1:] + first_x[:-1]) / 2
+    for seed in range(10):
+        first, mid = _raw(screw_um, first_x, 5, seed), _raw(screw_um, mid_x, 2, seed + 100)
+        raw = levelled_midpoints(first, mid, "X")
+        up = np.nanmean(axis_deviations(raw, "X").up_mm, axis=1) * 1e3
+        assert float(np.sqrt(np.mean((up - screw_um(mid_x)) ** 2))) < 0.3, seed

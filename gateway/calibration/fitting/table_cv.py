@@ -98,11 +98,24 @@ def between_points_ratio(dev: AxisDeviations, cyclic: CyclicModel | None = None
     return float(np.sqrt(miss2 / var)) if var > 0 else None
 
 
+def _through(x: NDArray[np.float64], y: NDArray[np.float64], at: NDArray[np.float64]
+             ) -> NDArray[np.float64]:  # fmt: skip
+    """The first table's means at ``at``: along a spline through them where there are 4 or
+    more (a line through few midpoints would take the straight lines' miss of a curved
+    error for heat: smooth-2's Y, 7 points over 150 mm rising 10 µm in its last 20 mm,
+    read 0.48 µm RMS levelled along straight lines, 0.27 along the spline, 0.57 without
+    its midpoints), else straight lines."""
+    if x.size >= 4:
+        return np.asarray(CubicSpline(x, y, bc_type="not-a-knot")(at), dtype=np.float64)
+    return np.interp(at, x, y)
+
+
 def levelled_midpoints(first: RawData, mid: RawData, axis: str,
                        cyclic: CyclicModel | None = None) -> RawData:  # fmt: skip
     """The midpoints' readings of ``axis`` (``mid``) put onto the level of the first table's
     (``first``): per run, the straight line in position that best fits their deviations
-    minus the first table's means interpolated there (per direction of approach) taken off.
+    minus the first table's means there (per direction of approach, :func:`_through`) taken
+    off.
     The midpoints are read later, on a machine that has warmed or cooled meanwhile; a line
     in position is what a screw's growth puts between the two sets (not what they read
     between the points, which a line through many midpoints leaves). With ``cyclic``, both
@@ -123,8 +136,8 @@ def levelled_midpoints(first: RawData, mid: RawData, axis: str,
             if m is None or not here.any():
                 continue
             ok = np.isfinite(m)
-            miss[here] = mid.deviation_mm[sel[here]] - cyc_mid[sel[here]] - np.interp(
-                mid.target_mm[sel[here]], dev.target_mm[ok], m[ok])
+            miss[here] = mid.deviation_mm[sel[here]] - cyc_mid[sel[here]] - _through(
+                dev.target_mm[ok], m[ok], mid.target_mm[sel[here]])
             keep[here] = True
         if keep.sum() < 2:
             continue
