@@ -152,3 +152,15 @@ def test_a_curved_error_read_at_few_midpoints_is_not_taken_for_heat() -> None:
         raw = levelled_midpoints(first, mid, "X")
         up = np.nanmean(axis_deviations(raw, "X").up_mm, axis=1) * 1e3
         assert float(np.sqrt(np.mean((up - screw_um(mid_x)) ** 2))) < 0.3, seed
+
+
+def test_the_miss_between_points_is_given_in_millimetres_beside_the_ratio() -> None:
+    """What midpoints may win, for ordering the axes by it: the dip's table misses about
+    its dip's share of 3.5 µm between its points, the bow's a fraction of a micrometre."""
+    from gateway.calibration.fitting.table_cv import between_points
+
+    x = np.sort(np.random.default_rng(0).uniform(11, 59, 21))
+    ratio, miss_mm = between_points(_runs(_dip_um, x, 0.3, 0))
+    assert ratio == between_points_ratio(_runs(_dip_um, x, 0.3, 0))
+    bow_mm = between_points(_runs(_bow_um, x, 0.3, 0))[1]
+    assert 0.3e-3 < miss_mm < 3.5e-3 and bow_mm < 0.5 * miss_mm, (miss_mm, bow_mm)

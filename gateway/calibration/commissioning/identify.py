@@ -187,8 +187,8 @@ class IdentifySteps:
             await self.short.densify(a)
         for a in cores:  # the once-per-lead error, before the plane is measured on the tables
             await self._cyclic_beside_plane(a)
-        for a in cores:  # where the tables miss between their points net of it (lead known)
-            await self.short.densify(a)
+        for a in self.short.by_value(cores):  # where the tables miss between their points
+            await self.short.densify(a)  # net of it (lead known), the most per minute first
         await self.short.more_runs(cores)  # a plain calibration's runs, where time is left
         plane = self.axes.plane_with(cores)
         if plane:

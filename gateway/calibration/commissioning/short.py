@@ -15,7 +15,7 @@ from ..fitting import adaptive
 from ..fitting.iso230 import iso230_axis
 from ..fitting.outputs import scanned_cyclic
 from ..fitting.plans_scans import cyclic_plan
-from ..fitting.table_cv import between_points_ratio, levelled_midpoints
+from ..fitting.table_cv import between_points, levelled_midpoints
 from ..fitting.takeup_fit import MIN_LOST_UM
 from ..plans.plans import Plan, backlash_plan
 from ..plans.rawdata import RawData, axis_deviations
@@ -223,7 +223,7 @@ class ShortBudget:
         """On a short budget, whose rounds will not sweep a table between its points: the
         ISO runs again at the midpoints of the first table's points where that table misses
         between them by more than BETWEEN_RATIO times what its scatter explains
-        (:func:`..fitting.table_cv.between_points_ratio`), at as many of the first table's
+        (:func:`..fitting.table_cv.between_points`), at as many of the first table's
         runs as the budget left holds (down to DENSE_LEAST_RUNS) beside the plane's grid.
         Decided once.
 
@@ -243,8 +243,7 @@ class ShortBudget:
         ident = self.record.state.setdefault("identify", {})  # (the report lists it)
         key = f"midpoints-{axis}"
         if key not in ident:
-            ratio = between_points_ratio(axis_deviations(self.runner.raw(f"iso-{axis}"), axis),
-                                         self.scanned(axis))  # fmt: skip
+            ratio, miss_um = self.between(axis)
             keep_s = 0.0
             if self.s.planar is not None and axis in self.s.planar:
                 keep_s = self.plane_held_s(plain=known)
@@ -252,7 +251,8 @@ class ShortBudget:
                     keep_s += 2 * self.budget.step_cost_s(self.plans.before_xy_plan())
             misses = ratio is not None and ratio > BETWEEN_RATIO
             runs = self._midpoint_runs(axis, keep_s) if misses else 0
-            ident[key] = {"misses_x_scatter": ratio, "measured": bool(runs), "runs": runs}
+            ident[key] = {"misses_x_scatter": ratio, "miss_rms_um": miss_um,
+                          "measured": bool(runs), "runs": runs}
             if misses:
                 need_s = self.budget.step_cost_s(self.plans.midpoints_plan(axis, DENSE_LEAST_RUNS))
                 self.say(f"{axis}: the first table misses between its points {ratio:.1f} x "
@@ -268,6 +268,32 @@ class ShortBudget:
             await self.runner.step(f"iso-mid-{axis}",
                                    lambda: self.plans.midpoints_plan(axis, runs or None), "off",
                                    self.axes.park(axis))  # fmt: skip
+
+    def between(self, axis: str) -> tuple[float | None, float | None]:
+        """How much the first table of ``axis`` misses between its points: over what its
+        scatter explains, and in µm RMS (:func:`..fitting.table_cv.between_points`, net of
+        the once-per-lead term where its scans were read); None, None where it cannot say."""
+        found = between_points(axis_deviations(self.runner.raw(f"iso-{axis}"), axis),
+                               self.scanned(axis))  # fmt: skip
+        return (None, None) if found is None else (found[0], found[1] * 1e3)
+
+    def by_value(self, axes: list[str]) -> list[str]:
+        """``axes`` in the order their midpoints buy most per machine-minute: what the first
+        table misses between its points (µm RMS) over the midpoints' time at
+        DENSE_LEAST_RUNS. Those whose midpoints cannot be decided yet (lead known, no scans
+        read) or are decided already keep their place at the end. (In axis order rough-9's
+        X, missing 1.2 µm, took the time Y's, missing 2.9 µm, needed.)"""
+        ident = self.record.state.get("identify", {})
+
+        def value(a: str) -> float:
+            if f"midpoints-{a}" in ident or (a in self.s.lead_mm
+                                              and not self.record.done(f"cyclic-{a}")):
+                return -1.0
+            miss_um = self.between(a)[1] or 0.0
+            cost_s = self.budget.step_cost_s(self.plans.midpoints_plan(a, DENSE_LEAST_RUNS))
+            return miss_um / max(cost_s, 1.0)
+
+        return sorted(axes, key=value, reverse=True)
 
     def _midpoint_runs(self, axis: str, keep_s: float) -> int:
         """The most runs per target at which the midpoints of ``axis`` fit in the budget

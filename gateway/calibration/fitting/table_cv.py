@@ -70,15 +70,24 @@ def choose_interpolation(table: PitchTable, wrap: bool = False) -> tuple[str, di
 
 def between_points_ratio(dev: AxisDeviations, cyclic: CyclicModel | None = None
                          ) -> float | None:  # fmt: skip
-    """How much more a table through the ISO runs' means misses between its points than
-    their scatter explains: each inner mean predicted by the straight line through its two
-    neighbours (per direction of approach), the RMS of those misses over the RMS the means'
-    own standard errors give them (s²(1/nᵢ + (1−w)²/nᵢ₋₁ + w²/nᵢ₊₁), s pooled over the runs).
+    """:func:`between_points`'s ratio (None where it gives none)."""
+    found = between_points(dev, cyclic)
+    return None if found is None else found[0]
+
+
+def between_points(dev: AxisDeviations, cyclic: CyclicModel | None = None
+                   ) -> tuple[float, float] | None:  # fmt: skip
+    """(ratio, miss RMS in mm): how much more a table through the ISO runs' means misses
+    between its points than their scatter explains: each inner mean predicted by the
+    straight line through its two neighbours (per direction of approach), the RMS of those
+    misses over the RMS the means' own standard errors give them
+    (s²(1/nᵢ + (1−w)²/nᵢ₋₁ + w²/nᵢ₊₁), s pooled over the runs).
     About 1 where the table follows the screw as closely as its points allow; the real-data
     slits' first tables read 7-39 (slit-11358's Y, 38: a dip of 3.5 µm over 2 mm between
     points 3.5 mm apart), the sdss plates' 1.0-2.0. With ``cyclic``, of the deviations net
     of that once-per-lead term (a table every few leads reads it at one phase, its
-    midpoints at another). None with fewer than 3 targets or 2 runs."""
+    midpoints at another); the miss RMS is what midpoints may win. None with fewer than 3
+    targets or 2 runs."""
     x = dev.target_mm
     cyc = np.zeros_like(x) if cyclic is None else cyclic.error_mm(x)
     series = [d - cyc[:, None] for d in (dev.up_mm, dev.down_mm) if d is not None]
@@ -95,7 +104,8 @@ def between_points_ratio(dev: AxisDeviations, cyclic: CyclicModel | None = None
         miss = m[1:-1] - ((1 - w) * m[:-2] + w * m[2:])
         miss2 += float(np.sum(miss**2))
         var += float(np.sum(s2 * (1 / k[1:-1] + (1 - w) ** 2 / k[:-2] + w**2 / k[2:])))
-    return float(np.sqrt(miss2 / var)) if var > 0 else None
+    count = sum(m.size - 2 for m in means)
+    return (float(np.sqrt(miss2 / var)), float(np.sqrt(miss2 / count))) if var > 0 else None
 
 
 def _through(x: NDArray[np.float64], y: NDArray[np.float64], at: NDArray[np.float64]
