@@ -386,3 +386,17 @@ def test_warm_is_the_heat_the_correction_leaves_and_a_warm_up_cools() -> None:
     assert "moved X 9.0 µm (its heat correction is expected to leave about X 2.6 µm of " \
         "it) since it started cold" in verdict(summary)  # fmt: skip
 
+
+
+def test_the_midpoints_read_say_how_much_the_table_missed_and_at_how_many_runs() -> None:
+    """A short budget's midpoints in the report: the first table's miss between its points
+    in µm beside the ratio, and the runs they were read at; an older state's record (no
+    miss, no runs) still reads as a sentence."""
+    rows = identification_rows({
+        "midpoints-X": {"misses_x_scatter": 12.1, "miss_rms_um": 1.234, "measured": True,
+                        "runs": 2},
+        "midpoints-Y": {"misses_x_scatter": 1.3, "measured": False}})
+    x, y = dict(rows["X"])["midpoints (short budget)"], dict(rows["Y"])["midpoints (short budget)"]
+    assert x == ("the first table misses between its points 1.23 µm RMS, 12.1 × what its "
+                 "scatter explains; its midpoints read too, 2 runs each"), x
+    assert y.startswith("the first table misses between its points 1.3 × ") and "not read" in y

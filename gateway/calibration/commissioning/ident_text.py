@@ -128,10 +128,12 @@ def _sweep(r: Record, u: Fmt = _um) -> str:
 def _midpoints(r: Record, u: Fmt = _um) -> str:
     ratio = r.get("misses_x_scatter")
     miss = "–" if ratio is None else f"{ratio:.1f} ×"
-    read = ("read too" if r.get("measured") else
+    rms = f"{u(r['miss_rms_um'])} RMS, " if r.get("miss_rms_um") is not None else ""
+    runs = f", {r['runs']} runs each" if r.get("runs") else ""
+    read = (f"read too{runs}" if r.get("measured") else
             "not read (they did not fit beside the plane's grid, or it does not miss)")  # fmt: skip
-    return f"the first table misses between its points {miss} what its scatter explains; " \
-           f"its midpoints {read}"
+    return f"the first table misses between its points {rms}{miss} what its scatter " \
+           f"explains; its midpoints {read}"
 
 
 def _fit(r: Record, u: Fmt = _um) -> str:

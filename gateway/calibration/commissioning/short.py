@@ -255,13 +255,13 @@ class ShortBudget:
                           "measured": bool(runs), "runs": runs}
             if misses:
                 need_s = self.budget.step_cost_s(self.plans.midpoints_plan(axis, DENSE_LEAST_RUNS))
-                self.say(f"{axis}: the first table misses between its points {ratio:.1f} x "
-                         "what its scatter explains" + (" (net of its once-per-lead error)"
-                                                        if known else "") + ": " + (
+                net = " (net of its once-per-lead error)" if known else ""
+                where = "beside the plane's grid" if keep_s > 0.0 else "in the budget left"
+                self.say(f"{axis}: the first table misses {miss_um:.2f} µm RMS between its "
+                         f"points, {ratio:.1f} x what its scatter explains{net}: " + (
                              f"its midpoints read too, {runs} runs each" if runs else
                              f"its midpoints ({need_s / 60:.1f} min at {DENSE_LEAST_RUNS} runs) "
-                             "do not fit " + ("beside the plane's grid" if keep_s > 0.0 else
-                                              "in the budget left")))  # fmt: skip
+                             f"do not fit {where}"))  # fmt: skip
             self.record.save()
         runs = int(ident[key].get("runs") or 0) if ident[key]["measured"] else 0
         if ident[key]["measured"]:
