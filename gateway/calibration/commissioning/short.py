@@ -233,10 +233,11 @@ class ShortBudget:
         - Lead known: after its cyclic scans, the points judged net of the once-per-lead
           term they read (a table every few leads reads it at one phase, its midpoints at
           another), at DENSE_LEAST_RUNS, beside a plain calibration's grid and the
-          plane's verdict: an extra after them. (At 1.5 x
-          rough-9's X, waviness of 15-80 mm, missed 1.6 µm RMS between its points 25 mm
-          apart against a scatter of 0.23 µm: E 3.33 µm at the judge's targets, a perfect
-          table 0.80.) No scans read: none (the term would alias)."""
+          plane's verdict: an extra after them, the axis that misses most per minute
+          first (:meth:`by_value`). (At 1.5 x rough-9's X, waviness of 15-80 mm, missed
+          1.6 µm RMS between its points 25 mm apart against a scatter of 0.23 µm: E 3.33
+          µm at the judge's targets, a perfect table 0.80.) No scans read: none (the term
+          would alias)."""
         known = axis in self.s.lead_mm
         if known and not self.record.done(f"cyclic-{axis}"):
             return
