@@ -1,13 +1,19 @@
 """Whether a table misses between its points more than its scatter explains
-(``table_cv.between_points_ratio``): what decides, on a short budget, that the ISO runs are
+(``table_cv.between_points``, its ratio): what decides, on a short budget, that the ISO runs are
 read at the first table's midpoints too."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from gateway.calibration.fitting.table_cv import between_points_ratio
+from gateway.calibration.fitting.table_cv import between_points
 from gateway.calibration.plans.rawdata import AxisDeviations, RawData
+
+
+def between_points_ratio(dev: AxisDeviations, cyclic=None) -> float | None:
+    """:func:`between_points`'s ratio (None where it gives none)."""
+    found = between_points(dev, cyclic)
+    return None if found is None else found[0]
 
 
 def _runs(truth_um, x_mm: np.ndarray, scatter_um: float, seed: int, runs: int = 3
@@ -157,8 +163,6 @@ def test_a_curved_error_read_at_few_midpoints_is_not_taken_for_heat() -> None:
 def test_the_miss_between_points_is_given_in_millimetres_beside_the_ratio() -> None:
     """What midpoints may win, for ordering the axes by it: the dip's table misses about
     its dip's share of 3.5 µm between its points, the bow's a fraction of a micrometre."""
-    from gateway.calibration.fitting.table_cv import between_points
-
     x = np.sort(np.random.default_rng(0).uniform(11, 59, 21))
     ratio, miss_mm = between_points(_runs(_dip_um, x, 0.3, 0))
     assert ratio == between_points_ratio(_runs(_dip_um, x, 0.3, 0))

@@ -68,11 +68,9 @@ def choose_interpolation(table: PitchTable, wrap: bool = False) -> tuple[str, di
     return best, scores
 
 
-def between_points_ratio(dev: AxisDeviations, cyclic: CyclicModel | None = None
-                         ) -> float | None:  # fmt: skip
-    """:func:`between_points`'s ratio (None where it gives none)."""
-    found = between_points(dev, cyclic)
-    return None if found is None else found[0]
+def _cyclic_mm(cyclic: CyclicModel | None, x_mm: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The once-per-lead term at ``x_mm`` (mm; zero without one)."""
+    return np.zeros_like(x_mm) if cyclic is None else cyclic.error_mm(x_mm)
 
 
 def between_points(dev: AxisDeviations, cyclic: CyclicModel | None = None
@@ -89,7 +87,7 @@ def between_points(dev: AxisDeviations, cyclic: CyclicModel | None = None
     midpoints at another); the miss RMS is what midpoints may win. None with fewer than 3
     targets or 2 runs."""
     x = dev.target_mm
-    cyc = np.zeros_like(x) if cyclic is None else cyclic.error_mm(x)
+    cyc = _cyclic_mm(cyclic, x)
     series = [d - cyc[:, None] for d in (dev.up_mm, dev.down_mm) if d is not None]
     if x.size < 3 or not series:
         return None
@@ -132,10 +130,10 @@ def levelled_midpoints(first: RawData, mid: RawData, axis: str,
     compared net of that once-per-lead term (the midpoints read it at another phase, and
     its amplitude changes along the travel)."""
     dev = axis_deviations(first, axis)
-    cyc_first = np.zeros_like(dev.target_mm) if cyclic is None else cyclic.error_mm(dev.target_mm)
+    cyc_first = _cyclic_mm(cyclic, dev.target_mm)
     means = {s: None if d is None else np.nanmean(d, axis=1) - cyc_first
              for s, d in ((1, dev.up_mm), (-1, dev.down_mm))}  # fmt: skip
-    cyc_mid = np.zeros_like(mid.target_mm) if cyclic is None else cyclic.error_mm(mid.target_mm)
+    cyc_mid = _cyclic_mm(cyclic, mid.target_mm)
     actual = mid.actual_mm.copy()
     rows = np.flatnonzero(np.array(mid.axis) == axis)
     for run in np.unique(mid.run[rows]):
