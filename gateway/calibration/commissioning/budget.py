@@ -56,6 +56,10 @@ class Budget:
         drifting = drift and "drift_base" in self.record.state
         return self.axes.estimate_s(plan) + (self.refs_around_s(plan, whole) if drifting else 0.0)
 
+    def verdict_cost_s(self, plan: Plan) -> float:
+        """Machine time (s) of a verdict's ``plan``: read before, and again after."""
+        return 2 * self.step_cost_s(plan)
+
     def step_cost_worst_s(self, plan: Plan) -> float:
         """:meth:`step_cost_s` with the drift references around every run, as they are
         once a drift stands out: what a step decided on now may cost when it runs."""

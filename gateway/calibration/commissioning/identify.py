@@ -231,7 +231,7 @@ class IdentifySteps:
         (formatted with ``min``, what it needs in minutes) is said and kept."""
         if self.record.done(name) or name in (self.record.state.get("parts") or {}):
             return True
-        need_s = 2 * self.budget.step_cost_s(plan)
+        need_s = self.budget.verdict_cost_s(plan)
         if need_s <= self.budget.left_s():
             return True
         self._note(said.format(min=need_s / 60))

@@ -249,7 +249,7 @@ class ShortBudget:
             if self.s.planar is not None and axis in self.s.planar:
                 keep_s = self.plane_held_s(plain=known)
                 if known and not self.record.done("before-xy"):  # and the plane's verdict
-                    keep_s += 2 * self.budget.step_cost_s(self.plans.before_xy_plan())
+                    keep_s += self.budget.verdict_cost_s(self.plans.before_xy_plan())
             misses = ratio is not None and ratio > BETWEEN_RATIO
             runs = self._midpoint_runs(axis, keep_s) if misses else 0
             ident[key] = {"misses_x_scatter": ratio, "miss_rms_um": miss_um,
