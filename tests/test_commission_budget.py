@@ -123,8 +123,8 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         assert [done.index(s) for s in order] == sorted(done.index(s) for s in order), done
         assert "backlash-Y" not in done
         # Y's table (of known lead) misses between its points net of its once-per-lead
-        # error: its midpoints, at 2 runs, after the scans and before the grid, an extra held
-        # beside a plain calibration's grid and the plane's verdict
+        # error: its midpoints, at 2 runs, after the scans and before the grid, held beside
+        # a plain calibration's grid (bought before the table's last runs)
         mid = state["identify"]["midpoints-Y"]
         assert mid["measured"] and mid["runs"] == 2 and mid["misses_x_scatter"] > 2, mid
         assert done.index("cyclic-Y") < done.index("iso-mid-Y") < done.index("xy-grid"), done

@@ -96,14 +96,13 @@ class CommandChecks:
         if short:
             plane = self.s.planar is not None
             self.say("  a short budget: a plain calibration's steps first: every axis's ISO runs "
-                     "(and their midpoints where the lead is not known and a table misses "
-                     "between its points), the cyclic scans where the lead is known, up to 5 "
+                     f"at {self.s.runs} runs per target, the cyclic scans where the lead is "
+                     "known, the midpoints of a table that misses between its points, up to 5 "
                      "runs per target"
                      + (", then the plane's grid (9 nodes along the longer travel)" if plane
                         else "") + "; then, as the budget allows, "
                      + ("the plane's verdict (its random points), " if plane else "")
-                     + "the midpoints of a table of known lead that misses between its points"
-                     + (" (read before the grid)" if plane else "") + ", each axis's verdict "
+                     + "each axis's verdict "
                      "(its before-run), the backlash tests, the warm-ups, the lead searches"
                      + ("; no round will refine the plane, so its grid is made denser with "
                         "what the budget then leaves (more readings than the xy-grid line "

@@ -163,13 +163,13 @@ class ShortBudget:
         return max(self.s.runs, adaptive.PLAIN_RUNS)
 
     def first_runs(self, axes: list[str]) -> int:
-        """Runs per target of the first ISO runs on a short budget: a plain calibration's
-        (:meth:`table_runs`) where every one of ``axes`` has a known lead (no midpoints
-        will be read between its points), read at once; else the configured runs, the
-        rest after the midpoints (:meth:`more_runs`). (Read 3 runs, then 2 more after the
-        cyclic scans, rough-3's X table mixed two heats: 1.72 µm left on the quiet machine
-        against the plain calibration's 1.09.)"""
-        return self.table_runs() if all(a in self.s.lead_mm for a in axes) else self.s.runs
+        """Runs per target of the first ISO runs on a short budget: the configured runs;
+        the rest of a plain calibration's (:meth:`table_runs`) after the midpoints
+        (:meth:`densify`, :meth:`more_runs`), which buy more where the table misses between
+        its points. Both are put on the first runs' level (:meth:`iso_raw`: read 3 runs,
+        then 2 more after the cyclic scans and mixed as read, rough-3's X table mixed two
+        heats, 1.72 µm left on the quiet machine against the plain calibration's 1.09)."""
+        return self.s.runs
 
     def plain_grid(self) -> tuple[int, int]:
         """A grid of a plain calibration's nodes (its 9 x 7 at most: 9 along the longer
@@ -232,12 +232,14 @@ class ShortBudget:
           its points: E 4.4 µm at the judge's targets, its scatter 0.3 µm).
         - Lead known: after its cyclic scans, the points judged net of the once-per-lead
           term they read (a table every few leads reads it at one phase, its midpoints at
-          another), at DENSE_LEAST_RUNS, beside a plain calibration's grid and the
-          plane's verdict: an extra after them, the axis that misses most per minute
-          first (:meth:`by_value`). (At 1.5 x rough-9's X, waviness of 15-80 mm, missed
-          1.6 µm RMS between its points 25 mm apart against a scatter of 0.23 µm: E 3.33
-          µm at the judge's targets, a perfect table 0.80.) No scans read: none (the term
-          would alias)."""
+          another), at DENSE_LEAST_RUNS, beside a plain calibration's grid, before the
+          table's last runs (:meth:`more_runs`; they cost about as much), the axis that
+          misses most per minute first (:meth:`by_value`). (At 1.5 x rough-9's X, waviness
+          of 15-80 mm, missed 1.6 µm RMS between its points 25 mm apart against a scatter
+          of 0.23 µm: E 3.33 µm at the judge's targets, a perfect table 0.80. At 1 x, held
+          behind the last runs and the plane's verdict, no midpoints fitted: rough-3's Y
+          read 7.21 µm at the judge's targets, 1.34 with them in place of its last runs.)
+          No scans read: none (the term would alias)."""
         if not self._decidable(axis):
             return
         known = axis in self.s.lead_mm
@@ -248,8 +250,6 @@ class ShortBudget:
             keep_s = 0.0
             if self.s.planar is not None and axis in self.s.planar:
                 keep_s = self.plane_held_s(plain=known)
-                if known and not self.record.done("before-xy"):  # and the plane's verdict
-                    keep_s += self.budget.verdict_cost_s(self.plans.before_xy_plan())
             misses = ratio is not None and ratio > BETWEEN_RATIO
             runs = self._midpoint_runs(axis, keep_s) if misses else 0
             ident[key] = {"misses_x_scatter": ratio, "miss_rms_um": miss_um,
@@ -306,7 +306,7 @@ class ShortBudget:
         """The most runs per target at which the midpoints of ``axis`` fit in the budget
         left beside ``keep_s``, 0 where none fit: the first table's down to
         DENSE_LEAST_RUNS where the lead is not known (more runs follow on the first
-        targets), DENSE_LEAST_RUNS where it is (the first table's 5 runs read the scatter
+        targets), DENSE_LEAST_RUNS where it is (the first table's runs read the scatter
         and the reversal; the midpoints read the waves between, and leave room for the
         other axis's: at 4 runs rough-9's X left Y's none)."""
         most = DENSE_LEAST_RUNS if axis in self.s.lead_mm else self.budget.iso_runs()
@@ -359,16 +359,15 @@ class ShortBudget:
         return b_um is None or b_um >= MIN_LOST_UM
 
     def iso_raw(self, axis: str) -> RawData:
-        """The ISO runs of ``axis`` (:meth:`.planner.Planner.iso_steps`), as one run set, the
-        midpoints put on the level of the first table's readings
-        (:func:`..fitting.table_cv.levelled_midpoints`, net of the once-per-lead term)."""
-        names = self.plans.iso_steps(axis)
-        parts = {n: self.runner.raw(n) for n in names}
-        mid = f"iso-mid-{axis}"
-        if mid in parts:
-            first = concat_raw([r for n, r in parts.items() if n != mid])
-            parts[mid] = levelled_midpoints(first, parts[mid], axis, self.scanned(axis))
-        return concat_raw(list(parts.values()))
+        """The ISO runs of ``axis`` (:meth:`.planner.Planner.iso_steps`), as one run set, its
+        midpoints and more runs put on the level of the first table's readings
+        (:func:`..fitting.table_cv.levelled_midpoints`, net of the once-per-lead term): read
+        later, on a machine that has warmed or cooled meanwhile."""
+        first, *later = [self.runner.raw(n) for n in self.plans.iso_steps(axis)]
+        if not later:
+            return first
+        cyclic = self.scanned(axis)
+        return concat_raw([first] + [levelled_midpoints(first, r, axis, cyclic) for r in later])
 
     def scanned(self, axis: str) -> CyclicModel | None:
         """The once-per-lead term the cyclic scans of ``axis`` read, if they were read
