@@ -98,6 +98,11 @@ def test_a_short_budget_reads_a_coarse_table_along_the_curve_it_prefers(tmp_path
             miss = curve(x) - (PitchStage(table, how).inverse(x, up) - x)
             miss_um[how] = float(np.std(miss)) * 1e3  # (an offset is the plane's, not the table's)
         assert miss_um[method] < 0.6 * miss_um["linear"], miss_um
+        # its points and midpoints were expected to miss about what they do (the miss at
+        # the midpoints fell fast from twice the spacing): no quarter points bought
+        quarters = state["identify"]["quarters-Y"]
+        assert not quarters["measured"] and quarters["misses_x_scatter"] < 2, quarters
+        assert 0.5 < quarters["miss_rms_um"] / miss_um[method] < 2, (quarters, miss_um)
         assert table.position_mm.size > 35 and miss_um[method] < 0.4, miss_um
 
 

@@ -400,3 +400,13 @@ def test_the_midpoints_read_say_how_much_the_table_missed_and_at_how_many_runs()
     assert x == ("the first table misses between its points 1.23 µm RMS, 12.1 × what its "
                  "scatter explains; its midpoints read too, 2 runs each"), x
     assert y.startswith("the first table misses between its points 1.3 × ") and "not read" in y
+
+
+def test_the_quarter_points_read_say_how_much_the_table_with_its_midpoints_missed() -> None:
+    """A short budget's quarter points in the report, as its midpoints are."""
+    rows = identification_rows({
+        "quarters-Y": {"misses_x_scatter": 2.7, "miss_rms_um": 0.51, "measured": True,
+                       "runs": 2}})
+    y = dict(rows["Y"])["quarter points (short budget)"]
+    assert y == ("the table with its midpoints misses between its points 0.51 µm RMS, 2.7 × "
+                 "what its scatter explains; its quarter points read too, 2 runs each"), y

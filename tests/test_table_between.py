@@ -196,3 +196,57 @@ def test_more_runs_read_after_the_scans_are_put_on_the_first_runs_level() -> Non
             up = np.nanmean(axis_deviations(concat_raw([first, later]), "X").up_mm, axis=1)
             rms = float(np.sqrt(np.mean((up * 1e3 - waves_um(x)) ** 2)))
             assert rms < bound if bound else rms > 1.0, (seed, rms)
+
+
+def test_along_its_curve_a_table_that_a_spline_follows_does_not_miss_between_its_points(
+) -> None:  # fmt: skip
+    """Quarter points are bought where the table still misses as it will be read: a steep
+    end (17 µm over the last fifth of 150 mm, 13 points, 0.3 µm of scatter) misses its
+    straight lines by over 2 x its scatter on every seed, along a spline under 2; the dip
+    between two points misses along every curve (over 3)."""
+    x = np.linspace(1.0, 149.0, 13)
+
+    def steep_um(at: np.ndarray) -> np.ndarray:
+        return 17.0 * (at / 150.0) ** 6 + 3.0 * np.sin(np.pi * at / 150.0)
+
+    for seed in range(10):
+        dev = _runs(steep_um, x, 0.3, seed, runs=4)
+        assert between_points(dev)[0] > 2.0
+        assert between_points(dev, curves=True)[0] < 2.0
+        dip = _runs(_dip_um, np.sort(np.random.default_rng(0).uniform(11, 59, 21)), 0.3, seed)
+        assert between_points(dip, curves=True)[0] > 3.0
+
+
+def test_quarter_points_are_bought_where_the_midpoints_showed_a_table_that_does_not_converge(
+) -> None:  # fmt: skip
+    """What a table through its points and midpoints is expected to miss: the first
+    table's miss at its midpoints, times how much it fell from twice the spacing. A bow
+    (a spline follows it) read every 5 mm and at the midpoints: under 2 x the midpoints'
+    scatter on every seed; a screw whose waves are as short as the spacing (15-25 mm,
+    read every 25 mm): over 3 on every seed, and its expected miss within a factor 2 of
+    what a table through both misses at the quarter points."""
+    from gateway.calibration.fitting.table_cv import denser_miss
+    from gateway.calibration.plans.rawdata import axis_deviations
+
+    def waves_um(x: np.ndarray) -> np.ndarray:
+        return 2.0 * np.sin(2 * np.pi * x / 17.0) + 1.5 * np.sin(2 * np.pi * x / 23.0 + 1.0)
+
+    from gateway.calibration.commissioning.steps import concat_raw
+
+    for seed in range(5):
+        for truth, step, rough in ((lambda x: 8.0 * np.sin(np.pi * x / 500.0), 50.0, False),
+                                   (waves_um, 25.0, True)):  # fmt: skip
+            x = np.arange(0.0, 501.0, step)
+            mid_x = (x[1:] + x[:-1]) / 2
+            first = _raw(truth, x, 3, seed)
+            both = concat_raw([first, _raw(truth, mid_x, 2, seed + 100)])
+            ratio, miss_mm = denser_miss(axis_deviations(both, "X"), first.target_mm)
+            if not rough:
+                assert ratio < 2.0, (seed, ratio)
+                continue
+            assert ratio > 3.0, (seed, ratio)
+            dense = np.sort(np.concatenate([x, mid_x]))
+            quarters = (dense[1:] + dense[:-1]) / 2
+            actual_um = float(np.sqrt(np.mean(
+                (np.interp(quarters, dense, truth(dense)) - truth(quarters)) ** 2)))
+            assert 0.5 < miss_mm * 1e3 / actual_um < 2.0, (seed, miss_mm, actual_um)

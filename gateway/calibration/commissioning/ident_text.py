@@ -136,6 +136,12 @@ def _midpoints(r: Record, u: Fmt = _um) -> str:
            f"explains; its midpoints {read}"
 
 
+def _quarters(r: Record, u: Fmt = _um) -> str:
+    return _midpoints(r, u).replace("the first table", "the table with its midpoints").replace(
+        "its midpoints read", "its quarter points read").replace(
+        "its midpoints not read", "its quarter points not read")
+
+
 def _fit(r: Record, u: Fmt = _um) -> str:
     """A rotary axis's fit: its interpolation and linkage (arcseconds)."""
     text = f"{r['interpolation']} interpolation"
@@ -159,6 +165,7 @@ KINDS: dict[str, tuple[str, Callable[[Record, Fmt], str]]] = {
     "interpolation": ("between the table's points", _interpolation),
     "sweep": ("sweep", _sweep),
     "midpoints": ("midpoints (short budget)", _midpoints),
+    "quarters": ("quarter points (short budget)", _quarters),
     "fit": ("table fit (rotary)", _fit),
 }
 

@@ -190,6 +190,8 @@ class IdentifySteps:
         for a in self.short.by_value(cores):  # where the tables miss between their points
             await self.short.densify(a)  # net of it (lead known), the most per minute first
         await self.short.more_runs(cores)  # a plain calibration's runs, where time is left
+        for a in self.short.by_value(cores, quarters=True):  # an extra: where the tables
+            await self.short.densify(a, quarters=True)  # still miss between their points
         plane = self.axes.plane_with(cores)
         if plane:
             if not self.short.grid_affordable():  # no model: the tables alone are what the

@@ -40,14 +40,17 @@ class Planner:
         self.rotary = rotary
         self.thermal = thermal
 
-    def midpoints_plan(self, axis: str, runs: int | None = None) -> Plan:
+    def midpoints_plan(self, axis: str, runs: int | None = None, quarters: bool = False
+                       ) -> Plan:  # fmt: skip
         """The ISO 230-2 cycle at the midpoints of the first table's points, ``runs`` runs
-        per target (default: the first table's)."""
-        plan = read_plan(self.record.dir / "plans" / f"iso-{axis}.plan")
-        first = np.unique(plan.targets_mm(axis))
+        per target (default: the first table's); with ``quarters``, at the midpoints of
+        those points and their midpoints (the first table's quarter points)."""
+        steps = [f"iso-{axis}"] + ([f"iso-mid-{axis}"] if quarters else [])
+        first = np.unique(np.concatenate([
+            read_plan(self.record.dir / "plans" / f"{n}.plan").targets_mm(axis) for n in steps]))
         return targets_plan(axis, self.axes.travel(axis), (first[1:] + first[:-1]) / 2,
                             runs or self.budget.iso_runs(), kind="iso230-linear",
-                            note="midpoints")  # fmt: skip
+                            note="quarter points" if quarters else "midpoints")  # fmt: skip
 
     def more_runs_plan(self, axis: str, more: int) -> Plan:
         """The first table's ISO runs again: ``more`` runs on the same targets, numbered on
@@ -60,10 +63,10 @@ class Planner:
                     (*meta, ("first_run", str(first + 1))))  # fmt: skip
 
     def iso_steps(self, axis: str) -> list[str]:
-        """The ISO steps of ``axis``: the first table's points, its midpoints and more runs
-        where a short budget read them (:meth:`.short.ShortBudget.densify`,
-        :meth:`.short.ShortBudget.more_runs`)."""
-        steps = [f"iso-{axis}", f"iso-mid-{axis}", f"iso-more-{axis}"]
+        """The ISO steps of ``axis``, in the order they are read: the first table's points,
+        its midpoints, more runs and quarter points where a short budget read them
+        (:meth:`.short.ShortBudget.densify`, :meth:`.short.ShortBudget.more_runs`)."""
+        steps = [f"iso-{axis}", f"iso-mid-{axis}", f"iso-more-{axis}", f"iso-quarter-{axis}"]
         return steps[:1] + [n for n in steps[1:] if self.record.done(n)]
 
     def iso_targets(self, axis: str) -> np.ndarray:

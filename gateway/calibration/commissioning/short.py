@@ -15,7 +15,7 @@ from ..fitting import adaptive
 from ..fitting.iso230 import iso230_axis
 from ..fitting.outputs import scanned_cyclic
 from ..fitting.plans_scans import cyclic_plan
-from ..fitting.table_cv import between_points, levelled_midpoints
+from ..fitting.table_cv import between_points, denser_miss, levelled_midpoints
 from ..fitting.takeup_fit import MIN_LOST_UM
 from ..plans.plans import Plan, backlash_plan
 from ..plans.rawdata import RawData, axis_deviations
@@ -219,7 +219,7 @@ class ShortBudget:
                                               self.budget.refs_around_s(p))
                    for p in plans)  # (a warm-up reads no drift references)
 
-    async def densify(self, axis: str) -> None:
+    async def densify(self, axis: str, quarters: bool = False) -> None:
         """On a short budget, whose rounds will not sweep a table between its points: the
         ISO runs again at the midpoints of the first table's points where that table misses
         between them by more than BETWEEN_RATIO times what its scatter explains
@@ -239,79 +239,101 @@ class ShortBudget:
           of 0.23 µm: E 3.33 µm at the judge's targets, a perfect table 0.80. At 1 x, held
           behind the last runs and the plane's verdict, no midpoints fitted: rough-3's Y
           read 7.21 µm at the judge's targets, 1.34 with them in place of its last runs.)
-          No scans read: none (the term would alias)."""
-        if not self._decidable(axis):
+          No scans read: none (the term would alias).
+        - ``quarters``: the quarter points, where the table with its midpoints (and its
+          more runs) still misses between its points so, at DENSE_LEAST_RUNS: an extra
+          after a plain calibration's steps, held behind its grid and the plane's verdict."""
+        if not self._decidable(axis, quarters):
             return
         known = axis in self.s.lead_mm
         ident = self.record.state.setdefault("identify", {})  # (the report lists it)
-        key = f"midpoints-{axis}"
+        key = f"{'quarters' if quarters else 'midpoints'}-{axis}"
+        what = "quarter points" if quarters else "midpoints"
         if key not in ident:
-            ratio, miss_um = self.between(axis)
+            ratio, miss_um = self.between(axis, quarters)
             keep_s = 0.0
             if self.s.planar is not None and axis in self.s.planar:
-                keep_s = self.plane_held_s(plain=known)
+                keep_s = self.plane_held_s(plain=known or quarters)
+                if quarters and not self.record.done("before-xy"):  # and the plane's verdict
+                    keep_s += self.budget.verdict_cost_s(self.plans.before_xy_plan())
             misses = ratio is not None and ratio > BETWEEN_RATIO
-            runs = self._midpoint_runs(axis, keep_s) if misses else 0
+            runs = self._midpoint_runs(axis, keep_s, quarters) if misses else 0
             ident[key] = {"misses_x_scatter": ratio, "miss_rms_um": miss_um,
                           "measured": bool(runs), "runs": runs}
             if misses:
                 need_s = self.budget.step_cost_worst_s(
-                    self.plans.midpoints_plan(axis, DENSE_LEAST_RUNS))
+                    self.plans.midpoints_plan(axis, DENSE_LEAST_RUNS, quarters))
                 net = " (net of its once-per-lead error)" if known else ""
                 where = "beside the plane's grid" if keep_s > 0.0 else "in the budget left"
-                self.say(f"{axis}: the first table misses {miss_um:.2f} µm RMS between its "
+                table = "the table with its midpoints" if quarters else "the first table"
+                self.say(f"{axis}: {table} misses {miss_um:.2f} µm RMS between its "
                          f"points, {ratio:.1f} x what its scatter explains{net}: " + (
-                             f"its midpoints read too, {runs} runs each" if runs else
-                             f"its midpoints ({need_s / 60:.1f} min at {DENSE_LEAST_RUNS} runs) "
+                             f"its {what} read too, {runs} runs each" if runs else
+                             f"its {what} ({need_s / 60:.1f} min at {DENSE_LEAST_RUNS} runs) "
                              f"do not fit {where}"))  # fmt: skip
             self.record.save()
         if ident[key]["measured"]:  # (an older state keeps no runs: the first table's)
             runs = ident[key].get("runs")
-            await self.runner.step(f"iso-mid-{axis}",
-                                   lambda: self.plans.midpoints_plan(axis, runs), "off",
-                                   self.axes.park(axis))  # fmt: skip
+            await self.runner.step(f"iso-{'quarter' if quarters else 'mid'}-{axis}",
+                                   lambda: self.plans.midpoints_plan(axis, runs, quarters),
+                                   "off", self.axes.park(axis))  # fmt: skip
 
-    def _decidable(self, axis: str) -> bool:
+    def _decidable(self, axis: str, quarters: bool = False) -> bool:
         """Whether the midpoints of ``axis`` can be decided: its first table read, and
         where its lead is known its cyclic scans too (the term its points are judged net
-        of)."""
+        of); its quarter points, once its midpoints were read and its more runs decided."""
+        if quarters:
+            ident = self.record.state.get("identify", {})
+            return bool((ident.get(f"midpoints-{axis}") or {}).get("measured")) and \
+                "more_runs" in ident
         return axis not in self.s.lead_mm or self.record.done(f"cyclic-{axis}")
 
-    def between(self, axis: str) -> tuple[float | None, float | None]:
-        """How much the first table of ``axis`` misses between its points: over what its
+    def between(self, axis: str, quarters: bool = False) -> tuple[float | None, float | None]:
+        """How much the first table of ``axis`` misses between its points (with
+        ``quarters``, what the table through its points and midpoints is expected to,
+        :func:`..fitting.table_cv.denser_miss`): over what its
         scatter explains, and in µm RMS (:func:`..fitting.table_cv.between_points`, net of
         the once-per-lead term where its scans were read); None, None where it cannot say."""
-        found = between_points(axis_deviations(self.runner.raw(f"iso-{axis}"), axis),
-                               self.scanned(axis))  # fmt: skip
+        if quarters:
+            first_mm = self.runner.raw(f"iso-{axis}").target_mm
+            found = denser_miss(axis_deviations(self.iso_raw(axis), axis), first_mm,
+                                self.scanned(axis))  # fmt: skip
+        else:
+            found = between_points(axis_deviations(self.runner.raw(f"iso-{axis}"), axis),
+                                   self.scanned(axis))  # fmt: skip
         return (None, None) if found is None else (found[0], found[1] * 1e3)
 
-    def by_value(self, axes: list[str]) -> list[str]:
-        """``axes`` in the order their midpoints buy most per machine-minute: what the first
-        table misses between its points (µm RMS) over the midpoints' time at
-        DENSE_LEAST_RUNS. Those whose midpoints cannot be decided yet (lead known, no scans
-        read) or are decided already keep their place at the end. (In axis order rough-9's
-        X, missing 1.55 µm, took the time Y's, missing 2.84 µm, needed.)"""
+    def by_value(self, axes: list[str], quarters: bool = False) -> list[str]:
+        """``axes`` in the order their midpoints (or ``quarters``) buy most per
+        machine-minute: what the table misses between its points (µm RMS) over their time
+        at DENSE_LEAST_RUNS. Those that cannot be decided yet (lead known, no scans read;
+        no midpoints read) or are decided already keep their place at the end. (In axis
+        order rough-9's X, missing 1.55 µm, took the time Y's, missing 2.84 µm, needed.)"""
         ident = self.record.state.get("identify", {})
+        kind = "quarters" if quarters else "midpoints"
 
         def value(a: str) -> float:
-            if f"midpoints-{a}" in ident or not self._decidable(a):
+            if f"{kind}-{a}" in ident or not self._decidable(a, quarters):
                 return -1.0
-            miss_um = self.between(a)[1] or 0.0
-            cost_s = self.budget.step_cost_s(self.plans.midpoints_plan(a, DENSE_LEAST_RUNS))
+            miss_um = self.between(a, quarters)[1] or 0.0
+            cost_s = self.budget.step_cost_s(
+                self.plans.midpoints_plan(a, DENSE_LEAST_RUNS, quarters))
             return miss_um / max(cost_s, 1.0)
 
         return sorted(axes, key=value, reverse=True)
 
-    def _midpoint_runs(self, axis: str, keep_s: float) -> int:
+    def _midpoint_runs(self, axis: str, keep_s: float, quarters: bool = False) -> int:
         """The most runs per target at which the midpoints of ``axis`` fit in the budget
         left beside ``keep_s``, 0 where none fit: the first table's down to
         DENSE_LEAST_RUNS where the lead is not known (more runs follow on the first
         targets), DENSE_LEAST_RUNS where it is (the first table's runs read the scatter
         and the reversal; the midpoints read the waves between, and leave room for the
         other axis's: at 4 runs rough-9's X left Y's none)."""
-        most = DENSE_LEAST_RUNS if axis in self.s.lead_mm else self.budget.iso_runs()
+        known = axis in self.s.lead_mm or quarters
+        most = DENSE_LEAST_RUNS if known else self.budget.iso_runs()
         for runs in range(most, DENSE_LEAST_RUNS - 1, -1):
-            need_s = self.budget.step_cost_worst_s(self.plans.midpoints_plan(axis, runs))
+            need_s = self.budget.step_cost_worst_s(
+                self.plans.midpoints_plan(axis, runs, quarters))
             if self.budget.left_s() - need_s >= keep_s:
                 return runs
         return 0
@@ -360,14 +382,18 @@ class ShortBudget:
 
     def iso_raw(self, axis: str) -> RawData:
         """The ISO runs of ``axis`` (:meth:`.planner.Planner.iso_steps`), as one run set, its
-        midpoints and more runs put on the level of the first table's readings
-        (:func:`..fitting.table_cv.levelled_midpoints`, net of the once-per-lead term): read
-        later, on a machine that has warmed or cooled meanwhile."""
+        midpoints, more runs and quarter points each put on the level of the readings before
+        them, so all on the first table's (:func:`..fitting.table_cv.levelled_midpoints`,
+        net of the once-per-lead term): read later, on a machine that has warmed or cooled
+        meanwhile."""
         first, *later = [self.runner.raw(n) for n in self.plans.iso_steps(axis)]
         if not later:
             return first
         cyclic = self.scanned(axis)
-        return concat_raw([first] + [levelled_midpoints(first, r, axis, cyclic) for r in later])
+        level = [first]  # each set against those read before it, put on the first's level
+        for raw in later:
+            level.append(levelled_midpoints(concat_raw(level), raw, axis, cyclic))
+        return concat_raw(level)
 
     def scanned(self, axis: str) -> CyclicModel | None:
         """The once-per-lead term the cyclic scans of ``axis`` read, if they were read
