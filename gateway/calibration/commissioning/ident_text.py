@@ -125,21 +125,24 @@ def _sweep(r: Record, u: Fmt = _um) -> str:
     return text
 
 
-def _midpoints(r: Record, u: Fmt = _um) -> str:
+def _between(r: Record, u: Fmt, table: str, what: str) -> str:
+    """What a short budget read between a table's points (``what``), and why."""
     ratio = r.get("misses_x_scatter")
     miss = "–" if ratio is None else f"{ratio:.1f} ×"
     rms = f"{u(r['miss_rms_um'])} RMS, " if r.get("miss_rms_um") is not None else ""
     runs = f", {r['runs']} runs each" if r.get("runs") else ""
     read = (f"read too{runs}" if r.get("measured") else
             "not read (they did not fit beside the plane's grid, or it does not miss)")  # fmt: skip
-    return f"the first table misses between its points {rms}{miss} what its scatter " \
-           f"explains; its midpoints {read}"
+    return f"{table} misses between its points {rms}{miss} what its scatter " \
+           f"explains; its {what} {read}"
+
+
+def _midpoints(r: Record, u: Fmt = _um) -> str:
+    return _between(r, u, "the first table", "midpoints")
 
 
 def _quarters(r: Record, u: Fmt = _um) -> str:
-    return _midpoints(r, u).replace("the first table", "the table with its midpoints").replace(
-        "its midpoints read", "its quarter points read").replace(
-        "its midpoints not read", "its quarter points not read")
+    return _between(r, u, "the table with its midpoints", "quarter points")
 
 
 def _fit(r: Record, u: Fmt = _um) -> str:

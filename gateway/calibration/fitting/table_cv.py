@@ -208,10 +208,11 @@ def _through(x: NDArray[np.float64], y: NDArray[np.float64], at: NDArray[np.floa
 
 def levelled_midpoints(first: RawData, mid: RawData, axis: str,
                        cyclic: CyclicModel | None = None) -> RawData:  # fmt: skip
-    """The midpoints' readings of ``axis`` (``mid``) put onto the level of the first table's
-    (``first``): per run, the straight line in position that best fits their deviations
-    minus the first table's means there (per direction of approach, :func:`_through`) taken
-    off.
+    """The midpoints' readings of ``axis`` (``mid``; or more runs on the same targets) put
+    onto the level of the first table's (``first``): per run, their deviations minus the
+    first table's means there (per direction of approach, :func:`_through`), their mean
+    taken off, and the straight line in position through them where its slope stands out
+    (:func:`_tilt`).
     The midpoints are read later, on a machine that has warmed or cooled meanwhile; a line
     in position is what a screw's growth puts between the two sets (not what they read
     between the points, which a line through many midpoints leaves). With ``cyclic``, both
