@@ -182,6 +182,27 @@ def test_fit_writes_the_table_the_config_references(tmp_path, capsys):
     assert "bidirectional" in capsys.readouterr().out
 
 
+def test_an_iso_run_with_a_sensor_column_is_fitted_as_a_pitch_table(tmp_path, capsys):
+    """Commissioning records the Δa sensor at every stop of its ISO runs; `compgw fit` on such
+    a file wrote no table ("warm-up readings at more than one position"): its kind line says
+    ISO, so it is fitted as one, the same table as without the column."""
+    config = write_config(tmp_path)
+    _, raw = identification(tmp_path)
+    assert main(["fit", str(raw), "-c", str(config)]) == 0
+    plain = (tmp_path / "tables" / "x.csv").read_text()
+    lines = raw.read_text().splitlines()
+    head = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    lines[head] += ",delta_a_mm"
+    lines[head + 1:] = [f"{line},{0.0001 * k:.4f}" for k, line in enumerate(lines[head + 1:])]
+    with_sensor = tmp_path / "x_id_sensor.csv"
+    with_sensor.write_text("\n".join(lines) + "\n")
+    assert "delta_a_mm" in read_raw_csv(with_sensor).extra
+    (tmp_path / "tables" / "x.csv").unlink()
+    assert main(["fit", str(with_sensor), "-c", str(config)]) == 0, capsys.readouterr().err
+    assert (tmp_path / "tables" / "x.csv").read_text().split("\n", 3)[3] == \
+        plain.split("\n", 3)[3]
+
+
 def test_a_table_over_the_cap_is_not_written_and_names_file_and_point(tmp_path, capsys):
     config = write_config(tmp_path, cap_mm=0.02)
     _, raw = identification(tmp_path)

@@ -21,7 +21,8 @@ from .cli_common import EXIT_BAD_INPUT, EXIT_OK, err, load
 
 def raw_kind(path: str) -> str:
     """pitch, backlash, takeup, cyclic, planar or thermal: from the raw file's meta, else its
-    columns."""
+    columns. An ISO run is a pitch run whatever columns it carries beside (commissioning
+    records the sensors' Δa or temperature at every stop)."""
     from .plans.rawdata import read_raw_csv
     from .plans.runner import read_raw_meta
 
@@ -32,6 +33,8 @@ def raw_kind(path: str) -> str:
         return "planar"
     if kind == "warmup":
         return "thermal"
+    if kind.startswith("iso230"):
+        return "pitch"
     raw = read_raw_csv(path)
     if "x_mm" in raw.extra and "y_mm" in raw.extra:
         return "planar"
