@@ -171,6 +171,28 @@ def test_a_short_budget_grid_keeps_its_cells_about_square() -> None:
     assert even_grid(600, 800) == (5, 7)  # the longer travel is Y
 
 
+def test_a_plain_grid_reads_at_least_the_plain_calibration_s_seven_across() -> None:
+    """Issue 54: with square cells smooth-2's 900 x 150 mm plane read 10 x 5 nodes and
+    rough-0's 700 x 450 mm 9 x 6, their Y (read at random places of X) worse than the plain
+    calibration's 9 x 7 gave it. 9 along the longer travel, at least 7 across, at most the
+    plain calibration's nodes (8 x 8 on a square plane); the configured grid where denser."""
+    from types import SimpleNamespace
+
+    from gateway.calibration.commissioning.short import ShortBudget
+
+    def grid(x_mm: float, y_mm: float, configured: tuple[int, int] = (7, 5)) -> tuple[int, int]:
+        short = ShortBudget.__new__(ShortBudget)
+        short.axes = SimpleNamespace(plane_travel=lambda: ((0.0, x_mm), (0.0, y_mm)))
+        short.s = SimpleNamespace(grid=configured)
+        return short.plain_grid()
+
+    assert grid(900, 150) == (9, 7)
+    assert grid(700, 450) == (9, 7)
+    assert grid(150, 900) == (7, 9)
+    assert grid(500, 500) == (8, 8)
+    assert grid(700, 450, configured=(13, 9)) == (13, 9)
+
+
 def test_a_short_budget_reads_a_plain_calibration_s_table_before_it_thins_runs_or_targets(
         ) -> None:  # fmt: skip
     """Issue 54: at the plain calibration's machine time rough-0's 700 mm X got 21 targets
