@@ -47,6 +47,22 @@ PLAIN_GRID_LINES = 9
 DENSE_LEAST_RUNS = 2
 
 
+@dataclass(frozen=True)
+class Between:
+    """What a short budget reads between a table's points, as it is named and said."""
+
+    kind: str  # the identification record's kind (``{kind}-{axis}``)
+    step: str  # the ISO step's name (``{step}-{axis}``)
+    what: str  # what is read, said
+    table: str  # the table judged, said
+
+
+#: the midpoints (``quarters`` False) and the quarter points (True)
+BETWEEN = {False: Between("midpoints", "iso-mid", "midpoints", "the first table"),
+           True: Between("quarters", "iso-quarter", "quarter points",
+                         "the table with its midpoints")}  # fmt: skip
+
+
 class ShortBudget:
     """What a budget short of the first steps and one round changes in the plan."""
 
@@ -250,8 +266,8 @@ class ShortBudget:
             return
         known = axis in self.s.lead_mm
         ident = self.record.state.setdefault("identify", {})  # (the report lists it)
-        key = f"{'quarters' if quarters else 'midpoints'}-{axis}"
-        what = "quarter points" if quarters else "midpoints"
+        names = BETWEEN[quarters]
+        key, what = f"{names.kind}-{axis}", names.what
         if key not in ident:
             ratio, miss_um = self.between(axis, quarters)
             keep_s = 0.0
@@ -268,8 +284,7 @@ class ShortBudget:
                     self.plans.midpoints_plan(axis, DENSE_LEAST_RUNS, quarters))
                 net = " (net of its once-per-lead error)" if known else ""
                 where = "beside the plane's grid" if keep_s > 0.0 else "in the budget left"
-                table = "the table with its midpoints" if quarters else "the first table"
-                self.say(f"{axis}: {table} misses {miss_um:.2f} µm RMS between its "
+                self.say(f"{axis}: {names.table} misses {miss_um:.2f} µm RMS between its "
                          f"points, {ratio:.1f} x what its scatter explains{net}: " + (
                              f"its {what} read too, {runs} runs each" if runs else
                              f"its {what} ({need_s / 60:.1f} min at {DENSE_LEAST_RUNS} runs) "
@@ -277,7 +292,7 @@ class ShortBudget:
             self.record.save()
         if ident[key]["measured"]:  # (an older state keeps no runs: the first table's)
             runs = ident[key].get("runs")
-            await self.runner.step(f"iso-{'quarter' if quarters else 'mid'}-{axis}",
+            await self.runner.step(f"{names.step}-{axis}",
                                    lambda: self.plans.midpoints_plan(axis, runs, quarters),
                                    "off", self.axes.park(axis))  # fmt: skip
 
@@ -313,7 +328,7 @@ class ShortBudget:
         no midpoints read) or are decided already keep their place at the end. (In axis
         order rough-9's X, missing 1.55 µm, took the time Y's, missing 2.84 µm, needed.)"""
         ident = self.record.state.get("identify", {})
-        kind = "quarters" if quarters else "midpoints"
+        kind = BETWEEN[quarters].kind
 
         def value(a: str) -> float:
             if f"{kind}-{a}" in ident or not self._decidable(a, quarters):

@@ -61,11 +61,18 @@ def loo_rms(table: PitchTable, wrap: bool = False) -> dict[str, float]:
                 xx = np.concatenate([x[-3:] - TURN_DEG, x, x[:3] + TURN_DEG])
                 yy = np.concatenate([y[-3:], y, y[:3]])
                 inner = range(3, n + 3)
-            for i in inner:
-                keep = np.ones(xx.size, dtype=bool)
-                keep[i] = False
-                misses.append(_predict(xx[keep], yy[keep], float(xx[i]), method) - yy[i])
+            misses += _left_out(xx, yy, inner, method)
         out[method] = float(np.sqrt(np.mean(np.square(misses))))
+    return out
+
+
+def _left_out(x: NDArray[np.float64], y: NDArray[np.float64], at: range, method: str
+              ) -> list[float]:  # fmt: skip
+    """Each point ``at`` predicted by ``method`` through every other point, less itself."""
+    out = []
+    for i in at:
+        keep = np.arange(x.size) != i
+        out.append(_predict(x[keep], y[keep], float(x[i]), method) - float(y[i]))
     return out
 
 
@@ -115,7 +122,9 @@ def between_points(dev: AxisDeviations, cyclic: CyclicModel | None = None,
         miss2 += float(np.sum((m[1:-1] - ((1 - w) * m[:-2] + w * m[2:])) ** 2))
         var += float(np.sum(s2 * (1 / k[1:-1] + (1 - w) ** 2 / k[:-2] + w**2 / k[2:])))
     if curves and x.size >= 5:
-        miss2 = min(miss2, *(_inner_misses2(x, means, method) for method in METHODS[1:]))
+        miss2 = min(miss2, *(float(np.sum(np.square(
+            [d for m in means for d in _left_out(x, m, range(1, x.size - 1), method)])))
+            for method in METHODS[1:]))  # fmt: skip
     count = sum(m.size - 2 for m in means)
     return (float(np.sqrt(miss2 / var)), float(np.sqrt(miss2 / count))) if var > 0 else None
 
@@ -180,18 +189,6 @@ def denser_miss(dev: AxisDeviations, first_mm: NDArray[np.float64],
     fine = min(rms)
     expected = fine * min(1.0, fine / coarse[1])
     return expected / float(np.sqrt(np.mean(var))), expected
-
-
-def _inner_misses2(x: NDArray[np.float64], series: list[NDArray[np.float64]], method: str
-                   ) -> float:  # fmt: skip
-    """Sum of squares of each inner point's miss, predicted by ``method`` through every
-    other point of its series."""
-    total = 0.0
-    for y in series:
-        for i in range(1, x.size - 1):
-            keep = np.arange(x.size) != i
-            total += (_predict(x[keep], y[keep], float(x[i]), method) - float(y[i])) ** 2
-    return total
 
 
 def _through(x: NDArray[np.float64], y: NDArray[np.float64], at: NDArray[np.float64]
