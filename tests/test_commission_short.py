@@ -317,3 +317,70 @@ def test_time_left_after_a_plain_calibration_s_steps_reads_more_runs_before_the_
     short, steps = short_with(130.0 + 0.8 * per_run_s)  # a plain calibration's grid first
     asyncio.run(short.more_runs(["X"]))
     assert short.record.state["identify"]["more_runs"] == 0 and steps == []
+
+
+def test_a_table_still_missing_between_its_points_reads_quarter_points_in_place_of_more_runs(
+) -> None:  # fmt: skip
+    """Issue 54: at 1.5 x a plain calibration's time the rough machines read a 4th and 5th
+    run on the same targets (0.27 µm of scatter: 0.005 µm² off per reading) where the table
+    with its midpoints was still expected to miss 1.5 µm RMS between its points (2.2 µm² off
+    per reading at its quarter points). Such an axis reads its quarter points in their
+    place, one run each, and its more runs after them where time is left; an axis whose
+    table does not miss so, or had no midpoints read, keeps its more runs; where the
+    quarter points do not fit, the more runs."""
+    import asyncio
+    from types import SimpleNamespace
+
+    from gateway.calibration.commissioning.short import ShortBudget
+    from gateway.calibration.fitting.table_cv import quarters_pay
+
+    assert quarters_pay(1.5e-3, 0.27e-3**2, 1, 3, 5)
+    assert not quarters_pay(0.2e-3, 0.27e-3**2, 1, 3, 5)  # within its scatter: more runs
+
+    def cost_s(plan: Any) -> float:
+        return plan  # plans are their machine time here
+
+    misses = {"X": (6.0, 1.5), "Y": (1.3, 0.3)}  # (× scatter, µm RMS)
+
+    def run(left_s: float, midpoints: tuple[str, ...] = ("X", "Y"), later_s: float = 0.0
+            ) -> tuple[dict, list]:  # fmt: skip
+        steps: list = []
+        left = [left_s]
+        ident = {f"midpoints-{a}": {"measured": a in midpoints} for a in "XY"}
+        state = {"identify": ident}
+        short = ShortBudget.__new__(ShortBudget)
+        short.s = SimpleNamespace(lead_mm={"X": 5.0, "Y": 16.0}, runs=3)
+        short.axes = SimpleNamespace(plane_with=lambda axes: False, park=lambda a: {})
+        short.budget = SimpleNamespace(iso_runs=lambda: 3, left_s=lambda: left[0],
+                                       step_cost_worst_s=cost_s, step_cost_s=cost_s)
+        short.plans = SimpleNamespace(
+            midpoints_plan=lambda a, runs, quarters=False: 100.0 * runs * (1 + quarters),
+            more_runs_plan=lambda a, more: 50.0 * more)
+        short.record = SimpleNamespace(state=state, done=lambda name: name.startswith("cyclic"),
+                                       save=lambda: None)  # fmt: skip
+        short.scans_left_s = lambda axes: 0.0
+        short.between = lambda a, quarters=False: misses[a]
+        short.scatter_mm2 = lambda a: 0.27e-3**2
+        short.say = lambda text: None
+
+        async def step(name: str, plan: Any, *args: Any) -> None:
+            steps.append((name, plan()))
+
+        short.runner = SimpleNamespace(step=step)
+        asyncio.run(short.more_runs(["X", "Y"]))
+        left[0] = later_s  # then, after the extra quarter points, their more runs
+        asyncio.run(short.more_runs_later(["X", "Y"]))
+        return ident, steps
+
+    ident, steps = run(300.0)  # X's quarter points (200 s at one run), Y's two more runs
+    assert ident["quarters-X"]["measured"] and ident["quarters-X"]["runs"] == 1
+    assert "quarters-Y" not in ident and ident["more_runs_axes"] == ["Y"]
+    assert steps == [("iso-quarter-X", 200.0), ("iso-more-Y", 100.0)]
+    ident, steps = run(300.0, later_s=100.0)  # time left after them: X's more runs too
+    assert ident["more_runs_later"] == 2 and ident["more_runs_later_axes"] == ["X"]
+    assert steps[-1] == ("iso-more-X", 100.0)
+    ident, steps = run(150.0)  # X's quarter points do not fit: the more runs, on both
+    assert "quarters-X" not in ident and ident["more_runs"] == 1
+    assert [n for n, _ in steps] == ["iso-more-X", "iso-more-Y"]
+    ident, steps = run(300.0, midpoints=("Y",))  # no midpoints read on X: no quarter points
+    assert "quarters-X" not in ident and ident["more_runs"] == 2

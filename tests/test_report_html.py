@@ -410,3 +410,8 @@ def test_the_quarter_points_read_say_how_much_the_table_with_its_midpoints_misse
     y = dict(rows["Y"])["quarter points (short budget)"]
     assert y == ("the table with its midpoints misses between its points 0.51 µm RMS, 2.7 × "
                  "what its scatter explains; its quarter points read too, 2 runs each"), y
+    rows = identification_rows({
+        "quarters-X": {"misses_x_scatter": 6.0, "miss_rms_um": 1.5, "measured": True,
+                       "runs": 1, "instead_of_more_runs": True}})
+    x = dict(rows["X"])["quarter points (short budget)"]
+    assert x.endswith("its quarter points read in place of its more runs, 1 run each"), x

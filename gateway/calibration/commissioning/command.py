@@ -98,7 +98,7 @@ class CommandChecks:
             self.say("  a short budget: a plain calibration's steps first: every axis's ISO runs "
                      f"at {self.s.runs} runs per target, the cyclic scans where the lead is "
                      "known, the midpoints of a table that misses between its points, up to 5 "
-                     "runs per target"
+                     "runs per target (or the quarter points of a table that still misses)"
                      + (", then the plane's grid (9 nodes along the longer travel)" if plane
                         else "") + "; then, as the budget allows, "
                      + ("the plane's verdict (its random points), " if plane else "")

@@ -130,8 +130,9 @@ def _between(r: Record, u: Fmt, table: str, what: str) -> str:
     ratio = r.get("misses_x_scatter")
     miss = "–" if ratio is None else f"{ratio:.1f} ×"
     rms = f"{u(r['miss_rms_um'])} RMS, " if r.get("miss_rms_um") is not None else ""
-    runs = f", {r['runs']} runs each" if r.get("runs") else ""
-    read = (f"read too{runs}" if r.get("measured") else
+    runs = f", {r['runs']} run{'s' if r['runs'] > 1 else ''} each" if r.get("runs") else ""
+    instead = " in place of its more runs" if r.get("instead_of_more_runs") else ""
+    read = (f"read{instead or ' too'}{runs}" if r.get("measured") else
             "not read (they did not fit beside the plane's grid, or it does not miss)")  # fmt: skip
     return f"{table} misses between its points {rms}{miss} what its scatter " \
            f"explains; its {what} {read}"

@@ -192,6 +192,7 @@ class IdentifySteps:
         await self.short.more_runs(cores)  # a plain calibration's runs, where time is left
         for a in self.short.by_value(cores, quarters=True):  # an extra: where the tables
             await self.short.densify(a, quarters=True)  # still miss between their points
+        await self.short.more_runs_later(cores)  # those the quarter points took the place of
         plane = self.axes.plane_with(cores)
         if plane:
             if not self.short.grid_affordable():  # no model: the tables alone are what the

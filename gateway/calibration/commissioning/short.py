@@ -15,10 +15,10 @@ from ..fitting import adaptive
 from ..fitting.iso230 import iso230_axis
 from ..fitting.outputs import scanned_cyclic
 from ..fitting.plans_scans import cyclic_plan
-from ..fitting.table_cv import between_points, denser_miss, levelled_midpoints
+from ..fitting.table_cv import between_points, denser_miss, levelled_midpoints, quarters_pay
 from ..fitting.takeup_fit import MIN_LOST_UM
 from ..plans.plans import Plan, backlash_plan
-from ..plans.rawdata import RawData, axis_deviations
+from ..plans.rawdata import RawData, axis_deviations, pooled_variance
 from ..plans.runner import read_raw_meta
 from ..plans.xy import even_grid
 from .steps import concat_raw
@@ -42,6 +42,9 @@ SWITCH_READINGS = 4
 BETWEEN_RATIO = 2.0
 #: nodes along the longer travel of a grid the size of a plain calibration's (9 x 7)
 PLAIN_GRID_LINES = 9
+#: runs per target of the quarter points read in place of a table's more runs
+#: (:meth:`ShortBudget._quarters_first`)
+QUARTER_LEAST_RUNS = 1
 #: the fewest runs per target a short budget reads a plain calibration's table at (else the
 #: coarse table at up to its runs; :meth:`.identify.IdentifySteps._iso_runs_that_fit`)
 DENSE_LEAST_RUNS = 2
@@ -296,14 +299,14 @@ class ShortBudget:
                                    lambda: self.plans.midpoints_plan(axis, runs, quarters),
                                    "off", self.axes.park(axis))  # fmt: skip
 
-    def _decidable(self, axis: str, quarters: bool = False) -> bool:
+    def _decidable(self, axis: str, quarters: bool = False, before_more: bool = False) -> bool:
         """Whether the midpoints of ``axis`` can be decided: its first table read, and
         where its lead is known its cyclic scans too (the term its points are judged net
         of); its quarter points, once its midpoints were read and its more runs decided."""
         if quarters:
             ident = self.record.state.get("identify", {})
-            return bool((ident.get(f"midpoints-{axis}") or {}).get("measured")) and \
-                "more_runs" in ident
+            return bool((ident.get(f"midpoints-{axis}") or {}).get("measured")) and (
+                before_more or "more_runs" in ident)
         return axis not in self.s.lead_mm or self.record.done(f"cyclic-{axis}")
 
     def between(self, axis: str, quarters: bool = False) -> tuple[float | None, float | None]:
@@ -321,17 +324,19 @@ class ShortBudget:
                                    self.scanned(axis))  # fmt: skip
         return (None, None) if found is None else (found[0], found[1] * 1e3)
 
-    def by_value(self, axes: list[str], quarters: bool = False) -> list[str]:
+    def by_value(self, axes: list[str], quarters: bool = False,
+                 before_more: bool = False) -> list[str]:  # fmt: skip
         """``axes`` in the order their midpoints (or ``quarters``) buy most per
         machine-minute: what the table misses between its points (µm RMS) over their time
         at DENSE_LEAST_RUNS. Those that cannot be decided yet (lead known, no scans read;
-        no midpoints read) or are decided already keep their place at the end. (In axis
+        no midpoints read; with ``before_more``, whatever the more runs) or are decided already
+        keep their place at the end. (In axis
         order rough-9's X, missing 1.55 µm, took the time Y's, missing 2.84 µm, needed.)"""
         ident = self.record.state.get("identify", {})
         kind = BETWEEN[quarters].kind
 
         def value(a: str) -> float:
-            if f"{kind}-{a}" in ident or not self._decidable(a, quarters):
+            if f"{kind}-{a}" in ident or not self._decidable(a, quarters, before_more):
                 return -1.0
             miss_um = self.between(a, quarters)[1] or 0.0
             cost_s = self.budget.step_cost_s(
@@ -364,30 +369,107 @@ class ShortBudget:
         any extra, the verdict's before- and after-runs included. (At 1 x its time,
         holding the verdict first, smooth-0 read 4 runs and then had no room for the
         verdict after all; rough-3 read 2; the plain calibration reads 5: E 0.83 and 1.98
-        µm at the judge's targets against 0.56 and 1.24.) Decided once."""
+        µm at the judge's targets against 0.56 and 1.24.) An axis whose quarter points take
+        more off per reading reads them in their place (:meth:`_quarters_first`). Decided
+        once."""
         ident = self.record.state.setdefault("identify", {})
         if "more_runs" not in ident:
             first = self.budget.iso_runs()
             plane = self.axes.plane_with(axes)
             held_s = (self.plane_held_s() if plane else 0.0) + self.scans_left_s(axes)
             room_s = self.budget.left_s() - held_s
+            room_s -= self._quarters_first(axes, room_s)
+            rest = [a for a in axes if not (ident.get(f"quarters-{a}") or {}).get("measured")]
             more = 0
             for k in range(self.table_runs() - first, 0, -1):
                 cost_s = sum(self.budget.step_cost_worst_s(self.plans.more_runs_plan(a, k))
-                             for a in axes)  # fmt: skip
-                if cost_s <= room_s:
+                             for a in rest)  # fmt: skip
+                if rest and cost_s <= room_s:
                     more = k
                     break
-            ident["more_runs"] = more
+            ident["more_runs"], ident["more_runs_axes"] = more, rest
             if more:
-                self.say(f"{', '.join(axes)}: {more} more ISO run(s) on the same targets "
+                self.say(f"{', '.join(rest)}: {more} more ISO run(s) on the same targets "
                          f"({first + more} in all): the budget holds them"
                          + (" beside the plane's grid" if plane else ""))  # fmt: skip
             self.record.save()
+        for a in axes:  # the quarter points read in place of the more runs, if any
+            if (ident.get(f"quarters-{a}") or {}).get("instead_of_more_runs"):
+                await self.densify(a, quarters=True)
         more = int(ident["more_runs"])
-        for a in axes if more else ():
+        for a in ident.get("more_runs_axes", axes) if more else ():
             await self.runner.step(f"iso-more-{a}", lambda a=a: self.plans.more_runs_plan(a, more),
                                    "off", self.axes.park(a))  # fmt: skip
+
+    async def more_runs_later(self, axes: list[str]) -> None:
+        """The more runs of the axes that read their quarter points in their place
+        (:meth:`_quarters_first`), as an extra after the quarter points: where the budget
+        left holds them beside the scans not made yet, a plain calibration's grid and the
+        plane's verdict (so a larger budget reads at least what a smaller one did: before,
+        at 3 x a plain calibration's time the rough machines read both). Decided once."""
+        ident = self.record.state.setdefault("identify", {})
+        if "more_runs_later" not in ident:
+            later = [a for a in axes
+                     if (ident.get(f"quarters-{a}") or {}).get("instead_of_more_runs")]
+            keep_s = self.scans_left_s(axes)
+            if self.axes.plane_with(axes):
+                keep_s += self.plane_held_s()
+                if not self.record.done("before-xy"):
+                    keep_s += self.budget.verdict_cost_s(self.plans.before_xy_plan())
+            more = 0
+            for k in range(self.table_runs() - self.budget.iso_runs(), 0, -1):
+                cost_s = sum(self.budget.step_cost_worst_s(self.plans.more_runs_plan(a, k))
+                             for a in later)  # fmt: skip
+                if later and cost_s <= self.budget.left_s() - keep_s:
+                    more = k
+                    break
+            ident["more_runs_later"], ident["more_runs_later_axes"] = more, later
+            if more:
+                self.say(f"{', '.join(later)}: {more} more ISO run(s) on the same targets "
+                         "after the quarter points: the budget holds them")
+            self.record.save()
+        more = int(ident["more_runs_later"])
+        for a in ident["more_runs_later_axes"] if more else ():
+            await self.runner.step(f"iso-more-{a}", lambda a=a: self.plans.more_runs_plan(a, more),
+                                   "off", self.axes.park(a))  # fmt: skip
+
+    def _quarters_first(self, axes: list[str], room_s: float) -> float:
+        """Machine time (s) held in ``room_s`` for the quarter points of the axes whose
+        midpoints were read and whose table with them is still expected to miss between
+        its points by more than BETWEEN_RATIO times their scatter, and where those take
+        more of its error off per reading than its more runs would
+        (:func:`..fitting.table_cv.quarters_pay`): read in place of the more runs, one run
+        each (the runs before read the scatter; a miss of more than its scatter is taken
+        off most per reading so), the axis that misses most per minute first. Each is
+        decided here and kept as the extra's record. (At 1.5 x a plain calibration's time
+        the rough machines' 4th and 5th runs cost what their midpoints had, on screws whose
+        waves of 15-80 mm the quarter points follow: at 3 x, read after them, rough-0's X
+        read 2.82 → 1.42 µm at the judge's targets.)"""
+        ident = self.record.state.setdefault("identify", {})
+        first, last = self.budget.iso_runs(), self.table_runs()
+        held_s = 0.0
+        for a in self.by_value(axes, quarters=True, before_more=True):
+            if f"quarters-{a}" in ident or not (ident.get(f"midpoints-{a}") or {}).get("measured"):
+                continue
+            ratio, miss_um = self.between(a, quarters=True)
+            s2 = self.scatter_mm2(a)
+            if ratio is None or miss_um is None or ratio <= BETWEEN_RATIO or not np.isfinite(s2):
+                continue
+            runs = QUARTER_LEAST_RUNS
+            need_s = self.budget.step_cost_worst_s(self.plans.midpoints_plan(a, runs, True))
+            if not quarters_pay(miss_um * 1e-3, s2, runs, first, last) or \
+                    held_s + need_s > room_s:
+                continue
+            held_s += need_s
+            ident[f"quarters-{a}"] = {"misses_x_scatter": ratio, "miss_rms_um": miss_um,
+                                      "measured": True, "runs": runs,
+                                      "instead_of_more_runs": True}  # fmt: skip
+            self.say(f"{a}: {BETWEEN[True].table} misses {miss_um:.2f} µm RMS between its "
+                     f"points, {ratio:.1f} x what its scatter explains: its quarter points "
+                     f"read in place of its more runs, one run each (they take more of its "
+                     "error off per reading)")  # fmt: skip
+        self.record.save()
+        return held_s
 
     def lost_motion(self, axis: str) -> bool:
         """Whether the ISO runs of ``axis`` read a reversal (ISO 230-2 B) of at least
@@ -412,6 +494,11 @@ class ShortBudget:
         for raw in later:
             level.append(levelled_midpoints(concat_raw(level), raw, axis, cyclic))
         return concat_raw(level)
+
+    def scatter_mm2(self, axis: str) -> float:
+        """The variance of the ISO runs of ``axis`` about their targets' means (mm², pooled,
+        :func:`..plans.rawdata.pooled_variance`; NaN with no repeat)."""
+        return pooled_variance(axis_deviations(self.iso_raw(axis), axis))[0]
 
     def scanned(self, axis: str) -> CyclicModel | None:
         """The once-per-lead term the cyclic scans of ``axis`` read, if they were read
