@@ -380,13 +380,7 @@ class ShortBudget:
             room_s = self.budget.left_s() - held_s
             room_s -= self._quarters_first(axes, room_s)
             rest = [a for a in axes if not (ident.get(f"quarters-{a}") or {}).get("measured")]
-            more = 0
-            for k in range(self.table_runs() - first, 0, -1):
-                cost_s = sum(self.budget.step_cost_worst_s(self.plans.more_runs_plan(a, k))
-                             for a in rest)  # fmt: skip
-                if rest and cost_s <= room_s:
-                    more = k
-                    break
+            more = self._more_that_fit(rest, room_s)
             ident["more_runs"], ident["more_runs_axes"] = more, rest
             if more:
                 self.say(f"{', '.join(rest)}: {more} more ISO run(s) on the same targets "
@@ -416,13 +410,7 @@ class ShortBudget:
                 keep_s += self.plane_held_s()
                 if not self.record.done("before-xy"):
                     keep_s += self.budget.verdict_cost_s(self.plans.before_xy_plan())
-            more = 0
-            for k in range(self.table_runs() - self.budget.iso_runs(), 0, -1):
-                cost_s = sum(self.budget.step_cost_worst_s(self.plans.more_runs_plan(a, k))
-                             for a in later)  # fmt: skip
-                if later and cost_s <= self.budget.left_s() - keep_s:
-                    more = k
-                    break
+            more = self._more_that_fit(later, self.budget.left_s() - keep_s)
             ident["more_runs_later"], ident["more_runs_later_axes"] = more, later
             if more:
                 self.say(f"{', '.join(later)}: {more} more ISO run(s) on the same targets "
@@ -432,6 +420,16 @@ class ShortBudget:
         for a in ident["more_runs_later_axes"] if more else ():
             await self.runner.step(f"iso-more-{a}", lambda a=a: self.plans.more_runs_plan(a, more),
                                    "off", self.axes.park(a))  # fmt: skip
+
+    def _more_that_fit(self, axes: list[str], room_s: float) -> int:
+        """The most more runs (up to :meth:`table_runs` in all) on the first targets of
+        every one of ``axes`` that fit in ``room_s`` (s) together; 0 where none do."""
+        for k in range(self.table_runs() - self.budget.iso_runs(), 0, -1):
+            cost_s = sum(self.budget.step_cost_worst_s(self.plans.more_runs_plan(a, k))
+                         for a in axes)  # fmt: skip
+            if axes and cost_s <= room_s:
+                return k
+        return 0
 
     def _quarters_first(self, axes: list[str], room_s: float) -> float:
         """Machine time (s) held in ``room_s`` for the quarter points of the axes whose
