@@ -327,7 +327,8 @@ def test_a_table_still_missing_between_its_points_reads_quarter_points_in_place_
     per reading at its quarter points). Such an axis reads its quarter points in their
     place, one run each, and its more runs after them where time is left; an axis whose
     table does not miss so, or had no midpoints read, keeps its more runs; where the
-    quarter points do not fit, the more runs."""
+    quarter points do not fit, the more runs; where both fit (the quarter points at 2
+    runs), both, the quarter points as an extra after the more runs."""
     import asyncio
     from types import SimpleNamespace
 
@@ -379,6 +380,9 @@ def test_a_table_still_missing_between_its_points_reads_quarter_points_in_place_
     ident, steps = run(300.0, later_s=100.0)  # time left after them: X's more runs too
     assert ident["more_runs_later"] == 2 and ident["more_runs_later_axes"] == ["X"]
     assert steps[-1] == ("iso-more-X", 100.0)
+    ident, steps = run(2000.0)  # both hold: the more runs, the quarter points an extra after
+    assert "quarters-X" not in ident and ident["more_runs"] == 2
+    assert ident["more_runs_axes"] == ["X", "Y"]
     ident, steps = run(150.0)  # X's quarter points do not fit: the more runs, on both
     assert "quarters-X" not in ident and ident["more_runs"] == 1
     assert [n for n, _ in steps] == ["iso-more-X", "iso-more-Y"]
