@@ -329,9 +329,9 @@ class ShortBudget:
         """``axes`` in the order their midpoints (or ``quarters``) buy most per
         machine-minute: what the table misses between its points (µm RMS) over their time
         at DENSE_LEAST_RUNS. Those that cannot be decided yet (lead known, no scans read;
-        no midpoints read; with ``before_more``, whatever the more runs) or are decided already
-        keep their place at the end. (In axis
-        order rough-9's X, missing 1.55 µm, took the time Y's, missing 2.84 µm, needed.)"""
+        no midpoints read; the more runs not decided, unless ``before_more``) or are
+        decided already keep their place at the end. (In axis order rough-9's X, missing
+        1.55 µm, took the time Y's, missing 2.84 µm, needed.)"""
         ident = self.record.state.get("identify", {})
         kind = BETWEEN[quarters].kind
 
