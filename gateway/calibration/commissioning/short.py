@@ -44,7 +44,7 @@ BETWEEN_RATIO = 2.0
 PLAIN_GRID_LINES = 9
 #: runs per target of the quarter points read in place of a table's more runs
 #: (:meth:`ShortBudget._quarters_first`)
-QUARTER_LEAST_RUNS = 1
+QUARTER_RUNS_IN_PLACE = 1
 #: the fewest runs per target a short budget reads a plain calibration's table at (else the
 #: coarse table at up to its runs; :meth:`.identify.IdentifySteps._iso_runs_that_fit`)
 DENSE_LEAST_RUNS = 2
@@ -379,7 +379,7 @@ class ShortBudget:
             held_s = (self.plane_held_s() if plane else 0.0) + self.scans_left_s(axes)
             room_s = self.budget.left_s() - held_s
             room_s -= self._quarters_first(axes, room_s)
-            rest = [a for a in axes if not (ident.get(f"quarters-{a}") or {}).get("measured")]
+            rest = [a for a in axes if a not in self._in_place(axes)]
             more = self._more_that_fit(rest, room_s)
             ident["more_runs"], ident["more_runs_axes"] = more, rest
             if more:
@@ -387,13 +387,9 @@ class ShortBudget:
                          f"({first + more} in all): the budget holds them"
                          + (" beside the plane's grid" if plane else ""))  # fmt: skip
             self.record.save()
-        for a in axes:  # the quarter points read in place of the more runs, if any
-            if (ident.get(f"quarters-{a}") or {}).get("instead_of_more_runs"):
-                await self.densify(a, quarters=True)
-        more = int(ident["more_runs"])
-        for a in ident.get("more_runs_axes", axes) if more else ():
-            await self.runner.step(f"iso-more-{a}", lambda a=a: self.plans.more_runs_plan(a, more),
-                                   "off", self.axes.park(a))  # fmt: skip
+        for a in self._in_place(axes):  # the quarter points read in place of the more runs
+            await self.densify(a, quarters=True)
+        await self._read_more(ident.get("more_runs_axes", axes), int(ident["more_runs"]))
 
     async def more_runs_later(self, axes: list[str]) -> None:
         """The more runs of the axes that read their quarter points in their place
@@ -403,8 +399,7 @@ class ShortBudget:
         at 3 x a plain calibration's time the rough machines read both). Decided once."""
         ident = self.record.state.setdefault("identify", {})
         if "more_runs_later" not in ident:
-            later = [a for a in axes
-                     if (ident.get(f"quarters-{a}") or {}).get("instead_of_more_runs")]
+            later = self._in_place(axes)
             keep_s = self.scans_left_s(axes)
             if self.axes.plane_with(axes):
                 keep_s += self.plane_held_s()
@@ -416,10 +411,19 @@ class ShortBudget:
                 self.say(f"{', '.join(later)}: {more} more ISO run(s) on the same targets "
                          "after the quarter points: the budget holds them")
             self.record.save()
-        more = int(ident["more_runs_later"])
-        for a in ident["more_runs_later_axes"] if more else ():
+        await self._read_more(ident["more_runs_later_axes"], int(ident["more_runs_later"]))
+
+    async def _read_more(self, axes: list[str], more: int) -> None:
+        """``more`` more ISO runs on the first targets of each of ``axes`` (none at 0)."""
+        for a in axes if more else ():
             await self.runner.step(f"iso-more-{a}", lambda a=a: self.plans.more_runs_plan(a, more),
                                    "off", self.axes.park(a))  # fmt: skip
+
+    def _in_place(self, axes: list[str]) -> list[str]:
+        """Those of ``axes`` that read their quarter points in place of their more runs
+        (:meth:`_quarters_first`)."""
+        ident = self.record.state.get("identify", {})
+        return [a for a in axes if (ident.get(f"quarters-{a}") or {}).get("instead_of_more_runs")]
 
     def _both_fit(self, axes: list[str], room_s: float) -> bool:
         """Whether ``room_s`` (s) holds every axis's more runs and, after them, the quarter
@@ -457,10 +461,9 @@ class ShortBudget:
         each (the runs before read the scatter; a miss of more than its scatter is taken
         off most per reading so), the axis that misses most per minute first; none where
         the budget holds both (:meth:`_both_fit`). Each is decided here and kept as the
-        extra's record. (At 1.5 x a plain calibration's time
-        the rough machines' 4th and 5th runs cost what their midpoints had, on screws whose
-        waves of 15-80 mm the quarter points follow: at 3 x, read after them, rough-0's X
-        read 2.82 → 1.42 µm at the judge's targets.)"""
+        extra's record. (At 1.5 x a plain calibration's time the rough machines' 4th and
+        5th runs cost what their midpoints had, on screws whose waves of 15-80 mm the
+        quarter points follow: rough-0's X read 2.77 → 1.68 µm at the judge's targets.)"""
         ident = self.record.state.setdefault("identify", {})
         first, last = self.budget.iso_runs(), self.table_runs()
         held_s = 0.0
@@ -474,7 +477,7 @@ class ShortBudget:
             s2 = self.scatter_mm2(a)
             if ratio is None or miss_um is None or ratio <= BETWEEN_RATIO or not np.isfinite(s2):
                 continue
-            runs = QUARTER_LEAST_RUNS
+            runs = QUARTER_RUNS_IN_PLACE
             need_s = self.budget.step_cost_worst_s(self.plans.midpoints_plan(a, runs, True))
             if not quarters_pay(miss_um * 1e-3, s2, runs, first, last) or \
                     held_s + need_s > room_s:

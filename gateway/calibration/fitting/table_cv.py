@@ -199,7 +199,7 @@ def quarters_pay(miss_mm: float, s2_mm2: float, quarter_runs: int, first_runs: i
     expected between its points (``miss_mm``, :func:`denser_miss`) less the quarter points'
     own noise, against what the more runs take off the means' noise (``s2_mm2``: the runs'
     variance). (At 1.5 x a plain calibration's time rough-0's X was expected to miss 1.5
-    µm RMS between its points, its scatter 0.27 µm: the 4th and 5th runs took 0.003 µm² off
+    µm RMS between its points, its scatter 0.27 µm: the 4th and 5th runs took 0.005 µm² off
     per reading, the quarter points at one run 2.2.)"""
     quarters = (miss_mm**2 - s2_mm2 / quarter_runs) / quarter_runs
     more = all_runs - first_runs
