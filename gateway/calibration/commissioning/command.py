@@ -17,6 +17,7 @@ import numpy as np
 from ..fitting import adaptive
 from ..fitting.takeup_fit import MIN_LOST_UM
 from ..plans.plans import Plan
+from .settings import SHORT_WARMUP_S
 
 if TYPE_CHECKING:
     from .axes import Axes
@@ -97,8 +98,10 @@ class CommandChecks:
             plane = self.s.planar is not None
             self.say("  a short budget: a plain calibration's steps first: every axis's ISO runs "
                      f"at {self.s.runs} runs per target, the cyclic scans where the lead is "
-                     "known, the midpoints of a table that misses between its points, up to 5 "
-                     "runs per target (or the quarter points of a table that still misses)"
+                     "known, the midpoints of a table that misses between its points, time "
+                     f"held for a {SHORT_WARMUP_S / 60:.0f}-minute zone warm-up per axis whose "
+                     "heat one identifies (a sensor's first; run last), up to 5 runs per "
+                     "target (or the quarter points of a table that still misses)"
                      + (", then the plane's grid (9 nodes along the longer travel)" if plane
                         else "") + "; then, as the budget allows, "
                      + ("the plane's verdict (its random points), " if plane else "")

@@ -14,6 +14,7 @@ from ..plans.plans import (
     backlash_plan,
 )
 from ..plans.rawdata import read_raw_csv
+from .settings import SHORT_WARMUP_S, BudgetSpent
 from .short import first_table_reading
 
 if TYPE_CHECKING:
@@ -30,6 +31,7 @@ if TYPE_CHECKING:
     from .thermal import ThermalSteps
 
 Say = Callable[[str], None]
+
 
 
 class IdentifySteps:
@@ -68,9 +70,16 @@ class IdentifySteps:
         await self.stager.use("identification")
         zoned = self.thermal.zoned()
         if self.short.applies():  # a plain ISO 230-2 calibration's steps first, warm-ups after
-            await self._plain_steps_first([a for a in self.s.axes if not self.axes.rotary(a)])
+            spent: BudgetSpent | None = None
+            try:
+                await self._plain_steps_first([a for a in self.s.axes
+                                               if not self.axes.rotary(a)])  # fmt: skip
+            except BudgetSpent as exc:  # the warm-ups held still follow
+                spent = exc
             for a in zoned:  # each where the budget left holds it
                 await self._warm_up_if_affordable(a)
+            if spent is not None:
+                raise spent
             for a in self.s.axes:
                 await self._identify_axis(a)
             await self._before_xy_if_affordable()
@@ -189,6 +198,7 @@ class IdentifySteps:
             await self._cyclic_beside_plane(a)
         for a in self.short.by_value(cores):  # where the tables miss between their points
             await self.short.densify(a)  # net of it (lead known), the most per minute first
+        self._hold_warm_ups(cores)  # the heat a warm machine meets, before the extras
         await self.short.more_runs(cores)  # a plain calibration's runs, where time is left
         for a in self.short.by_value(cores, quarters=True):  # an extra: where the tables
             await self.short.densify(a, quarters=True)  # still miss between their points
@@ -264,8 +274,9 @@ class IdentifySteps:
         references alone)."""
         if self._warmed(a):
             return
-        cost_s = self.budget.step_cost_s(self.thermal.warmup_plan(a), drift=False)
-        if not self.record.done(f"warmup-{a}") and cost_s > self.budget.left_s():
+        self._fit_held_warm_up(a)
+        cost_s = self._warm_up_cost_s(a)
+        if not self.record.done(f"warmup-{a}") and cost_s > self.budget.left_s(a):
             self.record.state.setdefault("identify", {})[f"thermal-{a}"] = {
                 "fitted": False, "why": f"its warm-up ({cost_s / 60:.0f} min) is not in the "
                 f"budget left ({max(self.budget.left_s(), 0.0) / 60:.0f} min)"}  # fmt: skip
@@ -275,6 +286,60 @@ class IdentifySteps:
                      "left")  # fmt: skip
             return
         await self._warm_up(a)
+
+    def _hold_warm_ups(self, cores: list[str]) -> None:
+        """On a short budget, once its ISO runs are read: machine time held for a short
+        zone warm-up (SHORT_WARMUP_S) of each axis a warm-up identifies the heat of (a
+        sensor's, or with none its own motion's where its references do not rule it out),
+        where the budget left holds it beside the cyclic scans and a plain calibration's
+        grid; the extras after them take what is left. Decided once, kept in the state."""
+        state = self.record.state
+        if "warmup_held" in state:
+            return
+        held: dict[str, dict[str, float]] = {}
+        room_s = (self.budget.left_s() - self.short.plane_held_s()
+                  - self.short.scans_left_s(cores))  # fmt: skip
+        candidates = [a for a in self.thermal.zoned() if a in cores] + [
+            a for a in self.thermal.heat_zoned()
+            if a in cores and self.thermal.too_little_heat(a) is None]
+        for a in candidates:
+            duration_s = min(self.s.warmup_s, SHORT_WARMUP_S)
+            cost_s = self._warm_up_cost_s(a, duration_s)
+            if cost_s <= room_s:
+                held[a] = {"duration_s": duration_s, "cost_s": cost_s}
+                room_s -= cost_s
+        state["warmup_held"] = held
+        if held:
+            self._note("held for a zone warm-up of " + ", ".join(
+                f"{a} ({h['duration_s'] / 60:.0f} min of strokes, {h['cost_s'] / 60:.1f} min)"
+                for a, h in held.items()) + ": its heat is what the customer's warm machine "
+                "meets")  # fmt: skip
+        self.record.save()
+
+    def _warm_up_cost_s(self, a: str, duration_s: float | None = None) -> float:
+        """Machine time (s) of ``a``'s warm-up as its step runs it (snapped to pulses; a
+        warm-up reads no drift references), and the config switches to it and back, where
+        the references are read."""
+        plan = self.axes.snap(self.thermal.warmup_plan(a, duration_s))
+        switches_s = 2 * self.budget.refs_once_s() if "drift_base" in self.record.state else 0.0
+        return self.budget.step_cost_s(plan, drift=False) + switches_s
+
+    def _fit_held_warm_up(self, a: str) -> None:
+        """A held warm-up (:meth:`_hold_warm_ups`) not begun, shortened to the budget left
+        where the steps before it took longer than estimated (down to half its strokes)."""
+        held = (self.record.state.get("warmup_held") or {}).get(a)
+        if held is None or (self.record.dir / "plans" / f"warmup-{a}.plan").exists():
+            return  # (begun: its plan is kept)
+        left_s = self.budget.left_s(a)
+        duration_s = float(held["duration_s"])
+        for _ in range(8):
+            cost_s = self._warm_up_cost_s(a, duration_s)
+            if cost_s <= left_s or duration_s <= SHORT_WARMUP_S / 2:
+                break
+            duration_s *= 0.9
+        if duration_s < float(held["duration_s"]):
+            held.update(duration_s=duration_s, cost_s=cost_s)
+            self.record.save()
 
     async def _before_xy_if_affordable(self) -> None:
         """On a short budget, the plane's random points (its verdict) where the budget left

@@ -17,6 +17,11 @@ class CommissionAborted(Exception):
     """Commissioning stopped; the message says where the gateway was left."""
 
 
+#: stroking time (s) of the zone warm-up a short budget holds (:meth:`.identify.
+#: IdentifySteps._hold_warm_ups`): at 1.5 x a plain calibration's time one of them fits
+#: after the midpoints, with its places read cold and warm
+SHORT_WARMUP_S = 480.0
+
 @dataclass
 class Settings:
     """What the command line gives."""

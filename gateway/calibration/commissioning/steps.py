@@ -129,14 +129,17 @@ class StepRunner:
             write_plan(plan_path, plan)
         cost_s = self.axes.estimate_s(plan)
         reserve_s = 0.0 if name.startswith("after") else self.budget.reserve_s()
+        held_s = self.budget.held_s() - self.budget.held_s(name.removeprefix("warmup-"))
         need_s = self.budget.step_cost_s(plan, drift, whole)
-        if self.record.used_s + need_s + reserve_s > self.s.budget_s:
-            left_s = max(0.0, self.s.budget_s - self.record.used_s - reserve_s)
+        if self.record.used_s + need_s + reserve_s + held_s > self.s.budget_s:
+            left_s = max(0.0, self.s.budget_s - self.record.used_s - reserve_s - held_s)
             refs = " with its drift references" if need_s > cost_s else ""
             raise BudgetSpent(f"{name} needs {need_s / 60:.1f} min of machine time{refs}, "
                               f"{left_s / 60:.1f} min left"
                               + (f" ({reserve_s / 60:.1f} min kept for the after-run)"
-                                 if reserve_s else ""))  # fmt: skip
+                                 if reserve_s else "")
+                              + (f" ({held_s / 60:.1f} min held for the warm-ups)"
+                                 if held_s else ""))  # fmt: skip
         raw.parent.mkdir(parents=True, exist_ok=True)
         self.say(f"{name}: {sum(m.measured for m in plan.moves)} readings, "
                  f"{cost_s / 60:.1f} min of machine time ({compensation})")

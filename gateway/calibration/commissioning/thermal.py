@@ -83,7 +83,7 @@ class ThermalSteps:
         th = self.config.axes[axis].compensation.thermal
         return self.s.heat_warmup and th is None and not self.axes.rotary(axis)
 
-    def warmup_plan(self, axis: str) -> Plan:
+    def warmup_plan(self, axis: str, duration_s: float | None = None) -> Plan:
         """Cycling over the travel; read at the end farthest from the screw's fixed end
         (the thermal origin), where the growth is largest against the noise. With a Δa
         or temperature sensor, over the middle of the travel only (ZONE), the places read
@@ -98,15 +98,22 @@ class ThermalSteps:
         pulse = self.config.axes[axis].pulse_mm
         places = [round((lo + f * (hi - lo)) / pulse) * pulse for f in ZONE_PLACES]
         zone = [lo + f * (hi - lo) for f in ZONE]
+        duration_s = self.warmup_s(axis) if duration_s is None else duration_s
         if th is not None and th.source is not None:  # a Δa or temperature sensor
-            return warmup_plan(axis, zone, self.s.speed_mm_s, self.s.warmup_s, ref,
+            return warmup_plan(axis, zone, self.s.speed_mm_s, duration_s, ref,
                                places_mm=places)  # fmt: skip
         if self.heat_warms_up(axis):
-            return warmup_plan(axis, zone, self.s.speed_mm_s, self.s.warmup_s, places[-1],
+            return warmup_plan(axis, zone, self.s.speed_mm_s, duration_s, places[-1],
                                HEAT_MEASURE_EVERY, places_mm=places, also_mm=places[0],
                                sensor=False)  # fmt: skip
-        return warmup_plan(axis, (lo + margin, hi - margin), self.s.speed_mm_s,
-                           self.s.warmup_s, ref)  # fmt: skip
+        return warmup_plan(axis, (lo + margin, hi - margin), self.s.speed_mm_s, duration_s,
+                           ref)  # fmt: skip
+
+    def warmup_s(self, axis: str) -> float:
+        """How long ``axis``'s warm-up strokes (s of machine time): ``--warmup-min``, or
+        the shorter one a short budget held for it (:meth:`.short.ShortBudget.hold_warm_ups`)."""
+        return float((self.record.state.get("warmup_held") or {}).get(axis, {}).get(
+            "duration_s", self.s.warmup_s))  # fmt: skip
 
     def fit(self, axis: str, raw: RawData) -> dict[str, float]:
         """The warm-up's fit: a Δa source's length, or a temperature source's gain."""

@@ -26,7 +26,7 @@ from ...compensation.thermal import motion_heat_series_m
 from ...config import AxisThermal, TravelProfile
 from ..plans.plans import Plan
 from ..plans.rawdata import RawData
-from .heat_fit import TAU_GRID_S
+from .heat_fit import TAU_GRID_S, likely_tau
 from .thermal_shape import (
     NOISE_UM,
     PROFILE_SHARE,
@@ -195,7 +195,7 @@ def warmup_heat_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
     length = float(thermal.length_mm)
     sse = [_ls((d_heat[:, j] + d_fade[:, j]) * lever / length, growth)[1]
            for j in range(TAU_GRID_S.size)]  # fmt: skip
-    j = int(np.argmin(sse))
+    j = likely_tau(sse)
     if j == TAU_GRID_S.size - 1 or not np.ptp(growth) * UM_PER_MM >= 3.0:
         raise TableError(f"{raw.source}: axis {axis}: the warm-up's growth does not level "
                          "off or is under 3 µm: no heat-from-motion model")  # fmt: skip

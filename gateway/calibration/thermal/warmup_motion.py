@@ -29,7 +29,7 @@ from ...compensation.errors import TableError
 from ...config import AxisThermal, MotionHeat, TravelProfile
 from ..plans.plans import Plan
 from ..plans.rawdata import RawData
-from .heat_fit import FAR_ENDS, TAU_GRID_S
+from .heat_fit import FAR_ENDS, TAU_GRID_S, likely_tau
 from .thermal_shape import (
     NOISE_UM,
     PROFILE_SHARE,
@@ -108,7 +108,7 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
     heat = d_heat + d_fade  # (readings, τ): metres of travel still in the screw, as changed
     fits = [_lstsq(np.column_stack([heat[:, j] * place, heat[:, j]]), growth)
             for j in range(TAU_GRID_S.size)]  # fmt: skip
-    j = int(np.argmin([sse for _, sse in fits]))
+    j = likely_tau([sse for _, sse in fits])
     if j == TAU_GRID_S.size - 1:
         raise TableError(f"{raw.source}: axis {axis}: the warm-up's growth does not level off: "
                          "no time constant (a longer --warmup-min shows it)")  # fmt: skip

@@ -1,0 +1,84 @@
+"""A short budget holds machine time for a short zone warm-up (issues 52 and 54): at 1.5 x a
+plain calibration's time no warm-up fitted after the extras, and a sensor's own model (a
+temperature at one spot, growth taken linear from the fixed end) left 10-50 µm of what 30
+minutes of work on a zone moved a rough screw. The collaborators are stubs: what is held,
+in what order, and what the budget then leaves the other steps."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+from gateway.calibration.commissioning.budget import Budget
+from gateway.calibration.commissioning.identify import IdentifySteps
+from gateway.calibration.commissioning.settings import SHORT_WARMUP_S
+
+
+def _steps(tmp_path: Path, left_s: float, kinds: dict[str, str], little: tuple[str, ...] = ()
+           ) -> tuple[IdentifySteps, dict[str, Any], Budget]:  # fmt: skip
+    """An identification whose warm-ups cost their strokes and 100 s of surveys; ``kinds``
+    each axis's heat ("sensor" or "motion"); ``little``: axes whose references rule out
+    heat worth a warm-up."""
+    state: dict[str, Any] = {"steps": {}, "notes": []}
+    record = SimpleNamespace(state=state, dir=tmp_path, used_s=0.0, save=lambda: None,
+                             done=lambda name: name in state["steps"],
+                             note=lambda text, replacing="": True)  # fmt: skip
+    budget = Budget.__new__(Budget)
+    budget.s = SimpleNamespace(budget_s=left_s)
+    budget.record = record
+    budget.reserve_s = lambda: 0.0  # type: ignore[method-assign]
+    budget.step_cost_s = lambda plan, drift=True, whole=False: plan  # type: ignore[method-assign]
+    steps = IdentifySteps.__new__(IdentifySteps)
+    steps.s = SimpleNamespace(warmup_s=1800.0)
+    steps.record = record
+    steps.budget = budget
+    steps.axes = SimpleNamespace(snap=lambda plan: plan)
+    steps.short = SimpleNamespace(plane_held_s=lambda: 300.0, scans_left_s=lambda axes: 0.0)
+    steps.thermal = SimpleNamespace(
+        zoned=lambda: [a for a, k in kinds.items() if k == "sensor"],
+        heat_zoned=lambda: [a for a, k in kinds.items() if k == "motion"],
+        too_little_heat=lambda a: "little" if a in little else None,
+        # a warm-up's plan is its machine time here: its strokes and the places read
+        warmup_plan=lambda a, duration_s=None: 100.0 + (
+            duration_s if duration_s is not None else
+            state.get("warmup_held", {}).get(a, {}).get("duration_s", 1800.0)))  # fmt: skip
+    steps.say = lambda text: None
+    return steps, state, budget
+
+
+def test_a_short_budget_holds_a_short_warm_up_of_the_sensor_axes_first(tmp_path: Path) -> None:
+    steps, state, budget = _steps(tmp_path, 1200.0, {"X": "sensor", "Y": "motion"})
+    steps._hold_warm_ups(["X", "Y"])
+    cost_s = 100.0 + SHORT_WARMUP_S
+    # room: 1200 s less the plain grid's 300 holds one warm-up (X, its sensor's first)
+    assert state["warmup_held"] == {"X": {"duration_s": SHORT_WARMUP_S, "cost_s": cost_s}}
+    assert budget.left_s() == 1200.0 - cost_s  # the other steps see the rest
+    assert budget.left_s("X") == 1200.0  # X's own warm-up sees its hold
+    state["steps"]["warmup-X"] = {}  # made: nothing held any more
+    assert budget.held_s() == 0.0 and budget.left_s() == 1200.0
+    steps._hold_warm_ups(["X", "Y"])  # decided once
+    assert list(state["warmup_held"]) == ["X"]
+
+    steps, state, budget = _steps(tmp_path, 3000.0, {"X": "sensor", "Y": "motion"})
+    steps._hold_warm_ups(["X", "Y"])  # room for both
+    assert list(state["warmup_held"]) == ["X", "Y"]
+    steps, state, budget = _steps(tmp_path, 3000.0, {"X": "sensor", "Y": "motion"}, ("Y",))
+    steps._hold_warm_ups(["X", "Y"])  # Y's references rule its heat out
+    assert list(state["warmup_held"]) == ["X"]
+    steps, state, budget = _steps(tmp_path, 800.0, {"X": "sensor", "Y": "sensor"})
+    steps._hold_warm_ups(["X", "Y"])  # no room beside the plain grid: nothing held
+    assert state["warmup_held"] == {} and budget.left_s() == 800.0
+
+
+def test_a_held_warm_up_shortens_to_what_the_steps_before_it_left(tmp_path: Path) -> None:
+    steps, state, budget = _steps(tmp_path, 1500.0, {"X": "sensor"})
+    steps._hold_warm_ups(["X"])
+    steps.record.used_s = 1500.0 - 0.8 * (100.0 + SHORT_WARMUP_S)  # the steps overran
+    steps._fit_held_warm_up("X")
+    held = state["warmup_held"]["X"]
+    assert SHORT_WARMUP_S / 2 <= held["duration_s"] < SHORT_WARMUP_S
+    assert held["cost_s"] <= budget.left_s("X")
+    steps.record.used_s = 1500.0  # nothing left: down to half its strokes, no shorter
+    steps._fit_held_warm_up("X")
+    assert state["warmup_held"]["X"]["duration_s"] >= SHORT_WARMUP_S / 2 * 0.9
