@@ -18,8 +18,8 @@ from gateway.calibration.commissioning.settings import SHORT_WARMUP_S
 def _steps(tmp_path: Path, left_s: float, kinds: dict[str, str], little: tuple[str, ...] = ()
            ) -> tuple[IdentifySteps, dict[str, Any], Budget]:  # fmt: skip
     """An identification whose warm-ups cost their strokes and 100 s of surveys; ``kinds``
-    each axis's heat ("sensor" or "motion"); ``little``: axes whose references rule out
-    heat worth a warm-up."""
+    each axis's heat ("sensor" or "motion"); ``little``: axes whose references read no
+    growth that stands out of their scatter."""
     state: dict[str, Any] = {"steps": {}, "notes": []}
     record = SimpleNamespace(state=state, dir=tmp_path, used_s=0.0, save=lambda: None,
                              done=lambda name: name in state["steps"],
@@ -38,7 +38,9 @@ def _steps(tmp_path: Path, left_s: float, kinds: dict[str, str], little: tuple[s
     steps.thermal = SimpleNamespace(
         zoned=lambda: [a for a, k in kinds.items() if k == "sensor"],
         heat_zoned=lambda: [a for a, k in kinds.items() if k == "motion"],
-        too_little_heat=lambda a: "little" if a in little else None,
+        # the references of an axis with no sensor: 0.5 µm grown where little, else 4
+        drift=SimpleNamespace(grown_um=lambda a: 0.5 if a in little else 4.0,
+                              least_growth_um=lambda a: 1.0),
         # a warm-up's plan is its machine time here: its strokes and the places read
         warmup_plan=lambda a, duration_s=None: 100.0 + (
             duration_s if duration_s is not None else
@@ -64,7 +66,7 @@ def test_a_short_budget_holds_a_short_warm_up_of_the_sensor_axes_first(tmp_path:
     steps._hold_warm_ups(["X", "Y"])  # room for both
     assert list(state["warmup_held"]) == ["X", "Y"]
     steps, state, budget = _steps(tmp_path, 3000.0, {"X": "sensor", "Y": "motion"}, ("Y",))
-    steps._hold_warm_ups(["X", "Y"])  # Y's references rule its heat out
+    steps._hold_warm_ups(["X", "Y"])  # Y's references read no heat: none held for it
     assert list(state["warmup_held"]) == ["X"]
     steps, state, budget = _steps(tmp_path, 800.0, {"X": "sensor", "Y": "sensor"})
     steps._hold_warm_ups(["X", "Y"])  # no room beside the plain grid: nothing held

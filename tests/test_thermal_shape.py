@@ -409,6 +409,27 @@ def test_a_warm_up_with_no_growth_gives_no_model_and_says_why() -> None:
         warmup_motion_fit(_raw(plan, _Cold(), 0.3, 9), plan, "X", TRAVEL)
 
 
+def test_a_warm_up_whose_growth_is_its_noise_gives_no_model() -> None:
+    """Issue 52: at 3 x a plain calibration's time sdss-1396's Y (a plate with 1 µm of
+    repeatability and almost no heat) got a zone warm-up whose readings spread 2.8 µm;
+    heat from motion fitted them with τ 90 s and left 1.9 µm RMS, and the model it put
+    in the final config read E 13.8 µm at the judge's targets (6.9 without). A model that
+    leaves more than half of what the places grew is refused, by name."""
+    from gateway.calibration.thermal.warmup_motion import warmup_motion_fit
+
+    plan = _no_sensor_plan()
+
+    class _Faint(_EvenHeat):
+        def __call__(self, x: float, t: float) -> float:
+            return 0.15 * super().__call__(x, t)  # about 3.4 µm at the free end
+
+    with pytest.raises(TableError, match=r"warmup-X.csv: axis X: heat from motion leaves .* "
+                       r"not the screw's heat"):  # fmt: skip
+        warmup_motion_fit(_raw(plan, _Faint(), 1.5, 4), plan, "X", TRAVEL)
+    fit = warmup_motion_fit(_raw(plan, _Faint(), 0.1, 4), plan, "X", TRAVEL)  # read clean
+    assert fit.linear_rms_um < 0.3
+
+
 class _Cold(_EvenHeat):
     """A screw that does not warm."""
 

@@ -29,7 +29,7 @@ from ...compensation.errors import TableError
 from ...config import AxisThermal, MotionHeat, TravelProfile
 from ..plans.plans import Plan
 from ..plans.rawdata import RawData
-from .heat_fit import FAR_ENDS, TAU_GRID_S, likely_tau
+from .heat_fit import FAR_ENDS, MAX_RESIDUAL_SHARE, TAU_GRID_S, likely_tau
 from .thermal_shape import (
     NOISE_UM,
     PROFILE_SHARE,
@@ -160,6 +160,11 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
         origin, length = fixed, max(abs(lo - fixed), abs(hi - fixed))
         lin_rms = float(np.sqrt(np.mean((growth - per_mm * lever)[survey] ** 2)))
         profiled = prof_rms < lin_rms
+    seen = float(np.sqrt(np.mean(growth[survey] ** 2)))
+    if min(lin_rms, prof_rms) > MAX_RESIDUAL_SHARE * seen:
+        raise TableError(f"{raw.source}: axis {axis}: heat from motion leaves "
+                         f"{min(lin_rms, prof_rms) * UM_PER_MM:.1f} µm RMS of the "
+                         f"{seen * UM_PER_MM:.1f} µm the places grew: not the screw's heat")
     if profiled:
         return WarmupMotionFit(axis, float(fixed), float(whole), c_prof * UM_PER_MM, tau,
                                spread, float(memory), lin_rms * UM_PER_MM,
