@@ -103,14 +103,18 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         # no thermal sensor: X's zone warm-up, read by the laser after the rounds, gave its
         # heat from motion, checked on the drift the whole commissioning read; the after-run
         # judged that model, on the screw the warm-up left warm (as the customer's laser
-        # meets it). Y's warm-up grew too little to model: none, said why
+        # meets it). Y gets no model from a warm-up: none, said why
         ident = summary["identify"]
         assert ident["motion-X"].get("from") == "warm-up", (ident["thermal-X"], text)
         assert ident["thermal-X"]["drift_check"]["holds"], ident["thermal-X"]
         steps = state_steps(out)
         assert ident["thermal-X"]["tau_s"] > 0 and "warmup-X" in steps
         assert steps.index("warmup-X") < steps.index("after-X") < steps.index("after-xy"), steps
-        assert not ident["thermal-Y"]["fitted"] and "too little heat" in ident["thermal-Y"]["why"]
+        # (Y's warm-up, 14 min with the references read at its two config switches, no
+        # longer fits what X's left; without them counted it ran, and grew too little)
+        why_y = ident["thermal-Y"]["why"]
+        assert not ident["thermal-Y"]["fitted"], ident["thermal-Y"]
+        assert "too little heat" in why_y or "not in the budget left" in why_y, why_y
         # heat from motion (or why not), and the final config carries what was fitted
         final = yaml.safe_load(rig.config.read_text())["axes"]
         for axis in ("X", "Y"):
