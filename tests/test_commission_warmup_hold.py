@@ -84,3 +84,19 @@ def test_a_held_warm_up_shortens_to_what_the_steps_before_it_left(tmp_path: Path
     steps.record.used_s = 1500.0  # nothing left: down to half its strokes, no shorter
     steps._fit_held_warm_up("X")
     assert state["warmup_held"]["X"]["duration_s"] >= SHORT_WARMUP_S / 2 * 0.9
+
+
+def test_a_held_warm_up_that_no_longer_fits_lets_its_hold_go(tmp_path: Path) -> None:
+    """A held warm-up the steps before left too little for, even at half its strokes, is
+    not made, said why, and its hold let go: the after-run is not kept from its time."""
+    import asyncio
+
+    steps, state, budget = _steps(tmp_path, 1500.0, {"X": "sensor"})
+    steps._hold_warm_ups(["X"])
+    steps.record.used_s = 1450.0  # 50 s left: no warm-up fits
+    steps._warmed = lambda a: False  # type: ignore[method-assign]
+    steps.thermal.heat_warms_up = lambda a: False
+    asyncio.run(steps._warm_up_if_affordable("X"))
+    assert not state["identify"]["thermal-X"]["fitted"]
+    assert "not in the budget left" in state["identify"]["thermal-X"]["why"]
+    assert budget.held_s() == 0.0 and "X" not in state["warmup_held"]

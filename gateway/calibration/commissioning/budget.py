@@ -91,7 +91,7 @@ class Budget:
 
     def held_s(self, axis: str | None = None) -> float:
         """Machine time (s) a short budget holds for the zone warm-ups not made yet (of
-        ``axis`` alone, where given): :meth:`.short.ShortBudget.hold_warm_ups`."""
+        ``axis`` alone, where given): :meth:`.identify.IdentifySteps._hold_warm_ups`."""
         held = self.record.state.get("warmup_held") or {}
         return sum(float(h["cost_s"]) for a, h in held.items()
                    if (axis is None or a == axis) and not self.record.done(f"warmup-{a}"))

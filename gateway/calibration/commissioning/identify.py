@@ -33,7 +33,6 @@ if TYPE_CHECKING:
 Say = Callable[[str], None]
 
 
-
 class IdentifySteps:
     """Step 1: the warm-ups and each axis's identification runs, compensation off, and the
     *before* runs."""
@@ -279,7 +278,8 @@ class IdentifySteps:
         if not self.record.done(f"warmup-{a}") and cost_s > self.budget.left_s(a):
             self.record.state.setdefault("identify", {})[f"thermal-{a}"] = {
                 "fitted": False, "why": f"its warm-up ({cost_s / 60:.0f} min) is not in the "
-                f"budget left ({max(self.budget.left_s(), 0.0) / 60:.0f} min)"}  # fmt: skip
+                f"budget left ({max(self.budget.left_s(a), 0.0) / 60:.0f} min)"}  # fmt: skip
+            (self.record.state.get("warmup_held") or {}).pop(a, None)  # its hold let go
             kept = ("heat from motion from the drift references alone"
                     if self.thermal.heat_warms_up(a) else "thermal setting kept as configured")
             self.say(f"{a}: {kept}: its warm-up ({cost_s / 60:.0f} min) is not in the budget "
