@@ -81,20 +81,18 @@ class Budget:
         (:meth:`.identify.IdentifySteps._iso_runs_that_fit`)."""
         return int(self.record.state.get("iso_runs") or self.s.runs)
 
-    def left_s(self, axis_warmup: str | None = None) -> float:
+    def left_s(self, warming: str | None = None) -> float:
         """Machine time (s) the budget has left for the steps before the after-run: what is
-        neither used nor kept for it (:meth:`reserve_s`) nor held for a warm-up
-        (:meth:`held_s`; for ``axis_warmup``'s own, that one is left); negative when
-        overspent."""
-        left = self.s.budget_s - self.record.used_s - self.reserve_s() - self.held_s()
-        return left + (self.held_s(axis_warmup) if axis_warmup is not None else 0.0)
+        neither used nor kept for it (:meth:`reserve_s`) nor held for a warm-up (:meth:`held_s`;
+        ``warming``'s own warm-up sees its own hold); negative when overspent."""
+        return self.s.budget_s - self.record.used_s - self.reserve_s() - self.held_s(warming)
 
-    def held_s(self, axis: str | None = None) -> float:
-        """Machine time (s) a short budget holds for the zone warm-ups not made yet (of
-        ``axis`` alone, where given): :meth:`.identify.IdentifySteps._hold_warm_ups`."""
+    def held_s(self, warming: str | None = None) -> float:
+        """Machine time (s) a short budget holds for the zone warm-ups not made yet
+        (:meth:`.identify.IdentifySteps._hold_warm_ups`), but ``warming``'s own."""
         held = self.record.state.get("warmup_held") or {}
         return sum(float(h["cost_s"]) for a, h in held.items()
-                   if (axis is None or a == axis) and not self.record.done(f"warmup-{a}"))
+                   if a != warming and not self.record.done(f"warmup-{a}"))
 
     def verify_runs(self, axis: str) -> int:
         """Runs per verification (and refinement) target of an axis: ``verify_runs`` until

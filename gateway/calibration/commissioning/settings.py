@@ -22,6 +22,7 @@ class CommissionAborted(Exception):
 #: after the midpoints, with its places read cold and warm
 SHORT_WARMUP_S = 480.0
 
+
 @dataclass
 class Settings:
     """What the command line gives."""

@@ -130,8 +130,7 @@ class StepRunner:
         cost_s = self.axes.estimate_s(plan)
         after = name.startswith("after")  # (what was kept and held is for the steps before)
         reserve_s = 0.0 if after else self.budget.reserve_s()
-        held_s = 0.0 if after else (self.budget.held_s()
-                                    - self.budget.held_s(name.removeprefix("warmup-")))
+        held_s = 0.0 if after else self.budget.held_s(name.removeprefix("warmup-"))
         need_s = self.budget.step_cost_s(plan, drift, whole)
         if self.record.used_s + need_s + reserve_s + held_s > self.s.budget_s:
             left_s = max(0.0, self.s.budget_s - self.record.used_s - reserve_s - held_s)

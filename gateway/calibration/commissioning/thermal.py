@@ -111,7 +111,8 @@ class ThermalSteps:
 
     def warmup_s(self, axis: str) -> float:
         """How long ``axis``'s warm-up strokes (s of machine time): ``--warmup-min``, or
-        the shorter one a short budget held for it (:meth:`.short.ShortBudget.hold_warm_ups`)."""
+        the shorter one a short budget held for it
+        (:meth:`.identify.IdentifySteps._hold_warm_ups`)."""
         return float((self.record.state.get("warmup_held") or {}).get(axis, {}).get(
             "duration_s", self.s.warmup_s))  # fmt: skip
 

@@ -114,9 +114,7 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
             err = np.where(hh > 0, err, np.inf)
             # the speeds as estimated unless the drift clearly says otherwise: of the
             # scales that fit within LIKE_SHARE of the best, the one nearest 1
-            per_scale = err.min(axis=1)
-            near = per_scale <= (1.0 + LIKE_SHARE) * per_scale.min()
-            ks = int(np.argmin(np.where(near, np.abs(np.log(grid)), np.inf)))
+            ks = nearest_alike(err.min(axis=1), np.abs(np.log(grid)))
             kt = likely_tau(err[ks])
             if err[ks, kt] < sse:
                 sse, tau, slopes = float(err[ks, kt]), float(TAU_GRID_S[kt]), trial[ks, kt]
@@ -158,8 +156,15 @@ def likely_tau(sse: ArrayLike) -> int:
     best = int(np.argmin(err))
     if best == err.size - 1 or not np.isfinite(err[best]):
         return best
-    near = err <= (1.0 + LIKE_SHARE) * err[best]
-    return int(np.argmin(np.where(near, np.abs(np.log(TAU_GRID_S / TAU_LIKELY_S)), np.inf)))
+    return nearest_alike(err, np.abs(np.log(TAU_GRID_S / TAU_LIKELY_S)))
+
+
+def nearest_alike(sse: ArrayLike, distance: ArrayLike) -> int:
+    """Of the fits whose residual ``sse`` is within LIKE_SHARE of the best, the index of
+    the one of least ``distance`` from what is taken where the data cannot tell."""
+    err = np.asarray(sse, dtype=np.float64)
+    near = err <= (1.0 + LIKE_SHARE) * err.min()
+    return int(np.argmin(np.where(near, np.asarray(distance, dtype=np.float64), np.inf)))
 
 
 def drift_left_um(axis: str, thermal: dict[str, Any], odometer_m: dict[str, ArrayLike],
