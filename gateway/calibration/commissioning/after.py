@@ -20,7 +20,9 @@ from .report import as_read_figures
 
 if TYPE_CHECKING:
     from ..measuring.machine import GatewayClock
+    from ..plans.plans import Plan
     from .axes import Axes
+    from .carried import RunBefore
     from .record import Record
     from .rotary import RotarySteps
     from .stager import Stager
@@ -85,9 +87,10 @@ class AfterSteps:
     """The after-run, the plane's last word on the tables, and the summary."""
 
     def __init__(self, axes: Axes, record: Record, stager: Stager, runner: StepRunner,
-                 rotary: RotarySteps, takeup: TakeUpSteps, say: Say,
+                 rotary: RotarySteps, takeup: TakeUpSteps, run_before: RunBefore, say: Say,
                  clock: GatewayClock | None = None) -> None:  # fmt: skip
         self.s = axes.s
+        self.run_before = run_before  # a carried-on run's: what the run before left
         self.clock = clock  # when the run ended (how long the machine cooled since)
         self.axes = axes
         self.record = record
@@ -104,12 +107,108 @@ class AfterSteps:
         await self.stager.use(self.record.tables_phase)
         for a in self.s.axes:  # where the before-run was made (a budget spent may stop it)
             if a in self.record.tables.pitch and self.record.done(f"before-{a}"):
+                if self._carried(f"after-{a}", a):
+                    continue
                 plan = read_plan(self.record.dir / "plans" / f"before-{a}.plan")
                 await self.runner.step(f"after-{a}", lambda p=plan: p, "on", self.axes.park(a))
-        if self.s.planar is not None and self.record.done("before-xy"):
+                await self._worse_put_back(f"after-{a}", a, plan)
+        if (self.s.planar is not None and self.record.done("before-xy")
+                and not self._carried("after-xy", "XY")):  # fmt: skip
             plan = read_plan(self.record.dir / "plans" / "before-xy.plan")
             await self.runner.step("after-xy", lambda: plan, "on")
+            await self._plane_put_back(plan)
         await self.takeup.after_steps()
+
+    def _as_read_um(self, step: str, name: str) -> float:
+        """A done after-run step's figure as read (µm): an axis's E, the plane's maximum
+        vector error; the figures the summary gives (:func:`.report.as_read_figures`)."""
+        if name == "XY":
+            assert self.s.planar is not None
+            return planar_figures(self.runner.raw_as_read(step), self.s.planar)["max_um"]
+        return iso230_axis(axis_deviations(self.runner.raw_as_read(step), name)).E_um
+
+    def _carried(self, step: str, name: str) -> bool:
+        """A carried-on run keeps the run before's reading of tables it left as they were
+        (:mod:`.carried`); said. False: to be read."""
+        if (name != "XY" and self.axes.rotary(name)) or not self.run_before.carry(step, name):
+            return False
+        what = "its model and both axes' tables" if name == "XY" else "its tables"
+        self.say(f"{step}: {what} as the run before left them: its after-run stands "
+                 f"({self.rotary.score_text(name, self._as_read_um(step, name))} as read), "
+                 "not read again")  # fmt: skip
+        return True
+
+    async def _worse_put_back(self, step: str, name: str, plan: Plan) -> None:
+        """An axis this carried-on run changed that reads worse than the run before's
+        after-run: put back as the run before left it, with its reading (:mod:`.carried`)."""
+        if self.axes.rotary(name) or self.run_before.same(name):
+            return
+        now = self._as_read_um(step, name)
+        if not self.run_before.reads_worse(name, now):
+            return
+        again = await self._put_back(name, {name: plan})
+        self._said(f"{name}: this run's tables read {now:.2f} µm as read, worse than the run "
+                   f"before's {self.run_before.figure_um(name):.2f}: put back as the run "
+                   f"before left them, {again}")  # fmt: skip
+
+    async def _put_back(self, name: str, plans: dict[str, Plan]) -> str:
+        """``name``'s tables put back as the run before left them (the plane: its model) and
+        loaded; the run before's reading carried where it still stands, else read again
+        (``plans``: each after-run step's plan by name). What its figure now is, said."""
+        step = "after-xy" if name == "XY" else f"after-{name}"
+        self.run_before.set_aside(step)
+        self.run_before.put_back(name)
+        await self.stager.use(self.record.tables_phase)
+        if self.run_before.carry(step, name):
+            return "with its reading"
+        park = None if name == "XY" else self.axes.park(name)
+        await self.runner.step(step, lambda: plans[name], "on", park)
+        return f"read again: {self._as_read_um(step, name):.2f} µm"
+
+    def _said(self, note: str) -> None:
+        self.record.note(note)
+        self.say(note)
+
+    async def _plane_put_back(self, plan: Plan) -> None:
+        """The plane, read worse than the run before's after-run: its model put back where
+        this run changed it, then, if it still reads worse, the axes' tables this run
+        changed too (a refinement that reads worse on the plane is not kept either), until
+        it is as the run before left it, with its reading (:mod:`.carried`)."""
+        if self.run_before.same("XY"):
+            return
+        now = self._as_read_um("after-xy", "XY")
+        was = self.run_before.figure_um("XY")
+        if not self.run_before.reads_worse("XY", now):
+            return
+        worse = (f"XY: this run's tables read {now:.2f} µm as read, worse than the run "
+                 f"before's {was:.2f}")
+        if not self.run_before.same_one("XY"):
+            again = await self._put_back("XY", {"XY": plan})
+            if not self.run_before.reads_worse("XY", self._as_read_um("after-xy", "XY")):
+                self._said(f"{worse}: its model put back as the run before left it, {again}")
+                return
+            worse += f"; its model put back as the run before left it, {again}, still worse"
+        axes = [a for a in self.record.tables.planar_axes or ()
+                if not self.run_before.same_one(a)]
+        for a in axes:
+            self.run_before.set_aside(f"after-{a}")
+            self.run_before.put_back(a)
+            self.run_before.carry(f"after-{a}", a)
+        self.run_before.set_aside("after-xy")
+        self.run_before.put_back("XY")
+        await self.stager.use(self.record.tables_phase)
+        carried = self.run_before.carry("after-xy", "XY")
+        plans = {"XY": plan, **{a: read_plan(self.record.dir / "plans" / f"before-{a}.plan")
+                               for a in axes}}  # fmt: skip
+        for a in axes:
+            if not self.record.done(f"after-{a}"):
+                await self.runner.step(f"after-{a}", lambda p=plans[a]: p, "on", self.axes.park(a))
+        if not carried:
+            await self.runner.step("after-xy", lambda: plan, "on")
+        self._said(f"{worse}: the plane's model and the tables this run changed on "
+                   + ", ".join(axes) + " put back as the run before left them"
+                   + (", with their readings" if carried else
+                      f", the plane read again: {self._as_read_um('after-xy', 'XY'):.2f} µm"))
 
     def xy_figures(self, name: str) -> dict[str, float]:
         """Max and RMS vector error (µm) of an XY run, drift taken off."""
@@ -223,7 +322,8 @@ class AfterSteps:
                                     "E_read_um": read.E_um, "A_read_um": read.A_um,
                                     "M_read_um": read.M_um, "R_read_um": read.R_um,
                                     "runs": iso.runs,
-                                    "s_pooled_um": pooled_s_um(iso)}  # fmt: skip
+                                    "s_pooled_um": pooled_s_um(iso),
+                                    **self._carried_flag(f"{phase}-{a}")}  # fmt: skip
             entry.update(self.takeup.steps_summary(a))
             if a in self.record.tables.pitch:
                 entry["table_points"] = int(read_pitch_csv(
@@ -239,21 +339,27 @@ class AfterSteps:
                     xy[phase]["max_read_um"] = planar_figures(
                         self.runner.raw_as_read(f"{phase}-xy"),
                         self.s.planar)["max_um"]  # fmt: skip
+                    xy[phase].update(self._carried_flag(f"{phase}-xy"))
             out["xy"] = xy
         self.rotary.rotary_summary(out)
         out.update(self.warmth())
         out.update(self._against_run_before(out))
         return out
 
+    def _carried_flag(self, step: str) -> dict[str, bool]:
+        """``{"carried": True}`` for a step a carried-on run kept from the run before."""
+        return {"carried": True} if self.record.state["steps"].get(step, {}).get(
+            "carried") else {}  # fmt: skip
+
     def _against_run_before(self, out: dict[str, Any]) -> dict[str, Any]:
         """A carried-on run's after-run against the run before's, as read (µm), per axis
-        and the plane, and whether the tables are the same (``same_tables``): a figure
-        that reads worse on the same tables is the machine (heat, scatter), not them."""
+        and the plane, and whether the tables are the same (``same_tables``; the plane's:
+        its model and both axes'): a figure that reads worse on the same tables is the
+        machine (heat, scatter), not them."""
         before = self.record.state.get("run_before") or {}
         now = as_read_figures(out)
         against = {n: {"before_um": was["read"], "now_um": now[n],
-                       "same_tables": was["tables"] == self.record.tables.digest(
-                           n, self.record.config_dir)}
+                       "same_tables": self.run_before.same(n)}
                    for n, was in before.items() if n in now}  # fmt: skip
         for n, r in against.items():  # how far a target's mean scatters (±2σ) on this axis
             after = ((out.get("axes") or {}).get(n) or {}).get("after") or {}

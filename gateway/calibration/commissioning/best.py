@@ -18,7 +18,46 @@ if TYPE_CHECKING:
     from .axes import Axes
     from .record import Record
 
+def table_files(record: Record, name: str) -> list[Path]:
+    """The files that hold an axis's table (or, for "XY", the planar model); none where it
+    has none yet."""
+    if name == "XY":
+        if record.tables.planar_model is None:
+            return []
+        model = record.config_dir / str(record.tables.planar_model)
+        return [model, model.parent / "xy_points.csv", model.parent / FRAME_FILE,
+                model.parent / FITTED_FILE]
+    files = []
+    if name in record.tables.pitch:
+        files.append(record.config_dir / record.tables.pitch[name])
+    if name in record.tables.cyclic:  # refinement scans add cyclic stations too
+        files.append(record.config_dir / record.tables.cyclic[name])
+    return files
 
+
+def copy_aside(record: Record, name: str, keep: Path) -> None:
+    """An axis's (or the plane's) table files as they are now, copied into ``keep``."""
+    keep.mkdir(parents=True, exist_ok=True)
+    for path in table_files(record, name):
+        if path.exists():
+            shutil.copyfile(path, keep / f"{name}-{path.name}")
+        else:  # (a plane without a frame): no older copy stands in for it
+            (keep / f"{name}-{path.name}").unlink(missing_ok=True)
+
+
+def put_back_files(record: Record, name: str, keep: Path) -> bool:
+    """The files :func:`copy_aside` kept in ``keep`` copied over the current ones, and one
+    that did not exist then removed; True when any differed."""
+    changed = False
+    for path in table_files(record, name):
+        saved = keep / f"{name}-{path.name}"
+        if saved.exists() and (not path.exists() or path.read_bytes() != saved.read_bytes()):
+            atomic_write_text(path, saved.read_text())
+            changed = True
+        elif not saved.exists() and path.exists():
+            path.unlink()
+            changed = True
+    return changed
 
 
 class BestTables:
@@ -27,17 +66,6 @@ class BestTables:
     def __init__(self, axes: Axes, record: Record) -> None:
         self.axes = axes
         self.record = record
-
-    def _table_files(self, name: str) -> list[Path]:
-        """The files that hold an axis's table (or, for "XY", the planar model)."""
-        if name == "XY":
-            model = self.record.config_dir / str(self.record.tables.planar_model)
-            return [model, model.parent / "xy_points.csv", model.parent / FRAME_FILE,
-                    model.parent / FITTED_FILE]
-        files = [self.record.config_dir / self.record.tables.pitch[name]]
-        if name in self.record.tables.cyclic:  # refinement scans add cyclic stations too
-            files.append(self.record.config_dir / self.record.tables.cyclic[name])
-        return files
 
     def restore_best(self) -> None:
         """Put back the best table of every axis (and the plane's model) judged so far."""
@@ -60,15 +88,7 @@ class BestTables:
             else:
                 self.record.tables.interpolation[name] = method
             changed = True
-        for path in self._table_files(name):
-            saved = keep / f"{name}-{path.name}"
-            if saved.exists() and (not path.exists() or path.read_bytes() != saved.read_bytes()):
-                atomic_write_text(path, saved.read_text())
-                changed = True
-            elif not saved.exists() and path.exists():
-                path.unlink()
-                changed = True
-        return changed
+        return put_back_files(self.record, name, keep) or changed
 
     def read_again(self, name: str, score: float, r: int) -> float:
         """Round ``r`` verified an axis's best table again, unchanged (at other random
@@ -110,11 +130,7 @@ class BestTables:
             # and how it is read
             if name in self.record.tables.pitch and not self.axes.rotary(name):
                 best[name]["interpolation"] = self.record.tables.interpolation.get(name, "linear")
-            for path in self._table_files(name):
-                if path.exists():
-                    shutil.copyfile(path, keep / f"{name}-{path.name}")
-                else:  # (a plane without a frame): no older copy stands in for it
-                    (keep / f"{name}-{path.name}").unlink(missing_ok=True)
+            copy_aside(self.record, name, keep)
             return True
         self._put_back(name)
         return False

@@ -59,6 +59,7 @@ from .after import AfterSteps
 from .axes import Axes
 from .best import BestTables
 from .budget import Budget
+from .carried import RunBefore
 from .command import CommandChecks
 from .configs import own_config_path
 from .drift import DriftRefs
@@ -107,9 +108,10 @@ class Commission:
                                            budget=budget, runner=runner, rotary=rotary,
                                            say=say)  # fmt: skip
         self.takeup = takeup = TakeUpSteps(axes, record, runner=runner, say=say)
+        self.run_before = run_before = RunBefore(record)
         self.after = after = AfterSteps(axes, record, stager=stager, runner=runner,
-                                        rotary=rotary, takeup=takeup, say=say,
-                                        clock=drift.clock)  # fmt: skip
+                                        rotary=rotary, takeup=takeup, run_before=run_before,
+                                        say=say, clock=drift.clock)  # fmt: skip
         self.best = best = BestTables(axes, record)
         self.short = short = ShortBudget(axes, record, budget=budget, runner=runner,
                                          plans=plans, refine=refine, say=say)  # fmt: skip
@@ -205,8 +207,8 @@ class Commission:
             self.say(warm)
         notes = self.record.state["notes"]
         del notes[int(done.get("notes_from", len(notes))):]
-        for name in [n for n in self.record.state["steps"] if n.startswith("after-")]:
-            self.runner.forget(name, keep_in=self.record.dir / "raw" / "superseded")
+        # its tables and after-run kept aside, the after-run's raw files in raw/superseded/
+        self.run_before.keep([n for n in self.record.state["steps"] if n.startswith("after-")])
         used = done.get("machine_h")
         notes.append(f"carried on after '{done.get('outcome')}'"
                      + (f" at {used:.2f} h of machine time" if used is not None else ""))

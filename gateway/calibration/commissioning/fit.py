@@ -102,7 +102,7 @@ class FitSteps:
         for a in axes:
             model = None
             if a in scanned:
-                raw_c = self.runner.raw_paths(f"cyclic-{a}")[0]
+                raw_c = self.record.raw_paths(f"cyclic-{a}")[0]
                 cr = fit_cyclic_raw(self.runner.raw(f"cyclic-{a}"), read_raw_meta(raw_c), config,
                                     self.record.config_dir, a)  # fmt: skip
                 save_cyclic(cr, "compgw commission: dense scans")

@@ -56,6 +56,30 @@ class Record:
         return str(path.resolve().relative_to(self.config_dir)) if path.resolve().is_relative_to(
             self.config_dir) else str(path.resolve())  # fmt: skip
 
+    def raw_path(self, name: str) -> Path:
+        """The raw file of a step measured in one run."""
+        return self.dir / "raw" / f"{name}.csv"
+
+    def raw_paths(self, name: str) -> list[Path]:
+        """The raw files of a step (one per run when its runs were measured apart)."""
+        parts = self.state["steps"].get(name, {}).get("parts")
+        if not parts:
+            return [self.raw_path(name)]
+        return [self.config_dir / part["raw"] for part in parts]
+
+    def forget(self, name: str, keep_in: Path | None = None) -> None:
+        """Step ``name`` as if never run: its raw files removed (or moved into ``keep_in``)
+        and its records dropped; the next step of that name measures it again."""
+        for path in self.raw_paths(name):
+            if keep_in is not None and path.exists():
+                keep_in.mkdir(parents=True, exist_ok=True)
+                path.replace(keep_in / path.name)
+            else:
+                path.unlink(missing_ok=True)
+        for key in ("steps", "parts", "apart"):
+            self.state.get(key, {}).pop(name, None)
+        self.save()
+
     def done(self, name: str) -> bool:
         return name in self.state["steps"]
 

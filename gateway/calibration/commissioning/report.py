@@ -313,6 +313,12 @@ def _drift_off(before: float, after: float, read: float, unit: str, what: str = 
             f"{before:.2f} → {after:.2f}{unit}")
 
 
+def _carried(after: dict[str, Any]) -> str:
+    """Where a carried-on run kept the run before's after-run (its tables as it left them)."""
+    return ("; after: the run before's reading (its tables as it left them, not read again)"
+            if after.get("carried") else "")
+
+
 def summary_lines(summary: dict[str, Any]) -> list[str]:
     """What a commissioning bought, a line per axis, the plane and the outcome: the figures
     as the laser read them (nothing subtracted), the drift-corrected ones beside them where
@@ -334,14 +340,15 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
                          f"{_fig(a, 'R') or 0:.2f}), {entry.get('table_points')} table points"
                          + (f", {entry['interpolation']} interpolation"
                             if "interpolation" in entry else "")
-                         + _drift_off(eb, ea, ra, u))  # fmt: skip
+                         + _drift_off(eb, ea, ra, u) + _carried(a))  # fmt: skip
     xy = summary.get("xy") or {}
     if xy.get("before") and xy.get("after"):
         b, a = xy["before"]["max_um"], xy["after"]["max_um"]
         rb = xy["before"].get("max_read_um", b)
         ra = xy["after"].get("max_read_um", a)
         lines.append(f"XY max vector error {rb:.2f} → {ra:.2f} µm as read "
-                     f"({change_text(rb, ra)})" + _drift_off(b, a, ra, " µm", "max"))  # fmt: skip
+                     f"({change_text(rb, ra)})" + _drift_off(b, a, ra, " µm", "max")
+                     + _carried(xy["after"]))  # fmt: skip
     if summary.get("retried"):
         lines.append(f"{summary['retried']} Modbus requests answered only when tried again "
                      "(exception 6 or 11: a drive or instrument slow to answer; if many, "

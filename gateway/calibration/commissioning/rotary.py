@@ -204,7 +204,7 @@ class RotarySteps:
         sent, off = float(np.ptp(raw.target_mm)), float(np.ptp(raw.deviation_mm))
         if off <= 0.05 * sent:
             return
-        self.runner.forget(name)
+        self.record.forget(name)
         ins = self.s.instruments
         order = ins.angle_order(self.config)
         given = (f"--angle-axes {','.join(order)}" if ins.angle_axes else

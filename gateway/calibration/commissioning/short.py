@@ -527,7 +527,7 @@ class ShortBudget:
         (:func:`..fitting.outputs.scanned_cyclic`)."""
         if axis not in self.s.lead_mm or not self.record.done(f"cyclic-{axis}"):
             return None
-        path = self.runner.raw_paths(f"cyclic-{axis}")[0]
+        path = self.record.raw_paths(f"cyclic-{axis}")[0]
         return scanned_cyclic(self.runner.raw(f"cyclic-{axis}"), read_raw_meta(path), axis)
 
     def grid_affordable(self) -> bool:

@@ -52,42 +52,18 @@ class StepRunner:
         self.budget = budget
         self.say = say
 
-    def _raw_path(self, name: str) -> Path:
-        """The raw file of a step measured in one run."""
-        return self.record.dir / "raw" / f"{name}.csv"
-
-    def raw_paths(self, name: str) -> list[Path]:
-        """The raw files of a step (one per run when its runs were measured apart)."""
-        parts = self.record.state["steps"].get(name, {}).get("parts")
-        if not parts:
-            return [self.record.dir / "raw" / f"{name}.csv"]
-        return [self.record.config_dir / part["raw"] for part in parts]
-
-    def forget(self, name: str, keep_in: Path | None = None) -> None:
-        """Step ``name`` as if never run: its raw files removed (or moved into ``keep_in``)
-        and its records dropped; the next :meth:`step` of that name measures it again."""
-        for path in self.raw_paths(name):
-            if keep_in is not None and path.exists():
-                keep_in.mkdir(parents=True, exist_ok=True)
-                path.replace(keep_in / path.name)
-            else:
-                path.unlink(missing_ok=True)
-        for key in ("steps", "parts", "apart"):
-            self.record.state.get(key, {}).pop(name, None)
-        self.record.save()
-
     def raw_as_read(self, name: str) -> RawData:
         """A step's raw data (all its runs) as the instrument read it: the machine's drift
         in it (what the technician gets from the same readings, and what a recheck reads)."""
         step = self.record.state["steps"].get(name, {})
-        parts = step.get("parts") or [{"raw": self.record.rel(self._raw_path(name))}]
+        parts = step.get("parts") or [{"raw": self.record.rel(self.record.raw_path(name))}]
         return concat_raw([read_raw_csv(self.record.config_dir / part["raw"]) for part in parts])
 
     def raw(self, name: str) -> RawData:
         """A step's raw data (all its runs) with the machine's thermal drift during each run
         taken off: what the readings would have been in the state commissioning began in."""
         step = self.record.state["steps"].get(name, {})
-        parts = step.get("parts") or [{"raw": self.record.rel(self._raw_path(name))}]
+        parts = step.get("parts") or [{"raw": self.record.rel(self.record.raw_path(name))}]
         datas = []
         for part in parts:
             data = read_raw_csv(self.record.config_dir / part["raw"])
@@ -113,7 +89,7 @@ class StepRunner:
         begun resumes from its raw file with its saved plan); its raw file. ``drift``: the
         drift references are read before and after each of its runs (see :meth:`raw`);
         ``whole``: around the whole plan only (many short runs)."""
-        raw = self.record.dir / "raw" / f"{name}.csv"
+        raw = self.record.raw_path(name)
         if self.record.done(name):
             return raw
         if self.record.state.get("phase") == "original":  # never read under the user's own config
