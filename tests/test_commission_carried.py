@@ -66,6 +66,7 @@ def test_tables_left_as_they_were_keep_their_reading_and_changed_ones_go_back(
     run_before.put_back("X")
     assert (tmp_path / "tables" / "X.csv").read_text() == x_table
     assert "X" not in record.tables.interpolation and record.state["best"]["X"]["score"] == 1.1
+    assert record.state["put_back"] == ["X"]
     assert run_before.same("X") and run_before.same("XY")
     assert run_before.carry("after-X", "X") and run_before.carry("after-xy", "XY")
     assert record.raw_path("after-X").read_text() == "readings of after-X\n"

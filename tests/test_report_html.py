@@ -317,7 +317,11 @@ def test_a_rerun_that_reads_worse_on_the_tables_it_kept_says_so() -> None:
     line = verdict(summary)
     assert "again after carrying on: --recheck reads the after-run's targets once more" in \
         line and "carries on refining" not in line, line  # fmt: skip
-    del summary["run_before"]
+    # random 3's tighter rerun: Y swept, the plane then read worse; both went back
+    summary["put_back"] = ["XY", "Y"]
+    assert verdict(summary).endswith("; XY, Y: this run's refinement read worse as read and "
+                                     "was put back: the run before's tables are loaded there")
+    del summary["run_before"], summary["put_back"]
     assert "a tighter --tolerance-um carries on refining" in verdict(summary)
 
 

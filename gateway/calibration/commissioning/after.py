@@ -309,6 +309,8 @@ class AfterSteps:
                                "spent_s": {name: step["machine_s"] for name, step
                                            in self.record.state["steps"].items()},
                                "refs_s": self.record.state.get("refs_s", 0.0),
+                               # a carried-on run's tables put back as the run before's
+                               "put_back": self.record.state.get("put_back", []),
                                "finished_at": time.strftime("%Y-%m-%d %H:%M")}  # fmt: skip
         for a in self.s.axes:
             entry: dict[str, Any] = {}

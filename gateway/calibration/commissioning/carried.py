@@ -63,6 +63,7 @@ class RunBefore:
                                        for k in STEP_KEYS if name in state.get(k, {})},
                            "raw": [str(p) for p in self.record.raw_paths(name)]}  # fmt: skip
             self.record.forget(name, keep_in=self.record.dir / "raw" / "superseded")
+        state["put_back"] = []  # what this run puts back (the verdict says so)
         state["run_before_kept"] = {"tables": copy.deepcopy(self.record.tables.to_json()),
                                     "best": copy.deepcopy(state.get("best", {})),
                                     "steps": steps}  # fmt: skip
@@ -134,6 +135,8 @@ class RunBefore:
                 else:
                     mine.pop(name, None)
         put_back_files(self.record, name, self._keep)
+        if name not in self.record.state.setdefault("put_back", []):
+            self.record.state["put_back"].append(name)
         best = kept.get("best", {})
         if name in best:
             self.record.state.setdefault("best", {})[name] = copy.deepcopy(best[name])

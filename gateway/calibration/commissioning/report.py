@@ -126,7 +126,17 @@ def verdict(summary: dict[str, Any]) -> str:
     elif not (missing and heat) and outcome in ("after", "after_again", "rounds", "budget"):
         advice = _before_more(summary) or advice
     return (f"NOT within {tol_text}{where}; what was fitted is loaded. Next: {advice}"
-            + _same_tables_worse(summary))
+            + _same_tables_worse(summary) + _put_back(summary))
+
+
+def _put_back(summary: dict[str, Any]) -> str:
+    """Where a carried-on run put tables back because they read worse than the run
+    before's (:mod:`.carried`): said, so its figures are known for the run before's."""
+    back = summary.get("put_back") or []
+    if not back:
+        return ""
+    return ("; " + ", ".join(back) + ": this run's refinement read worse as read and was put "
+            "back: the run before's tables are loaded there")
 
 
 def _same_tables_worse(summary: dict[str, Any]) -> str:
