@@ -10,6 +10,8 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
+import pytest
+
 from gateway.calibration.commissioning.budget import Budget
 from gateway.calibration.commissioning.identify import IdentifySteps
 from gateway.calibration.commissioning.settings import SHORT_WARMUP_S
@@ -69,8 +71,13 @@ def test_a_short_budget_holds_a_short_warm_up_of_the_sensor_axes_first(tmp_path:
     steps._hold_warm_ups(["X", "Y"])  # Y's references read no heat: none held for it
     assert list(state["warmup_held"]) == ["X"]
     steps, state, budget = _steps(tmp_path, 800.0, {"X": "sensor", "Y": "sensor"})
-    steps._hold_warm_ups(["X", "Y"])  # no room beside the plain grid: nothing held
-    assert state["warmup_held"] == {} and budget.left_s() == 800.0
+    steps._hold_warm_ups(["X", "Y"])  # room for less than a short one: shortened by tenths
+    held = state["warmup_held"]
+    assert list(held) == ["X"] and held["X"]["duration_s"] == pytest.approx(SHORT_WARMUP_S * 0.81)
+    assert budget.left_s() == pytest.approx(800.0 - 100.0 - SHORT_WARMUP_S * 0.81)
+    steps, state, budget = _steps(tmp_path, 600.0, {"X": "sensor", "Y": "sensor"})
+    steps._hold_warm_ups(["X", "Y"])  # not even half a short one beside the plain grid
+    assert state["warmup_held"] == {} and budget.left_s() == 600.0
 
 
 def test_a_held_warm_up_shortens_to_what_the_steps_before_it_left(tmp_path: Path) -> None:
