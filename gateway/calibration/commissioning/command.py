@@ -99,8 +99,9 @@ class CommandChecks:
             self.say("  a short budget: a plain calibration's steps first: every axis's ISO runs "
                      f"at {self.s.runs} runs per target, the cyclic scans where the lead is "
                      "known, the midpoints of a table that misses between its points, time "
-                     f"held for a {SHORT_WARMUP_S / 60:.0f}-minute zone warm-up per axis whose "
-                     "heat one identifies (a sensor's first; run last), up to 5 runs per "
+                     f"held for a {SHORT_WARMUP_S / 60:.0f}-minute zone warm-up (down to "
+                     f"{SHORT_WARMUP_S / 120:.0f} where that is what fits) per axis whose heat "
+                     "one identifies (a sensor's first; run last), up to 5 runs per "
                      "target (or the quarter points of a table that still misses)"
                      + (", then the plane's grid (9 nodes along the longer travel)" if plane
                         else "") + "; then, as the budget allows, "
