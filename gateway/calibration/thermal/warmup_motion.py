@@ -10,11 +10,12 @@ fixed end, or where the nut worked).
 
 The model is the gateway's own heat from motion (:func:`~gateway.compensation.thermal.
 motion_heat_m`): growth(x) = c · H · lever(x), H the heat in metres of travel with τ. For
-each τ on a grid the linear shape is a least-squares fit in (c, c · fixed end); the τ with
-the least residual wins. The travel profile (heat spread where the axis travelled) is
-tried at that τ with the fixed end on the side the linear fit found, and taken when it
-leaves clearly less at the places surveyed warm. Pure: readings and a plan in, numbers
-out.
+each τ on a grid the linear shape is a least-squares fit in (c, c · fixed end, each
+reference's cold value); the τ with the least residual wins. The travel profile (heat
+spread where the axis travelled) is tried at that τ with the fixed end on the side the
+linear fit found, and taken when it leaves clearly less at the places surveyed warm (or
+just less, where the linear fit's fixed end lies at the travel's end or inside it).
+Pure: readings and a plan in, numbers out.
 """
 
 from __future__ import annotations
@@ -42,6 +43,9 @@ from .warmup_heat import heat_changes, motion_section, readings_clock_s
 UM_PER_MM = 1000.0
 #: growth (µm) below which a warm-up shows nothing worth a model
 MIN_GROWTH_UM = 3.0
+#: a linear fit's fixed end this share of the travel beyond its end or less is "at the
+#: end": the profile is taken where it leaves less (:func:`_near_ends`)
+NEAR_END_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -86,6 +90,28 @@ def _lstsq(design: NDArray[np.float64], y: NDArray[np.float64]
     return coef, float(np.sum((y - design @ coef) ** 2))
 
 
+def _cold_offsets(place: NDArray[np.float64]) -> NDArray[np.float64]:
+    """One column per reference (a place read warm more than once): 1 on its readings.
+    Its growth is counted from one cold reading, whose scatter every later reading there
+    carries; fitted as an offset, its cold value rests on all of them. smooth-2's 150 mm
+    Y grew 3.4 µm in its warm-up: with two references read from one cold reading each
+    (±0.45 µm) its fixed end came out at −28 mm, −48 with the offsets (the sim's −59);
+    over the bench's eleven smooth no-sensor warm-ups the fixed end moved nearer the sim's
+    on seven, 1-3 mm further on three."""
+    places, counts = np.unique(place, return_counts=True)
+    refs = places[counts > 1]
+    return (place[:, None] == refs[None, :]).astype(np.float64)
+
+
+def _near_ends(origin_mm: float, lo: float, hi: float) -> bool:
+    """A linear fit's fixed end just beyond the travel's (within NEAR_END_SHARE of it):
+    the zone's growth fading towards that end fits it about as well as a fixed end there.
+    Rough-7's Y with its references' cold values fitted: −3 mm of 0-450, linear, where the
+    profile left half the residual."""
+    margin = NEAR_END_SHARE * (hi - lo)
+    return lo - margin <= origin_mm <= lo or hi <= origin_mm <= hi + margin
+
+
 def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[float, float],
                       prior_m: ArrayLike = (), prior_s: ArrayLike = (),
                       clock: tuple[str, ...] = ("time_s",)) -> WarmupMotionFit:  # fmt: skip
@@ -106,13 +132,15 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
     times = readings_clock_s(raw, plan, axis, clock)
     d_heat, d_fade = heat_changes(plan, axis, warm, first, prior_m, prior_s, times)
     heat = d_heat + d_fade  # (readings, τ): metres of travel still in the screw, as changed
-    fits = [_lstsq(np.column_stack([heat[:, j] * place, heat[:, j]]), growth)
+    refs = _cold_offsets(place)
+    fits = [_lstsq(np.column_stack([heat[:, j] * place, heat[:, j], refs]), growth)
             for j in range(TAU_GRID_S.size)]  # fmt: skip
     j = likely_tau([sse for _, sse in fits])
+    growth = growth - refs @ fits[j][0][2:]  # each reference's cold reading, as fitted
     if j == TAU_GRID_S.size - 1:
         raise TableError(f"{raw.source}: axis {axis}: the warm-up's growth does not level off: "
                          "no time constant (a longer --warmup-min shows it)")  # fmt: skip
-    (per_mm, offset), _ = fits[j]  # growth = per_mm · H · (x − origin)
+    per_mm, offset = fits[j][0][:2]  # growth = per_mm · H · (x − origin)
     if not per_mm > 0:
         raise TableError(f"{raw.source}: axis {axis}: the growth does not follow the travel "
                          "(a screw that shrinks with use: still cooling from before?)")
@@ -132,7 +160,8 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
                                     ** 2)))  # fmt: skip
     # the profile: the fixed end on the side the linear fit put it (inside the travel, the
     # growth was flat there: the nearer end of the travel)
-    fixed = origin if not lo < origin < hi else (lo if origin - lo < hi - origin else hi)
+    fixed = (origin if not (lo < origin < hi or _near_ends(origin, lo, hi))
+             else (lo if origin - lo < hi - origin else hi))  # fmt: skip
     speed = float(dict(plan.meta).get("speed_mm_s", 0) or 0)
     memory = round(max(speed, 1.0) * tau, -2)
     base = AxisThermal(motion=MotionHeat(delta_a_um_per_m=1.0, tau_s=tau),
@@ -149,6 +178,8 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
             best = (rms, float(coef[0]), whole, spread)
     prof_rms, c_prof, whole, spread = best
     profiled = prof_rms < PROFILE_SHARE * lin_rms and (lin_rms - prof_rms) * UM_PER_MM > NOISE_UM
+    if _near_ends(origin, lo, hi):  # the end may lie on either side of it: the shapes decide
+        profiled = prof_rms < lin_rms
     if lo < origin < hi:
         # a linear growth that changes sign inside the travel is no screw's (heat only
         # lengthens it from its fixed end): the zone's shape. Linear from the nearer end,
