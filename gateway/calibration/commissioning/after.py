@@ -146,24 +146,31 @@ class AfterSteps:
         now = self._as_read_um(step, name)
         if not self.run_before.reads_worse(name, now):
             return
-        again = await self._put_back(name, {name: plan})
+        again = await self._put_back({name: plan})
         self._said(f"{name}: this run's tables read {now:.2f} µm as read, worse than the run "
                    f"before's {self.run_before.figure_um(name):.2f}: put back as the run "
                    f"before left them, {again}")  # fmt: skip
 
-    async def _put_back(self, name: str, plans: dict[str, Plan]) -> str:
-        """``name``'s tables put back as the run before left them (the plane: its model) and
-        loaded; the run before's reading carried where it still stands, else read again
-        (``plans``: each after-run step's plan by name). What its figure now is, said."""
-        step = "after-xy" if name == "XY" else f"after-{name}"
-        self.run_before.set_aside(step)
-        self.run_before.put_back(name)
+    async def _put_back(self, plans: dict[str, Plan]) -> str:
+        """Each name's tables (the plane: its model) put back as the run before left them,
+        loaded once; the run before's readings carried where they still stand, the others
+        read again (``plans``: each name's after-run plan, axes before the plane). What
+        their figures now are, said."""
+        def step(n: str) -> str:
+            return "after-xy" if n == "XY" else f"after-{n}"
+
+        for n in plans:
+            self.run_before.set_aside(step(n))
+            self.run_before.put_back(n)
         await self.stager.use(self.record.tables_phase)
-        if self.run_before.carry(step, name):
-            return "with its reading"
-        park = None if name == "XY" else self.axes.park(name)
-        await self.runner.step(step, lambda: plans[name], "on", park)
-        return f"read again: {self._as_read_um(step, name):.2f} µm"
+        again = [n for n in plans if not self.run_before.carry(step(n), n)]
+        for n in again:  # (their kept readings gone)
+            park = None if n == "XY" else self.axes.park(n)
+            await self.runner.step(step(n), lambda p=plans[n]: p, "on", park)
+        if not again:
+            return "with the run before's reading" + ("s" if len(plans) > 1 else "")
+        return "read again: " + ", ".join(
+            f"{n} {self._as_read_um(step(n), n):.2f} µm" for n in again)
 
     def _said(self, note: str) -> None:
         self.record.note(note)
@@ -177,38 +184,23 @@ class AfterSteps:
         if self.run_before.same("XY"):
             return
         now = self._as_read_um("after-xy", "XY")
-        was = self.run_before.figure_um("XY")
         if not self.run_before.reads_worse("XY", now):
             return
         worse = (f"XY: this run's tables read {now:.2f} µm as read, worse than the run "
-                 f"before's {was:.2f}")
+                 f"before's {self.run_before.figure_um('XY'):.2f}")
         if not self.run_before.same_one("XY"):
-            again = await self._put_back("XY", {"XY": plan})
+            again = await self._put_back({"XY": plan})
             if not self.run_before.reads_worse("XY", self._as_read_um("after-xy", "XY")):
                 self._said(f"{worse}: its model put back as the run before left it, {again}")
                 return
             worse += f"; its model put back as the run before left it, {again}, still worse"
         axes = [a for a in self.record.tables.planar_axes or ()
                 if not self.run_before.same_one(a)]
-        for a in axes:
-            self.run_before.set_aside(f"after-{a}")
-            self.run_before.put_back(a)
-            self.run_before.carry(f"after-{a}", a)
-        self.run_before.set_aside("after-xy")
-        self.run_before.put_back("XY")
-        await self.stager.use(self.record.tables_phase)
-        carried = self.run_before.carry("after-xy", "XY")
-        plans = {"XY": plan, **{a: read_plan(self.record.dir / "plans" / f"before-{a}.plan")
-                               for a in axes}}  # fmt: skip
-        for a in axes:
-            if not self.record.done(f"after-{a}"):
-                await self.runner.step(f"after-{a}", lambda p=plans[a]: p, "on", self.axes.park(a))
-        if not carried:
-            await self.runner.step("after-xy", lambda: plan, "on")
+        again = await self._put_back({
+            **{a: read_plan(self.record.dir / "plans" / f"before-{a}.plan") for a in axes},
+            "XY": plan})  # fmt: skip
         self._said(f"{worse}: the plane's model and the tables this run changed on "
-                   + ", ".join(axes) + " put back as the run before left them"
-                   + (", with their readings" if carried else
-                      f", the plane read again: {self._as_read_um('after-xy', 'XY'):.2f} µm"))
+                   + ", ".join(axes) + f" put back as the run before left them, {again}")
 
     def xy_figures(self, name: str) -> dict[str, float]:
         """Max and RMS vector error (µm) of an XY run, drift taken off."""

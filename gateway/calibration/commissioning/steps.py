@@ -105,14 +105,16 @@ class StepRunner:
             write_plan(plan_path, plan)
         cost_s = self.axes.estimate_s(plan)
         after = name.startswith("after")  # (what was kept and held is for the steps before)
-        reserve_s = 0.0 if after else self.budget.reserve_s()
-        held_s = 0.0 if after else self.budget.held_s(name.removeprefix("warmup-"))
+        warming = name.removeprefix("warmup-")
+        left_s = (self.s.budget_s - self.record.used_s if after
+                  else self.budget.left_s(warming))  # fmt: skip
         need_s = self.budget.step_cost_s(plan, drift, whole)
-        if self.record.used_s + need_s + reserve_s + held_s > self.s.budget_s:
-            left_s = max(0.0, self.s.budget_s - self.record.used_s - reserve_s - held_s)
+        if need_s > left_s:
+            reserve_s = 0.0 if after else self.budget.reserve_s()
+            held_s = 0.0 if after else self.budget.held_s(warming)
             refs = " with its drift references" if need_s > cost_s else ""
             raise BudgetSpent(f"{name} needs {need_s / 60:.1f} min of machine time{refs}, "
-                              f"{left_s / 60:.1f} min left"
+                              f"{max(0.0, left_s) / 60:.1f} min left"
                               + (f" ({reserve_s / 60:.1f} min kept for the after-run)"
                                  if reserve_s else "")
                               + (f" ({held_s / 60:.1f} min held for the warm-ups)"
