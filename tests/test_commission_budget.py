@@ -14,6 +14,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -392,3 +393,45 @@ def test_a_budget_that_holds_a_plain_calibration_only_without_references_reads_n
     for budget_h in (bare_h + refs_h + 0.01, 5.0):  # a plain calibration's with them; long
         other, _ = job(budget_h, f"b{budget_h:.3f}")
         assert other.short.refs_affordable(), budget_h
+
+
+def test_a_stopped_run_finishes_with_the_tables_it_has_read(
+        template: Path, tmp_path: Path) -> None:  # fmt: skip
+    """The machine is needed back half-way (Ctrl-C once Y's ISO runs are read): ``--finish``
+    measures nothing more, fits the tables from what was read, loads them and reads the
+    after-run where the before-run was made. Given before anything was read, it says so and
+    writes nothing."""
+    with running(template, tmp_path / "m") as rig:
+        out = rig.dir / "commission"
+        nothing = rig.commission("--finish")
+        assert nothing.popen.wait(timeout=120) == 1, nothing.text()
+        assert "--finish: nothing has been read in" in nothing.text()
+        assert not (out / "commission.json").exists()
+        proc = rig.commission()
+        state = out / "commission.json"
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            assert proc.popen.poll() is None, proc.text()
+            steps = json.loads(state.read_text())["steps"] if state.exists() else {}
+            if "iso-Y" in steps:
+                break
+            time.sleep(0.02)
+        proc.signal(signal.SIGINT)
+        assert proc.popen.wait(timeout=60) == 3, proc.text()
+        read = list(json.loads(state.read_text())["steps"])
+        done = rig.commission("--finish")
+        code = done.popen.wait(timeout=300)
+        assert code in (0, 1), done.text()
+        assert "--finish: nothing more is measured" in done.text()
+        after = json.loads(state.read_text())
+        new = [s for s in after["steps"] if s not in read]
+        assert all(s.startswith("after-") for s in new), new  # nothing but the after-run
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["outcome"] in ("budget", "within", "after"), summary["outcome"]
+        final = yaml.safe_load(rig.config.read_text())["axes"]
+        for a in ("X", "Y"):  # both tables fitted from their ISO runs and loaded
+            assert "pitch" in final[a]["compensation"], final[a]
+        assert new == ["after-X"], new  # Y's before-run was not read: no after-run for it
+        judged = summary["axes"]["X"]
+        assert judged["after"]["E_um"] < 0.5 * judged["before"]["E_um"], judged
+        assert re.search(r"--finish: \S+ and the steps after it are not read", done.text())

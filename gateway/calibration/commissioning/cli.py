@@ -105,6 +105,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--recheck", action="store_true",
                    help="a finished commissioning: measure its random targets again with the "
                         "tables loaded now and say whether they still hold (fits nothing)")
+    p.add_argument("--finish", action="store_true",
+                   help="a stopped commissioning (Ctrl-C, the machine needed back): measure "
+                        "nothing more; fit the tables from what it has read, load them and "
+                        "read the after-run (its budget becomes the machine time spent and "
+                        "the after-run's)")
     p.add_argument("--reload-pid", type=int, metavar="PID", help="reload by SIGHUP")
     p.add_argument("--reload-cmd", metavar="CMD", help="reload by a command")
     p.add_argument("--estimate-speed-mm-s", type=above(0, "mm/s"), default=100.0,
@@ -338,6 +343,7 @@ def main(args: argparse.Namespace) -> int:
                                   request_timeout_s=args.request_timeout_s),
             seed=args.seed, max_rounds=args.max_rounds, warmup_s=args.warmup_min * 60.0,
             no_lead_search=args.no_lead_search, heat_warmup=not args.no_heat_warmup,
+            finish=args.finish,
         )  # fmt: skip
         reload = make_reload(args, config, gateway)
         job = Commission(settings, reload, print, None)
@@ -346,6 +352,8 @@ def main(args: argparse.Namespace) -> int:
             raise ValueError(other)
         if args.recheck:
             return _recheck(job, settings, config, config_path)
+        if args.finish:
+            print(job.command.finish_now(job.budget))
         finished = job.command.finished()
         if finished is None:
             if not (config.status.remote_control or args.reload_pid or args.reload_cmd):
@@ -353,13 +361,14 @@ def main(args: argparse.Namespace) -> int:
                     f"{config_path}: status.remote_control is false, so the gateway refuses to "
                     "reload over Modbus: set status.remote_control: true in its config (then "
                     "restart it or send it SIGHUP), or give --reload-pid or --reload-cmd")
-            short = job.command.too_short()
+            short = None if args.finish else job.command.too_short()
             if short is not None:  # nothing asked or moved: no plan that ends with no table
                 raise TableError(short)
             if not args.dry_run:
                 asyncio.run(_answering(settings, config, config_path))
                 job.stager.adopt_edits()  # (refused here, before anything would put a config back)
-            job.command.print_plan()
+            if not args.finish:
+                job.command.print_plan()
     except (ConfigError, TableError, CompensationError, ValueError, OSError) as exc:
         _err(exc)
         return EXIT_NOT_MET

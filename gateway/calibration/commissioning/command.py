@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ...compensation.errors import TableError
 from ..fitting import adaptive
 from ..fitting.takeup_fit import MIN_LOST_UM
 from ..plans.plans import Plan
@@ -21,6 +22,7 @@ from .settings import SHORT_WARMUP_S
 
 if TYPE_CHECKING:
     from .axes import Axes
+    from .budget import Budget
     from .planner import Planner
     from .record import Record
     from .rotary import RotarySteps
@@ -204,6 +206,20 @@ class CommandChecks:
         (:meth:`.short.ShortBudget.plain_steps`), snapped as the printed plan's are."""
         linear = [a for a in self.s.axes if not self.axes.rotary(a)]
         return [(n, self.axes.snap(p)) for n, p in self.short.plain_steps(linear, runs)]
+
+    def finish_now(self, budget: Budget) -> str:
+        """``--finish``: no step begins but the after-run (the budget becomes the machine time
+        spent and the after-run's, for what decides by the time left); the tables are fitted
+        from what was read, as when a budget is spent, and the after-run judges them. What
+        to say; TableError where nothing has been read yet."""
+        if not self.record.state.get("steps"):
+            raise TableError(f"--finish: nothing has been read in {self.s.out_dir} yet: no "
+                             "table to fit (run without --finish)")  # fmt: skip
+        used_s, after_s = self.record.used_s, budget.reserve_s()
+        self.s.budget_s = used_s + after_s
+        return (f"--finish: nothing more is measured: the tables are fitted from the "
+                f"{used_s / 3600:.2f} h read so far, loaded, and judged by the after-run "
+                f"({after_s / 60:.1f} min) where the before-run was read")  # fmt: skip
 
     def too_short(self) -> str | None:
         """Why a fresh commissioning would end with no table: its budget does not hold even

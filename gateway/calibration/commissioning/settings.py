@@ -47,5 +47,7 @@ class Settings:
     warmup_s: float = 1800.0
     #: an axis with no thermal sensor gets a zone warm-up read by the laser (heat from motion)
     heat_warmup: bool = True
+    #: ``--finish``: no step begins but the after-run (:meth:`.steps.StepRunner.step`)
+    finish: bool = False
     grid: tuple[int, int] = (7, 5)
     tolerance_arcsec: float = 3.0  # rotary axes: ISO 230-2 E between the points

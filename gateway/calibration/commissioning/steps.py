@@ -106,10 +106,12 @@ class StepRunner:
         cost_s = self.axes.estimate_s(plan)
         after = name.startswith("after")  # (what was kept and held is for the steps before)
         warming = name.removeprefix("warmup-")
+        if self.s.finish and not after:
+            raise BudgetSpent(f"--finish: {name} and the steps after it are not read")
         left_s = (self.s.budget_s - self.record.used_s if after
                   else self.budget.left_s(warming))  # fmt: skip
         need_s = self.budget.step_cost_s(plan, drift, whole)
-        if need_s > left_s:
+        if need_s > left_s and not self.s.finish:  # (--finish: the after-run, whatever it takes)
             reserve_s = 0.0 if after else self.budget.reserve_s()
             held_s = 0.0 if after else self.budget.held_s(warming)
             refs = " with its drift references" if need_s > cost_s else ""
