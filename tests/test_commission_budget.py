@@ -397,10 +397,10 @@ def test_a_budget_that_holds_a_plain_calibration_only_without_references_reads_n
 
 def test_a_stopped_run_finishes_with_the_tables_it_has_read(
         template: Path, tmp_path: Path) -> None:  # fmt: skip
-    """The machine is needed back half-way (Ctrl-C once Y's ISO runs are read): ``--finish``
-    measures nothing more, fits the tables from what was read, loads them and reads the
-    after-run where the before-run was made. Given before anything was read, it says so and
-    writes nothing."""
+    """The machine is needed back half-way (Ctrl-C once X's before-run is read; every
+    axis's ISO runs come first): ``--finish`` measures nothing more, fits the tables from
+    what was read, loads them and reads the after-run where the before-run was made. Given
+    before anything was read, it says so and writes nothing."""
     with running(template, tmp_path / "m") as rig:
         out = rig.dir / "commission"
         nothing = rig.commission("--finish")
@@ -413,12 +413,13 @@ def test_a_stopped_run_finishes_with_the_tables_it_has_read(
         while time.monotonic() < deadline:
             assert proc.popen.poll() is None, proc.text()
             steps = json.loads(state.read_text())["steps"] if state.exists() else {}
-            if "iso-Y" in steps:
+            if "before-X" in steps:
                 break
             time.sleep(0.02)
         proc.signal(signal.SIGINT)
         assert proc.popen.wait(timeout=60) == 3, proc.text()
         read = list(json.loads(state.read_text())["steps"])
+        assert read.index("iso-Y") < read.index("before-X"), read  # both tables first
         done = rig.commission("--finish")
         code = done.popen.wait(timeout=300)
         assert code in (0, 1), done.text()

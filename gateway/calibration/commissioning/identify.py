@@ -90,6 +90,8 @@ class IdentifySteps:
             await self._identify_axis(a)
             await self._warm_up(a)
         rest = [a for a in self.s.axes if a not in zoned] + zoned[:1]
+        for a in rest[: len(rest) - len(zoned[:1])]:  # every such axis's table first
+            await self._table_first(a)
         for a in rest:
             await self._identify_axis(a)
         await self.before_xy()
@@ -434,6 +436,15 @@ class IdentifySteps:
 
     async def _iso(self, a: str) -> None:
         await self.runner.step(f"iso-{a}", lambda: self.plans.iso_plan(a), "off", self.axes.park(a))
+
+    async def _table_first(self, a: str) -> None:
+        """A linear axis's lead search and ISO runs, before any axis's other steps: stopped
+        at a plain calibration's time (Ctrl-C, then ``--finish``), random machine 3 had X's
+        table alone, Y's ISO runs not begun; now both (the rest of :meth:`_identify_axis`
+        after)."""
+        if not self.axes.rotary(a):
+            await self._find_lead(a)
+            await self._iso(a)
 
     async def _identify_axis(self, a: str) -> None:
         """Backlash, the lead search, the coarse ISO run, the cyclic scans and the *before*
