@@ -32,6 +32,8 @@ def _record(tmp_path: Path) -> Record:
     figures = {"X": 1.10, "Y": 1.86, "XY": 0.95}
     record.state["run_before"] = {n: {"read": v, "tables": record.tables.digest(n, tmp_path)}
                                   for n, v in figures.items()}  # fmt: skip
+    for n, a in (("X", 3.73), ("Y", 3.76)):  # their A as read (the plane has none)
+        record.state["run_before"][n]["read_A"] = a
     return record
 
 
@@ -59,6 +61,10 @@ def test_tables_left_as_they_were_keep_their_reading_and_changed_ones_go_back(
     assert not run_before.carry("after-X", "X") and not run_before.carry("after-xy", "XY")
     # X read worse, to the hundredth printed: put back, with its reading and its best
     assert not run_before.reads_worse("X", 1.104) and run_before.reads_worse("X", 1.106)
+    # ... or its A, the acceptance figure (random machine 7's X: E 1.44 → 1.43, A 3.73 →
+    # 5.32); the plane has only its maximum
+    assert not run_before.reads_worse("X", 1.09, 3.734) and run_before.reads_worse("X", 1.09, 5.32)
+    assert not run_before.reads_worse("XY", 0.95, 9.0)
     record.raw_path("after-X").write_text("this run's readings of after-X\n")
     record.state["steps"]["after-X"] = {"machine_s": 281.0}
     run_before.set_aside("after-X")

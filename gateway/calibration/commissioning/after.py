@@ -143,13 +143,15 @@ class AfterSteps:
         after-run: put back as the run before left it, with its reading (:mod:`.carried`)."""
         if self.axes.rotary(name) or self.run_before.same(name):
             return
-        now = self._as_read_um(step, name)
-        if not self.run_before.reads_worse(name, now):
+        now = iso230_axis(axis_deviations(self.runner.raw_as_read(step), name))
+        if not self.run_before.reads_worse(name, now.E_um, now.A_um):
             return
+        was = (self.record.state.get("run_before") or {}).get(name) or {}
         again = await self._put_back({name: plan})
-        self._said(f"{name}: this run's tables read {now:.2f} µm as read, worse than the run "
-                   f"before's {self.run_before.figure_um(name):.2f}: put back as the run "
-                   f"before left them, {again}")  # fmt: skip
+        self._said(f"{name}: this run's tables read E {now.E_um:.2f}, A {now.A_um:.2f} µm as "
+                   f"read, worse than the run before's E {float(was['read']):.2f}"
+                   + (f", A {float(was['read_A']):.2f}" if "read_A" in was else "")
+                   + f": put back as the run before left them, {again}")  # fmt: skip
 
     async def _put_back(self, plans: dict[str, Plan]) -> str:
         """Each name's tables (the plane: its model) put back as the run before left them,

@@ -68,7 +68,7 @@ from .identify import IdentifySteps
 from .planner import Planner
 from .record import Record, plain_json
 from .refine import RefineSteps
-from .report import as_read_figures, warm_rerun
+from .report import as_read_accuracy, as_read_figures, warm_rerun
 from .rotary import RotarySteps
 from .rounds import Rounds
 from .short import ShortBudget
@@ -198,8 +198,10 @@ class Commission:
         except (OSError, ValueError):
             summary = {}
         # what this run's after-run is set against: the run before's, with its tables
+        accuracy = as_read_accuracy(summary)
         self.record.state["run_before"] = {
-            n: {"read": v, "tables": self.record.tables.digest(n, self.record.config_dir)}
+            n: {"read": v, "tables": self.record.tables.digest(n, self.record.config_dir),
+                **({"read_A": accuracy[n]} if n in accuracy else {})}
             for n, v in as_read_figures(summary).items()}  # fmt: skip
         # a machine the run before left warm, and not cooled since: said before moving
         warm = warm_rerun(summary, self.drift.clock.now_s(), self.drift.clock.kind())

@@ -169,6 +169,14 @@ def as_read_figures(summary: dict[str, Any]) -> dict[str, float]:
     return {n: float(v) for n, v in figures.items() if v is not None}
 
 
+def as_read_accuracy(summary: dict[str, Any]) -> dict[str, float]:
+    """A summary's after-run as read: ISO 230-2 A per linear axis (µm), the customer's
+    acceptance figure beside E."""
+    figures = {a: (e.get("after") or {}).get("A_read_um")
+               for a, e in summary.get("axes", {}).items() if e.get("unit") != "deg"}
+    return {n: float(v) for n, v in figures.items() if v is not None}
+
+
 def _warm_axes(summary: dict[str, Any]) -> dict[str, float]:
     """The axes whose growth since the cold start, as their heat correction is expected
     to leave it (``heat_left_um``; older summaries: the growth itself), is more than
