@@ -89,9 +89,10 @@ class IdentifySteps:
         for a in zoned[1:]:
             await self._identify_axis(a)
             await self._warm_up(a)
-        rest = [a for a in self.s.axes if a not in zoned] + zoned[:1]
-        for a in rest[: len(rest) - len(zoned[:1])]:  # every such axis's table first
+        unzoned = [a for a in self.s.axes if a not in zoned]
+        for a in unzoned:  # every such axis's table first
             await self._table_first(a)
+        rest = unzoned + zoned[:1]
         for a in rest:
             await self._identify_axis(a)
         await self.before_xy()
