@@ -146,11 +146,11 @@ class AfterSteps:
         now = iso230_axis(axis_deviations(self.runner.raw_as_read(step), name))
         if not self.run_before.reads_worse(name, now.E_um, now.A_um):
             return
-        was = (self.record.state.get("run_before") or {}).get(name) or {}
+        was_e, was_a = self.run_before.figure_um(name), self.run_before.figure_um(name, "read_A")
         again = await self._put_back({name: plan})
         self._said(f"{name}: this run's tables read E {now.E_um:.2f}, A {now.A_um:.2f} µm as "
-                   f"read, worse than the run before's E {float(was['read']):.2f}"
-                   + (f", A {float(was['read_A']):.2f}" if "read_A" in was else "")
+                   f"read, worse than the run before's E {was_e:.2f}"
+                   + (f", A {was_a:.2f}" if was_a is not None else "")
                    + f": put back as the run before left them, {again}")  # fmt: skip
 
     async def _put_back(self, plans: dict[str, Plan]) -> str:

@@ -85,10 +85,11 @@ class RunBefore:
         return was is not None and was["tables"] == self.record.tables.digest(
             name, self.record.config_dir)  # fmt: skip
 
-    def figure_um(self, name: str) -> float | None:
-        """The run before's after-run figure of ``name``, as read (µm); None: none."""
-        was = (self.record.state.get("run_before") or {}).get(name)
-        return None if was is None else float(was["read"])
+    def figure_um(self, name: str, key: str = "read") -> float | None:
+        """The run before's after-run figure of ``name``, as read (µm): its E (the plane:
+        its maximum), or with ``key`` "read_A" an axis's A; None: none."""
+        was = ((self.record.state.get("run_before") or {}).get(name) or {}).get(key)
+        return None if was is None else float(was)
 
     def carry(self, step: str, name: str) -> bool:
         """The run before's after-run step ``step`` (of ``name``) made this run's, not read
@@ -117,12 +118,11 @@ class RunBefore:
         the hundredth of a µm printed): its E (the plane: its maximum), or an axis's A
         (``now_a_um``), the acceptance figure. Random machine 7's tighter rerun swept X: E
         1.44 → 1.43 µm, but A 3.73 → 5.32."""
-        was = self.figure_um(name)
-        if was is not None and round(now_um, 2) > round(was, 2):
-            return True
-        was_a = ((self.record.state.get("run_before") or {}).get(name) or {}).get("read_A")
-        return (now_a_um is not None and was_a is not None
-                and round(now_a_um, 2) > round(float(was_a), 2))
+        def worse(now: float | None, was: float | None) -> bool:
+            return now is not None and was is not None and round(now, 2) > round(was, 2)
+
+        return (worse(now_um, self.figure_um(name))
+                or worse(now_a_um, self.figure_um(name, "read_A")))
 
     def put_back(self, name: str) -> None:
         """``name``'s tables (the plane: its model) as the run before left them: their

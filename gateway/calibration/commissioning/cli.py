@@ -361,7 +361,7 @@ def main(args: argparse.Namespace) -> int:
                     f"{config_path}: status.remote_control is false, so the gateway refuses to "
                     "reload over Modbus: set status.remote_control: true in its config (then "
                     "restart it or send it SIGHUP), or give --reload-pid or --reload-cmd")
-            short = None if args.finish else job.command.too_short()
+            short = job.command.too_short()  # (None on a resume: --finish's)
             if short is not None:  # nothing asked or moved: no plan that ends with no table
                 raise TableError(short)
             if not args.dry_run:

@@ -159,12 +159,17 @@ def _same_tables_worse(summary: dict[str, Any]) -> str:
 WARM_UM = 2.0
 
 
+def _linear_after(summary: dict[str, Any], key: str) -> dict[str, float | None]:
+    """Each linear axis's after-run figure ``key`` in a summary (a rotary axis's figures are
+    angles); None where it has none."""
+    return {a: (e.get("after") or {}).get(key)
+            for a, e in summary.get("axes", {}).items() if e.get("unit") != "deg"}
+
+
 def as_read_figures(summary: dict[str, Any]) -> dict[str, float]:
     """A summary's after-run as read (µm): E per linear axis, the plane's maximum as
     ``"XY"``; what a carried-on run's after-run is set against."""
-    figures = {a: (e.get("after") or {}).get("E_read_um")
-               for a, e in summary.get("axes", {}).items()
-               if e.get("unit") != "deg"}  # (a rotary axis's figures are angles)
+    figures = _linear_after(summary, "E_read_um")
     figures["XY"] = ((summary.get("xy") or {}).get("after") or {}).get("max_read_um")
     return {n: float(v) for n, v in figures.items() if v is not None}
 
@@ -172,9 +177,8 @@ def as_read_figures(summary: dict[str, Any]) -> dict[str, float]:
 def as_read_accuracy(summary: dict[str, Any]) -> dict[str, float]:
     """A summary's after-run as read: ISO 230-2 A per linear axis (µm), the customer's
     acceptance figure beside E."""
-    figures = {a: (e.get("after") or {}).get("A_read_um")
-               for a, e in summary.get("axes", {}).items() if e.get("unit") != "deg"}
-    return {n: float(v) for n, v in figures.items() if v is not None}
+    return {n: float(v) for n, v in _linear_after(summary, "A_read_um").items()
+            if v is not None}
 
 
 def _warm_axes(summary: dict[str, Any]) -> dict[str, float]:
