@@ -399,8 +399,9 @@ def test_a_stopped_run_finishes_with_the_tables_it_has_read(
         template: Path, tmp_path: Path) -> None:  # fmt: skip
     """The machine is needed back half-way (Ctrl-C once X's before-run is read; every
     axis's ISO runs come first): ``--finish`` measures nothing more, fits the tables from
-    what was read, loads them and reads the after-run where the before-run was made. Given
-    before anything was read, it says so and writes nothing."""
+    what was read, loads them and reads the after-run: at the before-run's targets where it
+    was made, at new random ones where not (Y here). Given before anything was read, it
+    says so and writes nothing."""
     with running(template, tmp_path / "m") as rig:
         out = rig.dir / "commission"
         nothing = rig.commission("--finish")
@@ -432,7 +433,14 @@ def test_a_stopped_run_finishes_with_the_tables_it_has_read(
         final = yaml.safe_load(rig.config.read_text())["axes"]
         for a in ("X", "Y"):  # both tables fitted from their ISO runs and loaded
             assert "pitch" in final[a]["compensation"], final[a]
-        assert new == ["after-X"], new  # Y's before-run was not read: no after-run for it
+        # Y's before-run and the plane's were not read: their after-runs alone, at random
+        # targets, judge them
+        assert sorted(new) == ["after-X", "after-Y", "after-xy"], new
         judged = summary["axes"]["X"]
         assert judged["after"]["E_um"] < 0.5 * judged["before"]["E_um"], judged
+        assert "before" not in summary["axes"]["Y"], summary["axes"]["Y"]
+        y_read = summary["axes"]["Y"]["after"]["E_read_um"]
+        assert re.search(rf"Y: E {y_read:.2f} µm as read, .*no before-run", done.text())
+        assert re.search(r"XY max vector error [\d.]+ µm as read; no before-run", done.text())
+        assert re.search(r"within 2 µm \(.*Y E", done.text()), done.text()  # judged on Y
         assert re.search(r"--finish: \S+ and the steps after it are not read", done.text())

@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from ..plans.plans import Plan
     from .axes import Axes
     from .carried import RunBefore
+    from .planner import Planner
     from .record import Record
     from .rotary import RotarySteps
     from .stager import Stager
@@ -87,9 +88,10 @@ class AfterSteps:
     """The after-run, the plane's last word on the tables, and the summary."""
 
     def __init__(self, axes: Axes, record: Record, stager: Stager, runner: StepRunner,
-                 rotary: RotarySteps, takeup: TakeUpSteps, run_before: RunBefore, say: Say,
-                 clock: GatewayClock | None = None) -> None:  # fmt: skip
+                 rotary: RotarySteps, takeup: TakeUpSteps, run_before: RunBefore,
+                 plans: Planner, say: Say, clock: GatewayClock | None = None) -> None:  # fmt: skip
         self.s = axes.s
+        self.plans = plans  # (the before-run's targets, for an axis stopped before it)
         self.run_before = run_before  # a carried-on run's: what the run before left
         self.clock = clock  # when the run ended (how long the machine cooled since)
         self.axes = axes
@@ -112,12 +114,29 @@ class AfterSteps:
                 plan = read_plan(self.record.dir / "plans" / f"before-{a}.plan")
                 await self.runner.step(f"after-{a}", lambda p=plan: p, "on", self.axes.park(a))
                 await self._worse_put_back(f"after-{a}", a, plan)
+            elif self._unjudged(a):
+                await self.runner.step(f"after-{a}", lambda a=a: self.plans.before_plan(a), "on",
+                                       self.axes.park(a))  # fmt: skip
         if (self.s.planar is not None and self.record.done("before-xy")
                 and not self._carried("after-xy", "XY")):  # fmt: skip
             plan = read_plan(self.record.dir / "plans" / "before-xy.plan")
             await self.runner.step("after-xy", lambda: plan, "on")
             await self._plane_put_back(plan)
+        elif self._unjudged("XY"):
+            await self.runner.step("after-xy", self.plans.before_xy_plan, "on")
         await self.takeup.after_steps()
+
+    def _unjudged(self, name: str) -> bool:
+        """``--finish`` with a table fitted on ``name`` (the plane: on either axis) and no
+        before-run read for it: its after-run alone is read, at the random targets its
+        before-run would have had, so that the verdict judges every table it loads (a run
+        stopped at a plain calibration's time had Y's table and no word on it: "NOT
+        within", with nothing read)."""
+        if not self.s.finish or self.record.done("before-xy" if name == "XY" else f"before-{name}"):
+            return False
+        if name == "XY":  # (the tables alone move the plane too)
+            return self.s.planar is not None and bool(self.record.tables.pitch)
+        return name in self.record.tables.pitch and not self.axes.rotary(name)
 
     def _as_read_um(self, step: str, name: str) -> float:
         """A done after-run step's figure as read (µm): an axis's E, the plane's maximum

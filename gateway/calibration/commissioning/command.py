@@ -215,11 +215,20 @@ class CommandChecks:
         if not self.record.state.get("steps"):
             raise TableError(f"--finish: nothing has been read in {self.s.out_dir} yet: no "
                              "table to fit (run without --finish)")  # fmt: skip
-        used_s, after_s = self.record.used_s, budget.reserve_s()
+        plans = self.record.dir / "plans"
+        unjudged = [a for a in self.s.axes if not self.axes.rotary(a)
+                    and self.record.done(f"iso-{a}") and not (plans / f"before-{a}.plan").exists()]
+        after_s = budget.reserve_s() + sum(
+            self.axes.estimate_s(self.axes.snap(self.plans.before_plan(a))) for a in unjudged)
+        if (self.s.planar is not None and not (plans / "before-xy.plan").exists()
+                and any(self.record.done(f"iso-{a}") for a in self.s.axes)):  # fmt: skip
+            after_s += self.axes.estimate_s(self.axes.snap(self.plans.before_xy_plan()))
+        used_s = self.record.used_s
         self.s.budget_s = used_s + after_s
         return (f"--finish: nothing more is measured: the tables are fitted from the "
                 f"{used_s / 3600:.2f} h read so far, loaded, and judged by the after-run "
-                f"({after_s / 60:.1f} min) where the before-run was read")  # fmt: skip
+                f"(about {after_s / 60:.1f} min; at new random targets where no before-run "
+                "was read)")  # fmt: skip
 
     def too_short(self) -> str | None:
         """Why a fresh commissioning would end with no table: its budget does not hold even

@@ -111,7 +111,7 @@ class Commission:
         self.run_before = run_before = RunBefore(record)
         self.after = after = AfterSteps(axes, record, stager=stager, runner=runner,
                                         rotary=rotary, takeup=takeup, run_before=run_before,
-                                        say=say, clock=drift.clock)  # fmt: skip
+                                        plans=plans, say=say, clock=drift.clock)  # fmt: skip
         self.best = best = BestTables(axes, record)
         self.short = short = ShortBudget(axes, record, budget=budget, runner=runner,
                                          plans=plans, refine=refine, say=say)  # fmt: skip

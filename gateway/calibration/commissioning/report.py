@@ -341,6 +341,11 @@ def _carried(after: dict[str, Any]) -> str:
             if after.get("carried") else "")
 
 
+#: an after-run read alone (``--finish`` stopped the run before its before-run)
+NO_BEFORE = ("no before-run (the run stopped before it): read once, with the tables on, at "
+             "random targets none of them was fitted on")
+
+
 def summary_lines(summary: dict[str, Any]) -> list[str]:
     """What a commissioning bought, a line per axis, the plane and the outcome: the figures
     as the laser read them (nothing subtracted), the drift-corrected ones beside them where
@@ -363,6 +368,12 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
                          + (f", {entry['interpolation']} interpolation"
                             if "interpolation" in entry else "")
                          + _drift_off(eb, ea, ra, u) + _carried(a))  # fmt: skip
+        elif a:  # (--finish stopped the run before its before-run)
+            u, ra = _unit(entry), _fig(a, "E_read") or _fig(a, "E") or 0.0
+            lines.append(f"{axis}: E {ra:.2f}{u} as read, A "
+                         f"{_fig(a, 'A_read') or _fig(a, 'A') or 0:.2f}{u} (R "
+                         f"{_fig(a, 'R') or 0:.2f}), {entry.get('table_points')} table points; "
+                         + NO_BEFORE)  # fmt: skip
     xy = summary.get("xy") or {}
     if xy.get("before") and xy.get("after"):
         b, a = xy["before"]["max_um"], xy["after"]["max_um"]
@@ -371,6 +382,10 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
         lines.append(f"XY max vector error {rb:.2f} → {ra:.2f} µm as read "
                      f"({change_text(rb, ra)})" + _drift_off(b, a, ra, " µm", "max")
                      + _carried(xy["after"]))  # fmt: skip
+    elif xy.get("after"):
+        a = xy["after"]["max_um"]
+        lines.append(f"XY max vector error {xy['after'].get('max_read_um', a):.2f} µm as read; "
+                     + NO_BEFORE)  # fmt: skip
     if summary.get("retried"):
         lines.append(f"{summary['retried']} Modbus requests answered only when tried again "
                      "(exception 6 or 11: a drive or instrument slow to answer; if many, "
