@@ -8,6 +8,7 @@ Table paths are relative to the config file.
 from __future__ import annotations
 
 import ipaddress
+import math
 import os
 import re
 import zlib
@@ -204,12 +205,22 @@ class TravelProfile(Model):
     along the screw by ``spread_mm`` (about √(κτ): 100 mm for steel in air), older travel
     fading per ``memory_mm`` travelled since or per ``memory_s`` of the clock since (the
     screw's cooling time constant: after a pause the heat of old moves is gone), whichever
-    fades it more. Displacement (Δa) sources only."""
+    fades it more. ``screw_mm``: the screw's two ends (axis mm), where its heat cannot go
+    on and stays (a zone worked near an end warms that end); None: the heat spreads past
+    the travel as if the screw ran on. Displacement (Δa) sources and ``motion`` only."""
 
     spread_mm: float = Field(default=100.0, gt=0.0, le=10_000.0)
     memory_mm: float = Field(default=100_000.0, gt=0.0)
     memory_s: float | None = Field(default=None, gt=0.0, le=1e6)
     bin_mm: float = Field(default=5.0, gt=0.0, le=100.0)
+    screw_mm: tuple[float, float] | None = None
+
+    @field_validator("screw_mm")
+    @classmethod
+    def _screw_ends(cls, v: tuple[float, float] | None) -> tuple[float, float] | None:
+        if v is not None and not (math.isfinite(v[0]) and math.isfinite(v[1]) and v[0] < v[1]):
+            raise ValueError(f"screw_mm: {list(v)} must be [low end, high end] in mm")
+        return v
 
 
 class MotionHeat(Model):

@@ -20,6 +20,7 @@ import numpy as np
 
 from .compensation.thermal import (
     ThermalStage,
+    fold_at_ends,
     motion_heat_after_m,
     motion_heat_one_m,
     travel_delta_a_mm,
@@ -76,6 +77,8 @@ class TravelHistory:
         """The Δa for the linear stage at ``at_mm`` (see travel_delta_a_mm)."""
         if self._integral is None:
             weights = travel_weights(self.swept, self.profile.bin_mm, self.profile.spread_mm)
+            if self.profile.screw_mm is not None:
+                weights = fold_at_ends(self.centres_mm, weights, self.profile.screw_mm)
             self._integral = travel_integral(self.centres_mm, weights)
         return travel_delta_a_mm(delta_a_mm, at_mm, self.centres_mm, self._integral,
                                  self.stage, self.toward)  # fmt: skip

@@ -106,8 +106,10 @@ def test_a_screw_warm_where_its_nut_runs_gets_the_travel_profile() -> None:
     assert fit.profile_rms_um < 0.35 * fit.linear_rms_um, fit
     # the profile forgets as the screw cools: ρ·c·d / 4h = 963 s for this screw in air
     assert fit.tau_s == pytest.approx(7850 * 460 * 0.016 / (4 * 15.0), rel=0.15)
+    # the screw's ends: its fixed end, and as far past the travel's other end (the sim's)
     assert fit.profile() == {"spread_mm": fit.spread_mm, "memory_s": fit.tau_s,
-                             "memory_mm": pytest.approx(SPEED * fit.tau_s, rel=0.01)}
+                             "memory_mm": pytest.approx(SPEED * fit.tau_s, rel=0.01),
+                             "screw_mm": list(SCREW)}
 
 
 def test_an_evenly_warm_screw_stays_linear_with_its_length() -> None:
@@ -237,7 +239,9 @@ def _predicted_after_zone(section: dict, zone_mm: tuple[float, float], places: l
 @pytest.mark.parametrize("zone", [(0.0, 240.0), (360.0, 600.0), (120.0, 360.0)])
 def test_heat_from_motion_holds_on_a_zone_it_was_not_fitted_on(zone) -> None:
     """Fitted on the commissioning's zone (180-420 mm), the model must follow the judge's
-    warm-up on another zone: the total elongation follows the heat put in, wherever."""
+    warm-up on another zone: the total elongation follows the heat put in, wherever, and
+    the heat stays in the screw at its ends (0.8-1.6 % left; 5.0 and 8.3 % at the ends
+    when the profile let it run on past them)."""
     plan = _plan()
     th = AxisThermal(source="t", length_mm=600.0, origin_mm=SCREW[0])
     fit = warmup_heat_fit(_raw_temperature(plan, _NutHeat(), 90.0, 4), plan, "X", th,
@@ -245,7 +249,7 @@ def test_heat_from_motion_holds_on_a_zone_it_was_not_fitted_on(zone) -> None:
     real, pred = _predicted_after_zone(fit.config({"X": SPEED}), zone,
                                        [30.0, 150.0, 300.0, 450.0, 580.0])  # fmt: skip
     assert np.abs(real).max() > 10.0
-    assert np.abs(pred - real).max() < 0.12 * np.abs(real).max(), (real, pred)
+    assert np.abs(pred - real).max() < 0.04 * np.abs(real).max(), (real, pred)
 
 
 def test_heat_left_by_the_runs_before_the_warm_up_is_counted() -> None:

@@ -7,7 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gateway.compensation.thermal import ThermalStage, travel_delta_a_mm, travel_integral
+from gateway.compensation.thermal import (
+    ThermalStage,
+    fold_at_ends,
+    travel_delta_a_mm,
+    travel_integral,
+)
 from gateway.config import AxisThermal, TravelProfile
 from gateway.thermal_travel import TravelHistory
 
@@ -40,9 +45,12 @@ def test_heat_in_one_zone_by_hand() -> None:
     assert growth(800.0) == pytest.approx(da, rel=0.01)
 
 
-def _judge_warmup(rng: np.random.Generator) -> tuple[float, float]:
-    """One random screw cycled over 40 % of its travel for 30 min (as bench/evaluate.py):
-    largest error at 5 places of the linear spread and of the travel profile (µm)."""
+def _judge_warmup(rng: np.random.Generator, zone_at: float | None = None,
+                  ends: bool = False) -> tuple[float, ...]:  # fmt: skip
+    """One random screw cycled over 40 % of its travel for 30 min (as bench/evaluate.py;
+    ``zone_at``: where the zone starts, a share of the travel, else random): largest error
+    at 5 places of the linear spread and of the travel profile (µm); with ``ends``, also of
+    the profile at the screw's own spread, without and with the screw's ends."""
     from sim.config_truth import ScrewHeat
     from sim.heat import ScrewHeatModel
 
@@ -50,30 +58,39 @@ def _judge_warmup(rng: np.random.Generator) -> tuple[float, float]:
     nut, speed = float(rng.uniform(30, 60)), float(rng.uniform(50, 200))
     screw = (-nut, travel + nut)
     fixed, free = screw if rng.random() < 0.75 else screw[::-1]
+    h = float(rng.uniform(10, 25))
     model = ScrewHeatModel(ScrewHeat(lead_mm=10.0, drag_torque_Nm=0.02, diameter_mm=16.0,
-                                     nut_length_mm=nut, h_W_m2K=float(rng.uniform(10, 25)),
-                                     screw_mm=screw, fixed_end_mm=fixed), (0.0, travel))
+                                     nut_length_mm=nut, h_W_m2K=h, screw_mm=screw,
+                                     fixed_end_mm=fixed), (0.0, travel))  # fmt: skip
+    # (with the ends: the spread a warm-up fits, about √(κτ) = √(k·d / 4h), in mm)
+    spread = 1000.0 * float(np.sqrt(45.0 * 0.016 / (4 * h)))
+    profiles = [TravelProfile()] + ([TravelProfile(spread_mm=spread),
+                                     TravelProfile(spread_mm=spread, screw_mm=screw)]
+                                    if ends else [])  # fmt: skip
     thermal = AxisThermal(source="x", length_mm=abs(free - fixed), origin_mm=fixed,
-                          profile=TravelProfile())  # fmt: skip
-    history = TravelHistory(thermal, thermal.profile, (0.0, travel))  # type: ignore[arg-type]
-    z0 = float(rng.uniform(0, 0.6 * travel))
+                          profile=profiles[0])  # fmt: skip
+    histories = [TravelHistory(thermal, p, (0.0, travel)) for p in profiles]
+    z0 = float(rng.uniform(0, 0.6 * travel)) if zone_at is None else zone_at * travel
     t_s, pos = 0.0, z0
-    history.move_to(pos)
+    for history in histories:
+        history.move_to(pos)
     while t_s < 1800.0:
         to = z0 + 0.4 * travel if pos == z0 else z0
         dt = abs(to - pos) / speed
         model.add_move(t_s, t_s + dt, pos, to, speed)
-        history.move_to(to)
+        for history in histories:
+            history.move_to(to)
         t_s, pos = t_s + dt, to
     da = model.growth_mm(free, t_s) * 1e3 * (1 if free > fixed else -1)  # elongation, µm
     places = rng.uniform(2, travel - 2, 5)
     truth = np.array([model.growth_mm(p, t_s) for p in places]) * 1e3
-    stage = ThermalStage(thermal.length_mm, fixed)
     linear = np.array([(p - fixed) * da / thermal.length_mm for p in places])
-    profiled = np.array([(p - fixed) * history.delta_a_mm(da, p) / thermal.length_mm
-                         for p in places])  # fmt: skip
-    assert stage.length_mm > 0
-    return float(np.abs(truth - linear).max()), float(np.abs(truth - profiled).max())
+    errors = [float(np.abs(truth - linear).max())]
+    for history in histories:
+        profiled = np.array([(p - fixed) * history.delta_a_mm(da, p) / thermal.length_mm
+                             for p in places])  # fmt: skip
+        errors.append(float(np.abs(truth - profiled).max()))
+    return tuple(errors)
 
 
 def test_the_travel_profile_follows_a_screw_warm_where_its_nut_worked() -> None:
@@ -83,6 +100,31 @@ def test_the_travel_profile_follows_a_screw_warm_where_its_nut_worked() -> None:
     assert np.median(profiled) < 0.25 * np.median(linear), errors
     assert profiled.max() < 3.5, errors  # µm; the linear spread leaves up to tens
     assert linear.max() > 5.0, errors  # the case is one the linear spread gets wrong
+
+
+def test_heat_stays_in_the_screw_at_its_ends() -> None:
+    """A zone worked at either end of the travel (eight random screws, the profile at each
+    one's own spread): the heat conducted past the travel stays in the steel up to the
+    screw's ends (``screw_mm``) and warms that end. A profile whose heat runs on past them
+    misses it there."""
+    rng = np.random.default_rng(31)
+    errors = np.array([_judge_warmup(rng, zone_at=(0.0, 0.6)[k % 2], ends=True)
+                       for k in range(8)])  # fmt: skip
+    running_on, ended = errors[:, 2], errors[:, 3]
+    assert np.median(ended) < 0.8 * np.median(running_on), errors  # 0.49 against 0.66 µm
+    assert ended.max() < 0.9 * running_on.max(), errors  # 0.78 against 1.03 µm
+
+
+def test_folding_at_the_ends_keeps_the_heat() -> None:
+    """By hand: weights past an end come back mirrored, the total on the screw kept."""
+    x = np.arange(-50.0, 151.0, 10.0)
+    w = np.zeros_like(x)
+    w[x == -30.0] = 2.0  # 30 mm past the low end (0): back at 30 mm
+    w[x == 110.0] = 1.0  # 10 mm past the high end (100): back at 90 mm
+    folded = fold_at_ends(x, w, (0.0, 100.0))
+    assert folded.sum() == pytest.approx(w.sum())
+    assert folded[x == 30.0] == pytest.approx(2.0) and folded[x == 90.0] == pytest.approx(1.0)
+    assert not folded[(x < 0.0) | (x > 100.0)].any()
 
 
 def test_a_profile_needs_a_displacement_source() -> None:

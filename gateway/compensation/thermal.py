@@ -97,6 +97,28 @@ def travel_weights(swept: ArrayLike, bin_mm: float, spread_mm: float) -> NDArray
     return np.convolve(s, kernel / kernel.sum(), mode="same")
 
 
+def fold_at_ends(centres_mm: ArrayLike, weights: ArrayLike, ends_mm: tuple[float, float]
+                 ) -> NDArray[np.float64]:  # fmt: skip
+    """Heat weights with what lies beyond the screw's ends (``ends_mm``) mirrored back onto
+    it: the steel ends there, so heat conducted towards an end stays in the screw and warms
+    that end (an insulated end). Weights on evenly spaced ``centres_mm``; what a mirror
+    puts between two centres is shared between them; the total on the screw is kept."""
+    x = np.asarray(centres_mm, dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64)
+    lo, hi = ends_mm
+    out = np.where((x >= lo) & (x <= hi), w, 0.0)
+    step = x[1] - x[0] if x.size > 1 else 1.0
+    for beyond, mirrored in ((x < lo, 2.0 * lo - x), (x > hi, 2.0 * hi - x)):
+        at = np.clip(mirrored[beyond], lo, hi)  # (beyond both ends at once: kept at the end)
+        k = np.clip((at - x[0]) / step, 0.0, x.size - 1.0)
+        i = np.minimum(np.floor(k).astype(int), x.size - 2) if x.size > 1 else np.zeros_like(k, int)
+        share = k - i
+        np.add.at(out, i, w[beyond] * (1.0 - share))
+        if x.size > 1:
+            np.add.at(out, i + 1, w[beyond] * share)
+    return out
+
+
 def travel_integral(centres_mm: ArrayLike, weights: ArrayLike) -> NDArray[np.float64]:
     """W(x): the integral of the heat weights along the screw, at ``centres_mm``."""
     x = np.asarray(centres_mm, dtype=np.float64)

@@ -46,6 +46,22 @@ NOISE_UM = 0.5
 TAU_GRID_S = np.geomspace(60.0, 20_000.0, 160)
 
 
+def screw_ends_mm(fixed_mm: float, travel_mm: tuple[float, float]
+                  ) -> tuple[float, float] | None:  # fmt: skip
+    """The screw's ends as a profile takes them (``thermal.profile.screw_mm``): its fixed end,
+    found beyond the travel, and as far beyond the travel's other end (the nut overruns
+    both ends of its travel alike); None where the fixed end is not beyond the travel (no
+    overrun known). Heat stays in the steel at its ends: rough-9's X, a zone worked at the
+    free end, and a profile whose heat ran on past it left 5 % of the growth there; 1 %
+    with the ends (the sim's heat equation, noise-free, 13 zones)."""
+    lo, hi = sorted(travel_mm)
+    if fixed_mm < lo:
+        return (fixed_mm, hi + (lo - fixed_mm))
+    if fixed_mm > hi:
+        return (lo - (fixed_mm - hi), fixed_mm)
+    return None
+
+
 @dataclass(frozen=True)
 class ThermalShapeFit:
     """The growth shape a zone warm-up showed, and what each shape left at the places
@@ -61,14 +77,17 @@ class ThermalShapeFit:
     points: int
     tau_s: float | None = None  # the Δa sensor's rise; None: it never levelled off
     memory_mm: float | None = None  # travel at the warm-up's speed in tau_s
+    screw_mm: tuple[float, float] | None = None  # the profile's (:func:`screw_ends_mm`)
 
-    def profile(self) -> dict[str, float] | None:
+    def profile(self) -> dict[str, Any] | None:
         """The ``thermal.profile`` section (None: linear)."""
         if self.spread_mm is None:
             return None
-        out = {"spread_mm": self.spread_mm}
+        out: dict[str, Any] = {"spread_mm": self.spread_mm}
         if self.tau_s is not None and self.memory_mm is not None:
             out |= {"memory_mm": self.memory_mm, "memory_s": self.tau_s}
+        if self.screw_mm is not None:
+            out["screw_mm"] = [round(v, 2) for v in self.screw_mm]
         return out
 
     @property
@@ -189,9 +208,10 @@ def thermal_shape_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
     speed = float(dict(plan.meta).get("speed_mm_s", 0) or 0)
     memory = round(speed * tau, -2) if tau is not None and speed > 0 else None
     best = (np.inf, length, SPREADS_MM[0])
+    ends = screw_ends_mm(thermal.origin_mm, travel_mm)
     for spread in SPREADS_MM:
-        prof = TravelProfile(spread_mm=spread) if memory is None else \
-            TravelProfile(spread_mm=spread, memory_mm=memory)  # fmt: skip
+        prof = TravelProfile(spread_mm=spread, screw_mm=ends) if memory is None else \
+            TravelProfile(spread_mm=spread, memory_mm=memory, screw_mm=ends)  # fmt: skip
         for factor in LENGTH_FACTORS:
             f = profile_fractions(plan, axis, thermal, prof, travel_mm, length * factor)[warm]
             rms = float(np.sqrt(np.mean((growth - d_a * f)[survey] ** 2)))
@@ -205,4 +225,5 @@ def thermal_shape_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
                            spread if profile else None, float(lin_rms * UM_PER_MM),
                            float(prof_rms * UM_PER_MM),
                            float(np.abs(growth).max() * UM_PER_MM), int(warm.size),
-                           None if memory is None else round(tau, 0), memory)  # fmt: skip
+                           None if memory is None else round(tau, 0), memory,
+                           ends if profile else None)  # fmt: skip
