@@ -17,11 +17,12 @@ from gateway.calibration.commissioning.identify import IdentifySteps
 from gateway.calibration.commissioning.settings import SHORT_WARMUP_S
 
 
-def _steps(tmp_path: Path, left_s: float, kinds: dict[str, str], little: tuple[str, ...] = ()
-           ) -> tuple[IdentifySteps, dict[str, Any], Budget]:  # fmt: skip
+def _steps(tmp_path: Path, left_s: float, kinds: dict[str, str], little: tuple[str, ...] = (),
+           more_s: float = 0.0) -> tuple[IdentifySteps, dict[str, Any], Budget]:  # fmt: skip
     """An identification whose warm-ups cost their strokes and 100 s of surveys; ``kinds``
     each axis's heat ("sensor" or "motion"); ``little``: axes whose references read no
-    growth that stands out of their scatter."""
+    growth that stands out of their scatter; ``more_s``: the runs that bring the tables to
+    a plain calibration's."""
     state: dict[str, Any] = {"steps": {}, "notes": []}
     record = SimpleNamespace(state=state, dir=tmp_path, used_s=0.0, save=lambda: None,
                              done=lambda name: name in state["steps"],
@@ -36,7 +37,8 @@ def _steps(tmp_path: Path, left_s: float, kinds: dict[str, str], little: tuple[s
     steps.record = record
     steps.budget = budget
     steps.axes = SimpleNamespace(snap=lambda plan: plan)
-    steps.short = SimpleNamespace(plane_held_s=lambda: 300.0, scans_left_s=lambda axes: 0.0)
+    steps.short = SimpleNamespace(plane_held_s=lambda: 300.0, scans_left_s=lambda axes: 0.0,
+                                  more_runs_left_s=lambda axes: more_s)  # fmt: skip
     steps.thermal = SimpleNamespace(
         zoned=lambda: [a for a, k in kinds.items() if k == "sensor"],
         heat_zoned=lambda: [a for a, k in kinds.items() if k == "motion"],
@@ -78,6 +80,18 @@ def test_a_short_budget_holds_a_short_warm_up_of_the_sensor_axes_first(tmp_path:
     steps, state, budget = _steps(tmp_path, 600.0, {"X": "sensor", "Y": "sensor"})
     steps._hold_warm_ups(["X", "Y"])  # not even half a short one beside the plain grid
     assert state["warmup_held"] == {} and budget.left_s() == 600.0
+
+
+def test_a_warm_up_never_takes_the_place_of_a_plain_calibrations_runs(tmp_path: Path) -> None:
+    """The runs that bring the tables to a plain calibration's are held before any warm-up:
+    at its machine time smooth-8 warmed X in place of both axes' 4th and 5th runs."""
+    steps, state, budget = _steps(tmp_path, 1200.0, {"X": "sensor"}, more_s=700.0)
+    steps._hold_warm_ups(["X"])  # 1200 s less the grid's 300 and the runs' 700: none fits
+    assert state["warmup_held"] == {} and budget.left_s() == 1200.0
+    steps, state, budget = _steps(tmp_path, 1200.0, {"X": "sensor"}, more_s=400.0)
+    steps._hold_warm_ups(["X"])  # 500 s: a shortened one
+    held = state["warmup_held"]["X"]
+    assert held["duration_s"] == pytest.approx(SHORT_WARMUP_S * 0.81) and held["cost_s"] <= 500.0
 
 
 def test_a_held_warm_up_shortens_to_what_the_steps_before_it_left(tmp_path: Path) -> None:

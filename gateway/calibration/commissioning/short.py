@@ -442,6 +442,16 @@ class ShortBudget:
             need_s += self.budget.verdict_cost_s(self.plans.before_xy_plan())
         return need_s <= room_s
 
+    def more_runs_left_s(self, axes: list[str]) -> float:
+        """Machine time (s) of the runs that bring each of ``axes``'s table to a plain
+        calibration's (:meth:`table_runs`), where not read or decided yet: what no extra
+        takes the place of (:meth:`.identify.IdentifySteps._hold_warm_ups`)."""
+        more = self.table_runs() - self.budget.iso_runs()
+        if more <= 0 or "more_runs" in self.record.state.get("identify", {}):
+            return 0.0
+        return sum(self.budget.step_cost_worst_s(self.plans.more_runs_plan(a, more))
+                   for a in axes)  # fmt: skip
+
     def _more_that_fit(self, axes: list[str], room_s: float) -> int:
         """The most more runs (up to :meth:`table_runs` in all) on the first targets of
         every one of ``axes`` that fit in ``room_s`` (s) together; 0 where none do."""
