@@ -167,37 +167,6 @@ def _ls(design: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[float, flo
     return c, float(np.sum((y - c * design) ** 2))
 
 
-def profile_tau(d_heat: NDArray[np.float64], d_fade: NDArray[np.float64],
-                fractions: NDArray[np.float64], fade_shape: NDArray[np.float64],
-                growth: NDArray[np.float64], survey: NDArray[np.bool_],
-                offsets: NDArray[np.float64] | None = None,
-                ) -> tuple[int, float, float]:  # fmt: skip
-    """The time constant of a profiled heat: growth = c · (heat · ``fractions`` + prior
-    heat · ``fade_shape``) per τ on TAU_GRID_S, least squares over every reading (the
-    references' series time it), :func:`likely_tau` of those. The linear model's τ is the
-    wrong one where the heat sits in a zone: the places read see part of it, arriving by
-    conduction (rough-9's X, a surface loss of 1140 s: 961 s linear, and its profile 4 %
-    short on every place of the judge's zone test). Its index, c, and the RMS left at the
-    places surveyed warm (mm). ``offsets``: columns of each reference's cold reading,
-    fitted with it (:func:`.warmup_motion.warmup_motion_fit`)."""
-    model = d_heat * fractions[:, None] + d_fade * fade_shape[:, None]
-    if offsets is not None and offsets.size:
-        c = np.zeros(model.shape[1])
-        left = np.empty_like(model)
-        for j in range(model.shape[1]):
-            design = np.column_stack([model[:, j], offsets])
-            coef, *_ = np.linalg.lstsq(design, growth, rcond=None)
-            c[j], left[:, j] = coef[0], growth - design @ coef
-    else:
-        den = np.einsum("ij,ij->j", model, model)
-        c = np.where(den > 0, model.T @ growth / np.where(den > 0, den, 1.0), 0.0)
-        left = growth[:, None] - model * c[None, :]
-    k = likely_tau(np.sum(left ** 2, axis=0))
-    if k == TAU_GRID_S.size - 1:
-        return k, float(c[k]), np.inf
-    return k, float(c[k]), float(np.sqrt(np.mean(left[survey, k] ** 2)))
-
-
 def warmup_heat_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
                     alpha_per_k: float, travel_mm: tuple[float, float],
                     prior_m: ArrayLike = (), prior_s: ArrayLike = (),
@@ -241,7 +210,7 @@ def warmup_heat_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
     lin_rms = float(np.sqrt(np.mean((growth - c_lin * lin)[survey] ** 2)))
     speed = float(dict(plan.meta).get("speed_mm_s", 0) or 0)
     memory = round(max(speed, 1.0) * tau, -2)
-    best = (np.inf, 0.0, length, SPREADS_MM[0], tau)
+    best = (np.inf, 0.0, length, SPREADS_MM[0])
     ends = screw_ends_mm(o, travel_mm)
     for spread in SPREADS_MM:
         prof = TravelProfile(spread_mm=spread, memory_mm=memory, screw_mm=ends)
@@ -250,13 +219,13 @@ def warmup_heat_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
         # of heat between it and the fixed end, and that depends on where the axis works)
         whole = max(abs(travel_mm[0] - o), abs(travel_mm[1] - o)) + 3.0 * spread
         f = profile_fractions(plan, axis, thermal, prof, travel_mm, whole)[warm]
-        k, c, rms = profile_tau(d_heat, d_fade, f, lever / whole, growth, survey)
+        model = d_heat[:, j] * f + d_fade[:, j] * lever / whole
+        c, _ = _ls(model, growth)
+        rms = float(np.sqrt(np.mean((growth - c * model)[survey] ** 2)))
         if rms < best[0]:
-            best = (rms, c, whole, spread, float(TAU_GRID_S[k]))
+            best = (rms, c, whole, spread)
     profiled = best[0] < PROFILE_SHARE * lin_rms and (lin_rms - best[0]) * UM_PER_MM > NOISE_UM
-    rms, c, length_fit, spread, tau = best if profiled else (lin_rms, c_lin, length, None, tau)
-    if profiled:
-        memory = round(max(speed, 1.0) * tau, -2)
+    rms, c, length_fit, spread = best if profiled else (lin_rms, c_lin, length, None)
     if not c > 0:
         raise TableError(f"{raw.source}: axis {axis}: the growth does not follow the travel")
     return WarmupHeatFit(axis, o, float(length_fit), float(c * UM_PER_MM), tau,

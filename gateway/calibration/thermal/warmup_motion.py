@@ -39,7 +39,7 @@ from .thermal_shape import (
     screw_ends_mm,
     survey_changes,
 )
-from .warmup_heat import heat_changes, motion_section, profile_tau, readings_clock_s
+from .warmup_heat import heat_changes, motion_section, readings_clock_s
 
 UM_PER_MM = 1000.0
 #: growth (µm) below which a warm-up shows nothing worth a model
@@ -161,7 +161,6 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
     scatter = _scatter(growth - designs[j] @ fits[j][0], refs)
     if np.ptp(designs[j][:, :2] @ fits[j][0][:2]) < STANDS_OUT * scatter:
         scatter = 0.0  # a growth within a few readings' scatter: half of it must go
-    read = growth  # (each reference's cold reading in it: fitted again with the profile)
     growth = growth - refs @ fits[j][0][2:]  # each reference's cold reading, as fitted
     if j == TAU_GRID_S.size - 1:
         raise TableError(f"{raw.source}: axis {axis}: the warm-up's growth does not level off: "
@@ -192,17 +191,18 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
     memory = round(max(speed, 1.0) * tau, -2)
     base = AxisThermal(motion=MotionHeat(delta_a_um_per_m=1.0, tau_s=tau),
                        origin_mm=fixed, length_mm=max(length, 1.0))  # fmt: skip
-    best = (np.inf, 0.0, length, SPREADS_MM[0], tau)
+    best = (np.inf, 0.0, length, SPREADS_MM[0])
     ends = screw_ends_mm(fixed, travel_mm)
     for spread in SPREADS_MM:
         prof = TravelProfile(spread_mm=spread, memory_mm=memory, screw_mm=ends)
         whole = max(abs(lo - fixed), abs(hi - fixed)) + 3.0 * spread
         f = profile_fractions(plan, axis, base, prof, travel_mm, whole)[warm]
-        k, c, rms = profile_tau(d_heat, d_fade, f, (place - fixed) / whole, read, survey,
-                                refs)  # fmt: skip
-        if rms < best[0] and c > 0:
-            best = (rms, c, whole, spread, float(TAU_GRID_S[k]))
-    prof_rms, c_prof, whole, spread, prof_tau = best
+        model = d_heat[:, j] * f + d_fade[:, j] * (place - fixed) / whole
+        coef, _ = _lstsq(model[:, None], growth)
+        rms = float(np.sqrt(np.mean((growth - coef[0] * model)[survey] ** 2)))
+        if rms < best[0] and coef[0] > 0:
+            best = (rms, float(coef[0]), whole, spread)
+    prof_rms, c_prof, whole, spread = best
     profiled = prof_rms < PROFILE_SHARE * lin_rms and (lin_rms - prof_rms) * UM_PER_MM > NOISE_UM
     if _near_ends(origin, lo, hi):  # the end may lie on either side of it: the shapes decide
         profiled = prof_rms < lin_rms
@@ -225,8 +225,7 @@ def warmup_motion_fit(raw: RawData, plan: Plan, axis: str, travel_mm: tuple[floa
                          f"scatter explains {SURVEY_SCATTER * scatter * UM_PER_MM:.1f}: not "
                          "the screw's heat")  # fmt: skip
     if profiled:
-        memory = round(max(speed, 1.0) * prof_tau, -2)
-        return WarmupMotionFit(axis, float(fixed), float(whole), c_prof * UM_PER_MM, prof_tau,
+        return WarmupMotionFit(axis, float(fixed), float(whole), c_prof * UM_PER_MM, tau,
                                spread, float(memory), lin_rms * UM_PER_MM,
                                prof_rms * UM_PER_MM, float(np.abs(growth).max() * UM_PER_MM),
                                int(warm.size), times is not None, ends)  # fmt: skip
