@@ -321,6 +321,11 @@ async def _offgrid_rms(m: Master, name: str, p: dict[str, Any],
             float(np.sqrt(np.mean(np.square(np.subtract(devs, zero_um))))))
 
 
+def zone_strokes(z0_mm: float, z1_mm: float, speed_mm_s: float) -> int:
+    """Strokes of the zone test's warm-up over [z0, z1]: WARMUP_S of machine time."""
+    return max(2, math.ceil(WARMUP_S * speed_mm_s / (z1_mm - z0_mm)))
+
+
 async def _thermal(m: Master, name: str, p: dict[str, Any], speed_mm_s: float,
                    cool: Any) -> float:  # fmt: skip
     """Largest change of the deviation at the thermal points after a warm-up (µm)."""
@@ -341,8 +346,7 @@ async def _thermal(m: Master, name: str, p: dict[str, Any], speed_mm_s: float,
     await cool()
     cold = await at_points()
     z0, z1 = p["zone"]
-    strokes = max(2, math.ceil(WARMUP_S * speed_mm_s / (z1 - z0)))
-    for k in range(strokes):
+    for k in range(zone_strokes(z0, z1, speed_mm_s)):
         await m.move({name: z1 if k % 2 == 0 else z0})
     warm = await at_points()
     return float(np.abs(warm - cold).max())

@@ -19,14 +19,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
-from evaluate import WARMUP_S, plan
+from evaluate import plan, zone_strokes
 
 from gateway.compensation.thermal import ThermalStage
 from gateway.config import AxisThermal
@@ -38,9 +37,9 @@ Move = tuple[float, float, float, float]  # start s, end s, from mm, to mm
 
 
 def strokes(z0_mm: float, z1_mm: float, speed_mm_s: float) -> tuple[list[Move], float]:
-    """The judge's zone work: strokes over [z0, z1] for WARMUP_S (as bench/evaluate.py)."""
+    """The judge's zone work: its strokes over [z0, z1] (bench/evaluate.py) as timed moves."""
     t_s, pos, moves = 0.0, z0_mm, []
-    for k in range(max(2, math.ceil(WARMUP_S * speed_mm_s / (z1_mm - z0_mm)))):
+    for k in range(zone_strokes(z0_mm, z1_mm, speed_mm_s)):
         to = z1_mm if k % 2 == 0 else z0_mm
         dt = abs(to - pos) / speed_mm_s
         moves.append((t_s, t_s + dt, pos, to))

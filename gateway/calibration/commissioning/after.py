@@ -107,36 +107,30 @@ class AfterSteps:
             return
         self.record.tables.sensor_off.clear()  # the final config's heat (motion_for_sensors)
         await self.stager.use(self.record.tables_phase)
+        # --finish: the tables loaded where no before-run was read are judged by their
+        # after-run alone (a run stopped at a plain calibration's time had Y's table and no
+        # word on it: "NOT within", with nothing read)
+        alone = self.plans.judged_alone() if self.s.finish else {}
         for a in self.s.axes:  # where the before-run was made (a budget spent may stop it)
-            if a in self.record.tables.pitch and self.record.done(f"before-{a}"):
+            if a not in self.record.tables.pitch:
+                continue
+            if self.record.done(f"before-{a}"):
                 if self._carried(f"after-{a}", a):
                     continue
                 plan = read_plan(self.record.dir / "plans" / f"before-{a}.plan")
                 await self.runner.step(f"after-{a}", lambda p=plan: p, "on", self.axes.park(a))
                 await self._worse_put_back(f"after-{a}", a, plan)
-            elif self._unjudged(a):
-                await self.runner.step(f"after-{a}", lambda a=a: self.plans.before_plan(a), "on",
+            elif a in alone:
+                await self.runner.step(f"after-{a}", lambda p=alone[a]: p, "on",
                                        self.axes.park(a))  # fmt: skip
         if (self.s.planar is not None and self.record.done("before-xy")
                 and not self._carried("after-xy", "XY")):  # fmt: skip
             plan = read_plan(self.record.dir / "plans" / "before-xy.plan")
             await self.runner.step("after-xy", lambda: plan, "on")
             await self._plane_put_back(plan)
-        elif self._unjudged("XY"):
-            await self.runner.step("after-xy", self.plans.before_xy_plan, "on")
+        elif "XY" in alone:  # (the tables alone move the plane too)
+            await self.runner.step("after-xy", lambda: alone["XY"], "on")
         await self.takeup.after_steps()
-
-    def _unjudged(self, name: str) -> bool:
-        """``--finish`` with a table fitted on ``name`` (the plane: on either axis) and no
-        before-run read for it: its after-run alone is read, at the random targets its
-        before-run would have had, so that the verdict judges every table it loads (a run
-        stopped at a plain calibration's time had Y's table and no word on it: "NOT
-        within", with nothing read)."""
-        if not self.s.finish or self.record.done("before-xy" if name == "XY" else f"before-{name}"):
-            return False
-        if name == "XY":  # (the tables alone move the plane too)
-            return self.s.planar is not None and bool(self.record.tables.pitch)
-        return name in self.record.tables.pitch and not self.axes.rotary(name)
 
     def _as_read_um(self, step: str, name: str) -> float:
         """A done after-run step's figure as read (µm): an axis's E, the plane's maximum

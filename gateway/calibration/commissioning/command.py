@@ -215,14 +215,13 @@ class CommandChecks:
         if not self.record.state.get("steps"):
             raise TableError(f"--finish: nothing has been read in {self.s.out_dir} yet: no "
                              "table to fit (run without --finish)")  # fmt: skip
-        plans = self.record.dir / "plans"
-        unjudged = [a for a in self.s.axes if not self.axes.rotary(a)
-                    and self.record.done(f"iso-{a}") and not (plans / f"before-{a}.plan").exists()]
-        after_s = budget.reserve_s() + sum(
-            self.axes.estimate_s(self.axes.snap(self.plans.before_plan(a))) for a in unjudged)
-        if (self.s.planar is not None and not (plans / "before-xy.plan").exists()
-                and any(self.record.done(f"iso-{a}") for a in self.s.axes)):  # fmt: skip
-            after_s += self.axes.estimate_s(self.axes.snap(self.plans.before_xy_plan()))
+        def begun(name: str) -> bool:  # a before-run begun: in the reserve already
+            step = "before-xy" if name == "XY" else f"before-{name}"
+            return (self.record.dir / "plans" / f"{step}.plan").exists()
+
+        after_s = budget.reserve_s() + sum(self.axes.estimate_s(self.axes.snap(plan))
+                                           for n, plan in self.plans.judged_alone().items()
+                                           if not begun(n))  # fmt: skip
         used_s = self.record.used_s
         self.s.budget_s = used_s + after_s
         return (f"--finish: nothing more is measured: the tables are fitted from the "

@@ -141,6 +141,19 @@ class Planner:
                                     self.s.planar, mode="random", count=adaptive.RANDOM_TARGETS,
                                     seed=seed, approach_mm=1.0, lower_mm=(x0, y0))  # fmt: skip
 
+    def judged_alone(self) -> dict[str, Plan]:
+        """``--finish``'s after-runs read with no before-run: each linear axis whose ISO runs
+        were read and whose before-run was not, and the plane where any axis's were, at
+        the random targets their before-runs would have had (:meth:`before_plan`,
+        :meth:`before_xy_plan`)."""
+        done = self.record.done
+        out = {a: self.before_plan(a) for a in self.s.axes
+               if not self.axes.rotary(a) and done(f"iso-{a}") and not done(f"before-{a}")}
+        if (self.s.planar is not None and not done("before-xy")
+                and any(done(f"iso-{a}") for a in self.s.axes)):  # fmt: skip
+            out["XY"] = self.before_xy_plan()
+        return out
+
     def before_plan(self, axis: str, avoid_mm: np.ndarray | None = None) -> Plan:
         """The targets judged before and after: random, off the coarse table's points
         (``avoid_mm``, default the ISO runs' targets)."""

@@ -48,17 +48,18 @@ TAU_GRID_S = np.geomspace(60.0, 20_000.0, 160)
 
 def screw_ends_mm(fixed_mm: float, travel_mm: tuple[float, float]
                   ) -> tuple[float, float] | None:  # fmt: skip
-    """The screw's ends as a profile takes them (``thermal.profile.screw_mm``): its fixed end,
-    found beyond the travel, and as far beyond the travel's other end (the nut overruns
-    both ends of its travel alike); None where the fixed end is not beyond the travel (no
-    overrun known). Heat stays in the steel at its ends: rough-9's X, a zone worked at the
-    free end, and a profile whose heat ran on past it left 5 % of the growth there; 1 %
-    with the ends (the sim's heat equation, noise-free, 13 zones)."""
+    """The screw's ends as a profile takes them (``thermal.profile.screw_mm``, mm to the
+    hundredth, as the config keeps them): its fixed end, found beyond the travel, and as
+    far beyond the travel's other end (the nut overruns both ends of its travel alike);
+    None where the fixed end is not beyond the travel (no overrun known). Heat stays in
+    the steel at its ends: rough-9's X, a zone worked at the free end, and a profile whose
+    heat ran on past it left 5 % of the growth there; 1 % with the ends (the sim's heat
+    equation, noise-free, 13 zones)."""
     lo, hi = sorted(travel_mm)
     if fixed_mm < lo:
-        return (fixed_mm, hi + (lo - fixed_mm))
+        return (round(fixed_mm, 2), round(hi + (lo - fixed_mm), 2))
     if fixed_mm > hi:
-        return (lo - (fixed_mm - hi), fixed_mm)
+        return (round(lo - (fixed_mm - hi), 2), round(fixed_mm, 2))
     return None
 
 
@@ -87,7 +88,7 @@ class ThermalShapeFit:
         if self.tau_s is not None and self.memory_mm is not None:
             out |= {"memory_mm": self.memory_mm, "memory_s": self.tau_s}
         if self.screw_mm is not None:
-            out["screw_mm"] = [round(v, 2) for v in self.screw_mm]
+            out["screw_mm"] = list(self.screw_mm)
         return out
 
     @property

@@ -91,7 +91,7 @@ def motion_section(origin_mm: float, length_mm: float, delta_a_um_per_m: float, 
         out["profile"] = {"spread_mm": spread_mm, "memory_mm": memory_mm,
                           "memory_s": round(tau_s, 1)}  # fmt: skip
         if screw_mm is not None:
-            out["profile"]["screw_mm"] = [round(v, 2) for v in screw_mm]
+            out["profile"]["screw_mm"] = list(screw_mm)
     return out
 
 
