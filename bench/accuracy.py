@@ -88,11 +88,13 @@ def reseed(sim_yaml: Path, sim_seed: int) -> None:
 
 def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed: int,
                 without: list[str] | None = None, judge_repeats: int = 1,
-                sim_seed: int | None = None, oracle: bool = False, warm: bool = False
-                ) -> dict[str, Any]:  # fmt: skip
+                sim_seed: int | None = None, oracle: bool = False, warm: bool = False,
+                judge_seeds: int = 1) -> dict[str, Any]:
     """Generate, calibrate and evaluate one machine; a dict of its figures (or its error);
     with ``oracle`` also judge a perfect pitch table in place of the calibrated one; with
-    ``warm`` also the calibrated machine as read after the judge's own warm-up."""
+    ``warm`` also the calibrated machine as read after the judge's own warm-up; with
+    ``judge_seeds`` > 1 also before and after at that many judges' targets and parks in all
+    (``seed`` + 1, ...), each with its own draw (``judgings``)."""
     t0 = time.monotonic()
     mdir = root / label
     shutil.rmtree(mdir, ignore_errors=True)
@@ -110,20 +112,27 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
         result = WORKFLOWS[workflow](run)
         out["workflow_s"] = round(time.monotonic() - t0, 1)
         out["notes"] = result.notes
-        the_plan = plan(run.machine, result.calibration_targets_mm, seed)
+        plans = [plan(run.machine, result.calibration_targets_mm, seed + k)
+                 for k in range(max(1, judge_seeds))]  # fmt: skip
+        the_plan = plans[0]
 
         async def cool() -> None:
             await asyncio.to_thread(run.cool_down)
 
-        phases = {}
-        for phase, config in (("before", run.base_config()), ("after", result.config)):
-            run.use(config)
-            phases[phase] = asyncio.run(
-                evaluate(run.machine, the_plan, run.sim_port, run.gateway_port, cool))
-        out.update(phases)
+        judgings = []  # each judge's targets, parks and zone, before and after
+        for k, each in enumerate(plans):
+            phases = {"seed": seed + k}
+            for phase, config in (("before", run.base_config()), ("after", result.config)):
+                run.use(config)
+                phases[phase] = asyncio.run(
+                    evaluate(run.machine, each, run.sim_port, run.gateway_port, cool))
+            judgings.append(phases)
+        out.update({p: judgings[0][p] for p in ("before", "after")})
+        out["judgings"] = judgings[1:]  # (the first judge's are before and after)
+        run.use(result.config)
         # the judge again on the same tables and targets (fresh stops, a cool-down first):
         # how much of a figure's run-to-run spread is the judge's own
-        out["after_repeats"] = [phases["after"]] + [
+        out["after_repeats"] = [out["after"]] + [
             asyncio.run(evaluate(run.machine, the_plan, run.sim_port, run.gateway_port, cool))
             for _ in range(judge_repeats - 1)]  # fmt: skip
         if oracle:  # a perfect pitch table judged at the same targets, in the same run
@@ -172,6 +181,7 @@ def print_unrepeatable(results: list[dict[str, Any]], say: Any = print) -> None:
     for r in results:
         judgings = [r[k] for k in ("before", "after", "oracle") if k in r]
         judgings += r.get("after_repeats", [])[1:] + r.get("oracle_repeats", [])[1:]
+        judgings += [j[p] for j in r.get("judgings", []) for p in ("before", "after")]
         retries = sum(j.get("retries", 0) for j in judgings)
         if r.get("unsynced") or retries:
             say(f"{r['machine']}: not repeatable as run: {r.get('unsynced', 0)} write(s) "
@@ -426,6 +436,11 @@ def main() -> int:
     parser.add_argument("--judge-repeats", type=int, default=1, metavar="N",
                         help="judge the calibrated machine N times (same targets, a cool-down "
                              "before each): the judge's own spread of E cut and A − R")
+    parser.add_argument("--judge-seeds", type=int, default=1, metavar="K",
+                        help="judge before and after at K judges' targets and parks (seeds "
+                             "--seed, --seed + 1, ...): the spread of a figure over where "
+                             "the judge happened to read (bench/judgings.py compares two runs "
+                             "so)")
     parser.add_argument("--oracle", action="store_true",
                         help="also judge, at the same targets, each machine's calibrated config "
                              "with its pitch tables replaced by perfect ones read from the "
@@ -474,7 +489,7 @@ def main() -> int:
     with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
         futures = [pool.submit(run_machine, label, gen, args.workflow, root, args.seed, without,
                                args.judge_repeats, args.sim_seed, args.oracle,
-                               args.warm_judge)
+                               args.warm_judge, args.judge_seeds)
                    for label, gen in machines]  # fmt: skip
         for fut in futures:
             r = fut.result()

@@ -1,0 +1,86 @@
+"""Two workflows (or budgets) compared over several judges: where the judge reads moves
+a machine's E cut by more than most changes a workflow makes, so one judge's figure can
+rank two calibrations either way.
+
+Each run is ``bench/accuracy.py --judge-seeds K --json`` on the same machines; each judge
+(``seed``) has its own random targets, park and XY points, the same for both runs (nearly:
+each avoids the points its workflow measured). Per machine and axis (and the plane): the
+E cut % (XY cut %) at each judge for both runs, their means, and the paired difference
+B − A, its mean and standard deviation over the judges. The spread of one run's cut over
+the judges is the judge's own scatter on that machine.
+
+    python bench/judgings.py plain.json commission.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def cuts(r: dict[str, Any]) -> dict[int, dict[str, float]]:
+    """Per judge seed, each axis's E cut % and the plane's (``XY``) max vector error cut %."""
+    out: dict[int, dict[str, float]] = {}
+    first = {"seed": 0, "before": r["before"], "after": r["after"]}
+    for j in [first, *r.get("judgings", [])]:
+        b, a = j["before"], j["after"]
+        row = {n: 100 * (1 - a["axes"][n]["E_um"] / b["axes"][n]["E_um"]) for n in a["axes"]}
+        if "xy" in a and "xy" in b:
+            row["XY"] = 100 * (1 - a["xy"]["max_um"] / b["xy"]["max_um"])
+        out[int(j["seed"])] = row
+    return out
+
+
+def compare(a: dict[str, Any], b: dict[str, Any]) -> list[dict[str, Any]]:
+    """Per machine in both runs and each figure: the cuts at every judge both read."""
+    rows = []
+    by_name = {r["machine"]: r for r in b["machines"] if "error" not in r}
+    for ra in a["machines"]:
+        rb = by_name.get(ra["machine"])
+        if rb is None or "error" in ra:
+            continue
+        ca, cb = cuts(ra), cuts(rb)
+        seeds = sorted(set(ca) & set(cb))
+        for fig in ca[seeds[0]]:
+            xa = np.array([ca[s][fig] for s in seeds])
+            xb = np.array([cb[s][fig] for s in seeds])
+            d = xb - xa
+            rows.append({"machine": ra["machine"], "figure": fig, "seeds": seeds,
+                         "a": xa.tolist(), "b": xb.tolist(),
+                         "mean_a": float(xa.mean()), "mean_b": float(xb.mean()),
+                         "diff": float(d.mean()),
+                         "diff_sd": float(d.std(ddof=1)) if d.size > 1 else float("nan"),
+                         "sd_a": float(xa.std(ddof=1)) if xa.size > 1 else float("nan"),
+                         "sd_b": float(xb.std(ddof=1)) if xb.size > 1 else float("nan")})
+    return rows
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog=__doc__.split("\n\n", 1)[1])  # fmt: skip
+    parser.add_argument("a", type=Path, help="the first run's --json output")
+    parser.add_argument("b", type=Path, help="the second run's --json output")
+    args = parser.parse_args()
+    rows = compare(json.loads(args.a.read_text()), json.loads(args.b.read_text()))
+    if not rows:
+        print("no machine in both runs", file=sys.stderr)
+        return 1
+    print(f"A: {args.a}\nB: {args.b}")
+    print(f"{'machine':<24}{'fig':>4}{'judges':>7}{'A cut %':>9}{'sd':>6}{'B cut %':>9}"
+          f"{'sd':>6}{'B − A':>8}{'sd':>6}   per judge A / B")
+    for r in rows:
+        per = "  ".join(f"{x:.1f}/{y:.1f}" for x, y in zip(r["a"], r["b"]))
+        print(f"{r['machine']:<24}{r['figure']:>4}{len(r['seeds']):>7}{r['mean_a']:9.1f}"
+              f"{r['sd_a']:6.1f}{r['mean_b']:9.1f}{r['sd_b']:6.1f}{r['diff']:8.1f}"
+              f"{r['diff_sd']:6.1f}   {per}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
