@@ -245,12 +245,14 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         assert (out / "report" / "report.html").exists()
 
 
-def test_tables_that_make_the_plane_worse_are_not_left_loaded(tmp_path: Path) -> None:
-    """A plane that is not made of the axes' own errors (each axis's straightness and scale
-    change sign across the other axis), and a budget spent before the XY grid (0.07 h: the
-    ISO runs at 5 targets, no drift references, no grid): the tables, fitted on their
-    lines, read worse at the plane's random points than none (RMS vector error 30.4 → 44.1
-    µm), and the user's own config stays loaded, said so."""
+def test_a_short_budget_reads_the_plane_s_grid_before_cyclic_scans_that_gave_way_to_it(
+        tmp_path: Path) -> None:  # fmt: skip
+    """Issue 54: a plane that is not made of the axes' own errors (each axis's straightness
+    and scale change sign across the other axis) and 0.07 h: the ISO runs at 7 targets, the
+    cyclic scans give way to the plane's grid. The grid then no longer gives way to them
+    (before, it did: neither was read, the plane's random points read the tables alone
+    worse than none, 30.4 → 44.1 µm RMS, and the user's config stayed loaded with no
+    table): the grid is read, and the tables and the plane's model are left loaded."""
     small_machine(tmp_path / "t", seed=7)
     x = np.linspace(*TRAVEL_MM, 10)
     gx, gy = np.meshgrid(x, x, indexing="ij")
@@ -260,15 +262,41 @@ def test_tables_that_make_the_plane_worse_are_not_left_loaded(tmp_path: Path) ->
         f"{a:.4f},{b:.4f},{c:.4f},{d:.4f}\n"
         for a, b, c, d in zip(gx.ravel(), gy.ravel(), ex.ravel(), ey.ravel())))  # fmt: skip
     with running(tmp_path / "t", tmp_path / "m") as rig:
-        original = rig.config.read_text()
         proc = rig.commission("--budget-h", "0.07")
         assert proc.popen.wait(timeout=300) == 1, proc.text()
-        summary = json.loads((rig.dir / "commission" / "summary.json").read_text())
-        xy = summary["xy"]
-        assert xy["after"]["rms_um"] > 1.3 * xy["before"]["rms_um"], xy
-        assert any(n.startswith("XY: worse with the tables than without") for n in
-                   summary["notes"]), summary["notes"]  # fmt: skip
-        assert rig.config.read_text() == original
+        state = json.loads((rig.dir / "commission" / "commission.json").read_text())
+        assert state["scans_after_grid"] == ["X", "Y"], state.get("scans_after_grid")
+        assert [s for s in state["steps"] if not s.startswith("iso-")] == ["xy-grid"]
+        final = yaml.safe_load(rig.config.read_text())
+        assert "planar" in final
+        assert all("pitch" in final["axes"][a]["compensation"] for a in ("X", "Y"))
+        assert "worse with the tables than without" not in proc.text()
+
+
+def test_tables_that_make_the_plane_worse_are_not_left_loaded() -> None:
+    """The plane's random points read with the tables worse than without (RMS vector
+    error, beyond the margin a plane's refinement is kept by): why, said, and the
+    commissioning then leaves the user's own config loaded; not so where they read better
+    or were not read."""
+    from types import SimpleNamespace
+
+    from gateway.calibration.commissioning.after import AfterSteps
+
+    after = AfterSteps.__new__(AfterSteps)
+    done = {"before-xy", "after-xy"}
+    after.s = SimpleNamespace(planar=("X", "Y"))
+    after.record = SimpleNamespace(done=lambda name: name in done,
+                                   tables=SimpleNamespace(planar_model=None))
+    rms = {"before-xy": 30.4, "after-xy": 44.1}
+    after.xy_figures = lambda name: {"rms_um": rms[name]}  # type: ignore[method-assign]
+    why = after.plane_worse()
+    assert why is not None and why.startswith("XY: worse with the tables than without")
+    assert "30.4" in why and "44.1" in why and "the plane was not measured" in why
+    rms["after-xy"] = 12.0
+    assert after.plane_worse() is None
+    rms["after-xy"] = 44.1
+    done.discard("after-xy")
+    assert after.plane_worse() is None
 
 
 def test_dry_run_prints_the_plan_and_moves_nothing(template: Path, tmp_path: Path) -> None:

@@ -256,6 +256,36 @@ def test_a_short_budget_holds_a_backlash_test_only_where_the_iso_runs_read_lost_
     assert short.lost_motion("X")
 
 
+def test_scans_put_after_the_grid_leave_it_its_room() -> None:
+    """Issue 54: at half a plain calibration's time smooth-8's Y cyclic scans gave way to
+    the plane's grid, then the grid gave way to them (its room was what the scans not made
+    yet left): neither was read, the plane's random points read the tables alone worse
+    than none, and the machine kept no table (X E 138 µm at the judge's targets). Scans put
+    after the grid no longer take its room; scans still to come before it do."""
+    from types import SimpleNamespace
+
+    from gateway.calibration.commissioning.short import ShortBudget
+
+    grid_s, scans_s = 260.0, 400.0  # a reading a second: the grid's nodes, the scans
+
+    def cost_s(plan: Any) -> float:
+        return grid_s * plan[0] * plan[1] / 63 if isinstance(plan, tuple) else scans_s
+
+    state: dict = {}
+    short = ShortBudget.__new__(ShortBudget)
+    short.s = SimpleNamespace(axes=["X", "Y"], lead_mm={"Y": 5.0}, grid=(7, 5))
+    short.axes = SimpleNamespace(rotary=lambda a: False, travel=lambda a: (0.0, 800.0),
+                                 plane_travel=lambda: ((0.0, 1000.0), (0.0, 800.0)))
+    short.record = SimpleNamespace(state=state, done=lambda name: False)
+    short.budget = SimpleNamespace(left_s=lambda: grid_s + 10.0, step_cost_s=cost_s,
+                                   step_cost_worst_s=cost_s)  # fmt: skip
+    short.plans = SimpleNamespace(grid_plan=lambda grid: tuple(grid))
+    assert not short.grid_affordable()  # Y's scans still to come: the grid does not fit
+    state["scans_after_grid"] = ["Y"]  # they gave way to it (IdentifySteps)
+    assert short.grid_affordable()
+    assert short._grid_room_s() == grid_s + 10.0
+
+
 def test_time_left_after_a_plain_calibration_s_steps_reads_more_runs_before_the_plane() -> None:
     """Issue 54: at the plain calibration's machine time smooth-0 read 4 ISO runs and
     rough-3 2, holding time for the verdict's before- and after-runs and the backlash

@@ -254,7 +254,8 @@ class IdentifySteps:
 
     async def _cyclic_beside_plane(self, a: str) -> None:
         """The cyclic scans of ``a`` where its lead is known and the budget left holds them
-        and still the plane's configured grid; else said: the
+        and still the plane's configured grid; else said, and put after the grid
+        (:meth:`.short.ShortBudget._grid_room_s` no longer holds room for them): the
         plane's model cuts far more than a once-per-lead term."""
         if a not in self.s.lead_mm or self.record.done(f"cyclic-{a}"):
             return
@@ -263,6 +264,10 @@ class IdentifySteps:
         keep_s = self.short.plane_held_s(plain=False) if a in (self.s.planar or ()) else 0.0
         said = f"{a}: no cyclic scans on this budget"
         if self.budget.left_s() - need_s < keep_s:
+            if keep_s:  # the grid first: its room no longer held for these (ShortBudget)
+                after = self.record.state.setdefault("scans_after_grid", [])
+                if a not in after:
+                    after.append(a)
             self._note(f"{said}: they ({need_s / 60:.1f} min) do not "
                        + ("fit beside the plane's grid" if keep_s else "fit in the budget left"),
                        replacing=said)  # fmt: skip
