@@ -10,6 +10,12 @@ B − A, its mean and standard deviation over the judges. The spread of one run'
 the judges is the judge's own scatter on that machine.
 
     python bench/judgings.py plain.json commission.json
+    python bench/judgings.py --heat commission.json   # heat left at each judge's zone
+
+``--heat``: per machine and axis of one run, the judge's zone test at each judge (its own
+zone along the travel): the change at its points after the zone's work, with the
+calibration's thermal compensation (after) and without (before), in µm and as a share:
+issue 52's heat left.
 """
 
 from __future__ import annotations
@@ -34,6 +40,33 @@ def cuts(r: dict[str, Any]) -> dict[int, dict[str, float]]:
             row["XY"] = 100 * (1 - a["xy"]["max_um"] / b["xy"]["max_um"])
         out[int(j["seed"])] = row
     return out
+
+
+def heat_left(r: dict[str, Any]) -> dict[str, list[tuple[int, float, float]]]:
+    """Per axis: (judge seed, zone test's change before, after; µm) at every judge."""
+    first = {"seed": 0, "before": r["before"], "after": r["after"]}
+    out: dict[str, list[tuple[int, float, float]]] = {}
+    for j in [first, *r.get("judgings", [])]:
+        for n, fig in j["after"]["axes"].items():
+            out.setdefault(n, []).append((int(j["seed"]), j["before"]["axes"][n]["thermal_um"],
+                                          fig["thermal_um"]))  # fmt: skip
+    return out
+
+
+def print_heat(data: dict[str, Any]) -> None:
+    """Issue 52's heat left at each judge's zone, per machine and axis."""
+    print(f"{'machine':<24}{'axis':>5}{'sensor':>13}{'worst %':>9}{'median %':>9}"
+          "   per judge: before → after µm (left %)")
+    for r in data["machines"]:
+        if "error" in r:
+            continue
+        for n, rows in heat_left(r).items():
+            left = [100 * a / b for _, b, a in rows if b > 0]
+            sensor = "yes" if n in r.get("sensor_axes", []) else (
+                "motion" if n in r.get("model_axes", []) else "-")
+            per = "  ".join(f"{b:.1f}→{a:.2f} ({100 * a / b:.0f})" for _, b, a in rows if b > 0)
+            print(f"{r['machine']:<24}{n:>5}{sensor:>13}{max(left):9.1f}"
+                  f"{float(np.median(left)):9.1f}   {per}")
 
 
 def compare(a: dict[str, Any], b: dict[str, Any]) -> list[dict[str, Any]]:
@@ -65,8 +98,13 @@ def main() -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
                                      epilog=__doc__.split("\n\n", 1)[1])  # fmt: skip
     parser.add_argument("a", type=Path, help="the first run's --json output")
-    parser.add_argument("b", type=Path, help="the second run's --json output")
+    parser.add_argument("b", type=Path, nargs="?", help="the second run's --json output")
+    parser.add_argument("--heat", action="store_true",
+                        help="the heat left at each judge's zone, of the first run alone")
     args = parser.parse_args()
+    if args.heat or args.b is None:
+        print_heat(json.loads(args.a.read_text()))
+        return 0
     rows = compare(json.loads(args.a.read_text()), json.loads(args.b.read_text()))
     if not rows:
         print("no machine in both runs", file=sys.stderr)
