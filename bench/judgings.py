@@ -117,6 +117,15 @@ def main() -> int:
         print(f"{r['machine']:<24}{r['figure']:>4}{len(r['seeds']):>7}{r['mean_a']:9.1f}"
               f"{r['sd_a']:6.1f}{r['mean_b']:9.1f}{r['sd_b']:6.1f}{r['diff']:8.1f}"
               f"{r['diff_sd']:6.1f}   {per}")
+    # beyond the judges' scatter: the mean difference over twice its standard error
+    below = [r for r in rows if len(r["seeds"]) > 1
+             and r["diff"] < -2 * r["diff_sd"] / np.sqrt(len(r["seeds"]))]
+    above = [r for r in rows if len(r["seeds"]) > 1
+             and r["diff"] > 2 * r["diff_sd"] / np.sqrt(len(r["seeds"]))]
+    print(f"\nB above A beyond twice the standard error of the judges' differences: "
+          f"{len(above)} of {len(rows)}; below: {len(below)}"
+          + "".join(f"\n  {r['machine']} {r['figure']}: {r['mean_a']:.1f} → {r['mean_b']:.1f} %"
+                    for r in below))  # fmt: skip
     return 0
 
 
