@@ -314,14 +314,20 @@ class ShortBudget:
         ``quarters``, what the table through its points and midpoints is expected to,
         :func:`..fitting.table_cv.denser_miss`): over what its
         scatter explains, and in µm RMS (:func:`..fitting.table_cv.between_points`, net of
-        the once-per-lead term where its scans were read); None, None where it cannot say."""
+        the once-per-lead term where its scans were read); None, None where it cannot say.
+        Along the curve the table will be read along, as the quarter points are judged:
+        at 1 x a plain calibration's time smooth-2's Y, 7 points over 150 mm rising 10 µm
+        in its last 20 mm, missed 2.31 µm RMS between them along straight lines, 6.5 x its
+        scatter, and read its midpoints; the spline through the 7 misses 0.34 µm (1.0 x),
+        and the table with the midpoints, levelled, read E 84.5 % over four judges against
+        the plain calibration's 88.7 %."""
         if quarters:
             first_mm = self.runner.raw(f"iso-{axis}").target_mm
             found = denser_miss(axis_deviations(self.iso_raw(axis), axis), first_mm,
                                 self.scanned(axis))  # fmt: skip
         else:
             found = between_points(axis_deviations(self.runner.raw(f"iso-{axis}"), axis),
-                                   self.scanned(axis))  # fmt: skip
+                                   self.scanned(axis), curves=True)  # fmt: skip
         return (None, None) if found is None else (found[0], found[1] * 1e3)
 
     def by_value(self, axes: list[str], quarters: bool = False,
