@@ -123,12 +123,12 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         order = ["iso-Y", "cyclic-X", "cyclic-Y", "xy-grid", "before-X", "before-Y"]
         assert [done.index(s) for s in order] == sorted(done.index(s) for s in order), done
         assert "backlash-Y" not in done
-        # Y's table (of known lead) misses between its points net of its once-per-lead
-        # error: its midpoints, at 2 runs, after the scans and before the grid, held beside
-        # a plain calibration's grid (bought before the table's last runs)
+        # Y's table (of known lead) misses between its points, net of its once-per-lead
+        # error, more than twice its scatter along straight lines, but not along the curve
+        # it is read along: no midpoints (they were read before session 56)
         mid = state["identify"]["midpoints-Y"]
-        assert mid["measured"] and mid["runs"] == 2 and mid["misses_x_scatter"] > 2, mid
-        assert done.index("cyclic-Y") < done.index("iso-mid-Y") < done.index("xy-grid"), done
+        assert not mid["measured"] and mid["misses_x_scatter"] <= 2, mid
+        assert "iso-mid-Y" not in done, done
         # no round will refine the plane: its first grid is at least a plain calibration's
         # (9 nodes along the longer travel: a square plane's 9 x 9), denser with what the
         # verdict and the backlash tests leave
