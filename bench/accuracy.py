@@ -127,9 +127,8 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
                 phases[phase] = asyncio.run(
                     evaluate(run.machine, each, run.sim_port, run.gateway_port, cool))
             judgings.append(phases)
-        out.update({p: judgings[0][p] for p in ("before", "after")})
+        out.update({p: judgings[0][p] for p in ("before", "after")}, judge_seed=seed)
         out["judgings"] = judgings[1:]  # (the first judge's are before and after)
-        run.use(result.config)
         # the judge again on the same tables and targets (fresh stops, a cool-down first):
         # how much of a figure's run-to-run spread is the judge's own
         out["after_repeats"] = [out["after"]] + [

@@ -29,11 +29,17 @@ from typing import Any
 import numpy as np
 
 
+def judges(r: dict[str, Any]) -> list[dict[str, Any]]:
+    """Every judge of one machine, the first (its ``before`` and ``after``) first, each
+    with its ``seed`` (the first's: ``judge_seed``, 0 in runs that did not keep it)."""
+    first = {"seed": r.get("judge_seed", 0), "before": r["before"], "after": r["after"]}
+    return [first, *r.get("judgings", [])]
+
+
 def cuts(r: dict[str, Any]) -> dict[int, dict[str, float]]:
     """Per judge seed, each axis's E cut % and the plane's (``XY``) max vector error cut %."""
     out: dict[int, dict[str, float]] = {}
-    first = {"seed": 0, "before": r["before"], "after": r["after"]}
-    for j in [first, *r.get("judgings", [])]:
+    for j in judges(r):
         b, a = j["before"], j["after"]
         row = {n: 100 * (1 - a["axes"][n]["E_um"] / b["axes"][n]["E_um"]) for n in a["axes"]}
         if "xy" in a and "xy" in b:
@@ -44,9 +50,8 @@ def cuts(r: dict[str, Any]) -> dict[int, dict[str, float]]:
 
 def heat_left(r: dict[str, Any]) -> dict[str, list[tuple[int, float, float]]]:
     """Per axis: (judge seed, zone test's change before, after; µm) at every judge."""
-    first = {"seed": 0, "before": r["before"], "after": r["after"]}
     out: dict[str, list[tuple[int, float, float]]] = {}
-    for j in [first, *r.get("judgings", [])]:
+    for j in judges(r):
         for n, fig in j["after"]["axes"].items():
             out.setdefault(n, []).append((int(j["seed"]), j["before"]["axes"][n]["thermal_um"],
                                           fig["thermal_um"]))  # fmt: skip
