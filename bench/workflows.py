@@ -45,6 +45,7 @@ from machine_run import (  # noqa: F401  (re-exported: the workflows' tools)
     lockstep_argv,
 )
 
+from gateway.calibration.plans.plans import plan_time_s, read_plan
 from sim.technician import Gauge, Technician
 
 
@@ -265,16 +266,21 @@ def estimate_s(run: MachineRun, config: dict[str, Any], asks: list[list[str]]) -
     """The machine time of ``asks`` (each a `compgw calibrate` plan) on ``config`` (s): what
     `compgw calibrate` prints before it moves, asked without a --raw file (nothing runs)."""
     gw = run.write_config("gw.estimate.yaml", config)
-    total_min = 0.0
-    for ask in asks:
-        out = subprocess.run([*compgw_argv(), "calibrate", "-c", str(gw), *ask], cwd=run.work,
+    total_s = 0.0
+    for number, ask in enumerate(asks):
+        saved = run.work / f"estimate.{number}.plan.csv"
+        out = subprocess.run([*compgw_argv(), "calibrate", "-c", str(gw), *ask,
+                              "--save-plan", str(saved)], cwd=run.work,
                              text=True, capture_output=True, timeout=COMMAND_TIMEOUT_S)  # fmt: skip
-        found = re.findall(r"about ([\d.]+) min of machine time", out.stdout)
-        if not found:
+        found = re.findall(r"about [\d.]+ min of machine time at ([\d.]+) \S+ and ([\d.]+) s "
+                           r"per reading", out.stdout)  # fmt: skip
+        if not found or not saved.exists():
             raise CommandFailed(f"no machine-time estimate from calibrate {' '.join(ask)}: "
                                 f"{out.stderr.strip()[-200:]}")  # fmt: skip
-        total_min += float(found[0])
-    return 60.0 * total_min
+        # the printed minutes are rounded to 0.1: the same estimate, from the plan it wrote
+        speed, stop = (float(v) for v in found[0])
+        total_s += plan_time_s(read_plan(saved), speed, stop)
+    return total_s
 
 
 # -- the plain ISO 230-2 calibration (issue 54) ----------------------------------------------------
