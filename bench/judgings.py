@@ -11,11 +11,17 @@ the judges is the judge's own scatter on that machine.
 
     python bench/judgings.py plain.json commission.json
     python bench/judgings.py --heat commission.json   # heat left at each judge's zone
+    python bench/judgings.py --bars commission.json   # issue 54's 1.5 x bars, per machine
 
 ``--heat``: per machine and axis of one run, the judge's zone test at each judge (its own
 zone along the travel): the change at its points after the zone's work, with the
 calibration's thermal compensation (after) and without (before), in µm and as a share:
 issue 52's heat left.
+
+``--bars`` (a run with ``--oracle``): issue 54's bars at 1.5 × per machine. Each axis's E
+cut ≥ 95 % (mean over the judges), or its E within 0.3 µm of a perfect table's at the
+first judge's targets; A ≤ R + 2 µm (mean over the judges); XY cut ≥ 90 %. Then per group
+whether every machine meets them, and the median one (by its worst margin).
 """
 
 from __future__ import annotations
@@ -74,6 +80,61 @@ def print_heat(data: dict[str, Any]) -> None:
                   f"{float(np.median(left)):9.1f}   {per}")
 
 
+#: issue 54's bars at 1.5 ×: E cut %, or E this near a perfect table's (µm); A - R (µm);
+#: the plane's cut %
+E_CUT_BAR, ORACLE_NEAR_UM, A_OVER_R_UM, XY_CUT_BAR = 95.0, 0.3, 2.0, 90.0
+
+
+def bars(r: dict[str, Any]) -> dict[str, Any]:
+    """One machine against issue 54's 1.5 × bars: per axis its mean E cut, E against a
+    perfect table's (first judge), mean A - R; the plane's mean cut; each margin (≥ 0 met;
+    E's in points of cut, or µm where a perfect table decides, whichever is kinder)."""
+    every = judges(r)
+    c = cuts(r)
+    out: dict[str, Any] = {"machine": r["machine"], "axes": {}, "margins": []}
+    for n in r["after"]["axes"]:
+        cut = float(np.mean([c[s][n] for s in c]))
+        a_r = float(np.mean([j["after"]["axes"][n]["A_um"] - j["after"]["axes"][n]["R_um"]
+                             for j in every]))  # fmt: skip
+        e_um = r["after"]["axes"][n]["E_um"]
+        perfect = (r.get("oracle") or {}).get("axes", {}).get(n, {}).get("E_um")
+        near = None if perfect is None else e_um - perfect
+        by_cut = cut - E_CUT_BAR
+        by_oracle = float("-inf") if near is None else ORACLE_NEAR_UM - near
+        out["axes"][n] = {"cut": cut, "e_um": e_um, "perfect_um": perfect, "a_r_um": a_r,
+                          "e_met": by_cut >= 0 or by_oracle >= 0,
+                          "a_met": a_r <= A_OVER_R_UM}  # fmt: skip
+        out["margins"] += [by_cut if by_cut >= 0 or by_oracle < 0 else 0.0,
+                           A_OVER_R_UM - a_r]
+    if "XY" in c[next(iter(c))]:
+        out["xy_cut"] = float(np.mean([c[s]["XY"] for s in c]))
+        out["margins"].append(out["xy_cut"] - XY_CUT_BAR)
+    out["met"] = all(m >= 0 for m in out["margins"])
+    return out
+
+
+def print_bars(data: dict[str, Any]) -> None:
+    """Issue 54's 1.5 × bars per machine, then per group (every machine, the median)."""
+    rows = [bars(r) for r in data["machines"] if "error" not in r]
+    print(f"{'machine':<24}{'axis':>5}{'cut %':>7}{'E µm':>7}{'perfect':>8}{'A-R µm':>8}"
+          f"{'E':>4}{'A':>3}{'XY %':>7}")
+    for b in rows:
+        for k, (n, f) in enumerate(b["axes"].items()):
+            xy = f"{b['xy_cut']:7.1f}" if k == 0 and "xy_cut" in b else ""
+            perfect = "-" if f["perfect_um"] is None else f"{f['perfect_um']:.2f}"
+            print(f"{b['machine'] if k == 0 else '':<24}{n:>5}{f['cut']:7.1f}{f['e_um']:7.2f}"
+                  f"{perfect:>8}{f['a_r_um']:8.2f}{'ok' if f['e_met'] else 'NO':>4}"
+                  f"{'ok' if f['a_met'] else 'NO':>3}{xy}")  # fmt: skip
+    for group in sorted({b["machine"].split("-")[0] for b in rows}):
+        inside = sorted((b for b in rows if b["machine"].split("-")[0] == group),
+                        key=lambda b: min(b["margins"]))  # fmt: skip
+        median = inside[(len(inside) - 1) // 2]  # (of an even count: the lower one)
+        missed = [b["machine"] for b in inside if not b["met"]]
+        print(f"{group}: {len(inside) - len(missed)} of {len(inside)} meet every bar; the "
+              f"median one ({median['machine']}) {'meets' if median['met'] else 'misses'}"
+              + (f"; missed: {', '.join(missed)}" if missed else ""))
+
+
 def compare(a: dict[str, Any], b: dict[str, Any]) -> list[dict[str, Any]]:
     """Per machine in both runs and each figure: the cuts at every judge both read."""
     rows = []
@@ -106,7 +167,12 @@ def main() -> int:
     parser.add_argument("b", type=Path, nargs="?", help="the second run's --json output")
     parser.add_argument("--heat", action="store_true",
                         help="the heat left at each judge's zone, of the first run alone")
+    parser.add_argument("--bars", action="store_true",
+                        help="issue 54's 1.5 x bars per machine, of the first run alone")
     args = parser.parse_args()
+    if args.bars:
+        print_bars(json.loads(args.a.read_text()))
+        return 0
     if args.heat or args.b is None:
         print_heat(json.loads(args.a.read_text()))
         return 0
