@@ -327,12 +327,14 @@ def zone_strokes(z0_mm: float, z1_mm: float, speed_mm_s: float) -> int:
 
 
 async def _thermal(m: Master, name: str, p: dict[str, Any], speed_mm_s: float,
-                   cool: Any) -> float:  # fmt: skip
-    """Largest change of the deviation at the thermal points after a warm-up (µm)."""
+                   cool: Any) -> tuple[float, float]:  # fmt: skip
+    """Largest change of the deviation at the thermal points after a warm-up (µm), and
+    the standard error of a change from the readings' own scatter (µm, RMS over the
+    points): below about twice that, the change is the judge's noise, not heat."""
 
     async def at_points() -> np.ndarray:
-        """The mean deviation at each point over THERMAL_PASSES passes over all of them,
-        THERMAL_APPROACHES approaches each."""
+        """The deviations at each point over THERMAL_PASSES passes over all of them,
+        THERMAL_APPROACHES approaches each (pass, approach, point)."""
         out = np.zeros((THERMAL_PASSES, THERMAL_APPROACHES, len(p["thermal_points"])))
         for k in range(THERMAL_PASSES):
             for i, pos in enumerate(p["thermal_points"]):
@@ -340,7 +342,7 @@ async def _thermal(m: Master, name: str, p: dict[str, Any], speed_mm_s: float,
                     await m.move({name: pos - 1.0})
                     await m.move({name: pos})
                     out[k, j, i] = await m.deviation_um(name, pos)
-        return out.mean(axis=(0, 1))
+        return out
 
     await m.move(p["park"])
     await cool()
@@ -349,7 +351,10 @@ async def _thermal(m: Master, name: str, p: dict[str, Any], speed_mm_s: float,
     for k in range(zone_strokes(z0, z1, speed_mm_s)):
         await m.move({name: z1 if k % 2 == 0 else z0})
     warm = await at_points()
-    return float(np.abs(warm - cold).max())
+    change = warm.mean(axis=(0, 1)) - cold.mean(axis=(0, 1))
+    n = THERMAL_PASSES * THERMAL_APPROACHES
+    se2 = (cold.reshape(n, -1).var(axis=0, ddof=1) + warm.reshape(n, -1).var(axis=0, ddof=1)) / n
+    return float(np.abs(change).max()), float(np.sqrt(se2.mean()))
 
 
 async def evaluate_warm(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: int,
@@ -434,7 +439,8 @@ async def evaluate(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: 
             for name in names:
                 p = the_plan["axes"][name]
                 speed = machine["axes"][name]["speed_mm_s"]
-                out["axes"][name]["thermal_um"] = await _thermal(m, name, p, speed, cool)
+                fig = out["axes"][name]
+                fig["thermal_um"], fig["thermal_se_um"] = await _thermal(m, name, p, speed, cool)
         out["moves"], out["settle_steps"], out["retries"] = m.moves, m.settle_steps, m.retries
     return out
 

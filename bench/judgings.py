@@ -54,28 +54,31 @@ def cuts(r: dict[str, Any]) -> dict[int, dict[str, float]]:
     return out
 
 
-def heat_left(r: dict[str, Any]) -> dict[str, list[tuple[int, float, float]]]:
-    """Per axis: (judge seed, zone test's change before, after; µm) at every judge."""
-    out: dict[str, list[tuple[int, float, float]]] = {}
+def heat_left(r: dict[str, Any]) -> dict[str, list[tuple[int, float, float, float]]]:
+    """Per axis: (judge seed, zone test's change before, after, the after's standard error
+    from its readings' scatter, NaN in older runs; µm) at every judge."""
+    out: dict[str, list[tuple[int, float, float, float]]] = {}
     for j in judges(r):
         for n, fig in j["after"]["axes"].items():
             out.setdefault(n, []).append((int(j["seed"]), j["before"]["axes"][n]["thermal_um"],
-                                          fig["thermal_um"]))  # fmt: skip
+                                          fig["thermal_um"],
+                                          fig.get("thermal_se_um", float("nan"))))  # fmt: skip
     return out
 
 
 def print_heat(data: dict[str, Any]) -> None:
     """Issue 52's heat left at each judge's zone, per machine and axis."""
     print(f"{'machine':<24}{'axis':>5}{'sensor':>13}{'worst %':>9}{'median %':>9}"
-          "   per judge: before → after µm (left %)")
+          "   per judge: before → after ± its standard error µm (left %)")
     for r in data["machines"]:
         if "error" in r:
             continue
         for n, rows in heat_left(r).items():
-            left = [100 * a / b for _, b, a in rows if b > 0]
+            left = [100 * a / b for _, b, a, _ in rows if b > 0]
             sensor = "yes" if n in r.get("sensor_axes", []) else (
                 "motion" if n in r.get("model_axes", []) else "-")
-            per = "  ".join(f"{b:.1f}→{a:.2f} ({100 * a / b:.0f})" for _, b, a in rows if b > 0)
+            per = "  ".join(f"{b:.1f}→{a:.2f}" + ("" if np.isnan(se) else f"±{se:.2f}")
+                            + f" ({100 * a / b:.0f})" for _, b, a, se in rows if b > 0)
             print(f"{r['machine']:<24}{n:>5}{sensor:>13}{max(left):9.1f}"
                   f"{float(np.median(left)):9.1f}   {per}")
 
