@@ -147,8 +147,10 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
         if warm:  # last: the calibrated config, after the judge's own mixed work
             out["after_warm"] = asyncio.run(evaluate_warm(run.machine, the_plan, run.sim_port,
                                                           run.gateway_port, cool))  # fmt: skip
-        out["said"] = next((("NOT within" if "NOT within" in n else "WITHIN")
-                            for n in result.notes if "within" in n.lower()), None)  # fmt: skip
+        out["said"] = next((next(w for w in ("NO VERDICT", "NOT within", "WITHIN") if w in n)
+                            for n in result.notes
+                            if any(w in n for w in ("NO VERDICT", "NOT within", "WITHIN"))),
+                           None)  # fmt: skip
         # the sensor given to the workflow (--no-sensors: none, whatever the machine has)
         out["sensor"] = ("none" if workflow == "commission" and workflows.NO_SENSORS
                          else run.machine.get("thermal_sensor", "none"))  # fmt: skip

@@ -202,6 +202,31 @@ def test_the_verdict_is_never_within_beside_an_after_run_that_misses() -> None:
     assert "did not" in remains(summary)[0]
 
 
+def test_an_axis_with_a_table_and_no_after_run_gets_no_verdict() -> None:
+    """At 1 x a plain calibration's time no before- and after-run fits: every table loaded,
+    nothing judged, and the line said "NOT within 2 µm" (smooth-4 read E 0.30 µm at the
+    judge's targets). Nothing read is neither within nor beyond: NO VERDICT, named; and
+    never WITHIN while an axis or the plane went unread."""
+    summary = {"outcome": "budget", "tolerance_um": 2.0, "xy": {},
+               "axes": {"X": {"table_points": 41}, "Y": {"table_points": 33}}}
+    line = verdict(summary)
+    assert line.startswith("NO VERDICT on X, Y and the plane: no after-run read there; what "
+                           "was fitted is loaded. Next: the budget ran out"), line
+    summary["axes"]["X"]["after"] = {"E_um": 1.2, "E_read_um": 1.3}
+    assert verdict(summary).startswith("NO VERDICT on Y and the plane: no after-run read "
+                                       "there (X within 2 µm as the laser reads it);")
+    summary["outcome"] = "within"  # the rounds' word: still none on what was not read
+    assert verdict(summary).startswith("NO VERDICT on Y and the plane")
+    summary["axes"]["X"]["after"]["E_read_um"] = 2.6
+    assert verdict(summary).startswith(
+        "NOT within 2 µm (X E 2.60 µm as read, 1.20 with the drift while measuring taken "
+        "off; no after-run on Y and the plane)"), verdict(summary)
+    summary["axes"]["Y"]["after"] = {"E_um": 1.0}  # all read, within: WITHIN
+    summary["axes"]["X"]["after"]["E_read_um"] = 1.3
+    summary["xy"]["after"] = {"max_um": 1.5}
+    assert verdict(summary).startswith("WITHIN 2 µm as the laser reads it on every")
+
+
 def test_the_verdict_is_what_the_laser_reads_the_drift_taken_off_a_diagnosis() -> None:
     """Issue 52: "WITHIN 2 µm" while the report said X read 18.79 → 10.10 µm as read. The
     verdict judges the after-run as read (nothing subtracted); where only the machine's

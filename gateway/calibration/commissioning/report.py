@@ -111,11 +111,20 @@ def verdict(summary: dict[str, Any]) -> str:
             else ""))  # fmt: skip
         heat = heat and xy <= summary["tolerance_um"]
     outcome = summary["outcome"]
-    if outcome == "within" and not missing:
+    unjudged = _unjudged(summary)
+    if outcome == "within" and not missing and not unjudged:
         return f"WITHIN {tol_text} as the laser reads it on every commissioned axis" + (
             " and the plane" if summary.get("xy") else "") + "; the tables are loaded"
+    if unjudged and not missing:  # nothing read beyond it, and not all read: no word
+        judged = [a for a in summary["axes"] if a not in unjudged]
+        return (f"NO VERDICT on {_listed(unjudged)}: no after-run read there"
+                + (f" ({_listed(judged)} within {tol_text} as the laser reads it)"
+                   if judged else "")
+                + f"; what was fitted is loaded. Next: {NEXT.get(outcome, NEXT['rounds'])}"
+                + _same_tables_worse(summary) + _put_back(summary))  # fmt: skip
     if outcome == "within":  # the rounds' word against the after-run's: never WITHIN then
         outcome = "after"
+    missing += [f"no after-run on {_listed(unjudged)}"] if unjudged else []
     where = f" ({'; '.join(missing)})" if missing else ""
     if outcome == "after" and summary.get("run_before"):  # carried on, and missed again
         outcome = "after_again"
@@ -127,6 +136,28 @@ def verdict(summary: dict[str, Any]) -> str:
         advice = _before_more(summary) or advice
     return (f"NOT within {tol_text}{where}; what was fitted is loaded. Next: {advice}"
             + _same_tables_worse(summary) + _put_back(summary))
+
+
+def _unjudged(summary: dict[str, Any]) -> list[str]:
+    """The axes with a table and the plane with a model but no after-run figures (a short
+    budget held none): named, never counted within."""
+    out = [a for a, entry in summary["axes"].items()
+           if entry.get("table_points") and not _after_read(entry.get("after"))]
+    xy = summary.get("xy")
+    if xy is not None and not _after_read(xy.get("after")):
+        out.append("the plane")
+    return out
+
+
+def _after_read(after: dict[str, Any] | None) -> bool:
+    """Whether an after-run's figures are there (an axis's E, the plane's maximum)."""
+    return bool(after) and any(k in after for k in ("E_um", "E_read_um", "E_arcsec",
+                                                    "max_um", "max_read_um"))  # fmt: skip
+
+
+def _listed(names: list[str]) -> str:
+    """``X, Y and the plane``."""
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
 
 
 def _put_back(summary: dict[str, Any]) -> str:
