@@ -152,7 +152,7 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
                             if any(w in n for w in ("NO VERDICT", "NOT within", "WITHIN"))),
                            None)  # fmt: skip
         # the sensor given to the workflow (--no-sensors: none, whatever the machine has)
-        out["sensor"] = ("none" if workflow == "commission" and workflows.NO_SENSORS
+        out["sensor"] = ("none" if workflows.NO_SENSORS
                          else run.machine.get("thermal_sensor", "none"))  # fmt: skip
         thermal = {a: ax.get("compensation", {}).get("thermal") or {}
                    for a, ax in result.config["axes"].items()}  # fmt: skip
@@ -413,7 +413,7 @@ def main() -> int:
                         help="Δa axes get compensation.thermal.profile (the Δa spread where "
                              "the axis has travelled)")
     parser.add_argument("--no-sensors", action="store_true",
-                        help="`compgw commission` is not given the machine's Δa or temperature "
+                        help="the workflow is not given the machine's Δa or temperature "
                              "sensors (issue 54): its axes have no thermal setting")
     parser.add_argument("--laser-kind", choices=workflows.LASER_KINDS, default="modbus",
                         help="how `compgw commission` reads the sim's laser: its Modbus "

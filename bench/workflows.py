@@ -75,15 +75,19 @@ def without(data: dict[str, Any], *stages: str) -> dict[str, Any]:
 THERMAL_PROFILE = False
 #: how often an aborted `compgw commission` is run again to resume, as its user would
 RESUMES = 2
-#: `compgw commission` not given the machine's Δa or temperature sensors (issue 54's "1 x
-#: without them"): no thermal setting configured, heat from motion where the screw warms
+#: the workflow not given the machine's Δa or temperature sensors (issue 54's "1 x without
+#: them"): no thermal setting configured; commission fits heat from motion where the screw
+#: warms, the plain and manual workflows keep none
 NO_SENSORS = False
 
 
 def thermal_setup(run: MachineRun) -> tuple[dict[str, Any], str | None]:
     """The uncalibrated config with each axis that has a sensor pointed at it, as the
     machine's gateway.yaml has it (origin at the screw's fixed end); the sensor kind
-    (``delta_a``, ``temperature``) or None."""
+    (``delta_a``, ``temperature``) or None; without the sensors (``NO_SENSORS``): the
+    uncalibrated config as it is, None."""
+    if NO_SENSORS:
+        return run.base_config(), None
     data = run.base_config(sensors=True)
     sensed = [a for a in data["axes"].values() if (a.get("compensation") or {}).get("thermal")]
     if not sensed:
