@@ -86,6 +86,10 @@ def reseed(sim_yaml: Path, sim_seed: int) -> None:
     sim_yaml.write_text(yaml.safe_dump(data, sort_keys=False))
 
 
+#: the first words of commission's verdict line, the first that fits a note is what it said
+VERDICTS = ("NO VERDICT", "NOT within", "WITHIN")
+
+
 def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed: int,
                 without: list[str] | None = None, judge_repeats: int = 1,
                 sim_seed: int | None = None, oracle: bool = False, warm: bool = False,
@@ -147,10 +151,7 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
         if warm:  # last: the calibrated config, after the judge's own mixed work
             out["after_warm"] = asyncio.run(evaluate_warm(run.machine, the_plan, run.sim_port,
                                                           run.gateway_port, cool))  # fmt: skip
-        out["said"] = next((next(w for w in ("NO VERDICT", "NOT within", "WITHIN") if w in n)
-                            for n in result.notes
-                            if any(w in n for w in ("NO VERDICT", "NOT within", "WITHIN"))),
-                           None)  # fmt: skip
+        out["said"] = next((w for n in result.notes for w in VERDICTS if w in n), None)
         # the sensor given to the workflow (--no-sensors: none, whatever the machine has)
         out["sensor"] = ("none" if workflows.NO_SENSORS
                          else run.machine.get("thermal_sensor", "none"))  # fmt: skip

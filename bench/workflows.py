@@ -365,7 +365,7 @@ def commission(run: MachineRun) -> WorkflowResult:
     started cold. A laser read from its software's file reads the axis it is set up on:
     then one command per plane axis, the laser moved between them (docs/instruments.md),
     the plane commissioned with the last."""
-    data, kind = (run.base_config(), None) if NO_SENSORS else thermal_setup(run)
+    data, kind = thermal_setup(run)
     data["status"]["remote_control"] = True  # it reloads the gateway through the status unit
     run.use(data)
     run.cool_down()

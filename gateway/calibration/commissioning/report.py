@@ -91,10 +91,13 @@ def verdict(summary: dict[str, Any]) -> str:
     only (a diagnosis: heat, not the tables)."""
     tol_text = _tolerance_text(summary)
     missing, heat = [], True
+    unjudged = []  # a table or the plane's model with no after-run (a short budget held none)
     for axis, entry in summary["axes"].items():
         after = entry.get("after") or {}
         e, e_read = _fig(after, "E"), _fig(after, "E_read")
         read = e_read if e_read is not None else e
+        if read is None and entry.get("table_points"):
+            unjudged.append(axis)
         tol = summary.get("tolerance_arcsec") if _angular(entry) else summary["tolerance_um"]
         if read is not None and tol is not None and read > tol:
             u = _unit(entry)
@@ -103,6 +106,8 @@ def verdict(summary: dict[str, Any]) -> str:
                 if e_read is not None and e is not None and abs(e - e_read) >= 0.05 else ""))
             heat = heat and e is not None and e_read is not None and e <= tol
     after_xy = (summary.get("xy") or {}).get("after") or {}
+    if "xy" in summary and not after_xy:
+        unjudged.append("the plane")
     xy_read = after_xy.get("max_read_um", after_xy.get("max_um", 0.0))
     if xy_read > summary["tolerance_um"]:
         xy = after_xy.get("max_um", xy_read)
@@ -111,7 +116,6 @@ def verdict(summary: dict[str, Any]) -> str:
             else ""))  # fmt: skip
         heat = heat and xy <= summary["tolerance_um"]
     outcome = summary["outcome"]
-    unjudged = _unjudged(summary)
     if outcome == "within" and not missing and not unjudged:
         return f"WITHIN {tol_text} as the laser reads it on every commissioned axis" + (
             " and the plane" if summary.get("xy") else "") + "; the tables are loaded"
@@ -136,23 +140,6 @@ def verdict(summary: dict[str, Any]) -> str:
         advice = _before_more(summary) or advice
     return (f"NOT within {tol_text}{where}; what was fitted is loaded. Next: {advice}"
             + _same_tables_worse(summary) + _put_back(summary))
-
-
-def _unjudged(summary: dict[str, Any]) -> list[str]:
-    """The axes with a table and the plane with a model but no after-run figures (a short
-    budget held none): named, never counted within."""
-    out = [a for a, entry in summary["axes"].items()
-           if entry.get("table_points") and not _after_read(entry.get("after"))]
-    xy = summary.get("xy")
-    if xy is not None and not _after_read(xy.get("after")):
-        out.append("the plane")
-    return out
-
-
-def _after_read(after: dict[str, Any] | None) -> bool:
-    """Whether an after-run's figures are there (an axis's E, the plane's maximum)."""
-    return bool(after) and any(k in after for k in ("E_um", "E_read_um", "E_arcsec",
-                                                    "max_um", "max_read_um"))  # fmt: skip
 
 
 def _listed(names: list[str]) -> str:
