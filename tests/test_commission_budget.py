@@ -120,8 +120,14 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         assert state["short"]
         done = list(state["steps"])
         # a plain calibration's steps, then what judges them, then the backlash tests
-        order = ["iso-Y", "cyclic-X", "cyclic-Y", "xy-grid", "before-X", "before-Y"]
+        order = ["iso-Y", "cyclic-X", "cyclic-Y", "xy-grid", "after-X"]
         assert [done.index(s) for s in order] == sorted(done.index(s) for s in order), done
+        # each axis judged by its after-run alone, against its ISO runs read with the
+        # tables off: no before-run's machine time
+        assert not {"before-X", "before-Y"} & set(done), done
+        assert {"after-X", "after-Y"} <= set(done), done
+        assert (out / "plans" / "alone-X.plan").exists()
+        assert "X, Y: no before-run; the figures before are the ISO runs'" in proc.text()
         assert "backlash-Y" not in done
         # Y's table (of known lead) misses between its points, net of its once-per-lead
         # error, more than twice its scatter along straight lines, but not along the curve
@@ -146,8 +152,9 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
         assert "planar" in yaml.safe_load(rig.config.read_text())
         xy = summary["xy"]
         assert xy["after"]["max_um"] < 0.5 * xy["before"]["max_um"], xy
-        for a in ("X", "Y"):  # judged before and after at random targets
+        for a in ("X", "Y"):  # judged after at random targets, before by the ISO runs
             e = summary["axes"][a]
+            assert e["before"]["read_at"] == "iso", e
             assert e["after"]["E_um"] < 0.5 * e["before"]["E_um"], (a, e)
         assert "no round verified them" in proc.text()
         assert ("a short budget: a plain calibration's steps first: every axis's ISO runs"
@@ -428,8 +435,9 @@ def test_a_stopped_run_finishes_with_the_tables_it_has_read(
     """The machine is needed back half-way (Ctrl-C once X's before-run is read; every
     axis's ISO runs come first): ``--finish`` measures nothing more, fits the tables from
     what was read, loads them and reads the after-run: at the before-run's targets where it
-    was made, at new random ones where not (Y here). Given before anything was read, it
-    says so and writes nothing."""
+    was made, at new random ones where not (Y here; its figures before are then its ISO
+    runs', read with the tables off). Given before anything was read, it says so and
+    writes nothing."""
     with running(template, tmp_path / "m") as rig:
         out = rig.dir / "commission"
         nothing = rig.commission("--finish")
@@ -466,9 +474,10 @@ def test_a_stopped_run_finishes_with_the_tables_it_has_read(
         assert sorted(new) == ["after-X", "after-Y", "after-xy"], new
         judged = summary["axes"]["X"]
         assert judged["after"]["E_um"] < 0.5 * judged["before"]["E_um"], judged
-        assert "before" not in summary["axes"]["Y"], summary["axes"]["Y"]
-        y_read = summary["axes"]["Y"]["after"]["E_read_um"]
-        assert re.search(rf"Y: E {y_read:.2f} µm as read, .*no before-run", done.text())
+        judged = summary["axes"]["Y"]  # its figures before: its ISO runs, the tables off
+        assert judged["before"]["read_at"] == "iso", judged
+        assert judged["after"]["E_um"] < 0.5 * judged["before"]["E_um"], judged
+        assert "(Y: no before-run; the figures before are the ISO runs'" in done.text()
         assert re.search(r"XY max vector error [\d.]+ µm as read; no before-run", done.text())
         assert re.search(r"within 2 µm \(.*Y E", done.text()), done.text()  # judged on Y
         assert re.search(r"--finish: \S+ and the steps after it are not read", done.text())

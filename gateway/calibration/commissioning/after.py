@@ -110,19 +110,22 @@ class AfterSteps:
         # --finish: the tables loaded where no before-run was read are judged by their
         # after-run alone (a run stopped at a plain calibration's time had Y's table and no
         # word on it: "NOT within", with nothing read)
-        alone = self.plans.judged_alone() if self.s.finish else {}
+        # (and a short budget's, which reads none: identify._after_alone_if_affordable)
+        alone = {**(self.plans.judged_alone() if self.s.finish else {}),
+                 **self.plans.verdict_alone()}
         for a in self.s.axes:  # where the before-run was made (a budget spent may stop it)
             if a not in self.record.tables.pitch:
                 continue
             if self.record.done(f"before-{a}"):
-                if self._carried(f"after-{a}", a):
-                    continue
                 plan = read_plan(self.record.dir / "plans" / f"before-{a}.plan")
-                await self.runner.step(f"after-{a}", lambda p=plan: p, "on", self.axes.park(a))
-                await self._worse_put_back(f"after-{a}", a, plan)
             elif a in alone:
-                await self.runner.step(f"after-{a}", lambda p=alone[a]: p, "on",
-                                       self.axes.park(a))  # fmt: skip
+                plan = alone[a]
+            else:
+                continue
+            if self._carried(f"after-{a}", a):
+                continue
+            await self.runner.step(f"after-{a}", lambda p=plan: p, "on", self.axes.park(a))
+            await self._worse_put_back(f"after-{a}", a, plan)
         if (self.s.planar is not None and self.record.done("before-xy")
                 and not self._carried("after-xy", "XY")):  # fmt: skip
             plan = read_plan(self.record.dir / "plans" / "before-xy.plan")
@@ -209,10 +212,11 @@ class AfterSteps:
                 self._said(f"{worse}: its model put back as the run before left it, {again}")
                 return
             worse += f"; its model put back as the run before left it, {again}, still worse"
-        axes = [a for a in self.record.tables.planar_axes or ()
-                if not self.run_before.same_one(a)]
+        axes = [a for a in self.record.tables.planar_axes or ()  # (each read by its after-run)
+                if not self.run_before.same_one(a)
+                and (self.record.dir / "plans" / f"after-{a}.plan").exists()]  # fmt: skip
         again = await self._put_back({
-            **{a: read_plan(self.record.dir / "plans" / f"before-{a}.plan") for a in axes},
+            **{a: read_plan(self.record.dir / "plans" / f"after-{a}.plan") for a in axes},
             "XY": plan})  # fmt: skip
         self._said(f"{worse}: the plane's model and the tables this run changed on "
                    + ", ".join(axes) + f" put back as the run before left them, {again}")
@@ -322,9 +326,13 @@ class AfterSteps:
         for a in self.s.axes:
             entry: dict[str, Any] = {}
             for phase in ("before", "after"):
-                if self.record.done(f"{phase}-{a}"):
-                    iso = iso230_axis(axis_deviations(self.runner.raw(f"{phase}-{a}"), a))
-                    read = iso230_axis(axis_deviations(self.runner.raw_as_read(f"{phase}-{a}"), a))
+                step = f"{phase}-{a}"
+                if (phase == "before" and not self.record.done(step) and not self.axes.rotary(a)
+                        and self.record.done(f"after-{a}") and self.record.done(f"iso-{a}")):
+                    step = f"iso-{a}"  # no before-run: the ISO runs, read with the tables off
+                if self.record.done(step):
+                    iso = iso230_axis(axis_deviations(self.runner.raw(step), a))
+                    read = iso230_axis(axis_deviations(self.runner.raw_as_read(step), a))
                     # E_read: as read, the drift while measuring in it (a recheck's terms)
                     entry[phase] = {"E_um": iso.E_um, "A_um": iso.A_um, "R_um": iso.R_um,
                                     "B_um": iso.B_um, "M_um": iso.M_um,
@@ -332,7 +340,8 @@ class AfterSteps:
                                     "M_read_um": read.M_um, "R_read_um": read.R_um,
                                     "runs": iso.runs,
                                     "s_pooled_um": pooled_s_um(iso),
-                                    **self._carried_flag(f"{phase}-{a}")}  # fmt: skip
+                                    **({"read_at": "iso"} if step.startswith("iso-") else {}),
+                                    **self._carried_flag(step)}  # fmt: skip
             entry.update(self.takeup.steps_summary(a))
             if a in self.record.tables.pitch:
                 entry["table_points"] = int(read_pitch_csv(

@@ -100,8 +100,10 @@ class Budget:
         return int(self.record.state.get("verify_runs", {}).get(axis, self.s.verify_runs))
 
     def reserve_s(self) -> float:
-        """The after-run (the before-run's targets again) is kept out of the budget."""
-        plans = [self.record.dir / "plans" / f"before-{a}.plan" for a in self.s.axes]
+        """The after-run (the before-run's targets again, or those of one read alone) is
+        kept out of the budget."""
+        plans = [self.record.dir / "plans" / f"{kind}-{a}.plan" for a in self.s.axes
+                 for kind in ("before", "alone")]  # (an after-run read alone: its own plan)
         if self.s.planar is not None:
             plans.append(self.record.dir / "plans" / "before-xy.plan")
         # and the drift references read around each of its runs and the last config switch

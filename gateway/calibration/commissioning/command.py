@@ -160,22 +160,21 @@ class CommandChecks:
         them (a plain ISO 230-2 calibration's steps first: :mod:`.short`), and what the
         rest needs: "with 0.90 h: pitch tables, plane; thermal identification needs 0.75 h
         more". Estimates without the drift references, the tables and the grid a plain
-        calibration's (:meth:`.short.ShortBudget.plain_steps`); the verdict is the before-
-        and after-runs."""
+        calibration's (:meth:`.short.ShortBudget.plain_steps`); the verdict is each
+        linear axis's after-run and the plane's random points before and after."""
         groups = (("pitch tables", ("iso",)), ("once-per-lead error", ("cyclic",)),
                   ("plane", ("xy",)), ("verdict", ("before",)), ("backlash", ("backlash",)),
                   ("thermal identification", ("warmup",)),
                   ("lead search", ("lead",)))  # fmt: skip
-        # the verdict: each linear axis's before-run and the plane's random points, each
-        # read again after
+        # the verdict: each linear axis's after-run alone (its ISO runs read it before),
+        # the plane's random points before and after
         linear = [a for a in self.s.axes if not self.axes.rotary(a)]
         steps = [(n, p) for n, p in first if n.partition("-")[0] not in ("iso", "cyclic", "xy")]
         steps += self._plain_steps()
-        verdict = [("before-" + a, self.plans.before_plan(a, avoid_mm=np.zeros(0)))
-                   for a in linear]  # fmt: skip
+        steps += [("before-" + a, self.plans.before_plan(a, avoid_mm=np.zeros(0)))
+                  for a in linear]  # fmt: skip
         if self.axes.plane_with(linear):
-            verdict.append(("before-xy", self.plans.before_xy_plan()))
-        steps += 2 * verdict
+            steps += 2 * [("before-xy", self.plans.before_xy_plan())]
 
         def need_s(kinds: tuple[str, ...]) -> float:
             return sum(self.axes.estimate_s(p) for n, p in steps
@@ -217,7 +216,8 @@ class CommandChecks:
                              "table to fit (run without --finish)")  # fmt: skip
         def begun(name: str) -> bool:  # a before-run begun: in the reserve already
             step = "before-xy" if name == "XY" else f"before-{name}"
-            return (self.record.dir / "plans" / f"{step}.plan").exists()
+            return ((self.record.dir / "plans" / f"{step}.plan").exists()
+                    or (name != "XY" and self.plans.alone_path(name).exists()))
 
         after_s = budget.reserve_s() + sum(self.axes.estimate_s(self.axes.snap(plan))
                                            for n, plan in self.plans.judged_alone().items()

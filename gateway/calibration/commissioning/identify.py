@@ -12,6 +12,7 @@ from ..plans.plans import (
     Plan,
     backlash_from_raw,
     backlash_plan,
+    write_plan,
 )
 from ..plans.rawdata import read_raw_csv
 from .settings import SHORT_WARMUP_S, BudgetSpent
@@ -219,7 +220,7 @@ class IdentifySteps:
         if plane:
             await self._before_xy_if_affordable()
         for a in cores:
-            await self._before_if_affordable(a)
+            await self._after_alone_if_affordable(a)
         for a in cores:  # (the bidirectional tables hold the backlash meanwhile)
             await self._backlash(a)
 
@@ -229,16 +230,32 @@ class IdentifySteps:
             self.say(text)
             self.record.save()
 
-    async def _before_if_affordable(self, a: str) -> None:
-        """On a short budget, the before-run of ``a`` where the budget left holds it and
-        its after-run; else said, and the steps after it go on (it ended the
-        identification there: smooth-0 at the plain calibration's time left 5 minutes
-        unused, its backlash tests not made)."""
-        if self._verdict_fits(f"before-{a}", self.plans.before_plan(a),
-                              f"{a}: no before- and after-run on this budget ({{min:.1f}} min): "
-                              "no verdict on its own axis; its table is fitted all the same"):
-            await self.runner.step(f"before-{a}", lambda: self.plans.before_plan(a), "off",
+    async def _after_alone_if_affordable(self, a: str) -> None:
+        """On a short budget, the verdict on ``a``: its after-run alone, at the random
+        targets a before-run would have had (none a table point), held where the budget
+        left holds it (its plan kept, :meth:`.budget.Budget.reserve_s`); else said, and
+        the steps after it go on. Its figures before the tables are its ISO runs', read
+        with the tables off (:meth:`.after.AfterSteps.summary`): a before-run would cost
+        the same again (at 1.5 x a plain calibration's time the rough random machines'
+        before- and after-runs, 9-12 minutes an axis, never fitted: no verdict at all).
+        A run begun with a before-run carries on with it."""
+        name = f"before-{a}"
+        if self.record.done(name) or name in (self.record.state.get("parts") or {}):
+            await self.runner.step(name, lambda: self.plans.before_plan(a), "off",
                                    self.axes.park(a))  # fmt: skip
+            return
+        path = self.plans.alone_path(a)
+        if path.exists():
+            return
+        plan = self.axes.snap(self.plans.before_plan(a))
+        need_s = self.axes.estimate_s(plan) + self.budget.refs_around_s(plan)
+        if need_s > self.budget.left_s():
+            self._note(f"{a}: no after-run on this budget ({need_s / 60:.1f} min): no verdict "
+                       "on its own axis; its table is fitted all the same")
+            return
+        self.axes.check_limits(plan)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_plan(path, plan)
 
     def _verdict_fits(self, name: str, plan: Plan, said: str) -> bool:
         """Whether the verdict's step ``name`` goes on: made or begun already (it carries
@@ -469,6 +486,7 @@ class IdentifySteps:
         if a in self.s.lead_mm:
             await self.runner.step(f"cyclic-{a}", lambda: cyclic_plan(a, travel, self.s.lead_mm[a]),
                             "off", self.axes.park(a))  # fmt: skip
-        await self.runner.step(f"before-{a}", lambda: self.plans.before_plan(a), "off",
-                               self.axes.park(a))  # fmt: skip
+        if not self.plans.alone_path(a).exists():  # (a short budget's verdict: no before-run)
+            await self.runner.step(f"before-{a}", lambda: self.plans.before_plan(a), "off",
+                                   self.axes.park(a))  # fmt: skip
 

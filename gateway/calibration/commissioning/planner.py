@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -153,6 +154,15 @@ class Planner:
                 and any(done(f"iso-{a}") for a in self.s.axes)):  # fmt: skip
             out["XY"] = self.before_xy_plan()
         return out
+
+    def alone_path(self, axis: str) -> Path:
+        """Where a short budget keeps the plan of an axis's after-run read with no
+        before-run (:meth:`.identify.IdentifySteps._after_alone_if_affordable`)."""
+        return self.record.dir / "plans" / f"alone-{axis}.plan"
+
+    def verdict_alone(self) -> dict[str, Plan]:
+        """The after-runs a short budget holds with no before-run, by axis: their plans."""
+        return {a: read_plan(p) for a in self.s.axes if (p := self.alone_path(a)).exists()}
 
     def before_plan(self, axis: str, avoid_mm: np.ndarray | None = None) -> Plan:
         """The targets judged before and after: random, off the coarse table's points

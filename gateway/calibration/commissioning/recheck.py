@@ -34,14 +34,16 @@ def finished_summary(directory: Path, state: dict[str, Any]) -> dict[str, Any] |
 
 
 def recheck_plans(job: Any, summary: dict[str, Any]) -> list[tuple[str, Plan]]:
-    """The commissioning's before/after plans still on disk: per axis, then the plane."""
+    """The commissioning's after-run plans still on disk (the before-run's targets, or
+    those of one read alone), else its before-run's: per axis, then the plane."""
     out = []
     plane = summary.get("xy") and job.s.planar is not None  # (with --xy-device only)
-    names = [f"before-{a}" for a in summary["axes"]] + (["before-xy"] if plane else [])
+    names = [*summary["axes"], *(["xy"] if plane else [])]
     for name in names:
-        path = job.record.dir / "plans" / f"{name}.plan"
-        if path.exists():
-            out.append((name.removeprefix("before-"), read_plan(path)))
+        paths = [job.record.dir / "plans" / f"{phase}-{name}.plan" for phase in ("after", "before")]
+        path = next((p for p in paths if p.exists()), None)
+        if path is not None:
+            out.append((name, read_plan(path)))
     return out
 
 

@@ -410,9 +410,16 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
                      "raise the bus's timeout_s)")
     lines.append(f"outcome: {summary['outcome']}; machine time {summary['machine_h']:.2f} h "
                  "(plan estimate); before and after at the same random targets, none a "
-                 "table point")  # fmt: skip
+                 f"table point{_before_iso(summary)}")  # fmt: skip
     lines.append(verdict(summary))
     return lines
+
+
+def _before_iso(summary: dict[str, Any]) -> str:
+    """Said where an axis's figures before are its ISO runs' (no before-run read)."""
+    iso = [a for a, e in summary["axes"].items() if (e.get("before") or {}).get("read_at") == "iso"]
+    return (f" ({', '.join(iso)}: no before-run; the figures before are the ISO runs', the "
+            "tables off, at the table's own points)" if iso else "")
 
 
 def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
@@ -425,8 +432,8 @@ def build(summary: dict[str, Any], load: Load) -> tuple[str, list[Figure]]:
              f"points). Outcome: <b>{html.escape(summary['outcome'])}</b>. Machine time used "
              f"{summary['machine_h']:.2f} h of a {summary['budget_h']:.2f} h budget. "
              "Before and after are measured at the same random targets, none of them a "
-             "calibration point; figures per ISO 230-2, in µm (rotary axes: in arcseconds ″, "
-             "targets in degrees).</p>"]  # fmt: skip
+             f"calibration point{_before_iso(summary)}; figures per ISO 230-2, in µm (rotary "
+             "axes: in arcseconds ″, targets in degrees).</p>"]  # fmt: skip
     figures: list[Figure] = []
     rows = []
     for axis, entry in summary["axes"].items():

@@ -89,7 +89,7 @@ class ShortBudget:
         Then a plain ISO 230-2 calibration's steps come
         first (every linear axis's ISO runs, its cyclic scans where its lead is known and
         the plane's grid still fits, the plane's grid with their tables on), then the
-        before-runs that judge them and the backlash tests, and the lead searches last, so
+        after-runs that judge them and the backlash tests, and the lead searches last, so
         that a budget spent on the way leaves each axis a table
         (:meth:`.fit.FitSteps.fit_identified`) and the plane its model, not one axis a
         verified table and the others none."""
@@ -578,13 +578,14 @@ class ShortBudget:
         made yet, else the densest of its shape that fits there (:func:`fitting_grid`);
         a denser one (:func:`max_grid_in`) only with what is left after the extras that
         come after it, each held where it fits beside those held before it: the plane's
-        verdict (its random points before and after), each linear axis's before- and
-        after-runs, its backlash test, each with the drift references a drift would call
-        for. (At the plain calibration's machine time smooth-0's grid took 10 minutes at
-        13 x 9 and its Y got no cyclic scans: Y E 7.1 µm at the judge's targets. At 1.5 x
-        a manual calibration's time the sdss plates' 7 x 5 grid left their Y at the
-        judge's park 13.4 µm, the manual's 9 x 7 5.3 µm.) A backlash test is held only
-        where the ISO runs read a reversal it could take up (:meth:`lost_motion`)."""
+        verdict (its random points before and after), each linear axis's after-run (read
+        alone: its ISO runs read it before), its backlash test, each with the drift
+        references a drift would call for. (At the plain calibration's machine time
+        smooth-0's grid took 10 minutes at 13 x 9 and its Y got no cyclic scans: Y E 7.1
+        µm at the judge's targets. At 1.5 x a manual calibration's time the sdss plates'
+        7 x 5 grid left their Y at the judge's park 13.4 µm, the manual's 9 x 7 5.3 µm.)
+        A backlash test is held only where the ISO runs read a reversal it could take up
+        (:meth:`lost_motion`)."""
         if "grid" not in self.record.state:
             grid = self.s.grid
             if self.record.state.get("short"):
@@ -599,8 +600,8 @@ class ShortBudget:
                 if cost_s(plain) <= room_s:
                     extras = ([] if self.record.done("before-xy") else
                               [2 * [self.plans.before_xy_plan()]])  # fmt: skip
-                    extras += [2 * [self.plans.before_plan(a)] for a in linear
-                               if not self.record.done(f"before-{a}")]  # before and after
+                    extras += [[self.plans.before_plan(a)] for a in linear  # (an after-run
+                               if not self.record.done(f"before-{a}")]  # alone, its targets)
                     extras += [[backlash_plan(a, self.axes.travel(a))] for a in linear
                                if not self.record.done(f"backlash-{a}") and self.lost_motion(a)]
                     held_s = hold_each(cost_s(plain), [worst_s(p) for p in extras], room_s)
