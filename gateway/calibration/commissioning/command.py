@@ -109,7 +109,7 @@ class CommandChecks:
                         else "") + "; then, as the budget allows, "
                      + ("the plane's verdict (its random points), " if plane else "")
                      + "the quarter points of a table that still misses, each axis's verdict "
-                     "(its before-run), the backlash tests, the warm-ups, the lead searches"
+                     "(its after-run alone), the backlash tests, the warm-ups, the lead searches"
                      + ("; no round will refine the plane, so its grid is made denser with "
                         "what the budget then leaves (more readings than the xy-grid line "
                         "above: the budget is spent, not exceeded)" if plane else ""))  # fmt: skip
