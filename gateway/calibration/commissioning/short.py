@@ -572,19 +572,19 @@ class ShortBudget:
         return self.budget.left_s() - self.scans_left_s(linear)
 
     def first_grid(self) -> tuple[int, int]:
-        """The plane's first grid (decided once, kept in the state): the configured one;
-        on a short budget, whose rounds will not refine it, a plain calibration's
-        (:meth:`plain_grid`) where the budget left holds it beside the cyclic scans not
-        made yet, else the densest of its shape that fits there (:func:`fitting_grid`);
-        a denser one (:func:`max_grid_in`) only with what is left after the extras that
-        come after it, each held where it fits beside those held before it: the plane's
-        verdict (its random points before and after), each linear axis's after-run (read
-        alone: its ISO runs read it before), its backlash test, each with the drift
+        """The plane's first grid (decided once, kept in the state): the configured one; on a short
+        budget, whose rounds will not refine it, a plain calibration's (:meth:`plain_grid`)
+        where the budget left holds it beside the cyclic scans not made yet, else the
+        densest of its shape that fits there (:func:`fitting_grid`); a denser one
+        (:func:`max_grid_in`) only with what is left after the extras that come after it,
+        each held where it fits beside those held before it: the plane's verdict (its random
+        points before and after), the linear axes' after-runs (read alone, all or none:
+        their ISO runs read them before), each one's backlash test, each with the drift
         references a drift would call for. (At the plain calibration's machine time
-        smooth-0's grid took 10 minutes at 13 x 9 and its Y got no cyclic scans: Y E 7.1
-        µm at the judge's targets. At 1.5 x a manual calibration's time the sdss plates'
-        7 x 5 grid left their Y at the judge's park 13.4 µm, the manual's 9 x 7 5.3 µm.)
-        A backlash test is held only where the ISO runs read a reversal it could take up
+        smooth-0's grid took 10 minutes at 13 x 9 and its Y got no cyclic scans: Y E 7.1 µm
+        at the judge's targets. At 1.5 x a manual calibration's time the sdss plates' 7 x 5
+        grid left their Y at the judge's park 13.4 µm, the manual's 9 x 7 5.3 µm.) A
+        backlash test is held only where the ISO runs read a reversal it could take up
         (:meth:`lost_motion`)."""
         if "grid" not in self.record.state:
             grid = self.s.grid
@@ -600,8 +600,8 @@ class ShortBudget:
                 if cost_s(plain) <= room_s:
                     extras = ([] if self.record.done("before-xy") else
                               [2 * [self.plans.before_xy_plan()]])  # fmt: skip
-                    extras += [[self.plans.before_plan(a)] for a in linear  # (an after-run
-                               if not self.record.done(f"before-{a}")]  # alone, its targets)
+                    extras.append([self.plans.before_plan(a) for a in linear  # (after-runs
+                                   if not self.record.done(f"before-{a}")])  # alone: all or none)
                     extras += [[backlash_plan(a, self.axes.travel(a))] for a in linear
                                if not self.record.done(f"backlash-{a}") and self.lost_motion(a)]
                     held_s = hold_each(cost_s(plain), [worst_s(p) for p in extras], room_s)
