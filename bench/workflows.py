@@ -480,6 +480,8 @@ def _commission_once(run: MachineRun, args: list[object], technician: Technician
             notes.append(str(exc))
             if "run the same command again to resume" in str(exc) and attempt < RESUMES:
                 continue
+        else:  # exit 0: what its verdict line says (WITHIN), kept as exit 1's message is
+            notes.append("compgw commission: exit 0: WITHIN")
         break
     if not (out / "summary.json").exists():
         raise CommandFailed(f"commission ended without a summary: {' | '.join(notes)}")
