@@ -185,9 +185,10 @@ class ShortBudget:
         """Runs per target of the first ISO runs on a short budget: the configured runs;
         the rest of a plain calibration's (:meth:`table_runs`) after the midpoints
         (:meth:`densify`, :meth:`more_runs`), which buy more where the table misses between
-        its points. Both are put on the first runs' level (:meth:`iso_raw`: read 3 runs,
-        then 2 more after the cyclic scans and mixed as read, rough-3's X table mixed two
-        heats, 1.72 µm left on the quiet machine against the plain calibration's 1.09)."""
+        its points. The more runs are pooled with the first as read, and the midpoints are
+        put on the level of both (:meth:`iso_raw`; more runs mixed as read beside midpoints
+        on the first runs' level mixed two heats: rough-3's X table, 1.72 µm left on the
+        quiet machine against the plain calibration's 1.09)."""
         return self.s.runs
 
     def plain_grid(self) -> tuple[int, int]:
