@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import yaml
 
-from gateway.calibration.commissioning.short import (
+from gateway.calibration.commissioning.sizing import (
     first_table_reading,
     fitting_grid,
     max_grid_in,

@@ -16,7 +16,7 @@ from ..plans.plans import (
 )
 from ..plans.rawdata import read_raw_csv
 from .settings import SHORT_WARMUP_S, BudgetSpent
-from .short import first_table_reading
+from .sizing import first_table_reading
 
 if TYPE_CHECKING:
     from .axes import Axes
