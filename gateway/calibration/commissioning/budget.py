@@ -108,11 +108,12 @@ class Budget:
             plans.append(self.record.dir / "plans" / "before-xy.plan")
         # and the drift references read around each of its runs and the last config switch
         total = 2 * self.drift.refs_cost_s(self.axes.ref_axes())
-        for path in plans:
-            if path.exists():
-                plan = read_plan(path)
-                total += self.axes.estimate_s(plan) + self.refs_around_s(plan)
-        return total
+        return total + sum(self.after_cost_s(read_plan(p)) for p in plans if p.exists())
+
+    def after_cost_s(self, plan: Plan) -> float:
+        """Machine time (s) an after-run of ``plan`` is kept: its moves and the drift
+        references around its runs."""
+        return self.axes.estimate_s(plan) + self.refs_around_s(plan)
 
 
 def split_runs(plan: Plan) -> list[Plan]:

@@ -216,8 +216,7 @@ class CommandChecks:
                              "table to fit (run without --finish)")  # fmt: skip
         def begun(name: str) -> bool:  # a before-run begun: in the reserve already
             step = "before-xy" if name == "XY" else f"before-{name}"
-            return ((self.record.dir / "plans" / f"{step}.plan").exists()
-                    or (name != "XY" and self.plans.alone_path(name).exists()))
+            return (self.record.dir / "plans" / f"{step}.plan").exists()
 
         after_s = budget.reserve_s() + sum(self.axes.estimate_s(self.axes.snap(plan))
                                            for n, plan in self.plans.judged_alone().items()

@@ -249,13 +249,11 @@ class IdentifySteps:
                                        self.axes.park(a))  # fmt: skip
             elif not self.plans.alone_path(a).exists():
                 alone.append(a)
-        if not alone or "verdict_alone" in self.record.state:
+        if not alone:
             return
         plans = {a: self.axes.snap(self.plans.before_plan(a)) for a in alone}
-        need_s = sum(self.axes.estimate_s(p) + self.budget.refs_around_s(p) for p in plans.values())
-        fits = need_s <= self.budget.left_s()
-        self.record.state["verdict_alone"] = fits
-        if not fits:
+        need_s = sum(self.budget.after_cost_s(p) for p in plans.values())
+        if need_s > self.budget.left_s():  # (said once: Record.note)
             self._note(", ".join(alone) + f": no after-run on this budget ({need_s / 60:.1f} "
                        "min): no verdict on the axes; their tables are fitted all the same")
             return

@@ -144,12 +144,14 @@ class Planner:
 
     def judged_alone(self) -> dict[str, Plan]:
         """``--finish``'s after-runs read with no before-run: each linear axis whose ISO runs
-        were read and whose before-run was not, and the plane where any axis's were, at
+        were read and whose before-run was not (nor an after-run held alone,
+        :meth:`verdict_alone`), and the plane where any axis's were, at
         the random targets their before-runs would have had (:meth:`before_plan`,
         :meth:`before_xy_plan`)."""
         done = self.record.done
         out = {a: self.before_plan(a) for a in self.s.axes
-               if not self.axes.rotary(a) and done(f"iso-{a}") and not done(f"before-{a}")}
+               if not self.axes.rotary(a) and done(f"iso-{a}") and not done(f"before-{a}")
+               and not self.alone_path(a).exists()}  # (a short budget's: verdict_alone)
         if (self.s.planar is not None and not done("before-xy")
                 and any(done(f"iso-{a}") for a in self.s.axes)):  # fmt: skip
             out["XY"] = self.before_xy_plan()
