@@ -112,6 +112,24 @@ def test_drift_is_taken_off_by_position_and_progress() -> None:
     np.testing.assert_allclose(raw.deviation_mm, expected)
 
 
+def test_a_targets_two_passes_take_off_the_same_drift() -> None:
+    """One bidirectional run over 10, 50, 90 mm, its references drifting 4 µm evenly: each
+    target's ↑ and ↓ readings lose the drift at their mean progress (2 µm), so the
+    reversal each reads stays as read (10 µm play + the 4, 2.4 and 0.8 µm the screw drifted
+    between its two passes) while the level of the run is put back to where it began."""
+    drift = adaptive.Drift((0.0, 100.0), (0.0, 0.0), (4e-3, 4e-3))
+    targets = np.array([10.0, 50.0, 90.0, 90.0, 50.0, 10.0])
+    direction = np.array([1, 1, 1, -1, -1, -1], dtype=np.int8)
+    progress = np.linspace(0.0, 1.0, 6)
+    actual = targets + np.where(direction > 0, 0.0, 10e-3) + 4e-3 * progress
+    raw = RawData(("X",) * 6, np.ones(6, dtype=np.int64), direction, targets, actual, {},
+                  tuple(range(6)))  # fmt: skip
+    fixed = adaptive.drift_corrected(raw, {"X": drift}).deviation_mm
+    np.testing.assert_allclose(fixed, raw.deviation_mm - 2e-3, atol=1e-12)
+    reversal = fixed[3:][::-1] - fixed[:3]
+    np.testing.assert_allclose(reversal, [14e-3, 12.4e-3, 10.8e-3], atol=1e-12)
+
+
 def test_a_table_switch_keeps_the_drift_the_reading_after_it_would_hide() -> None:
     """A screw warming 0.5 / 2 µm at the references per reading of them. Cold base 0 / 0;
     just before a switch the references read 1 / 4 µm of drift; the new table commands
