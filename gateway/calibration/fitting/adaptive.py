@@ -455,16 +455,13 @@ def _paired(raw: RawData, fraction: NDArray[np.float64]) -> NDArray[np.float64]:
     0.9 µm too large with it taken off pass by pass, 1.0 µm too small as read.)"""
     if len(raw.axes) != 1:
         return fraction
-    out = fraction.copy()
     keys = np.stack([raw.run.astype(np.float64), raw.target_mm])
-    _, group = np.unique(keys, axis=1, return_inverse=True)
-    group = group.ravel()
-    sums = np.bincount(group, weights=fraction)
+    group = np.unique(keys, axis=1, return_inverse=True)[1].ravel()
     counts = np.bincount(group)
     ups = np.bincount(group, weights=(raw.direction > 0).astype(np.float64))
-    both = (ups > 0) & (ups < counts)
-    out[both[group]] = (sums / counts)[group][both[group]]
-    return out
+    both = (ups > 0) & (ups < counts)  # read in both directions
+    mean = np.bincount(group, weights=fraction) / counts
+    return np.where(both[group], mean[group], fraction)
 
 
 # -- the screw lead, when nobody said -------------------------------------------------------
