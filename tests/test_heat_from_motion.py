@@ -10,6 +10,7 @@ import pytest
 
 from gateway.calibration.commissioning.thermal import travel_before_warmup
 from gateway.calibration.thermal.heat_fit import motion_heat_fit
+from gateway.calibration.thermal.run_levels import row_odometer_mm, run_levels_um, run_means
 from gateway.compensation.errors import TableError
 from gateway.compensation.thermal import (
     motion_heat_after_m,
@@ -281,3 +282,53 @@ def test_a_time_constant_the_growth_cannot_tell_is_taken_near_a_screw_s() -> Non
     assert TAU_GRID_S[likely_tau(sharp)] == pytest.approx(400.0, rel=0.1)
     rising = np.linspace(2.0, 1.0, TAU_GRID_S.size)  # best at the grid's end: never levelled
     assert likely_tau(rising) == TAU_GRID_S.size - 1
+
+
+def test_iso_runs_levels_give_the_growth_up_to_each_targets_static_error() -> None:
+    """Issue 54 point 3 (the ISO runs warm the screw: use them): runs over the same
+    targets, each read a static error the same in every run plus the growth then (linear
+    from the fixed end), give per run the growth at the references up to one constant
+    each; the reversal (↑ against ↓) drops out."""
+    rng = np.random.default_rng(11)
+    xs = np.linspace(5.0, 495.0, 21)
+    static = rng.normal(0.0, 8e-3, xs.size)  # mm
+    grow = np.array([0.0, 1.5, 2.6, 3.4])  # µm at 500 mm from a fixed end at 0
+    run, target, dev = [], [], []
+    for k, g in enumerate(grow):
+        for sign in (1, -1):
+            run += [k + 1] * xs.size
+            target += list(xs)
+            dev += list(static + sign * 2e-3 + g * xs / 500.0 * 1e-3
+                        + rng.normal(0, 1e-5, xs.size))  # fmt: skip
+    runs, levels = run_levels_um(run, target, np.array(dev), (25.0, 475.0))
+    assert list(runs) == [1, 2, 3, 4]
+    want = grow[:, None] * np.array([25.0, 475.0])[None, :] / 500.0
+    assert np.allclose(levels, want - want.mean(axis=0), atol=0.02), levels
+    row_s = np.arange(len(run), dtype=float)
+    odo = row_odometer_mm(row_s, (0.0, len(run) - 1.0), ({"X": 100.0}, {"X": 900.0}))
+    at, per_run = run_means(run, row_s), run_means(run, odo["X"])
+    assert np.all(np.diff(at) > 0) and 100.0 < per_run[0] < per_run[-1] < 900.0
+
+
+def test_heat_known_up_to_a_constant_is_fitted_from_its_changes() -> None:
+    """The growth of a few ISO runs is known only up to the static error at each reference
+    (``offset``): the fit takes its changes, and finds the same fixed end and heat per
+    metre as from the cold start; taken as growth from the cold start, the static error
+    is read as heat and the fit is wrong or refused."""
+    rng = np.random.default_rng(12)
+    refs = (26.0, 475.0)
+    odo, growth = _commissioning(rng, 900.0, -40.0, 0.3, refs, hours=1.0)
+    pick = np.arange(3, len(growth), max(1, len(growth) // 6))[:6]
+    odo_few = {a: np.asarray(v)[pick] for a, v in odo.items()}
+    levels = np.asarray(growth)[pick] + np.array([4.0, -3.0])  # the static error: unknown
+    wall = np.zeros(pick.size)
+    fit = motion_heat_fit("X", odo_few, wall, levels, refs, {"X": 100.0, "Y": 100.0},
+                          (0, 500), offset=True)  # fmt: skip
+    assert fit.origin_mm == pytest.approx(-40.0, abs=40)
+    assert fit.delta_a_um_per_m / fit.length_mm * 1e3 == pytest.approx(0.3, rel=0.3)
+    try:
+        wrong = motion_heat_fit("X", odo_few, wall, levels, refs, {"X": 100.0, "Y": 100.0},
+                                (0, 500))  # fmt: skip
+    except TableError:
+        return
+    assert abs(wrong.origin_mm + 40.0) > 100.0, wrong

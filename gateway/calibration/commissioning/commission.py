@@ -71,6 +71,7 @@ from .refine import RefineSteps
 from .report import as_read_accuracy, as_read_figures, warm_rerun
 from .rotary import RotarySteps
 from .rounds import Rounds
+from .run_heat import RunHeat
 from .short import ShortBudget
 from .stager import Reload, Stager
 from .steps import BudgetSpent, CommissionAborted, Settings, StepRunner
@@ -96,6 +97,7 @@ class Commission:
         # the shared collaborators: what is done, the drift references, the configs, time
         self.record, self.axes = record, axes
         self.drift = drift = DriftRefs(axes, record, say)
+        self.run_heat = RunHeat(axes, record, drift, say)
         self.stager = stager = Stager(axes, record, drift, reload, say)
         self.budget = budget = Budget(axes, record, drift)
         self.runner = runner = StepRunner(axes, record, drift, budget, say, progress)
@@ -155,6 +157,7 @@ class Commission:
         except (MachineError, OSError) as exc:
             where = await self.stager.restore(exc)
             raise CommissionAborted(f"{exc}; {where}") from exc
+        self.run_heat.fit()  # no references read: heat from the ISO runs' own levels
         self.drift.fit_motion_heat()
         try:  # heat from motion after the tables: no table is measured on the screw it warms
             await self.identify.heat_warm_ups()

@@ -184,6 +184,7 @@ class StepRunner:
         finally:
             self.record.retried(session.retried)
         self.drift.keep_datum(whole)
+        odo1 = self.drift.odometer()
         data = read_raw_csv(whole)
         actual = data.actual_mm
         # a sensor read at each stop while the laser recorded (a warm-up's temperature or Δa)
@@ -215,6 +216,9 @@ class StepRunner:
                                     whole, part_raw, {"compensation": compensation},
                                     extras[a:b], sensed)  # fmt: skip
             entry: dict[str, Any] = {"raw": self.record.rel(part_raw)}
+            if times:  # the recording's span (its rows keep their own times)
+                entry["span"] = {"at_s": [float(times[0]), float(times[-1])],
+                                 "odometer_mm": [odo0, odo1]}  # fmt: skip
             if drifting:
                 (before, odo_b, at_b), (after, odo_a, at_a) = ending[a], starting[b]
                 before, after = self.drift.drift_now(before), self.drift.drift_now(after)
@@ -238,6 +242,7 @@ class StepRunner:
                 self.drift.log_drift(pending[key])
             self.record.save()
         self.record.state["last_refs"] = None  # the moves change the thermal state
+        span = {"at_s": [self.drift.clock.now_s()], "odometer_mm": [self.drift.odometer()]}
         session = self.drift.session(park)
         if self.progress is not None:
             name = key.rsplit(".", 1)[0]
@@ -246,7 +251,10 @@ class StepRunner:
             await session.run(plan, raw, compensation)
         finally:
             self.record.retried(session.retried)
-        entry: dict[str, Any] = {"raw": self.record.rel(raw)}
+        span["at_s"].append(self.drift.clock.now_s())
+        span["odometer_mm"].append(self.drift.odometer())
+        # when it ran, and the travel then: the runs' own levels time the heat by it
+        entry: dict[str, Any] = {"raw": self.record.rel(raw), "span": span}
         if drifting:
             after = self.drift.drift_now(await self.drift.measure_refs())
             self.drift.log_drift(after)

@@ -38,6 +38,9 @@ TAU_LIKELY_S = 1000.0
 #: growth (µm) below which there is nothing worth a model (or below the tolerance asked,
 #: when that is tighter: 2.3 µm of growth left as it was read 4.3 µm at a 3 µm tolerance)
 MIN_GROWTH_UM = 3.0
+#: drift readings a fit needs: from the cold start, and known up to a constant only
+MIN_READINGS = 6
+MIN_OFFSET_READINGS = 4
 #: the model must explain this much of the drift (residual RMS over drift RMS at most)
 MAX_RESIDUAL_SHARE = 0.5
 #: a fixed end farther than this many travels off the travel is not a screw's growth (a
@@ -72,21 +75,27 @@ class MotionHeatFit:
 def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLike,
                     growth_um: ArrayLike, refs_mm: tuple[float, float],
                     speeds_mm_s: dict[str, float], travel_mm: tuple[float, float],
-                    min_growth_um: float = MIN_GROWTH_UM) -> MotionHeatFit:  # fmt: skip
+                    min_growth_um: float = MIN_GROWTH_UM, offset: bool = False
+                    ) -> MotionHeatFit:  # fmt: skip
     """Fit heat from motion to the growth (µm, shape (k, 2): both references) of ``axis``
-    read at the odometers ``odometer_m`` (each commissioned axis's travel since the first
-    reading, m) and wall clock ``wall_s``; ``speeds_mm_s`` the axes' speeds as estimated.
+    read at the odometers ``odometer_m`` (each commissioned axis's travel since the cold
+    start, m) and wall clock ``wall_s``; ``speeds_mm_s`` the axes' speeds as estimated.
     The other axes' speeds relative to this one's are fitted too (their moves cool this
-    screw for as long as they take). Raises TableError (naming the axis) when the drift is
-    too small or the model does not hold."""
+    screw for as long as they take). ``offset``: the growth is known up to a constant per
+    reference (levels of ISO runs, whose static error is unknown): only its changes are
+    fitted. Raises TableError (naming the axis) when the drift is too small or the model
+    does not hold."""
     wall = np.asarray(wall_s, dtype=np.float64)
     odo = {a: np.asarray(v, dtype=np.float64) for a, v in odometer_m.items()}
     g = np.asarray(growth_um, dtype=np.float64).reshape(-1, 2)
     n = g.shape[0]
-    if n < 6 or wall.size != n or any(v.size != n for v in odo.values()):
+    least = MIN_OFFSET_READINGS if offset else MIN_READINGS
+    if n < least or wall.size != n or any(v.size != n for v in odo.values()):
         raise TableError(f"axis {axis}: {n} drift readings, too few to fit heat from "
-                         "motion (6 needed)")  # fmt: skip
-    peak = float(np.abs(g).max())
+                         f"motion ({least} needed)")  # fmt: skip
+    if offset:
+        g = g - g.mean(axis=0)
+    peak = float(np.ptp(g, axis=0).max() if offset else np.abs(g).max())
     if peak < min_growth_um:
         raise TableError(f"axis {axis}: the screw grew {peak:.1f} µm at most while "
                          f"commissioning (under {min_growth_um:g}): no heat to model")
@@ -106,6 +115,8 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
                           for a in odo)  # fmt: skip
             elapsed = np.maximum(np.broadcast_to(elapsed, (n, grid.size)), idle[:, None])
             heat = motion_heat_series_m(travel, elapsed[:, :, None], TAU_GRID_S)  # (n, S, T)
+            if offset:
+                heat = heat - heat.mean(axis=0)
             hh = (heat * heat).sum(axis=0)
             with np.errstate(invalid="ignore", divide="ignore"):
                 trial = np.einsum("kst,kr->str", heat, g) / hh[:, :, None]
@@ -209,10 +220,18 @@ def modelled_growth_um(thermal: dict[str, Any], heat_m: ArrayLike,
     reaches beyond it); the runs spread that heat over the travel (``travel_mm``), so the
     growth is linear over the travel's reach from the fixed end instead: taken over
     ``length_mm``, the check left half of rough-0 X's drift and refused the model."""
+    heat = np.asarray(heat_m, dtype=np.float64).reshape(-1)[:, None]
+    return growth_at_um(thermal, heat, np.asarray(refs_mm, dtype=np.float64)[None, :], travel_mm)
+
+
+def growth_at_um(thermal: dict[str, Any], heat_m: ArrayLike, x_mm: ArrayLike,
+                 travel_mm: tuple[float, float] | None = None) -> NDArray[np.float64]:
+    """The growth (µm) a heat-from-motion ``thermal`` section predicts at ``x_mm`` for the
+    heat ``heat_m`` (m of travel; the two broadcast), as :func:`modelled_growth_um`."""
     origin = float(thermal["origin_mm"])
     span = float(thermal["length_mm"])
     if thermal.get("profile") and travel_mm is not None:
         span = max(abs(travel_mm[0] - origin), abs(travel_mm[1] - origin), 1.0)
-    lever = (np.asarray(refs_mm, dtype=np.float64) - origin) / span
+    lever = (np.asarray(x_mm, dtype=np.float64) - origin) / span
     per_m = float(thermal.get("gain", 1.0)) * float(thermal["motion"]["delta_a_um_per_m"])
-    return per_m * np.asarray(heat_m, dtype=np.float64).reshape(-1)[:, None] * lever[None, :]
+    return per_m * np.asarray(heat_m, dtype=np.float64) * lever

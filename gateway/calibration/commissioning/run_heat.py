@@ -1,0 +1,187 @@
+"""Heat from motion read off the ISO runs themselves, where no drift references were read.
+
+A budget of a plain calibration's machine time has no room for drift references
+(:meth:`.short.ShortBudget.refs_affordable`), so :meth:`.drift.DriftRefs.fit_motion_heat`
+has nothing to fit, and an axis without a sensor met the customer's warm machine with no
+heat model at all (smooth-8's plane at 1 x: 16-20 µm at the judge, all heat). Its ISO runs
+warm its screw all the same, and each reads every target: what a run reads differently
+from the run before is the growth between them (:mod:`..thermal.run_levels`). Heat from
+motion is fitted to those changes (:func:`..thermal.heat_fit.motion_heat_fit` with
+``offset``), and the table, which holds the runs' mean growth, is put back to the cold
+start the gateway's heat model counts from.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ...compensation import PitchTable
+from ...compensation.errors import TableError
+from ..fitting.outputs import read_table, write_table
+from ..measuring.from_file import STOP_TIME
+from ..plans.rawdata import read_raw_csv
+from ..thermal.heat_fit import (
+    MIN_GROWTH_UM,
+    growth_at_um,
+    heat_at_readings_m,
+    motion_heat_fit,
+)
+from ..thermal.run_levels import row_odometer_mm, run_levels_um, run_means
+from .drift import MIN_SEEN_UM, SEEN_X_SCATTER
+
+if TYPE_CHECKING:
+    from .axes import Axes
+    from .drift import DriftRefs
+    from .record import Record
+
+Say = Callable[[str], None]
+
+#: the steps whose runs read the same targets: the ISO runs and the more runs after them
+STEPS = ("iso-{a}", "iso-more-{a}")
+#: a run label per step, so that the runs of several steps stay apart
+RUN_STRIDE = 1000
+
+
+class RunHeat:
+    """Heat from motion fitted to the ISO runs' own levels (no drift references read)."""
+
+    def __init__(self, axes: Axes, record: Record, drift: DriftRefs, say: Say) -> None:
+        self.s = axes.s
+        self.config = axes.config
+        self.axes = axes
+        self.record = record
+        self.drift = drift
+        self.say = say
+
+    def fit(self) -> None:
+        """Per linear axis with no thermal setting, where no drift references were read:
+        heat from motion fitted to its ISO runs' levels, and its table put back to the cold
+        start (kept in the identification results either way)."""
+        if self.record.state.get("drift_log") or not self.drift.off():
+            return  # the references' own fit (DriftRefs.fit_motion_heat)
+        ident = self.record.state.setdefault("identify", {})
+        for a in self.axes.ref_axes():
+            key = f"motion-{a}"
+            if self.config.axes[a].compensation.thermal is not None or key in ident \
+                    or a not in self.record.tables.pitch:  # fmt: skip
+                continue
+            rows = self.rows(a)
+            if rows is None:
+                continue
+            refs = self.axes.ref_positions(a)
+            _, levels = run_levels_um(rows.run, rows.target_mm, rows.deviation_mm, refs)
+            at_s = run_means(rows.run, rows.at_s)
+            order = np.argsort(at_s, kind="stable")
+            odometer_m = {b: run_means(rows.run, v)[order] / 1000.0
+                          for b, v in rows.odometer_mm.items()}  # fmt: skip
+            try:
+                fit = motion_heat_fit(
+                    a, odometer_m, at_s[order], levels[order], refs,
+                    dict.fromkeys(self.s.axes, self.s.speed_mm_s), self.axes.travel(a),
+                    self.least_growth_um(a, np.unique(rows.target_mm).size),
+                    offset=True)  # fmt: skip
+            except TableError as exc:
+                ident[key] = {"fitted": False, "from": "runs", "why": str(exc)}
+                self.say(f"no heat-from-motion model from the ISO runs: {exc}")
+                continue
+            config = fit.config()
+            held = self.put_back(a, rows, config)
+            self.record.tables.motion[a] = config
+            ident[key] = {"fitted": True, "from": "runs", **config,
+                          "growth_max_um": fit.growth_max_um,
+                          "residual_rms_um": fit.residual_rms_um, "points": fit.points,
+                          "table_held_um": held}  # fmt: skip
+            self.say(f"{a}: no thermal sensor and no drift references; heat from its own "
+                     f"motion explains its ISO runs' levels (they moved {fit.growth_max_um:.1f}"
+                     f" µm) to {fit.residual_rms_um:.2f} µm RMS: Δa "
+                     f"{fit.delta_a_um_per_m:.3g} µm per metre of heat, tau {fit.tau_s:.0f} s;"
+                     f" its table put back to the cold start (it held {held[0]:+.2f} µm at "
+                     f"{refs[0]:g} mm, {held[1]:+.2f} at {refs[1]:g})")  # fmt: skip
+        self.record.save()
+
+    def rows(self, axis: str) -> Rows | None:
+        """The readings of ``axis``'s ISO runs, each row timed and its odometers; None
+        where a step was not timed (a state kept before the steps kept their span)."""
+        parts: list[Rows] = []
+        for k, step in enumerate(s.format(a=axis) for s in STEPS):
+            for part in (self.record.state["steps"].get(step) or {}).get("parts") or []:
+                span = part.get("span")
+                if span is None:
+                    return None
+                data = read_raw_csv(self.record.config_dir / part["raw"])
+                on = np.array(data.axis) == axis
+                row_s = (data.column_mm(STOP_TIME) if STOP_TIME in data.extra  # a recording's
+                         else span["at_s"][0] + data.column_mm("time_s"))[on]  # fmt: skip
+                odo = row_odometer_mm(row_s, tuple(span["at_s"]),  # type: ignore[arg-type]
+                                      tuple(span["odometer_mm"]))  # type: ignore[arg-type]
+                parts.append(Rows(k * RUN_STRIDE + data.run[on], data.target_mm[on],
+                                  data.actual_mm[on] - data.target_mm[on],
+                                  data.direction[on] > 0, row_s, odo))  # fmt: skip
+        if not parts:
+            return None
+        return Rows(*(np.concatenate([getattr(p, f) for p in parts])
+                      for f in ("run", "target_mm", "deviation_mm", "up", "at_s")),
+                    {b: np.concatenate([p.odometer_mm[b] for p in parts])
+                     for b in parts[0].odometer_mm})  # fmt: skip
+
+    def least_growth_um(self, axis: str, targets: int) -> float:
+        """How far the runs' levels must move before heat is fitted to them (µm): as
+        :meth:`.drift.DriftRefs.least_growth_um`, the scatter being a level's (a line
+        through ``targets`` ↑↓ means, read at its ends: about 2 s / √(2 · targets))."""
+        least = min(MIN_GROWTH_UM, self.s.tolerance_um)
+        s_um = self.drift.iso_scatter_um(axis)
+        if s_um is None:
+            return least
+        level_um = 2.0 * s_um / np.sqrt(2.0 * max(targets, 1))
+        return float(min(least, max(MIN_SEEN_UM, SEEN_X_SCATTER * level_um)))
+
+    def put_back(self, axis: str, rows: Rows, thermal: dict[str, Any]) -> list[float]:
+        """``axis``'s table less the growth the model puts at each of its ISO readings, per
+        target and direction (so the reversal loses the heat between its two passes too),
+        rewritten in place: the cold start's table. Returns the growth the table held at
+        the references (µm, mean of both directions)."""
+        order = np.argsort(rows.at_s, kind="stable")
+        odo_m = {b: v[order] / 1000.0 for b, v in rows.odometer_mm.items()}
+        heat = np.empty(order.size)
+        heat[order] = heat_at_readings_m(thermal["motion"], axis, odo_m, rows.at_s[order])
+        grown_um = growth_at_um(thermal, heat, rows.target_mm)
+        path = self.record.config_dir / self.record.tables.pitch[axis]
+        table = read_table(path, "csv")
+        held: dict[bool, np.ndarray] = {}
+        for up in (True, False):
+            at = rows.up == up
+            xs, k = np.unique(rows.target_mm[at], return_inverse=True)
+            mean = np.bincount(k.ravel(), weights=grown_um[at]) / np.bincount(k.ravel())
+            held[up] = np.interp(table.position_mm, xs, mean) / 1000.0  # mm
+        if table.reverse_mm is None:
+            both = (held[True] + held[False]) / 2.0
+            cold = PitchTable(table.position_mm, table.forward_mm - both, None, table.rotary,
+                              table.source)  # fmt: skip
+        else:
+            cold = PitchTable(table.position_mm, table.forward_mm - held[True],
+                              table.reverse_mm - held[False], table.rotary, table.source)
+        write_table(path, "csv", cold, "compgw commission: put back to the cold start "
+                    "(heat from motion, fitted to the ISO runs' levels)")  # fmt: skip
+        mean_mm = (held[True] + held[False]) / 2.0
+        refs = self.axes.ref_positions(axis)
+        return [float(v) * 1000.0 for v in np.interp(refs, table.position_mm, mean_mm)]
+
+
+@dataclass(frozen=True)
+class Rows:
+    """An axis's ISO readings: run label, target (mm), deviation (mm), ↑ or not, when
+    (s), each axis's odometer then (mm)."""
+
+    run: np.ndarray
+    target_mm: np.ndarray
+    deviation_mm: np.ndarray
+    up: np.ndarray
+    at_s: np.ndarray
+    odometer_mm: dict[str, np.ndarray]
+
+
+__all__ = ["RunHeat"]

@@ -1,0 +1,66 @@
+"""The ISO runs' own levels: how far the screw grew from one run to the next.
+
+A commissioning too short for drift references (a plain calibration's machine time) still
+reads every target once per run, run after run, while its own moves warm the screw. What
+a target reads differently from one run to the next (the mean of its ↑ and ↓, so the
+reversal drops out) is the screw's growth between them, at every target for free; its
+static error, the same in every run, is unknown, so only the changes count. A line over
+the targets per run (the growth is linear from the screw's fixed end) gives each run's
+level at the drift references, what :func:`..thermal.heat_fit.motion_heat_fit` takes
+with ``offset``. Pure: arrays in, arrays out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+def run_levels_um(
+    run: ArrayLike, target_mm: ArrayLike, deviation_mm: ArrayLike, refs_mm: tuple[float, float]
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Each run's level (µm) at the two references ``refs_mm``, up to one constant per
+    reference, from one axis's readings (``run`` a label per row: runs of several steps
+    numbered apart; ``deviation_mm`` actual − target). Only targets read in every run
+    count. Returns the runs (sorted) and the levels, shape (runs, 2)."""
+    r = np.asarray(run)
+    x = np.asarray(target_mm, dtype=np.float64)
+    dev = np.asarray(deviation_mm, dtype=np.float64) * 1000.0
+    runs = np.unique(r)
+    xs = np.unique(x)
+    k = np.searchsorted(runs, r)
+    i = np.searchsorted(xs, x)
+    sums = np.zeros((runs.size, xs.size))
+    counts = np.zeros((runs.size, xs.size))
+    np.add.at(sums, (k, i), dev)
+    np.add.at(counts, (k, i), 1.0)
+    every = (counts > 0).all(axis=0)
+    if every.sum() < 2:
+        return runs.astype(np.int64), np.zeros((runs.size, 2))
+    mean = sums[:, every] / counts[:, every]  # (runs, targets): each run's ↑↓ mean
+    change = mean - mean.mean(axis=0)  # the static error, the same in every run, off
+    at = xs[every]
+    design = np.stack([np.ones_like(at), at], axis=1)
+    coef = np.linalg.lstsq(design, change.T, rcond=None)[0]  # (2, runs)
+    refs = np.stack([np.ones(2), np.asarray(refs_mm, dtype=np.float64)], axis=1)
+    return runs.astype(np.int64), (refs @ coef).T
+
+
+def row_odometer_mm(row_s: ArrayLike, span_s: tuple[float, float],
+                    odometer_mm: tuple[dict[str, float], dict[str, float]]
+                    ) -> dict[str, NDArray[np.float64]]:  # fmt: skip
+    """Each axis's odometer (mm) at each row's time ``row_s``, taken as growing evenly in
+    time over the step's span (``span_s``: its clock before and after; ``odometer_mm``:
+    the odometers then)."""
+    t = np.asarray(row_s, dtype=np.float64)
+    t0, t1 = span_s
+    share = np.clip((t - t0) / (t1 - t0), 0.0, 1.0) if t1 > t0 else np.full(t.size, 0.5)
+    before, after = odometer_mm
+    return {a: before.get(a, 0.0) + share * (after.get(a, 0.0) - before.get(a, 0.0))
+            for a in after}  # fmt: skip
+
+
+def run_means(run: ArrayLike, values: ArrayLike) -> NDArray[np.float64]:
+    """The mean of ``values`` per run (runs sorted as :func:`run_levels_um` returns them)."""
+    k = np.unique(np.asarray(run), return_inverse=True)[1].ravel()
+    return np.bincount(k, weights=np.asarray(values, dtype=np.float64)) / np.bincount(k)
