@@ -71,10 +71,10 @@ class Rig:
 
 
 @contextlib.contextmanager
-def running(template: Path, directory: Path) -> Iterator[Rig]:
+def running(template: Path, directory: Path, machine_clock: bool = False) -> Iterator[Rig]:
     """The machine in ``template`` copied to ``directory``, its sim and gateway running;
-    the gateway on the computer's clock (no ``machine_clock``: one request more per move,
-    and these tests time no heat; tests/test_machine_clock.py runs a session on it)."""
+    the gateway on the computer's clock unless ``machine_clock`` (one request more per move;
+    most tests time no heat; tests/test_machine_clock.py runs a session on it)."""
     shutil.copytree(template, directory)
     machine = json.loads((directory / "machine.json").read_text())
     sim = Proc(["-m", "gateway.cli", "sim", "-c", str(directory / "sim.yaml")])
@@ -83,7 +83,8 @@ def running(template: Path, directory: Path) -> Iterator[Rig]:
         sim_port = int(sim.wait_line(r"modbus tcp on 127\.0\.0\.1:(\d+)").group(1))
         data = yaml.safe_load((directory / "gateway.yaml").read_text())
         data["buses"]["line1"]["tcp"]["port"] = sim_port
-        data.pop("machine_clock", None)
+        if not machine_clock:
+            data.pop("machine_clock", None)
         config = directory / "gw.yaml"
         config.write_text(yaml.safe_dump(data, sort_keys=False))
         gw = Proc(["-m", "gateway.cli", "run", "-c", str(config)])

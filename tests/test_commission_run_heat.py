@@ -1,0 +1,76 @@
+"""Heat from the ISO runs' own levels (issue 54 point 3, issue 52 point 2): a plain
+calibration's machine time has no drift references, yet its runs warm the screw (sim,
+gateway and the command as real processes, time_scale 0, the machine's clock). Its own
+file: the suite's files are spread over the workers whole."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from tests.commission_rig import running
+from tests.test_service_helpers import Proc
+
+
+def _full_machine(directory: Path, seed: int) -> dict:
+    """Random machine ``seed`` (smooth) at its full travel, no sensor given, ports 0."""
+    proc = Proc(["-m", "gateway.cli", "sim", "--random-machine", str(seed), "--roughness",
+                 "smooth", "--out", str(directory)])  # fmt: skip
+    assert proc.popen.wait(timeout=60) == 0, proc.text()
+    sim = yaml.safe_load((directory / "sim.yaml").read_text())
+    sim["sim"]["tcp"]["port"] = 0
+    (directory / "sim.yaml").write_text(yaml.safe_dump(sim, sort_keys=False))
+    gw = yaml.safe_load((directory / "gateway.yaml").read_text())
+    for axis in gw["axes"].values():
+        axis["compensation"].pop("thermal", None)
+    gw.pop("thermal_sources", None)
+    gw["upstream"]["tcp"]["port"] = 0
+    gw["status"]["remote_control"] = True
+    (directory / "gateway.yaml").write_text(yaml.safe_dump(gw, sort_keys=False))
+    return sim
+
+
+def _table(path: Path) -> np.ndarray:
+    return np.array([[float(v) for v in line.split(",")] for line in path.read_text().splitlines()
+                     if line and line[0] not in "#p"])  # fmt: skip
+
+
+def test_a_plain_calibrations_time_fits_heat_to_its_iso_runs_and_a_cold_table(
+        tmp_path: Path) -> None:  # fmt: skip
+    """At a plain calibration's machine time (0.8 h on random machine 8, 800 mm of Y) no
+    drift references are read, so no heat model was fitted: the judge's plane read 16-20
+    µm after its warm-up, all heat, and Y's table kept the drift between each target's two
+    passes (its reversal 1.0 µm off the truth at the low end). Now Y's five ISO runs, whose
+    levels moved about 2 µm, give heat from motion near the sim's own screw, and the table
+    loses the heat the model puts at each reading: its reversal within 0.3 µm of the truth
+    everywhere."""
+    template = tmp_path / "t"
+    sim = _full_machine(template, 8)
+    with running(template, tmp_path / "m", machine_clock=True) as rig:
+        leads = ",".join(f"{a}={v['lead_mm']:g}" for a, v in rig.machine["axes"].items())
+        proc = Proc(["-m", "gateway.cli", "commission", "-c", str(rig.config),
+                     "--gateway", f"127.0.0.1:{rig.gw_port}",
+                     "--laser", f"127.0.0.1:{rig.sim_port}:20",
+                     "--xy-device", f"127.0.0.1:{rig.sim_port}:21", "--lead-mm", leads,
+                     "--budget-h", "0.8", "--no-progress"])  # fmt: skip
+        assert proc.popen.wait(timeout=300) in (0, 1), proc.text()
+        state = json.loads((rig.dir / "commission" / "commission.json").read_text())
+        assert state["refs_off"] and not state.get("drift_log"), proc.text()
+        heat = state["identify"]["motion-Y"]
+        assert heat["fitted"] and heat["from"] == "runs", heat
+        assert "heat from its own motion explains its ISO runs' levels" in proc.text()
+        truth = sim["sim"]["machine"]["Y"]["thermal"]
+        assert abs(heat["origin_mm"] - truth["origin_mm"]) < 100.0, (heat, truth)
+        # Δa per metre of heat at the fitted length, against the truth's at the same lever
+        want = truth["alpha_per_K"] * truth["heat_K_per_m"] * heat["length_mm"] * 1e3
+        assert 0.7 < heat["motion"]["delta_a_um_per_m"] / want < 1.4, (heat, want)
+        final = yaml.safe_load(rig.config.read_text())
+        assert final["axes"]["Y"]["compensation"]["thermal"]["motion"]["tau_s"] > 0
+        table = _table(rig.dir / "commission" / "tables" / "y_pitch.csv")
+        true = _table(rig.dir / "truth" / "Y_deviation.csv")
+        off_um = (table[:, 1] - table[:, 2]) - np.interp(  # (the file in µm)
+            table[:, 0], true[:, 0], true[:, 1] - true[:, 2])
+        assert np.abs(off_um).max() < 0.3, off_um
