@@ -300,10 +300,25 @@ def test_iso_runs_levels_give_the_growth_up_to_each_targets_static_error() -> No
             target += list(xs)
             dev += list(static + sign * 2e-3 + g * xs / 500.0 * 1e-3
                         + rng.normal(0, 1e-5, xs.size))  # fmt: skip
-    runs, levels = run_levels_um(run, target, np.array(dev), (25.0, 475.0))
-    assert list(runs) == [1, 2, 3, 4]
-    want = grow[:, None] * np.array([25.0, 475.0])[None, :] / 500.0
-    assert np.allclose(levels, want - want.mean(axis=0), atol=0.02), levels
+    # two more runs over the midpoints (other targets, their own static error) later on
+    mids = (xs[1:] + xs[:-1]) / 2
+    more = np.array([4.0, 4.5])
+    static_mids = rng.normal(0.0, 8e-3, mids.size)
+    for k, g in enumerate(more):
+        for sign in (1, -1):
+            run += [k + 11] * mids.size
+            target += list(mids)
+            dev += list(static_mids + sign * 2e-3
+                        + g * mids / 500.0 * 1e-3 + rng.normal(0, 1e-5, mids.size))  # fmt: skip
+    lv = run_levels_um(run, target, np.array(dev), (25.0, 475.0))
+    assert list(lv.runs) == [1, 2, 3, 4, 11, 12] and len(set(lv.group)) == 2
+    assert list(lv.group[:4]) == [lv.group[0]] * 4 and lv.group[4] == lv.group[5] != lv.group[0]
+    lever = np.array([25.0, 475.0])[None, :] / 500.0
+    want = grow[:, None] * lever
+    assert np.allclose(lv.levels_um[:4], want - want.mean(axis=0), atol=0.02), lv.levels_um
+    want = more[:, None] * lever
+    assert np.allclose(lv.levels_um[4:], want - want.mean(axis=0), atol=0.02), lv.levels_um
+    assert 0.0 < lv.noise_um < 0.05  # the readings' 0.01 µm, at the line's ends
     row_s = np.arange(len(run), dtype=float)
     odo = row_odometer_mm(row_s, (0.0, len(run) - 1.0), ({"X": 100.0}, {"X": 900.0}))
     at, per_run = run_means(run, row_s), run_means(run, odo["X"])
@@ -314,7 +329,8 @@ def test_heat_known_up_to_a_constant_is_fitted_from_its_changes() -> None:
     """The growth of a few ISO runs is known only up to the static error at each reference
     (``offset``): the fit takes its changes, and finds the same fixed end and heat per
     metre as from the cold start; taken as growth from the cold start, the static error
-    is read as heat and the fit is wrong or refused."""
+    is read as heat and the fit is wrong or refused. Split into two groups (the last
+    readings over other targets, another constant), it still finds them."""
     rng = np.random.default_rng(12)
     refs = (26.0, 475.0)
     odo, growth = _commissioning(rng, 900.0, -40.0, 0.3, refs, hours=1.0)
@@ -326,6 +342,14 @@ def test_heat_known_up_to_a_constant_is_fitted_from_its_changes() -> None:
                           (0, 500), offset=True)  # fmt: skip
     assert fit.origin_mm == pytest.approx(-40.0, abs=40)
     assert fit.delta_a_um_per_m / fit.length_mm * 1e3 == pytest.approx(0.3, rel=0.3)
+    apart = levels + np.array([[0.0, 0.0]] * 4 + [[-6.0, 2.0]] * 2)  # the last two's own
+    split = motion_heat_fit("X", odo_few, wall, apart, refs, {"X": 100.0, "Y": 100.0},
+                            (0, 500), offset=[0, 0, 0, 0, 1, 1])  # fmt: skip
+    assert split.origin_mm == pytest.approx(-40.0, abs=60)
+    assert split.delta_a_um_per_m / split.length_mm * 1e3 == pytest.approx(0.3, rel=0.4)
+    with pytest.raises(TableError, match=r"6 drift readings in 4 groups, too few"):
+        motion_heat_fit("X", odo_few, wall, apart, refs, {"X": 100.0, "Y": 100.0}, (0, 500),
+                        offset=[0, 0, 0, 1, 2, 3])  # fmt: skip
     try:
         wrong = motion_heat_fit("X", odo_few, wall, levels, refs, {"X": 100.0, "Y": 100.0},
                                 (0, 500))  # fmt: skip

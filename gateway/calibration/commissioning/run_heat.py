@@ -31,7 +31,7 @@ from ..thermal.heat_fit import (
     motion_heat_fit,
 )
 from ..thermal.run_levels import row_odometer_mm, run_levels_um, run_means
-from .drift import MIN_SEEN_UM, SEEN_X_SCATTER
+from .drift import SEEN_X_SCATTER
 
 if TYPE_CHECKING:
     from .axes import Axes
@@ -40,8 +40,11 @@ if TYPE_CHECKING:
 
 Say = Callable[[str], None]
 
-#: the steps whose runs read the same targets: the ISO runs and the more runs after them
-STEPS = ("iso-{a}", "iso-more-{a}")
+#: the steps of an axis's ISO runs (the midpoints' and quarter points' read other targets:
+#: their levels are a group of their own)
+STEPS = ("iso-{a}", "iso-more-{a}", "iso-mid-{a}", "iso-quarter-{a}")
+#: the least growth heat is fitted to, however well the levels stand out of their scatter
+RUN_MIN_SEEN_UM = 0.3
 #: a run label per step, so that the runs of several steps stay apart
 RUN_STRIDE = 1000
 
@@ -73,19 +76,19 @@ class RunHeat:
             if rows is None:
                 continue
             refs = self.axes.ref_positions(a)
-            _, levels = run_levels_um(rows.run, rows.target_mm, rows.deviation_mm, refs)
+            lv = run_levels_um(rows.run, rows.target_mm, rows.deviation_mm, refs)
             at_s = run_means(rows.run, rows.at_s)
             order = np.argsort(at_s, kind="stable")
             odometer_m = {b: run_means(rows.run, v)[order] / 1000.0
                           for b, v in rows.odometer_mm.items()}  # fmt: skip
             try:
                 fit = motion_heat_fit(
-                    a, odometer_m, at_s[order], levels[order], refs,
+                    a, odometer_m, at_s[order], lv.levels_um[order], refs,
                     dict.fromkeys(self.s.axes, self.s.speed_mm_s), self.axes.travel(a),
-                    self.least_growth_um(a, np.unique(rows.target_mm).size),
-                    offset=True)  # fmt: skip
+                    self.least_growth_um(lv.noise_um), offset=lv.group[order])  # fmt: skip
             except TableError as exc:
-                ident[key] = {"fitted": False, "from": "runs", "why": str(exc)}
+                ident[key] = {"fitted": False, "from": "runs", "why": str(exc),
+                              "level_noise_um": lv.noise_um}  # fmt: skip
                 self.say(f"no heat-from-motion model from the ISO runs: {exc}")
                 continue
             config = fit.config()
@@ -94,6 +97,7 @@ class RunHeat:
             ident[key] = {"fitted": True, "from": "runs", **config,
                           "growth_max_um": fit.growth_max_um,
                           "residual_rms_um": fit.residual_rms_um, "points": fit.points,
+                          "level_noise_um": lv.noise_um,
                           "table_held_um": held}  # fmt: skip
             self.say(f"{a}: no thermal sensor and no drift references; heat from its own "
                      f"motion explains its ISO runs' levels (they moved {fit.growth_max_um:.1f}"
@@ -128,16 +132,14 @@ class RunHeat:
                     {b: np.concatenate([p.odometer_mm[b] for p in parts])
                      for b in parts[0].odometer_mm})  # fmt: skip
 
-    def least_growth_um(self, axis: str, targets: int) -> float:
+    def least_growth_um(self, noise_um: float) -> float:
         """How far the runs' levels must move before heat is fitted to them (µm): as
-        :meth:`.drift.DriftRefs.least_growth_um`, the scatter being a level's (a line
-        through ``targets`` ↑↓ means, read at its ends: about 2 s / √(2 · targets))."""
+        :meth:`.drift.DriftRefs.least_growth_um`, the scatter being a level's own
+        (``noise_um``), down to RUN_MIN_SEEN_UM."""
         least = min(MIN_GROWTH_UM, self.s.tolerance_um)
-        s_um = self.drift.iso_scatter_um(axis)
-        if s_um is None:
+        if not np.isfinite(noise_um):
             return least
-        level_um = 2.0 * s_um / np.sqrt(2.0 * max(targets, 1))
-        return float(min(least, max(MIN_SEEN_UM, SEEN_X_SCATTER * level_um)))
+        return float(min(least, max(RUN_MIN_SEEN_UM, SEEN_X_SCATTER * noise_um)))
 
     def put_back(self, axis: str, rows: Rows, thermal: dict[str, Any]) -> list[float]:
         """``axis``'s table less the growth the model puts at each of its ISO readings, per

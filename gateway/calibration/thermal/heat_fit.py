@@ -75,7 +75,7 @@ class MotionHeatFit:
 def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLike,
                     growth_um: ArrayLike, refs_mm: tuple[float, float],
                     speeds_mm_s: dict[str, float], travel_mm: tuple[float, float],
-                    min_growth_um: float = MIN_GROWTH_UM, offset: bool = False
+                    min_growth_um: float = MIN_GROWTH_UM, offset: bool | ArrayLike = False
                     ) -> MotionHeatFit:  # fmt: skip
     """Fit heat from motion to the growth (µm, shape (k, 2): both references) of ``axis``
     read at the odometers ``odometer_m`` (each commissioned axis's travel since the cold
@@ -83,19 +83,25 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
     The other axes' speeds relative to this one's are fitted too (their moves cool this
     screw for as long as they take). ``offset``: the growth is known up to a constant per
     reference (levels of ISO runs, whose static error is unknown): only its changes are
-    fitted. Raises TableError (naming the axis) when the drift is too small or the model
+    fitted; a label per reading: up to a constant per group of readings (runs over other
+    targets). Raises TableError (naming the axis) when the drift is too small or the model
     does not hold."""
     wall = np.asarray(wall_s, dtype=np.float64)
     odo = {a: np.asarray(v, dtype=np.float64) for a, v in odometer_m.items()}
     g = np.asarray(growth_um, dtype=np.float64).reshape(-1, 2)
     n = g.shape[0]
-    least = MIN_OFFSET_READINGS if offset else MIN_READINGS
-    if n < least or wall.size != n or any(v.size != n for v in odo.values()):
-        raise TableError(f"axis {axis}: {n} drift readings, too few to fit heat from "
-                         f"motion ({least} needed)")  # fmt: skip
-    if offset:
-        g = g - g.mean(axis=0)
-    peak = float(np.ptp(g, axis=0).max() if offset else np.abs(g).max())
+    groups = (np.zeros(n, dtype=np.int64) if offset is True
+              else None if offset is False else np.asarray(offset))  # fmt: skip
+    least, known = MIN_READINGS, n
+    if groups is not None:  # the changes within each group
+        least, known = MIN_OFFSET_READINGS, n - np.unique(groups).size + 1
+    if known < least or wall.size != n or any(v.size != n for v in odo.values()):
+        raise TableError(f"axis {axis}: {n} drift readings"
+                         + (f" in {n - known + 1} groups" if known < n else "")
+                         + f", too few to fit heat from motion ({least} needed)")  # fmt: skip
+    if groups is not None:
+        g = centred(g, groups)
+    peak = float(np.ptp(g, axis=0).max() if groups is not None else np.abs(g).max())
     if peak < min_growth_um:
         raise TableError(f"axis {axis}: the screw grew {peak:.1f} µm at most while "
                          f"commissioning (under {min_growth_um:g}): no heat to model")
@@ -115,8 +121,8 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
                           for a in odo)  # fmt: skip
             elapsed = np.maximum(np.broadcast_to(elapsed, (n, grid.size)), idle[:, None])
             heat = motion_heat_series_m(travel, elapsed[:, :, None], TAU_GRID_S)  # (n, S, T)
-            if offset:
-                heat = heat - heat.mean(axis=0)
+            if groups is not None:
+                heat = centred(heat, groups)
             hh = (heat * heat).sum(axis=0)
             with np.errstate(invalid="ignore", divide="ignore"):
                 trial = np.einsum("kst,kr->str", heat, g) / hh[:, :, None]
@@ -154,6 +160,15 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
                          f"{origin:.0f} mm, far off the travel: not the screw's growth")
     return MotionHeatFit(axis, origin, length, per_mm * length, tau, speeds_mm_s,
                          peak, rms, n)  # fmt: skip
+
+
+def centred(values: ArrayLike, groups: ArrayLike) -> NDArray[np.float64]:
+    """``values`` (readings along axis 0) less their mean within each group of readings."""
+    v = np.asarray(values, dtype=np.float64)
+    k = np.unique(np.asarray(groups), return_inverse=True)[1].ravel()
+    one = np.eye(k.max() + 1)[k]  # (readings, groups)
+    means = np.tensordot(one.T / one.sum(axis=0)[:, None], v, axes=1)
+    return v - np.tensordot(one, means, axes=1)
 
 
 def likely_tau(sse: ArrayLike) -> int:

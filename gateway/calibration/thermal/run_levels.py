@@ -12,17 +12,32 @@ with ``offset``. Pure: arrays in, arrays out.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 
-def run_levels_um(
-    run: ArrayLike, target_mm: ArrayLike, deviation_mm: ArrayLike, refs_mm: tuple[float, float]
-) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-    """Each run's level (µm) at the two references ``refs_mm``, up to one constant per
-    reference, from one axis's readings (``run`` a label per row: runs of several steps
-    numbered apart; ``deviation_mm`` actual − target). Only targets read in every run
-    count. Returns the runs (sorted) and the levels, shape (runs, 2)."""
+@dataclass(frozen=True)
+class RunLevels:
+    """The runs' levels at the references: ``runs`` (sorted labels), ``levels_um`` (runs,
+    2: each up to a constant per group and reference), ``group`` (runs: the runs that read
+    the same targets share one, and only their changes count), ``noise_um`` (one level's
+    standard deviation, from the readings' scatter about the per-run lines)."""
+
+    runs: NDArray[np.int64]
+    levels_um: NDArray[np.float64]
+    group: NDArray[np.int64]
+    noise_um: float
+
+
+def run_levels_um(run: ArrayLike, target_mm: ArrayLike, deviation_mm: ArrayLike,
+                  refs_mm: tuple[float, float]) -> RunLevels:  # fmt: skip
+    """Each run's level (µm) at the two references ``refs_mm`` from one axis's readings
+    (``run`` a label per row: runs of several steps numbered apart; ``deviation_mm``
+    actual − target). Runs over the same targets form a group (the ISO runs; the
+    midpoints'): within it each target's mean over the runs is taken off, then a line per
+    run through what is left gives its level."""
     r = np.asarray(run)
     x = np.asarray(target_mm, dtype=np.float64)
     dev = np.asarray(deviation_mm, dtype=np.float64) * 1000.0
@@ -34,16 +49,30 @@ def run_levels_um(
     counts = np.zeros((runs.size, xs.size))
     np.add.at(sums, (k, i), dev)
     np.add.at(counts, (k, i), 1.0)
-    every = (counts > 0).all(axis=0)
-    if every.sum() < 2:
-        return runs.astype(np.int64), np.zeros((runs.size, 2))
-    mean = sums[:, every] / counts[:, every]  # (runs, targets): each run's ↑↓ mean
-    change = mean - mean.mean(axis=0)  # the static error, the same in every run, off
-    at = xs[every]
-    design = np.stack([np.ones_like(at), at], axis=1)
-    coef = np.linalg.lstsq(design, change.T, rcond=None)[0]  # (2, runs)
+    read = counts > 0
+    group = np.unique(read, axis=0, return_inverse=True)[1].ravel()
+    levels = np.zeros((runs.size, 2))
     refs = np.stack([np.ones(2), np.asarray(refs_mm, dtype=np.float64)], axis=1)
-    return runs.astype(np.int64), (refs @ coef).T
+    squares, dof, lever = 0.0, 0, []
+    for g in np.unique(group):
+        rows = group == g
+        on = read[rows][0]
+        at = xs[on]
+        if at.size < 3 or rows.sum() < 2:
+            continue  # no line, or no change: the group's levels stay 0
+        mean = sums[rows][:, on] / counts[rows][:, on]  # each run's ↑↓ mean per target
+        change = mean - mean.mean(axis=0)  # the static error, the same in every run, off
+        design = np.stack([np.ones_like(at), at], axis=1)
+        coef = np.linalg.lstsq(design, change.T, rcond=None)[0]  # (2, runs)
+        levels[rows] = (refs @ coef).T
+        left = change.T - design @ coef
+        squares += float((left**2).sum())
+        dof += (at.size - 2) * (int(rows.sum()) - 1)
+        # a level's variance over a reading's: the line's leverage at the references
+        inv = np.linalg.inv(design.T @ design)
+        lever.append(float(np.max(np.einsum("ri,ij,rj->r", refs, inv, refs))))
+    noise = float(np.sqrt(squares / dof * max(lever))) if dof > 0 and lever else float("nan")
+    return RunLevels(runs.astype(np.int64), levels, group.astype(np.int64), noise)
 
 
 def row_odometer_mm(row_s: ArrayLike, span_s: tuple[float, float],
