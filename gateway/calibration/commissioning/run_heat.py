@@ -49,16 +49,14 @@ RUN_MIN_SEEN_UM = 0.3
 RUN_STRIDE = 1000
 
 
+@dataclass(frozen=True)
 class RunHeat:
     """Heat from motion fitted to the ISO runs' own levels (no drift references read)."""
 
-    def __init__(self, axes: Axes, record: Record, drift: DriftRefs, say: Say) -> None:
-        self.s = axes.s
-        self.config = axes.config
-        self.axes = axes
-        self.record = record
-        self.drift = drift
-        self.say = say
+    axes: Axes
+    record: Record
+    drift: DriftRefs
+    say: Say
 
     def fit(self) -> None:
         """Per linear axis with no thermal setting, where no drift references were read:
@@ -69,7 +67,7 @@ class RunHeat:
         ident = self.record.state.setdefault("identify", {})
         for a in self.axes.ref_axes():
             key = f"motion-{a}"
-            if self.config.axes[a].compensation.thermal is not None or key in ident \
+            if self.axes.config.axes[a].compensation.thermal is not None or key in ident \
                     or a not in self.record.tables.pitch:  # fmt: skip
                 continue
             rows = self.rows(a)
@@ -84,7 +82,7 @@ class RunHeat:
             try:
                 fit = motion_heat_fit(
                     a, odometer_m, at_s[order], lv.levels_um[order], refs,
-                    dict.fromkeys(self.s.axes, self.s.speed_mm_s), self.axes.travel(a),
+                    dict.fromkeys(self.axes.s.axes, self.axes.s.speed_mm_s), self.axes.travel(a),
                     self.least_growth_um(lv.noise_um), offset=lv.group[order])  # fmt: skip
             except TableError as exc:
                 ident[key] = {"fitted": False, "from": "runs", "why": str(exc),
@@ -136,7 +134,7 @@ class RunHeat:
         """How far the runs' levels must move before heat is fitted to them (µm): as
         :meth:`.drift.DriftRefs.least_growth_um`, the scatter being a level's own
         (``noise_um``), down to RUN_MIN_SEEN_UM."""
-        least = min(MIN_GROWTH_UM, self.s.tolerance_um)
+        least = min(MIN_GROWTH_UM, self.axes.s.tolerance_um)
         if not np.isfinite(noise_um):
             return least
         return float(min(least, max(RUN_MIN_SEEN_UM, SEEN_X_SCATTER * noise_um)))
