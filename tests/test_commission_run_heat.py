@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 
 from tests.commission_rig import running
@@ -74,3 +75,8 @@ def test_a_plain_calibrations_time_fits_heat_to_its_iso_runs_and_a_cold_table(
         off_um = (table[:, 1] - table[:, 2]) - np.interp(  # (the file in µm)
             table[:, 0], true[:, 0], true[:, 1] - true[:, 2])
         assert np.abs(off_um).max() < 0.3, off_um
+        # the table as fitted kept beside it (a resumed put-back starts from it): the two
+        # differ by the growth the runs held, µm at the low end
+        fitted = _table(rig.dir / "commission" / "tables" / "y_pitch.as_read.csv")
+        held = (fitted[0, 1] + fitted[0, 2] - table[0, 1] - table[0, 2]) / 2
+        assert held == pytest.approx(heat["table_held_um"][0], abs=0.5), (held, heat)

@@ -142,7 +142,8 @@ class RunHeat:
     def put_back(self, axis: str, rows: Rows, thermal: dict[str, Any]) -> list[float]:
         """``axis``'s table less the growth the model puts at each of its ISO readings, per
         target and direction (so the reversal loses the heat between its two passes too),
-        rewritten in place: the cold start's table. Returns the growth the table held at
+        rewritten in place: the cold start's table (the one fitted kept as
+        ``<name>.as_read.csv``). Returns the growth the table held at
         the references (µm, mean of both directions)."""
         order = np.argsort(rows.at_s, kind="stable")
         odo_m = {b: v[order] / 1000.0 for b, v in rows.odometer_mm.items()}
@@ -150,7 +151,13 @@ class RunHeat:
         heat[order] = heat_at_readings_m(thermal["motion"], axis, odo_m, rows.at_s[order])
         grown_um = growth_at_um(thermal, heat, rows.target_mm)
         path = self.record.config_dir / self.record.tables.pitch[axis]
-        table = read_table(path, "csv")
+        # the table as fitted, kept beside it first: an interrupted put-back, resumed,
+        # starts from it again (never from a table already put back)
+        as_read = path.with_name(f"{path.stem}.as_read.csv")
+        if not as_read.exists():
+            write_table(as_read, "csv", read_table(path, "csv"),
+                        "compgw commission: the table as fitted, before it was put back")
+        table = read_table(as_read, "csv")
         held: dict[bool, np.ndarray] = {}
         for up in (True, False):
             at = rows.up == up
