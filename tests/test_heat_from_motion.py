@@ -10,7 +10,7 @@ import pytest
 
 from gateway.calibration.commissioning.thermal import travel_before_warmup
 from gateway.calibration.thermal.heat_fit import motion_heat_fit
-from gateway.calibration.thermal.run_levels import row_odometer_mm, run_levels_um, run_means
+from gateway.calibration.thermal.run_levels import means_by, row_odometer_mm, run_levels_um
 from gateway.compensation.errors import TableError
 from gateway.compensation.thermal import (
     motion_heat_after_m,
@@ -321,7 +321,7 @@ def test_iso_runs_levels_give_the_growth_up_to_each_targets_static_error() -> No
     assert 0.0 < lv.noise_um < 0.05  # the readings' 0.01 µm, at the line's ends
     row_s = np.arange(len(run), dtype=float)
     odo = row_odometer_mm(row_s, (0.0, len(run) - 1.0), ({"X": 100.0}, {"X": 900.0}))
-    at, per_run = run_means(run, row_s), run_means(run, odo["X"])
+    at, per_run = means_by(run, row_s), means_by(run, odo["X"])
     assert np.all(np.diff(at) > 0) and 100.0 < per_run[0] < per_run[-1] < 900.0
 
 

@@ -28,9 +28,9 @@ from ..plans.runner import read_raw_meta
 from ..thermal.drift_shape import SweptHeat
 from ..thermal.heat_fit import (
     MAX_RESIDUAL_SHARE,
-    MIN_GROWTH_UM,
     drift_left_um,
     heat_at_readings_m,
+    least_growth_um,
     modelled_growth_um,
     motion_heat_fit,
 )
@@ -53,9 +53,8 @@ MIN_REF_DOF = 4
 #: how fast the swept travel behind a drift shape fades (s of machine time): a screw's
 #: thermal time constant (the bench's warm-ups fit 960-1130 s)
 MEMORY_S = 1000.0
-#: heat from motion is fitted to a growth this many times the references' scatter ...
-SEEN_X_SCATTER = 5.0
-#: ... and at least this (µm): see :meth:`DriftRefs.least_growth_um`
+#: heat from motion is fitted to a growth SEEN_X_SCATTER times the references' scatter,
+#: and at least this (µm): see :meth:`DriftRefs.least_growth_um`
 MIN_SEEN_UM = 1.0
 
 
@@ -555,11 +554,7 @@ class DriftRefs:
         warm a screw little: at 1.5 x a plain calibration's time four Y screws grew 1.3-1.6
         µm while commissioning (their references' scatter 0.1-0.3 µm), no model was fitted,
         and 30 minutes of work on a zone of 40 % of the travel moved them 13-24 µm."""
-        least = min(MIN_GROWTH_UM, self.s.tolerance_um)
-        s_um = self.ref_scatter_um(axis)
-        if s_um is None:
-            return least
-        return min(least, max(MIN_SEEN_UM, SEEN_X_SCATTER * s_um))
+        return least_growth_um(self.s.tolerance_um, self.ref_scatter_um(axis), MIN_SEEN_UM)
 
     def adopt_warmed_motion(self) -> None:
         """Each axis's zone warm-up model (no sensor, :meth:`.identify.IdentifySteps.

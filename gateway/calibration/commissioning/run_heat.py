@@ -25,13 +25,12 @@ from ..fitting.outputs import read_table, write_table
 from ..measuring.from_file import STOP_TIME
 from ..plans.rawdata import read_raw_csv
 from ..thermal.heat_fit import (
-    MIN_GROWTH_UM,
     growth_at_um,
     heat_at_readings_m,
+    least_growth_um,
     motion_heat_fit,
 )
-from ..thermal.run_levels import row_odometer_mm, run_levels_um, run_means
-from .drift import SEEN_X_SCATTER
+from ..thermal.run_levels import means_by, row_odometer_mm, run_levels_um
 
 if TYPE_CHECKING:
     from .axes import Axes
@@ -44,6 +43,7 @@ Say = Callable[[str], None]
 #: their levels are a group of their own)
 STEPS = ("iso-{a}", "iso-more-{a}", "iso-mid-{a}", "iso-quarter-{a}")
 #: the least growth heat is fitted to, however well the levels stand out of their scatter
+#: (five times it: :func:`..thermal.heat_fit.least_growth_um`)
 RUN_MIN_SEEN_UM = 0.3
 #: a run label per step, so that the runs of several steps stay apart
 RUN_STRIDE = 1000
@@ -75,15 +75,16 @@ class RunHeat:
                 continue
             refs = self.axes.ref_positions(a)
             lv = run_levels_um(rows.run, rows.target_mm, rows.deviation_mm, refs)
-            at_s = run_means(rows.run, rows.at_s)
+            at_s = means_by(rows.run, rows.at_s)
             order = np.argsort(at_s, kind="stable")
-            odometer_m = {b: run_means(rows.run, v)[order] / 1000.0
+            odometer_m = {b: means_by(rows.run, v)[order] / 1000.0
                           for b, v in rows.odometer_mm.items()}  # fmt: skip
             try:
                 fit = motion_heat_fit(
                     a, odometer_m, at_s[order], lv.levels_um[order], refs,
                     dict.fromkeys(self.axes.s.axes, self.axes.s.speed_mm_s), self.axes.travel(a),
-                    self.least_growth_um(lv.noise_um), offset=lv.group[order])  # fmt: skip
+                    least_growth_um(self.axes.s.tolerance_um, lv.noise_um, RUN_MIN_SEEN_UM),
+                    offset=lv.group[order])  # fmt: skip
             except TableError as exc:
                 ident[key] = {"fitted": False, "from": "runs", "why": str(exc),
                               "level_noise_um": lv.noise_um}  # fmt: skip
@@ -130,15 +131,6 @@ class RunHeat:
                     {b: np.concatenate([p.odometer_mm[b] for p in parts])
                      for b in parts[0].odometer_mm})  # fmt: skip
 
-    def least_growth_um(self, noise_um: float) -> float:
-        """How far the runs' levels must move before heat is fitted to them (µm): as
-        :meth:`.drift.DriftRefs.least_growth_um`, the scatter being a level's own
-        (``noise_um``), down to RUN_MIN_SEEN_UM."""
-        least = min(MIN_GROWTH_UM, self.axes.s.tolerance_um)
-        if not np.isfinite(noise_um):
-            return least
-        return float(min(least, max(RUN_MIN_SEEN_UM, SEEN_X_SCATTER * noise_um)))
-
     def put_back(self, axis: str, rows: Rows, thermal: dict[str, Any]) -> list[float]:
         """``axis``'s table less the growth the model puts at each of its ISO readings, per
         target and direction (so the reversal loses the heat between its two passes too),
@@ -161,8 +153,8 @@ class RunHeat:
         held: dict[bool, np.ndarray] = {}
         for up in (True, False):
             at = rows.up == up
-            xs, k = np.unique(rows.target_mm[at], return_inverse=True)
-            mean = np.bincount(k.ravel(), weights=grown_um[at]) / np.bincount(k.ravel())
+            xs = np.unique(rows.target_mm[at])
+            mean = means_by(rows.target_mm[at], grown_um[at])
             held[up] = np.interp(table.position_mm, xs, mean) / 1000.0  # mm
         if table.reverse_mm is None:
             both = (held[True] + held[False]) / 2.0

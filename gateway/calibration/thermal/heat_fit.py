@@ -38,6 +38,9 @@ TAU_LIKELY_S = 1000.0
 #: growth (µm) below which there is nothing worth a model (or below the tolerance asked,
 #: when that is tighter: 2.3 µm of growth left as it was read 4.3 µm at a 3 µm tolerance)
 MIN_GROWTH_UM = 3.0
+#: heat from motion is fitted to a growth this many times a reading's scatter (see
+#: :func:`least_growth_um`)
+SEEN_X_SCATTER = 5.0
 #: drift readings a fit needs: from the cold start, and known up to a constant only
 MIN_READINGS = 6
 MIN_OFFSET_READINGS = 4
@@ -160,6 +163,16 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
                          f"{origin:.0f} mm, far off the travel: not the screw's growth")
     return MotionHeatFit(axis, origin, length, per_mm * length, tau, speeds_mm_s,
                          peak, rms, n)  # fmt: skip
+
+
+def least_growth_um(tolerance_um: float, scatter_um: float | None, floor_um: float) -> float:
+    """The growth (µm) heat from motion is fitted to: MIN_GROWTH_UM (or the tolerance,
+    where tighter), down to what stands out of one reading's scatter ``scatter_um``
+    (SEEN_X_SCATTER times it, at least ``floor_um``); no scatter known: no lower."""
+    least = min(MIN_GROWTH_UM, tolerance_um)
+    if scatter_um is None or not np.isfinite(scatter_um):
+        return least
+    return float(min(least, max(floor_um, SEEN_X_SCATTER * scatter_um)))
 
 
 def centred(values: ArrayLike, groups: ArrayLike) -> NDArray[np.float64]:

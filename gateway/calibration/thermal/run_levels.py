@@ -89,7 +89,8 @@ def row_odometer_mm(row_s: ArrayLike, span_s: tuple[float, float],
             for a in after}  # fmt: skip
 
 
-def run_means(run: ArrayLike, values: ArrayLike) -> NDArray[np.float64]:
-    """The mean of ``values`` per run (runs sorted as :func:`run_levels_um` returns them)."""
-    k = np.unique(np.asarray(run), return_inverse=True)[1].ravel()
+def means_by(label: ArrayLike, values: ArrayLike) -> NDArray[np.float64]:
+    """The mean of ``values`` per label, labels sorted (as np.unique, and as
+    :func:`run_levels_um` returns the runs)."""
+    k = np.unique(np.asarray(label), return_inverse=True)[1].ravel()
     return np.bincount(k, weights=np.asarray(values, dtype=np.float64)) / np.bincount(k)
