@@ -10,7 +10,12 @@ import pytest
 
 from gateway.calibration.commissioning.thermal import travel_before_warmup
 from gateway.calibration.thermal.heat_fit import motion_heat_fit
-from gateway.calibration.thermal.run_levels import means_by, row_odometer_mm, run_levels_um
+from gateway.calibration.thermal.run_levels import (
+    means_by,
+    on_the_way,
+    row_odometer_mm,
+    run_levels_um,
+)
 from gateway.compensation.errors import TableError
 from gateway.compensation.thermal import (
     motion_heat_after_m,
@@ -356,3 +361,46 @@ def test_heat_known_up_to_a_constant_is_fitted_from_its_changes() -> None:
     except TableError:
         return
     assert abs(wrong.origin_mm + 40.0) > 100.0, wrong
+
+
+def test_the_travel_between_runs_is_placed_in_time_by_the_steps_on_the_way() -> None:
+    """The runs' levels alone spread the travel of another step (a scan, the other axis's
+    runs) evenly from one run to the next. A burst of travel early in a long pause warms
+    the screw and cools off again before the next run: spread evenly, the fit takes a far
+    shorter time constant and more heat per metre (553 s for 800 here). With the step's
+    ends as points on the way (NaN levels), the heat runs through them as it happened."""
+    tau_s, per_um_m_mm, origin_mm, refs = 800.0, 0.002, -50.0, (26.0, 475.0)
+    speed = np.zeros(4000)  # mm/s in each second
+    runs = [(0, 300), (300, 600), (600, 900), (2400, 2700), (2700, 3000)]
+    for a, b in runs:
+        speed[a:b] = 20.0
+    speed[900:1000] = 100.0  # another step: 10 m in 100 s, then nothing until 2400 s
+    t = np.arange(1.0, 4001.0)
+    odo = np.cumsum(speed)
+    heat = motion_heat_series_m(speed / 1000.0, np.ones(t.size), tau_s)
+    grow = heat[:, None] * per_um_m_mm * (np.array(refs)[None, :] - origin_mm)
+    label = np.full(t.size, -1)
+    for k, (a, b) in enumerate(runs):
+        label[a:b] = k
+    on = label >= 0
+    levels = np.stack([means_by(label[on], grow[on][:, r]) for r in (0, 1)], axis=1)
+    levels += np.array([3.0, -2.0])  # each reference's static error: unknown
+    at, run_odo = means_by(label[on], t[on]), means_by(label[on], odo[on])
+    spread = motion_heat_fit("X", {"X": run_odo / 1000}, at, levels, refs, {"X": 100.0},
+                             (0, 500), 0.3, offset=True)  # fmt: skip
+    way_s = np.array([900.0, 1000.0, 2400.0])
+    where, at_s, odo_mm = on_the_way(at, {"X": run_odo}, way_s,
+                                     {"X": np.interp(way_s, t, odo)})  # fmt: skip
+    assert list(where) == [0, 1, 2, 6, 7] and np.all(np.diff(at_s) > 0)
+    assert np.all(np.diff(odo_mm["X"]) >= 0)
+    full = np.full((at_s.size, 2), np.nan)
+    full[where] = levels
+    group = np.full(at_s.size, -1)
+    group[where] = 0
+    placed = motion_heat_fit("X", {"X": odo_mm["X"] / 1000}, at_s, full, refs, {"X": 100.0},
+                             (0, 500), 0.3, offset=group)  # fmt: skip
+    assert placed.points == 5
+    assert placed.tau_s == pytest.approx(tau_s, rel=0.06)
+    assert placed.delta_a_um_per_m / placed.length_mm * 1e3 == pytest.approx(2.0, rel=0.03)
+    assert placed.origin_mm == pytest.approx(origin_mm, abs=1.0)
+    assert abs(spread.tau_s / tau_s - 1.0) > 0.2, spread  # what the points on the way mend

@@ -87,18 +87,23 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
     screw for as long as they take). ``offset``: the growth is known up to a constant per
     reference (levels of ISO runs, whose static error is unknown): only its changes are
     fitted; a label per reading: up to a constant per group of readings (runs over other
-    targets). Raises TableError (naming the axis) when the drift is too small or the model
-    does not hold."""
+    targets). A row of NaN growth is a point on the way (clock and odometers known, nothing
+    read: the end of another axis's step): the heat runs through it, nothing is fitted to
+    it. Raises TableError (naming the axis) when the drift is too small or the model does
+    not hold."""
     wall = np.asarray(wall_s, dtype=np.float64)
     odo = {a: np.asarray(v, dtype=np.float64) for a, v in odometer_m.items()}
     g = np.asarray(growth_um, dtype=np.float64).reshape(-1, 2)
+    points = g.shape[0]
+    read = np.isfinite(g).all(axis=1)
+    g = g[read]
     n = g.shape[0]
-    groups = (np.zeros(n, dtype=np.int64) if offset is True
-              else None if offset is False else np.asarray(offset))  # fmt: skip
+    groups = (np.zeros(n, dtype=np.int64) if offset is True else None if offset is False
+              else np.asarray(offset)[read])  # fmt: skip
     least, known = MIN_READINGS, n
     if groups is not None:  # the changes within each group
         least, known = MIN_OFFSET_READINGS, n - np.unique(groups).size + 1
-    if known < least or wall.size != n or any(v.size != n for v in odo.values()):
+    if known < least or wall.size != points or any(v.size != points for v in odo.values()):
         raise TableError(f"axis {axis}: {n} drift readings"
                          + (f" in {n - known + 1} groups" if known < n else "")
                          + f", too few to fit heat from motion ({least} needed)")  # fmt: skip
@@ -122,8 +127,8 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
             grid = SCALE_GRID if what is not None else np.ones(1)
             elapsed = sum(moving[a][:, None] * (grid[None, :] if a == what else scale[a])
                           for a in odo)  # fmt: skip
-            elapsed = np.maximum(np.broadcast_to(elapsed, (n, grid.size)), idle[:, None])
-            heat = motion_heat_series_m(travel, elapsed[:, :, None], TAU_GRID_S)  # (n, S, T)
+            elapsed = np.maximum(np.broadcast_to(elapsed, (points, grid.size)), idle[:, None])
+            heat = motion_heat_series_m(travel, elapsed[:, :, None], TAU_GRID_S)[read]  # n,S,T
             if groups is not None:
                 heat = centred(heat, groups)
             hh = (heat * heat).sum(axis=0)

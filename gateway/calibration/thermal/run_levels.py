@@ -94,3 +94,24 @@ def means_by(label: ArrayLike, values: ArrayLike) -> NDArray[np.float64]:
     :func:`run_levels_um` returns the runs)."""
     k = np.unique(np.asarray(label), return_inverse=True)[1].ravel()
     return np.bincount(k, weights=np.asarray(values, dtype=np.float64)) / np.bincount(k)
+
+
+def on_the_way(at_s: ArrayLike, odometer_mm: dict[str, ArrayLike], way_s: ArrayLike,
+               way_odometer_mm: dict[str, ArrayLike]
+               ) -> tuple[NDArray[np.intp], NDArray[np.float64], dict[str, NDArray[np.float64]]]:
+    """Readings (clock ``at_s``, each axis's odometer) and points on the way between them
+    (``way_s``, ``way_odometer_mm``: the ends of other steps, where the travel of the moves
+    between an axis's runs lies in time) in one timeline. Returns where each reading went
+    (indices into it; the rest are points on the way), its clock (s) and odometers (mm).
+    A reading comes before a point on the way at the same instant."""
+    t = np.concatenate([np.asarray(at_s, dtype=np.float64),
+                        np.asarray(way_s, dtype=np.float64)])  # fmt: skip
+    n = np.size(at_s)
+    order = np.lexsort((np.arange(t.size) >= n, t))
+    odo = {a: np.concatenate([np.asarray(v, dtype=np.float64),
+                              np.asarray(way_odometer_mm.get(a, np.zeros(t.size - n)),
+                                         dtype=np.float64)])[order]
+           for a, v in odometer_mm.items()}  # fmt: skip
+    where = np.empty(n, dtype=np.intp)
+    where[order[order < n]] = np.flatnonzero(order < n)
+    return where, t[order], odo
