@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gateway.calibration.commissioning.thermal import travel_before_warmup
-from gateway.calibration.thermal.heat_fit import motion_heat_fit
+from gateway.calibration.thermal.heat_fit import clock_kept_time, motion_heat_fit
 from gateway.calibration.thermal.run_levels import (
     means_by,
     on_the_way,
@@ -404,3 +404,56 @@ def test_the_travel_between_runs_is_placed_in_time_by_the_steps_on_the_way() -> 
     assert placed.delta_a_um_per_m / placed.length_mm * 1e3 == pytest.approx(2.0, rel=0.03)
     assert placed.origin_mm == pytest.approx(origin_mm, abs=1.0)
     assert abs(spread.tau_s / tau_s - 1.0) > 0.2, spread  # what the points on the way mend
+
+
+def _strokes(clock: Clock, heat: HeatFromMotion, lo_mm: float, hi_mm: float,
+             speed_mm_s: float, seconds: float) -> None:  # fmt: skip
+    """Strokes between ``lo_mm`` and ``hi_mm`` at ``speed_mm_s`` for ``seconds`` of the
+    clock, each target told to ``heat`` as the gateway tells it."""
+    x, end = lo_mm, clock.t + seconds
+    while clock.t < end:
+        x = hi_mm if x == lo_mm else lo_mm
+        heat.moved("X", x)
+        clock.t += (hi_mm - lo_mm) / speed_mm_s
+
+
+def test_a_clocked_fit_counts_time_by_the_clock_not_by_an_estimated_speed() -> None:
+    """The moves' time at the estimated speed (100 mm/s) stands in for the clock only where
+    the clock did not keep the machine's time. Counted by it on a clocked machine whose X
+    runs at 130, the gateway's model ran 1.3 times too fast through continuous strokes
+    and left a quarter of a 30-minute warm-up. Fitted on the clock alone (no speeds in
+    its config), it follows the warm-up."""
+    tau_s, per_um = 700.0, 2.0  # Δa (µm) per metre of heat
+    clock = Clock()
+    truth = HeatFromMotion("X", MotionHeat(delta_a_um_per_m=per_um, tau_s=tau_s), clock)
+    odo, wall, growth, at_mm = [0.0], [0.0], [[0.0, 0.0]], 0.0
+    truth.moved("X", 0.0)
+    for k in range(12):  # the commissioning: a minute of moves, two still, read
+        before = clock.t
+        _strokes(clock, truth, 0.0, 100.0 + 20.0 * k, 130.0, 60.0)
+        at_mm += 130.0 * (clock.t - before)
+        clock.t += 120.0
+        odo.append(at_mm / 1000.0)
+        wall.append(clock.t)
+        g = truth.delta_a_mm() * 1000.0
+        growth.append([g * 0.1, g * 0.9])  # references at 10 and 90 % from the fixed end
+    odometer_m = {"X": np.array(odo)}
+    assert clock_kept_time(odometer_m, wall, {"X": 100.0})
+    assert not clock_kept_time(odometer_m, np.array(wall) / 100.0, {"X": 100.0})  # compressed
+    fit = motion_heat_fit("X", odometer_m, wall, growth, (50.0, 450.0), None, (0, 500), 0.5)
+    assert "speeds_mm_s" not in fit.config()["motion"]
+    assert fit.tau_s == pytest.approx(tau_s, rel=0.1)
+    clocked = MotionHeat(**fit.config()["motion"])
+    estimated = clocked.model_copy(update={"speeds_mm_s": {"X": 100.0}})
+    warm = {}
+    for name, motion in (("truth", truth.motion), ("clocked", clocked),
+                         ("estimated", estimated)):  # fmt: skip
+        clock.t = 0.0
+        heat = HeatFromMotion("X", motion, clock)
+        heat.moved("X", 0.0)
+        _strokes(clock, heat, 100.0, 300.0, 130.0, 1800.0)  # the customer's warm-up
+        warm[name] = heat.delta_a_mm() / motion.delta_a_um_per_m
+    at_length = per_um * fit.length_mm / 500.0  # the truth's Δa where the fit's is given
+    assert warm["clocked"] * clocked.delta_a_um_per_m == pytest.approx(
+        warm["truth"] * at_length, rel=0.1)  # fmt: skip
+    assert warm["estimated"] < 0.85 * warm["truth"]  # what counting at the estimate left

@@ -66,31 +66,34 @@ class MotionHeatFit:
     points: int
 
     def config(self) -> dict[str, object]:
-        """The axis's ``compensation.thermal`` section."""
+        """The axis's ``compensation.thermal`` section (no speeds where the clock timed the
+        fit: the gateway's clock times it too)."""
+        motion: dict[str, object] = {"delta_a_um_per_m": float(f"{self.delta_a_um_per_m:.5g}"),
+                                     "tau_s": round(float(self.tau_s), 1)}  # fmt: skip
+        if self.speeds_mm_s:
+            motion["speeds_mm_s"] = {a: float(v) for a, v in self.speeds_mm_s.items()}
         return {"origin_mm": round(float(self.origin_mm), 2),
-                "length_mm": round(float(self.length_mm), 2),
-                "motion": {"delta_a_um_per_m": float(f"{self.delta_a_um_per_m:.5g}"),
-                           "tau_s": round(float(self.tau_s), 1),
-                           "speeds_mm_s": {a: float(v) for a, v
-                                           in self.speeds_mm_s.items()}}}  # fmt: skip
+                "length_mm": round(float(self.length_mm), 2), "motion": motion}
 
 
 def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLike,
                     growth_um: ArrayLike, refs_mm: tuple[float, float],
-                    speeds_mm_s: dict[str, float], travel_mm: tuple[float, float],
+                    speeds_mm_s: dict[str, float] | None, travel_mm: tuple[float, float],
                     min_growth_um: float = MIN_GROWTH_UM, offset: bool | ArrayLike = False
                     ) -> MotionHeatFit:  # fmt: skip
     """Fit heat from motion to the growth (µm, shape (k, 2): both references) of ``axis``
     read at the odometers ``odometer_m`` (each commissioned axis's travel since the cold
-    start, m) and wall clock ``wall_s``; ``speeds_mm_s`` the axes' speeds as estimated.
-    The other axes' speeds relative to this one's are fitted too (their moves cool this
-    screw for as long as they take). ``offset``: the growth is known up to a constant per
-    reference (levels of ISO runs, whose static error is unknown): only its changes are
-    fitted; a label per reading: up to a constant per group of readings (runs over other
-    targets). A row of NaN growth is a point on the way (clock and odometers known, nothing
-    read: the end of another axis's step): the heat runs through it, nothing is fitted to
-    it. Raises TableError (naming the axis) when the drift is too small or the model does
-    not hold."""
+    start, m) and wall clock ``wall_s``; ``speeds_mm_s`` the axes' speeds as estimated,
+    where the clock did not keep the machine's time (:func:`clock_kept_time`), else None:
+    the clock alone times the heat. The other axes' speeds relative to this one's are
+    fitted too (their moves cool this screw for as long as they take).
+
+    ``offset``: the growth is known up to a constant per reference (levels of ISO runs,
+    whose static error is unknown): only its changes are fitted; a label per point: up to
+    a constant per group of readings (runs over other targets). A row of NaN growth is a
+    point on the way (clock and odometers known, nothing read: the end of another axis's
+    step): the heat runs through it, nothing is fitted to it. Raises TableError (naming
+    the axis) when the drift is too small or the model does not hold."""
     wall = np.asarray(wall_s, dtype=np.float64)
     odo = {a: np.asarray(v, dtype=np.float64) for a, v in odometer_m.items()}
     g = np.asarray(growth_um, dtype=np.float64).reshape(-1, 2)
@@ -114,13 +117,14 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
         raise TableError(f"axis {axis}: the screw grew {peak:.1f} µm at most while "
                          f"commissioning (under {min_growth_um:g}): no heat to model")
     travel = np.diff(odo[axis], prepend=0.0).clip(min=0.0)
-    moving = {a: np.diff(v, prepend=0.0).clip(min=0.0) * 1000.0 / speeds_mm_s[a]
-              for a, v in odo.items()}  # fmt: skip
+    speeds = speeds_mm_s or {}
+    moving = {a: np.diff(v, prepend=0.0).clip(min=0.0) * 1000.0 / speeds[a] if a in speeds
+              else np.zeros(points) for a, v in odo.items()}  # fmt: skip
     idle = np.diff(wall, prepend=wall[0]).clip(min=0.0)
     # tau and each other axis's time per metre (relative to the estimate) on a grid
     # together, the remaining axes held (coordinate descent when there are several)
     scale = dict.fromkeys(odo, 1.0)
-    others = [a for a in odo if a != axis] or [None]
+    others = [a for a in odo if a != axis and a in speeds] or [None]
     sse, tau, slopes = np.inf, 0.0, np.zeros(2)
     for _ in range(1 if len(others) == 1 else 3):
         for what in others:
@@ -154,7 +158,7 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
                if tau >= TAU_GRID_S[-1] else
                f"it leaves {rms:.1f} µm RMS of {spread:.1f} µm")  # fmt: skip
         raise TableError(f"axis {axis}: heat from motion does not explain the drift: {why}")
-    speeds_mm_s = {a: speeds_mm_s[a] / scale[a] for a in odo}
+    speeds = {a: speeds[a] / scale[a] for a in odo if a in speeds}
     (x0, x1), (s0, s1) = refs_mm, slopes
     per_mm = (s1 - s0) / (x1 - x0)  # growth per mm of lever per metre of heat
     if per_mm <= 0:
@@ -166,8 +170,23 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
     if not lo - FAR_ENDS * (hi - lo) <= origin <= hi + FAR_ENDS * (hi - lo):
         raise TableError(f"axis {axis}: the drift puts the screw's fixed end at "
                          f"{origin:.0f} mm, far off the travel: not the screw's growth")
-    return MotionHeatFit(axis, origin, length, per_mm * length, tau, speeds_mm_s,
-                         peak, rms, n)  # fmt: skip
+    return MotionHeatFit(axis, origin, length, per_mm * length, tau, speeds, peak, rms, n)
+
+
+def clock_kept_time(odometer_m: dict[str, ArrayLike], wall_s: ArrayLike,
+                    speeds_mm_s: dict[str, float]) -> bool:  # fmt: skip
+    """Whether the clock ``wall_s`` passed with the moves (each axis's odometer, m): from
+    the first reading to the last, at least half the time they take at the estimated
+    speeds. A machine's clock does, and a computer's beside a real machine (stops and
+    pauses add to it); a computer's beside a simulator at ``time_scale: 0`` does not
+    (hours of moves in seconds), and only there must the moves' time at ``speeds_mm_s``
+    stand in for it. Counted at an estimate (100 mm/s) below the axis's own speed (130),
+    a clocked warm-up's moves ran the model's time 1.3 times too fast: smooth-0 Y's model
+    left 6.4 of the 22.1 µm a 30-minute warm-up moved it."""
+    wall = np.asarray(wall_s, dtype=np.float64)
+    moving = sum(float(np.diff(np.asarray(v, dtype=np.float64)).clip(min=0.0).sum())
+                 * 1000.0 / speeds_mm_s[a] for a, v in odometer_m.items() if a in speeds_mm_s)
+    return wall.size > 1 and float(np.ptp(wall)) >= 0.5 * moving
 
 
 def least_growth_um(tolerance_um: float, scatter_um: float | None, floor_um: float) -> float:
