@@ -97,10 +97,10 @@ class Commission:
         # the shared collaborators: what is done, the drift references, the configs, time
         self.record, self.axes = record, axes
         self.drift = drift = DriftRefs(axes, record, say)
-        self.run_heat = RunHeat(axes, record, drift, say)
         self.stager = stager = Stager(axes, record, drift, reload, say)
         self.budget = budget = Budget(axes, record, drift)
         self.runner = runner = StepRunner(axes, record, drift, budget, say, progress)
+        self.run_heat = RunHeat(axes, record, drift, runner, say)
         # the steps, each given what it works with
         self.rotary = rotary = RotarySteps(axes, record, runner=runner, say=say)
         self.thermal = thermal = ThermalSteps(axes, record, drift=drift, say=say)
@@ -168,6 +168,7 @@ class Commission:
             raise CommissionAborted(f"{exc}; {where}") from exc
         self.drift.adopt_warmed_motion()
         self.thermal.motion_for_sensors()  # the after-run judges the final config's heat
+        self.run_heat.put_back_refs()  # the identification's tables, by the final model
         try:  # on the screw the warm-up left warm: as the customer's laser will meet it
             await self.after.run()
         except BudgetSpent as exc:
