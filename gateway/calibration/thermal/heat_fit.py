@@ -88,9 +88,11 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
     the clock alone times the heat. The other axes' speeds relative to this one's are
     fitted too (their moves cool this screw for as long as they take).
 
-    ``offset``: the growth is known up to a constant per reference (levels of ISO runs,
-    whose static error is unknown): only its changes are fitted; a label per point: up to
-    a constant per group of readings (runs over other targets). A row of NaN growth is a
+    ``offset``: the growth is known up to a constant per reference (drift references
+    zeroed at one reading of their own scatter): only its changes are fitted, judged
+    against the drift since that reading; a label per point: up to a constant per group
+    of readings that none begins cold (ISO runs' levels, whose static error is unknown),
+    judged against their changes about each group's mean. A row of NaN growth is a
     point on the way (clock and odometers known, nothing read: the end of another axis's
     step): the heat runs through it, nothing is fitted to it. Raises TableError (naming
     the axis) when the drift is too small or the model does not hold."""
@@ -110,8 +112,11 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
         raise TableError(f"axis {axis}: {n} drift readings"
                          + (f" in {n - known + 1} groups" if known < n else "")
                          + f", too few to fit heat from motion ({least} needed)")  # fmt: skip
+    drift = g  # what the model must explain: the drift since the cold start's reading
     if groups is not None:
         g = centred(g, groups)
+        if offset is not True:  # no group begins cold: its changes about its mean
+            drift = g
     peak = float(np.ptp(g, axis=0).max() if groups is not None else np.abs(g).max())
     if peak < min_growth_um:
         raise TableError(f"axis {axis}: the screw grew {peak:.1f} µm at most while "
@@ -152,7 +157,7 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
     if not np.isfinite(sse):
         raise TableError(f"axis {axis}: it never moved between the drift readings")
     rms = float(np.sqrt(sse / g.size))
-    spread = float(np.sqrt((g**2).mean()))
+    spread = float(np.sqrt((drift**2).mean()))
     if tau >= TAU_GRID_S[-1] or rms > MAX_RESIDUAL_SHARE * spread:
         why = ("the heat never levelled off (a longer commissioning would show where)"
                if tau >= TAU_GRID_S[-1] else
