@@ -457,3 +457,22 @@ def test_a_clocked_fit_counts_time_by_the_clock_not_by_an_estimated_speed() -> N
     assert warm["clocked"] * clocked.delta_a_um_per_m == pytest.approx(
         warm["truth"] * at_length, rel=0.1)  # fmt: skip
     assert warm["estimated"] < 0.85 * warm["truth"]  # what counting at the estimate left
+
+
+def test_references_counted_from_one_cold_reading_are_fitted_by_their_changes() -> None:
+    """The drift references' growth is counted from one reading at the cold start, and
+    that reading's own scatter is in every later one (here +0.4 µm at the near reference,
+    -0.3 at the far). Taken as zero, the fit moves the screw's fixed end by some 30 mm and
+    Δa per metre up 14 %; fitted by its changes (``offset=True``), near the screw's own."""
+    rng = np.random.default_rng(13)
+    refs = (26.0, 475.0)
+    odo, growth = _commissioning(rng, 900.0, -40.0, 0.3, refs, hours=1.5)
+    odo = {a: np.concatenate([[0.0], v]) for a, v in odo.items()}
+    drift = np.concatenate([[[0.0, 0.0]], np.asarray(growth) - np.array([0.4, -0.3])])
+    wall = np.zeros(drift.shape[0])
+    fits = {off: motion_heat_fit("X", odo, wall, drift, refs, {"X": 100.0, "Y": 40.0},
+                                 (0, 500), offset=off) for off in (False, True)}  # fmt: skip
+    per = {off: f.delta_a_um_per_m / f.length_mm * 1e3 for off, f in fits.items()}
+    assert fits[True].origin_mm == pytest.approx(-40.0, abs=12.0), fits[True]
+    assert per[True] == pytest.approx(0.3, rel=0.05), fits[True]
+    assert abs(fits[False].origin_mm + 40.0) > 25.0, fits[False]  # the zero's own scatter
