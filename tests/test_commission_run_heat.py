@@ -34,6 +34,19 @@ def _full_machine(directory: Path, seed: int) -> dict:
     return sim
 
 
+def _commission(rig, budget_h: float) -> tuple[Proc, dict]:
+    """The README's command on ``rig`` with ``budget_h`` of machine time (its laser and XY
+    device, the leads given); the process and the state it left."""
+    leads = ",".join(f"{a}={v['lead_mm']:g}" for a, v in rig.machine["axes"].items())
+    proc = Proc(["-m", "gateway.cli", "commission", "-c", str(rig.config),
+                 "--gateway", f"127.0.0.1:{rig.gw_port}",
+                 "--laser", f"127.0.0.1:{rig.sim_port}:20",
+                 "--xy-device", f"127.0.0.1:{rig.sim_port}:21", "--lead-mm", leads,
+                 "--budget-h", str(budget_h), "--no-progress"])  # fmt: skip
+    assert proc.popen.wait(timeout=300) in (0, 1), proc.text()
+    return proc, json.loads((rig.dir / "commission" / "commission.json").read_text())
+
+
 def _table(path: Path) -> np.ndarray:
     return np.array([[float(v) for v in line.split(",")] for line in path.read_text().splitlines()
                      if line and line[0] not in "#p"])  # fmt: skip
@@ -51,14 +64,7 @@ def test_a_plain_calibrations_time_fits_heat_to_its_iso_runs_and_a_cold_table(
     template = tmp_path / "t"
     sim = _full_machine(template, 8)
     with running(template, tmp_path / "m", machine_clock=True) as rig:
-        leads = ",".join(f"{a}={v['lead_mm']:g}" for a, v in rig.machine["axes"].items())
-        proc = Proc(["-m", "gateway.cli", "commission", "-c", str(rig.config),
-                     "--gateway", f"127.0.0.1:{rig.gw_port}",
-                     "--laser", f"127.0.0.1:{rig.sim_port}:20",
-                     "--xy-device", f"127.0.0.1:{rig.sim_port}:21", "--lead-mm", leads,
-                     "--budget-h", "0.8", "--no-progress"])  # fmt: skip
-        assert proc.popen.wait(timeout=300) in (0, 1), proc.text()
-        state = json.loads((rig.dir / "commission" / "commission.json").read_text())
+        proc, state = _commission(rig, 0.8)
         assert state["refs_off"] and not state.get("drift_log"), proc.text()
         heat = state["identify"]["motion-Y"]
         assert heat["fitted"] and heat["from"] == "runs", heat
@@ -100,14 +106,7 @@ def test_where_references_were_read_the_identifications_tables_are_put_back_by_t
     template = tmp_path / "t"
     _full_machine(template, 3)
     with running(template, tmp_path / "m", machine_clock=True) as rig:
-        leads = ",".join(f"{a}={v['lead_mm']:g}" for a, v in rig.machine["axes"].items())
-        proc = Proc(["-m", "gateway.cli", "commission", "-c", str(rig.config),
-                     "--gateway", f"127.0.0.1:{rig.gw_port}",
-                     "--laser", f"127.0.0.1:{rig.sim_port}:20",
-                     "--xy-device", f"127.0.0.1:{rig.sim_port}:21", "--lead-mm", leads,
-                     "--budget-h", "1.0", "--no-progress"])  # fmt: skip
-        assert proc.popen.wait(timeout=300) in (0, 1), proc.text()
-        state = json.loads((rig.dir / "commission" / "commission.json").read_text())
+        proc, state = _commission(rig, 1.0)
         assert state.get("drift_log") and not state.get("rounds"), proc.text()
         heat = state["identify"]["motion-X"]
         assert heat["fitted"] and "table_held_um" in heat, heat
