@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tests.commission_rig import running
+from tests.commission_rig import Rig, running
 from tests.test_service_helpers import Proc
 
 
@@ -34,7 +34,7 @@ def _full_machine(directory: Path, seed: int) -> dict:
     return sim
 
 
-def _commission(rig, budget_h: float) -> tuple[Proc, dict]:
+def _commission(rig: Rig, budget_h: float) -> tuple[Proc, dict]:
     """The README's command on ``rig`` with ``budget_h`` of machine time (its laser and XY
     device, the leads given); the process and the state it left."""
     leads = ",".join(f"{a}={v['lead_mm']:g}" for a, v in rig.machine["axes"].items())
