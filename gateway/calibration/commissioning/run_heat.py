@@ -220,6 +220,12 @@ class RunHeat:
             xs = np.unique(rows.target_mm[at])
             mean = means_by(rows.target_mm[at], grown_um[at])
             held[up] = np.interp(table.position_mm, xs, mean) / 1000.0  # mm
+        if axis in (self.record.state.get("zero_moved_mm") or {}):
+            # a laser zeroed anywhere: the table stays zero at the machine's zero
+            # (:meth:`.drift.DriftRefs.move_zero`), only its shape is put back
+            pos = table.position_mm
+            at_zero = float(np.interp(float(np.clip(0.0, pos[0], pos[-1])), pos, held[True]))
+            held = {up: h - at_zero for up, h in held.items()}
         if table.reverse_mm is None:
             both = (held[True] + held[False]) / 2.0
             cold = PitchTable(table.position_mm, table.forward_mm - both, None, table.rotary,
