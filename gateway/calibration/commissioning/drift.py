@@ -28,7 +28,6 @@ from ..plans.runner import read_raw_meta
 from ..thermal.drift_shape import SweptHeat
 from ..thermal.heat_fit import (
     MAX_RESIDUAL_SHARE,
-    clock_kept_time,
     drift_left_um,
     heat_at_readings_m,
     least_growth_um,
@@ -534,12 +533,11 @@ class DriftRefs:
             if axis.compensation.thermal is not None or axis.rotary or key in ident:
                 continue
             odometer_m, wall_s, growth_um = self._logged(a)
-            speeds = dict.fromkeys(self.s.axes, self.s.speed_mm_s)
             try:
                 fit = motion_heat_fit(
                     a, odometer_m, wall_s, growth_um, self.axes.ref_positions(a),
-                    None if clock_kept_time(odometer_m, wall_s, speeds) else speeds,
-                    self.axes.travel(a), self.least_growth_um(a), offset=True)  # fmt: skip
+                    dict.fromkeys(self.s.axes, self.s.speed_mm_s), self.axes.travel(a),
+                    self.least_growth_um(a), offset=True)  # fmt: skip
             except TableError as exc:
                 ident[key] = {"fitted": False, "why": str(exc)}
                 self.say(f"no heat-from-motion model: {exc}")

@@ -25,7 +25,6 @@ from ..fitting.outputs import read_table, write_table
 from ..measuring.from_file import STOP_TIME
 from ..plans.rawdata import read_raw_csv
 from ..thermal.heat_fit import (
-    clock_kept_time,
     growth_at_um,
     heat_at_readings_m,
     least_growth_um,
@@ -86,12 +85,10 @@ class RunHeat:
             levels[where] = lv.levels_um
             group = np.full(at_s.size, -1)
             group[where] = lv.group
-            odo_m = {b: v / 1000.0 for b, v in odo_mm.items()}
-            speeds = dict.fromkeys(self.axes.s.axes, self.axes.s.speed_mm_s)
             try:
                 fit = motion_heat_fit(
-                    a, odo_m, at_s, levels, refs,
-                    None if clock_kept_time(odo_m, at_s, speeds) else speeds, self.axes.travel(a),
+                    a, {b: v / 1000.0 for b, v in odo_mm.items()}, at_s, levels, refs,
+                    dict.fromkeys(self.axes.s.axes, self.axes.s.speed_mm_s), self.axes.travel(a),
                     least_growth_um(self.axes.s.tolerance_um, lv.noise_um, RUN_MIN_SEEN_UM),
                     offset=group)  # fmt: skip
             except TableError as exc:

@@ -88,10 +88,11 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
                     ) -> MotionHeatFit:  # fmt: skip
     """Fit heat from motion to the growth (µm, shape (k, 2): both references) of ``axis``
     read at the odometers ``odometer_m`` (each commissioned axis's travel since the cold
-    start, m) and wall clock ``wall_s``; ``speeds_mm_s`` the axes' speeds as estimated,
-    where the clock did not keep the machine's time (:func:`clock_kept_time`), else None:
-    the clock alone times the heat. The other axes' speeds relative to this one's are
-    fitted too (their moves cool this screw for as long as they take).
+    start, m) and wall clock ``wall_s``; ``speeds_mm_s`` the axes' speeds as estimated:
+    they time the moves only where the clock did not keep the machine's time
+    (:func:`clock_kept_time`), and the other axes' speeds relative to this one's are then
+    fitted too (their moves cool this screw for as long as they take); else (or None) the
+    clock alone times the heat, and the fit carries no speeds.
 
     ``offset``: the growth is known up to a constant per reference (drift references
     zeroed at one reading of their own scatter): only its changes are fitted, judged
@@ -127,7 +128,8 @@ def motion_heat_fit(axis: str, odometer_m: dict[str, ArrayLike], wall_s: ArrayLi
         raise TableError(f"axis {axis}: the screw grew {peak:.1f} µm at most while "
                          f"commissioning (under {min_growth_um:g}): no heat to model")
     travel = np.diff(odo[axis], prepend=0.0).clip(min=0.0)
-    speeds = speeds_mm_s or {}
+    speeds = {} if not speeds_mm_s or clock_kept_time(odo, wall, speeds_mm_s) \
+        else dict(speeds_mm_s)  # fmt: skip
     moving = {a: np.diff(v, prepend=0.0).clip(min=0.0) * 1000.0 / speeds[a] if a in speeds
               else np.zeros(points) for a, v in odo.items()}  # fmt: skip
     idle = np.diff(wall, prepend=wall[0]).clip(min=0.0)
