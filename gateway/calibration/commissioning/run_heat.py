@@ -21,6 +21,7 @@ import numpy as np
 
 from ...compensation import PitchTable
 from ...compensation.errors import TableError
+from ..fitting.fit import zeroed_at_origin
 from ..fitting.outputs import read_table, write_table
 from ..measuring.from_file import STOP_TIME
 from ..plans.rawdata import read_raw_csv
@@ -220,8 +221,7 @@ class RunHeat:
         if axis in (self.record.state.get("zero_moved_mm") or {}):
             # a laser zeroed anywhere: the table stays zero at the machine's zero
             # (:meth:`.drift.DriftRefs.move_zero`), only its shape is put back
-            pos = table.position_mm
-            at_zero = float(np.interp(float(np.clip(0.0, pos[0], pos[-1])), pos, held[True]))
+            at_zero = zeroed_at_origin(PitchTable(table.position_mm, held[True]))[0]
             held = {up: h - at_zero for up, h in held.items()}
         if table.reverse_mm is None:
             both = (held[True] + held[False]) / 2.0
