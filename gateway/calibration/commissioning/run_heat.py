@@ -140,8 +140,8 @@ class RunHeat:
                     or (model is not None and model.get("profile")):  # fmt: skip
                 continue
             rows = self.rows(a)
-            if rows is None:
-                continue
+            if rows is None or (model is None and not rows.taken_mm.any()):
+                continue  # (no drift taken off: the table is as read already)
             held = self.put_back(a, rows, model, self.on_the_way())
             fitted["table_held_um"] = held
             if model is not None:
