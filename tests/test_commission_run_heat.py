@@ -5,7 +5,9 @@ file: the suite's files are spread over the workers whole."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -98,6 +100,18 @@ def _shape_um(table: np.ndarray, true: np.ndarray) -> float:
     return float(np.ptp(off))
 
 
+@contextlib.contextmanager
+def _references_read(tmp_path: Path, seed: int) -> Iterator[tuple[Rig, Proc, dict]]:
+    """Random machine ``seed`` commissioned at 1.0 h (1.5 x its plain calibration's time):
+    drift references read, no round; the rig, the process and the state it left."""
+    template = tmp_path / "t"
+    _full_machine(template, seed)
+    with running(template, tmp_path / "m", machine_clock=True) as rig:
+        proc, state = _commission(rig, 1.0)
+        assert state.get("drift_log") and not state.get("rounds"), proc.text()
+        yield rig, proc, state
+
+
 def test_where_references_were_read_the_identifications_tables_are_put_back_by_the_model(
         tmp_path: Path) -> None:  # fmt: skip
     """At 1.5 x a plain calibration's time (1.0 h on random machine 3) the drift references
@@ -106,11 +120,7 @@ def test_where_references_were_read_the_identifications_tables_are_put_back_by_t
     stops a few times a step, their scatter tilts a table. Now each table is put back by
     the final heat model, reading by reading: X's, against the truth (a constant off),
     is flatter than the one the references' drift left (kept beside it)."""
-    template = tmp_path / "t"
-    _full_machine(template, 3)
-    with running(template, tmp_path / "m", machine_clock=True) as rig:
-        proc, state = _commission(rig, 1.0)
-        assert state.get("drift_log") and not state.get("rounds"), proc.text()
+    with _references_read(tmp_path, 3) as (rig, proc, state):
         heat = state["identify"]["motion-X"]
         assert heat["fitted"] and "table_held_um" in heat, heat
         assert "X: its table put back to the cold start by its heat from motion" in proc.text()
@@ -143,11 +153,7 @@ def test_an_axis_no_heat_model_follows_keeps_the_state_its_runs_were_read_in(
     that is never cold in use with nothing to follow the heat. Now the references' drift
     is given back: the final config takes off, at X's targets, what the laser read there
     in X's own runs (their mean), where the table as fitted was 0.39 µm off it."""
-    template = tmp_path / "t"
-    _full_machine(template, 14)
-    with running(template, tmp_path / "m", machine_clock=True) as rig:
-        proc, state = _commission(rig, 1.0)
-        assert state.get("drift_log") and not state.get("rounds"), proc.text()
+    with _references_read(tmp_path, 14) as (rig, proc, state):
         heat = state["identify"]["motion-X"]
         assert not heat["fitted"] and "table_held_um" in heat, heat
         assert "X: no heat model follows it, so its table keeps the state" in proc.text()
