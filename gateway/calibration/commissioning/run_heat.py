@@ -134,11 +134,12 @@ class RunHeat:
         ident = self.record.state.setdefault("identify", {})
         for a in self.axes.ref_axes():
             fitted = ident.get(f"motion-{a}")  # the references' fit, or why none
-            model = self.record.tables.motion.get(a) if (fitted or {}).get("fitted") else None
             if self.axes.config.axes[a].compensation.thermal is not None or fitted is None \
-                    or "table_held_um" in fitted or a not in self.record.tables.pitch \
-                    or (model is not None and model.get("profile")):  # fmt: skip
+                    or "table_held_um" in fitted or a not in self.record.tables.pitch:  # fmt: skip
                 continue
+            model = self.record.tables.motion.get(a) if fitted.get("fitted") else None
+            if model is not None and model.get("profile"):
+                continue  # a zone warm-up's travel profile: its table left as fitted
             rows = self.rows(a)
             if rows is None or (model is None and not rows.taken_mm.any()):
                 continue  # (no drift taken off: the table is as read already)
