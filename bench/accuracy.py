@@ -87,7 +87,7 @@ def reseed(sim_yaml: Path, sim_seed: int) -> None:
 
 
 #: the first words of commission's verdict line, the first that fits a note is what it said
-VERDICTS = ("NO VERDICT", "NOT within", "WITHIN")
+VERDICTS = ("NO VERDICT", "NOT within", "UNDECIDED", "WITHIN")
 
 
 def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed: int,
@@ -152,6 +152,7 @@ def run_machine(label: str, gen_args: list[str], workflow: str, root: Path, seed
             out["after_warm"] = asyncio.run(evaluate_warm(run.machine, the_plan, run.sim_port,
                                                           run.gateway_port, cool))  # fmt: skip
         out["said"] = next((w for n in result.notes for w in VERDICTS if w in n), None)
+        out["said_figures"] = result.said  # (its after-run: what the verdict rests on)
         # the sensor given to the workflow (--no-sensors: none, whatever the machine has)
         out["sensor"] = ("none" if workflows.NO_SENSORS
                          else run.machine.get("thermal_sensor", "none"))  # fmt: skip

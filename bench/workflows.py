@@ -57,6 +57,8 @@ class WorkflowResult:
     calibration_targets_mm: dict[str, list[float]]
     notes: list[str] = field(default_factory=list)
     machine_time_s: float = 0.0
+    #: a commissioning's own after-run figures per command (its summary's), beside the judge's
+    said: list[dict[str, Any]] = field(default_factory=list)
 
 
 # -- helpers shared by workflows -----------------------------------------------------------------
@@ -404,6 +406,7 @@ def commission(run: MachineRun) -> WorkflowResult:
         commands = [(None, True)]
     notes: list[str] = []
     outs, machine_h = [], 0.0
+    said: list[dict[str, Any]] = []
     for axes, plane in commands:
         more = []
         if axes is not None:
@@ -442,11 +445,14 @@ def commission(run: MachineRun) -> WorkflowResult:
                          + (f"; WORSE: {', '.join(worse)}" if worse else "; none worse"))
         machine_h += summary["machine_h"]
         outs.append(out)
+        said.append({"outcome": summary["outcome"],
+                     "axes": {a: e.get("after") or {} for a, e in summary["axes"].items()},
+                     "xy": (summary.get("xy") or {}).get("after") or {}})
     run.machine_s = machine_h * 3600
     targets = merge_targets(*(measured_targets(raw) for out in outs
                               for raw in sorted((out / "raw").glob("*.csv"))))  # fmt: skip
     return WorkflowResult(yaml.safe_load((run.work / "gw.yaml").read_text()), targets, notes,
-                          machine_h * 3600)  # fmt: skip
+                          machine_h * 3600, said)  # fmt: skip
 
 
 def _as_read(summary: dict[str, Any]) -> dict[str, float]:
