@@ -14,12 +14,14 @@ import pytest
 
 from gateway.calibration.commissioning.after import heat_left_um, warmed_um
 from gateway.calibration.commissioning.ident_text import identification_rows
+from gateway.calibration.commissioning.recheck import item_line, verdict_line
 from gateway.calibration.commissioning.report import (
     remains,
     summary_lines,
     verdict,
     warm_rerun,
 )
+from gateway.calibration.fitting import conformity
 from gateway.calibration.fitting.iso230 import JSON_KEYS
 from gateway.calibration.plans.plans import iso230_linear_plan
 from gateway.calibration.plans.rawdata import RawWriter
@@ -195,11 +197,70 @@ def test_the_verdict_is_never_within_beside_an_after_run_that_misses() -> None:
     assert "a tighter --tolerance-um carries on" in line
     summary["axes"]["X"]["after"]["E_um"] = 1.9
     assert verdict(summary) == ("WITHIN 2 µm as the laser reads it on every commissioned axis "
-                                "and the plane; the tables are loaded")
+                                "and the plane, by more than each figure's uncertainty; the "
+                                "tables are loaded")
     summary["outcome"] = "after"  # as commission now ends it
     summary["axes"]["X"]["after"]["E_um"] = 2.74
     assert verdict(summary).startswith("NOT within 2 µm (X E 2.74 µm)")
     assert "did not" in remains(summary)[0]
+
+
+def test_a_figure_within_by_less_than_its_uncertainty_is_undecided() -> None:
+    """Random machine rough-0 at the default budget: "WITHIN 2 µm" on an after-run X E of
+    1.99 µm read from 2 runs, where three of four judges read 2.16-2.72 µm. ISO 14253-1:
+    within is shown only where the figure plus its expanded uncertainty is; within by less
+    is UNDECIDED, named with its uncertainty, never WITHIN; beyond stays NOT within."""
+    summary = {"outcome": "within", "tolerance_um": 2.0,
+               "xy": {"after": {"max_um": 1.2, "max_read_um": 1.3, "max_read_U_um": 0.5}},
+               "axes": {"X": {"after": {"E_um": 1.7, "E_read_um": 1.99, "E_read_U_um": 0.9}},
+                        "Y": {"after": {"E_um": 0.9, "E_read_um": 1.0, "E_read_U_um": 0.4}}}}
+    line = verdict(summary)
+    assert line.startswith("UNDECIDED against 2 µm: X E 1.99 µm ±0.90 µm as the laser reads "
+                           "it, within by less than its uncertainty (ISO 14253-1"), line
+    assert "--recheck" in line and "More refining" not in line
+    summary["outcome"] = "undecided"  # as commission ends it
+    assert verdict(summary) == line
+    assert "neither within nor beyond" in remains(summary)[0]
+    summary["xy"]["after"]["max_read_U_um"] = None  # one reading: its scatter unknown
+    assert "XY max 1.30 µm (one run: its scatter unknown)" in verdict(summary)
+    summary["axes"]["X"]["after"]["E_read_U_um"] = 0.01  # shown within, the plane is not
+    assert verdict(summary).startswith("UNDECIDED against 2 µm: XY max 1.30 µm (one run")
+    summary["xy"]["after"]["max_read_U_um"] = 0.7
+    summary["outcome"] = "within"
+    assert verdict(summary).startswith("WITHIN 2 µm as the laser reads it"), verdict(summary)
+    summary["axes"]["Y"]["after"]["E_read_um"] = 2.3  # beyond: NOT within, whatever U
+    assert verdict(summary).startswith("NOT within 2 µm (Y E 2.30 µm as read"), verdict(summary)
+
+
+def test_the_decision_rule_and_its_uncertainty() -> None:
+    """:mod:`gateway.calibration.fitting.conformity`: U of E from n runs (stop scatter s,
+    drift d while measuring) is 2·√(2s²/n + d²/3); one run gives none (infinite); the
+    plane's one reading carries one stop's scatter."""
+    assert conformity.e_uncertainty_um(0.45, 2, 0.0) == pytest.approx(0.90)
+    assert conformity.e_uncertainty_um(0.45, 8, 0.0) == pytest.approx(0.45)
+    assert conformity.e_uncertainty_um(0.0, 5, math.sqrt(3.0)) == pytest.approx(2.0)
+    assert math.isinf(conformity.e_uncertainty_um(0.2, 1, 0.0))
+    assert conformity.vector_uncertainty_um([0.1, 0.3], 0.0) == pytest.approx(0.6)
+    assert math.isinf(conformity.vector_uncertainty_um([], 0.0))
+    assert [conformity.decide(v, 2.0, 0.5) for v in (1.4, 1.5, 1.6, 2.0, 2.01)] == [
+        "within", "within", "undecided", "undecided", "beyond"]
+
+
+def test_a_recheck_within_by_less_than_its_uncertainty_is_undecided() -> None:
+    """``--recheck`` judges by the same rule: its line names each figure's uncertainty, and
+    a figure within by less than it is neither "still hold" nor "changed"."""
+    item = {"what": "X: E", "then": 1.2, "now": 1.8, "tolerance": 2.0, "unit": "µm",
+            "U": 0.5, "decided": "undecided", "within": False}
+    assert item_line("X", item) == ("X: E 1.20 µm at the after-run, 1.80 µm now (both as read): "
+                                "UNDECIDED against 2 µm: within by less than its uncertainty "
+                                "(±0.50 µm)")
+    line = verdict_line({"items": {"X": item}})
+    assert line.startswith("UNDECIDED on X: within the commissioning's tolerance by less"), line
+    item.update(now=1.2, decided="within", within=True)
+    assert verdict_line({"items": {"X": item}}).startswith("the tables still hold")
+    assert item_line("X", item).endswith("within 2 µm, by more than its uncertainty (±0.50 µm)")
+    item.update(now=2.2, decided="beyond", within=False)
+    assert verdict_line({"items": {"X": item}}).startswith("NOT within on X: the machine has")
 
 
 def test_an_axis_with_a_table_and_no_after_run_gets_no_verdict() -> None:

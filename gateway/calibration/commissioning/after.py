@@ -11,7 +11,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from ...formats import read_pitch_csv
-from ..fitting import adaptive
+from ..fitting import adaptive, conformity
 from ..fitting.iso230 import iso230_axis, pooled_s_um
 from ..measuring.session import planar_figures
 from ..plans.plans import read_plan
@@ -82,6 +82,11 @@ def heat_left_um(warmed: dict[str, float], log: list[dict[str, Any]],
             share = 1.0
         out[a] *= min(1.0, share)
     return out
+
+
+def _finite(value: float) -> float | None:
+    """``value``, or None where infinite (a summary is JSON)."""
+    return None if math.isinf(value) else value
 
 
 class AfterSteps:
@@ -246,64 +251,96 @@ class AfterSteps:
                 f"{before['rms_um']:.1f} → {after['rms_um']:.1f} µm at the same random "
                 f"points): {why}; your own config is kept")  # fmt: skip
 
-    def _after_scores(self) -> dict[str, float] | None:
-        """The after-run judged as the customer's laser reads it: E per axis, the plane's
-        maximum vector error, nothing subtracted (the machine's drift while measuring left
-        in); None when an axis has no table or was not measured."""
-        scores: dict[str, float] = {}
+    def _after_scores(self) -> dict[str, tuple[float, float]] | None:
+        """The after-run judged as the customer's laser reads it: per axis E, for the plane
+        its maximum vector error, nothing subtracted (the machine's drift while measuring
+        left in), each with its expanded uncertainty U (:mod:`..fitting.conformity`); None
+        when an axis has no table or was not measured."""
+        scores: dict[str, tuple[float, float]] = {}
+        s_axes = []
         for a in self.s.axes:
             if a not in self.record.tables.pitch or not self.record.done(f"after-{a}"):
                 return None
-            path = self.record.config_dir / self.record.tables.pitch[a]
-            dev = axis_deviations(self.runner.raw_as_read(f"after-{a}"), a)
-            scores[a] = self.rotary.judge(a, dev, read_pitch_csv(path).position_mm).E_um
+            table = read_pitch_csv(self.record.config_dir / self.record.tables.pitch[a])
+            step = f"after-{a}"
+            read_dev = axis_deviations(self.runner.raw_as_read(step), a)
+            read = self.rotary.judge(a, read_dev, table.position_mm).E_um
+            off = self.rotary.judge(a, axis_deviations(self.runner.raw(step), a),
+                                    table.position_mm).E_um  # fmt: skip
+            iso = iso230_axis(read_dev)
+            scores[a] = (read, conformity.e_uncertainty_um(pooled_s_um(iso), iso.runs,
+                                                           abs(read - off)))  # fmt: skip
+            if not self.axes.rotary(a):
+                s_axes.append(pooled_s_um(iso))
         if self.s.planar is not None:
             if not self.record.done("after-xy"):
                 return None
-            scores["XY"] = planar_figures(self.runner.raw_as_read("after-xy"),
-                                          self.s.planar)["max_um"]  # fmt: skip
+            read = planar_figures(self.runner.raw_as_read("after-xy"), self.s.planar)["max_um"]
+            off = self.xy_figures("after-xy")["max_um"]
+            scores["XY"] = (read, conformity.vector_uncertainty_um(s_axes, abs(read - off)))
         return scores
 
+    def _decided(self, scores: dict[str, tuple[float, float]]) -> dict[str, str]:
+        """Each figure's :func:`..fitting.conformity.decide` against its tolerance."""
+        return {n: conformity.decide(v, self.rotary.tolerance_of(n), u)
+                for n, (v, u) in scores.items()}  # fmt: skip
+
+    def _figures_text(self, scores: dict[str, tuple[float, float]]) -> str:
+        """``X E 1.99 µm ±0.90``: figures as read with their expanded uncertainty."""
+        return ", ".join(f"{n} {'max' if n == 'XY' else 'E'} {self.rotary.score_text(n, v)}"
+                         + (" (one run: its scatter unknown)" if math.isinf(u)
+                            else f" ±{self.rotary.score_text(n, u)}")
+                         for n, (v, u) in scores.items())  # fmt: skip
+
     def after_verdict(self, outcome: str) -> str:
-        """The outcome, the after-run's word taken too.
+        """The outcome, the after-run's word taken too, by ISO 14253-1's rule
+        (:mod:`..fitting.conformity`): within only where a figure plus its uncertainty is.
 
         Where no round judged the tables left loaded (the budget ran out before round 1's
         verification; a short budget's dense grid can take its time), the after-run is
         their verification, at the before-run's random targets, none used to fit anything:
-        "within" when every axis and the plane are. (A random machine at 2 h ended "budget"
+        "within" when every axis and the plane are, "undecided" when none is beyond but
+        some within by less than its uncertainty. (A random machine at 2 h ended "budget"
         with its after-run within 2 µm everywhere, while 3 h ended "within" at round 1.)
 
         Where the rounds said "within" and the after-run, at other random targets, reads an
         axis or the plane beyond the tolerance: "after", not within (trial 8: "WITHIN 2 µm"
         beside an after-run's X E 2.74 µm; a round keeps an axis's best reading, and
-        another set of targets read it otherwise). Else ``outcome`` unchanged."""
+        another set of targets read it otherwise); within by less than its uncertainty:
+        "undecided" (random machine rough-0: X E 1.99 µm from 2 runs, three of four
+        judges read it beyond). Else ``outcome`` unchanged."""
         if not self.record.tables.pitch:
             return outcome
-        if outcome == "within" and self.record.state["rounds"]:
-            scores = self._after_scores()
-            missed = {n: v for n, v in (scores or {}).items() if v > self.rotary.tolerance_of(n)}
-            if not missed:
-                return outcome
+        rounds_within = outcome == "within" and self.record.state["rounds"]
+        if not rounds_within and (outcome != "budget" or self.record.state["rounds"]):
+            return outcome
+        scores = self._after_scores()
+        if scores is None:
+            return outcome
+        decided = self._decided(scores)
+        missed = {n: scores[n] for n, d in decided.items() if d == "beyond"}
+        if rounds_within and missed:
             note = ("the rounds read within " + self.rotary.tolerance_text() + " at their random "
                     "targets (the drift while measuring taken off); the after-run, at the "
                     "before-run's, as the laser reads it, does not: "
-                    + ", ".join(f"{n} {'max' if n == 'XY' else 'E'} {self.rotary.score_text(n, v)}"
-                                for n, v in missed.items()))  # fmt: skip
-            self.record.state["notes"].append(note)
-            self.say(note)
+                    + self._figures_text(missed))  # fmt: skip
+            self._said(note)
             return "after"
-        if outcome != "budget" or self.record.state["rounds"]:
+        if missed:
             return outcome
-        scores = self._after_scores()
-        if scores is None or any(v > self.rotary.tolerance_of(n) for n, v in scores.items()):
+        close = {n: scores[n] for n, d in decided.items() if d == "undecided"}
+        if close:
+            self._said("the after-run, as the laser reads it, is within "
+                        + self.rotary.tolerance_text() + " by less than its uncertainty on "
+                        + self._figures_text(close) + ": neither within nor beyond is shown "
+                        "(ISO 14253-1)")  # fmt: skip
+            return "undecided"
+        if rounds_within:
             return outcome
-        note = ("no round's verification fit in the budget; the after-run judged the tables "
-                "instead, at the before-run's random targets (none used to fit anything): "
-                + ", ".join(f"{n} {'max' if n == 'XY' else 'E'} {self.rotary.score_text(n, v)}"
-                            for n, v in scores.items())
-                + f", within {self.rotary.tolerance_text()}")  # fmt: skip
-        self.record.state["notes"].append(note)
-        self.say(note)
+        self._said("no round's verification fit in the budget; the after-run judged the "
+                    "tables instead, at the before-run's random targets (none used to fit "
+                    "anything): " + self._figures_text(scores)
+                    + f", within {self.rotary.tolerance_text()}")  # fmt: skip
         return "within"
 
     # -- summary -------------------------------------------------------------------------
@@ -340,6 +377,10 @@ class AfterSteps:
                                     "M_read_um": read.M_um, "R_read_um": read.R_um,
                                     "runs": iso.runs,
                                     "s_pooled_um": pooled_s_um(iso),
+                                    # E_read's expanded uncertainty (None: one run)
+                                    "E_read_U_um": _finite(conformity.e_uncertainty_um(
+                                        pooled_s_um(read), read.runs,
+                                        abs(read.E_um - iso.E_um))),
                                     **({"read_at": "iso"} if step.startswith("iso-") else {}),
                                     **self._carried_flag(step)}  # fmt: skip
             entry.update(self.takeup.steps_summary(a))
@@ -354,9 +395,13 @@ class AfterSteps:
             for phase in ("before", "after"):
                 if self.record.done(f"{phase}-xy"):
                     xy[phase] = self.xy_figures(f"{phase}-xy")
-                    xy[phase]["max_read_um"] = planar_figures(
-                        self.runner.raw_as_read(f"{phase}-xy"),
-                        self.s.planar)["max_um"]  # fmt: skip
+                    read = planar_figures(self.runner.raw_as_read(f"{phase}-xy"),
+                                          self.s.planar)["max_um"]  # fmt: skip
+                    s_axes = [e[phase]["s_pooled_um"] for a, e in out["axes"].items()
+                              if phase in e and not self.axes.rotary(a)]  # fmt: skip
+                    xy[phase]["max_read_um"] = read
+                    xy[phase]["max_read_U_um"] = _finite(conformity.vector_uncertainty_um(
+                        s_axes, abs(read - xy[phase]["max_um"])))
                     xy[phase].update(self._carried_flag(f"{phase}-xy"))
             out["xy"] = xy
         self.rotary.rotary_summary(out)

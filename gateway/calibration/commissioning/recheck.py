@@ -13,13 +13,15 @@ is judged as it stands.
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from ...formats import atomic_write_text
-from ..fitting.iso230 import ARCSEC_PER_MDEG, iso230_axis
+from ..fitting import conformity
+from ..fitting.iso230 import ARCSEC_PER_MDEG, iso230_axis, pooled_s_um
 from ..measuring.session import Session, planar_figures
 from ..plans.plans import Plan, read_plan
 from ..plans.rawdata import axis_deviations, read_raw_csv
@@ -75,43 +77,62 @@ async def recheck(job: Any, summary: dict[str, Any], say: Callable[[str], None] 
         session = Session(job.axes.config, job.record.config_dir, job.s.gateway, job.s.instruments,
                           job.s.motion, park)  # fmt: skip
         await session.run(plan, raw, "on")
-        result["items"][name] = _judged(name, raw, summary, job)
-        say(_line(name, result["items"][name]))
+        scatter = [it["s_pooled_um"] for it in result["items"].values() if "s_pooled_um" in it]
+        result["items"][name] = _judged(name, raw, summary, job, scatter)
+        say(item_line(name, result["items"][name]))
     result["within"] = all(item["within"] for item in result["items"].values())
     atomic_write_text(out_dir / "recheck.json", json.dumps(result, indent=1))
     result["dir"] = str(out_dir)
     return result
 
 
-def _judged(name: str, raw: Path, summary: dict[str, Any], job: Any) -> dict[str, Any]:
-    """One axis's (or the plane's) figure now, then, and the tolerance, in its unit."""
+def _judged(name: str, raw: Path, summary: dict[str, Any], job: Any,
+            scatter_um: list[float]) -> dict[str, Any]:  # fmt: skip
+    """One axis's (or the plane's) figure now, then, the tolerance, in its unit, and the
+    decision by the commissioning's rule (:mod:`..fitting.conformity`: no drift references
+    here, so the runs' scatter alone; the plane's from the linear axes read before it,
+    ``scatter_um``)."""
     data = read_raw_csv(raw)
+    extra: dict[str, Any] = {}
     if name == "xy":
         now = planar_figures(data, job.s.planar)["max_um"]
         after = summary["xy"].get("after", {})
         then = after.get("max_read_um", after.get("max_um"))
         tol, unit, what = summary["tolerance_um"], "µm", "XY max vector error"
+        expanded = conformity.vector_uncertainty_um(scatter_um, 0.0)
     else:
         entry = summary["axes"][name]
-        e_um = iso230_axis(axis_deviations(data, name)).E_um
+        iso = iso230_axis(axis_deviations(data, name))
+        expanded = conformity.e_uncertainty_um(pooled_s_um(iso), iso.runs, 0.0)
         after = entry.get("after", {})
         if entry.get("unit") == "deg":  # figures in millidegrees; the summary's in ″
-            now, then = e_um * ARCSEC_PER_MDEG, after.get("E_read_arcsec", after.get("E_arcsec"))
+            now = iso.E_um * ARCSEC_PER_MDEG
+            then = after.get("E_read_arcsec", after.get("E_arcsec"))
+            expanded *= ARCSEC_PER_MDEG
             tol, unit = summary.get("tolerance_arcsec", 3.0), "″"
         else:
-            now, then = e_um, after.get("E_read_um", after.get("E_um"))
+            now, then = iso.E_um, after.get("E_read_um", after.get("E_um"))
             tol, unit = summary["tolerance_um"], "µm"
+            extra["s_pooled_um"] = pooled_s_um(iso)
         what = f"{name}: E"
+    decided = conformity.decide(now, tol, expanded)
     return {"what": what, "now": now, "then": then, "tolerance": tol, "unit": unit,
-            "within": bool(now <= tol)}  # fmt: skip
+            "U": None if math.isinf(expanded) else expanded, "decided": decided,
+            "within": decided == "within", **extra}  # fmt: skip
 
 
-def _line(name: str, item: dict[str, Any]) -> str:
+def item_line(name: str, item: dict[str, Any]) -> str:
+    """One axis's (or the plane's) recheck line: then, now, its uncertainty, its decision."""
     u = item["unit"] if item["unit"] == "″" else f" {item['unit']}"
     then = "–" if item["then"] is None else f"{item['then']:.2f}{u}"
-    verdict = "within" if item["within"] else "NOT within"
-    return (f"{item['what']} {then} at the after-run, {item['now']:.2f}{u} now (both as read): "
-            f"{verdict} {item['tolerance']:g}{u}")
+    tol = f"{item['tolerance']:g}{u}"
+    spread = "one run: its scatter unknown" if item.get("U") is None else f"±{item['U']:.2f}{u}"
+    verdict = {"within": f"within {tol}, by more than its uncertainty ({spread})",
+               "beyond": f"NOT within {tol}"}.get(
+        item.get("decided", ""), f"UNDECIDED against {tol}: within by less than its "
+                                 f"uncertainty ({spread})")  # fmt: skip
+    return f"{item['what']} {then} at the after-run, {item['now']:.2f}{u} now (both as read): " \
+           + verdict
 
 
 def verdict_line(result: dict[str, Any]) -> str:
@@ -119,10 +140,17 @@ def verdict_line(result: dict[str, Any]) -> str:
     def named(name: str) -> str:
         return name.upper() if name == "xy" else name
 
-    missing = [n for n, item in result["items"].items() if not item["within"]]
-    if not missing:
+    missing = [n for n, item in result["items"].items()
+               if item.get("decided", "beyond") == "beyond"]
+    close = [n for n, item in result["items"].items() if item.get("decided") == "undecided"]
+    if not missing and not close:
         return "the tables still hold: every axis and the plane within the commissioning's " \
                "tolerance"
+    if not missing:
+        return (f"UNDECIDED on {', '.join(map(named, close))}: within the commissioning's "
+                "tolerance by less than the reading's uncertainty (its runs' scatter; ISO "
+                "14253-1): neither within nor beyond is shown; the machine's scatter, not its "
+                "tables")
     # read as far out at the after-run: the machine's own drift while measuring, not a change
     same = [n for n in missing if (then := result["items"][n]["then"]) is not None
             and then > result["items"][n]["tolerance"]]  # fmt: skip

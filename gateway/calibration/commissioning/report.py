@@ -6,10 +6,12 @@ again at any time."""
 from __future__ import annotations
 
 import html
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from ..fitting import conformity
 from ..fitting.iso230 import ARCSEC_PER_MDEG, iso230_raw
 from ..plans.rawdata import RawData
 from ..reporting.report import (
@@ -76,6 +78,9 @@ NEXT = {
                    "again after carrying on: --recheck reads the after-run's targets once "
                    "more; a tighter --tolerance-um again would refine on this machine's "
                    "scatter and heat, not on its tables",
+    "undecided": "--recheck reads the after-run's targets again and judges them by the "
+                 "same rule; a figure that stays this close is the machine's scatter and heat, "
+                 "not its tables: more refining will not help",
     "heat": "the tables hold, the machine's heat does not: it drifted while the after-run "
             "measured. Let it cool (an hour or more at rest), then --recheck reads the "
             "after-run's targets again; a temperature or Δa sensor corrects heat in use. "
@@ -83,14 +88,35 @@ NEXT = {
 }  # fmt: skip
 
 
+def _uncertainty(figures: dict[str, Any], key: str) -> float:
+    """A figure's expanded uncertainty (``<key>_U_um`` or ``_arcsec``): infinite where the
+    summary says it is unknown (None: one run), 0 where a summary older than the rule
+    gives none."""
+    for unit in ("arcsec", "um"):
+        if f"{key}_U_{unit}" in figures:
+            value = figures[f"{key}_U_{unit}"]
+            return math.inf if value is None else float(value)
+    return 0.0
+
+
+def _close_text(name: str, read: float, expanded: float, u: str) -> str:
+    """``X E 1.99 µm ±0.90 as read``: a figure within by less than its uncertainty."""
+    what = "max" if name == "XY" else "E"
+    return (f"{name} {what} {read:.2f}{u}"
+            + (" (one run: its scatter unknown)" if math.isinf(expanded)
+               else f" ±{expanded:.2f}{u}"))  # fmt: skip
+
+
 def verdict(summary: dict[str, Any]) -> str:
     """One line a technician acts on: within the tolerance or not as the laser reads the
     after-run (ISO 230-2 E per axis, the plane's maximum vector error: nothing subtracted,
-    what the customer's acceptance test reads), where it misses and what to do next. The
+    what the customer's acceptance test reads), where it misses and what to do next.
+    WITHIN only where each figure plus its expanded uncertainty is; UNDECIDED where none
+    is beyond and some within by less (ISO 14253-1, :mod:`..fitting.conformity`). The
     figures with the machine's drift while measuring taken off are named beside a miss
     only (a diagnosis: heat, not the tables)."""
     tol_text = _tolerance_text(summary)
-    missing, heat = [], True
+    missing, close, heat = [], [], True
     unjudged = []  # a table or the plane's model with no after-run (a short budget held none)
     for axis, entry in summary["axes"].items():
         after = entry.get("after") or {}
@@ -99,26 +125,36 @@ def verdict(summary: dict[str, Any]) -> str:
         if read is None and entry.get("table_points"):
             unjudged.append(axis)
         tol = summary.get("tolerance_arcsec") if _angular(entry) else summary["tolerance_um"]
-        if read is not None and tol is not None and read > tol:
-            u = _unit(entry)
+        if read is None or tol is None:
+            continue
+        u = _unit(entry)
+        decided = conformity.decide(read, tol, _uncertainty(after, "E_read"))
+        if decided == "beyond":
             missing.append(f"{axis} E {read:.2f}{u}" + (
                 f" as read, {e:.2f} with the drift while measuring taken off"
                 if e_read is not None and e is not None and abs(e - e_read) >= 0.05 else ""))
             heat = heat and e is not None and e_read is not None and e <= tol
+        elif decided == "undecided":
+            close.append(_close_text(axis, read, _uncertainty(after, "E_read"), u))
     after_xy = (summary.get("xy") or {}).get("after") or {}
     if "xy" in summary and not after_xy:
         unjudged.append("the plane")
     xy_read = after_xy.get("max_read_um", after_xy.get("max_um", 0.0))
-    if xy_read > summary["tolerance_um"]:
+    decided = conformity.decide(xy_read, summary["tolerance_um"],
+                                _uncertainty(after_xy, "max_read"))  # fmt: skip
+    if decided == "beyond":
         xy = after_xy.get("max_um", xy_read)
         missing.append(f"XY {xy_read:.2f} µm" + (
             f" as read, {xy:.2f} with the drift taken off" if abs(xy - xy_read) >= 0.05
             else ""))  # fmt: skip
         heat = heat and xy <= summary["tolerance_um"]
+    elif decided == "undecided" and after_xy:
+        close.append(_close_text("XY", xy_read, _uncertainty(after_xy, "max_read"), " µm"))
     outcome = summary["outcome"]
-    if outcome == "within" and not missing and not unjudged:
+    if outcome == "within" and not missing and not unjudged and not close:
         return f"WITHIN {tol_text} as the laser reads it on every commissioned axis" + (
-            " and the plane" if summary.get("xy") else "") + "; the tables are loaded"
+            " and the plane" if summary.get("xy") else "") + ", by more than each figure's " \
+            "uncertainty; the tables are loaded"
     if unjudged and not missing:  # nothing read beyond it, and not all read: no word
         judged = [a for a in summary["axes"] if a not in unjudged]
         return (f"NO VERDICT on {_listed(unjudged)}: no after-run read there"
@@ -126,7 +162,12 @@ def verdict(summary: dict[str, Any]) -> str:
                    if judged else "")
                 + f"; what was fitted is loaded. Next: {NEXT.get(outcome, NEXT['rounds'])}"
                 + _same_tables_worse(summary) + _put_back(summary))  # fmt: skip
-    if outcome == "within":  # the rounds' word against the after-run's: never WITHIN then
+    if close and not missing and outcome in ("within", "undecided"):
+        return (f"UNDECIDED against {tol_text}: {'; '.join(close)} as the laser reads it, "
+                "within by less than its uncertainty (ISO 14253-1: neither within nor beyond "
+                f"is shown); what was fitted is loaded. Next: {NEXT['undecided']}"
+                + _same_tables_worse(summary) + _put_back(summary))  # fmt: skip
+    if outcome in ("within", "undecided"):  # the rounds' word against the after-run's
         outcome = "after"
     missing += [f"no after-run on {_listed(unjudged)}"] if unjudged else []
     where = f" ({'; '.join(missing)})" if missing else ""
@@ -306,6 +347,11 @@ def remains(summary: dict[str, Any]) -> list[str]:
                    "machine's repeatability (judged with more runs per target where the budget "
                    "allowed), or it is finer than the table can follow: more points "
                    "would not help.")  # fmt: skip
+    elif outcome == "undecided":
+        out.append(f"The after-run reads within {tol_text}, but on some axis or the plane by "
+                   "less than what its few runs can show (its expanded uncertainty: the "
+                   "runs' scatter and the drift while measuring): neither within nor beyond "
+                   "is shown (ISO 14253-1).")  # fmt: skip
     elif outcome == "after":
         out.append(f"The verification rounds met {tol_text} at their random targets; the "
                    "after-run, at the before-run's, did not (below): the tables hold that "
