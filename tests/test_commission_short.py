@@ -69,7 +69,7 @@ def test_a_short_budget_reads_a_coarse_table_along_the_curve_it_prefers(tmp_path
         assert state["short"] and not state["rounds"]
         # no round: the after-runs alone judge the tables (no before-run's time spent); as
         # read, within 2 µm by less than their 2 runs can show (X E 1.75 µm ±0.89): undecided
-        assert state["finished"]["outcome"] == "undecided", state["finished"]
+        assert state["finished"]["outcome"] == "undecided", proc.text()
         assert "the after-run, as the laser reads it, is within 2 µm by less than its " \
             "uncertainty" in proc.text()
         assert "UNDECIDED against 2 µm: X E" in proc.text()

@@ -82,6 +82,20 @@ class StepRunner:
             datas.append(data)
         return concat_raw(datas)
 
+    def join(self, name: str, more: str) -> None:
+        """Done step ``more``'s runs made done step ``name``'s (more runs at its targets):
+        its parts and machine time; ``more`` then no step of its own (its raw files are
+        ``name``'s now). Nothing where ``more`` is not done (joined already)."""
+        steps = self.record.state["steps"]
+        if more not in steps or name not in steps:
+            return
+        steps[name]["parts"] = [*steps[name].get("parts", []), *steps[more].get("parts", [])]
+        steps[name]["machine_s"] = steps[name].get("machine_s", 0.0) + steps[more]["machine_s"]
+        steps[name]["joined"] = [*steps[name].get("joined", []), more]
+        del steps[more]
+        self.record.state.get("apart", {}).pop(more, None)
+        self.record.save()
+
     async def step(self, name: str, make: Callable[[], Plan], compensation: str,
                    park: dict[str, float] | None = None, drift: bool = True,
                    whole: bool = False) -> Path:
