@@ -11,6 +11,7 @@ the ISO runs give that scatter a step's runs share them."""
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -111,6 +112,19 @@ def test_a_short_budget_reads_a_coarse_table_along_the_curve_it_prefers(tmp_path
         assert not quarters["measured"] and quarters["misses_x_scatter"] < 2, quarters
         assert 0.5 < quarters["miss_rms_um"] / miss_um[method] < 2, (quarters, miss_um)
         assert table.position_mm.size > 35 and miss_um[method] < 0.4, miss_um
+        # the budget held no second reading of the undecided after-runs: the same command
+        # with a larger budget carries on, its tables as they were (their readings carried),
+        # and reads their targets again, pooled: 4 runs each
+        assert "not read again: after-again-X needs" in proc.text()
+        more = _commission(rig, 1.1)
+        assert more.popen.wait(timeout=300) in (0, 1), more.text()
+        for axis in ("X", "Y"):
+            assert re.search(rf"{axis}: the after-run reads E [\d.]+ µm ±[\d.]+ as read from 2 "
+                             r"runs, within 2 µm by less than its uncertainty: its targets "
+                             r"read again, E [\d.]+ µm ±[\d.]+ from 4 runs", more.text()), \
+                more.text()  # fmt: skip
+        summary = json.loads((rig.dir / "commission" / "summary.json").read_text())
+        assert [summary["axes"][a]["after"]["runs"] for a in ("X", "Y")] == [4, 4], summary
 
 
 @pytest.mark.skipif(not (data_root() / "bifrost_slit_11358_axis2").is_dir(),

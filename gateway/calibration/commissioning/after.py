@@ -120,7 +120,7 @@ class AfterSteps:
         # (and a short budget's, which reads none: identify._after_alone_if_affordable)
         alone = {**(self.plans.judged_alone() if self.s.finish else {}),
                  **self.plans.verdict_alone()}
-        read: dict[str, Plan] = {}  # the axes this run reads, by their after-run's plan
+        read: dict[str, Plan] = {}  # the axes read (or carried), by their after-run's plan
         for a in self.s.axes:  # where the before-run was made (a budget spent may stop it)
             if a not in self.record.tables.pitch:
                 continue
@@ -130,11 +130,11 @@ class AfterSteps:
                 plan = alone[a]
             else:
                 continue
+            read[a] = plan
             if self._carried(f"after-{a}", a):
                 continue
             await self.runner.step(f"after-{a}", lambda p=plan: p, "on", self.axes.park(a))
             await self._worse_put_back(f"after-{a}", a, plan)
-            read[a] = plan
         if (self.s.planar is not None and self.record.done("before-xy")
                 and not self._carried("after-xy", "XY")):  # fmt: skip
             plan = read_plan(self.record.dir / "plans" / "before-xy.plan")

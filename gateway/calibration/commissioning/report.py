@@ -79,8 +79,10 @@ NEXT = {
                    "more; a tighter --tolerance-um again would refine on this machine's "
                    "scatter and heat, not on its tables",
     "undecided": "--recheck reads the after-run's targets again and judges them by the "
-                 "same rule; a figure that stays this close is the machine's scatter and heat, "
-                 "not its tables: more refining will not help",
+                 "same rule; where the budget ran out before it read them again, the same "
+                 "command with a larger --budget-h does (every reading is kept); a figure "
+                 "that stays this close is the machine's scatter and heat, not its tables: "
+                 "more refining will not help",
     "heat": "the tables hold, the machine's heat does not: it drifted while the after-run "
             "measured. Let it cool (an hour or more at rest), then --recheck reads the "
             "after-run's targets again; a temperature or Δa sensor corrects heat in use. "
