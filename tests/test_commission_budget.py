@@ -16,6 +16,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -93,6 +94,15 @@ def test_a_budget_too_small_ends_with_an_honest_report(template: Path, tmp_path:
         assert "does not hold these first steps" in proc.text()  # said before it moved
 
 
+def _commissioned(rig: Any, *args: str) -> tuple[Any, dict[str, Any], dict[str, Any]]:
+    """``compgw commission ARGS`` run to exit 0: the process, its summary and its state."""
+    proc = rig.commission(*args)
+    assert proc.popen.wait(timeout=300) == 0, proc.text()
+    out = rig.dir / "commission"
+    return (proc, json.loads((out / "summary.json").read_text()),
+            json.loads((out / "commission.json").read_text()))
+
+
 @pytest.mark.timeout(300)  # five commands on one machine (about 60 s alone, more when the
 # other worker is busy): the short budget, its recheck twice, the carry-on, its report again
 def test_a_budget_spent_in_the_identification_still_fits_every_axis(
@@ -108,11 +118,8 @@ def test_a_budget_spent_in_the_identification_still_fits_every_axis(
     tables instead, and within the tolerance (10 µm here) it is the outcome. (A random
     machine at 2 h ended "budget" with its after-run within 2 µm everywhere.)"""
     with running(template, tmp_path / "m") as rig:
-        proc = rig.commission("--budget-h", "1.1", "--tolerance-um", "10")
-        assert proc.popen.wait(timeout=300) == 0, proc.text()
+        proc, summary, state = _commissioned(rig, "--budget-h", "1.1", "--tolerance-um", "10")
         out = rig.dir / "commission"
-        summary = json.loads((out / "summary.json").read_text())
-        state = json.loads((out / "commission.json").read_text())
         assert summary["outcome"] == "within" and summary["machine_h"] <= 1.1
         assert "budget spent: backlash-" in proc.text() and not summary["rounds"]
         judged = next(n for n in summary["notes"] if "the after-run judged the tables" in n)
@@ -260,11 +267,7 @@ def test_an_after_run_within_by_less_than_its_uncertainty_is_read_again(
     (the noise that inflates a range of few runs' means) and U narrows by about √2, and
     the verdict is shown within. Its runs are after-X's, no step of their own."""
     with running(template, tmp_path / "m") as rig:
-        proc = rig.commission("--budget-h", "2", "--tolerance-um", "2")
-        assert proc.popen.wait(timeout=300) == 0, proc.text()
-        out = rig.dir / "commission"
-        summary = json.loads((out / "summary.json").read_text())
-        state = json.loads((out / "commission.json").read_text())
+        proc, summary, state = _commissioned(rig, "--budget-h", "2", "--tolerance-um", "2")
         assert summary["outcome"] == "within", proc.text()
         again = re.search(r"X: the after-run reads E ([\d.]+) µm ±([\d.]+) as read from 2 runs, "
                           r"within 2 µm by less than its uncertainty: its targets read again, "
