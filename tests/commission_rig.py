@@ -94,3 +94,12 @@ def running(template: Path, directory: Path, machine_clock: bool = False) -> Ite
         if gw is not None:
             gw.stop()
         sim.stop()
+
+
+def commissioned(rig: Rig, *args: str) -> tuple[Proc, dict[str, Any], dict[str, Any]]:
+    """``compgw commission ARGS`` run to exit 0: the process, its summary and its state."""
+    proc = rig.commission(*args)
+    assert proc.popen.wait(timeout=300) == 0, proc.text()
+    out = rig.dir / "commission"
+    return (proc, json.loads((out / "summary.json").read_text()),
+            json.loads((out / "commission.json").read_text()))
