@@ -13,11 +13,11 @@ from typing import TYPE_CHECKING, Any
 
 from ...formats import read_pitch_csv
 from ..fitting import adaptive, conformity
-from ..fitting.iso230 import iso230_axis, pooled_s_um
+from ..fitting.iso230 import ARCSEC_PER_MDEG, iso230_axis, pooled_s_um
 from ..measuring.session import planar_figures
 from ..plans.plans import read_plan
 from ..plans.rawdata import axis_deviations
-from .report import as_read_figures
+from .report import as_read_figures, figure_text
 from .settings import BudgetSpent
 
 if TYPE_CHECKING:
@@ -188,7 +188,7 @@ class AfterSteps:
         off = self.rotary.judge(axis, axis_deviations(self.runner.raw(step), axis),
                                 table.position_mm).E_um  # fmt: skip
         iso = iso230_axis(read_dev)
-        return read, conformity.e_uncertainty_um(pooled_s_um(iso), iso.runs, abs(read - off))
+        return read, conformity.iso_uncertainty_um(iso, abs(read - off))
 
     def _as_read_um(self, step: str, name: str) -> float:
         """A done after-run step's figure as read (µm): an axis's E, the plane's maximum
@@ -329,11 +329,13 @@ class AfterSteps:
                 for n, (v, u) in scores.items()}  # fmt: skip
 
     def _figures_text(self, scores: dict[str, tuple[float, float]]) -> str:
-        """``X E 1.99 µm ±0.90``: figures as read with their expanded uncertainty."""
-        return ", ".join(f"{n} {'max' if n == 'XY' else 'E'} {self.rotary.score_text(n, v)}"
-                         + (" (one run: its scatter unknown)" if math.isinf(u)
-                            else f" ±{self.rotary.score_text(n, u)}")
-                         for n, (v, u) in scores.items())  # fmt: skip
+        """``X E 1.99 µm ±0.90 µm``: figures as read with their expanded uncertainty, a
+        rotary axis's in arcseconds (:func:`.report.figure_text`)."""
+        def text(n: str, v: float, u: float) -> str:
+            k, unit = (ARCSEC_PER_MDEG, "″") if n != "XY" and self.axes.rotary(n) else (1.0, " µm")
+            return figure_text(n, v * k, u * k, unit)
+
+        return ", ".join(text(n, v, u) for n, (v, u) in scores.items())
 
     def after_verdict(self, outcome: str) -> str:
         """The outcome, the after-run's word taken too, by ISO 14253-1's rule
@@ -421,9 +423,8 @@ class AfterSteps:
                                     "runs": iso.runs,
                                     "s_pooled_um": pooled_s_um(iso),
                                     # E_read's expanded uncertainty (None: one run)
-                                    "E_read_U_um": _finite(conformity.e_uncertainty_um(
-                                        pooled_s_um(read), read.runs,
-                                        abs(read.E_um - iso.E_um))),
+                                    "E_read_U_um": _finite(conformity.iso_uncertainty_um(
+                                        read, abs(read.E_um - iso.E_um))),
                                     **({"read_at": "iso"} if step.startswith("iso-") else {}),
                                     **self._carried_flag(step)}  # fmt: skip
             entry.update(self.takeup.steps_summary(a))

@@ -103,7 +103,7 @@ def _judged(name: str, raw: Path, summary: dict[str, Any], job: Any,
     else:
         entry = summary["axes"][name]
         iso = iso230_axis(axis_deviations(data, name))
-        expanded = conformity.e_uncertainty_um(pooled_s_um(iso), iso.runs, 0.0)
+        expanded = conformity.iso_uncertainty_um(iso, 0.0)
         after = entry.get("after", {})
         if entry.get("unit") == "deg":  # figures in millidegrees; the summary's in ″
             now = iso.E_um * ARCSEC_PER_MDEG
@@ -129,7 +129,7 @@ def item_line(name: str, item: dict[str, Any]) -> str:
     spread = "one run: its scatter unknown" if item.get("U") is None else f"±{item['U']:.2f}{u}"
     verdict = {"within": f"within {tol}, by more than its uncertainty ({spread})",
                "beyond": f"NOT within {tol}"}.get(
-        item.get("decided", ""), f"UNDECIDED against {tol}: within by less than its "
+        item["decided"], f"UNDECIDED against {tol}: within by less than its "
                                  f"uncertainty ({spread})")  # fmt: skip
     return f"{item['what']} {then} at the after-run, {item['now']:.2f}{u} now (both as read): " \
            + verdict
@@ -141,8 +141,8 @@ def verdict_line(result: dict[str, Any]) -> str:
         return name.upper() if name == "xy" else name
 
     missing = [n for n, item in result["items"].items()
-               if item.get("decided", "beyond") == "beyond"]
-    close = [n for n, item in result["items"].items() if item.get("decided") == "undecided"]
+               if item["decided"] == "beyond"]
+    close = [n for n, item in result["items"].items() if item["decided"] == "undecided"]
     if not missing and not close:
         return "the tables still hold: every axis and the plane within the commissioning's " \
                "tolerance"

@@ -101,8 +101,9 @@ def _uncertainty(figures: dict[str, Any], key: str) -> float:
     return 0.0
 
 
-def _close_text(name: str, read: float, expanded: float, u: str) -> str:
-    """``X E 1.99 µm ±0.90 as read``: a figure within by less than its uncertainty."""
+def figure_text(name: str, read: float, expanded: float, u: str) -> str:
+    """``X E 1.99 µm ±0.90 µm``: a figure as read with its expanded uncertainty (``u``: its
+    unit as printed after a number, " µm" or "″")."""
     what = "max" if name == "XY" else "E"
     return (f"{name} {what} {read:.2f}{u}"
             + (" (one run: its scatter unknown)" if math.isinf(expanded)
@@ -137,7 +138,7 @@ def verdict(summary: dict[str, Any]) -> str:
                 if e_read is not None and e is not None and abs(e - e_read) >= 0.05 else ""))
             heat = heat and e is not None and e_read is not None and e <= tol
         elif decided == "undecided":
-            close.append(_close_text(axis, read, _uncertainty(after, "E_read"), u))
+            close.append(figure_text(axis, read, _uncertainty(after, "E_read"), u))
     after_xy = (summary.get("xy") or {}).get("after") or {}
     if "xy" in summary and not after_xy:
         unjudged.append("the plane")
@@ -151,7 +152,7 @@ def verdict(summary: dict[str, Any]) -> str:
             else ""))  # fmt: skip
         heat = heat and xy <= summary["tolerance_um"]
     elif decided == "undecided" and after_xy:
-        close.append(_close_text("XY", xy_read, _uncertainty(after_xy, "max_read"), " µm"))
+        close.append(figure_text("XY", xy_read, _uncertainty(after_xy, "max_read"), " µm"))
     outcome = summary["outcome"]
     if outcome == "within" and not missing and not unjudged and not close:
         return f"WITHIN {tol_text} as the laser reads it on every commissioned axis" + (

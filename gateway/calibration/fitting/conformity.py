@@ -22,6 +22,8 @@ from __future__ import annotations
 import math
 from typing import Literal
 
+from .iso230 import Iso230Result, pooled_s_um
+
 #: coverage factor of the expanded uncertainty (about 95 %)
 K = 2.0
 
@@ -36,6 +38,12 @@ def e_uncertainty_um(s_pooled_um: float, runs: int, drift_um: float) -> float:
     if runs < 2:
         return math.inf
     return K * math.hypot(s_pooled_um * math.sqrt(2.0 / runs), drift_um / math.sqrt(3.0))
+
+
+def iso_uncertainty_um(read: Iso230Result, drift_um: float) -> float:
+    """:func:`e_uncertainty_um` of an axis read as ``read`` (its pooled stop scatter, its
+    runs), moved ``drift_um`` by the drift while measuring."""
+    return e_uncertainty_um(pooled_s_um(read), read.runs, drift_um)
 
 
 def vector_uncertainty_um(s_axes_um: list[float], drift_um: float) -> float:
