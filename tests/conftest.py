@@ -22,23 +22,6 @@ from sim.nullmodem import PtyPair
 settings.register_profile("compgw", derandomize=True, database=None)
 settings.load_profile("compgw")
 
-
-def _pin_worker_to_a_core() -> None:
-    """Each pytest-xdist worker, and every process its tests start (they inherit it), on a
-    core of its own. A test's sim, gateway and client answer each other over loopback
-    thousands of times; on this VM each wake-up across cores costs an exit to the host
-    (a commissioning test: 88 s of wall and 44 s of kernel time spread over the cores,
-    36 s and 3.4 s on one core)."""
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
-    if not worker.startswith("gw") or not hasattr(os, "sched_setaffinity"):
-        return
-    cores = sorted(os.sched_getaffinity(0))
-    if len(cores) > 1:
-        os.sched_setaffinity(0, {cores[int(worker[2:]) % len(cores)]})
-
-
-_pin_worker_to_a_core()
-
 __all__ = ["PtyPair", "pty_pair"]
 
 
