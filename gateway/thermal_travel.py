@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from .compensation.thermal import (
+    EndFold,
     ThermalStage,
-    fold_at_ends,
     motion_heat_after_m,
     motion_heat_one_m,
     travel_delta_a_mm,
@@ -51,6 +51,8 @@ class TravelHistory:
         n = math.ceil((stop - start) / profile.bin_mm) + 1
         self.centres_mm = start + profile.bin_mm * np.arange(n)
         self.swept = np.zeros(n)
+        self._fold = (None if profile.screw_mm is None else
+                      EndFold.of(self.centres_mm, profile.screw_mm))  # fmt: skip
         self.last_mm: float | None = None
         self._integral: np.ndarray | None = None  # W(x), made again after each move
 
@@ -60,7 +62,9 @@ class TravelHistory:
                 and self.stage == ThermalStage(thermal.length_mm, thermal.origin_mm))
 
     def move_to(self, x_mm: float) -> None:
-        """The axis goes to ``x_mm``: the stretch from where it was is swept once."""
+        """The axis goes to ``x_mm``: the stretch from where it was is swept once (one
+        move in scalars: the gateway's path on every target write, 10 µs where
+        :meth:`moves_to` takes 30)."""
         last, self.last_mm = self.last_mm, x_mm
         if last is None or x_mm == last:
             return
@@ -73,12 +77,38 @@ class TravelHistory:
         self.swept += travel_swept(self.centres_mm, self.profile.bin_mm, last, x_mm)
         self._integral = None
 
+    def moves_to(self, xs_mm: Sequence[float]) -> None:
+        """The axis goes to each of ``xs_mm`` in turn, all at this clock reading: as many
+        :meth:`move_to` calls, summed at once (a fit replays a warm-up's thousands of moves
+        hundreds of times; tests/test_thermal_travel.py holds the two equal)."""
+        xs = np.asarray(xs_mm, dtype=np.float64)
+        if not xs.size:
+            return
+        came = np.concatenate([[xs[0] if self.last_mm is None else self.last_mm], xs[:-1]])
+        self.last_mm = float(xs[-1])
+        moved = xs != came
+        if not moved.any():
+            return
+        came, xs = came[moved], xs[moved]
+        fade = np.abs(xs - came) / self.profile.memory_mm
+        now = self.clock()
+        since_s, self.at_s = now - self.at_s, now
+        if self.profile.memory_s is not None:  # a pause cools the old zones too
+            fade[0] = max(fade[0], since_s / self.profile.memory_s)
+        # each move fades what was swept before it, then adds its own stretch
+        after = np.concatenate([np.cumsum(fade[::-1])[::-1][1:], [0.0]])  # fade still to come
+        self.swept *= math.exp(-float(fade.sum()))
+        self.swept += np.exp(-after) @ travel_swept(self.centres_mm[None, :],
+                                                   self.profile.bin_mm, came[:, None],
+                                                   xs[:, None])  # fmt: skip
+        self._integral = None
+
     def delta_a_mm(self, delta_a_mm: float, at_mm: float) -> float:
         """The Δa for the linear stage at ``at_mm`` (see travel_delta_a_mm)."""
         if self._integral is None:
             weights = travel_weights(self.swept, self.profile.bin_mm, self.profile.spread_mm)
-            if self.profile.screw_mm is not None:
-                weights = fold_at_ends(self.centres_mm, weights, self.profile.screw_mm)
+            if self._fold is not None:
+                weights = self._fold(weights)
             self._integral = travel_integral(self.centres_mm, weights)
         return travel_delta_a_mm(delta_a_mm, at_mm, self.centres_mm, self._integral,
                                  self.stage, self.toward)  # fmt: skip

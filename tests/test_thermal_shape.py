@@ -528,22 +528,27 @@ def test_a_light_growth_s_fixed_end_rests_on_all_the_references_readings() -> No
     assert max(off) < 30.0 and float(np.median(off)) < 15.0, off
 
 
+FIVE, SEVEN = [33.0, 60.0, 75.0, 90.0, 117.0], [18.0, 33.0, 60.0, 75.0, 90.0, 117.0, 132.0]
+
+
 def test_a_light_growth_read_at_the_noise_is_not_refused_for_leaving_the_noise() -> None:
     """A warm-up that grew 3 µm, read with 0.45 µm of scatter a stop, leaves that scatter at
     its places read once cold and once warm, whatever the model. A fit is refused only
     where it leaves more than half the growth and more than the references' own scatter
-    explains, its growth standing out of that: one of eighty draws (before: five, each
-    leaving the axis's heat in)."""
+    explains, its growth standing out of that. The draws here: the five the former rule
+    refused (before 86c3f5c: five of eighty, each leaving the axis's heat in), of which
+    one's growth does not stand out (five places, seed 33), and the first four of each
+    place set. The rate over eighty draws, one refused: bench/light_growth.py."""
     from gateway.calibration.thermal.warmup_motion import warmup_motion_fit
 
     refused = []
-    for places in ([33.0, 60.0, 75.0, 90.0, 117.0], [18.0, 33.0, 60.0, 75.0, 90.0, 117.0, 132.0]):
+    for places, seeds in ((FIVE, (1, 2, 3, 4, 18, 25, 33)), (SEVEN, (1, 2, 3, 4, 11, 14))):
         plan = warmup_plan("X", (45.0, 105.0), 50.0, 1800.0, 132.0, places_mm=places,
                            also_mm=18.0, sensor=False)  # fmt: skip
-        for seed in range(1, 41):
+        for seed in seeds:
             try:
                 warmup_motion_fit(_raw(plan, _ShortScrew(), 0.45, seed), plan, "X", (0.0, 150.0))
             except TableError as exc:
                 assert "scatter explains" in str(exc)
                 refused.append((len(places), seed))
-    assert len(refused) <= 1, refused
+    assert set(refused) <= {(5, 33)}, refused

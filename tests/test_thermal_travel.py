@@ -188,3 +188,41 @@ def test_a_pause_forgets_the_old_zone_with_memory_s() -> None:
            for k, hist in histories.items()}  # fmt: skip
     assert da * 1e3 > 5.0
     assert err[tau_s] < 0.4 * err[None], err
+
+
+def test_moves_at_once_are_the_moves_one_by_one() -> None:
+    """``moves_to`` (a fit's replay) sweeps as ``move_to`` called for each move at the
+    same clock reading, and as the sweep written out by hand: fade what was swept by the
+    move's length over ``memory_mm``, then add the stretch it crossed (a pause before the
+    first move fades by ``memory_s``; standing still sweeps nothing)."""
+    th = AxisThermal(source="x", length_mm=700.0, origin_mm=-40.0,
+                     profile=TravelProfile(spread_mm=60.0, memory_mm=900.0, memory_s=600.0,
+                                           screw_mm=(-40.0, 640.0)))  # fmt: skip
+    rng = np.random.default_rng(5)
+    targets = np.round(rng.uniform(0.0, 600.0, 40), 1)
+    targets[7] = targets[6]  # a move to where it stands
+    clock = [0.0]
+    one, many = (TravelHistory(th, th.profile, (0.0, 600.0), clock=lambda: clock[0])  # type: ignore[arg-type]
+                 for _ in range(2))  # fmt: skip
+    for h in (one, many):
+        h.move_to(300.0)
+    clock[0] = 120.0  # a pause: the first move fades by 120 / 600 at least
+    for x in targets:
+        one.move_to(float(x))
+    many.moves_to(targets)
+    by_hand, last = np.zeros_like(one.swept), 300.0
+    c, half = one.centres_mm, th.profile.bin_mm / 2.0  # type: ignore[union-attr]
+    for k, x in enumerate(targets):
+        if x == last:
+            continue
+        fade = abs(x - last) / 900.0
+        by_hand *= np.exp(-(max(fade, 120.0 / 600.0) if k == 0 else fade))
+        lo, hi = sorted((last, x))
+        by_hand += np.clip(np.minimum(c + half, hi) - np.maximum(c - half, lo), 0.0, None) \
+            / th.profile.bin_mm  # type: ignore[union-attr]  # fmt: skip
+        last = x
+    assert np.allclose(one.swept, by_hand, rtol=1e-12, atol=1e-12)
+    assert np.allclose(many.swept, by_hand, rtol=1e-12, atol=1e-12)
+    assert by_hand.max() > 1.0  # (swept more than once somewhere: the fading counts)
+    for at in (50.0, 333.0, 590.0):
+        assert many.delta_a_mm(0.02, at) == pytest.approx(one.delta_a_mm(0.02, at), rel=1e-12)

@@ -77,12 +77,16 @@ class ThermalStage:
 
 
 # -- where the heat is: a growth profile from the axis's own travel -----------------------
-def travel_swept(centres_mm: ArrayLike, bin_mm: float, from_mm: float, to_mm: float
+def travel_swept(centres_mm: ArrayLike, bin_mm: float, from_mm: ArrayLike, to_mm: ArrayLike
                  ) -> NDArray[np.float64]:  # fmt: skip
     """How much of each bin (centred at ``centres_mm``, ``bin_mm`` wide) one move from
-    ``from_mm`` to ``to_mm`` sweeps: 1 for a bin crossed whole, a share at the ends."""
+    ``from_mm`` to ``to_mm`` sweeps: 1 for a bin crossed whole, a share at the ends (moves
+    as arrays: broadcast against the centres)."""
     c = np.asarray(centres_mm, dtype=np.float64)
-    lo, hi = sorted((from_mm, to_mm))
+    if np.ndim(from_mm) == 0 and np.ndim(to_mm) == 0:  # one move: scalars (faster)
+        lo, hi = sorted((float(from_mm), float(to_mm)))  # type: ignore[arg-type]
+    else:
+        lo, hi = np.minimum(from_mm, to_mm), np.maximum(from_mm, to_mm)
     half = bin_mm / 2.0
     return np.clip(np.minimum(c + half, hi) - np.maximum(c - half, lo), 0.0, None) / bin_mm
 
@@ -103,20 +107,44 @@ def fold_at_ends(centres_mm: ArrayLike, weights: ArrayLike, ends_mm: tuple[float
     it: the steel ends there, so heat conducted towards an end stays in the screw and warms
     that end (an insulated end). Weights on evenly spaced ``centres_mm``; what a mirror
     puts between two centres is shared between them; the total on the screw is kept."""
-    x = np.asarray(centres_mm, dtype=np.float64)
-    w = np.asarray(weights, dtype=np.float64)
-    lo, hi = ends_mm
-    out = np.where((x >= lo) & (x <= hi), w, 0.0)
-    step = x[1] - x[0] if x.size > 1 else 1.0
-    for beyond, mirrored in ((x < lo, 2.0 * lo - x), (x > hi, 2.0 * hi - x)):
-        at = np.clip(mirrored[beyond], lo, hi)  # (beyond both ends at once: kept at the end)
-        k = np.clip((at - x[0]) / step, 0.0, x.size - 1.0)
-        i = np.minimum(np.floor(k).astype(int), x.size - 2) if x.size > 1 else np.zeros_like(k, int)
-        share = k - i
-        np.add.at(out, i, w[beyond] * (1.0 - share))
-        if x.size > 1:
-            np.add.at(out, i + 1, w[beyond] * share)
-    return out
+    return EndFold.of(centres_mm, ends_mm)(weights)
+
+
+@dataclass(frozen=True)
+class EndFold:
+    """:func:`fold_at_ends` for one grid and one screw, made once: a history folds its
+    weights at every reading (a zone warm-up's fit: hundreds of readings a profile)."""
+
+    inside: NDArray[np.bool_]
+    #: per end: the bins beyond it, the bin left of each mirror image, its share to the right
+    beyond: tuple[tuple[NDArray[np.bool_], NDArray[np.int64], NDArray[np.float64]], ...]
+
+    @classmethod
+    def of(cls, centres_mm: ArrayLike, ends_mm: tuple[float, float]) -> EndFold:
+        x = np.asarray(centres_mm, dtype=np.float64)
+        lo, hi = ends_mm
+        step = x[1] - x[0] if x.size > 1 else 1.0
+        beyond = []
+        for mask, mirrored in ((x < lo, 2.0 * lo - x), (x > hi, 2.0 * hi - x)):
+            at = np.clip(mirrored[mask], lo, hi)  # (beyond both ends at once: kept at the end)
+            k = np.clip((at - x[0]) / step, 0.0, x.size - 1.0)
+            i = (np.minimum(np.floor(k).astype(np.int64), x.size - 2) if x.size > 1
+                 else np.zeros(k.shape, np.int64))  # fmt: skip
+            beyond.append((mask, i, k - i))
+        return cls((x >= lo) & (x <= hi), tuple(beyond))
+
+    def __call__(self, weights: ArrayLike) -> NDArray[np.float64]:
+        w = np.asarray(weights, dtype=np.float64)
+        out = np.where(self.inside, w, 0.0)
+        n = out.size
+        for mask, i, share in self.beyond:
+            if not i.size:
+                continue
+            moved = w[mask]
+            out += np.bincount(i, moved * (1.0 - share), minlength=n)[:n]
+            if n > 1:
+                out += np.bincount(i + 1, moved * share, minlength=n)[:n]
+        return out
 
 
 def travel_integral(centres_mm: ArrayLike, weights: ArrayLike) -> NDArray[np.float64]:

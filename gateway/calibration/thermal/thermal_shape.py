@@ -171,11 +171,13 @@ def profile_fractions(plan: Plan, axis: str, thermal: AxisThermal, profile: Trav
     assert th.profile is not None
     history = TravelHistory(th, th.profile, travel_mm, clock=lambda: 0.0)
     k = plan.axes.index(axis)
-    out = []
+    out, going = [], []
     for move in plan.moves:
         x = float(move.target_mm[k])
-        history.move_to(x)
+        going.append(x)
         if move.measured:
+            history.moves_to(going)
+            going = []
             lever = x - th.origin_mm
             out.append(history.delta_a_mm(1.0, x) * lever / length_mm if abs(lever) >= 1.0
                        else 0.0)  # fmt: skip
