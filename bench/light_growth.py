@@ -14,18 +14,23 @@ growth standing out of that (86c3f5c: 5 of 80 draws refused before it, 1 after).
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from gateway.calibration.fitting.plans_scans import warmup_plan
 from gateway.calibration.thermal.warmup_motion import warmup_motion_fit
 from gateway.compensation.errors import TableError
-from tests.test_thermal_shape import FIVE, SEVEN, _raw, _ShortScrew
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--draws", type=int, default=40, help="noise draws per place set")
     args = ap.parse_args()
+    from tests.test_thermal_shape import FIVE, SEVEN, _raw, _ShortScrew  # the test's machine
+
     t0, total, refused = time.monotonic(), 0, []
     for places in (FIVE, SEVEN):
         plan = warmup_plan("X", (45.0, 105.0), 50.0, 1800.0, 132.0, places_mm=places,
