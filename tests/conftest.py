@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-# One BLAS thread per process: the suite runs a worker per core, and OpenBLAS's second
+# One BLAS thread per process: the suite runs a worker per core and one more, and OpenBLAS's second
 # thread spins on a core another worker is using (a sweep fit: 19 s of CPU for 11 s of
 # wall with two threads, 13 s with one). Set before numpy loads here and in every process
 # a test starts (they inherit the environment).
