@@ -33,3 +33,22 @@ def pty_pair() -> Iterator[PtyPair]:
         yield pair
     finally:
         pair.close()
+
+
+#: the suite's longest files (seconds on 2 cores, tests/*.py --durations): run first, so that
+#: pytest-xdist's first round hands them out one a worker and the short files fill in
+#: around them (last, one 100 s file could run alone while the other workers sat idle)
+LONG_FILES_S = {
+    "test_commission.py": 105, "test_commission_recorded.py": 70,
+    "test_commission_budget.py": 52, "test_commission_run_heat.py": 39,
+    "test_commission_instruments.py": 33, "test_sweep.py": 32, "test_thermal_shape.py": 30,
+    "test_commission_short.py": 28, "test_calibration_e2e.py": 23,
+    "test_commission_rotary.py": 22, "test_demo.py": 21, "test_fuzz.py": 17,
+    "test_cyclic_cal_e2e.py": 17, "test_commission_verdict.py": 15,
+}  # fmt: skip
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The longest files first (:data:`LONG_FILES_S`), each file's tests kept together and
+    in their order."""
+    items.sort(key=lambda item: -LONG_FILES_S.get(item.path.name, 0))
