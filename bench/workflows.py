@@ -447,7 +447,8 @@ def commission(run: MachineRun) -> WorkflowResult:
         outs.append(out)
         said.append({"outcome": summary["outcome"],
                      "axes": {a: e.get("after") or {} for a, e in summary["axes"].items()},
-                     "xy": (summary.get("xy") or {}).get("after") or {}})
+                     "xy": (summary.get("xy") or {}).get("after") or {},
+                     **{k: summary.get(k) for k in ("warmed_um", "heat_left_um")}})
     run.machine_s = machine_h * 3600
     targets = merge_targets(*(measured_targets(raw) for out in outs
                               for raw in sorted((out / "raw").glob("*.csv"))))  # fmt: skip

@@ -67,7 +67,8 @@ def heat_left_um(warmed: dict[str, float], log: list[dict[str, Any]],
     leave: the share of the drift its heat-from-motion model left on the commissioning's
     runs (its ``drift_check``) where that model is loaded at the last reading and holds;
     on an axis whose sensor is loaded (``sensed``), twice the RMS its warm-up's fit left
-    over the growth it read (a rise's RMS is about half its peak); all of it elsewhere.
+    over the growth it read (a rise's RMS is about half its peak); so too where heat from
+    motion was fitted to the drift references and is loaded; all of it elsewhere.
     Random machine 3 after its rerun: grown 9-11 µm, its models expected to leave 0.9
     and 0.4 µm (its references read 0.4 and 0.1); random machine 7's X, a Δa sensor whose
     warm-up fit left 0.6 µm RMS of 32 µm: 7.7 µm grown, 0.3 expected left."""
@@ -76,10 +77,14 @@ def heat_left_um(warmed: dict[str, float], log: list[dict[str, Any]],
     for a in out:
         heat = identify.get(f"thermal-{a}") or {}
         check = heat.get("drift_check") or {}
+        motion = identify.get(f"motion-{a}") or {}
         if a in modelled and check.get("holds") and check.get("drift_rms_um"):
             share = float(check["left_rms_um"]) / float(check["drift_rms_um"])
         elif a in sensed and heat.get("growth_max_um") and "residual_rms_um" in heat:
             share = 2.0 * float(heat["residual_rms_um"]) / float(heat["growth_max_um"])
+        elif a in modelled and motion.get("growth_max_um") and "residual_rms_um" in motion:
+            # heat from motion fitted to the drift references themselves: as a sensor's fit
+            share = 2.0 * float(motion["residual_rms_um"]) / float(motion["growth_max_um"])
         else:
             share = 1.0
         out[a] *= min(1.0, share)
@@ -188,7 +193,14 @@ class AfterSteps:
         off = self.rotary.judge(axis, axis_deviations(self.runner.raw(step), axis),
                                 table.position_mm).E_um  # fmt: skip
         iso = iso230_axis(read_dev)
-        return read, conformity.iso_uncertainty_um(iso, abs(read - off))
+        return read, conformity.iso_uncertainty_um(iso, abs(read - off), self._heat_um(axis))
+
+    def _heat_um(self, axis: str) -> float:
+        """The growth ``axis``'s heat correction is expected to leave (µm, ``heat_left_um``
+        of :meth:`warmth`; 0 on a rotary axis): a term of its figures' uncertainty."""
+        if self.axes.rotary(axis):
+            return 0.0
+        return float((self.warmth().get("heat_left_um") or {}).get(axis, 0.0))
 
     def _as_read_um(self, step: str, name: str) -> float:
         """A done after-run step's figure as read (µm): an axis's E, the plane's maximum
@@ -320,7 +332,8 @@ class AfterSteps:
                 return None
             read = planar_figures(self.runner.raw_as_read("after-xy"), self.s.planar)["max_um"]
             off = self.xy_figures("after-xy")["max_um"]
-            scores["XY"] = (read, conformity.vector_uncertainty_um(s_axes, abs(read - off)))
+            scores["XY"] = (read, conformity.vector_uncertainty_um(
+                s_axes, abs(read - off), [self._heat_um(a) for a in self.s.planar]))
         return scores
 
     def _decided(self, scores: dict[str, tuple[float, float]]) -> dict[str, str]:
@@ -424,7 +437,8 @@ class AfterSteps:
                                     "s_pooled_um": pooled_s_um(iso),
                                     # E_read's expanded uncertainty (None: one run)
                                     "E_read_U_um": _finite(conformity.iso_uncertainty_um(
-                                        read, abs(read.E_um - iso.E_um))),
+                                        read, abs(read.E_um - iso.E_um),
+                                        self._heat_um(a) if phase == "after" else 0.0)),
                                     **({"read_at": "iso"} if step.startswith("iso-") else {}),
                                     **self._carried_flag(step)}  # fmt: skip
             entry.update(self.takeup.steps_summary(a))
@@ -444,8 +458,9 @@ class AfterSteps:
                     s_axes = [e[phase]["s_pooled_um"] for a, e in out["axes"].items()
                               if phase in e and not self.axes.rotary(a)]  # fmt: skip
                     xy[phase]["max_read_um"] = read
+                    heat = [self._heat_um(a) for a in self.s.planar] if phase == "after" else []
                     xy[phase]["max_read_U_um"] = _finite(conformity.vector_uncertainty_um(
-                        s_axes, abs(read - xy[phase]["max_um"])))
+                        s_axes, abs(read - xy[phase]["max_um"]), heat))
                     xy[phase].update(self._carried_flag(f"{phase}-xy"))
             out["xy"] = xy
         self.rotary.rotary_summary(out)
