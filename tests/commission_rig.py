@@ -44,6 +44,19 @@ def small_machine(directory: Path, seed: int = 7, roughness: str = "smooth") -> 
     return json.loads((directory / "machine.json").read_text())
 
 
+def recording_machine(directory: Path, fmt: str, rate_hz: float) -> None:
+    """:func:`small_machine` (seed 7) whose laser records X in the laser software's own
+    files (``fmt``: csv or rtx, at ``rate_hz``, wall time at rest as machine time), with a
+    Δa sensor on X at unit 22."""
+    small_machine(directory, seed=7)
+    sim = yaml.safe_load((directory / "sim.yaml").read_text())
+    sim["sim"]["instruments"]["laser"]["recording"] = {
+        "dir": "recordings", "format": fmt, "axis": "X", "rate_hz": rate_hz, "unit": "um",
+        "idle_time_scale": 1.0}  # fmt: skip
+    sim["sim"]["instruments"]["delta_a"] = {"unit": 22, "axis": "X", "a_mm": 0.0}
+    (directory / "sim.yaml").write_text(yaml.safe_dump(sim, sort_keys=False))
+
+
 @dataclass
 class Rig:
     dir: Path

@@ -16,7 +16,7 @@ import yaml
 from gateway.calibration.plans.plans import Move, Plan, write_plan
 from gateway.calibration.plans.rawdata import read_raw_csv
 from sim.technician import attend
-from tests.commission_rig import running, small_machine
+from tests.commission_rig import recording_machine, running, small_machine
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -137,13 +137,7 @@ def test_calibrate_from_the_laser_software_s_own_recording(tmp_path: Path) -> No
     from tests.test_service_helpers import Proc
 
     directory = tmp_path / "t"
-    small_machine(directory, seed=7)
-    sim = yaml.safe_load((directory / "sim.yaml").read_text())
-    sim["sim"]["instruments"]["laser"]["recording"] = {
-        "dir": "recordings", "format": "rtx", "axis": "X", "rate_hz": 1000, "unit": "um",
-        "idle_time_scale": 1.0}  # fmt: skip
-    sim["sim"]["instruments"]["delta_a"] = {"unit": 22, "axis": "X", "a_mm": 0.0}
-    (directory / "sim.yaml").write_text(yaml.safe_dump(sim, sort_keys=False))
+    recording_machine(directory, "rtx", 1000)
     with running(directory, tmp_path / "m") as rig:
         plan = tmp_path / "x.plan"
         write_plan(plan, Plan("iso", ("X",), tuple(

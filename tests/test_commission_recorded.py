@@ -13,7 +13,7 @@ import numpy as np
 import yaml
 
 from gateway.calibration.plans.rawdata import read_raw_csv
-from tests.commission_rig import running, small_machine
+from tests.commission_rig import recording_machine, running
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -32,13 +32,7 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
     from sim.technician import Technician
 
     directory = tmp_path / "t"
-    small_machine(directory, seed=7)
-    sim = yaml.safe_load((directory / "sim.yaml").read_text())
-    sim["sim"]["instruments"]["laser"]["recording"] = {
-        "dir": "recordings", "format": "csv", "axis": "X", "rate_hz": 250, "unit": "um",
-        "idle_time_scale": 1.0}  # fmt: skip
-    sim["sim"]["instruments"]["delta_a"] = {"unit": 22, "axis": "X", "a_mm": 0.0}
-    (directory / "sim.yaml").write_text(yaml.safe_dump(sim, sort_keys=False))
+    recording_machine(directory, "csv", 250)
     with running(directory, tmp_path / "m") as rig:
         laser_dir = tmp_path / "laser"
         laser_dir.mkdir()
@@ -60,7 +54,9 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
             stale = tech.attend(argv_y, ROOT, 60.0)
             assert stale.returncode == 3 and re.search(  # (or its references' recording)
                 rf"{re.escape(str(laser_dir))}/(iso-Y|refs-001)\.csv: there before the moves it "
-                "is to record", stale.stderr), stale.stdout + stale.stderr  # fmt: skip
+                "is to record", stale.stderr), (stale.stdout + stale.stderr,
+                                                "X's run before:", done_run.stdout[-3000:],
+                                                done_run.stderr[-2000:])  # fmt: skip
             laser_y = tmp_path / "laser-Y"
             laser_y.mkdir()
             argv_y[argv_y.index("--laser") + 1] = f"recording:{laser_y}:um"

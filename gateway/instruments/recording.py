@@ -300,6 +300,9 @@ def matched(rec: Recording, stops: Sequence[Stop], targets_mm: Sequence[float],
         window = found[lead : lead + k]  # the last one (the laser started early, stopped
         if np.all(np.abs(window - window[0] - steps_plan) <= tolerance_mm):  # late)
             return window
+    kept = _past_pauses(found, steps_plan, tolerance_mm)
+    if kept is not None:
+        return found[kept]
     steps_read = found - found[0]
     n = min(k, m)
     off = np.flatnonzero(np.abs(steps_read[:n] - steps_plan[:n]) > tolerance_mm)
@@ -326,6 +329,41 @@ def matched(rec: Recording, stops: Sequence[Stop], targets_mm: Sequence[float],
                  "recording ended early?)")  # fmt: skip
         raise RecordingError(f"{name}: found {m} stops, expected {k}: {which}")
     return found
+
+
+#: a recording may hold this many stops more than the plan, at none of its steps (pauses)
+MAX_PAUSES, PAUSES_PER_STOP = 2, 0.02
+
+
+def _past_pauses(found: np.ndarray, steps_plan: np.ndarray, tolerance_mm: float
+                 ) -> np.ndarray | None:  # fmt: skip
+    """The found stops that are the plan's, in order, where the recording holds a few more
+    that lie at none of its steps: pauses mid-move (a computer that stalled between an
+    approach and its target shows in the recording as the axis standing there), left out
+    as a laser's own capture leaves out standstill outside its targets' windows. None
+    where the stops do not all match so, where more than a few would be left out
+    (:data:`MAX_PAUSES`, or :data:`PAUSES_PER_STOP` of the plan's), or where two stops in
+    a row lie at one step the plan reads once (which is the reading is not known)."""
+    k, m = steps_plan.size, found.size
+    if m <= k or m - k > max(MAX_PAUSES, int(PAUSES_PER_STOP * k)):
+        return None
+    for lead in range(m - k + 1):  # (the machine standing before the first stop)
+        kept, i = [lead], lead + 1
+        for j in range(1, k):
+            while i < m and abs(found[i] - found[lead] - steps_plan[j]) > tolerance_mm:
+                i += 1
+            if i == m:
+                break
+            repeated = j + 1 < k and abs(steps_plan[j + 1] - steps_plan[j]) <= tolerance_mm
+            if not repeated and i + 1 < m and \
+                    abs(found[i + 1] - found[lead] - steps_plan[j]) <= tolerance_mm:  # fmt: skip
+                return None  # two stops at one step: which is the reading?
+            kept.append(i)
+            i += 1
+        else:
+            if kept[-1] - kept[0] + 1 - k <= max(MAX_PAUSES, int(PAUSES_PER_STOP * k)):
+                return np.asarray(kept)
+    return None
 
 
 #: a recording's first stop this far (mm) from where the datum puts it: the laser was zeroed
