@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import io
+import re
 import struct
 import sys
 from pathlib import Path
@@ -25,6 +26,7 @@ from gateway.instruments.manual import Manual
 from gateway.instruments.recording import (
     RecordingError,
     align,
+    matched,
     plan_stops,
     read_csv_series,
     read_recording,
@@ -427,8 +429,14 @@ def test_a_pause_mid_move_is_left_out(tmp_path: Path):
                        targets)  # fmt: skip
         assert np.max(np.abs(got - expected)) * 1000 < 0.05, at
     short = synthesize(targets, pause_at=10, pause_short_mm=2.0)  # 2 mm short: an approach
-    got = readings(write_rtx(tmp_path / "iso-approach.rtx", short), targets)
+    rec = read_recording(write_rtx(tmp_path / "iso-approach.rtx", short), "um")
+    said: list[str] = []
+    got = matched(rec, plan_stops(rec, targets.size, DWELL_S), targets, say=said.append)
+    got = got - got[0] + targets[0]
     assert np.max(np.abs(got - expected)) * 1000 < 0.05
+    assert len(said) == 1 and re.search(r"iso-approach\.rtx: the stop at [\d.]+ s \(\+35[12]\.\d+ "
+                                        r"mm from the first\) is at none of the plan's steps: "
+                                        r"a pause mid-move, left out", said[0]), said  # fmt: skip
     moves = np.concatenate([targets[:5], [125.0], targets[5:9], [425.0, 380.0], targets[9:]])
     with pytest.raises(RecordingError, match=r"found 21 stops, expected 18"):
         readings(write_rtx(tmp_path / "iso-3.rtx", synthesize(moves)), targets)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -284,11 +284,12 @@ def align(rec: Recording, stops: Sequence[Stop], targets_mm: Sequence[float],
 
 
 def matched(rec: Recording, stops: Sequence[Stop], targets_mm: Sequence[float],
-            sign: float = 1.0, tolerance_mm: float = STEP_TOLERANCE_MM
-            ) -> np.ndarray:  # fmt: skip
+            sign: float = 1.0, tolerance_mm: float = STEP_TOLERANCE_MM,
+            say: Callable[[str], None] | None = None) -> np.ndarray:  # fmt: skip
     """The readings (mm, as the laser read them, at its own zero) of the stops found,
-    matched with the plan's ``targets_mm`` by order and by the steps between them.
-    Refuses (RecordingError, one line) a recording whose stops do not follow the plan."""
+    matched with the plan's ``targets_mm`` by order and by the steps between them; a
+    pause mid-move left out is told to ``say``. Refuses (RecordingError, one line) a
+    recording whose stops do not follow the plan."""
     targets = np.asarray(targets_mm, dtype=float)
     found = np.array([s.value_mm for s in stops]) * sign
     name, k, m = rec.path, targets.size, found.size
@@ -302,6 +303,11 @@ def matched(rec: Recording, stops: Sequence[Stop], targets_mm: Sequence[float],
             return window
     kept = _past_pauses(found, steps_plan, tolerance_mm)
     if kept is not None:
+        for i in sorted(set(range(kept[0], kept[-1] + 1)) - set(kept.tolist())):
+            if say is not None:
+                say(f"{name}: the stop at {stops[i].start_s:.2f} s "
+                    f"({found[i] - found[kept[0]]:+.4f} mm from the first) is at none of the "
+                    "plan's steps: a pause mid-move, left out")  # fmt: skip
         return found[kept]
     steps_read = found - found[0]
     n = min(k, m)

@@ -121,7 +121,7 @@ async def run_for_file(plan: Plan, raw_path: Path, spec: InstrumentSpec, move: M
             rec = read_recording(found, spec.unit)
             stops = plan_stops(rec, len(measured), dwell_s)
             targets = np.array([m.target_mm[0] for m in measured])
-            readings = matched(rec, stops, targets, spec.sign)
+            readings = matched(rec, stops, targets, spec.sign, say=say)
             if datum_mm is None:
                 datum_mm = datum_of(readings, targets)
             values = zeroed(readings, targets, datum_mm, found)
