@@ -303,11 +303,11 @@ def matched(rec: Recording, stops: Sequence[Stop], targets_mm: Sequence[float],
             return window
     kept = _past_pauses(found, steps_plan, tolerance_mm)
     if kept is not None:
-        for i in sorted(set(range(kept[0], kept[-1] + 1)) - set(kept.tolist())):
-            if say is not None:
-                say(f"{name}: the stop at {stops[i].start_s:.2f} s "
-                    f"({found[i] - found[kept[0]]:+.4f} mm from the first) is at none of the "
-                    "plan's steps: a pause mid-move, left out")  # fmt: skip
+        pauses = sorted(set(range(kept[0], kept[-1] + 1)) - set(kept.tolist()))
+        for i in pauses if say is not None else ():
+            say(f"{name}: the stop at {stops[i].start_s:.2f} s "
+                f"({found[i] - found[kept[0]]:+.4f} mm from the first) is at none of the "
+                "plan's steps: a pause mid-move, left out")  # fmt: skip
         return found[kept]
     steps_read = found - found[0]
     n = min(k, m)
@@ -351,7 +351,8 @@ def _past_pauses(found: np.ndarray, steps_plan: np.ndarray, tolerance_mm: float
     (:data:`MAX_PAUSES`, or :data:`PAUSES_PER_STOP` of the plan's), or where two stops in
     a row lie at one step the plan reads once (which is the reading is not known)."""
     k, m = steps_plan.size, found.size
-    if m <= k or m - k > max(MAX_PAUSES, int(PAUSES_PER_STOP * k)):
+    most = max(MAX_PAUSES, int(PAUSES_PER_STOP * k))
+    if m <= k or m - k > most:
         return None
     for lead in range(m - k + 1):  # (the machine standing before the first stop)
         kept, i = [lead], lead + 1
@@ -367,7 +368,7 @@ def _past_pauses(found: np.ndarray, steps_plan: np.ndarray, tolerance_mm: float
             kept.append(i)
             i += 1
         else:
-            if kept[-1] - kept[0] + 1 - k <= max(MAX_PAUSES, int(PAUSES_PER_STOP * k)):
+            if kept[-1] - kept[0] + 1 - k <= most:
                 return np.asarray(kept)
     return None
 

@@ -77,14 +77,14 @@ def heat_left_um(warmed: dict[str, float], log: list[dict[str, Any]],
     for a in out:
         heat = identify.get(f"thermal-{a}") or {}
         check = heat.get("drift_check") or {}
-        motion = identify.get(f"motion-{a}") or {}
+        # a loaded sensor's warm-up fit, else heat from motion fitted to the references
+        fit = next((f for loaded, f in ((a in sensed, heat),
+                                        (a in modelled, identify.get(f"motion-{a}") or {}))
+                    if loaded and f.get("growth_max_um") and "residual_rms_um" in f), None)
         if a in modelled and check.get("holds") and check.get("drift_rms_um"):
             share = float(check["left_rms_um"]) / float(check["drift_rms_um"])
-        elif a in sensed and heat.get("growth_max_um") and "residual_rms_um" in heat:
-            share = 2.0 * float(heat["residual_rms_um"]) / float(heat["growth_max_um"])
-        elif a in modelled and motion.get("growth_max_um") and "residual_rms_um" in motion:
-            # heat from motion fitted to the drift references themselves: as a sensor's fit
-            share = 2.0 * float(motion["residual_rms_um"]) / float(motion["growth_max_um"])
+        elif fit is not None:
+            share = 2.0 * float(fit["residual_rms_um"]) / float(fit["growth_max_um"])
         else:
             share = 1.0
         out[a] *= min(1.0, share)
@@ -201,6 +201,11 @@ class AfterSteps:
         if self.axes.rotary(axis):
             return 0.0
         return float((self.warmth().get("heat_left_um") or {}).get(axis, 0.0))
+
+    def _plane_heat_um(self) -> list[float]:
+        """Each of the plane's axes' :meth:`_heat_um`: its figure's heat term, a vector."""
+        assert self.s.planar is not None
+        return [self._heat_um(a) for a in self.s.planar]
 
     def _as_read_um(self, step: str, name: str) -> float:
         """A done after-run step's figure as read (µm): an axis's E, the plane's maximum
@@ -333,7 +338,7 @@ class AfterSteps:
             read = planar_figures(self.runner.raw_as_read("after-xy"), self.s.planar)["max_um"]
             off = self.xy_figures("after-xy")["max_um"]
             scores["XY"] = (read, conformity.vector_uncertainty_um(
-                s_axes, abs(read - off), [self._heat_um(a) for a in self.s.planar]))
+                s_axes, abs(read - off), self._plane_heat_um()))
         return scores
 
     def _decided(self, scores: dict[str, tuple[float, float]]) -> dict[str, str]:
@@ -458,7 +463,7 @@ class AfterSteps:
                     s_axes = [e[phase]["s_pooled_um"] for a, e in out["axes"].items()
                               if phase in e and not self.axes.rotary(a)]  # fmt: skip
                     xy[phase]["max_read_um"] = read
-                    heat = [self._heat_um(a) for a in self.s.planar] if phase == "after" else []
+                    heat = self._plane_heat_um() if phase == "after" else []
                     xy[phase]["max_read_U_um"] = _finite(conformity.vector_uncertainty_um(
                         s_axes, abs(read - xy[phase]["max_um"]), heat))
                     xy[phase].update(self._carried_flag(f"{phase}-xy"))

@@ -104,11 +104,11 @@ def _judged(name: str, raw: Path, summary: dict[str, Any], job: Any,
             scatter_um, 0.0, [heat.get(a, 0.0) for a in job.s.planar])  # fmt: skip
     else:
         entry = summary["axes"][name]
+        rotary = entry.get("unit") == "deg"  # figures in millidegrees; the summary's in ″
         iso = iso230_axis(axis_deviations(data, name))
-        expanded = conformity.iso_uncertainty_um(
-            iso, 0.0, 0.0 if entry.get("unit") == "deg" else heat.get(name, 0.0))  # fmt: skip
+        expanded = conformity.iso_uncertainty_um(iso, 0.0, 0.0 if rotary else heat.get(name, 0.0))
         after = entry.get("after", {})
-        if entry.get("unit") == "deg":  # figures in millidegrees; the summary's in ″
+        if rotary:
             now = iso.E_um * ARCSEC_PER_MDEG
             then = after.get("E_read_arcsec", after.get("E_arcsec"))
             expanded *= ARCSEC_PER_MDEG
