@@ -64,12 +64,12 @@ def test_a_short_budget_reads_a_coarse_table_along_the_curve_it_prefers(tmp_path
     template = tmp_path / "t"
     _real_stage(template)
     with running(template, tmp_path / "m") as rig:
-        proc = _commission(rig, 0.9)  # (a plain calibration's steps with the references)
+        proc = _commission(rig, 0.92)  # (a plain calibration's steps with the references)
         assert proc.popen.wait(timeout=300) == 1, proc.text()
         state = json.loads((rig.dir / "commission" / "commission.json").read_text())
         assert state["short"] and not state["rounds"]
         # no round: the after-runs alone judge the tables (no before-run's time spent); as
-        # read, within 2 µm by less than their 2 runs can show (X E 1.75 µm ±0.89): undecided
+        # read, within 2 µm by less than their 2 runs can show (X E 1.76 µm ±0.95): undecided
         assert state["finished"]["outcome"] == "undecided", proc.text()
         assert "the after-run, as the laser reads it, is within 2 µm by less than its " \
             "uncertainty" in proc.text()
@@ -116,15 +116,19 @@ def test_a_short_budget_reads_a_coarse_table_along_the_curve_it_prefers(tmp_path
         # with a larger budget carries on, its tables as they were (their readings carried),
         # and reads their targets again, pooled: 4 runs each
         assert "not read again: after-again-X needs" in proc.text()
+        undecided = re.search(r"UNDECIDED against 2 µm: (.*) as the laser", proc.text())
+        axes = [a for a in ("X", "Y") if f"{a} E" in undecided.group(1)]  # type: ignore[union-attr]
+        assert "X" in axes, proc.text()
         more = _commission(rig, 1.1)
         assert more.popen.wait(timeout=300) in (0, 1), more.text()
-        for axis in ("X", "Y"):
+        for axis in axes:
             assert re.search(rf"{axis}: the after-run reads E [\d.]+ µm ±[\d.]+ as read from 2 "
                              r"runs, within 2 µm by less than its uncertainty: its targets "
                              r"read again, E [\d.]+ µm ±[\d.]+ from 4 runs", more.text()), \
                 more.text()  # fmt: skip
         summary = json.loads((rig.dir / "commission" / "summary.json").read_text())
-        assert [summary["axes"][a]["after"]["runs"] for a in ("X", "Y")] == [4, 4], summary
+        assert [summary["axes"][a]["after"]["runs"] for a in ("X", "Y")] == \
+            [4 if a in axes else 2 for a in ("X", "Y")], summary
 
 
 @pytest.mark.skipif(not (data_root() / "bifrost_slit_11358_axis2").is_dir(),

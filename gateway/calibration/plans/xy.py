@@ -48,20 +48,26 @@ def _xy_plan(
     kind: str, axes: Sequence[str], points: NDArray[np.float64], runs: int,
     meta: tuple[tuple[str, str], ...], speed_mm_s: float | None, dwell_s: float | None,
     approach_mm: float | None = None, lower_mm: Sequence[float] = (-math.inf, -math.inf),
+    upper_mm: Sequence[float] | None = None,
 ) -> Plan:  # fmt: skip
     """Moves over ``points``; with ``approach_mm`` each point is approached in + on both axes
     from a ``takeup`` point ``approach_mm`` below it (clipped at ``lower_mm``), so every
     point is measured with the play taken up the same way (a small corrective move in −
-    would otherwise be lost in the backlash)."""
+    would otherwise be lost in the backlash). With ``upper_mm`` too, every second run
+    approaches in − from ``approach_mm`` above (clipped there): the plane read from both
+    sides, as a PLC going point to point reaches it."""
     moves: list[Move] = []
     for j in range(1, runs + 1):
         prev = None
+        down = upper_mm is not None and j % 2 == 0
         for p in points:
             if approach_mm:
-                below = np.maximum(p - approach_mm, np.asarray(lower_mm, dtype=np.float64))
-                moves.append(Move(j, 0, "takeup", tuple(float(v) for v in _round(below)),
+                start = (np.minimum(p + approach_mm, np.asarray(upper_mm, dtype=np.float64))
+                         if down else
+                         np.maximum(p - approach_mm, np.asarray(lower_mm, dtype=np.float64)))
+                moves.append(Move(j, 0, "takeup", tuple(float(v) for v in _round(start)),
                                   speed_mm_s))  # fmt: skip
-                d = 1
+                d = -1 if down else 1
             else:
                 d = 0 if prev is None or p[0] == prev[0] else (1 if p[0] > prev[0] else -1)
             moves.append(Move(j, d, "measure", (float(p[0]), float(p[1])), speed_mm_s, dwell_s))
@@ -138,12 +144,17 @@ def xy_verification_plan(
     dwell_s: float | None = None,
     approach_mm: float | None = None,
     lower_mm: Sequence[float] = (-math.inf, -math.inf),
+    upper_mm: Sequence[float] | None = None,
 ) -> Plan:
-    """Verification points of the grid plan with the same parameters (never on a node)."""
+    """Verification points of the grid plan with the same parameters (never on a node).
+
+    ``upper_mm`` (with ``approach_mm``): the points read twice, in + from below, then in −
+    from above (:func:`_xy_plan`)."""
     points = xy_verification_points_mm(x_range_mm, y_range_mm, nx, ny, mode, count, seed)
+    runs = 1 if upper_mm is None or not approach_mm else 2
     meta = _meta(kind="xy-verification", axes=tuple(axes), x_range_mm=tuple(x_range_mm),
                  y_range_mm=tuple(y_range_mm), nx=nx, ny=ny, mode=mode,
                  count=count if mode == "random" else None, seed=seed,
-                 approach_mm=approach_mm)  # fmt: skip
-    return _xy_plan("xy-verification", axes, points, 1, meta, speed_mm_s, dwell_s,
-                    approach_mm, lower_mm)  # fmt: skip
+                 approach_mm=approach_mm, both_ways=runs == 2 or None)  # fmt: skip
+    return _xy_plan("xy-verification", axes, points, runs, meta, speed_mm_s, dwell_s,
+                    approach_mm, lower_mm, upper_mm)  # fmt: skip
