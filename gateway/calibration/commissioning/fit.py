@@ -122,6 +122,10 @@ class FitSteps:
                 a, self.refine.smoothed(a, r.table, config)))
             save_pitch(r, "compgw commission: coarse ISO 230-2 run" +
                        (", net of the cyclic term" if model is not None else ""))  # fmt: skip
+            # whether the references' drift was off its runs as fitted: more references
+            # read later may make it stand out (:meth:`.run_heat.RunHeat.put_back_refs`)
+            self.record.state.setdefault("drift_off_at_fit", {})[a] = \
+                self.runner.drift.drift_taken_off(a)
             self.refine.interpolate(a, r.table, curves)
             self.record.state.setdefault("spans", {})[a] = None  # every span is new: all verified
         self.record.save()
