@@ -139,6 +139,26 @@ def test_xy_grid_serpentine_and_verification() -> None:
     assert dist >= 25.0 - 1e-9
 
 
+def test_the_plane_s_random_points_read_from_both_sides() -> None:
+    """With the travel's upper ends too, each random point is read twice: run 1 in + from
+    1 mm below, run 2 in − from 1 mm above (clipped at the travel's ends), as a PLC going
+    point to point reaches it from either side."""
+    one = xy_verification_plan((2, 298), (2, 198), 4, 3, mode="random", count=8, seed=5,
+                               approach_mm=1.0, lower_mm=(0, 0))  # fmt: skip
+    both = xy_verification_plan((2, 298), (2, 198), 4, 3, mode="random", count=8, seed=5,
+                                approach_mm=1.0, lower_mm=(0, 0), upper_mm=(298.5, 200))
+    pts = one.measured_points_mm()
+    np.testing.assert_array_equal(both.measured_points_mm(), np.vstack([pts, pts]))
+    assert dict(both.meta)["both_ways"] == "True" and "both_ways" not in dict(one.meta)
+    for run, way in ((1, 1), (2, -1)):
+        moves = [m for m in both.moves if m.run == run]
+        takeups, measures = moves[0::2], moves[1::2]
+        assert all(m.role == "takeup" for m in takeups)
+        assert all(m.measured and m.direction == way for m in measures)
+        start, at = (np.array([m.target_mm for m in ms]) for ms in (takeups, measures))
+        np.testing.assert_allclose(start, np.clip(at + way * -1.0, (0, 0), (298.5, 200)))
+
+
 def test_warmup_plan() -> None:
     plan = warmup_plan("X", (0, 600), speed_mm_s=100, duration_s=1800, reference_mm=300,
                        measure_every=10)  # fmt: skip
