@@ -133,18 +133,20 @@ class Planner:
                             lower_mm=(x0, y0))  # fmt: skip
 
     def before_xy_plan(self) -> Plan:
-        """The plane's random points judged before anything is fitted and after."""
-        return self.xy_check_plan(10_000 + self.s.seed, self.s.grid)
+        """The plane's random points judged before anything is fitted and after, each read
+        from below and from above: the judge, like a PLC, reaches a point from either side,
+        and the X reversal the axes' tables leave shows in the plane only so (rough-0: 0.59
+        µm read one way, its judges 1.7-2.6)."""
+        return self.xy_check_plan(10_000 + self.s.seed, self.s.grid, both_ways=True)
 
-    def xy_check_plan(self, seed: int, grid: tuple[int, int]) -> Plan:
-        """The plane's random points, each read from below and from above: the judge, like
-        a PLC, reaches a point from either side, and the X reversal the axes' tables leave
-        shows in the plane only so (rough-0: 0.59 µm read one way, its judges 1.7-2.6)."""
+    def xy_check_plan(self, seed: int, grid: tuple[int, int], both_ways: bool = False) -> Plan:
+        """The plane's random points, approached in + (a round's check of the plane's
+        model, which a grid read in + refines); ``both_ways``: in − too (the verdict's)."""
         (x0, x1), (y0, y1) = self.axes.plane_travel()
         return xy_verification_plan((x0 + 2, x1 - 2), (y0 + 2, y1 - 2), grid[0], grid[1],
                                     self.s.planar, mode="random", count=adaptive.RANDOM_TARGETS,
                                     seed=seed, approach_mm=1.0, lower_mm=(x0, y0),
-                                    upper_mm=(x1, y1))  # fmt: skip
+                                    upper_mm=(x1, y1) if both_ways else None)  # fmt: skip
 
     def judged_alone(self) -> dict[str, Plan]:
         """``--finish``'s after-runs read with no before-run: each linear axis whose ISO runs
