@@ -234,19 +234,13 @@ def test_a_figure_within_by_less_than_its_uncertainty_is_undecided() -> None:
 
 def test_the_decision_rule_and_its_uncertainty() -> None:
     """:mod:`gateway.calibration.fitting.conformity`: U of E from n runs (stop scatter s,
-    drift d while measuring, heat h its correction is expected to leave) is
-    2·√(2s²/n + d²/3 + h²/3); one run gives none (infinite); the plane's one reading
-    carries one stop's scatter, and both axes' heat as a vector."""
+    drift d while measuring) is 2·√(2s²/n + d²/3); one run gives none (infinite); the
+    plane's one reading carries one stop's scatter."""
     assert conformity.e_uncertainty_um(0.45, 2, 0.0) == pytest.approx(0.90)
     assert conformity.e_uncertainty_um(0.45, 8, 0.0) == pytest.approx(0.45)
     assert conformity.e_uncertainty_um(0.0, 5, math.sqrt(3.0)) == pytest.approx(2.0)
-    assert conformity.e_uncertainty_um(0.0, 5, 0.0, math.sqrt(3.0)) == pytest.approx(2.0)
-    assert conformity.e_uncertainty_um(0.0, 5, math.sqrt(3.0), math.sqrt(3.0)) == \
-        pytest.approx(2.0 * math.sqrt(2.0))  # fmt: skip
     assert math.isinf(conformity.e_uncertainty_um(0.2, 1, 0.0))
     assert conformity.vector_uncertainty_um([0.1, 0.3], 0.0) == pytest.approx(0.6)
-    assert conformity.vector_uncertainty_um([0.0], 0.0, [0.9, 1.2]) == pytest.approx(
-        2.0 * 1.5 / math.sqrt(3.0))  # fmt: skip
     assert math.isinf(conformity.vector_uncertainty_um([], 0.0))
     assert [conformity.decide(v, 2.0, 0.5) for v in (1.4, 1.5, 1.6, 2.0, 2.01)] == [
         "within", "within", "undecided", "undecided", "beyond"]

@@ -193,19 +193,7 @@ class AfterSteps:
         off = self.rotary.judge(axis, axis_deviations(self.runner.raw(step), axis),
                                 table.position_mm).E_um  # fmt: skip
         iso = iso230_axis(read_dev)
-        return read, conformity.iso_uncertainty_um(iso, abs(read - off), self._heat_um(axis))
-
-    def _heat_um(self, axis: str) -> float:
-        """The growth ``axis``'s heat correction is expected to leave (µm, ``heat_left_um``
-        of :meth:`warmth`; 0 on a rotary axis): a term of its figures' uncertainty."""
-        if self.axes.rotary(axis):
-            return 0.0
-        return float((self.warmth().get("heat_left_um") or {}).get(axis, 0.0))
-
-    def _plane_heat_um(self) -> list[float]:
-        """Each of the plane's axes' :meth:`_heat_um`: its figure's heat term, a vector."""
-        assert self.s.planar is not None
-        return [self._heat_um(a) for a in self.s.planar]
+        return read, conformity.iso_uncertainty_um(iso, abs(read - off))
 
     def _as_read_um(self, step: str, name: str) -> float:
         """A done after-run step's figure as read (µm): an axis's E, the plane's maximum
@@ -338,7 +326,7 @@ class AfterSteps:
             read = planar_figures(self.runner.raw_as_read("after-xy"), self.s.planar)["max_um"]
             off = self.xy_figures("after-xy")["max_um"]
             scores["XY"] = (read, conformity.vector_uncertainty_um(
-                s_axes, abs(read - off), self._plane_heat_um()))
+                s_axes, abs(read - off)))
         return scores
 
     def _decided(self, scores: dict[str, tuple[float, float]]) -> dict[str, str]:
@@ -442,8 +430,7 @@ class AfterSteps:
                                     "s_pooled_um": pooled_s_um(iso),
                                     # E_read's expanded uncertainty (None: one run)
                                     "E_read_U_um": _finite(conformity.iso_uncertainty_um(
-                                        read, abs(read.E_um - iso.E_um),
-                                        self._heat_um(a) if phase == "after" else 0.0)),
+                                        read, abs(read.E_um - iso.E_um))),
                                     **({"read_at": "iso"} if step.startswith("iso-") else {}),
                                     **self._carried_flag(step)}  # fmt: skip
             entry.update(self.takeup.steps_summary(a))
@@ -463,9 +450,8 @@ class AfterSteps:
                     s_axes = [e[phase]["s_pooled_um"] for a, e in out["axes"].items()
                               if phase in e and not self.axes.rotary(a)]  # fmt: skip
                     xy[phase]["max_read_um"] = read
-                    heat = self._plane_heat_um() if phase == "after" else []
                     xy[phase]["max_read_U_um"] = _finite(conformity.vector_uncertainty_um(
-                        s_axes, abs(read - xy[phase]["max_um"]), heat))
+                        s_axes, abs(read - xy[phase]["max_um"])))
                     xy[phase].update(self._carried_flag(f"{phase}-xy"))
             out["xy"] = xy
         self.rotary.rotary_summary(out)

@@ -91,22 +91,20 @@ def _judged(name: str, raw: Path, summary: dict[str, Any], job: Any,
     """One axis's (or the plane's) figure now, then, the tolerance, in its unit, and the
     decision by the commissioning's rule (:mod:`..fitting.conformity`: no drift references
     here, so the runs' scatter, the plane's from the linear axes read before it,
-    ``scatter_um``, and the heat the commissioning expected its correction to leave)."""
+    ``scatter_um``)."""
     data = read_raw_csv(raw)
     extra: dict[str, Any] = {}
-    heat = summary.get("heat_left_um") or {}
     if name == "xy":
         now = planar_figures(data, job.s.planar)["max_um"]
         after = summary["xy"].get("after", {})
         then = after.get("max_read_um", after.get("max_um"))
         tol, unit, what = summary["tolerance_um"], "µm", "XY max vector error"
-        expanded = conformity.vector_uncertainty_um(
-            scatter_um, 0.0, [heat.get(a, 0.0) for a in job.s.planar])  # fmt: skip
+        expanded = conformity.vector_uncertainty_um(scatter_um, 0.0)
     else:
         entry = summary["axes"][name]
         rotary = entry.get("unit") == "deg"  # figures in millidegrees; the summary's in ″
         iso = iso230_axis(axis_deviations(data, name))
-        expanded = conformity.iso_uncertainty_um(iso, 0.0, 0.0 if rotary else heat.get(name, 0.0))
+        expanded = conformity.iso_uncertainty_um(iso, 0.0)
         after = entry.get("after", {})
         if rotary:
             now = iso.E_um * ARCSEC_PER_MDEG
