@@ -18,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
 
 from ...compensation.errors import TableError
 from ...compensation.linkage import PARAMETERS, LinkageModel
@@ -73,6 +72,8 @@ def fit_linkage(
         return _actual({**base, **dict(zip(free, x))}, c) - y
 
     start_rms = float(np.sqrt(np.mean(residual(x0) ** 2)))
+    from scipy.optimize import least_squares  # (0.3 s to import: not on every start)
+
     sol = least_squares(residual, x0, x_scale="jac", method="trf", xtol=1e-15, ftol=1e-15,
                         gtol=1e-15, max_nfev=2000)  # fmt: skip
     try:

@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import PchipInterpolator
-from scipy.optimize import isotonic_regression
 
 from ...compensation import TakeUpCurve
 from ...compensation.errors import TableError
@@ -130,6 +129,8 @@ def fit_takeup(motor_mm: ArrayLike, lost_mm: ArrayLike, full_mm: ArrayLike,
     if not moved.any():
         return TakeUpFit(m, r, f, spread, big * 1e3, None, 0.0,
                          "no rung moved the table (a dead band: the full switch is right)")
+    from scipy.optimize import isotonic_regression  # (0.3 s to import: not on every start)
+
     rr, ff = r[moved], np.clip(isotonic_regression(f[moved]).x, 0.0, 1.0)
     keep = np.concatenate([[True], np.diff(rr) > 0])  # a table reversal once
     rr, ff = rr[keep], ff[keep]
