@@ -16,8 +16,9 @@ U of an ISO 230-2 E (µm) combines, as standard uncertainties:
 
 No term for the heat the customer will meet: a judge that cooled the machine and read it
 after its own 30 minutes of mixed work at random zones read E within 0.35 µm of the
-after-run on every axis of eight machines, where the growth their heat corrections were
-expected to leave (``heat_left_um``, 0.2-2.4 µm) would have made three of them undecided.
+after-run on every axis of eight machines. A term for the growth their heat corrections were
+expected to leave (``heat_left_um``, 0.2-2.4 µm) made three of them undecided on the bench
+(bench/README, sessions 64 and 65) and protected none.
 
 The plane's maximum vector error is one reading, not a mean: its scatter is one stop's.
 Its random points are read from below and from above (a PLC's approach either way), so
