@@ -303,11 +303,11 @@ def matched(rec: Recording, stops: Sequence[Stop], targets_mm: Sequence[float],
             return window
     kept = _past_pauses(found, steps_plan, tolerance_mm)
     if kept is not None:
-        pauses = sorted(set(range(kept[0], kept[-1] + 1)) - set(kept.tolist()))
-        for i in pauses if say is not None else ():
-            say(f"{name}: the stop at {stops[i].start_s:.2f} s "
-                f"({found[i] - found[kept[0]]:+.4f} mm from the first) is at none of the "
-                "plan's steps: a pause mid-move, left out")  # fmt: skip
+        for i in sorted(set(range(kept[0], kept[-1] + 1)) - set(kept.tolist())):
+            if say is not None:
+                say(f"{name}: the stop at {stops[i].start_s:.2f} s "
+                    f"({found[i] - found[kept[0]]:+.4f} mm from the first) is at none of the "
+                    "plan's steps: a pause mid-move, left out")  # fmt: skip
         return found[kept]
     steps_read = found - found[0]
     n = min(k, m)

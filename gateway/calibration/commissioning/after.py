@@ -325,8 +325,7 @@ class AfterSteps:
                 return None
             read = planar_figures(self.runner.raw_as_read("after-xy"), self.s.planar)["max_um"]
             off = self.xy_figures("after-xy")["max_um"]
-            scores["XY"] = (read, conformity.vector_uncertainty_um(
-                s_axes, abs(read - off)))
+            scores["XY"] = (read, conformity.vector_uncertainty_um(s_axes, abs(read - off)))
         return scores
 
     def _decided(self, scores: dict[str, tuple[float, float]]) -> dict[str, str]:

@@ -90,7 +90,7 @@ def _judged(name: str, raw: Path, summary: dict[str, Any], job: Any,
             scatter_um: list[float]) -> dict[str, Any]:  # fmt: skip
     """One axis's (or the plane's) figure now, then, the tolerance, in its unit, and the
     decision by the commissioning's rule (:mod:`..fitting.conformity`: no drift references
-    here, so the runs' scatter, the plane's from the linear axes read before it,
+    here, so the runs' scatter alone; the plane's from the linear axes read before it,
     ``scatter_um``)."""
     data = read_raw_csv(raw)
     extra: dict[str, Any] = {}
@@ -102,11 +102,10 @@ def _judged(name: str, raw: Path, summary: dict[str, Any], job: Any,
         expanded = conformity.vector_uncertainty_um(scatter_um, 0.0)
     else:
         entry = summary["axes"][name]
-        rotary = entry.get("unit") == "deg"  # figures in millidegrees; the summary's in ″
         iso = iso230_axis(axis_deviations(data, name))
         expanded = conformity.iso_uncertainty_um(iso, 0.0)
         after = entry.get("after", {})
-        if rotary:
+        if entry.get("unit") == "deg":  # figures in millidegrees; the summary's in ″
             now = iso.E_um * ARCSEC_PER_MDEG
             then = after.get("E_read_arcsec", after.get("E_arcsec"))
             expanded *= ARCSEC_PER_MDEG

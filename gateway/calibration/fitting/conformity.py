@@ -12,7 +12,7 @@ U of an ISO 230-2 E (µm) combines, as standard uncertainties:
   ``s·√(2/n)`` with s the stop scatter pooled over the run (:func:`.iso230.pooled_s_um`);
 - the drift while measuring: the figure moved by ``|as read − drift taken off|`` over the
   run; another reading, at another moment of the machine's heat, may move it as far either
-  way (a rectangular distribution of that half-width: ``d/√3``);
+  way (a rectangular distribution of that half-width: ``d/√3``).
 
 No term for the heat the customer will meet: a judge that cooled the machine and read it
 after its own 30 minutes of mixed work at random zones read E within 0.35 µm of the
@@ -28,7 +28,6 @@ the reversal the tables leave is in the figure, not in its uncertainty.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from typing import Literal
 
 from .iso230 import Iso230Result, pooled_s_um
@@ -55,7 +54,7 @@ def iso_uncertainty_um(read: Iso230Result, drift_um: float) -> float:
     return e_uncertainty_um(pooled_s_um(read), read.runs, drift_um)
 
 
-def vector_uncertainty_um(s_axes_um: Sequence[float], drift_um: float) -> float:
+def vector_uncertainty_um(s_axes_um: list[float], drift_um: float) -> float:
     """Expanded uncertainty U (k = 2, µm) of the plane's maximum vector error, one reading:
     the larger axis's stop scatter (``s_axes_um``, empty: unknown, infinite) and the drift
     while measuring (``drift_um``, as :func:`e_uncertainty_um`)."""
