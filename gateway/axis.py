@@ -27,6 +27,10 @@ class AxisState:
     halves_written: set[int] = field(default_factory=set)
     last_nominal_pulses: int | None = None
     last_command_units: int | None = None  # drive units (pulses × command_scale)
+    #: the command (drive units) furthest along the nut's flank since it engaged there:
+    #: a command sent back from it by less than a reversal leaves the table where that one
+    #: put it (the motor turns inside the play), however many small steps it comes in
+    flank_command_units: int | None = None
     enabled: bool = True
     #: whether the last committed target was corrected (False: sent as written, e.g.
     #: compensation off or drive not homed); feedback is inverted only when it was
@@ -37,6 +41,7 @@ class AxisState:
         return {
             "last_nominal_pulses": self.last_nominal_pulses,
             "last_command_units": self.last_command_units,
+            "flank_command_units": self.flank_command_units,
             "direction": self.motion.direction,
             "engagement": self.motion.engagement,
             "last_target_pulses": self.motion.last_target_pulses,
@@ -62,7 +67,10 @@ class AxisState:
         applied = saved["applied"]
         if not isinstance(applied, bool):
             raise TypeError(f"applied {applied!r} is not true or false")
+        flank = saved.get("flank_command_units")  # older files: on the last command
+        flank = command if flank is None else int(flank)
         self.last_nominal_pulses, self.last_command_units = nominal, command
+        self.flank_command_units = flank
         self.motion, self.shadow, self.applied = motion, shadow, applied
         self.shadow_known = True
         self.halves_written.clear()
@@ -86,7 +94,13 @@ class AxisState:
         ``motion``: the axis's motion state there, as the correction found it (its chain's
         :meth:`~gateway.compensation.AxisChain.approach`; default: on the flank of the
         move's direction)."""
-        self.motion = self.motion.approach(nominal_pulses) if motion is None else motion
+        new = self.motion.approach(nominal_pulses) if motion is None else motion
+        flank = self.flank_command_units
+        if (flank is None or new.direction != self.motion.direction
+                or (command_units - flank) * new.direction >= 0):
+            flank = command_units  # a new flank, or the motor pushes the nut further
+        self.flank_command_units = flank
+        self.motion = new
         self.last_nominal_pulses = nominal_pulses
         self.last_command_units = command_units
         self.shadow_known = True
@@ -96,7 +110,7 @@ class AxisState:
         """The drive is homing: the next target is approached as the first after homing,
         and the drive is no longer at its last command."""
         self.motion = MotionState(home_direction)
-        self.last_command_units = None
+        self.last_command_units = self.flank_command_units = None
 
     def reported_feedback(self, command_units: int, nominal_from_chain: float) -> int:
         """Nominal feedback (pulses) for the master, the drive being at ``command_units``.

@@ -487,6 +487,27 @@ class AxisWrites:
         counts = unpack_int32(words, fb.order)
         return round(counts / fb.counts_per_pulse / axis.command_scale)
 
+    def _pushed_on(self, setup: Setup, name: str, inputs: dict[str, AxisInput],
+                   start: MotionState, motion: MotionState, command: int, flank: int
+                   ) -> tuple[int, MotionState]:  # fmt: skip
+        """The command and motion state of a target sent again whose command goes on along
+        the flank (the plane's partner moved, the screw grew): the carriage moves by that
+        much with no nominal move, and takes up more of a soft nut's play, so the
+        engagement advances by it (a kept rough machine: X sent again up a column of Y
+        targets, its command 35 µm on, corrected as the first 9 µm had left the nut: 11 µm
+        off at the top). A nominal move advances it by the move alone (the curve's terms:
+        the table's travel), whatever the correction does."""
+        nominal = int(inputs[name].pulses)
+        if motion.direction != start.direction or nominal != start.last_target_pulses:
+            return command, motion
+        axis_cfg = setup.config.axes[name]
+        on_mm = (command - flank) * motion.direction * axis_cfg.pulse_mm / axis_cfg.command_scale
+        if on_mm <= 0.0:
+            return command, motion
+        pushed = setup.chain.axes[name].turned(motion, nominal, motion.direction, on_mm)
+        inputs[name] = AxisInput(nominal, pushed.engagement, inputs[name].delta_a_mm)
+        return setup.chain.command_pulses(name, inputs, axis_cfg.command_scale), pushed
+
     def _check_travel(self, setup: Setup, name: str, nominal: int) -> None:
         """Refuse (0x03) a nominal target (pulses) outside the axis's travel."""
         try:
@@ -532,19 +553,27 @@ class AxisWrites:
         scale = axis_cfg.command_scale
         try:
             command = setup.chain.command_pulses(name, inputs, scale)
-            last = state.last_command_units
-            back_mm = 0.0 if last is None else abs(command - last) * axis_cfg.pulse_mm / scale
-            if (last is not None and back_mm > TURN_DEADBAND_MM
-                    and (command > last) != (motion.direction > 0)):
+            flank = state.flank_command_units
+            if flank is None or motion.direction != state.motion.direction:
+                flank = state.last_command_units
+            back_mm = 0.0 if flank is None else abs(command - flank) * axis_cfg.pulse_mm / scale
+            if (flank is not None and back_mm > TURN_DEADBAND_MM
+                    and (command > flank) != (motion.direction > 0)):
                 # the motor turns against the nominal move (a target sent again whose
                 # correction went back: the partner moved, the screw grew): the nut turns
                 # through its play, corrected as a reversal (trial 9: Y sent 400 again
-                # after X moved, 7.2 µm back in command, stayed 7.1 µm off in the play)
+                # after X moved, 7.2 µm back in command, stayed 7.1 µm off in the play).
+                # Measured from the flank, not the last command: steps back each under
+                # the deadband add up inside the play (X re-sent down a column of Y
+                # targets: 11 µm off at the top, each step 1 µm back)
                 turned = chain_axis.turned(start, nominal, -motion.direction, back_mm)
                 inputs[name] = AxisInput(nominal, turned.engagement, delta_a)
                 again = setup.chain.command_pulses(name, inputs, scale)
-                if again != last and (again > last) == (turned.direction > 0):
+                if again != flank and (again > flank) == (turned.direction > 0):
                     command, motion = again, turned
+            elif flank is not None and chain_axis.takeup is not None:
+                command, motion = self._pushed_on(setup, name, inputs, start, motion,
+                                                  command, flank)  # fmt: skip
             self._swept(name, nominal)  # after: this move heats what comes next
             return command, True, motion
         except CorrectionLimitError as exc:

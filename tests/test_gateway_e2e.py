@@ -349,6 +349,43 @@ def test_a_target_sent_again_whose_command_goes_back_is_a_reversal(tmp_path: Pat
     run(body())
 
 
+@pytest.mark.parametrize("commit", ["immediate", "on_trigger"])
+def test_steps_back_each_inside_the_dead_band_add_up_to_a_reversal(tmp_path: Path,
+                                                                   commit: str) -> None:
+    """Y at 300 mm approached +, sent again while X steps 50 mm at a time (a column of
+    holes along the other axis): each step takes 1 µm off Y's command. Inside the play the
+    table stays where the furthest command put it, so the steps add up: past the 2 µm dead
+    band Y turns as a reversal and then follows the − flank (before: each step was within
+    the dead band of the one before, Y kept the + flank with its command 16 µm back, and
+    stood off by what the play swallowed; a kept rough machine read 11 µm off in X at the
+    top of a column of Y targets)."""
+
+    async def body():
+        async with rig(tmp_path, with_planar(commit), XY_FILES) as r:
+            master, direct, chain = r["master"], r["direct"], r["chain"]
+
+            def y_command(x_pulses: int, flank: int) -> int:
+                return chain.command_pulses("Y", {"Y": AxisInput(300_000, flank),
+                                                  "X": AxisInput(x_pulses)})  # fmt: skip
+
+            await move(master, 1, 0)
+            await move(master, 2, 300_000)
+            up = y_command(0, 1)
+            assert await read32(direct, 2, TARGET) == up
+            sent = []
+            for x in range(50_000, 800_001, 50_000):
+                await move(master, 1, x)
+                await move(master, 2, 300_000)  # the same target, sent again
+                sent.append(await read32(direct, 2, TARGET))
+            assert sent[:2] == [up - 1, up - 2]  # inside the dead band: on the + flank
+            assert sent[2] == y_command(150_000, -1) == up - 3 - 10  # 3 µm: a reversal
+            assert sent[3:] == [y_command(x, -1) for x in range(200_000, 800_001, 50_000)]
+            assert sent[-1] == up - 16 - 10
+            assert await read32(master, 2, FEEDBACK) == 300_000
+
+    run(body())
+
+
 def test_a_partner_no_target_was_seen_of_is_read_from_its_drive(tmp_path: Path):
     """A gateway started (no state file) with Y standing at 400 mm where an earlier run or
     a jog left it: X's first target takes the plane's term at Y's place, read from Y's

@@ -19,6 +19,7 @@ import yaml
 
 from gateway.app import GatewayApp
 from gateway.calibration.commands import make_plan
+from gateway.calibration.fitting.fit import planar_measurement
 from gateway.calibration.fitting.takeup_fit import (
     RUNGS_MM,
     fit_takeup,
@@ -29,7 +30,13 @@ from gateway.calibration.fitting.takeup_fit import (
 )
 from gateway.calibration.measuring.machine import Endpoint
 from gateway.calibration.measuring.session import Instruments, Session
-from gateway.calibration.plans.plans import Plan, backlash_from_raw, backlash_plan, snap_to_pulses
+from gateway.calibration.plans.plans import (
+    Move,
+    Plan,
+    backlash_from_raw,
+    backlash_plan,
+    snap_to_pulses,
+)
 from gateway.calibration.plans.rawdata import read_raw_csv
 from gateway.cli import build_parser
 from gateway.compensation import (
@@ -50,6 +57,7 @@ from tests.test_service_helpers import Proc
 from tests.test_sim_support import config_from, example_dict
 
 LOST_UM, TAKEUP_UM = 40.0, 300.0  # the sim's soft nut: 40 µm taken up over 0.3 mm
+SQUARE_ARCSEC = 30.0
 
 
 # ---------------------------------------------------------------------- pure parts
@@ -154,27 +162,55 @@ def soft_nut_sim() -> dict:
     sim["machine"]["X"] = {"repeatability_um": 0.2, "lost_motion": {
         "um": LOST_UM, "takeup": {"curve": "smooth", "distance_um": TAKEUP_UM}}}
     sim["machine"]["Y"] = {"repeatability_um": 0.0}
-    sim["plane"] = {"axes": ["X", "Y"]}
+    # 30″: X's error grows 0.145 µm per mm of Y (the laser reads X at Y = 0, none of it)
+    sim["plane"] = {"axes": ["X", "Y"], "squareness_arcsec": SQUARE_ARCSEC}
     for name in ("delta_a", "temperature"):
         sim["instruments"].pop(name)
     return data
 
 
-def gateway_data(sim_port: int, compensation: dict) -> dict:
+def gateway_data(sim_port: int, compensation: dict, planar: str | None = None) -> dict:
+    """The gateway on the soft-nut sim; ``planar``: commit mode of a plane model that has
+    the sim's squareness (written in ``work`` by :func:`square_model`)."""
     data = without(example_config(sim_port), "pitch", "thermal", "planar")
     data.pop("thermal_sources", None)
     data["axes"]["X"]["compensation"] = {"max_correction_mm": 0.2, **compensation}
     data["axes"]["Y"]["compensation"] = {"max_correction_mm": 0.2}
+    if planar is not None:
+        data["planar"] = {"axes": ["X", "Y"], "model": "xy.yaml", "commit": planar}
     return data
 
 
-async def run(sim_port: int, work: Path, compensation: dict, plan: Plan, raw: Path) -> None:
-    config = parse_config(gateway_data(sim_port, compensation), str(work / "gw.yaml"))
+def square_model(work: Path) -> None:
+    """The plane's model, in its own terms: X off by y · tan(30″), a 3 × 3 grid."""
+    per_mm_um = 1e3 * float(np.tan(np.radians(SQUARE_ARCSEC / 3600.0)))
+    (work / "xy.csv").write_text("x_mm,y_mm,dx_um,dy_um\n" + "".join(
+        f"{x},{y},{per_mm_um * y:.4f},0\n" for x in (0, 400, 800) for y in (0, 300, 600)))
+    (work / "xy.yaml").write_text("points: xy.csv\nmodel: grid\n")
+
+
+async def run(sim_port: int, work: Path, compensation: dict, plan: Plan, raw: Path,
+              planar: str | None = None) -> None:
+    config = parse_config(gateway_data(sim_port, compensation, planar), str(work / "gw.yaml"))
     async with GatewayApp(config, build_chain(config, work)) as app:
         session = Session(config, work, Endpoint("127.0.0.1", app.tcp_port, 1),
                           Instruments(laser=Endpoint("127.0.0.1", sim_port, 20),
-                                      laser_axes=["X", "Y"]))  # fmt: skip
-        await session.run(snap_to_pulses(plan, {"X": 0.001}), raw, "on" if compensation else "off")
+                                      laser_axes=["X", "Y"],
+                                      xy=Endpoint("127.0.0.1", sim_port, 21)))  # fmt: skip
+        await session.run(snap_to_pulses(plan, {"X": 0.001, "Y": 0.001}), raw,
+                          "on" if compensation else "off")  # fmt: skip
+
+
+def column_plan(x_mm: float, ys_mm: list[float], again: bool) -> Plan:
+    """X at ``x_mm`` approached in + once, then Y up the column with X's target sent again
+    at each stop (a PLC drilling a column of holes); ``again``: X approached in + from
+    1 mm below at every stop instead."""
+    moves = [Move(1, 0, "takeup", (x_mm - 1.0, 0.0))]
+    for y in ys_mm:
+        if again:
+            moves.append(Move(1, 0, "takeup", (x_mm - 1.0, y)))
+        moves.append(Move(1, 0, "measure", (x_mm, y)))
+    return Plan("xy-verification", ("X", "Y"), tuple(moves))
 
 
 async def soft_nut(work: Path) -> dict[str, float]:
@@ -195,6 +231,16 @@ async def soft_nut(work: Path) -> dict[str, float]:
             dev_um = read_raw_csv(raw).deviation_mm * 1e3
             out[f"{name}_rms_um"] = float(np.sqrt(np.mean(dev_um**2)))
             out[f"{name}_max_um"] = float(np.abs(dev_um).max())
+        # the plane moves X's command as Y goes up a column: X, sent again, goes on along
+        # its flank and takes up more of the play (0.145 µm per mm of Y: 58 µm at 400 mm)
+        square_model(work)
+        ys = [float(y) for y in range(25, 401, 25)]
+        for name, again in (("column", False), ("column_again", True)):
+            raw = work / f"{name}.csv"
+            await run(port, work, {**switch, "takeup": section}, column_plan(400.0, ys, again),
+                      raw, planar="on_trigger")  # fmt: skip
+            dx_um = planar_measurement(read_raw_csv(raw), ("X", "Y")).error_mm[:, 0] * 1e3
+            out[f"{name}_dx_um"] = dx_um.round(2).tolist()
         # the same two runs through `compgw fit`, as a technician calibrating by hand would
         gw = work / "gw.yaml"
         gw.write_text(yaml.safe_dump(gateway_data(port, {})))
@@ -210,6 +256,8 @@ async def soft_nut(work: Path) -> dict[str, float]:
 
 
 def test_a_soft_nut_is_measured_fitted_and_corrected_on_short_steps(tmp_path: Path):
+    """The ladder's curve on short steps either way, and with the plane's model on: X held
+    at 400 mm while Y goes up a column."""
     out = asyncio.run(asyncio.wait_for(soft_nut(tmp_path), 120))
     print(out)
     assert abs(out["lost_um"] - LOST_UM) < 2.0, out
@@ -217,6 +265,11 @@ def test_a_soft_nut_is_measured_fitted_and_corrected_on_short_steps(tmp_path: Pa
     assert out["switch_rms_um"] > 8.0, out
     assert out["curve_rms_um"] < 0.25 * out["switch_rms_um"], out
     assert out["curve_max_um"] < 3.0, out  # 1.6 µm: straight lines between the rungs 3.1
+    # X sent again up a column of Y targets, its command going on 58 µm: 0.8 µm at most
+    # (before: 11.4 µm off at the top, the engagement left where the first step put it);
+    # approached in + at every stop: 0.4
+    assert max(map(abs, out["column_dx_um"])) < 1.5, out
+    assert max(map(abs, out["column_again_dx_um"])) < 1.0, out
 
 
 def test_commission_finds_a_soft_nut_and_writes_its_curve(tmp_path: Path):
