@@ -238,7 +238,7 @@ def test_commission_resumes_after_a_kill_even_in_a_sweep(template: Path, tmp_pat
         out = rig.dir / "commission"
         state = out / "commission.json"
         raw = out / "raw" / "sweep1-X.csv"
-        args = ("--tolerance-um", "1", "--budget-h", "1.7")
+        args = ("--tolerance-um", "1", "--budget-h", "1.8")
         first = rig.commission(*args)
         wait_for_steps(state, 4, first)
         first.kill()
