@@ -17,6 +17,10 @@ import yaml
 
 from tests.test_service_helpers import Proc
 
+#: the verdict's plane points in the tests but the end-to-end one (the default is 40): the
+#: plane's verdict is read before and after, each point twice; at 40 the suite ran 15-20 s
+#: longer on 2 cores
+PLANE_POINTS = 16
 TRAVEL_MM = (0.0, 90.0)
 
 
@@ -67,20 +71,25 @@ class Rig:
     gw_port: int
     config: Path  # the file the gateway runs (commissioning writes over it)
 
-    def commission_args(self, *extra: str, heat_warmup: bool = False) -> list[str]:
+    def commission_args(self, *extra: str, heat_warmup: bool = False,
+                        plane_points: int | None = PLANE_POINTS) -> list[str]:  # fmt: skip
         """``compgw commission`` on this rig; without the no-sensor axes' zone warm-up
-        unless ``heat_warmup`` (the end-to-end test has it; the others test other things,
-        and the suite's time is counted)."""
+        unless ``heat_warmup``, and its verdict's plane at ``plane_points`` (None: the
+        default, 40) (the end-to-end test has both; the others test other things, and the
+        suite's time is counted)."""
         leads = ",".join(f"{a}={v['lead_mm']:g}" for a, v in self.machine["axes"].items())
+        points = () if plane_points is None else ("--plane-points", str(plane_points))
         return ["-m", "gateway.cli", "commission", "-c", str(self.config),
                 "--gateway", f"127.0.0.1:{self.gw_port}",
                 "--laser", f"127.0.0.1:{self.sim_port}:20",
                 "--xy-device", f"127.0.0.1:{self.sim_port}:21",
-                "--lead-mm", leads, "--no-progress",
+                "--lead-mm", leads, "--no-progress", *points,
                 *(() if heat_warmup else ("--no-heat-warmup",)), *extra]  # fmt: skip
 
-    def commission(self, *extra: str, heat_warmup: bool = False) -> Proc:
-        return Proc(self.commission_args(*extra, heat_warmup=heat_warmup))
+    def commission(self, *extra: str, heat_warmup: bool = False,
+                   plane_points: int | None = PLANE_POINTS) -> Proc:  # fmt: skip
+        return Proc(self.commission_args(*extra, heat_warmup=heat_warmup,
+                                         plane_points=plane_points))  # fmt: skip
 
 
 @contextlib.contextmanager

@@ -39,12 +39,12 @@ def pty_pair() -> Iterator[PtyPair]:
 #: pytest-xdist's first round hands them out one a worker and the short files fill in
 #: around them (last, one 100 s file could run alone while the other workers sat idle)
 LONG_FILES_S = {
-    "test_commission.py": 105, "test_commission_recorded.py": 70,
-    "test_commission_budget.py": 52, "test_commission_run_heat.py": 39,
-    "test_commission_instruments.py": 33, "test_sweep.py": 32, "test_thermal_shape.py": 30,
-    "test_commission_short.py": 28, "test_calibration_e2e.py": 23,
-    "test_commission_rotary.py": 22, "test_demo.py": 21, "test_fuzz.py": 17,
-    "test_cyclic_cal_e2e.py": 17, "test_commission_verdict.py": 15,
+    "test_commission.py": 136, "test_commission_budget.py": 101,
+    "test_commission_recorded.py": 71, "test_commission_run_heat.py": 60, "test_sweep.py": 46,
+    "test_commission_short.py": 43, "test_commission_instruments.py": 38,
+    "test_calibration_e2e.py": 38, "test_thermal_shape.py": 37, "test_demo.py": 30,
+    "test_fuzz.py": 24, "test_cyclic_cal_e2e.py": 23, "test_commission_verdict.py": 18,
+    "test_commission_rotary.py": 17, "test_cyclic_sim.py": 17, "test_takeup.py": 14,
 }  # fmt: skip
 
 

@@ -71,7 +71,7 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
         # warm-up (6 min of strokes, 13 with its readings) fit; the rounds after those, 0.5 h
         # of machine time, would add nothing this test checks)
         proc = rig.commission("--tolerance-um", "1", "--budget-h", "2.5", "--warmup-min", "6",
-                              heat_warmup=True)
+                              heat_warmup=True, plane_points=None)
         rc = proc.popen.wait(timeout=300)
         text = proc.text()
         assert rc in (0, 1), text
@@ -94,6 +94,9 @@ def test_commission_end_to_end(template: Path, tmp_path: Path) -> None:
             fitted = read_plan(out / "plans" / f"iso-{axis}.plan").targets_mm(axis)
             assert np.min(np.abs(judged[:, None] - fitted[None, :])) >= 0.19
             assert TRAVEL_MM[0] <= judged.min() and judged.max() <= TRAVEL_MM[1]
+        # the plane's verdict: 40 random points (the default), each read from both sides
+        plane = read_plan(out / "plans" / "before-xy.plan").measured_points_mm()
+        assert len(plane) == 80 and len(np.unique(plane, axis=0)) == 40, len(plane)
         # the gateway ends on the final config, which checks, and yours is kept
         assert "(full config)" in rig.config.read_text().splitlines()[0]
         assert (out / "original.yaml").read_text() == original
@@ -238,7 +241,7 @@ def test_commission_resumes_after_a_kill_even_in_a_sweep(template: Path, tmp_pat
         out = rig.dir / "commission"
         state = out / "commission.json"
         raw = out / "raw" / "sweep1-X.csv"
-        args = ("--tolerance-um", "1", "--budget-h", "1.8")
+        args = ("--tolerance-um", "1", "--budget-h", "1.7")
         first = rig.commission(*args)
         wait_for_steps(state, 4, first)
         first.kill()

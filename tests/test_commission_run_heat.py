@@ -17,7 +17,7 @@ import yaml
 from gateway.calibration.fitting.plane_frame import table_deviation_mm
 from gateway.calibration.plans.rawdata import read_raw_csv
 from gateway.config import parse_config
-from tests.commission_rig import Rig, running
+from tests.commission_rig import PLANE_POINTS, Rig, running
 from tests.test_service_helpers import Proc
 
 
@@ -47,7 +47,8 @@ def _commission(rig: Rig, budget_h: float) -> tuple[Proc, dict]:
                  "--gateway", f"127.0.0.1:{rig.gw_port}",
                  "--laser", f"127.0.0.1:{rig.sim_port}:20",
                  "--xy-device", f"127.0.0.1:{rig.sim_port}:21", "--lead-mm", leads,
-                 "--budget-h", str(budget_h), "--no-progress"])  # fmt: skip
+                 "--budget-h", str(budget_h), "--no-progress",
+                 "--plane-points", str(PLANE_POINTS)])  # fmt: skip
     assert proc.popen.wait(timeout=300) in (0, 1), proc.text()
     return proc, json.loads((rig.dir / "commission" / "commission.json").read_text())
 
@@ -147,39 +148,37 @@ def _read_up_um(commission: Path, axis: str) -> tuple[np.ndarray, np.ndarray]:
 
 def test_an_axis_no_heat_model_follows_keeps_the_state_its_runs_were_read_in(
         tmp_path: Path) -> None:  # fmt: skip
-    """At 1.0 h on random machine 11 the drift references are read and Y's drift stands
-    out of their scatter, so it is taken off Y's runs; but no heat model explains it. Its
-    table, fitted to the cold start, then met a machine that is never cold in use with
-    nothing to follow the heat. Now the references' drift is given back: the final config
-    takes off, at Y's targets, what the laser read there in Y's own runs (their mean:
-    kept − read 0.00 µm, RMS 0.05), where the table as fitted was 0.44 µm off it.
-    (Session 65's plans: machine 19's X.)"""
-    with _references_read(tmp_path, 11) as (rig, proc, state):
-        heat = state["identify"]["motion-Y"]
+    """At 1.0 h on random machine 19 the drift references are read and X's drift stands
+    out of their scatter, so it is taken off X's runs; but no heat model explains it (the
+    heat never levelled off). Its table, fitted to the cold start, then met a machine
+    that is never cold in use with nothing to follow the heat. Now the references' drift
+    is given back: the final config takes off, at X's targets, what the laser read there
+    in X's own runs (their mean), where the table as fitted was 0.36 µm off it."""
+    with _references_read(tmp_path, 19) as (rig, proc, state):
+        heat = state["identify"]["motion-X"]
         assert not heat["fitted"] and "table_held_um" in heat, (heat, proc.text())
-        assert state["drift_off_at_fit"]["Y"], state["drift_off_at_fit"]
-        assert "Y: no heat model follows it, so its table keeps the state" in proc.text()
+        assert state["drift_off_at_fit"]["X"], state["drift_off_at_fit"]
+        assert "X: no heat model follows it, so its table keeps the state" in proc.text()
         commission = rig.dir / "commission"
-        targets, read_um = _read_up_um(commission, "Y")
+        targets, read_um = _read_up_um(commission, "X")
         data = yaml.safe_load(rig.config.read_text())
         off = {}
-        for name in ("y_pitch.csv", "y_pitch.as_read.csv"):
-            data["axes"]["Y"]["compensation"]["pitch"]["file"] = f"commission/tables/{name}"
-            took_um = 1000.0 * table_deviation_mm(parse_config(data), rig.dir, "Y", targets)
+        for name in ("x_pitch.csv", "x_pitch.as_read.csv"):
+            data["axes"]["X"]["compensation"]["pitch"]["file"] = f"commission/tables/{name}"
+            took_um = 1000.0 * table_deviation_mm(parse_config(data), rig.dir, "X", targets)
             off[name] = took_um - read_um
-        kept, fitted = off["y_pitch.csv"], off["y_pitch.as_read.csv"]
+        kept, fitted = off["x_pitch.csv"], off["x_pitch.as_read.csv"]
         assert abs(kept.mean()) < 0.1 and np.sqrt(np.mean(kept**2)) < 0.2, kept
         assert abs(fitted.mean()) > 0.2, fitted
 
 
 def test_a_table_fitted_as_read_is_given_back_no_drift(tmp_path: Path) -> None:
-    """At 1.0 h on random machine 25 Y's drift references only scattered when its table was
-    fitted, so the table was fitted as read. The references read after it (the plane's
-    grid and random points) made Y's drift stand out. No heat model follows Y, but nothing
-    was taken off its table: nothing is given back. Before, the drift the references now
-    showed was given back all the same (−0.08 µm at the first reference, +0.35 at the
-    second here; machine 14 under session 65's plans: a 1.2 µm tilt)."""
-    with _references_read(tmp_path, 25) as (rig, proc, state):
+    """At 1.0 h on random machine 14 Y's drift references only scattered when its table was
+    fitted (before the plane's grid), so the table was fitted as read. The plane's grid
+    and random points read the references again, and then Y's drift stood out. No heat
+    model follows Y, but nothing was taken off its table: nothing is given back. Before,
+    the drift the references now showed was given back all the same (a 1.2 µm tilt)."""
+    with _references_read(tmp_path, 14) as (rig, proc, state):
         assert state["drift_off_at_fit"] == {"X": True, "Y": False}, state["drift_off_at_fit"]
         heat = state["identify"]["motion-Y"]
         assert not heat["fitted"] and "table_held_um" not in heat, heat

@@ -86,6 +86,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    help="axes without --lead-mm get no cyclic stage (no search scan)")
     p.add_argument("--tolerance-um", type=above(0, "µm"), default=2.0, metavar="T",
                    help="ISO 230-2 E (XY: max vector error) between the points (2)")
+    p.add_argument("--plane-points", type=above(3, "points", int), metavar="N",
+                   help="the plane's random points the verdict reads, each from both sides: "
+                   "as many as the customer's acceptance reads (40)")
     p.add_argument("--tolerance-arcsec", type=above(0, "arcseconds"), default=3.0, metavar="T",
                    help="rotary axes: ISO 230-2 E between the points, arcseconds (3)")
     p.add_argument("--budget-h", type=above(0, "hours of machine time"), default=8.0, metavar="H",
@@ -263,6 +266,7 @@ def main(args: argparse.Namespace) -> int:
     from .commission import Commission
     from .report import summary_lines
     from .report import write as write_report
+    from .settings import VERDICT_XY_POINTS
     from .steps import CommissionAborted, Settings
 
     try:
@@ -334,6 +338,7 @@ def main(args: argparse.Namespace) -> int:
             ),
             axes=axes, planar=plane, lead_mm=parse_leads(args.lead_mm, axes),
             tolerance_um=args.tolerance_um, tolerance_arcsec=args.tolerance_arcsec,
+            plane_points=args.plane_points or VERDICT_XY_POINTS,
             budget_s=args.budget_h * 3600.0,
             speed_mm_s=args.estimate_speed_mm_s,
             stop_s=max(args.estimate_stop_s, args.dwell_s) if laser_kind is not None

@@ -26,11 +26,6 @@ if TYPE_CHECKING:
     from .rotary import RotarySteps
     from .thermal import ThermalSteps
 
-#: the plane's random points of the verdict (each read from both sides): as many as a
-#: customer's acceptance reads. A maximum over 16 fell short of one over 40 on rough
-#: screws (rough-0: 0.86 µm as read at 16, 1.45-1.64 at four draws of 40, cold)
-VERDICT_XY_POINTS = 40
-
 
 class Planner:
     """The plans of the identification and of the judging runs (pure of the machine: the axes, the
@@ -146,9 +141,9 @@ class Planner:
     def xy_check_plan(self, seed: int, grid: tuple[int, int], both_ways: bool = False) -> Plan:
         """The plane's random points, approached in + (a round's check of the plane's
         model, which a grid read in + refines); ``both_ways``: in − too, and
-        :data:`VERDICT_XY_POINTS` of them (the verdict's)."""
+        ``plane_points`` of them (the verdict's: ``--plane-points``)."""
         (x0, x1), (y0, y1) = self.axes.plane_travel()
-        count = VERDICT_XY_POINTS if both_ways else adaptive.RANDOM_TARGETS
+        count = self.s.plane_points if both_ways else adaptive.RANDOM_TARGETS
         return xy_verification_plan((x0 + 2, x1 - 2), (y0 + 2, y1 - 2), grid[0], grid[1],
                                     self.s.planar, mode="random", count=count,
                                     seed=seed, approach_mm=1.0, lower_mm=(x0, y0),
