@@ -236,6 +236,8 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
         "xy_zeroed_after_um": a["xy"].get("max_zeroed_um", np.nan),
         # the plane's shape: its mean offset off (the constant a home and work offset take)
         "xy_centred_after_um": a["xy"].get("max_centred_um", np.nan),
+        # a column and a row, the held axis's target sent again at every stop
+        "xy_paths_after_um": max(a["xy"].get("paths_max_um") or [np.nan]),
         # thermal: on the axes with a sensor (all axes when there is none: the drift)
         "thermal_off_um": max(b["axes"][n]["thermal_um"] for n in sensed or axes),
         "thermal_on_um": max(a["axes"][n]["thermal_um"] for n in sensed or axes),

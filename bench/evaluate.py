@@ -8,9 +8,11 @@ Per axis (the other axis parked at a random place): 5 bidirectional ISO 230-2 ru
 random targets (overrun past both ends) → E, A, R, M, B; an off-grid sequence, half long
 moves to random positions and half short steps (5 µm-2 mm, either way: reversals that take
 up only part of a play) → RMS of the deviations. In the plane: random XY points in random
-order → max and RMS vector error. Thermal: deviations at a few positions cold, then after
-30 min of machine time cycling the axis over a work zone (40 % of the travel), warm, each
-the mean of three passes over the positions, four approaches each → the largest change (µm).
+order → max and RMS vector error; a column and a row (one axis held, its target sent again
+at each stop, the other up and down) → max vector error along each. Thermal: deviations at
+a few positions cold, then after 30 min of machine time cycling the axis over a work zone
+(40 % of the travel), warm, each the mean of three passes over the positions, four
+approaches each → the largest change (µm).
 
 At time_scale 0 the sim's clock stands still between moves: where a real upper computer
 would sleep until the reading is stable, this one reads the stable flag (laser 2N+k, XY
@@ -44,6 +46,10 @@ SETTLE_STEP_MS, SETTLE_MAX_STEPS = 10, 300
 WARMUP_S, ZONE_FRACTION = 1800.0, 0.4
 #: the warm judge's mixed work: this many blocks of WARMUP_S / MIXED_BLOCKS each
 MIXED_BLOCKS = 10
+#: stops of the plane's column and row (one axis held, its target sent again at each): up,
+#: then down the same stops (a rough machine's X stood 11 µm off at a column's top, session
+#: 66, where random points, both axes moving, read 1.5)
+PATH_STOPS = 12
 #: passes over the thermal points, cold and warm: a point's change is that of its mean, so
 #: one stop's scatter does not pose as heat (rough-1 X, single readings: 0.5-2.4 µm over
 #: four judgings of the same tables; the mean of three: 0.6-0.9 µm)
@@ -285,6 +291,15 @@ def plan(machine: dict[str, Any], avoid: dict[str, list[float]], seed: int) -> d
     points = [(_snap(xy.uniform(x0 + 2, x1 - 2), px), _snap(xy.uniform(y0 + 2, y1 - 2), py))
               for _ in range(40)]  # fmt: skip
     out["xy_points"] = points
+    # a column of holes and a row: one axis held (its target sent again at every stop, as
+    # a PLC drilling a pattern does), the other up then down PATH_STOPS random stops
+    path = rng(len(names), 2)
+    held_x = _snap(path.uniform(x0 + 2, x1 - 2), px)
+    held_y = _snap(path.uniform(y0 + 2, y1 - 2), py)
+    ys = sorted(_snap(v, py) for v in path.uniform(y0 + 2, y1 - 2, PATH_STOPS))
+    xs = sorted(_snap(v, px) for v in path.uniform(x0 + 2, x1 - 2, PATH_STOPS))
+    out["xy_paths"] = [[(held_x, y) for y in ys + ys[::-1]],
+                       [(x, held_y) for x in xs + xs[::-1]]]  # fmt: skip
     return out
 
 
@@ -319,6 +334,24 @@ async def _offgrid_rms(m: Master, name: str, p: dict[str, Any],
         devs.append(await m.deviation_um(name, pos))
     return (float(np.sqrt(np.mean(np.square(devs)))),
             float(np.sqrt(np.mean(np.square(np.subtract(devs, zero_um))))))
+
+
+async def _paths_max_um(m: Master, names: list[str],
+                        paths: list[list[tuple[float, float]]]) -> list[float]:  # fmt: skip
+    """Largest vector error (µm, as read) along each path: both targets written at every
+    stop, the held axis's unchanged (what the gateway must correct again when the other
+    axis moves the plane's error under it)."""
+    out = []
+    for path in paths:
+        worst = 0.0
+        for x, y in path:
+            await m.move({names[0]: x, names[1]: y})
+            tx, ty = await m.xy_mm()
+            ex = tx - _snap(x, m.axes[names[0]].pulse_mm)
+            ey = ty - _snap(y, m.axes[names[1]].pulse_mm)
+            worst = max(worst, math.hypot(ex, ey) * 1e3)
+        out.append(worst)
+    return out
 
 
 def zone_strokes(z0_mm: float, z1_mm: float, speed_mm_s: float) -> int:
@@ -435,6 +468,8 @@ async def evaluate(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: 
         out["xy"] = {"max_um": float(max(errs)), "rms_um": float(np.sqrt(np.mean(np.square(errs)))),
                      "points": len(errs), "max_zeroed_um": float(zeroed.max()),
                      "max_centred_um": float(centred.max())}  # fmt: skip
+        if the_plan.get("xy_paths"):  # (plans of older runs have none)
+            out["xy"]["paths_max_um"] = await _paths_max_um(m, names, the_plan["xy_paths"])
         if cool is not None:  # last: the warm-ups heat the machine
             for name in names:
                 p = the_plan["axes"][name]
