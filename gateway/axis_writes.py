@@ -69,7 +69,9 @@ _NO_TRIGGER = Verdict(fires=False, homes=False)
 #: flank: the table does not follow inside the play, an error of at most that; crossing
 #: the whole play for less would make the axis hunt by its lost motion each time a master
 #: sends the same target again while a Δa sensor's reading wanders by a fraction of a µm
-TURN_DEADBAND_MM = 0.002
+#: (or a 1 µm sensor toggles a step). 2 µm let a row of holes, the held axis sent again,
+#: read 3.3 µm on a smooth machine whose random points read 1.2 (session 66: 1.4 at 1 µm)
+TURN_DEADBAND_MM = 0.001
 
 
 class AxisWrites:
@@ -564,7 +566,7 @@ class AxisWrites:
                 # through its play, corrected as a reversal (trial 9: Y sent 400 again
                 # after X moved, 7.2 µm back in command, stayed 7.1 µm off in the play).
                 # Measured from the flank, not the last command: steps back each under
-                # the deadband add up inside the play (X re-sent down a column of Y
+                # the dead band add up inside the play (X sent again up a column of Y
                 # targets: 11 µm off at the top, each step 1 µm back)
                 turned = chain_axis.turned(start, nominal, -motion.direction, back_mm)
                 inputs[name] = AxisInput(nominal, turned.engagement, delta_a)

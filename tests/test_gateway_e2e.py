@@ -354,7 +354,7 @@ def test_steps_back_each_inside_the_dead_band_add_up_to_a_reversal(tmp_path: Pat
                                                                    commit: str) -> None:
     """Y at 300 mm approached +, sent again while X steps 50 mm at a time (a column of
     holes along the other axis): each step takes 1 µm off Y's command. Inside the play the
-    table stays where the furthest command put it, so the steps add up: past the 2 µm dead
+    table stays where the furthest command put it, so the steps add up: past the 1 µm dead
     band Y turns as a reversal and then follows the − flank (before: each step was within
     the dead band of the one before, Y kept the + flank with its command 16 µm back, and
     stood off by what the play swallowed; a kept rough machine read 11 µm off in X at the
@@ -377,9 +377,9 @@ def test_steps_back_each_inside_the_dead_band_add_up_to_a_reversal(tmp_path: Pat
                 await move(master, 1, x)
                 await move(master, 2, 300_000)  # the same target, sent again
                 sent.append(await read32(direct, 2, TARGET))
-            assert sent[:2] == [up - 1, up - 2]  # inside the dead band: on the + flank
-            assert sent[2] == y_command(150_000, -1) == up - 3 - 10  # 3 µm: a reversal
-            assert sent[3:] == [y_command(x, -1) for x in range(200_000, 800_001, 50_000)]
+            assert sent[0] == up - 1  # inside the 1 µm dead band: on the + flank
+            assert sent[1] == y_command(100_000, -1) == up - 2 - 10  # 2 µm: a reversal
+            assert sent[2:] == [y_command(x, -1) for x in range(150_000, 800_001, 50_000)]
             assert sent[-1] == up - 16 - 10
             assert await read32(master, 2, FEEDBACK) == 300_000
 
