@@ -345,13 +345,17 @@ async def _paths_max_um(m: Master, names: list[str],
     for path in paths:
         worst = 0.0
         for x, y in path:
-            await m.move({names[0]: x, names[1]: y})
-            tx, ty = await m.xy_mm()
-            ex = tx - _snap(x, m.axes[names[0]].pulse_mm)
-            ey = ty - _snap(y, m.axes[names[1]].pulse_mm)
-            worst = max(worst, math.hypot(ex, ey) * 1e3)
+            worst = max(worst, math.hypot(*await _vector_mm(m, names, x, y)) * 1e3)
         out.append(worst)
     return out
+
+
+async def _vector_mm(m: Master, names: list[str], x: float, y: float) -> tuple[float, float]:
+    """Move both axes to (x, y) (mm, both targets written) and read the XY device: the
+    vector error (mm), actual − target at the drives' pulses."""
+    await m.move({names[0]: x, names[1]: y})
+    tx, ty = await m.xy_mm()
+    return tx - _snap(x, m.axes[names[0]].pulse_mm), ty - _snap(y, m.axes[names[1]].pulse_mm)
 
 
 def zone_strokes(z0_mm: float, z1_mm: float, speed_mm_s: float) -> int:
@@ -453,10 +457,7 @@ async def evaluate(machine: dict[str, Any], the_plan: dict[str, Any], sim_port: 
             out["axes"][name] = fig
         errs, vecs = [], []
         for x, y in the_plan["xy_points"]:
-            await m.move({names[0]: x, names[1]: y})
-            tx, ty = await m.xy_mm()
-            ax, ay = axes[names[0]], axes[names[1]]
-            vecs.append((tx - _snap(x, ax.pulse_mm), ty - _snap(y, ay.pulse_mm)))
+            vecs.append(await _vector_mm(m, names, x, y))
             errs.append(math.hypot(*vecs[-1]) * 1e3)
         # as a device zeroed at the point nearest the machine's zero reads them
         near = int(np.argmin([math.hypot(x, y) for x, y in the_plan["xy_points"]]))

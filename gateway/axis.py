@@ -106,6 +106,13 @@ class AxisState:
         self.shadow_known = True
         self.halves_written.clear()
 
+    def flank_for(self, direction: int) -> int | None:
+        """The command (drive units) a move in ``direction`` is measured from for a reversal:
+        the flank's furthest while the nut stays on it, the last command once it turns."""
+        if self.flank_command_units is None or direction != self.motion.direction:
+            return self.last_command_units
+        return self.flank_command_units
+
     def homing_started(self, home_direction: int) -> None:
         """The drive is homing: the next target is approached as the first after homing,
         and the drive is no longer at its last command."""

@@ -500,7 +500,7 @@ class AxisWrites:
         off at the top). A nominal move advances it by the move alone (the curve's terms:
         the table's travel), whatever the correction does."""
         nominal = int(inputs[name].pulses)
-        if motion.direction != start.direction or nominal != start.last_target_pulses:
+        if nominal != start.last_target_pulses:  # (sent again: its direction is start's)
             return command, motion
         axis_cfg = setup.config.axes[name]
         on_mm = (command - flank) * motion.direction * axis_cfg.pulse_mm / axis_cfg.command_scale
@@ -555,9 +555,7 @@ class AxisWrites:
         scale = axis_cfg.command_scale
         try:
             command = setup.chain.command_pulses(name, inputs, scale)
-            flank = state.flank_command_units
-            if flank is None or motion.direction != state.motion.direction:
-                flank = state.last_command_units
+            flank = state.flank_for(motion.direction)
             back_mm = 0.0 if flank is None else abs(command - flank) * axis_cfg.pulse_mm / scale
             if (flank is not None and back_mm > TURN_DEADBAND_MM
                     and (command > flank) != (motion.direction > 0)):
