@@ -27,6 +27,7 @@ from .compensation import (
     MotionState,
     TravelError,
 )
+from .compensation.reversal import command_on_flank
 from .config import Axis
 from .drive_model import (
     LatchedField,
@@ -65,13 +66,6 @@ log = logging.getLogger("gateway.router")
 
 _NO_TRIGGER = Verdict(fires=False, homes=False)
 
-#: a command going back against its move by no more than this (mm, or degrees) stays on its
-#: flank: the table does not follow inside the play, an error of at most that; crossing
-#: the whole play for less would make the axis hunt by its lost motion each time a master
-#: sends the same target again while a Δa sensor's reading wanders by a fraction of a µm
-#: (or a 1 µm sensor toggles a step). 2 µm let a row of holes, the held axis sent again,
-#: read 3.3 µm on a smooth machine whose random points read 1.2 (session 66: 1.4 at 1 µm)
-TURN_DEADBAND_MM = 0.001
 
 
 class AxisWrites:
@@ -489,27 +483,6 @@ class AxisWrites:
         counts = unpack_int32(words, fb.order)
         return round(counts / fb.counts_per_pulse / axis.command_scale)
 
-    def _pushed_on(self, setup: Setup, name: str, inputs: dict[str, AxisInput],
-                   start: MotionState, motion: MotionState, command: int, flank: int
-                   ) -> tuple[int, MotionState]:  # fmt: skip
-        """The command and motion state of a target sent again whose command goes on along
-        the flank (the plane's partner moved, the screw grew): the carriage moves by that
-        much with no nominal move, and takes up more of a soft nut's play, so the
-        engagement advances by it (a kept rough machine: X sent again up a column of Y
-        targets, its command 35 µm on, corrected as the first 9 µm had left the nut: 11 µm
-        off at the top). A nominal move advances it by the move alone (the curve's terms:
-        the table's travel), whatever the correction does."""
-        nominal = int(inputs[name].pulses)
-        if nominal != start.last_target_pulses:  # (sent again: its direction is start's)
-            return command, motion
-        axis_cfg = setup.config.axes[name]
-        on_mm = (command - flank) * motion.direction * axis_cfg.pulse_mm / axis_cfg.command_scale
-        if on_mm <= 0.0:
-            return command, motion
-        pushed = setup.chain.axes[name].turned(motion, nominal, motion.direction, on_mm)
-        inputs[name] = AxisInput(nominal, pushed.engagement, inputs[name].delta_a_mm)
-        return setup.chain.command_pulses(name, inputs, axis_cfg.command_scale), pushed
-
     def _check_travel(self, setup: Setup, name: str, nominal: int) -> None:
         """Refuse (0x03) a nominal target (pulses) outside the axis's travel."""
         try:
@@ -531,9 +504,8 @@ class AxisWrites:
         state = self._axes[name].state
         start = state.motion if own_seen is None else MotionState(
             state.motion.direction, own_seen, state.motion.engagement)  # fmt: skip
-        chain_axis = setup.chain.axes[name]
         self._check_travel(setup, name, nominal)
-        motion = chain_axis.approach(start, nominal)  # the nut moves either way
+        motion = setup.chain.axes[name].approach(start, nominal)  # the nut moves either way
         if not (state.enabled and homed):  # sent as written, but the screw heats all the same
             self._swept(name, nominal)
             return nominal * axis_cfg.command_scale, False, motion
@@ -554,26 +526,8 @@ class AxisWrites:
                 inputs[partner] = AxisInput(partner_seen)
         scale = axis_cfg.command_scale
         try:
-            command = setup.chain.command_pulses(name, inputs, scale)
-            flank = state.flank_for(motion.direction)
-            back_mm = 0.0 if flank is None else abs(command - flank) * axis_cfg.pulse_mm / scale
-            if (flank is not None and back_mm > TURN_DEADBAND_MM
-                    and (command > flank) != (motion.direction > 0)):
-                # the motor turns against the nominal move (a target sent again whose
-                # correction went back: the partner moved, the screw grew): the nut turns
-                # through its play, corrected as a reversal (trial 9: Y sent 400 again
-                # after X moved, 7.2 µm back in command, stayed 7.1 µm off in the play).
-                # Measured from the flank, not the last command: steps back each under
-                # the dead band add up inside the play (X sent again up a column of Y
-                # targets: 11 µm off at the top, each step 1 µm back)
-                turned = chain_axis.turned(start, nominal, -motion.direction, back_mm)
-                inputs[name] = AxisInput(nominal, turned.engagement, delta_a)
-                again = setup.chain.command_pulses(name, inputs, scale)
-                if again != flank and (again > flank) == (turned.direction > 0):
-                    command, motion = again, turned
-            elif flank is not None and chain_axis.takeup is not None:
-                command, motion = self._pushed_on(setup, name, inputs, start, motion,
-                                                  command, flank)  # fmt: skip
+            command, motion = command_on_flank(setup.chain, name, inputs, start, motion,
+                                               state.flank_for(motion.direction), scale)
             self._swept(name, nominal)  # after: this move heats what comes next
             return command, True, motion
         except CorrectionLimitError as exc:
