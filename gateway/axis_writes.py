@@ -26,8 +26,8 @@ from .compensation import (
     CorrectionLimitError,
     MotionState,
     TravelError,
+    command_on_flank,
 )
-from .compensation.reversal import command_on_flank
 from .config import Axis
 from .drive_model import (
     LatchedField,

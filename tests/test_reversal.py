@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from gateway.compensation import (
+    TURN_DEADBAND_MM,
     AxisChain,
     AxisInput,
     BacklashStage,
@@ -12,8 +13,8 @@ from gateway.compensation import (
     MotionState,
     TakeUpCurve,
     ThermalStage,
+    command_on_flank,
 )
-from gateway.compensation.reversal import TURN_DEADBAND_MM, command_on_flank
 
 PULSE_MM = 0.0001  # 0.1 µm: fine enough to see a step inside the dead band
 BACKLASH_MM = 0.020
@@ -57,7 +58,7 @@ def test_a_command_back_beyond_the_dead_band_from_its_flank_turns_the_nut() -> N
     on_plus = MotionState(1, AT_PULSES)
     flank = chain.command_pulses("X", {"X": AxisInput(AT_PULSES, 1)})
     command, motion = _sent_again(chain, on_plus, 2.0, flank)
-    assert 2.0 / 1000 > TURN_DEADBAND_MM
+    assert TURN_DEADBAND_MM < 2.0 / 1000
     assert motion.direction == -1 and motion.engagement == -1
     assert command == chain.command_pulses("X", {"X": AxisInput(AT_PULSES, -1, _grown(2.0))})
     assert flank - command == pytest.approx((2.0 + 1000 * BACKLASH_MM) / 1000 / PULSE_MM, abs=1)

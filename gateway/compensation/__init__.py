@@ -20,6 +20,7 @@ from .linkage import LinkageModel, LinkageStage
 from .monotone_map import MonotoneMap
 from .pitch import PitchStage, PitchTable
 from .planar import GridModel, PlanarMeasurement, PlanarStage, PolyModel
+from .reversal import TURN_DEADBAND_MM, command_on_flank
 from .takeup import TakeUpCurve
 from .thermal import (
     STEEL_ALPHA_PER_K,
@@ -31,6 +32,7 @@ from .thermal import (
 
 __all__ = [
     "STEEL_ALPHA_PER_K",
+    "TURN_DEADBAND_MM",
     "AxisChain",
     "AxisInput",
     "BacklashStage",
@@ -54,6 +56,7 @@ __all__ = [
     "TakeUpCurve",
     "ThermalStage",
     "TravelError",
+    "command_on_flank",
     "delta_a_from_temperature",
     "pulse_equivalent_mm",
     "pulses_for_travel",
