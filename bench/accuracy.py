@@ -463,8 +463,10 @@ def main() -> int:
     workflows.TOLERANCE_UM = args.tolerance_um
     workflows.BUDGET_VS_MANUAL = args.budget_vs_manual
     workflows.BUDGET_VS_PLAIN = args.budget_vs_plain
-    if args.budget_vs_manual is not None and args.budget_vs_plain is not None:
-        parser.error("--budget-vs-manual and --budget-vs-plain: give one")
+    workflows.BUDGET_H = args.budget_h
+    if sum(v is not None for v in (args.budget_vs_manual, args.budget_vs_plain,
+                                   args.budget_h)) > 1:  # fmt: skip
+        parser.error("--budget-vs-manual, --budget-vs-plain and --budget-h: give one")
     workflows.THERMAL_PROFILE = args.thermal_profile
     workflows.NO_SENSORS = args.no_sensors
     workflows.LASER_KIND = args.laser_kind
@@ -520,6 +522,7 @@ def main() -> int:
                           "tolerance_um": args.tolerance_um,
                           "budget_vs_manual": args.budget_vs_manual,
                           "budget_vs_plain": args.budget_vs_plain,
+                          "budget_h": args.budget_h,
                           "laser_kind": args.laser_kind, "no_sensors": args.no_sensors,
                           "wall_s": round(wall, 1), "groups": stats,
                           "machines": results}, indent=2))  # fmt: skip

@@ -226,6 +226,8 @@ TOLERANCE_UM = 2.0
 BUDGET_VS_MANUAL: float | None = None
 #: ... or as this many times the plain workflow's (``accuracy.py --budget-vs-plain``)
 BUDGET_VS_PLAIN: float | None = None
+#: ... or this many hours, as a guide's command gives it (``accuracy.py --budget-h``)
+BUDGET_H: float | None = None
 #: how commission reads the sim's laser (``accuracy.py --laser-kind``)
 LASER_KINDS = ("modbus", "bridge", "recording-rtx", "recording-csv", "capture", "manual")
 LASER_KIND = "modbus"
@@ -420,6 +422,8 @@ def commission(run: MachineRun) -> WorkflowResult:
         if run.manual_s is not None:  # the budget shared evenly between the commands
             budget_h = factor * run.manual_s / 3600 / len(commands)  # type: ignore[operator]
             more += ["--budget-h", f"{budget_h:.3f}"]
+        elif BUDGET_H is not None:
+            more += ["--budget-h", f"{BUDGET_H / len(commands):.3f}"]
         out = run.work / ("commission" if len(commands) == 1 else f"commission-{axes[0]}")
         if reads_later():  # a folder per laser set-up (its refs-001 is not another's)
             laser_dir = run.work / ("laser" if len(commands) == 1 else f"laser-{axes[0]}")
