@@ -183,7 +183,11 @@ def test_a_reload_does_not_stop_the_traffic(tmp_path: Path) -> None:
             data["planar"] = {"axes": ["X", "Y"], "model": "xy.yaml", "commit": "on_trigger"}
             path.write_text(yaml.safe_dump(data))
             other = AsyncModbusTcpClient("127.0.0.1", port=r["app"].tcp_port, timeout=5, retries=0)
-            assert await other.connect()
+            # the reload's write is answered when the build is done: 0.3 s alone, 2.4 s on a
+            # loaded machine, past the rig master's 2 s; what is timed here is the other's
+            reloader = AsyncModbusTcpClient("127.0.0.1", port=r["app"].tcp_port, timeout=60,
+                                            retries=0)  # fmt: skip
+            assert await other.connect() and await reloader.connect()
             answered = 0
             done = asyncio.Event()
 
@@ -201,13 +205,14 @@ def test_a_reload_does_not_stop_the_traffic(tmp_path: Path) -> None:
                 while answered < 5:  # the poller runs
                     await asyncio.sleep(0)
                 before = answered
-                rr = await master.write_register(RELOAD_REGISTER, 1, device_id=247)
+                rr = await reloader.write_register(RELOAD_REGISTER, 1, device_id=247)
                 during = answered - before
                 done.set()
                 await poller
             finally:
                 done.set()
                 other.close()
+                reloader.close()
             assert not rr.isError(), rr
             gen = await master.read_input_registers(GENERATION_REGISTER, count=3, device_id=247)
             assert gen.registers[:3] == [0, 2, 0], gen.registers  # taken, not refused
