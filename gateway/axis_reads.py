@@ -1,13 +1,14 @@
 """Reads of an axis's registers: the target shadow and the feedback translation.
 
-A mixin of :class:`gateway.router.Gateway` (the routing is there): a read (FC03/04, and the
+Given the router's state (:class:`.router_state.RouterState`) by :class:`gateway.router.Gateway`,
+which routes to it: a read (FC03/04, and the
 read half of FC23) touching the target pair returns the *shadow* of what the master wrote;
 one touching the feedback pair returns the inverse-corrected (nominal) position; a read
 touching half a pair is widened to cover it; a read covering the status word records it for
 the homed check. The plan of a read (what goes to the drive, what rewrites its reply) is
 the same on the coroutine path and the fast path (:meth:`Gateway.handle_fast`), and cached
-per setup. Its own module because the read-back side (inverse chain, widening, caching) is
-a concern apart from the routing and from the writes (:mod:`gateway.axis_writes`).
+per setup. Its own module and object because the read-back side (inverse chain, widening,
+caching) is a concern apart from the routing and from the writes (:mod:`gateway.axis_writes`).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import TYPE_CHECKING
 from .axis import overlap
 from .compensation import AxisInput, CompensationError
 from .config import Axis
-from .modbus.downstream import Bus, Done
+from .modbus.downstream import Done
 from .modbus.frames import (
     MAX_READ_REGISTERS,
     READ_HOLDING_REGISTERS,
@@ -32,10 +33,10 @@ from .modbus.frames import (
     parse_read_registers_response,
     unpack_int32,
 )
-from .router_state import Finish
+from .router_state import Finish, RouterState
 
 if TYPE_CHECKING:
-    from .router_state import AxisRuntime, GatewayCounters, Setup
+    from .router_state import Setup
 
 # the router's logger (this code was split from it): log settings keep working
 log = logging.getLogger("gateway.router")
@@ -47,16 +48,10 @@ READ_PLANS_MAX = 1024
 
 
 class AxisReads:
-    """The read half of the axis request handler (see the module docstring)."""
+    """The read side of the axis request handler (see the module docstring)."""
 
-    buses: dict[str, Bus]
-    counters: GatewayCounters
-    _axes: dict[str, AxisRuntime]
-
-    if TYPE_CHECKING:  # provided by the Gateway
-        def _saw_status(self, name: str, word: int) -> None: ...
-
-        def _delta_a(self, name: str, at_pulses: float | None = None) -> float: ...
+    def __init__(self, state: RouterState) -> None:
+        self.state = state
 
     def _pairs_read_by(self, axis: Axis, table: str) -> list[int]:
         """Base addresses of intercepted pairs a read of ``table`` may touch."""
@@ -68,13 +63,13 @@ class AxisReads:
             bases.append(regs.feedback.address)
         return bases
 
-    async def _read(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
-        request, finish = self._cached_read_plan(setup, name, axis, req.function,
+    async def read(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
+        request, finish = self.cached_read_plan(setup, name, axis, req.function,
                                                  req.read_address or 0, req.read_count, pdu)
-        reply = await self.buses[axis.bus].transact(axis.unit, request)
+        reply = await self.state.buses[axis.bus].transact(axis.unit, request)
         return reply if finish is None else finish(reply)
 
-    def _cached_read_plan(self, setup: Setup, name: str, axis: Axis, fc: int, start: int,
+    def cached_read_plan(self, setup: Setup, name: str, axis: Axis, fc: int, start: int,
                           count: int, pdu: bytes) -> tuple[bytes, Finish | None]:
         """:meth:`_read_plan`, cached per setup (a new setup on reload starts empty)."""
         key = (name, fc, start, count)
@@ -93,7 +88,7 @@ class AxisReads:
         Reads touching an intercepted pair are widened to cover it and rewritten; a read
         covering the status word records it for the homed check. Depends on the setup and
         the read only (the axis state is looked at in the reply's turn), so it is cached
-        per setup by :meth:`_cached_read_plan`."""
+        per setup by :meth:`cached_read_plan`."""
         table = "holding" if fc == READ_HOLDING_REGISTERS else "input"
         bases = [b for b in self._pairs_read_by(axis, table) if overlap(start, count, b)]
         if not bases:
@@ -105,7 +100,7 @@ class AxisReads:
 
             def saw_status(reply: bytes) -> bytes:
                 if not is_exception(reply):
-                    self._saw_status(name, parse_read_registers_response(reply)[index])
+                    self.state.saw_status(name, parse_read_registers_response(reply)[index])
                 return reply
 
             return pdu, saw_status
@@ -124,17 +119,17 @@ class AxisReads:
                 raise ModbusError(
                     f"axis {name}: drive answered {len(words)} words", SERVER_DEVICE_FAILURE
                 )
-            self._rewrite_read(setup, name, axis, table, lo, words)
+            self.rewrite_read(setup, name, axis, table, lo, words)
             return build_read_registers_response(fc, words[start - lo : start - lo + count])
 
         return request, rewrite
 
-    def _rewrite_read(
+    def rewrite_read(
         self, setup: Setup, name: str, axis: Axis, table: str, lo: int, words: list[int]
     ) -> None:
         """Replace drive words of intercepted pairs inside ``words`` (which start at ``lo``)."""
         regs = axis.registers
-        runtime = self._axes[name]
+        runtime = self.state.axes[name]
         state = runtime.state
         if table == "holding" and regs.target.address - lo in range(len(words) - 1):
             i = regs.target.address - lo
@@ -148,7 +143,7 @@ class AxisReads:
             i = regs.feedback.address - lo
             counts = unpack_int32(words[i : i + 2], regs.feedback.order)
             units = counts / regs.feedback.counts_per_pulse  # where the drive is, its units
-            self.counters.feedback_reads += 1
+            self.state.counters.feedback_reads += 1
             exact = self._nominal(setup, name, axis, units / axis.command_scale)
             nominal = state.reported_feedback(round(units), exact)
             nominal_counts = round(nominal * axis.upstream_counts_per_pulse)
@@ -157,19 +152,19 @@ class AxisReads:
     def _nominal(self, setup: Setup, name: str, axis: Axis, command_pulses: float) -> float:
         """Nominal position (pulses) of a drive at ``command_pulses``; identity when the
         last target was sent uncorrected (compensation off or not homed)."""
-        state = self._axes[name].state
+        state = self.state.axes[name].state
         if not state.applied:
             return command_pulses
         inputs = {name: AxisInput(command_pulses, state.motion.engagement,
-                                  self._delta_a(name, command_pulses))}
+                                  self.state.delta_a(name, command_pulses))}
         partner = setup.planar_partner(name)
         if partner is not None:
-            other = self._axes[partner].state
+            other = self.state.axes[partner].state
             if other.last_command_units is not None and other.applied:
                 scale = setup.config.axes[partner].command_scale
                 inputs[partner] = AxisInput(
                     other.last_command_units / scale, other.motion.engagement,
-                    self._delta_a(partner, other.last_command_units / scale),
+                    self.state.delta_a(partner, other.last_command_units / scale),
                 )  # fmt: skip
         try:
             return setup.chain.nominal_pulses(name, inputs)

@@ -1,12 +1,14 @@
 """Writes to an axis: the target shadow, triggers, commits of the corrected target.
 
-A mixin of :class:`gateway.router.Gateway` (the routing is there): writes of the target pair
+Given the router's state (:class:`.router_state.RouterState`) and the read side
+(:class:`.axis_reads.AxisReads`, for FC23) by :class:`gateway.router.Gateway`, which routes
+to it: writes of the target pair
 (one FC16, the pair inside a longer FC16 block, or two single-register writes in either
 order) update the shadow of what the master wrote; the drive only ever receives a whole,
-corrected value (:meth:`AxisWrites._commit`, the chain's forward correction); a trigger
+corrected value (:meth:`AxisWrites.commit`, the chain's forward correction); a trigger
 write that fires commits the pending target first (and the planar partner's under
 ``commit: on_trigger``); blocks longer than the drive accepts go out in pieces, never
-splitting a pair, the trigger's piece last. Its own module because the commit rules are a
+splitting a pair, the trigger's piece last. Its own module and object because the commit rules are a
 concern apart from the routing and from the read-back (:mod:`gateway.axis_reads`).
 """
 
@@ -15,8 +17,6 @@ from __future__ import annotations
 import logging
 import struct
 import time
-from collections.abc import Awaitable, Callable, Iterable
-from contextlib import AbstractAsyncContextManager
 from typing import TYPE_CHECKING
 
 from .axis import overlap
@@ -37,7 +37,6 @@ from .drive_model import (
     touched,
     written_words,
 )
-from .modbus.downstream import Bus
 from .modbus.frames import (
     GATEWAY_PATH_UNAVAILABLE,
     GATEWAY_TARGET_NO_RESPONSE,
@@ -59,7 +58,8 @@ from .modbus.frames import (
 from .triggers import COIL_WRITES, Verdict, judge, writes_trigger
 
 if TYPE_CHECKING:
-    from .router_state import AxisRuntime, GatewayCounters, Setup
+    from .axis_reads import AxisReads
+    from .router_state import AxisRuntime, RouterState, Setup
 
 # the router's logger (this code was split from it): log settings keep working
 log = logging.getLogger("gateway.router")
@@ -69,28 +69,13 @@ _NO_TRIGGER = Verdict(fires=False, homes=False)
 
 
 class AxisWrites:
-    """The write half of the axis request handler (see the module docstring)."""
+    """The write side of the axis request handler (see the module docstring)."""
 
-    buses: dict[str, Bus]
-    counters: GatewayCounters
-    _axes: dict[str, AxisRuntime]
-    on_state_change: Callable[[], None]
-    before_correct: Callable[[], Awaitable[None]] | None
+    def __init__(self, state: RouterState, reads: AxisReads) -> None:
+        self.state = state
+        self.reads = reads
 
-    if TYPE_CHECKING:  # provided by the Gateway
-        def _axis_locks(self, names: Iterable[str | None]
-                        ) -> AbstractAsyncContextManager[None]: ...
-
-        def _saw_status(self, name: str, word: int) -> None: ...
-
-        def _delta_a(self, name: str, at_pulses: float | None = None) -> float: ...
-
-        def _swept(self, name: str, to_pulses: float) -> None: ...
-
-        def _rewrite_read(self, setup: Setup, name: str, axis: Axis, table: str,
-                          start: int, words: list[int]) -> None: ...
-
-    async def _write(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
+    async def write(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
         """A register write (FC06/16), or a coil write (FC05/15) to an axis whose trigger
         is a coil."""
         regs = axis.registers
@@ -106,24 +91,24 @@ class AxisWrites:
                 f"axis {name}: a register block must hold both words of the target",
                 ILLEGAL_DATA_VALUE,
             )
-        async with self._axis_locks([name, setup.planar_partner(name)]):
+        async with self.state.locks([name, setup.planar_partner(name)]):
             return await self._write_locked(setup, name, axis, req, pdu, mode_hit)
 
     async def _write_locked(self, setup: Setup, name: str, axis: Axis, req: Request,
                             pdu: bytes, mode_hit: list[LatchedField]) -> bytes:
-        """:meth:`_write` under the axis locks: judge what the drive would do, then send.
+        """:meth:`write` under the axis locks: judge what the drive would do, then send.
         Refused (an exception raised): nothing of the write is sent or kept."""
         regs = axis.registers
         start, count = req.write_address or 0, req.write_count
         coils = req.function in COIL_WRITES
         target_offsets = range(0) if coils else overlap(start, count, regs.target.address)
         trigger_hit = writes_trigger(regs.trigger, req.function, start, count)
-        runtime = self._axes[name]
+        runtime = self.state.axes[name]
         fields = setup.latched[name]
         written = written_words(mode_hit, start, req.values)
         latched = {**runtime.latched, **written}  # what the drive's fields hold after it
         if mode_hit:
-            await self._judge_latched(name, axis, mode_hit, latched, "a write")
+            await self.judge_latched(name, axis, mode_hit, latched, "a write")
         verdict = self._judge(runtime, axis, req) if trigger_hit else _NO_TRIGGER
         if verdict.relative:
             assert regs.trigger is not None
@@ -133,7 +118,7 @@ class AxisWrites:
             raise ModbusError(why, ILLEGAL_DATA_VALUE)
         starts = verdict.fires or (regs.trigger is None and bool(target_offsets))
         if starts and fields:  # the move goes where the drive's latched fields say
-            await self._judge_latched(name, axis, fields, latched, "a start")
+            await self.judge_latched(name, axis, fields, latched, "a start")
         hold = False
         if target_offsets and not verdict.fires:
             hold = await self._hold_for_mode(setup, name, axis, latched)
@@ -170,10 +155,10 @@ class AxisWrites:
             runtime.trigger = verdict.shadow
             if verdict.homes:
                 state.homing_started(axis.home_direction)
-                self.on_state_change()
+                self.state.on_state_change()
         return reply
 
-    async def _judge_latched(self, name: str, axis: Axis, fields: list[LatchedField]
+    async def judge_latched(self, name: str, axis: Axis, fields: list[LatchedField]
                              | tuple[LatchedField, ...], latched: dict[int, int],
                              when: str) -> None:  # fmt: skip
         """Refuse (0x03) ``when`` (a write, a start) unless every field of ``fields`` holds
@@ -190,8 +175,8 @@ class AxisWrites:
         """Read the words of ``fields`` that neither the master wrote nor compgw read
         (into ``latched`` and the axis's runtime). A drive that cannot say leaves them
         unknown: the caller refuses (:func:`~gateway.drive_model.first_refusal`)."""
-        bus = self.buses[axis.bus]
-        runtime = self._axes[name]
+        bus = self.state.buses[axis.bus]
+        runtime = self.state.axes[name]
         for address in missing(fields, latched):
             try:
                 word = (await bus.read_registers(axis.unit, "holding", address, 1))[0]
@@ -221,7 +206,7 @@ class AxisWrites:
             return True
         return first_refusal(fields, latched, name, "a write") is not None
 
-    async def _mask_write(self, setup: Setup, name: str, axis: Axis, pdu: bytes) -> bytes:
+    async def mask_write(self, setup: Setup, name: str, axis: Axis, pdu: bytes) -> bytes:
         """FC22 (mask write): on a register that decides a move (the trigger, a move mode,
         a block select) it is done as the drive would do it: the register read, the masks
         applied, the result judged and written as FC06; on the target refused (a position
@@ -238,9 +223,9 @@ class AxisWrites:
             raise ModbusError(why, ILLEGAL_DATA_VALUE)
         mode_hit = touched(setup.latched[name], address, 1)
         if not mode_hit and not writes_trigger(regs.trigger, WRITE_SINGLE_REGISTER, address, 1):
-            return await self.buses[axis.bus].transact(axis.unit, pdu)
-        async with self._axis_locks([name, setup.planar_partner(name)]):
-            bus = self.buses[axis.bus]
+            return await self.state.buses[axis.bus].transact(axis.unit, pdu)
+        async with self.state.locks([name, setup.planar_partner(name)]):
+            bus = self.state.buses[axis.bus]
             current = (await bus.read_registers(axis.unit, "holding", address, 1))[0]
             value = mask_write(current, and_mask, or_mask)
             single = build_write_single_register(address, value)
@@ -248,7 +233,7 @@ class AxisWrites:
             reply = await self._write_locked(setup, name, axis, req, single, mode_hit)
         return reply if is_exception(reply) else pdu
 
-    async def _read_write(self, setup: Setup, name: str, axis: Axis, req: Request,
+    async def read_write(self, setup: Setup, name: str, axis: Axis, req: Request,
                           pdu: bytes) -> bytes:
         """FC23: a write touching the target or trigger is refused (they need the split
         and commit rules); one touching a move mode or block select is judged as any
@@ -262,14 +247,14 @@ class AxisWrites:
                 ILLEGAL_DATA_VALUE,
             )
         mode_hit = touched(setup.latched[name], w_start, w_count)
-        runtime = self._axes[name]
-        async with self._axis_locks([name]):
+        runtime = self.state.axes[name]
+        async with self.state.locks([name]):
             written = written_words(mode_hit, w_start, req.values)
             if mode_hit:
                 latched = {**runtime.latched, **written}
-                await self._judge_latched(name, axis, mode_hit, latched, "a write")
+                await self.judge_latched(name, axis, mode_hit, latched, "a write")
             try:
-                reply = await self.buses[axis.bus].transact(axis.unit, pdu)
+                reply = await self.state.buses[axis.bus].transact(axis.unit, pdu)
             except ModbusError as exc:
                 if exc.code in (GATEWAY_PATH_UNAVAILABLE, GATEWAY_TARGET_NO_RESPONSE):
                     for address in written:
@@ -280,7 +265,7 @@ class AxisWrites:
             runtime.latched.update(written)
         words = parse_read_registers_response(reply)
         start = req.read_address or 0
-        self._rewrite_read(setup, name, axis, "holding", start, words)
+        self.reads.rewrite_read(setup, name, axis, "holding", start, words)
         return build_read_registers_response(req.function, words)
 
     async def _forward_write(self, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
@@ -289,7 +274,7 @@ class AxisWrites:
         if req.function == WRITE_MULTIPLE_REGISTERS and req.write_count > axis.fc16_max_words:
             await self._send_block(name, axis, req.write_address or 0, list(req.values))
             return response_for_write(req)
-        return await self.buses[axis.bus].transact(axis.unit, pdu)
+        return await self.state.buses[axis.bus].transact(axis.unit, pdu)
 
     async def _send_block(self, name: str, axis: Axis, address: int, values: list[int]) -> None:
         """Write ``values`` at ``address`` in FC16 pieces of at most ``fc16_max_words``,
@@ -315,7 +300,7 @@ class AxisWrites:
         pieces.sort(key=lambda p: any(address + i in trigger for i in range(*p)))
         for start, end in pieces:
             pdu = build_write_multiple_registers(address + start, values[start:end])
-            reply = await self.buses[axis.bus].transact(axis.unit, pdu)
+            reply = await self.state.buses[axis.bus].transact(axis.unit, pdu)
             if is_exception(reply):
                 raise ModbusError(f"axis {name}: drive refused a register block", reply[1])
 
@@ -331,7 +316,7 @@ class AxisWrites:
         planar axis with ``commit: on_trigger``, or ``hold_for_mode``: only the start
         tells whether the drive takes it as a position, :meth:`_hold_for_mode`). A held
         whole pair outside travel is refused at once (0x03)."""
-        state = self._axes[name].state
+        state = self.state.axes[name].state
         hold = (setup.hold_until_trigger(name) or hold_for_mode) \
             and axis.registers.trigger is not None
         if not state.pair_complete() or hold:
@@ -342,7 +327,7 @@ class AxisWrites:
                 await self._forward_around_target(name, axis, req)
             return response_for_write(req)
         block = req if req.write_count > 1 else None
-        await self._commit(setup, name, [], block)
+        await self.commit(setup, name, [], block)
         return response_for_write(req)
 
     async def _trigger_write(self, setup: Setup, name: str, axis: Axis, req: Request,
@@ -357,7 +342,7 @@ class AxisWrites:
         if req.function not in COIL_WRITES and overlap(req.write_address or 0,
                                                        req.write_count, target):
             block = req
-        await self._commit(setup, name, partners, block)
+        await self.commit(setup, name, partners, block)
         if block is not None:
             return response_for_write(req)
         return await self._forward_write(name, axis, req, pdu)
@@ -372,7 +357,7 @@ class AxisWrites:
             if values:
                 await self._send_block(name, axis, address, list(values))
 
-    async def _commit(
+    async def commit(
         self, setup: Setup, owner: str, partners: list[str], block: Request | None
     ) -> None:
         """Correct and write the targets of ``partners`` then ``owner``.
@@ -383,9 +368,9 @@ class AxisWrites:
         correction above the cap) sends nothing at all.
         """
         plans: list[tuple[str, int, int, bool, MotionState]] = []
-        before = self.before_correct  # (once, and only where a target is corrected)
+        before = self.state.before_correct  # (once, and only where a target is corrected)
         for name in [*partners, owner]:
-            state = self._axes[name].state
+            state = self.state.axes[name].state
             if not (state.shadow_known or state.halves_written):
                 continue
             nominal = state.nominal_target(setup.config.axes[name].registers.target.order)
@@ -412,13 +397,13 @@ class AxisWrites:
                 offset = axis.registers.target.address - address
                 values[offset : offset + 2] = words
             await self._send_block(name, axis, address, values)
-            runtime = self._axes[name]
+            runtime = self.state.axes[name]
             runtime.state.committed(nominal, command, motion)
             runtime.state.applied = applied
             runtime.hold(axis, command, nominal)
-            self.counters.commits += 1
+            self.state.counters.commits += 1
         if plans:
-            self.on_state_change()
+            self.state.on_state_change()
 
     async def _homed(self, name: str, axis: Axis) -> bool:
         """Whether the drive reports homed (True when no homed bit is configured).
@@ -431,11 +416,11 @@ class AxisWrites:
         status = axis.registers.status
         if status is None or status.homed_bit is None:
             return True
-        runtime = self._axes[name]
+        runtime = self.state.axes[name]
         if time.monotonic() - runtime.status_at_s > status.max_age_s or runtime.status_word is None:
-            bus = self.buses[axis.bus]
+            bus = self.state.buses[axis.bus]
             words = await bus.read_registers(axis.unit, status.table, status.address, 1)
-            self._saw_status(name, words[0])
+            self.state.saw_status(name, words[0])
         assert runtime.status_word is not None
         return bool(runtime.status_word >> status.homed_bit & 1)
 
@@ -451,7 +436,7 @@ class AxisWrites:
         partner = setup.planar_partner(name)
         if partner is None:
             return None
-        other = self._axes[partner].state
+        other = self.state.axes[partner].state
         if other.shadow_known or other.halves_written:
             return None
         try:
@@ -479,7 +464,7 @@ class AxisWrites:
         included: at most ``max_correction_mm``)."""
         axis = setup.config.axes[name]
         fb = axis.registers.feedback
-        words = await self.buses[axis.bus].read_registers(axis.unit, fb.table, fb.address, 2)
+        words = await self.state.buses[axis.bus].read_registers(axis.unit, fb.table, fb.address, 2)
         counts = unpack_int32(words, fb.order)
         return round(counts / fb.counts_per_pulse / axis.command_scale)
 
@@ -488,7 +473,7 @@ class AxisWrites:
         try:
             setup.chain.axes[name].check_travel(nominal * setup.config.axes[name].pulse_mm)
         except TravelError as exc:
-            self.counters.refused_travel += 1
+            self.state.counters.refused_travel += 1
             log.warning("%s", exc)
             raise ModbusError(str(exc), ILLEGAL_DATA_VALUE) from None
 
@@ -501,26 +486,26 @@ class AxisWrites:
         target of it is known (:meth:`_partner_seen`); ``own_seen``: where the axis stands
         before its first target (:meth:`_own_seen`)."""
         axis_cfg = setup.config.axes[name]
-        state = self._axes[name].state
+        state = self.state.axes[name].state
         start = state.motion if own_seen is None else MotionState(
             state.motion.direction, own_seen, state.motion.engagement)  # fmt: skip
         self._check_travel(setup, name, nominal)
         motion = setup.chain.axes[name].approach(start, nominal)  # the nut moves either way
         if not (state.enabled and homed):  # sent as written, but the screw heats all the same
-            self._swept(name, nominal)
+            self.state.swept(name, nominal)
             return nominal * axis_cfg.command_scale, False, motion
-        delta_a = self._delta_a(name, nominal)
+        delta_a = self.state.delta_a(name, nominal)
         inputs = {name: AxisInput(nominal, motion.engagement, delta_a)}
         partner = setup.planar_partner(name)
         if partner is not None:
-            other = self._axes[partner].state
+            other = self.state.axes[partner].state
             if other.shadow_known or other.halves_written:
                 order = setup.config.axes[partner].registers.target.order
                 other_nominal = other.nominal_target(order)
                 inputs[partner] = AxisInput(
                     other_nominal,
                     setup.chain.axes[partner].approach(other.motion, other_nominal).engagement,
-                    self._delta_a(partner, other_nominal),
+                    self.state.delta_a(partner, other_nominal),
                 )
             elif partner_seen is not None:
                 inputs[partner] = AxisInput(partner_seen)
@@ -528,10 +513,10 @@ class AxisWrites:
         try:
             command, motion = command_on_flank(setup.chain, name, inputs, start, motion,
                                                state.flank_for(motion.direction), scale)
-            self._swept(name, nominal)  # after: this move heats what comes next
+            self.state.swept(name, nominal)  # after: this move heats what comes next
             return command, True, motion
         except CorrectionLimitError as exc:
-            self.counters.refused_correction += 1
+            self.state.counters.refused_correction += 1
             log.error("%s: target refused", exc)
             raise ModbusError(str(exc), SERVER_DEVICE_FAILURE) from None
         except CompensationError as exc:

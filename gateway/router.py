@@ -20,38 +20,37 @@ anything else is refused with 0x0A. On an axis:
 - a malformed FC03/04/06/16/23 PDU to an axis (and FC05/15 when its trigger is a coil) is
   answered 0x03 and never forwarded (a lenient drive could act on a malformed target
   write: an uncorrected position);
-- unit 0 (broadcasts) is :mod:`gateway.modbus.broadcast`'s;
+- unit 0 (broadcasts) is :mod:`gateway.broadcast`'s;
 - everything else is forwarded byte for byte and the drive's reply relayed as it is.
 
 :meth:`Gateway.handle_fast` is the same routing without a coroutine, for the requests that
 need one drive transaction and a synchronous look at the reply (pass-through, reads, writes
 of neither the target nor the trigger) when the bus can send at once; the read rewrite is
-the same code (:meth:`Gateway._read_plan`) on both paths.
+the same code (:meth:`.axis_reads.AxisReads.cached_read_plan`) on both paths.
 
-This module holds the routing, the setup and the per-axis runtime state; the rules are in
-mixins of :class:`Gateway`, one concern each: reads (shadow, feedback translation) in
-:mod:`gateway.axis_reads`, writes (shadow, triggers, commits) in :mod:`gateway.axis_writes`,
-broadcasts in :mod:`gateway.modbus.broadcast`. They import this module only for type
-checking (no import cycle).
+This module holds the routing; the state the parts share is a
+:class:`.router_state.RouterState` (setup, buses, axis runtimes, counters, heat hooks); the
+rules are in three objects :class:`Gateway` builds on it, one concern each: reads (shadow,
+feedback translation, :mod:`gateway.axis_reads`), writes (shadow, triggers, commits,
+:mod:`gateway.axis_writes`: given the reads, for FC23) and broadcasts
+(:mod:`gateway.broadcast`: given the writes). None of them imports this module.
 
 The math is the chain's (``gateway.compensation``); this module moves words.
 """
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import struct
-import time
-from collections.abc import Awaitable, Callable, Iterable
+from collections.abc import Awaitable, Callable
 
 from .axis import AxisState, overlap
 from .axis_reads import AxisReads, _finishing
 from .axis_writes import AxisWrites
-from .compensation import Chain, MotionState
+from .broadcast import Broadcasts
+from .compensation import Chain
 from .config import Axis, GatewayConfig
 from .drive_model import touched
-from .modbus.broadcast import Broadcasts
 from .modbus.downstream import Bus, Done
 from .modbus.frames import (
     GATEWAY_PATH_UNAVAILABLE,
@@ -68,24 +67,13 @@ from .modbus.frames import (
     parse_request,
     unpack_int32,
 )
-from .router_state import AxisRuntime, GatewayCounters, Setup
-from .thermal_travel import TravelHistory
+from .router_state import DeltaA, GatewayCounters, RouterState, Setup, no_move, no_thermal
 from .triggers import COIL_WRITES, writes_trigger
 
 log = logging.getLogger(__name__)
 
-DeltaA = Callable[[str], float | None]
 
-
-def _no_move(name: str, x_mm: float) -> None:
-    pass
-
-
-def _no_thermal(_axis: str) -> float | None:
-    return None
-
-
-class Gateway(AxisReads, AxisWrites, Broadcasts):
+class Gateway:
     """The upstream handler: ``await gateway.handle(unit_id, pdu)``."""
 
     def __init__(
@@ -94,62 +82,64 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
         chain: Chain,
         buses: dict[str, Bus],
         *,
-        delta_a_mm: DeltaA = _no_thermal,
-        moved: Callable[[str, float], None] = _no_move,
+        delta_a_mm: DeltaA = no_thermal,
+        moved: Callable[[str, float], None] = no_move,
         status_handler: Callable[[bytes], Awaitable[bytes]] | None = None,
         clock: Callable[[], float] | None = None,
         before_correct: Callable[[], Awaitable[None]] | None = None,
     ) -> None:
-        self.buses = buses
-        self.delta_a_mm = delta_a_mm
-        #: told of every target sent on (axis, mm): heat from motion counts it
-        self.moved = moved
+        self.state = RouterState(Setup.build(config, chain), buses, delta_a_mm=delta_a_mm,
+                                 moved=moved, clock=clock, before_correct=before_correct)
+        self.state.adopt(config)
         self.status_handler = status_handler
-        #: times the travel profiles (the machine's clock, :mod:`gateway.machine_clock`;
-        #: None: TravelHistory's own default, the computer's)
-        self.clock = clock
-        #: awaited before targets are corrected (the machine's clock is read)
-        self.before_correct = before_correct
-        self.counters = GatewayCounters()
-        #: called after axis state changed (a commit, a homing): the state file's hook
-        self.on_state_change: Callable[[], None] = _nothing
-        self._axes: dict[str, AxisRuntime] = {}
-        #: the swept travel of axes whose thermal stage has a profile (thermal.profile)
-        self._travel: dict[str, TravelHistory] = {}
-        self.setup = Setup.build(config, chain)
-        self._adopt_axes(config)
+        self.reads = AxisReads(self.state)
+        self.writes = AxisWrites(self.state, self.reads)
+        self.broadcasts = Broadcasts(self.state, self.writes)
+
+    @property
+    def setup(self) -> Setup:
+        """The config and chain in force."""
+        return self.state.setup
+
+    @property
+    def buses(self) -> dict[str, Bus]:
+        return self.state.buses
+
+    @property
+    def counters(self) -> GatewayCounters:
+        return self.state.counters
+
+    @property
+    def on_state_change(self) -> Callable[[], None]:
+        """Called after axis state changed (a commit, a homing): the state file's hook."""
+        return self.state.on_state_change
+
+    @on_state_change.setter
+    def on_state_change(self, hook: Callable[[], None]) -> None:
+        self.state.on_state_change = hook
+
+    @property
+    def delta_a_mm(self) -> DeltaA:
+        """Where each axis's Δa (mm) comes from."""
+        return self.state.delta_a_mm
+
+    @delta_a_mm.setter
+    def delta_a_mm(self, source: DeltaA) -> None:
+        self.state.delta_a_mm = source
 
     # -- reload ---------------------------------------------------------------------------
     def reload(self, config: GatewayConfig, chain: Chain) -> None:
         """Swap to a validated config; axis states (shadow, direction) survive."""
-        self._adopt_axes(config)
-        self.setup = Setup.build(config, chain)
-
-    def _adopt_axes(self, config: GatewayConfig) -> None:
-        for name, axis in config.axes.items():
-            if name not in self._axes:
-                state = AxisState(MotionState(axis.home_direction))
-                state.enabled = axis.compensation.enabled
-                self._axes[name] = AxisRuntime(state)
-        travel = {}
-        for name, axis in config.axes.items():
-            th = axis.compensation.thermal
-            if th is None or th.profile is None:
-                continue
-            span = (float(axis.travel_mm[0]), float(axis.travel_mm[1]))
-            kept = self._travel.get(name)  # the same screw keeps its history
-            travel[name] = kept if kept is not None and kept.same_screw(th, span) else \
-                TravelHistory(th, th.profile, span, **({} if self.clock is None
-                                                      else {"clock": self.clock}))  # fmt: skip
-        self._travel = travel
+        self.state.adopt(config)
+        self.state.setup = Setup.build(config, chain)
 
     def axis_state(self, name: str) -> AxisState:
-        return self._axes[name].state
+        return self.state.axes[name].state
 
     def saved_axes(self) -> dict[str, dict[str, object]]:
         """Per-axis state worth keeping across a restart: axes with a committed target."""
         out: dict[str, dict[str, object]] = {}
-        for name, runtime in self._axes.items():
+        for name, runtime in self.state.axes.items():
             state = runtime.state
             if state.last_command_units is None or state.last_nominal_pulses is None:
                 continue
@@ -178,7 +168,7 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
                     log.info("axis %s: the drive holds target %d, not the saved %s: starting "
                              "afresh", name, held, saved["last_command_units"])  # fmt: skip
                     continue
-                runtime = self._axes[name]
+                runtime = self.state.axes[name]
                 runtime.state.restore(saved)
                 runtime.hold(axis, held, int(saved["last_nominal_pulses"]))  # (not 0)
             except (ModbusError, KeyError, TypeError, ValueError) as exc:
@@ -188,13 +178,13 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
                      name, saved["last_nominal_pulses"], held)  # fmt: skip
 
     def last_correction_mm(self, name: str) -> float:
-        return self._axes[name].last_correction_mm
+        return self.state.axes[name].last_correction_mm
 
     # -- routing --------------------------------------------------------------------------
     async def handle(self, unit_id: int, pdu: bytes) -> bytes | None:
         setup = self.setup
         if unit_id == 0:
-            return await self._broadcast(setup, pdu)
+            return await self.broadcasts.handle(setup, pdu)
         axis_name = setup.axis_by_unit.get(unit_id)
         if axis_name is not None:
             return await self._axis_request(setup, axis_name, pdu)
@@ -228,7 +218,7 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
             start, count = struct.unpack_from(">HH", pdu, 1)
             if not 1 <= count <= MAX_READ_REGISTERS or start + count > 0x10000:
                 return False
-            request, finish = self._cached_read_plan(setup, name, axis, fc, start, count, pdu)
+            request, finish = self.reads.cached_read_plan(setup, name, axis, fc, start, count, pdu)
             if finish is None:
                 return bus.submit(axis.unit, request, done)
             return bus.submit(axis.unit, request, _finishing(finish, done))
@@ -261,7 +251,7 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
             READ_WRITE_MULTIPLE_REGISTERS,
         ) and not (fc in COIL_WRITES and _coil_trigger(axis)):
             if fc == MASK_WRITE_REGISTER:
-                return await self._mask_write(setup, name, axis, pdu)
+                return await self.writes.mask_write(setup, name, axis, pdu)
             return await bus.transact(axis.unit, pdu)
         try:
             req = parse_request(pdu)
@@ -271,43 +261,10 @@ class Gateway(AxisReads, AxisWrites, Broadcasts):
             # code is the spec's (and a conforming drive's): 0x03 length, 0x02 range
             raise ModbusError(f"axis {name}: request refused: {exc}", exc.code) from None
         if fc in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS):
-            return await self._read(setup, name, axis, req, pdu)
+            return await self.reads.read(setup, name, axis, req, pdu)
         if fc == READ_WRITE_MULTIPLE_REGISTERS:
-            return await self._read_write(setup, name, axis, req, pdu)
-        return await self._write(setup, name, axis, req, pdu)
-
-    def _axis_locks(self, names: Iterable[str | None]) -> _all:
-        """The locks of these axes (None: no axis), taken in a fixed order (no deadlock)."""
-        locks = {id(lock): lock for lock in (self._axes[n].lock for n in names if n)}
-        return _all([locks[key] for key in sorted(locks)])
-
-    def _saw_status(self, name: str, word: int) -> None:
-        runtime = self._axes[name]
-        runtime.status_word = word
-        runtime.status_at_s = time.monotonic()
-
-    def _delta_a(self, name: str, at_pulses: float | None = None) -> float:
-        """Δa for axis ``name``; with a travel profile, the Δa for the place
-        ``at_pulses``."""
-        value = self.delta_a_mm(name)
-        if value is None:
-            return 0.0
-        travel = self._travel.get(name)
-        if travel is None or at_pulses is None:
-            return value
-        return travel.delta_a_mm(value, at_pulses * self.setup.config.axes[name].pulse_mm)
-
-    def _swept(self, name: str, to_pulses: float) -> None:
-        """Axis ``name`` is sent to ``to_pulses``: its travel profile counts the stretch."""
-        travel = self._travel.get(name)
-        x_mm = to_pulses * self.setup.config.axes[name].pulse_mm
-        if travel is not None:
-            travel.move_to(x_mm)
-        self.moved(name, x_mm)
-
-
-def _nothing() -> None:
-    pass
+            return await self.writes.read_write(setup, name, axis, req, pdu)
+        return await self.writes.write(setup, name, axis, req, pdu)
 
 
 def _coil_trigger(axis: Axis) -> bool:
@@ -327,18 +284,3 @@ def _write_span(pdu: bytes) -> tuple[int, int] | None:
             or len(pdu) != 6 + byte_count or address + count > 0x10000):
         return None
     return address, count
-
-
-class _all:
-    """Acquire several asyncio locks in the given order (a fixed order avoids deadlock)."""
-
-    def __init__(self, locks: list[asyncio.Lock]) -> None:
-        self.locks = locks
-
-    async def __aenter__(self) -> None:
-        for lock in self.locks:
-            await lock.acquire()
-
-    async def __aexit__(self, *exc: object) -> None:
-        for lock in reversed(self.locks):
-            lock.release()
