@@ -413,6 +413,9 @@ def main() -> int:
                         help="give `compgw commission` F times the machine time the plain "
                              "workflow's plans take on each machine (ISO runs every 25 mm, 5 "
                              "runs, cyclic scans, a 9 x 7 grid: issue 54)")
+    parser.add_argument("--budget-h", type=float, metavar="H",
+                        help="give `compgw commission` H hours of machine time on every "
+                             "machine (docs/commissioning.md's command: 4)")
     parser.add_argument("--thermal-profile", action="store_true",
                         help="Δa axes get compensation.thermal.profile (the Δa spread where "
                              "the axis has travelled)")
