@@ -50,8 +50,8 @@ READ_PLANS_MAX = 1024
 class AxisReads:
     """The read side of the axis request handler (see the module docstring)."""
 
-    def __init__(self, state: RouterState) -> None:
-        self.state = state
+    def __init__(self, shared: RouterState) -> None:
+        self.shared = shared
 
     def _pairs_read_by(self, axis: Axis, table: str) -> list[int]:
         """Base addresses of intercepted pairs a read of ``table`` may touch."""
@@ -66,7 +66,7 @@ class AxisReads:
     async def read(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
         request, finish = self.cached_read_plan(setup, name, axis, req.function,
                                                  req.read_address or 0, req.read_count, pdu)
-        reply = await self.state.buses[axis.bus].transact(axis.unit, request)
+        reply = await self.shared.buses[axis.bus].transact(axis.unit, request)
         return reply if finish is None else finish(reply)
 
     def cached_read_plan(self, setup: Setup, name: str, axis: Axis, fc: int, start: int,
@@ -100,7 +100,7 @@ class AxisReads:
 
             def saw_status(reply: bytes) -> bytes:
                 if not is_exception(reply):
-                    self.state.saw_status(name, parse_read_registers_response(reply)[index])
+                    self.shared.saw_status(name, parse_read_registers_response(reply)[index])
                 return reply
 
             return pdu, saw_status
@@ -129,7 +129,7 @@ class AxisReads:
     ) -> None:
         """Replace drive words of intercepted pairs inside ``words`` (which start at ``lo``)."""
         regs = axis.registers
-        runtime = self.state.axes[name]
+        runtime = self.shared.axes[name]
         state = runtime.state
         if table == "holding" and regs.target.address - lo in range(len(words) - 1):
             i = regs.target.address - lo
@@ -143,7 +143,7 @@ class AxisReads:
             i = regs.feedback.address - lo
             counts = unpack_int32(words[i : i + 2], regs.feedback.order)
             units = counts / regs.feedback.counts_per_pulse  # where the drive is, its units
-            self.state.counters.feedback_reads += 1
+            self.shared.counters.feedback_reads += 1
             exact = self._nominal(setup, name, axis, units / axis.command_scale)
             nominal = state.reported_feedback(round(units), exact)
             nominal_counts = round(nominal * axis.upstream_counts_per_pulse)
@@ -152,19 +152,19 @@ class AxisReads:
     def _nominal(self, setup: Setup, name: str, axis: Axis, command_pulses: float) -> float:
         """Nominal position (pulses) of a drive at ``command_pulses``; identity when the
         last target was sent uncorrected (compensation off or not homed)."""
-        state = self.state.axes[name].state
+        state = self.shared.axes[name].state
         if not state.applied:
             return command_pulses
         inputs = {name: AxisInput(command_pulses, state.motion.engagement,
-                                  self.state.delta_a(name, command_pulses))}
+                                  self.shared.delta_a(name, command_pulses))}
         partner = setup.planar_partner(name)
         if partner is not None:
-            other = self.state.axes[partner].state
+            other = self.shared.axes[partner].state
             if other.last_command_units is not None and other.applied:
                 scale = setup.config.axes[partner].command_scale
                 inputs[partner] = AxisInput(
                     other.last_command_units / scale, other.motion.engagement,
-                    self.state.delta_a(partner, other.last_command_units / scale),
+                    self.shared.delta_a(partner, other.last_command_units / scale),
                 )  # fmt: skip
         try:
             return setup.chain.nominal_pulses(name, inputs)

@@ -1,15 +1,15 @@
 """Writes to an axis: the target shadow, triggers, commits of the corrected target.
 
-Given the router's state (:class:`.router_state.RouterState`) and the read side
-(:class:`.axis_reads.AxisReads`, for FC23) by :class:`gateway.router.Gateway`, which routes
-to it: writes of the target pair
-(one FC16, the pair inside a longer FC16 block, or two single-register writes in either
-order) update the shadow of what the master wrote; the drive only ever receives a whole,
-corrected value (:meth:`AxisWrites.commit`, the chain's forward correction); a trigger
-write that fires commits the pending target first (and the planar partner's under
-``commit: on_trigger``); blocks longer than the drive accepts go out in pieces, never
-splitting a pair, the trigger's piece last. Its own module and object because the commit rules are a
-concern apart from the routing and from the read-back (:mod:`gateway.axis_reads`).
+Given the router's shared state (:class:`.router_state.RouterState`) and the read side
+(:class:`.axis_reads.AxisReads`, for FC23) by :class:`gateway.router.Gateway`, which routes to
+it: writes of the target pair (one FC16, the pair inside a longer FC16 block, or two
+single-register writes in either order) update the shadow of what the master wrote; the drive
+only ever receives a whole, corrected value (:meth:`AxisWrites.commit`, the chain's forward
+correction); a trigger write that fires commits the pending target first (and the planar
+partner's under ``commit: on_trigger``); blocks longer than the drive accepts go out in
+pieces, never splitting a pair, the trigger's piece last. Its own module and object because
+the commit rules are a concern apart from the routing and from the read-back
+(:mod:`gateway.axis_reads`).
 """
 
 from __future__ import annotations
@@ -67,12 +67,11 @@ log = logging.getLogger("gateway.router")
 _NO_TRIGGER = Verdict(fires=False, homes=False)
 
 
-
 class AxisWrites:
     """The write side of the axis request handler (see the module docstring)."""
 
-    def __init__(self, state: RouterState, reads: AxisReads) -> None:
-        self.state = state
+    def __init__(self, shared: RouterState, reads: AxisReads) -> None:
+        self.shared = shared
         self.reads = reads
 
     async def write(self, setup: Setup, name: str, axis: Axis, req: Request, pdu: bytes) -> bytes:
@@ -91,7 +90,7 @@ class AxisWrites:
                 f"axis {name}: a register block must hold both words of the target",
                 ILLEGAL_DATA_VALUE,
             )
-        async with self.state.locks([name, setup.planar_partner(name)]):
+        async with self.shared.locks([name, setup.planar_partner(name)]):
             return await self._write_locked(setup, name, axis, req, pdu, mode_hit)
 
     async def _write_locked(self, setup: Setup, name: str, axis: Axis, req: Request,
@@ -103,7 +102,7 @@ class AxisWrites:
         coils = req.function in COIL_WRITES
         target_offsets = range(0) if coils else overlap(start, count, regs.target.address)
         trigger_hit = writes_trigger(regs.trigger, req.function, start, count)
-        runtime = self.state.axes[name]
+        runtime = self.shared.axes[name]
         fields = setup.latched[name]
         written = written_words(mode_hit, start, req.values)
         latched = {**runtime.latched, **written}  # what the drive's fields hold after it
@@ -155,12 +154,12 @@ class AxisWrites:
             runtime.trigger = verdict.shadow
             if verdict.homes:
                 state.homing_started(axis.home_direction)
-                self.state.on_state_change()
+                self.shared.on_state_change()
         return reply
 
     async def judge_latched(self, name: str, axis: Axis, fields: list[LatchedField]
-                             | tuple[LatchedField, ...], latched: dict[int, int],
-                             when: str) -> None:  # fmt: skip
+                            | tuple[LatchedField, ...], latched: dict[int, int],
+                            when: str) -> None:  # fmt: skip
         """Refuse (0x03) ``when`` (a write, a start) unless every field of ``fields`` holds
         its expected value in ``latched`` (the drive's words after the write); a word not
         known is read from the drive first (and kept), never guessed."""
@@ -175,8 +174,8 @@ class AxisWrites:
         """Read the words of ``fields`` that neither the master wrote nor compgw read
         (into ``latched`` and the axis's runtime). A drive that cannot say leaves them
         unknown: the caller refuses (:func:`~gateway.drive_model.first_refusal`)."""
-        bus = self.state.buses[axis.bus]
-        runtime = self.state.axes[name]
+        bus = self.shared.buses[axis.bus]
+        runtime = self.shared.axes[name]
         for address in missing(fields, latched):
             try:
                 word = (await bus.read_registers(axis.unit, "holding", address, 1))[0]
@@ -223,9 +222,9 @@ class AxisWrites:
             raise ModbusError(why, ILLEGAL_DATA_VALUE)
         mode_hit = touched(setup.latched[name], address, 1)
         if not mode_hit and not writes_trigger(regs.trigger, WRITE_SINGLE_REGISTER, address, 1):
-            return await self.state.buses[axis.bus].transact(axis.unit, pdu)
-        async with self.state.locks([name, setup.planar_partner(name)]):
-            bus = self.state.buses[axis.bus]
+            return await self.shared.buses[axis.bus].transact(axis.unit, pdu)
+        async with self.shared.locks([name, setup.planar_partner(name)]):
+            bus = self.shared.buses[axis.bus]
             current = (await bus.read_registers(axis.unit, "holding", address, 1))[0]
             value = mask_write(current, and_mask, or_mask)
             single = build_write_single_register(address, value)
@@ -247,14 +246,14 @@ class AxisWrites:
                 ILLEGAL_DATA_VALUE,
             )
         mode_hit = touched(setup.latched[name], w_start, w_count)
-        runtime = self.state.axes[name]
-        async with self.state.locks([name]):
+        runtime = self.shared.axes[name]
+        async with self.shared.locks([name]):
             written = written_words(mode_hit, w_start, req.values)
             if mode_hit:
                 latched = {**runtime.latched, **written}
                 await self.judge_latched(name, axis, mode_hit, latched, "a write")
             try:
-                reply = await self.state.buses[axis.bus].transact(axis.unit, pdu)
+                reply = await self.shared.buses[axis.bus].transact(axis.unit, pdu)
             except ModbusError as exc:
                 if exc.code in (GATEWAY_PATH_UNAVAILABLE, GATEWAY_TARGET_NO_RESPONSE):
                     for address in written:
@@ -274,7 +273,7 @@ class AxisWrites:
         if req.function == WRITE_MULTIPLE_REGISTERS and req.write_count > axis.fc16_max_words:
             await self._send_block(name, axis, req.write_address or 0, list(req.values))
             return response_for_write(req)
-        return await self.state.buses[axis.bus].transact(axis.unit, pdu)
+        return await self.shared.buses[axis.bus].transact(axis.unit, pdu)
 
     async def _send_block(self, name: str, axis: Axis, address: int, values: list[int]) -> None:
         """Write ``values`` at ``address`` in FC16 pieces of at most ``fc16_max_words``,
@@ -300,7 +299,7 @@ class AxisWrites:
         pieces.sort(key=lambda p: any(address + i in trigger for i in range(*p)))
         for start, end in pieces:
             pdu = build_write_multiple_registers(address + start, values[start:end])
-            reply = await self.state.buses[axis.bus].transact(axis.unit, pdu)
+            reply = await self.shared.buses[axis.bus].transact(axis.unit, pdu)
             if is_exception(reply):
                 raise ModbusError(f"axis {name}: drive refused a register block", reply[1])
 
@@ -316,7 +315,7 @@ class AxisWrites:
         planar axis with ``commit: on_trigger``, or ``hold_for_mode``: only the start
         tells whether the drive takes it as a position, :meth:`_hold_for_mode`). A held
         whole pair outside travel is refused at once (0x03)."""
-        state = self.state.axes[name].state
+        state = self.shared.axes[name].state
         hold = (setup.hold_until_trigger(name) or hold_for_mode) \
             and axis.registers.trigger is not None
         if not state.pair_complete() or hold:
@@ -368,9 +367,9 @@ class AxisWrites:
         correction above the cap) sends nothing at all.
         """
         plans: list[tuple[str, int, int, bool, MotionState]] = []
-        before = self.state.before_correct  # (once, and only where a target is corrected)
+        before = self.shared.before_correct  # (once, and only where a target is corrected)
         for name in [*partners, owner]:
-            state = self.state.axes[name].state
+            state = self.shared.axes[name].state
             if not (state.shadow_known or state.halves_written):
                 continue
             nominal = state.nominal_target(setup.config.axes[name].registers.target.order)
@@ -397,13 +396,13 @@ class AxisWrites:
                 offset = axis.registers.target.address - address
                 values[offset : offset + 2] = words
             await self._send_block(name, axis, address, values)
-            runtime = self.state.axes[name]
+            runtime = self.shared.axes[name]
             runtime.state.committed(nominal, command, motion)
             runtime.state.applied = applied
             runtime.hold(axis, command, nominal)
-            self.state.counters.commits += 1
+            self.shared.counters.commits += 1
         if plans:
-            self.state.on_state_change()
+            self.shared.on_state_change()
 
     async def _homed(self, name: str, axis: Axis) -> bool:
         """Whether the drive reports homed (True when no homed bit is configured).
@@ -416,11 +415,11 @@ class AxisWrites:
         status = axis.registers.status
         if status is None or status.homed_bit is None:
             return True
-        runtime = self.state.axes[name]
+        runtime = self.shared.axes[name]
         if time.monotonic() - runtime.status_at_s > status.max_age_s or runtime.status_word is None:
-            bus = self.state.buses[axis.bus]
+            bus = self.shared.buses[axis.bus]
             words = await bus.read_registers(axis.unit, status.table, status.address, 1)
-            self.state.saw_status(name, words[0])
+            self.shared.saw_status(name, words[0])
         assert runtime.status_word is not None
         return bool(runtime.status_word >> status.homed_bit & 1)
 
@@ -436,7 +435,7 @@ class AxisWrites:
         partner = setup.planar_partner(name)
         if partner is None:
             return None
-        other = self.state.axes[partner].state
+        other = self.shared.axes[partner].state
         if other.shadow_known or other.halves_written:
             return None
         try:
@@ -464,7 +463,7 @@ class AxisWrites:
         included: at most ``max_correction_mm``)."""
         axis = setup.config.axes[name]
         fb = axis.registers.feedback
-        words = await self.state.buses[axis.bus].read_registers(axis.unit, fb.table, fb.address, 2)
+        words = await self.shared.buses[axis.bus].read_registers(axis.unit, fb.table, fb.address, 2)
         counts = unpack_int32(words, fb.order)
         return round(counts / fb.counts_per_pulse / axis.command_scale)
 
@@ -473,7 +472,7 @@ class AxisWrites:
         try:
             setup.chain.axes[name].check_travel(nominal * setup.config.axes[name].pulse_mm)
         except TravelError as exc:
-            self.state.counters.refused_travel += 1
+            self.shared.counters.refused_travel += 1
             log.warning("%s", exc)
             raise ModbusError(str(exc), ILLEGAL_DATA_VALUE) from None
 
@@ -486,26 +485,26 @@ class AxisWrites:
         target of it is known (:meth:`_partner_seen`); ``own_seen``: where the axis stands
         before its first target (:meth:`_own_seen`)."""
         axis_cfg = setup.config.axes[name]
-        state = self.state.axes[name].state
+        state = self.shared.axes[name].state
         start = state.motion if own_seen is None else MotionState(
             state.motion.direction, own_seen, state.motion.engagement)  # fmt: skip
         self._check_travel(setup, name, nominal)
         motion = setup.chain.axes[name].approach(start, nominal)  # the nut moves either way
         if not (state.enabled and homed):  # sent as written, but the screw heats all the same
-            self.state.swept(name, nominal)
+            self.shared.swept(name, nominal)
             return nominal * axis_cfg.command_scale, False, motion
-        delta_a = self.state.delta_a(name, nominal)
+        delta_a = self.shared.delta_a(name, nominal)
         inputs = {name: AxisInput(nominal, motion.engagement, delta_a)}
         partner = setup.planar_partner(name)
         if partner is not None:
-            other = self.state.axes[partner].state
+            other = self.shared.axes[partner].state
             if other.shadow_known or other.halves_written:
                 order = setup.config.axes[partner].registers.target.order
                 other_nominal = other.nominal_target(order)
                 inputs[partner] = AxisInput(
                     other_nominal,
                     setup.chain.axes[partner].approach(other.motion, other_nominal).engagement,
-                    self.state.delta_a(partner, other_nominal),
+                    self.shared.delta_a(partner, other_nominal),
                 )
             elif partner_seen is not None:
                 inputs[partner] = AxisInput(partner_seen)
@@ -513,10 +512,10 @@ class AxisWrites:
         try:
             command, motion = command_on_flank(setup.chain, name, inputs, start, motion,
                                                state.flank_for(motion.direction), scale)
-            self.state.swept(name, nominal)  # after: this move heats what comes next
+            self.shared.swept(name, nominal)  # after: this move heats what comes next
             return command, True, motion
         except CorrectionLimitError as exc:
-            self.state.counters.refused_correction += 1
+            self.shared.counters.refused_correction += 1
             log.error("%s: target refused", exc)
             raise ModbusError(str(exc), SERVER_DEVICE_FAILURE) from None
         except CompensationError as exc:

@@ -61,8 +61,8 @@ BROADCAST_WRITES = frozenset({WRITE_SINGLE_COIL, WRITE_SINGLE_REGISTER, WRITE_MU
 class Broadcasts:
     """The unit-0 side of the request handler (see the module docstring)."""
 
-    def __init__(self, state: RouterState, writes: AxisWrites) -> None:
-        self.state = state
+    def __init__(self, shared: RouterState, writes: AxisWrites) -> None:
+        self.shared = shared
         self.writes = writes
 
     async def handle(self, setup: Setup, pdu: bytes) -> bytes:
@@ -77,10 +77,10 @@ class Broadcasts:
             raise ModbusError(f"broadcast refused: {exc}", exc.code) from None
         if req is None:
             self._mask_write_allowed(setup, pdu)
-            self.state.counters.broadcasts += 1
+            self.shared.counters.broadcasts += 1
             await self._broadcast_raw(setup, pdu)
             return pdu[:5]
-        self.state.counters.broadcasts += 1
+        self.shared.counters.broadcasts += 1
         reply = response_for_write(req)
         start, count = req.write_address or 0, req.write_count
         targets, triggers, modes = [], [], []
@@ -93,7 +93,7 @@ class Broadcasts:
             elif fc not in COIL_WRITES and touched(setup.latched[name], start, count):
                 modes.append(name)
         if targets:
-            self.state.counters.broadcasts_expanded += 1
+            self.shared.counters.broadcasts_expanded += 1
             log.info("broadcast FC%02d at 0x%04X touches the target of %s: sent to each axis "
                      "corrected", fc, start, ", ".join(targets))  # fmt: skip
             failure: ModbusError | None = None
@@ -145,21 +145,21 @@ class Broadcasts:
         start = req.write_address or 0
         verdicts = {}
         written: dict[str, dict[int, int]] = {}
-        async with self.state.locks(involved):
+        async with self.shared.locks(involved):
             for name in [*names, *modes]:
                 axis = setup.config.axes[name]
                 fields = setup.latched[name]
                 hit = touched(fields, start, req.write_count) if req.function not in \
                     COIL_WRITES else []  # fmt: skip
                 written[name] = written_words(hit, start, req.values)
-                latched = {**self.state.axes[name].latched, **written[name]}
+                latched = {**self.shared.axes[name].latched, **written[name]}
                 if hit:
                     await self.writes.judge_latched(name, axis, hit, latched, "a broadcast write")
                 if name not in names:
                     continue
                 rule = axis.registers.trigger
                 assert rule is not None
-                verdicts[name] = verdict = judge(rule, self.state.axes[name].trigger, req)
+                verdicts[name] = verdict = judge(rule, self.shared.axes[name].trigger, req)
                 if verdict.relative:
                     raise ModbusError(f"axis {name}: a broadcast relative start (trigger bit "
                                       f"{rule.relative_bit}) is refused: compgw corrects "
@@ -176,28 +176,28 @@ class Broadcasts:
                 await self.writes.commit(setup, name, partners, None)
             await self._broadcast_raw(setup, pdu)
             for name, words in written.items():
-                self.state.axes[name].latched.update(words)
+                self.shared.axes[name].latched.update(words)
             homed = False
             for name, verdict in verdicts.items():  # the drives have the trigger write
-                self.state.axes[name].trigger = verdict.shadow
+                self.shared.axes[name].trigger = verdict.shadow
                 if verdict.homes:
-                    self.state.axes[name].state.homing_started(
+                    self.shared.axes[name].state.homing_started(
                         setup.config.axes[name].home_direction)
                     homed = True
             if homed:
-                self.state.on_state_change()
+                self.shared.on_state_change()
 
     async def _broadcast_raw(self, setup: Setup, pdu: bytes) -> None:
         """``pdu`` to every drive: all buses at once."""
-        units: dict[str, set[int]] = {name: set() for name in self.state.buses}
+        units: dict[str, set[int]] = {name: set() for name in self.shared.buses}
         for axis in setup.config.axes.values():
             units[axis.bus].add(axis.unit)
         for route in setup.config.passthrough.values():
             units[route.bus].add(route.unit)
         results = await asyncio.gather(
-            *(bus.broadcast(pdu, sorted(units[name])) for name, bus in self.state.buses.items()),
+            *(bus.broadcast(pdu, sorted(units[name])) for name, bus in self.shared.buses.items()),
             return_exceptions=True)
-        for name, result in zip(self.state.buses, results):
+        for name, result in zip(self.shared.buses, results):
             if isinstance(result, BaseException):
                 log.warning("broadcast FC%02d on bus %s failed: %s", pdu[0], name, result)
         for result in results:

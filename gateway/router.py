@@ -88,58 +88,58 @@ class Gateway:
         clock: Callable[[], float] | None = None,
         before_correct: Callable[[], Awaitable[None]] | None = None,
     ) -> None:
-        self.state = RouterState(Setup.build(config, chain), buses, delta_a_mm=delta_a_mm,
+        self.shared = RouterState(Setup.build(config, chain), buses, delta_a_mm=delta_a_mm,
                                  moved=moved, clock=clock, before_correct=before_correct)
-        self.state.adopt(config)
+        self.shared.adopt(config)
         self.status_handler = status_handler
-        self.reads = AxisReads(self.state)
-        self.writes = AxisWrites(self.state, self.reads)
-        self.broadcasts = Broadcasts(self.state, self.writes)
+        self.reads = AxisReads(self.shared)
+        self.writes = AxisWrites(self.shared, self.reads)
+        self.broadcasts = Broadcasts(self.shared, self.writes)
 
     @property
     def setup(self) -> Setup:
         """The config and chain in force."""
-        return self.state.setup
+        return self.shared.setup
 
     @property
     def buses(self) -> dict[str, Bus]:
-        return self.state.buses
+        return self.shared.buses
 
     @property
     def counters(self) -> GatewayCounters:
-        return self.state.counters
+        return self.shared.counters
 
     @property
     def on_state_change(self) -> Callable[[], None]:
         """Called after axis state changed (a commit, a homing): the state file's hook."""
-        return self.state.on_state_change
+        return self.shared.on_state_change
 
     @on_state_change.setter
     def on_state_change(self, hook: Callable[[], None]) -> None:
-        self.state.on_state_change = hook
+        self.shared.on_state_change = hook
 
     @property
     def delta_a_mm(self) -> DeltaA:
         """Where each axis's Δa (mm) comes from."""
-        return self.state.delta_a_mm
+        return self.shared.delta_a_mm
 
     @delta_a_mm.setter
     def delta_a_mm(self, source: DeltaA) -> None:
-        self.state.delta_a_mm = source
+        self.shared.delta_a_mm = source
 
     # -- reload ---------------------------------------------------------------------------
     def reload(self, config: GatewayConfig, chain: Chain) -> None:
         """Swap to a validated config; axis states (shadow, direction) survive."""
-        self.state.adopt(config)
-        self.state.setup = Setup.build(config, chain)
+        self.shared.adopt(config)
+        self.shared.setup = Setup.build(config, chain)
 
     def axis_state(self, name: str) -> AxisState:
-        return self.state.axes[name].state
+        return self.shared.axes[name].state
 
     def saved_axes(self) -> dict[str, dict[str, object]]:
         """Per-axis state worth keeping across a restart: axes with a committed target."""
         out: dict[str, dict[str, object]] = {}
-        for name, runtime in self.state.axes.items():
+        for name, runtime in self.shared.axes.items():
             state = runtime.state
             if state.last_command_units is None or state.last_nominal_pulses is None:
                 continue
@@ -168,7 +168,7 @@ class Gateway:
                     log.info("axis %s: the drive holds target %d, not the saved %s: starting "
                              "afresh", name, held, saved["last_command_units"])  # fmt: skip
                     continue
-                runtime = self.state.axes[name]
+                runtime = self.shared.axes[name]
                 runtime.state.restore(saved)
                 runtime.hold(axis, held, int(saved["last_nominal_pulses"]))  # (not 0)
             except (ModbusError, KeyError, TypeError, ValueError) as exc:
@@ -178,7 +178,7 @@ class Gateway:
                      name, saved["last_nominal_pulses"], held)  # fmt: skip
 
     def last_correction_mm(self, name: str) -> float:
-        return self.state.axes[name].last_correction_mm
+        return self.shared.axes[name].last_correction_mm
 
     # -- routing --------------------------------------------------------------------------
     async def handle(self, unit_id: int, pdu: bytes) -> bytes | None:

@@ -234,7 +234,7 @@ def test_without_a_machine_clock_the_heat_keeps_its_classes_default_clock(tmp_pa
     async def body():
         async with rig(tmp_path, with_profile) as r:
             app = r["app"]
-            return app.sensors.moves.clock, [t.clock for t in app.gateway.state.travel.values()]
+            return app.sensors.moves.clock, [t.clock for t in app.gateway.shared.travel.values()]
 
     moves_clock, travel_clocks = run(body())
     assert moves_clock is MoveLog.__init__.__defaults__[0]
