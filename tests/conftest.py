@@ -35,16 +35,19 @@ def pty_pair() -> Iterator[PtyPair]:
         pair.close()
 
 
-#: the suite's longest files (seconds on 2 cores, tests/*.py --durations): run first, so that
-#: pytest-xdist's first round hands them out one a worker and the short files fill in
-#: around them (last, one 100 s file could run alone while the other workers sat idle)
+#: the suite's longest files (seconds of wall on 2 cores, 3 workers): run first, so that
+#: pytest-xdist's first round hands them out one a worker and the short files fill in around
+#: them (the Makefile keeps this order: `--no-loadscope-reorder`; xdist's own order, files
+#: with the most tests first, ran test_commission_recorded.py's 68 s, mostly waiting on the
+#: laser software's recordings, last and alone: 328 s, the other workers done at 235 s)
 LONG_FILES_S = {
-    "test_commission.py": 136, "test_commission_budget.py": 101,
-    "test_commission_recorded.py": 71, "test_commission_run_heat.py": 60, "test_sweep.py": 46,
-    "test_commission_short.py": 43, "test_commission_instruments.py": 38,
-    "test_calibration_e2e.py": 38, "test_thermal_shape.py": 37, "test_demo.py": 30,
-    "test_fuzz.py": 24, "test_cyclic_cal_e2e.py": 23, "test_commission_verdict.py": 18,
-    "test_commission_rotary.py": 17, "test_cyclic_sim.py": 17, "test_takeup.py": 14,
+    "test_commission.py": 105, "test_commission_budget.py": 79,
+    "test_commission_recorded.py": 68, "test_commission_run_heat.py": 62, "test_sweep.py": 42,
+    "test_thermal_shape.py": 35, "test_commission_short.py": 34,
+    "test_commission_instruments.py": 33, "test_demo.py": 28, "test_calibration_e2e.py": 25,
+    "test_fuzz.py": 24, "test_cyclic_cal_e2e.py": 24, "test_cyclic_sim.py": 16,
+    "test_commission_verdict.py": 15, "test_commission_rotary.py": 15, "test_takeup.py": 14,
+    "test_service.py": 12, "test_bench_smoke.py": 11, "test_faults.py": 11,
 }  # fmt: skip
 
 
