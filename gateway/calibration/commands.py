@@ -30,6 +30,7 @@ from .cli_common import (
     load,
     progress_bar,
     refuse_eeprom_wear,
+    run_loop,
     until_stopped,
 )
 
@@ -358,7 +359,7 @@ def calibrate(
             return EXIT_OK
 
     try:
-        return asyncio.run(until_stopped(body()))
+        return run_loop(until_stopped(body()))
     except KeyboardInterrupt:
         err("calibrate", f"interrupted; every reading so far is in {args.raw}: run the same "
              "command again to resume")  # fmt: skip

@@ -21,7 +21,13 @@ from typing import Any
 from ...cli_args import above
 from ...compensation.errors import CompensationError, TableError
 from ...config import ConfigError, GatewayConfig, config_crc, load_config
-from ..cli_common import FROM_CONFIG, progress_bar, refuse_eeprom_wear, until_stopped
+from ..cli_common import (
+    FROM_CONFIG,
+    progress_bar,
+    refuse_eeprom_wear,
+    run_loop,
+    until_stopped,
+)
 
 EXIT_OK, EXIT_NOT_MET, EXIT_USAGE, EXIT_RUNTIME = 0, 1, 2, 3
 
@@ -370,7 +376,7 @@ def main(args: argparse.Namespace) -> int:
             if short is not None:  # nothing asked or moved: no plan that ends with no table
                 raise TableError(short)
             if not args.dry_run:
-                asyncio.run(_answering(settings, config, config_path))
+                run_loop(_answering(settings, config, config_path))
                 job.stager.adopt_edits()  # (refused here, before anything would put a config back)
             if not args.finish:
                 job.command.print_plan()
@@ -411,9 +417,9 @@ def main(args: argparse.Namespace) -> int:
             return await job.run()
 
     try:
-        summary = asyncio.run(until_stopped(body()))
+        summary = run_loop(until_stopped(body()))
     except KeyboardInterrupt:
-        where = asyncio.run(_restore(job))
+        where = run_loop(_restore(job))
         _err(f"interrupted: every reading so far is kept in {settings.out_dir}; {where}; run "
              "the same command again to resume")  # fmt: skip
         return EXIT_RUNTIME
@@ -425,16 +431,16 @@ def main(args: argparse.Namespace) -> int:
              "command again to resume")  # fmt: skip
         return EXIT_RUNTIME
     except (TableError, CompensationError, ConfigError) as exc:
-        where = asyncio.run(_restore(job))
+        where = run_loop(_restore(job))
         _err(f"{exc}; {where}")
         return EXIT_NOT_MET
     except (MachineError, OSError, ModbusException) as exc:  # a timeout, a lost link
-        where = asyncio.run(_restore(job))
+        where = run_loop(_restore(job))
         _err(f"{exc}{_options_at(str(exc), settings)}; {where}; run the same command again to "
              "resume")  # fmt: skip
         return EXIT_RUNTIME
     except Exception as exc:  # a fault of compgw's own: the machine left on your config
-        where = asyncio.run(_restore(job))
+        where = run_loop(_restore(job))
         log_path = settings.out_dir / "error.log"
         with contextlib.suppress(OSError):
             log_path.write_text(traceback.format_exc())
@@ -570,9 +576,9 @@ def _recheck(job: Any, settings: Any, config: GatewayConfig, config_path: Path) 
                          "--out for another directory)")  # fmt: skip
     if summary.get("xy") and settings.planar is None:
         print("the plane is not rechecked: give --xy-device to measure it too")
-    asyncio.run(_answering(settings, config, config_path))
+    run_loop(_answering(settings, config, config_path))
     try:
-        result = asyncio.run(until_stopped(recheck(job, summary)))
+        result = run_loop(until_stopped(recheck(job, summary)))
     except KeyboardInterrupt:
         _err("interrupted: the recheck measured part of its targets; run it again")
         return EXIT_RUNTIME
