@@ -71,8 +71,8 @@ def warmup_plan(
 
     moves: list[Move] = [*survey(0), Move(0, -1, "move", (a,), speed_mm_s), *at_ref(0)]
     for k in range(1, cycles + 1):
-        if places:  # the zone is entered from its lower end every cycle
-            moves.append(Move(k, -1, "move", (a,), speed_mm_s))
+        if places and moves[-1].target_mm != (a,):  # the zone entered from its lower end
+            moves.append(Move(k, -1, "move", (a,), speed_mm_s))  # (not a move to where it is)
         moves += [Move(k, +1, "move", (b,), speed_mm_s), Move(k, -1, "move", (a,), speed_mm_s)]
         if k % measure_every == 0 or k == cycles:
             moves += at_ref(k)
