@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -176,6 +178,19 @@ def test_warmup_plan() -> None:
     for ref in (0.0, 0.5, 601.0):
         with pytest.raises(ValueError, match="approached in \\+"):
             warmup_plan("X", (0, 600), 100, 1800, ref)
+
+
+def test_a_zone_warm_up_sends_no_move_to_where_the_axis_stands() -> None:
+    """Each cycle enters the zone from its lower end, but only where a reference reading
+    left the axis elsewhere: a move to where it stands is a round trip of Modbus requests
+    that moves nothing (a third of a zone warm-up's moves were)."""
+    plan = warmup_plan("X", (100, 300), 100, 600, 310, measure_every=5,
+                       places_mm=(50, 150, 250, 350), also_mm=50)  # fmt: skip
+    targets = [m.target_mm for m in plan.moves]
+    assert all(a != b for a, b in itertools.pairwise(targets)), targets
+    cycles = int(dict(plan.meta)["cycles"])
+    strokes = [m for m in plan.moves if m.role == "move" and m.target_mm == (300.0,)]
+    assert len(strokes) == cycles  # every cycle still goes up to the zone's upper end
 
 
 @pytest.mark.parametrize(
