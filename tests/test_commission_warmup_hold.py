@@ -121,3 +121,25 @@ def test_a_held_warm_up_that_no_longer_fits_lets_its_hold_go(tmp_path: Path) -> 
     assert not state["identify"]["thermal-X"]["fitted"]
     assert "not in the budget left" in state["identify"]["thermal-X"]["why"]
     assert budget.held_s() == 0.0 and "X" not in state["warmup_held"]
+
+
+def test_a_budget_that_is_not_short_holds_the_heat_warm_ups_from_the_rounds(tmp_path: Path) -> None:
+    """Once every axis is identified, each axis with no sensor whose references read heat
+    gets its full warm-up held: the rounds after it no longer spend that time (at the
+    guide's 4 h a sweep took 78 minutes of rough-0's and left no warm-up: 99.9 % of X's
+    heat left after a judge's 30 minutes of work). An axis with a sensor was warmed before
+    its identification; one whose references read no heat is held nothing."""
+    steps, state, budget = _steps(tmp_path, 5000.0, {"X": "motion", "Y": "motion", "Z": "sensor"},
+                                  little=("Y",))  # fmt: skip
+    steps._warmed = lambda a: False  # type: ignore[method-assign]
+    steps._hold_heat_warm_ups()
+    assert state["warmup_held"] == {"X": {"duration_s": 1800.0, "cost_s": 1900.0}}
+    assert budget.left_s() == 5000.0 - 1900.0  # what the rounds see
+    steps._hold_heat_warm_ups()  # decided once
+    assert list(state["warmup_held"]) == ["X"]
+    # less room than a full one: shortened to it (by tenths), not given up
+    steps, state, budget = _steps(tmp_path, 1500.0, {"X": "motion"})
+    steps._warmed = lambda a: False  # type: ignore[method-assign]
+    steps._hold_heat_warm_ups()
+    held = state["warmup_held"]["X"]
+    assert held["cost_s"] <= 1500.0 and held["duration_s"] == pytest.approx(1800.0 * 0.9**3)
