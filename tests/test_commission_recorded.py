@@ -43,6 +43,7 @@ def test_commission_one_axis_from_the_laser_software_s_own_recordings(tmp_path: 
                 "--delta-a", f"127.0.0.1:{rig.sim_port}:22"]  # fmt: skip
         with Technician("127.0.0.1", rig.sim_port, 20, rig.dir / "recordings", "csv") as tech:
             done_run = tech.attend(argv, ROOT, 200.0)
+            assert done_run.returncode == 1, done_run.stdout + done_run.stderr  # budget spent
             # then the laser moved to Y, and the plane with it (the XY device read live)
             tech.set_up_on(1)
             argv_y = [*argv[:argv.index("--axes")], "--axes", "Y", "--xy-device",
