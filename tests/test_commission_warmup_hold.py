@@ -125,21 +125,37 @@ def test_a_held_warm_up_that_no_longer_fits_lets_its_hold_go(tmp_path: Path) -> 
 
 def test_a_budget_that_is_not_short_holds_the_heat_warm_ups_from_the_rounds(tmp_path: Path) -> None:
     """Once every axis is identified, each axis with no sensor whose references read heat
-    gets its full warm-up held: the rounds after it no longer spend that time (at the
-    guide's 4 h a sweep took 78 minutes of rough-0's and left no warm-up: 99.9 % of X's
-    heat left after a judge's 30 minutes of work). An axis with a sensor was warmed before
-    its identification; one whose references read no heat is held nothing."""
+    gets a short warm-up held: the rounds after it no longer spend all of that time (at
+    the guide's 4 h a sweep took 78 minutes of rough-0's and left no warm-up: 99.9 % of
+    X's heat left after a judge's 30 minutes of work), nor have to give it a full one (a
+    full one held took rough-8's X sweep: E 1.0 → 9.4 µm). An axis with a sensor was warmed
+    before its identification; one whose references read no heat is held nothing. When it
+    is made, it grows to the full one where the budget the rounds left holds it."""
     steps, state, budget = _steps(tmp_path, 5000.0, {"X": "motion", "Y": "motion", "Z": "sensor"},
                                   little=("Y",))  # fmt: skip
     steps._warmed = lambda a: False  # type: ignore[method-assign]
     steps._hold_heat_warm_ups()
-    assert state["warmup_held"] == {"X": {"duration_s": 1800.0, "cost_s": 1900.0}}
-    assert budget.left_s() == 5000.0 - 1900.0  # what the rounds see
+    cost_s = 100.0 + SHORT_WARMUP_S
+    assert state["warmup_held"] == {"X": {"duration_s": SHORT_WARMUP_S, "cost_s": cost_s,
+                                          "grow_s": 1800.0}}  # fmt: skip
+    assert budget.left_s() == 5000.0 - cost_s  # what the rounds see
     steps._hold_heat_warm_ups()  # decided once
     assert list(state["warmup_held"]) == ["X"]
-    # less room than a full one: shortened to it (by tenths), not given up
-    steps, state, budget = _steps(tmp_path, 1500.0, {"X": "motion"})
+    # the rounds left room for the full one: it grows to it
+    steps._fit_held_warm_up("X")
+    assert state["warmup_held"]["X"]["duration_s"] == 1800.0
+    # they left room for a part of it: as much of it as fits (in tenths)
+    steps, state, budget = _steps(tmp_path, 5000.0, {"X": "motion"})
     steps._warmed = lambda a: False  # type: ignore[method-assign]
     steps._hold_heat_warm_ups()
+    steps.record.used_s = 5000.0 - 1500.0
+    steps._fit_held_warm_up("X")
     held = state["warmup_held"]["X"]
     assert held["cost_s"] <= 1500.0 and held["duration_s"] == pytest.approx(1800.0 * 0.9**3)
+    # they left no more than its hold: it stays short
+    steps, state, budget = _steps(tmp_path, 5000.0, {"X": "motion"})
+    steps._warmed = lambda a: False  # type: ignore[method-assign]
+    steps._hold_heat_warm_ups()
+    steps.record.used_s = 5000.0 - cost_s
+    steps._fit_held_warm_up("X")
+    assert state["warmup_held"]["X"]["duration_s"] == SHORT_WARMUP_S

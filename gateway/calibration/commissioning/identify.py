@@ -344,17 +344,20 @@ class IdentifySteps:
 
     def _hold_heat_warm_ups(self) -> None:
         """On a budget that is not short, once every axis is identified: machine time held
-        for the zone warm-up of each axis with no sensor whose references read heat
-        (:meth:`_heat_read`), full length where the budget left holds it, else shortened to
-        it. The warm-up still follows the rounds (:meth:`heat_warm_ups`); the rounds no
-        longer spend its time. At the guide's 4 h a sweep took 78 minutes of rough-0's,
-        no warm-up was left, and a judge after 30 minutes of other work found 99.9 % of
-        X's 9.3 µm of heat left (the rough machines' median 27.6 %; 8.3 % at 8 h, where the
-        warm-ups came after the rounds all the same)."""
+        for a short zone warm-up (SHORT_WARMUP_S) of each axis with no sensor whose
+        references read heat (:meth:`_heat_read`); it grows up to the full one where the
+        budget the rounds left holds it (:meth:`_fit_held_warm_up`). The warm-up still
+        follows the rounds (:meth:`heat_warm_ups`); they no longer spend all of its time.
+        At the guide's 4 h a sweep took 78 minutes of rough-0's, no warm-up was left, and a
+        judge after 30 minutes of other work found 99.9 % of X's 9.3 µm of heat left (the
+        rough machines' median 27.6 %). A full one held took the rounds' sweeps instead:
+        heat left 10.7 %, but rough-8's X table read E 9.4 µm where its sweep had made it
+        1.0, rough-0's 4.8 where it was 1.5."""
         if "warmup_held" in self.record.state:
             return
-        self._hold([a for a in self._heat_read() if not self._warmed(a)], self.s.warmup_s,
-                   self.budget.left_s())  # fmt: skip
+        self._hold([a for a in self._heat_read() if not self._warmed(a)],
+                   min(self.s.warmup_s, SHORT_WARMUP_S), self.budget.left_s(),
+                   grow_s=self.s.warmup_s)  # fmt: skip
 
     def _heat_read(self) -> list[str]:
         """The axes with no sensor whose drift references have grown out of their own
@@ -364,15 +367,19 @@ class IdentifySteps:
         return [a for a in self.thermal.heat_zoned()
                 if drift.grown_um(a) >= drift.least_growth_um(a)]  # fmt: skip
 
-    def _hold(self, candidates: list[str], duration_s: float, room_s: float) -> None:
+    def _hold(self, candidates: list[str], duration_s: float, room_s: float,
+              grow_s: float | None = None) -> None:  # fmt: skip
         """Hold each candidate's zone warm-up of ``duration_s`` (s of strokes, shortened to
         what is left of ``room_s``, s of machine time, down to half a short one), in order,
-        while the room holds it; decided once, kept in the state and said."""
+        while the room holds it; ``grow_s``: the strokes it may grow to where the budget
+        left holds them when it is made. Decided once, kept in the state and said."""
         held: dict[str, dict[str, float]] = {}
         for a in candidates:
             strokes_s, cost_s = self._warm_up_within(a, duration_s, room_s)
             if cost_s <= room_s:
                 held[a] = {"duration_s": strokes_s, "cost_s": cost_s}
+                if grow_s is not None and grow_s > strokes_s:
+                    held[a]["grow_s"] = grow_s
                 room_s -= cost_s
         self.record.state["warmup_held"] = held
         if held:
@@ -391,13 +398,20 @@ class IdentifySteps:
         return self.budget.step_cost_s(plan, drift=False) + switches_s
 
     def _fit_held_warm_up(self, a: str) -> None:
-        """A held warm-up (:meth:`_hold_warm_ups`) not begun, shortened to the budget left
-        where the steps before it took longer than estimated (down to half its strokes)."""
+        """A held warm-up (:meth:`_hold_warm_ups`) not begun, fitted to the budget left: grown
+        towards its ``grow_s`` where that holds more strokes, shortened where the steps before
+        it took longer than estimated (down to half its strokes)."""
         held = (self.record.state.get("warmup_held") or {}).get(a)
         if held is None or (self.record.dir / "plans" / f"warmup-{a}.plan").exists():
             return  # (begun: its plan is kept)
-        duration_s, cost_s = self._warm_up_within(a, float(held["duration_s"]),
-                                                  self.budget.left_s(a))  # fmt: skip
+        left_s = self.budget.left_s(a)
+        if "grow_s" in held:
+            duration_s, cost_s = self._warm_up_within(a, float(held["grow_s"]), left_s)
+            if duration_s > float(held["duration_s"]) and cost_s <= left_s:
+                held.update(duration_s=duration_s, cost_s=cost_s)
+                self.record.save()
+                return
+        duration_s, cost_s = self._warm_up_within(a, float(held["duration_s"]), left_s)
         if duration_s < float(held["duration_s"]):
             held.update(duration_s=duration_s, cost_s=cost_s)
             self.record.save()
@@ -408,12 +422,11 @@ class IdentifySteps:
         its strokes and cost (s); the cost may still be over ``room_s``. Rough-7's Δa
         screw at 1.5 x: 8 minutes did not fit after the midpoints, so it got no warm-up
         and its sensor's model left 12.6 µm of the zone's heat."""
-        for _ in range(8):
+        while True:
             cost_s = self._warm_up_cost_s(a, duration_s)
             if cost_s <= room_s or duration_s <= SHORT_WARMUP_S / 2:
-                break
-            duration_s *= 0.9
-        return duration_s, cost_s
+                return duration_s, cost_s
+            duration_s = max(0.9 * duration_s, SHORT_WARMUP_S / 2)
 
     async def _before_xy_if_affordable(self) -> None:
         """On a short budget, the plane's random points (its verdict) where the budget left
