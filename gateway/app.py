@@ -37,6 +37,7 @@ from .config import (
     load_config,
 )
 from .config import warnings as config_warnings
+from .event_loop import run_loop
 from .machine_clock import MachineTime
 from .metrics import MetricsServer
 from .metrics import build as build_metrics
@@ -398,8 +399,4 @@ async def serve(path: str | Path, *, stop: asyncio.Event | None = None,
 def run(path: str | Path) -> int:
     """`compgw run`: the daemon on uvloop when it is installed (about half the event-loop
     CPU per transaction of the standard loop), else on asyncio's own loop."""
-    try:
-        import uvloop
-    except ImportError:  # pragma: no cover - uvloop is a pinned dependency on Linux
-        return asyncio.run(serve(path))
-    return uvloop.run(serve(path))
+    return run_loop(serve(path))

@@ -9,9 +9,9 @@ from __future__ import annotations
 import asyncio
 import signal
 import sys
-from collections.abc import Awaitable, Coroutine, Sequence
+from collections.abc import Awaitable, Sequence
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TypeVar
 
 from ..config import GatewayConfig, load_config
 
@@ -78,17 +78,6 @@ class StopOnSignal:
         if not self.task.done():
             self.task.cancel()
             asyncio.get_running_loop().call_later(self.AGAIN_S, self._cancel)
-
-
-def run_loop(main: Coroutine[Any, Any, T]) -> T:
-    """``asyncio.run`` on uvloop where it is installed (a pinned dependency on Linux), as
-    the daemon runs: a commissioning sends tens of thousands of requests, and the standard
-    loop spends about twice uvloop's CPU on each (gateway/app.py)."""
-    try:
-        import uvloop
-    except ImportError:  # pragma: no cover
-        return asyncio.run(main)
-    return uvloop.run(main)
 
 
 async def until_stopped(work: Awaitable[T]) -> T:

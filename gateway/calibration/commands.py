@@ -21,6 +21,7 @@ from typing import Any
 from ..cli_args import above
 from ..compensation.errors import CompensationError, TableError
 from ..config import ConfigError, GatewayConfig
+from ..event_loop import run_loop
 from .cli_common import (
     EXIT_BAD_INPUT,
     EXIT_OK,
@@ -30,7 +31,6 @@ from .cli_common import (
     load,
     progress_bar,
     refuse_eeprom_wear,
-    run_loop,
     until_stopped,
 )
 

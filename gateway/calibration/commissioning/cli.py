@@ -21,11 +21,11 @@ from typing import Any
 from ...cli_args import above
 from ...compensation.errors import CompensationError, TableError
 from ...config import ConfigError, GatewayConfig, config_crc, load_config
+from ...event_loop import run_loop
 from ..cli_common import (
     FROM_CONFIG,
     progress_bar,
     refuse_eeprom_wear,
-    run_loop,
     until_stopped,
 )
 
