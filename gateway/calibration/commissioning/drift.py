@@ -19,6 +19,7 @@ import numpy as np
 from ...compensation import Chain, PitchTable
 from ...compensation.errors import TableError
 from ...config import GatewayConfig
+from ..fitting.adaptive import thermal_mm
 from ..fitting.fit import zeroed_at_origin
 from ..measuring.from_file import STOP_TIME
 from ..measuring.machine import GatewayClock
@@ -105,8 +106,44 @@ class DriftRefs:
         out.update({a: [0.0, 0.0] for a in self.s.axes if a not in out})
         last = self.record.state.get("last_refs") or {}
         at_s = last.get("at_s") if linear and self.recorded() else self.clock.now_s()
+        temps = await self.read_temperatures_c(self.sensor_axes()) if linear else {}
         self.record.state["last_refs"] = {"phase": self.record.state.get("phase"), "refs": out,
-                                          "odometer_mm": self.odometer(), "at_s": at_s}  # fmt: skip
+                                          "odometer_mm": self.odometer(), "at_s": at_s,
+                                          "temperature_c": temps}  # fmt: skip
+        return out
+
+    def sensor_axes(self) -> list[str]:
+        """The commissioned axes whose thermal setting is a temperature sensor, where the
+        sensors' instrument is given (``--temperature``)."""
+        if self.s.instruments.temperature is None:
+            return []
+        out = []
+        for a in self.s.axes:
+            th = self.config.axes[a].compensation.thermal
+            src = None if th is None or th.source is None else \
+                self.config.thermal_sources[th.source]  # fmt: skip
+            if src is not None and src.kind == "temperature":
+                out.append(a)
+        return out
+
+    async def read_temperatures_c(self, axes: Sequence[str]) -> dict[str, float]:
+        """Each of ``axes``'s temperature sensor now (°C), as its thermal source reads it."""
+        ep = self.s.instruments.temperature
+        if ep is None or not axes:
+            return {}
+        from ..measuring.machine import Links, TemperatureSensor
+
+        links = Links(self.s.motion.request_timeout_s)
+        out: dict[str, float] = {}
+        try:
+            for a in axes:
+                th = self.config.axes[a].compensation.thermal
+                assert th is not None and th.source is not None
+                src = self.config.thermal_sources[th.source]
+                out[a] = await TemperatureSensor.of_source(await links.get(*ep.key), ep.unit,
+                                                           src).read_c()  # fmt: skip
+        finally:
+            links.close()
         return out
 
     def ref_commands(self, cfg: GatewayConfig, chain: Chain) -> dict[str, dict[str, Any]]:
@@ -149,7 +186,7 @@ class DriftRefs:
                     (self.record.state.get("ref_commands") or {}).items() if cmds.get("motion")}
         if not sections:
             return {}
-        odo, wall = self._log_clock()  # the log so far, and this reading
+        odo, wall = self.log_clock()  # the log so far, and this reading
         odo = {b: [*v, odometer_mm.get(b, 0.0) / 1000.0] for b, v in odo.items()}
         wall = [*wall, wall_s]
         out: dict[str, list[float]] = {}
@@ -485,16 +522,23 @@ class DriftRefs:
 
     def log_drift(self, drift: dict[str, list[float]],
                    odometer_mm: dict[str, float] | None = None,
-                   wall_s: float | None = None) -> None:
+                   wall_s: float | None = None,
+                   temperature_c: dict[str, float] | None = None) -> None:
         """Keep the drift (mm, at both references) with the odometer and the wall clock when
         it was read (the last references' unless given: a recording's stops were read before
-        its file came, minutes at a technician's pace): what heat from motion is fitted to."""
+        its file came, minutes at a technician's pace): what heat from motion is fitted to.
+        Where a temperature sensor was read with them (°C), what its compensation took off
+        there since the cold start (:meth:`sensor_took_um`)."""
         last = self.record.state.get("last_refs") or {}
         odo = odometer_mm or last.get("odometer_mm") or self.odometer()
         if wall_s is None and odometer_mm is None:  # the last reading's own
             wall_s = last.get("at_s")
+            temperature_c = last.get("temperature_c")
         wall = self.clock.now_s() if wall_s is None else wall_s
         entry: dict[str, Any] = {"odometer_mm": odo, "wall_s": wall, "drift_mm": drift}
+        took = self.sensor_took_um(temperature_c or {})
+        if took:
+            entry["sensor_um"] = took
         # the log is the growth since the cold start: under a config that corrects heat
         # from motion, the references read what it leaves; what it takes off is put back
         modelled = self.modelled_growth_um(odo, wall)
@@ -504,14 +548,30 @@ class DriftRefs:
             entry["modelled_um"] = modelled
         self.record.state.setdefault("drift_log", []).append(entry)
 
+    def sensor_took_um(self, temperature_c: dict[str, float]) -> dict[str, list[float]]:
+        """Per axis whose loaded config corrects its temperature sensor's reading (the last
+        switch's ``ref_commands``), how much its command at the references has changed
+        since the cold start (µm) at these readings (°C): what its compensation took off
+        the growth, which the references then no longer read."""
+        loaded = self.record.state.get("ref_commands") or {}
+        start = self.record.state.get("start_temperature_c") or {}
+        out = {}
+        for a, t_c in temperature_c.items():
+            if a not in loaded or a not in start:
+                continue
+            now, cold = thermal_mm(loaded[a], t_c), thermal_mm(loaded[a], start[a])
+            if now is not None and cold is not None:
+                out[a] = [1000.0 * (n - c) for n, c in zip(now, cold)]
+        return out
+
     def _logged(self, axis: str) -> tuple[dict[str, list[float]], list[float], list[list[float]]]:
         """The drift log as heat from motion is fitted to it and checked on: each
         commissioned axis's odometer (m), the clock (s), ``axis``'s drift at both
         references (µm)."""
         log = self.record.state.get("drift_log", [])
-        return (*self._log_clock(), [[d * 1000.0 for d in e["drift_mm"][axis]] for e in log])
+        return (*self.log_clock(), [[d * 1000.0 for d in e["drift_mm"][axis]] for e in log])
 
-    def _log_clock(self) -> tuple[dict[str, list[float]], list[float]]:
+    def log_clock(self) -> tuple[dict[str, list[float]], list[float]]:
         """The drift log's odometer per commissioned axis (m) and clock (s), reading by
         reading."""
         log = self.record.state.get("drift_log", [])

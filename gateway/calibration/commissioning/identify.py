@@ -83,7 +83,7 @@ class IdentifySteps:
             for a in self.s.axes:
                 await self._identify_axis(a)
             await self._before_xy_if_affordable()
-            self.record.save()
+            self.thermal.weigh_sensors()
             return
         if zoned:
             await self._warm_up(zoned[0])
@@ -98,7 +98,7 @@ class IdentifySteps:
             await self._identify_axis(a)
         await self.before_xy()
         self._hold_heat_warm_ups()  # the rounds' budget is what they leave
-        self.record.save()
+        self.thermal.weigh_sensors()  # on the references read so far, before the rounds
 
     async def _find_lead(self, axis: str) -> None:
         """The lead search of an axis whose lead was not given (--lead-mm); not begun where

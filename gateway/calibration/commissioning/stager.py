@@ -121,14 +121,14 @@ class Stager:
                 and self.s.config_path.read_text() == text
                 and self.record.state.get("loaded") == digest):
             return  # loaded already, tables and all: nothing to switch
-        before, before_odo, before_at = None, None, None
+        before, before_odo, before_at, before_c = None, None, None, None
         if base is not None and self.record.state.get("phase") == base["phase"]:
             last = self.record.state.get("last_refs")  # read since the last moves: the same state
             if not (last and last["phase"] == base["phase"]):
                 await self.drift.measure_refs()
                 last = self.record.state["last_refs"]
             before, before_odo = last["refs"], last.get("odometer_mm")
-            before_at = last.get("at_s")
+            before_at, before_c = last.get("at_s"), last.get("temperature_c")
         atomic_write_text(self.s.config_path, text)
         await self.reload_fn()
         self.record.state["phase"] = phase
@@ -167,7 +167,7 @@ class Stager:
         # at every switch too, with the odometer and clock of the reading that gave the
         # drift (a warm-up is its own stretch), as read under the config before it
         if base is None or before is not None:
-            self.drift.log_drift(drift, before_odo, before_at)
+            self.drift.log_drift(drift, before_odo, before_at, before_c)
         self.record.state["ref_commands"] = commands
         self.record.state["drift_base"] = {"phase": phase, "refs": new_base}
         self.record.state["drift_last"] = drift

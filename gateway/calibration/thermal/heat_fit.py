@@ -261,6 +261,32 @@ def drift_left_um(axis: str, thermal: dict[str, Any], odometer_m: dict[str, Arra
     return float(np.sqrt(np.mean(left**2)))
 
 
+def sensor_and_motion_left_um(axis: str, thermal: dict[str, Any],
+                              odometer_m: dict[str, ArrayLike], wall_s: ArrayLike,
+                              drift_um: ArrayLike, sensor_um: ArrayLike,
+                              refs_mm: tuple[float, float],
+                              travel_mm: tuple[float, float] | None = None
+                              ) -> tuple[float, float, int]:  # fmt: skip
+    """What a temperature sensor's compensation left at the references (µm RMS of the
+    ``drift_um`` read under it, shape (k, 2)), what a heat-from-motion ``thermal`` section
+    would have left of the same growth (the drift with what the sensor took off put back:
+    ``sensor_um``, its command's change since the cold start, NaN where the sensor was not
+    read), and how many readings judged them. Both on a duty cycle neither was fitted on,
+    nothing refitted; the heat counted over every reading from the cold start."""
+    d = np.asarray(drift_um, dtype=np.float64).reshape(-1, 2)
+    took = np.asarray(sensor_um, dtype=np.float64).reshape(-1, 2)
+    rows = np.isfinite(took).all(axis=1)
+    if rows.sum() < MIN_OFFSET_READINGS:
+        raise TableError(f"axis {axis}: {int(rows.sum())} drift readings with the sensor's "
+                         f"temperature: at least {MIN_OFFSET_READINGS} are needed")  # fmt: skip
+    pred = modelled_growth_um(thermal, heat_at_readings_m(thermal["motion"], axis, odometer_m,
+                                                          wall_s), refs_mm, travel_mm)[rows]
+    read, growth = d[rows], (d - took)[rows]
+    motion_left = (growth - growth[0]) - (pred - pred[0])
+    return (float(np.sqrt(np.mean((read - read[0]) ** 2))),
+            float(np.sqrt(np.mean(motion_left**2))), int(rows.sum()))  # fmt: skip
+
+
 def heat_at_readings_m(motion: dict[str, Any], axis: str, odometer_m: dict[str, ArrayLike],
                        wall_s: ArrayLike) -> NDArray[np.float64]:  # fmt: skip
     """The heat (m of travel) in ``axis``'s screw at each reading (each axis's odometer, m,
