@@ -138,7 +138,10 @@ def test_the_identification_reads_as_sentences_per_axis() -> None:
                       "rise_K": 6.87, "motion": {"replaces_sensor": True, "tau_s": 1427.1,
                                                  "delta_a_um_per_m": 0.488,
                                                  "motion_rms_um": 0.131,
-                                                 "sensor_rms_um": 7.12}},
+                                                 "sensor_rms_um": 7.12,
+                                                 "weighed": {"sensor_left_um": 1.706,
+                                                             "motion_left_um": 0.603,
+                                                             "replaces": True}}},
         "backlash-X": {"B_um": 2.578, "places_um": [1.887, 2.578, 1.725]},
         "takeup-Y": {"kept": True, "why": "a full switch misses by up to 17.3 µm",
                      "miss_um": 17.25, "lost_um": 19.09},
@@ -168,6 +171,9 @@ def test_the_identification_reads_as_sentences_per_axis() -> None:
     assert x["warm-up (thermal)"].startswith("temperature gain 0.672: 54.4 µm of growth over "
                                              "6.9 K")  # fmt: skip
     assert "heat from the axes' motion replaces the sensor" in x["warm-up (thermal)"]
+    assert x["warm-up (thermal)"].endswith("on the drift references read since the start, "
+                                           "the sensor left 1.71 µm RMS, heat from motion "
+                                           "would have left 0.60")  # fmt: skip
     assert "3322 readings every 0.6 mm" in x["sweep"] and "3 readings left out" in x["sweep"]
     assert x["novel"] == "value 1.5"
     y = dict(rows["Y"])
