@@ -78,7 +78,7 @@ def _thermal(r: Record, u: Fmt = _um) -> str:
     if weighed and "sensor_left_um" in weighed:
         text += (f"; on the drift references read since the start, the sensor left "
                  f"{weighed['sensor_left_um']:.2f} µm RMS, heat from motion would have left "
-                 f"{weighed['motion_left_um']:.2f}")  # fmt: skip
+                 f"{weighed['motion_left_um']:.2f} µm")  # fmt: skip
     return text
 
 
