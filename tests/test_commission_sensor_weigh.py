@@ -2,10 +2,10 @@
 
 The warm-up fits the sensor's gain and heat from motion on the same strokes, and keeps the
 sensor unless motion is better there by more than the noise. The drift references of the
-whole commissioning are another duty cycle: what the sensor's compensation left there,
-against what heat from motion would have left of the same growth (the sensor's correction
-put back, from its reading logged with the references), decides once more before the
-rounds (:meth:`ThermalSteps.weigh_sensors`).
+whole commissioning are another duty cycle: the growth they read (what the sensor's
+compensation took off put back, from its reading logged with the references), and what the
+sensor's model at its fitted gain and heat from motion would have left of it, decide once
+more before the rounds (:meth:`ThermalSteps.weigh_sensors`).
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from gateway.calibration.fitting.adaptive import thermal_mm
 from gateway.compensation.thermal import motion_heat_series_m
 
 ORIGIN_MM, LENGTH_MM, ALPHA, REF_C, START_C = -40.0, 640.0, 11.5e-6, 20.0, 21.0
+GAIN = 0.6  # the warm-up's: the screw grows 0.6 of α·ΔT at the sensor (configured: 1)
 REFS_MM = np.array([31.0, 570.0])  # Axes.ref_positions on 0-600 mm
 MOTION = {"origin_mm": ORIGIN_MM, "length_mm": LENGTH_MM,
           "motion": {"delta_a_um_per_m": 0.9, "tau_s": 900.0, "speeds_mm_s": {"X": 100.0}}}
@@ -47,7 +48,7 @@ def _steps(tmp_path: Path) -> tuple[ThermalSteps, Record]:
     record.state.update({
         "notes": [], "start_temperature_c": {"X": START_C}, "ref_commands": {"X": COMMANDS},
         "ref_scatter": {"X": [10 * 0.2e-3**2, 10]},
-        "identify": {"thermal-X": {"gain": 1.0, "motion": {
+        "identify": {"thermal-X": {"gain": GAIN, "motion": {
             "replaces_sensor": False, "motion_rms_um": 0.36, "sensor_rms_um": 0.84,
             "candidate": MOTION}}}})  # fmt: skip
     drift = DriftRefs(axes, record, print)
@@ -68,24 +69,26 @@ def _log(drift: DriftRefs, temperatures_c: np.ndarray, growth_um: np.ndarray,
 @pytest.mark.parametrize("sensor_follows", [False, True])
 def test_a_kept_sensor_gives_way_to_motion_only_where_the_references_say_so(
         tmp_path: Path, sensor_follows: bool) -> None:  # fmt: skip
-    """Heat from motion grows the screw. A sensor whose reading follows that heat leaves
-    the references at their scatter and is kept; one that warms on its own clock (a spot
-    the nut's heat reaches late) leaves micrometres, and heat from motion replaces it,
-    said, noted and kept in the identification results."""
+    """Heat from motion grows the screw. A sensor whose reading follows that heat, at the
+    gain its warm-up fitted, leaves the references at their scatter and is kept (at the
+    configured gain, which the references were read with, it over-corrects by two thirds);
+    one that warms on its own clock (a spot the nut's heat reaches late) leaves
+    micrometres, and heat from motion replaces it, said, noted and kept in the
+    identification results."""
     rng = np.random.default_rng(5)
     strokes = rng.uniform(0.0, 30.0, 40)  # m of travel between readings, 120 s apart
     heat_m = motion_heat_series_m(strokes, np.maximum(strokes * 10.0, 120.0), 900.0)
     growth_um = 0.9 * heat_m[:, None] * (REFS_MM - ORIGIN_MM)[None, :] / LENGTH_MM
     per_k_um = 1e3 * ALPHA * LENGTH_MM  # Δa per kelvin (µm)
     if sensor_follows:
-        temps = START_C + 0.9 * heat_m / per_k_um
+        temps = START_C + 0.9 * heat_m / per_k_um / GAIN
     else:
         temps = START_C + 0.9 * heat_m.max() / per_k_um * (1 - np.exp(-np.arange(40) / 60.0))
     steps, record = _steps(tmp_path)
     _log(steps.drift, temps, growth_um + rng.normal(0.0, 0.1, growth_um.shape), strokes)
     took = np.array([e["sensor_um"]["X"] for e in record.state["drift_log"]])
     if sensor_follows:  # (the log's sign: the sensor's command takes the growth off)
-        np.testing.assert_allclose(took, -growth_um, rtol=1e-3)
+        np.testing.assert_allclose(took, -growth_um / GAIN, rtol=1e-3)
     steps.weigh_sensors()
     motion = record.state["identify"]["thermal-X"]["motion"]
     weighed = motion["weighed"]
@@ -93,7 +96,9 @@ def test_a_kept_sensor_gives_way_to_motion_only_where_the_references_say_so(
     assert weighed["replaces"] is not sensor_follows, weighed
     assert (steps.drift.replacing_motion("X") == MOTION) is not sensor_follows
     assert bool(record.state["notes"]) is not sensor_follows
-    if not sensor_follows:
+    if sensor_follows:
+        assert weighed["sensor_left_um"] < 0.2, weighed
+    else:
         assert weighed["motion_left_um"] < 0.2 < 1.0 < weighed["sensor_left_um"], weighed
         assert motion["replaces_sensor"] and "replace the sensor" in record.state["notes"][-1]
     steps.weigh_sensors()  # once: weighed already

@@ -172,8 +172,8 @@ def test_the_identification_reads_as_sentences_per_axis() -> None:
                                              "6.9 K")  # fmt: skip
     assert "heat from the axes' motion replaces the sensor" in x["warm-up (thermal)"]
     assert x["warm-up (thermal)"].endswith("on the drift references read since the start, "
-                                           "the sensor left 1.71 µm RMS, heat from motion "
-                                           "would have left 0.60 µm")  # fmt: skip
+                                           "the sensor's model leaves 1.71 µm RMS, heat "
+                                           "from motion 0.60 µm")  # fmt: skip
     assert "3322 readings every 0.6 mm" in x["sweep"] and "3 readings left out" in x["sweep"]
     assert x["novel"] == "value 1.5"
     y = dict(rows["Y"])

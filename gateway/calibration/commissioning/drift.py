@@ -539,6 +539,9 @@ class DriftRefs:
         took = self.sensor_took_um(temperature_c or {})
         if took:
             entry["sensor_um"] = took
+            loaded = self.record.state["ref_commands"]
+            entry["sensor_gain"] = {a: float(loaded[a]["sensor"][2]) for a in took
+                                    if loaded[a].get("sensor")}  # fmt: skip
         # the log is the growth since the cold start: under a config that corrects heat
         # from motion, the references read what it leaves; what it takes off is put back
         modelled = self.modelled_growth_um(odo, wall)

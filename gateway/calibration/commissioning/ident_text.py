@@ -76,8 +76,8 @@ def _thermal(r: Record, u: Fmt = _um) -> str:
                  f"{motion.get('sensor_rms_um', 0.0):.2f} µm)")  # fmt: skip
     weighed = (motion or {}).get("weighed") if isinstance(motion, dict) else None
     if weighed and "sensor_left_um" in weighed:
-        text += (f"; on the drift references read since the start, the sensor left "
-                 f"{weighed['sensor_left_um']:.2f} µm RMS, heat from motion would have left "
+        text += (f"; on the drift references read since the start, the sensor's model leaves "
+                 f"{weighed['sensor_left_um']:.2f} µm RMS, heat from motion "
                  f"{weighed['motion_left_um']:.2f} µm")  # fmt: skip
     return text
 

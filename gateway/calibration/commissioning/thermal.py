@@ -238,12 +238,17 @@ class ThermalSteps:
     def weigh_sensors(self) -> None:
         """A temperature sensor its zone warm-up kept, weighed again on the drift references
         read since the commissioning began (the cold start, the other axes' identification,
-        the cool-down: duty cycles neither model was fitted on). Heat from motion replaces
-        it where it leaves under PROFILE_SHARE of what the sensor's compensation left there,
-        and that stands out of the references' own scatter. Once, before the rounds: a
-        choice the warm-up made on 0.02 µm of its own readings (rough-9 Y at 8 h: motion
-        0.36 µm RMS, the sensor 0.84, so by less than NOISE_UM) left 3.77 µm after the
-        judge's 30 minutes of work, where the sensor's model corrected the wrong way."""
+        the cool-down: duty cycles neither model was fitted on). The growth there is what
+        they read with what the sensor's compensation as loaded took off put back; heat
+        from motion replaces the sensor where it leaves under PROFILE_SHARE of what the
+        sensor's model at its fitted gain would have left of it, and that stands out of the
+        references' own scatter. At the configured gain instead (the one the references
+        were read with), the sensors of three smooth machines lost by 2-7 µm RMS and were
+        replaced; the judge's work then left 0.8-1.8 µm of heat where they had left 0.2-0.3.
+        Once, before the rounds: a choice the warm-up made on 0.02 µm of its own readings
+        (rough-9 Y at 8 h: motion 0.36 µm RMS, the sensor 0.84, so by less than NOISE_UM)
+        left 3.77 µm after the judge's 30 minutes of work, where the sensor's model
+        corrected the wrong way."""
         ident = self.record.state.get("identify", {})
         log = self.record.state.get("drift_log", [])
         for a in self.s.axes:
@@ -252,11 +257,17 @@ class ThermalSteps:
                 continue
             odometer_m, wall_s = self.drift.log_clock()
             drift_um = [[1000.0 * d for d in e["drift_mm"][a]] for e in log]
-            took_um = [(e.get("sensor_um") or {}).get(a, [np.nan, np.nan]) for e in log]
+            applied = np.array([(e.get("sensor_um") or {}).get(a, [np.nan, np.nan])
+                                for e in log], dtype=np.float64).reshape(-1, 2)  # fmt: skip
+            # the sensor's model at its fitted gain: the one it would be kept with
+            gain = float((ident.get(f"thermal-{a}") or {}).get("gain") or np.nan)
+            loaded = np.array([(e.get("sensor_gain") or {}).get(a, np.nan) for e in log])
+            ratio = np.where(np.isfinite(gain) & (loaded > 0), gain / loaded, 1.0)
             try:
                 sensor_left, motion_left, n = sensor_and_motion_left_um(
-                    a, motion["candidate"], odometer_m, wall_s, drift_um, took_um,
-                    self.axes.ref_positions(a), self.axes.travel(a))  # fmt: skip
+                    a, motion["candidate"], odometer_m, wall_s, drift_um, applied,
+                    applied * ratio[:, None], self.axes.ref_positions(a),
+                    self.axes.travel(a))  # fmt: skip
             except TableError as exc:
                 motion["weighed"] = {"why": str(exc)}
                 continue
@@ -268,10 +279,10 @@ class ThermalSteps:
             if not replaces:
                 continue
             self._replace_sensor(a, motion, motion["candidate"])
-            note = (f"{a}: its drift references read since the start ({n} readings) leave "
-                    f"{motion_left:.2f} µm RMS by heat from its own motion where the "
-                    f"temperature sensor left {sensor_left:.2f}: heat from motion will "
-                    "replace the sensor in the final config")  # fmt: skip
+            note = (f"{a}: on its drift references read since the start ({n} readings) heat "
+                    f"from its own motion leaves {motion_left:.2f} µm RMS where the temperature "
+                    f"sensor's model leaves {sensor_left:.2f}: heat from motion will replace "
+                    "the sensor in the final config")  # fmt: skip
             self.record.state["notes"].append(note)
             self.say(note)
         self.record.save()

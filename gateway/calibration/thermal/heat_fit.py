@@ -263,28 +263,31 @@ def drift_left_um(axis: str, thermal: dict[str, Any], odometer_m: dict[str, Arra
 
 def sensor_and_motion_left_um(axis: str, thermal: dict[str, Any],
                               odometer_m: dict[str, ArrayLike], wall_s: ArrayLike,
-                              drift_um: ArrayLike, sensor_um: ArrayLike,
+                              drift_um: ArrayLike, applied_um: ArrayLike, sensor_um: ArrayLike,
                               refs_mm: tuple[float, float],
                               travel_mm: tuple[float, float] | None = None
                               ) -> tuple[float, float, int]:  # fmt: skip
-    """What a temperature sensor's compensation left at the references (µm RMS of the
-    ``drift_um`` read under it, shape (k, 2)), what a heat-from-motion ``thermal`` section
-    would have left of the same growth (the drift with what the sensor took off put back:
-    ``sensor_um``, its command's change since the cold start, NaN where the sensor was not
-    read), and how many readings judged them. Both on a duty cycle neither was fitted on,
-    nothing refitted; the heat counted over every reading from the cold start."""
+    """What a temperature sensor's model would have left of the growth the references read
+    (µm RMS), what a heat-from-motion ``thermal`` section would have left of it, and how
+    many readings judged them. The growth is the ``drift_um`` read (shape (k, 2)) less
+    what the sensor's compensation as loaded commanded since the cold start
+    (``applied_um``); the sensor's model commands ``sensor_um`` there (its fitted gain's);
+    NaN where the sensor was not read. Both on a duty cycle neither was fitted on, nothing
+    refitted; the heat counted over every reading from the cold start."""
     d = np.asarray(drift_um, dtype=np.float64).reshape(-1, 2)
-    took = np.asarray(sensor_um, dtype=np.float64).reshape(-1, 2)
-    rows = np.isfinite(took).all(axis=1)
+    applied = np.asarray(applied_um, dtype=np.float64).reshape(-1, 2)
+    model = np.asarray(sensor_um, dtype=np.float64).reshape(-1, 2)
+    rows = np.isfinite(applied).all(axis=1) & np.isfinite(model).all(axis=1)
     if rows.sum() < MIN_OFFSET_READINGS:
         raise TableError(f"axis {axis}: {int(rows.sum())} drift readings with the sensor's "
                          f"temperature: at least {MIN_OFFSET_READINGS} are needed")  # fmt: skip
     pred = modelled_growth_um(thermal, heat_at_readings_m(thermal["motion"], axis, odometer_m,
                                                           wall_s), refs_mm, travel_mm)[rows]
-    read, growth = d[rows], (d - took)[rows]
-    motion_left = (growth - growth[0]) - (pred - pred[0])
-    return (float(np.sqrt(np.mean((read - read[0]) ** 2))),
-            float(np.sqrt(np.mean(motion_left**2))), int(rows.sum()))  # fmt: skip
+    growth = (d - applied)[rows]
+    sensor_left = growth + model[rows]
+    motion_left = growth - pred
+    return (float(np.sqrt(np.mean((sensor_left - sensor_left[0]) ** 2))),
+            float(np.sqrt(np.mean((motion_left - motion_left[0]) ** 2))), int(rows.sum()))
 
 
 def heat_at_readings_m(motion: dict[str, Any], axis: str, odometer_m: dict[str, ArrayLike],
