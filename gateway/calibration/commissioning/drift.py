@@ -537,11 +537,9 @@ class DriftRefs:
         wall = self.clock.now_s() if wall_s is None else wall_s
         entry: dict[str, Any] = {"odometer_mm": odo, "wall_s": wall, "drift_mm": drift}
         took = self.sensor_took_um(temperature_c or {})
-        if took:
+        if took:  # with the readings, for what another gain would have taken
             entry["sensor_um"] = took
-            loaded = self.record.state["ref_commands"]
-            entry["sensor_gain"] = {a: float(loaded[a]["sensor"][2]) for a in took
-                                    if loaded[a].get("sensor")}  # fmt: skip
+            entry["temperature_c"] = {a: temperature_c[a] for a in took}  # type: ignore[index]
         # the log is the growth since the cold start: under a config that corrects heat
         # from motion, the references read what it leaves; what it takes off is put back
         modelled = self.modelled_growth_um(odo, wall)
@@ -550,6 +548,22 @@ class DriftRefs:
                                      if a in modelled else v) for a, v in drift.items()}
             entry["modelled_um"] = modelled
         self.record.state.setdefault("drift_log", []).append(entry)
+
+    def sensor_model_um(self, axis: str, gain: float, temperature_c: float) -> list[float] | None:
+        """What ``axis``'s temperature sensor at ``gain`` commands at its references at this
+        reading (°C) since the cold start (µm): its config's section with another gain;
+        None before the start's reading."""
+        th = self.config.axes[axis].compensation.thermal
+        t0 = (self.record.state.get("start_temperature_c") or {}).get(axis)
+        if th is None or th.source is None or t0 is None:
+            return None
+        src = self.config.thermal_sources[th.source]
+        commands = {"mm": list(self.axes.ref_positions(axis)), "thermal": "sensor",
+                    "sensor": [th.origin_mm, th.length_mm, gain, src.alpha_per_k,
+                               src.reference_c]}  # fmt: skip
+        now, cold = thermal_mm(commands, temperature_c), thermal_mm(commands, t0)
+        assert now is not None and cold is not None
+        return [1000.0 * (n - c) for n, c in zip(now, cold)]
 
     def sensor_took_um(self, temperature_c: dict[str, float]) -> dict[str, list[float]]:
         """Per axis whose loaded config corrects its temperature sensor's reading (the last

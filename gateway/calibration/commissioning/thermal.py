@@ -242,9 +242,11 @@ class ThermalSteps:
         they read with what the sensor's compensation as loaded took off put back; heat
         from motion replaces the sensor where it leaves under PROFILE_SHARE of what the
         sensor's model at its fitted gain would have left of it, and that stands out of the
-        references' own scatter. At the configured gain instead (the one the references
-        were read with), the sensors of three smooth machines lost by 2-7 µm RMS and were
-        replaced; the judge's work then left 0.8-1.8 µm of heat where they had left 0.2-0.3.
+        references' own scatter. The sensor's model is computed at each reading's
+        temperature: taken as what the config then loaded commanded, a reading with the
+        sensor off (at the end of a warm-up) counted the whole growth against it, the
+        sensors of three smooth machines lost by 2-7 µm RMS and were replaced, and the
+        judge's work then left 0.8-1.8 µm of heat where they had left 0.2-0.3.
         Once, before the rounds: a choice the warm-up made on 0.02 µm of its own readings
         (rough-9 Y at 8 h: motion 0.36 µm RMS, the sensor 0.84, so by less than NOISE_UM)
         left 3.77 µm after the judge's 30 minutes of work, where the sensor's model
@@ -259,15 +261,16 @@ class ThermalSteps:
             drift_um = [[1000.0 * d for d in e["drift_mm"][a]] for e in log]
             applied = np.array([(e.get("sensor_um") or {}).get(a, [np.nan, np.nan])
                                 for e in log], dtype=np.float64).reshape(-1, 2)  # fmt: skip
-            # the sensor's model at its fitted gain: the one it would be kept with
-            gain = float((ident.get(f"thermal-{a}") or {}).get("gain") or np.nan)
-            loaded = np.array([(e.get("sensor_gain") or {}).get(a, np.nan) for e in log])
-            ratio = np.where(np.isfinite(gain) & (loaded > 0), gain / loaded, 1.0)
+            # the sensor's model at its fitted gain (the one it would be kept with), at each
+            # reading's temperature: also where the config then loaded had it off
+            gain = float((ident.get(f"thermal-{a}") or {}).get("gain") or 1.0)
+            model = np.array([self.drift.sensor_model_um(a, gain, e["temperature_c"][a])
+                              if a in (e.get("temperature_c") or {}) else [np.nan, np.nan]
+                              for e in log], dtype=np.float64).reshape(-1, 2)  # fmt: skip
             try:
                 sensor_left, motion_left, n = sensor_and_motion_left_um(
-                    a, motion["candidate"], odometer_m, wall_s, drift_um, applied,
-                    applied * ratio[:, None], self.axes.ref_positions(a),
-                    self.axes.travel(a))  # fmt: skip
+                    a, motion["candidate"], odometer_m, wall_s, drift_um, applied, model,
+                    self.axes.ref_positions(a), self.axes.travel(a))  # fmt: skip
             except TableError as exc:
                 motion["weighed"] = {"why": str(exc)}
                 continue
