@@ -12,6 +12,7 @@ the judges is the judge's own scatter on that machine.
     python bench/judgings.py plain.json commission.json
     python bench/judgings.py --heat commission.json   # heat left at each judge's zone
     python bench/judgings.py --bars commission.json   # issue 54's 1.5 x bars, per machine
+    python bench/judgings.py --verdict commission.json  # issue 52's bars, per machine
 
 ``--heat``: per machine and axis of one run, the judge's zone test at each judge (its own
 zone along the travel): the change at its points after the zone's work, with the
@@ -137,6 +138,76 @@ def print_bars(data: dict[str, Any]) -> None:
               + (f"; missed: {', '.join(missed)}" if missed else ""))
 
 
+#: issue 52's bars: A - R as read after commissioning (µm); the heat a judge's zone test
+#: leaves on an axis without a sensor (% of its uncorrected drift), and on one with (µm)
+A_OVER_R_52_UM, HEAT_LEFT_PCT, SENSOR_LEFT_UM = 3.0, 20.0, 2.0
+#: the axes a machine's sensor is given for (bench/accuracy.py's ``sensor``)
+SENSED = {"delta_a": ("X",), "temperature": ("X", "Y")}
+
+
+def verdict_bars(r: dict[str, Any], tolerance_um: float) -> dict[str, Any]:
+    """One machine against issue 52's bars. Heat is counted by the sensor the machine was
+    GIVEN, whatever the final config made of it (heat from motion may replace a
+    temperature sensor): the worst judge's zone test per axis. The verdict agrees unless
+    it said WITHIN where the judge's as-read E (cold, or warm with --warm-judge) is beyond
+    the tolerance."""
+    axes = r.get("judged_axes") or list(r["after"]["axes"])
+    a_r = max(r["after"]["axes"][n]["A_um"] - r["after"]["axes"][n]["R_um"] for n in axes)
+    given = SENSED.get(r.get("sensor", "none"), ())
+    heat: dict[str, dict[str, Any]] = {}
+    for n, rows in heat_left(r).items():
+        if n not in axes:
+            continue
+        worst = max(rows, key=lambda t: t[2])
+        pct = max((100 * a / b for _, b, a, _ in rows if b > 0), default=float("nan"))
+        heat[n] = {"given": n in given, "before_um": worst[1], "left_um": worst[2],
+                   "left_pct": pct,
+                   "motion": n in r.get("model_axes", []), "met": (
+                       worst[2] <= SENSOR_LEFT_UM if n in given else
+                       not pct > HEAT_LEFT_PCT)}  # fmt: skip
+    beyond = [n for n in axes if max(r["after"]["axes"][n]["E_um"], (
+        r.get("after_warm") or r["after"])["axes"][n]["E_um"]) > tolerance_um]  # fmt: skip
+    said = r.get("said")
+    return {"machine": r["machine"], "a_r_um": a_r, "a_met": a_r <= A_OVER_R_52_UM,
+            "heat": heat, "said": said, "beyond": beyond,
+            "agrees": not (said == "WITHIN" and beyond)}
+
+
+def print_verdict_bars(data: dict[str, Any]) -> None:
+    """Issue 52's bars per machine, then per group: A - R and the sensorless heat on every
+    smooth machine and the median rough one; a given sensor's heat and the verdict's
+    agreement on every machine."""
+    tol = float(data.get("tolerance_um", 2.0))
+    rows = [verdict_bars(r, tol) for r in data["machines"] if "error" not in r]
+    print(f"tolerance {tol:g} µm; heat at the worst judge, by the sensor given "
+          "(S: sensor given, M: heat from motion in the final config)")
+    print(f"{'machine':<24}{'A-R':>6}  heat left per axis{'':<34}said / judge beyond")
+    for b in rows:
+        heat = "  ".join(
+            f"{n}{'S' if h['given'] else ''}{'M' if h['motion'] else ''} "
+            + (f"{h['left_um']:.2f} µm" if h["given"] else f"{h['left_pct']:.1f} %")
+            + f" of {h['before_um']:.1f}" + ("" if h["met"] else " NO")
+            for n, h in b["heat"].items())  # fmt: skip
+        print(f"{b['machine']:<24}{b['a_r_um']:6.2f}{'' if b['a_met'] else ' NO':<3}"
+              f"{heat:<52}{b['said'] or '-'} / {','.join(b['beyond']) or '-'}"
+              + ("" if b["agrees"] else "  DISAGREES"))
+    for group in sorted({b["machine"].split("-")[0] for b in rows}):
+        inside = [b for b in rows if b["machine"].split("-")[0] == group]
+        a_r = sorted(b["a_r_um"] for b in inside)
+        free = sorted(max([h["left_pct"] for h in b["heat"].values() if not h["given"]]
+                          or [float("nan")]) for b in inside)  # fmt: skip
+        free = [f for f in free if f == f]
+        sensed = [(b["machine"], n, h["left_um"]) for b in inside
+                  for n, h in b["heat"].items() if h["given"]]  # fmt: skip
+        worst_sensed = max(sensed, key=lambda t: t[2], default=None)
+        print(f"{group}: A - R max {a_r[-1]:.2f}, median {a_r[(len(a_r) - 1) // 2]:.2f} µm; "
+              + (f"heat left without a sensor worst {free[-1]:.1f} %, median "
+                 f"{free[(len(free) - 1) // 2]:.1f} %; " if free else "")
+              + (f"with a sensor worst {worst_sensed[2]:.2f} µm ({worst_sensed[0]} "
+                 f"{worst_sensed[1]}); " if worst_sensed else "")
+              + f"{sum(not b['agrees'] for b in inside)} WITHIN where the judge reads beyond")
+
+
 def compare(a: dict[str, Any], b: dict[str, Any]) -> list[dict[str, Any]]:
     """Per machine in both runs and each figure: the cuts at every judge both read."""
     rows = []
@@ -189,7 +260,12 @@ def main() -> int:
                         help="the heat left at each judge's zone, of the first run alone")
     parser.add_argument("--bars", action="store_true",
                         help="issue 54's 1.5 x bars per machine, of the first run alone")
+    parser.add_argument("--verdict", action="store_true",
+                        help="issue 52's bars per machine, of the first run alone")
     args = parser.parse_args()
+    if args.verdict:
+        print_verdict_bars(json.loads(args.a.read_text()))
+        return 0
     if args.bars:
         print_bars(json.loads(args.a.read_text()))
         return 0

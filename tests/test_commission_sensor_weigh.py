@@ -32,9 +32,16 @@ COMMANDS = {"mm": list(REFS_MM), "thermal": "sensor",
             "sensor": [ORIGIN_MM, LENGTH_MM, 1.0, ALPHA, REF_C]}
 
 
-def _steps(tmp_path: Path) -> tuple[ThermalSteps, Record]:
+#: what the warm-up's two models left at its places (µm RMS): motion not under half of the
+#: sensor (smooth-1 X at 8 h), and under half but by less than NOISE_UM (rough-9 Y)
+WARMUP_EVEN, WARMUP_UNDER_HALF = (0.26, 0.34), (0.36, 0.84)
+
+
+def _steps(tmp_path: Path, warmup_rms_um: tuple[float, float] = WARMUP_EVEN,
+           candidate: dict | None = None) -> tuple[ThermalSteps, Record]:  # fmt: skip
     """Axis X (0-600 mm) with a temperature sensor, its warm-up having kept the sensor and
-    fitted heat from motion beside it (the candidate), the references' scatter 0.2 µm."""
+    fitted heat from motion beside it (the candidate; leaving ``warmup_rms_um``, motion's
+    and the sensor's), the references' scatter 0.2 µm."""
     th = types.SimpleNamespace(source="t", origin_mm=ORIGIN_MM, length_mm=LENGTH_MM, gain=1.0)
     config = types.SimpleNamespace(
         axes={"X": types.SimpleNamespace(rotary=False, travel_mm=(0.0, 600.0), pulse_mm=0.001,
@@ -49,8 +56,8 @@ def _steps(tmp_path: Path) -> tuple[ThermalSteps, Record]:
         "notes": [], "start_temperature_c": {"X": START_C}, "ref_commands": {"X": COMMANDS},
         "ref_scatter": {"X": [10 * 0.2e-3**2, 10]},
         "identify": {"thermal-X": {"gain": GAIN, "motion": {
-            "replaces_sensor": False, "motion_rms_um": 0.36, "sensor_rms_um": 0.84,
-            "candidate": MOTION}}}})  # fmt: skip
+            "replaces_sensor": False, "motion_rms_um": warmup_rms_um[0],
+            "sensor_rms_um": warmup_rms_um[1], "candidate": candidate or MOTION}}}})  # fmt: skip
     drift = DriftRefs(axes, record, print)
     return ThermalSteps(axes, record, drift, lambda _: None), record
 
@@ -113,6 +120,50 @@ def test_a_kept_sensor_gives_way_to_motion_only_where_the_references_say_so(
         assert motion["replaces_sensor"] and "replace the sensor" in record.state["notes"][-1]
     steps.weigh_sensors()  # once: weighed already
     assert len(record.state["notes"]) == (0 if sensor_follows else 1)
+
+
+def _following_sensor(tmp_path: Path, warmup_rms_um: tuple[float, float],
+                      candidate: dict | None = None) -> tuple[ThermalSteps, Record]:  # fmt: skip
+    """Heat from motion (MOTION) grows the screw and the sensor follows it at the warm-up's
+    gain: the references read under it, with 0.1 µm of noise."""
+    rng = np.random.default_rng(5)
+    strokes = rng.uniform(0.0, 30.0, 40)
+    heat_m = motion_heat_series_m(strokes, np.maximum(strokes * 10.0, 120.0), 900.0)
+    growth_um = 0.9 * heat_m[:, None] * (REFS_MM - ORIGIN_MM)[None, :] / LENGTH_MM
+    temps = START_C + 0.9 * heat_m / (1e3 * ALPHA * LENGTH_MM) / GAIN
+    steps, record = _steps(tmp_path, warmup_rms_um, candidate)
+    _log(steps.drift, temps, growth_um + rng.normal(0.0, 0.1, growth_um.shape), strokes)
+    return steps, record
+
+
+def test_where_the_warm_up_and_the_references_agree_motion_replaces_the_sensor(
+        tmp_path: Path) -> None:  # fmt: skip
+    """The warm-up had motion under half of the sensor, by less than the noise; the
+    references (a sensor that follows the heat, so both models leave about their scatter)
+    leave no more with motion, within their scatter: two duty cycles agree, heat from motion
+    replaces the sensor, and the note says both."""
+    steps, record = _following_sensor(tmp_path, WARMUP_UNDER_HALF)
+    steps.weigh_sensors()
+    weighed = record.state["identify"]["thermal-X"]["motion"]["weighed"]
+    assert weighed["motion_left_um"] < 0.2 and weighed["sensor_left_um"] < 0.2, weighed
+    assert weighed["replaces"], weighed
+    assert steps.drift.replacing_motion("X") == MOTION
+    assert "on its zone warm-up 0.36 where the sensor's leaves 0.84" in record.state["notes"][-1]
+
+
+def test_where_the_references_read_motion_worse_the_warm_up_alone_does_not_replace(
+        tmp_path: Path) -> None:  # fmt: skip
+    """The same warm-up, but its motion model is short by a third (Δa per metre 0.6 where
+    the screw grows 0.9): the references leave more with it than with the sensor, and the
+    sensor stays."""
+    short = {**MOTION, "motion": {**MOTION["motion"], "delta_a_um_per_m": 0.6}}
+    steps, record = _following_sensor(tmp_path, WARMUP_UNDER_HALF, short)
+    steps.weigh_sensors()
+    weighed = record.state["identify"]["thermal-X"]["motion"]["weighed"]
+    assert weighed["sensor_left_um"] + weighed["noise_um"] < weighed["motion_left_um"], weighed
+    assert not weighed["replaces"]
+    assert steps.drift.replacing_motion("X") is None
+    assert not record.state["notes"]
 
 
 def test_without_the_sensor_read_at_the_references_nothing_is_weighed(tmp_path: Path) -> None:
