@@ -46,11 +46,19 @@ REQUEST_TIMEOUT_S = 30.0
 SOURCE_POLL_S = 0.002
 
 
+#: the checkout this bench is in
+ROOT = Path(__file__).resolve().parents[1]
+
+
 def child_env() -> dict[str, str]:
-    """The children's environment: str hashing (set order) the same in every run, and one
-    BLAS thread (the sums in the same order whatever ``--jobs``; set it to change it)."""
+    """The children's environment: str hashing (set order) the same in every run, one BLAS
+    thread (the sums in the same order whatever ``--jobs``; set it to change it), and this
+    checkout's code first on the path. A second checkout (a git worktree) sharing the
+    first's virtualenv otherwise ran the first's code through its editable install: a
+    bench of one commit measured whatever the other checkout held as it spawned."""
     threads = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
-    return {**threads, **os.environ, "PYTHONHASHSEED": "0"}
+    path = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH", "")) if p)
+    return {**threads, **os.environ, "PYTHONHASHSEED": "0", "PYTHONPATH": path}
 
 
 def compgw_argv() -> list[str]:
