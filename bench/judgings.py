@@ -194,9 +194,10 @@ def print_verdict_bars(data: dict[str, Any]) -> None:
     for group in sorted({b["machine"].split("-")[0] for b in rows}):
         inside = [b for b in rows if b["machine"].split("-")[0] == group]
         a_r = sorted(b["a_r_um"] for b in inside)
-        free = sorted(max([h["left_pct"] for h in b["heat"].values() if not h["given"]]
-                          or [float("nan")]) for b in inside)  # fmt: skip
-        free = [f for f in free if f == f]
+        # the worst sensorless axis of each machine that has one (NaN sorts anywhere)
+        free = sorted(max(p) for p in ([h["left_pct"] for h in b["heat"].values()
+                                        if not h["given"] and h["left_pct"] == h["left_pct"]]
+                                       for b in inside) if p)  # fmt: skip
         sensed = [(b["machine"], n, h["left_um"]) for b in inside
                   for n, h in b["heat"].items() if h["given"]]  # fmt: skip
         worst_sensed = max(sensed, key=lambda t: t[2], default=None)
