@@ -13,6 +13,7 @@ the judges is the judge's own scatter on that machine.
     python bench/judgings.py --heat commission.json   # heat left at each judge's zone
     python bench/judgings.py --bars commission.json   # issue 54's 1.5 x bars, per machine
     python bench/judgings.py --verdict commission.json  # issue 52's bars, per machine
+    python bench/judgings.py 0.5.json --ladder 1.json 1.5.json 3.json  # budgets in order
 
 ``--heat``: per machine and axis of one run, the judge's zone test at each judge (its own
 zone along the travel): the change at its points after the zone's work, with the
@@ -28,6 +29,7 @@ whether every machine meets them, and the median one (by its worst margin).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 from pathlib import Path
@@ -251,6 +253,38 @@ def _beyond(row: dict[str, Any]) -> int:
     return int(np.sign(row["diff"])) if abs(row["diff"]) > half else 0
 
 
+def print_ladder(paths: list[Path]) -> None:
+    """Issue 54's ladder: runs of the same machines at growing budgets (in the order given,
+    the plain workflow first if wanted). Per machine and figure, each run's mean cut over
+    the judges (± their standard deviation) and machine hours; a step down marked ``v``
+    where it falls beyond the judges' scatter (the paired t test of :func:`_beyond`)."""
+    runs = [json.loads(q.read_text()) for q in paths]
+    names = [q.stem for q in paths]
+    print("mean cut % over the judges (sd); v: below the run before beyond the judges' scatter")
+    print(f"{'machine':<24}{'fig':>4}" + "".join(f"{n:>14}" for n in names))
+    falls = 0
+    first = {r["machine"]: r for r in runs[0]["machines"] if "error" not in r}
+    for m in first:
+        rows = [next((r for r in run["machines"] if r["machine"] == m and "error" not in r),
+                     None) for run in runs]  # fmt: skip
+        if any(r is None for r in rows):
+            continue
+        steps = [{c["figure"]: c for c in compare({"machines": [a]}, {"machines": [b]})}
+                 for a, b in itertools.pairwise(rows)]  # fmt: skip
+        for fig in cuts(rows[0])[next(iter(cuts(rows[0])))]:
+            cells = []
+            for k, r in enumerate(rows):
+                xs = [c[fig] for c in cuts(r).values()]
+                down = k > 0 and _beyond(steps[k - 1][fig]) < 0
+                falls += down
+                sd = float(np.std(xs, ddof=1)) if len(xs) > 1 else float("nan")
+                cells.append(f"{np.mean(xs):7.1f} ({sd:3.1f}){'v' if down else ' '}")
+            print(f"{m:<24}{fig:>4}" + "".join(f"{c:>14}" for c in cells))
+        print(f"{'':<24}{'h':>4}" + "".join(f"{r.get('machine_h', float('nan')):>14.2f}"
+                                            for r in rows))  # fmt: skip
+    print(f"steps down beyond the judges' scatter: {falls}")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -263,7 +297,12 @@ def main() -> int:
                         help="issue 54's 1.5 x bars per machine, of the first run alone")
     parser.add_argument("--verdict", action="store_true",
                         help="issue 52's bars per machine, of the first run alone")
+    parser.add_argument("--ladder", type=Path, nargs="*", metavar="RUN",
+                        help="more runs: the first run and these, at growing budgets")
     args = parser.parse_args()
+    if args.ladder is not None:
+        print_ladder([args.a, *([args.b] if args.b else []), *args.ladder])
+        return 0
     if args.verdict:
         print_verdict_bars(json.loads(args.a.read_text()))
         return 0
