@@ -21,6 +21,7 @@ from gateway.calibration.commissioning.drift import DriftRefs
 from gateway.calibration.commissioning.record import Record
 from gateway.calibration.commissioning.thermal import ThermalSteps
 from gateway.calibration.fitting.adaptive import thermal_mm
+from gateway.calibration.thermal.heat_fit import sensor_gives_way
 from gateway.compensation.thermal import motion_heat_series_m
 
 ORIGIN_MM, LENGTH_MM, ALPHA, REF_C, START_C = -40.0, 640.0, 11.5e-6, 20.0, 21.0
@@ -164,6 +165,21 @@ def test_where_the_references_read_motion_worse_the_warm_up_alone_does_not_repla
     assert not weighed["replaces"]
     assert steps.drift.replacing_motion("X") is None
     assert not record.state["notes"]
+
+
+@pytest.mark.parametrize(("refs_um", "warmup_um", "noise_um", "expected"), [
+    ((0.69, 0.60), (0.84, 0.36), 0.25, "both"),  # rough-9 Y at 8 h
+    ((1.71, 0.60), (0.84, 0.90), 0.25, "references"),  # the references alone
+    ((0.69, 0.60), (0.34, 0.26), 0.25, None),  # a tie, and the warm-up not under half
+    ((0.30, 0.80), (0.84, 0.36), 0.25, None),  # motion worse beyond the references' scatter
+    ((0.20, 0.05), (0.84, 0.90), 0.25, None),  # under half, but the sensor inside the noise
+])
+def test_the_evidence_a_sensor_gives_way_on(refs_um: tuple[float, float],
+                                            warmup_um: tuple[float, float], noise_um: float,
+                                            expected: str | None) -> None:  # fmt: skip
+    """(sensor, motion) µm RMS on the references and on the warm-up: which duty cycles say
+    motion replaces the sensor."""
+    assert sensor_gives_way(*refs_um, noise_um, *warmup_um) == expected
 
 
 def test_without_the_sensor_read_at_the_references_nothing_is_weighed(tmp_path: Path) -> None:

@@ -32,8 +32,8 @@ from ..plans.plans import (
     read_plan,
 )
 from ..plans.rawdata import RawData
-from ..thermal.heat_fit import MIN_GROWTH_UM, sensor_and_motion_left_um
-from ..thermal.thermal_shape import PROFILE_SHARE, thermal_shape_fit
+from ..thermal.heat_fit import MIN_GROWTH_UM, sensor_and_motion_left_um, sensor_gives_way
+from ..thermal.thermal_shape import thermal_shape_fit
 from ..thermal.warmup_heat import readings_clock_s, warmup_heat_fit
 from ..thermal.warmup_motion import warmup_motion_fit
 from .drift import DRIFT_RATIO, REF_REPEATS
@@ -239,18 +239,18 @@ class ThermalSteps:
         """A temperature sensor its zone warm-up kept, weighed again on the drift references
         read since the commissioning began (the cold start, the other axes' identification,
         the cool-down: duty cycles neither model was fitted on). The growth there is what
-        they read with what the sensor's compensation as loaded took off put back; heat
-        from motion replaces the sensor where it leaves under PROFILE_SHARE of what the
-        sensor's model at its fitted gain would have left of it, and that stands out of the
-        references' own scatter. The sensor's model is computed at each reading's
-        temperature: taken as what the config then loaded commanded, a reading with the
-        sensor off (at the end of a warm-up) counted the whole growth against it, the
-        sensors of three smooth machines lost by 2-7 µm RMS and were replaced, and the
-        judge's work then left 0.8-1.8 µm of heat where they had left 0.2-0.3.
+        they read with what the sensor's compensation as loaded took off put back; what heat
+        from motion and the sensor's model at its fitted gain leave of it decide, with the
+        warm-up's own figures (:func:`..thermal.heat_fit.sensor_gives_way`). The sensor's
+        model is computed at each reading's temperature: taken as what the config then
+        loaded commanded, a reading with the sensor off (at the end of a warm-up) counted
+        the whole growth against it, the sensors of three smooth machines lost by 2-7 µm RMS
+        and were replaced, and the judge's work then left 0.8-1.8 µm of heat where they had
+        left 0.2-0.3.
         Once, before the rounds: a choice the warm-up made on 0.02 µm of its own readings
         (rough-9 Y at 8 h: motion 0.36 µm RMS, the sensor 0.84, so by less than NOISE_UM)
         left 3.77 µm after the judge's 30 minutes of work, where the sensor's model
-        corrected the wrong way (:func:`sensor_gives_way`)."""
+        corrected the wrong way."""
         ident = self.record.state.get("identify", {})
         log = self.record.state.get("drift_log", [])
         for a in self.s.axes:
@@ -276,16 +276,20 @@ class ThermalSteps:
                 continue
             scatter = self.drift.ref_scatter_um(a) or self.drift.iso_scatter_um(a) or 0.0
             noise_um = float(np.sqrt(DRIFT_RATIO * 2.0 * scatter**2 / REF_REPEATS))
-            replaces, why = sensor_gives_way(motion, sensor_left, motion_left, noise_um)
+            warm_m = float(motion.get("motion_rms_um", np.inf))
+            warm_s = float(motion.get("sensor_rms_um", 0.0))
+            why = sensor_gives_way(sensor_left, motion_left, noise_um, warm_s, warm_m)
             motion["weighed"] = {"sensor_left_um": sensor_left, "motion_left_um": motion_left,
-                                 "readings": n, "noise_um": noise_um, "replaces": replaces}
-            if not replaces:
+                                 "readings": n, "noise_um": noise_um, "replaces": bool(why)}
+            if why is None:
                 continue
             self._replace_sensor(a, motion, motion["candidate"])
             note = (f"{a}: on its drift references read since the start ({n} readings) heat "
                     f"from its own motion leaves {motion_left:.2f} µm RMS where the temperature "
-                    f"sensor's model leaves {sensor_left:.2f}{why}: heat from motion will "
-                    "replace the sensor in the final config")  # fmt: skip
+                    f"sensor's model leaves {sensor_left:.2f}"
+                    + (f", and on its zone warm-up {warm_m:.2f} where the sensor's leaves "
+                       f"{warm_s:.2f}" if why == "both" else "")
+                    + ": heat from motion will replace the sensor in the final config")  # fmt: skip
             self.record.state["notes"].append(note)
             self.say(note)
         self.record.save()
@@ -446,28 +450,6 @@ class ThermalSteps:
                 f"warm-up's {warm_m:.0f} m, under {self.least_growth_um():g}: too little heat "
                 "for a warm-up")
 
-
-
-def sensor_gives_way(warmup: dict[str, Any], sensor_left_um: float, motion_left_um: float,
-                     noise_um: float) -> tuple[bool, str]:  # fmt: skip
-    """Whether heat from motion replaces a temperature sensor its zone warm-up kept, on what
-    the drift references say (µm RMS left by each model; ``noise_um``: what their scatter
-    alone leaves), and a clause saying why for the note. Either the references alone say
-    so (motion leaves under PROFILE_SHARE of the sensor's, out of the noise), or the two
-    duty cycles agree: the warm-up (``warmup``: its ``motion_rms_um``, ``sensor_rms_um``)
-    had motion under PROFILE_SHARE of the sensor, kept only because the margin was inside
-    NOISE_UM, and the references leave no more with motion, within what their scatter
-    leaves (a tie there is a coin's toss: the warm-up decides). Rough-9 Y at 8 h: 0.36 against
-    0.84 µm on the warm-up, 0.60 against 0.69 on the references; the sensor kept left 3.77
-    µm after the judge's 30 minutes of work, where heat from motion left 0.41."""
-    if motion_left_um < PROFILE_SHARE * sensor_left_um and sensor_left_um > noise_um:
-        return True, ""
-    warm_m = float(warmup.get("motion_rms_um", np.inf))
-    warm_s = float(warmup.get("sensor_rms_um", 0.0))
-    if warm_m < PROFILE_SHARE * warm_s and motion_left_um <= sensor_left_um + noise_um:
-        return True, (f", and on its zone warm-up {warm_m:.2f} where the sensor's leaves "
-                      f"{warm_s:.2f}")
-    return False, ""
 
 
 def start_growth_mm(x_mm: np.ndarray, origin_mm: float, length_mm: float, gain: float,
