@@ -204,6 +204,21 @@ def _xy_floor(after: dict[str, Any]) -> float:
     return xy_floor_um(s, after["xy"].get("points", 40))
 
 
+def sensed_axes(r: dict[str, Any], axes: list[str]) -> list[str]:
+    """The axes of ``axes`` the machine's sensor was given for (its ``sensor``: a Δa sensor
+    reads X, temperature sensors sit on every screw), whatever the final config made of it."""
+    return {"delta_a": ["X"], "temperature": list(axes)}.get(r.get("sensor", "none"), [])
+
+
+def beyond_tolerance(r: dict[str, Any], tolerance_um: float) -> list[str]:
+    """The axes whose E as the judge read it, cold (the after-run) or warm (``after_warm``,
+    with --warm-judge), is beyond ``tolerance_um``."""
+    axes = r.get("judged_axes") or list(r["after"]["axes"])
+    warm = r.get("after_warm") or r["after"]
+    return [n for n in axes
+            if max(r["after"]["axes"][n]["E_um"], warm["axes"][n]["E_um"]) > tolerance_um]
+
+
 def summary(r: dict[str, Any]) -> dict[str, float]:
     """The headline figures of one machine."""
     b, a = r["before"], r["after"]
@@ -211,7 +226,7 @@ def summary(r: dict[str, Any]) -> dict[str, float]:
     worst = min(axes, key=lambda n: 1 - a["axes"][n]["E_um"] / b["axes"][n]["E_um"])
     # the machine's sensors (machine.json), and the axes given heat from motion (none:
     # older runs listed those as sensor axes)
-    sensed = {"delta_a": ["X"], "temperature": axes}.get(r.get("sensor", "none"), [])
+    sensed = sensed_axes(r, axes)
     modelled = r.get("model_axes", [n for n in r.get("sensor_axes", []) if n not in sensed])
     floor = _floor(a["axes"][worst])
     return {
@@ -325,13 +340,11 @@ def print_warm(results: list[dict[str, Any]], tolerance_um: float, say: Any = pr
         f"{tolerance_um:g} µm")  # fmt: skip
     for r in rows:
         axes = r.get("judged_axes") or list(r["after"]["axes"])
-        parts, beyond = [], []
+        parts, beyond = [], beyond_tolerance(r, tolerance_um)
         for n in axes:
             cold, warm = r["after"]["axes"][n], r["after_warm"]["axes"][n]
             parts.append(f"{n} E {cold['E_um']:.2f} → {warm['E_um']:.2f}, A {cold['A_um']:.2f} "
                          f"→ {warm['A_um']:.2f} (R {warm['R_um']:.2f})")  # fmt: skip
-            if max(cold["E_um"], warm["E_um"]) > tolerance_um:
-                beyond.append(n)
         said = r.get("said")
         agree = "" if said is None else (
             f"; it said {said}" + (": the judge reads beyond on " + ", ".join(beyond)

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from accuracy import beyond_tolerance, sensed_axes
 from scipy import stats
 
 
@@ -143,8 +144,6 @@ def print_bars(data: dict[str, Any]) -> None:
 #: issue 52's bars: A - R as read after commissioning (µm); the heat a judge's zone test
 #: leaves on an axis without a sensor (% of its uncorrected drift), and on one with (µm)
 A_OVER_R_52_UM, HEAT_LEFT_PCT, SENSOR_LEFT_UM = 3.0, 20.0, 2.0
-#: the axes a machine's sensor is given for (bench/accuracy.py's ``sensor``)
-SENSED = {"delta_a": ("X",), "temperature": ("X", "Y")}
 
 
 def verdict_bars(r: dict[str, Any], tolerance_um: float) -> dict[str, Any]:
@@ -155,7 +154,7 @@ def verdict_bars(r: dict[str, Any], tolerance_um: float) -> dict[str, Any]:
     the tolerance."""
     axes = r.get("judged_axes") or list(r["after"]["axes"])
     a_r = max(r["after"]["axes"][n]["A_um"] - r["after"]["axes"][n]["R_um"] for n in axes)
-    given = SENSED.get(r.get("sensor", "none"), ())
+    given = sensed_axes(r, axes)
     heat: dict[str, dict[str, Any]] = {}
     for n, rows in heat_left(r).items():
         if n not in axes:
@@ -167,8 +166,7 @@ def verdict_bars(r: dict[str, Any], tolerance_um: float) -> dict[str, Any]:
                    "motion": n in r.get("model_axes", []), "met": (
                        worst[2] <= SENSOR_LEFT_UM if n in given else
                        not pct > HEAT_LEFT_PCT)}  # fmt: skip
-    beyond = [n for n in axes if max(r["after"]["axes"][n]["E_um"], (
-        r.get("after_warm") or r["after"])["axes"][n]["E_um"]) > tolerance_um]  # fmt: skip
+    beyond = beyond_tolerance(r, tolerance_um)
     said = r.get("said")
     return {"machine": r["machine"], "a_r_um": a_r, "a_met": a_r <= A_OVER_R_52_UM,
             "heat": heat, "said": said, "beyond": beyond,
@@ -197,9 +195,10 @@ def print_verdict_bars(data: dict[str, Any]) -> None:
         inside = [b for b in rows if b["machine"].split("-")[0] == group]
         a_r = sorted(b["a_r_um"] for b in inside)
         # the worst sensorless axis of each machine that has one (NaN sorts anywhere)
-        free = sorted(max(p) for p in ([h["left_pct"] for h in b["heat"].values()
-                                        if not h["given"] and h["left_pct"] == h["left_pct"]]
-                                       for b in inside) if p)  # fmt: skip
+        worst = [max((h["left_pct"] for h in b["heat"].values()
+                      if not h["given"] and np.isfinite(h["left_pct"])), default=None)
+                 for b in inside]  # fmt: skip
+        free = sorted(w for w in worst if w is not None)
         sensed = [(b["machine"], n, h["left_um"]) for b in inside
                   for n, h in b["heat"].items() if h["given"]]  # fmt: skip
         worst_sensed = max(sensed, key=lambda t: t[2], default=None)
@@ -254,9 +253,10 @@ def _beyond(row: dict[str, Any]) -> int:
 
 
 def print_ladder(paths: list[Path]) -> None:
-    """Issue 54's ladder: runs of the same machines at growing budgets (in the order given,
-    the plain workflow first if wanted). Per machine and figure, each run's mean cut over
-    the judges (± their standard deviation) and machine hours; a step down marked ``v``
+    """Issue 54's ladder: runs of the same machines at growing budgets, in the order given
+    (the plain workflow is no rung: compare it with a budget as two runs). Per machine and
+    figure, each run's mean cut over the judges (± their standard deviation) and machine
+    hours; a step down marked ``v``
     where it falls beyond the judges' scatter (the paired t test of :func:`_beyond`)."""
     runs = [json.loads(q.read_text()) for q in paths]
     names = [q.stem for q in paths]
