@@ -125,10 +125,12 @@ def test_reframe_plane_rewrites_the_points_once_per_change(tmp_path):
 
 def test_compgw_fit_keeps_a_faded_plane_in_line_with_a_table_it_writes(tmp_path, capsys):
     """`compgw fit xy.csv --pitch-line …` writes a smoothed grid pinned with a fade and its
-    frame; `compgw fit X_on.csv --residual` then folds a 1 µm tilt into X's table, and the
-    plane gives that tilt back off X's pitch line (where the table alone rules, nothing
-    moves but the tilt's level). A level folded alone is given back everywhere, on the
-    line too: a step there would be the laser's zero against the grid device's."""
+    frame; `compgw fit X_on.csv --residual` then folds a bow and a 1 µm tilt into X's
+    table. The plane gives the bow back off X's pitch line (where the table alone rules,
+    nothing moves but the bow's level); the tilt it follows everywhere (the pin takes a
+    line's straight part off the whole plane: the plane held none of it), giving back its
+    level alone. A level folded alone is given back everywhere, on the line too: a step
+    there would be the laser's zero against the grid device's."""
     from gateway.calibration.fitting.plane_frame import FRAME_FILE
     from gateway.calibration.plans.rawdata import RawWriter
     from gateway.cli import main
@@ -167,11 +169,16 @@ def test_compgw_fit_keeps_a_faded_plane_in_line_with_a_table_it_writes(tmp_path,
     level_um = (read_planar_csv(points).error_mm - before.error_mm) * 1e3
     np.testing.assert_allclose(level_um[:, 0], -1.0, atol=1e-6)
     assert np.abs(level_um[:, 1]).max() < 1e-9  # Y's table did not change
-    assert "re-expressed" in fold("x_tilt.csv", lambda t: 1e-3 * t / 450)  # and a tilt
+    def bow(t):  # µm: a bow with no straight part over the grid's nodes
+        return np.cos(2 * np.pi * (np.asarray(t) - 2.0) / 446.0)
+
+    assert "re-expressed" in fold("x_bow.csv", lambda t: 1e-3 * (t / 450 + bow(t)))
     after = read_planar_csv(points)
     np.testing.assert_array_equal(after.command_mm, before.command_mm)
     shift_um = (after.error_mm - before.error_mm) * 1e3 - level_um
-    tilt_um = before.command_mm[:, 0] / 450
-    np.testing.assert_allclose(shift_um[far, 0], -tilt_um[far], atol=5e-3)  # (held past
-    np.testing.assert_allclose(shift_um[on_line, 0], -np.mean(xs / 450), atol=1e-9)  # nodes)
+    x = np.clip(before.command_mm[:, 0], xs[0], xs[-1])  # (held past the nodes)
+    level = np.mean(xs / 450 + bow(xs))
+    np.testing.assert_allclose(shift_um[far, 0], -bow(x[far]) - np.mean(xs / 450) + level
+                               - level, atol=2e-2)  # fmt: skip
+    np.testing.assert_allclose(shift_um[on_line, 0], -level, atol=1e-9)
     assert np.abs(shift_um[:, 1]).max() < 1e-9

@@ -11,10 +11,12 @@ from the line would undo the change there; pinned without a fade (a polynomial) 
 and nothing is needed. So the tables' values at the grid's nodes are kept beside the
 model (the *frame*, ``xy_frame.json``, with the points as fitted, ``xy_points_fitted.csv``),
 and before the model runs with other tables it is re-expressed: the fitted points, each
-component less (1 − fade) · S(Δ) + fade · mean(Δ), S(Δ) the cubic through Δ at the grid's
-nodes (what the grid would have read of it), the fade the pin's own: far from the line
-table and plane still add up to what the grid read, and on it the table's level change is
-given back too (a table's level moves the whole plane, never a step). Always from the
+component less (1 − fade) · (S(Δ) − L(Δ)) + fade · mean(Δ), S(Δ) the cubic through Δ at
+the grid's nodes (what the grid would have read of it), L(Δ) its straight part less its
+mean, the fade the pin's own: far from the line table and plane still add up to what the
+grid read but for the straight part, which the pin takes off the whole plane and which so
+follows the table everywhere, and on the line the table's level change is given back too
+(a table's level moves the whole plane, never a step). Always from the
 fitted points, never from the last re-expression: an interrupted write is simply done
 again.
 
@@ -37,7 +39,7 @@ from ...config import GatewayConfig
 from ...formats import atomic_write_text, read_planar_csv
 from ...formats.planar_file import planar_csv_text
 from ...tables import build_axis
-from .models import node_step_mm, pin_fade, pin_fades
+from .models import line_part, node_step_mm, pin_fade, pin_fades
 from .outputs import planar_paths
 
 #: the frame's file, and the points as fitted, beside the model's points
@@ -122,9 +124,10 @@ def save_frame(points_path: Path, frame: PlaneFrame | None) -> None:
 def reframed(points: PlanarMeasurement, frame: PlaneFrame, axes: tuple[str, str],
              table_now_mm: dict[str, NDArray[np.float64]]) -> PlanarMeasurement:  # fmt: skip
     """A faded model's points re-expressed against tables that now take off
-    ``table_now_mm`` at the frame's nodes: each component less (1 − fade) · S(Δ) +
-    fade · mean(Δ) (a level is held on the line as off it:
-    :func:`.models.pinned_measurement`)."""
+    ``table_now_mm`` at the frame's nodes: each component less (1 − fade) · (S(Δ) − L(Δ))
+    + fade · mean(Δ), L(Δ) the straight part of Δ less its mean (:func:`.models.line_part`):
+    what the pin takes off the whole plane follows the table everywhere, a level is held on
+    the line as off it (:func:`.models.pinned_measurement`)."""
     err = points.error_mm.copy()
     for k, a in enumerate(axes):
         delta = np.asarray(table_now_mm[a], np.float64) - frame.table_mm[a]
@@ -136,7 +139,9 @@ def reframed(points: PlanarMeasurement, frame: PlaneFrame, axes: tuple[str, str]
         along = np.clip(points.command_mm[:, k], nodes[0], nodes[-1])
         away = points.command_mm[:, 1 - k] - frame.line_mm[a]
         fade = pin_fade("grid", away, frame.step_mm(a))
-        err[:, k] -= (1.0 - fade) * smooth(along) + fade * float(np.mean(delta))
+        tilt = line_part(nodes, delta)  # (the plane holds none of the line's tilt: followed)
+        err[:, k] -= ((1.0 - fade) * (smooth(along) - tilt(along))
+                      + fade * float(np.mean(delta)))  # fmt: skip
     return PlanarMeasurement(points.command_mm, points.command_mm + err, points.source)
 
 
