@@ -303,3 +303,68 @@ def test_random_targets_find_room_between_a_swept_tables_points() -> None:
     coarse = np.arange(0.0, 101.0, 2.0)
     t = adaptive.random_targets_mm((0.0, 100.0), 12, 7, coarse)
     assert t.size == 12 and np.min(np.abs(t[:, None] - coarse[None, :])) >= 0.2
+
+
+def _four_harmonics_um(x: np.ndarray, lead: float) -> np.ndarray:
+    """A rough screw's once-per-turn error with a 4th harmonic (the random rough machines
+    carry up to 4): 2, 0.8, 0.5 and 0.6 µm."""
+    theta = 2 * np.pi * x / lead
+    return (2.0 * np.sin(theta) + 0.8 * np.cos(2 * theta) + 0.5 * np.sin(3 * theta)
+            + 0.6 * np.sin(4 * theta + 0.7))  # fmt: skip
+
+
+def test_dense_scans_fit_a_fourth_harmonic_where_the_screw_has_one() -> None:
+    """Three dense scans (16 a lead, 2 leads, both ways, 0.2 µm noise) of a screw with a
+    4th harmonic of 0.6 µm: the fit keeps it (at most 3 it stayed in the residual, its
+    0.6 µm at every phase the tables do not read), and a screw without one still gets 3."""
+    from gateway.calibration.fitting.cyclic_fit import StationScan, dense_scan_targets, fit_cyclic
+
+    lead, stations = 5.0, [100.0, 300.0, 500.0]
+    rng = np.random.default_rng(3)
+
+    def scans(fourth: bool) -> list[StationScan]:
+        out = []
+        for s in stations:
+            x = dense_scan_targets(s, lead)
+            xs = np.concatenate([x, x[::-1]])
+            d = _four_harmonics_um(xs, lead) - (0.0 if fourth else 0.6 * np.sin(
+                4 * 2 * np.pi * xs / lead + 0.7)) + 0.01 * (xs - s) + rng.normal(0, 0.2, xs.size)
+            out.append(StationScan(xs, d * 1e-3, np.repeat([1, -1], x.size)))
+        return out
+
+    fit = fit_cyclic(stations, scans(True), lead)
+    assert fit.harmonics == 4
+    amp_um = np.hypot(fit.model.sin_mm[:, 3], fit.model.cos_mm[:, 3]) * 1e3
+    assert np.all(np.abs(amp_um - 0.6) < 0.15), amp_um
+    assert fit.residual_rms_um < 0.25
+    assert fit_cyclic(stations, scans(False), lead).harmonics == 3
+
+
+def test_a_refinement_scan_leaves_the_harmonics_it_cannot_resolve_as_they_were() -> None:
+    """A refinement scan reads 8 a lead over one lead: a 4th harmonic's sine and cosine are
+    one alternating column there. With a 4-harmonic model the new station takes the first
+    three from the scan and the 4th from the model (not a least-norm split of whatever
+    alternates in the residual)."""
+    from gateway.calibration.fitting.cyclic_fit import StationScan
+    from gateway.compensation.cyclic import CyclicModel
+
+    lead, centre = 5.0, 130.0
+    assert adaptive.resolved_harmonics(np.linspace(0, lead, 9), lead) == 3
+    assert adaptive.resolved_harmonics(np.linspace(0, 2 * lead, 33), lead) == 7
+    assert adaptive.resolved_harmonics(np.linspace(0, lead, 10), lead) == 4
+    sin4 = np.zeros((2, 4))
+    sin4[:, 0], sin4[:, 3] = 1e-3, 0.6e-3
+    model = CyclicModel(lead, np.array([0.0, 200.0]), sin4, np.zeros((2, 4)))
+    table = PitchTable(np.array([0.0, 100.0, 200.0]), np.zeros(3), np.zeros(3))
+    x = np.linspace(centre - lead / 2, centre + lead / 2, 9)
+    xs = np.concatenate([x, x[::-1]])
+    theta = 2 * np.pi * xs / lead
+    # the residual: 0.5 µm more of the first harmonic, and an alternating 0.3 µm (what the
+    # 4th's columns would take)
+    resid_um = 0.5 * np.sin(theta) + 0.3 * np.cos(4 * theta + 0.3)
+    scan = StationScan(xs, resid_um * 1e-3, np.repeat([1, -1], x.size))
+    got = adaptive.scan_refinement(table, PitchStage(table, "linear"), model, [centre], [scan])
+    j = int(np.flatnonzero(got.cyclic.station_mm == centre)[0])
+    assert got.cyclic.sin_mm[j, 0] * 1e3 == pytest.approx(1.5, abs=0.1)
+    assert got.cyclic.sin_mm[j, 3] * 1e3 == pytest.approx(0.6, abs=1e-9)
+    assert got.cyclic.cos_mm[j, 3] == pytest.approx(0.0, abs=1e-12)

@@ -370,7 +370,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                         "pinned to zero there, the pin fading within a grid step (repeat per "
                         "axis)")
     p.add_argument("--harmonics", type=int, metavar="K",
-                   help="cyclic runs: fit K harmonics (default: 0..3 by cross-validation)")
+                   help="cyclic runs: fit K harmonics (default: 0..4 by cross-validation)")
     p.add_argument("--residual", action="store_true",
                    help="fold into the current tables (automatic for '# compensation: on')")
     p.add_argument("--dry-run", action="store_true", help="fit and check, write nothing")

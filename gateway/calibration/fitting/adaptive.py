@@ -248,6 +248,17 @@ class ScanRefinement:
     found: tuple[tuple[float, float, float, float], ...]
 
 
+def resolved_harmonics(x_mm: NDArray[np.float64], lead_mm: float) -> int:
+    """The most harmonics of a lead that readings every ``np.diff(x_mm)`` resolve apart
+    (below half their readings per lead: at 8 a lead the 4th's sine and cosine are one
+    column, alternating)."""
+    steps = np.diff(np.unique(np.round(np.asarray(x_mm, dtype=np.float64), 6)))
+    if steps.size == 0:
+        return 0
+    per_lead = lead_mm / float(np.median(steps))
+    return max(0, int(np.ceil(per_lead / 2.0 - 1e-9)) - 1)
+
+
 def scan_refinement(table: PitchTable, stage: PitchStage, cyclic: CyclicModel,
                     stations_mm: Sequence[float], scans: Sequence[StationScan]
                     ) -> ScanRefinement:  # fmt: skip
@@ -257,12 +268,12 @@ def scan_refinement(table: PitchTable, stage: PitchStage, cyclic: CyclicModel,
     cyclic station (the model's amplitudes there plus the residual's), kept where it is at
     least a lead from every other station. Table points closer than ``MIN_SPACING_MM`` to
     an existing one are left out."""
-    k = cyclic.harmonics
     lead = cyclic.lead_mm
     new_x, fwd, rev, found = [], [], [], []
     st_new: list[tuple[float, np.ndarray, np.ndarray]] = []
     for centre, scan in zip(stations_mm, scans):
         x, d = scan.position_mm, scan.deviation_mm
+        k = min(cyclic.harmonics, resolved_harmonics(x, lead))
         theta = 2 * np.pi * (x - cyclic.origin_mm) / lead
         cols = [np.ones_like(x), (x - centre) / lead, (scan.direction < 0).astype(np.float64)]
         for h in range(1, k + 1):
@@ -270,7 +281,9 @@ def scan_refinement(table: PitchTable, stage: PitchStage, cyclic: CyclicModel,
         coef = np.linalg.lstsq(np.column_stack(cols), d, rcond=None)[0]
         up, down = float(coef[0]), float(coef[0] + coef[2])
         a0, b0 = cyclic.amplitudes_mm(np.array([centre]))
-        da, db = coef[3::2], coef[4::2]
+        da = np.zeros(cyclic.harmonics)  # those it does not resolve: the model's, as they are
+        db = np.zeros(cyclic.harmonics)
+        da[:k], db[:k] = coef[3::2], coef[4::2]
         st_new.append((float(centre), a0[0] + da, b0[0] + db))
         found.append((float(centre), up * 1e3, down * 1e3,
                       float(np.sum(np.hypot(da, db))) * 1e3))  # fmt: skip
