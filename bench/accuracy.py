@@ -483,6 +483,13 @@ def main() -> int:
     if sum(v is not None for v in (args.budget_vs_manual, args.budget_vs_plain,
                                    args.budget_h)) > 1:  # fmt: skip
         parser.error("--budget-vs-manual, --budget-vs-plain and --budget-h: give one")
+    commission_only = {"--budget-vs-manual": args.budget_vs_manual,
+                       "--budget-vs-plain": args.budget_vs_plain, "--budget-h": args.budget_h,
+                       "--then-tolerance-um": args.then_tolerance_um}  # fmt: skip
+    given = [k for k, v in commission_only.items() if v is not None]
+    if given and args.workflow != "commission":  # (silently the manual workflow's, before)
+        parser.error(f"{', '.join(given)}: only with --workflow commission "
+                     f"(given: {args.workflow})")
     workflows.THERMAL_PROFILE = args.thermal_profile
     workflows.NO_SENSORS = args.no_sensors
     workflows.LASER_KIND = args.laser_kind
