@@ -44,13 +44,16 @@ class Planner:
                        ) -> Plan:  # fmt: skip
         """The ISO 230-2 cycle at the midpoints of the first table's points, ``runs`` runs
         per target (default: the first table's); with ``quarters``, at the midpoints of
-        those points and their midpoints (the first table's quarter points)."""
+        those points and their midpoints (the first table's quarter points), read going up
+        only: their reversal is the table's, from its points read both ways
+        (:func:`..fitting.fit.with_one_way_points`), for half the machine time."""
         steps = [f"iso-{axis}"] + ([f"iso-mid-{axis}"] if quarters else [])
         first = np.unique(np.concatenate([
             read_plan(self.record.dir / "plans" / f"{n}.plan").targets_mm(axis) for n in steps]))
         return targets_plan(axis, self.axes.travel(axis), (first[1:] + first[:-1]) / 2,
                             runs or self.budget.iso_runs(), kind="iso230-linear",
-                            note="quarter points" if quarters else "midpoints")  # fmt: skip
+                            note="quarter points" if quarters else "midpoints",
+                            one_way=quarters)  # fmt: skip
 
     def more_runs_plan(self, axis: str, more: int) -> Plan:
         """The first table's ISO runs again: ``more`` runs on the same targets, numbered on

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..fitting import adaptive
+from ..fitting.fit import one_way_split
 from ..fitting.iso230 import iso230_axis
 from ..fitting.outputs import scanned_cyclic
 from ..fitting.plans_scans import cyclic_plan
@@ -503,8 +504,8 @@ class ShortBudget:
                                       "instead_of_more_runs": True}  # fmt: skip
             self.say(f"{a}: {BETWEEN[True].table} misses {miss_um:.2f} µm RMS between its "
                      f"points, {ratio:.1f} x what its scatter explains: its quarter points "
-                     f"read in place of its more runs, one run each (they take more of its "
-                     "error off per reading)")  # fmt: skip
+                     f"read in place of its more runs, one run each, going up (they take more "
+                     "of its error off per reading)")  # fmt: skip
         self.record.save()
         return held_s
 
@@ -514,7 +515,8 @@ class ShortBudget:
         that a reversal takes up only in part; True before they are read."""
         if not all(self.record.done(n) for n in self.plans.iso_steps(axis)):
             return True
-        b_um = iso230_axis(axis_deviations(self.iso_raw(axis), axis)).B_um
+        both = one_way_split(axis_deviations(self.iso_raw(axis), axis))[0]  # (B: both ways)
+        b_um = iso230_axis(both).B_um
         return b_um is None or b_um >= MIN_LOST_UM
 
     def iso_raw(self, axis: str) -> RawData:

@@ -47,7 +47,9 @@ from .fit import (
     choose_reversal,
     fold_backlash,
     fold_residual,
+    one_way_split,
     unidirectional_table,
+    with_one_way_points,
 )
 from .iso230 import iso230_axis
 from .linkage_fit import LinkageFit, fit_linkage, mean_actual_deg, residual_deviations
@@ -165,6 +167,7 @@ def fit_pitch(
     elif mode == "bidirectional":
         if reversal not in ("auto", "smooth", "per-point"):
             raise TableError(f"reversal {reversal!r} is not auto, smooth or per-point")
+        dev, one_way = one_way_split(dev)  # points read one way: their reversal the table's
         choice = choose_reversal(dev, reversal_degree)
         if reversal != "auto":
             choice = replace(choice, per_point=reversal == "per-point", reversal_mm=None)
@@ -174,6 +177,8 @@ def fit_pitch(
             table = bidirectional_table_reversal(dev, choice.reversal_mm, str(path))
         else:
             table = bidirectional_table_smooth_reversal(dev, reversal_degree, str(path))
+        if one_way is not None:
+            table = with_one_way_points(table, one_way)
         result = PitchResult(axis, path, table, None, mode, False, fmt, reversal=choice)
     else:
         uni = unidirectional_table(dev, str(path))

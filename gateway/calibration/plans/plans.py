@@ -256,18 +256,25 @@ def iso230_linear_plan(
 def targets_plan(
     axis: str, travel_mm: Sequence[float], targets_mm: Sequence[float], runs: int = 2,
     overrun_mm: float = 1.0, kind: str = "iso230-verification", speed_mm_s: float | None = None,
-    **meta: object,
+    one_way: bool = False, **meta: object,
 ) -> Plan:  # fmt: skip
     """The ISO 230-2 cycle (``runs`` bidirectional runs, overrun past each end) over given
-    targets: verification and refinement targets chosen by someone else (sorted here)."""
+    targets: verification and refinement targets chosen by someone else (sorted here).
+    ``one_way``: each run reads them going up (+) only (points put between a table's
+    others, :func:`..fitting.fit.with_one_way_points`)."""
     lo, hi = _travel(travel_mm)
     targets = _round(np.sort(np.asarray(targets_mm, dtype=np.float64)))
     if targets.size == 0 or targets[0] < lo or targets[-1] > hi:
         raise ValueError(f"targets must lie in the travel {lo:g}..{hi:g} mm")
+    if one_way:
+        meta["one_way"] = "+"
     info = _meta(kind=kind, axis=axis, travel_mm=(lo, hi), overrun_mm=overrun_mm, runs=runs,
                  **meta)  # type: ignore[arg-type]  # fmt: skip
-    return Plan(kind, (axis,), _bidirectional_moves((lo, hi), targets, runs, overrun_mm,
-                                                    speed_mm_s, None), info)  # fmt: skip
+    moves = _bidirectional_moves((lo, hi), targets, runs, overrun_mm, speed_mm_s, None)
+    if one_way:  # the overrun below and the pass up of each run
+        moves = tuple(m for m in moves if (m.direction > 0 and m.role == "measure")
+                      or (m.role == "overrun" and m.direction < 0))  # fmt: skip
+    return Plan(kind, (axis,), moves, info)
 
 
 def _bidirectional_moves(travel: tuple[float, float], targets: NDArray[np.float64], runs: int,
