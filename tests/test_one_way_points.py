@@ -87,6 +87,16 @@ def test_a_table_read_both_ways_everywhere_is_not_split_and_one_way_needs_a_reve
         with_one_way_points(flat, up_only)
 
 
+def test_a_raw_file_read_one_way_is_refused_as_bidirectional_naming_file_and_axis() -> None:
+    """Its reversal cannot be known: before, the error said only that a table needs 2
+    points."""
+    x = np.arange(0.0, 100.1, 25.0)
+    raw = concat_raw([_raw(x, 2, (1,), 6), _raw(x[:1], 1, (-1,), 7)])
+    with pytest.raises(TableError, match=r"axis X: 1 target\(s\) read both ways.*--mode "
+                                         r"unidirectional"):  # fmt: skip
+        one_way_split(axis_deviations(raw, "X"))
+
+
 def test_a_one_way_plan_reads_each_run_going_up_after_an_overrun_below() -> None:
     plan = targets_plan("X", (0.0, 100.0), [10.0, 20.0, 30.0], 2, kind="iso230-linear",
                         one_way=True)  # fmt: skip

@@ -188,6 +188,11 @@ def one_way_split(dev: AxisDeviations) -> tuple[AxisDeviations, AxisDeviations |
     both = up & down
     if both.all():
         return dev, None
+    if both.sum() < 2:  # (a recording read going one way only: its reversal unknown)
+        raise TableError(f"{dev.source}: axis {dev.axis}: {int(both.sum())} target(s) read "
+                         "both ways: a bidirectional table needs 2, and its points read one "
+                         "way take their reversal from them (fit it with --mode "
+                         "unidirectional)")  # fmt: skip
 
     def pick(sel: NDArray[np.bool_]) -> AxisDeviations:
         return AxisDeviations(dev.axis, dev.target_mm[sel], dev.runs, dev.up_mm[sel],
