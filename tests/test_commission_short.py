@@ -448,12 +448,12 @@ def test_a_table_still_missing_between_its_points_reads_quarter_points_in_place_
         short.budget = SimpleNamespace(iso_runs=lambda: 3, left_s=lambda: left[0],
                                        step_cost_worst_s=cost_s, step_cost_s=cost_s)
         short.plans = SimpleNamespace(
-            midpoints_plan=lambda a, runs, quarters=False: 100.0 * runs * (1 + quarters),
+            midpoints_plan=lambda a, runs, level=0: 100.0 * runs * (1 + level),
             more_runs_plan=lambda a, more: 50.0 * more)
         short.record = SimpleNamespace(state=state, done=lambda name: name.startswith("cyclic"),
                                        save=lambda: None)  # fmt: skip
         short.scans_left_s = lambda axes: 0.0
-        short.between = lambda a, quarters=False: misses[a]
+        short.between = lambda a, level=0: misses[a]
         short.scatter_mm2 = lambda a: 0.27e-3**2
         short.say = lambda text: None
 
@@ -481,3 +481,54 @@ def test_a_table_still_missing_between_its_points_reads_quarter_points_in_place_
     assert [n for n, _ in steps] == ["iso-more-X", "iso-more-Y"]
     ident, steps = run(300.0, midpoints=("Y",))  # no midpoints read on X: no quarter points
     assert "quarters-X" not in ident and ident["more_runs"] == 2
+
+
+def test_a_table_still_missing_between_its_quarter_points_reads_its_eighth_points() -> None:
+    """The eighth points are an extra after the quarter points: read, going up, where the
+    table with its quarter points is still expected to miss between them beyond
+    BETWEEN_RATIO times their scatter, the axis that misses most per minute first, as far
+    as the budget holds them; never on an axis whose quarter points were not read. (On the
+    quiet machine rough-8's tables with their quarter points, 9.5 and 2.2 x their
+    scatter, left E 4.53 and 2.09 µm at random parks; a point between every two, read
+    once, 2.80 and 1.24.)"""
+    import asyncio
+    from types import SimpleNamespace
+
+    from gateway.calibration.commissioning.short import EIGHTHS, ShortBudget
+
+    misses = {"X": (9.5, 2.41), "Y": (2.2, 1.86), "Z": (1.1, 0.30)}  # (× scatter, µm RMS)
+
+    def run(left_s: float, quarters: tuple[str, ...]) -> tuple[dict, list]:
+        steps: list = []
+        ident: dict = {f"quarters-{a}": {"measured": a in quarters} for a in "XYZ"}
+        ident["more_runs"] = 0
+        short = ShortBudget.__new__(ShortBudget)
+        short.s = SimpleNamespace(lead_mm={"X": 5.0, "Y": 16.0, "Z": 10.0}, planar=None)
+        short.axes = SimpleNamespace(park=lambda a: {})
+        short.budget = SimpleNamespace(iso_runs=lambda: 3, left_s=lambda: left_s - sum(
+            p for _, p in steps), step_cost_worst_s=lambda p: p, step_cost_s=lambda p: p)
+        short.plans = SimpleNamespace(midpoints_plan=lambda a, runs, level=0: 100.0 * runs)
+        short.record = SimpleNamespace(state={"identify": ident}, save=lambda: None,
+                                       done=lambda name: True)  # fmt: skip
+        short.between = lambda a, level=0: misses[a] if level == EIGHTHS else (None, None)
+        short.say = lambda text: None
+
+        async def step(name: str, plan: Any, *args: Any) -> None:
+            steps.append((name, plan()))
+
+        short.runner = SimpleNamespace(step=step)
+
+        async def extra() -> None:
+            for a in short.by_value(["Z", "Y", "X"], EIGHTHS):
+                await short.densify(a, EIGHTHS)
+
+        asyncio.run(extra())
+        return ident, steps
+
+    ident, steps = run(1000.0, ("X", "Y", "Z"))  # X misses most per minute: first
+    assert steps == [("iso-eighth-X", 200.0), ("iso-eighth-Y", 200.0)]
+    assert ident["eighths-X"]["runs"] == 2 and not ident["eighths-Z"]["measured"]
+    ident, steps = run(300.0, ("X", "Y", "Z"))  # the budget holds one: X's
+    assert steps == [("iso-eighth-X", 200.0)] and not ident["eighths-Y"]["measured"]
+    ident, steps = run(1000.0, ("Y",))  # X's quarter points not read: none between them
+    assert steps == [("iso-eighth-Y", 200.0)] and "eighths-X" not in ident

@@ -151,6 +151,10 @@ def _quarters(r: Record, u: Fmt = _um) -> str:
     return _between(r, u, "the table with its midpoints", "quarter points")
 
 
+def _eighths(r: Record, u: Fmt = _um) -> str:
+    return _between(r, u, "the table with its quarter points", "eighth points")
+
+
 def _fit(r: Record, u: Fmt = _um) -> str:
     """A rotary axis's fit: its interpolation and linkage (arcseconds)."""
     text = f"{r['interpolation']} interpolation"
@@ -175,6 +179,7 @@ KINDS: dict[str, tuple[str, Callable[[Record, Fmt], str]]] = {
     "sweep": ("sweep", _sweep),
     "midpoints": ("midpoints (short budget)", _midpoints),
     "quarters": ("quarter points (short budget)", _quarters),
+    "eighths": ("eighth points (short budget)", _eighths),
     "fit": ("table fit (rotary)", _fit),
 }
 

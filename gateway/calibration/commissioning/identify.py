@@ -16,6 +16,7 @@ from ..plans.plans import (
 )
 from ..plans.rawdata import read_raw_csv
 from .settings import SHORT_WARMUP_S, BudgetSpent
+from .short import EIGHTHS, QUARTERS
 from .sizing import first_table_reading
 
 if TYPE_CHECKING:
@@ -204,9 +205,11 @@ class IdentifySteps:
             await self.short.densify(a)  # net of it (lead known), the most per minute first
         self._hold_warm_ups(cores)  # the heat a warm machine meets, first of the extras
         await self.short.more_runs(cores)  # a plain calibration's runs, where time is left
-        for a in self.short.by_value(cores, quarters=True):  # an extra: where the tables
-            await self.short.densify(a, quarters=True)  # still miss between their points
+        for a in self.short.by_value(cores, QUARTERS):  # an extra: where the tables
+            await self.short.densify(a, QUARTERS)  # still miss between their points
         await self.short.more_runs_later(cores)  # those the quarter points took the place of
+        for a in self.short.by_value(cores, EIGHTHS):  # and where they miss even so
+            await self.short.densify(a, EIGHTHS)
         plane = self.axes.plane_with(cores)
         if plane:
             if not self.short.grid_affordable():  # no model: the tables alone are what the

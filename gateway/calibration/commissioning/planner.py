@@ -26,6 +26,11 @@ if TYPE_CHECKING:
     from .rotary import RotarySteps
     from .thermal import ThermalSteps
 
+#: the ISO steps whose targets each level of points between is read between, in order: the
+#: midpoints (level 0) between the first table's, the quarter points (1) between those and
+#: the midpoints, the eighth points (2) between those and the quarter points
+ISO_STEPS_BETWEEN = ("iso", "iso-mid", "iso-quarter")
+
 
 class Planner:
     """The plans of the identification and of the judging runs (pure of the machine: the axes, the
@@ -40,20 +45,21 @@ class Planner:
         self.rotary = rotary
         self.thermal = thermal
 
-    def midpoints_plan(self, axis: str, runs: int | None = None, quarters: bool = False
+    def midpoints_plan(self, axis: str, runs: int | None = None, level: int = 0
                        ) -> Plan:  # fmt: skip
         """The ISO 230-2 cycle at the midpoints of the first table's points, ``runs`` runs
-        per target (default: the first table's); with ``quarters``, at the midpoints of
-        those points and their midpoints (the first table's quarter points), read going up
-        only: their reversal is the table's, from its points read both ways
-        (:func:`..fitting.fit.with_one_way_points`), for half the machine time."""
-        steps = [f"iso-{axis}"] + ([f"iso-mid-{axis}"] if quarters else [])
+        per target (default: the first table's); at ``level`` 1 (2), at the midpoints of
+        those points and their midpoints (and their quarter points): the first table's
+        quarter (eighth) points, read going up only: their reversal is the table's, from
+        its points read both ways (:func:`..fitting.fit.with_one_way_points`), for half the
+        machine time."""
+        steps = [f"{n}-{axis}" for n in ISO_STEPS_BETWEEN[:level + 1]]
         first = np.unique(np.concatenate([
             read_plan(self.record.dir / "plans" / f"{n}.plan").targets_mm(axis) for n in steps]))
         return targets_plan(axis, self.axes.travel(axis), (first[1:] + first[:-1]) / 2,
                             runs or self.budget.iso_runs(), kind="iso230-linear",
-                            note="quarter points" if quarters else "midpoints",
-                            one_way=quarters)  # fmt: skip
+                            note=("midpoints", "quarter points", "eighth points")[level],
+                            one_way=level > 0)  # fmt: skip
 
     def more_runs_plan(self, axis: str, more: int) -> Plan:
         """The first table's ISO runs again: ``more`` runs on the same targets, numbered on
@@ -67,9 +73,10 @@ class Planner:
 
     def iso_steps(self, axis: str) -> list[str]:
         """The ISO steps of ``axis``, in the order they are read: the first table's points,
-        its midpoints, more runs and quarter points where a short budget read them
+        its midpoints, more runs, quarter and eighth points where a short budget read them
         (:meth:`.short.ShortBudget.densify`, :meth:`.short.ShortBudget.more_runs`)."""
-        steps = [f"iso-{axis}", f"iso-mid-{axis}", f"iso-more-{axis}", f"iso-quarter-{axis}"]
+        steps = [f"iso-{axis}", f"iso-mid-{axis}", f"iso-more-{axis}", f"iso-quarter-{axis}",
+                 f"iso-eighth-{axis}"]
         return steps[:1] + [n for n in steps[1:] if self.record.done(n)]
 
     def iso_targets(self, axis: str) -> np.ndarray:

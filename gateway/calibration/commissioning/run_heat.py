@@ -41,9 +41,9 @@ if TYPE_CHECKING:
 
 Say = Callable[[str], None]
 
-#: the steps of an axis's ISO runs (the midpoints' and quarter points' read other targets:
+#: the steps of an axis's ISO runs (the midpoints', quarter and eighth points' read other targets:
 #: their levels are a group of their own)
-STEPS = ("iso-{a}", "iso-more-{a}", "iso-mid-{a}", "iso-quarter-{a}")
+STEPS = ("iso-{a}", "iso-more-{a}", "iso-mid-{a}", "iso-quarter-{a}", "iso-eighth-{a}")
 #: the least growth heat is fitted to, however well the levels stand out of their scatter
 #: (five times it: :func:`..thermal.heat_fit.least_growth_um`)
 RUN_MIN_SEEN_UM = 0.3

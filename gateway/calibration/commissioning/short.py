@@ -22,6 +22,7 @@ from ..plans.plans import Plan, backlash_plan
 from ..plans.rawdata import RawData, axis_deviations, pooled_variance
 from ..plans.runner import read_raw_meta
 from ..plans.xy import even_grid
+from .planner import ISO_STEPS_BETWEEN
 from .sizing import DENSE_LEAST_RUNS, fitting_grid, hold_each, max_grid_in
 from .steps import concat_raw
 
@@ -59,10 +60,13 @@ class Between:
     table: str  # the table judged, said
 
 
-#: the midpoints (``quarters`` False) and the quarter points (True)
-BETWEEN = {False: Between("midpoints", "iso-mid", "midpoints", "the first table"),
-           True: Between("quarters", "iso-quarter", "quarter points",
-                         "the table with its midpoints")}  # fmt: skip
+#: what is read between a table's points, by level: its midpoints (0), its quarter points
+#: (1) and its eighth points (2), each level between all the points read before it
+BETWEEN = (Between("midpoints", "iso-mid", "midpoints", "the first table"),
+           Between("quarters", "iso-quarter", "quarter points", "the table with its midpoints"),
+           Between("eighths", "iso-eighth", "eighth points",
+                   "the table with its quarter points"))  # fmt: skip
+QUARTERS, EIGHTHS = 1, 2
 
 
 class ShortBudget:
@@ -241,7 +245,7 @@ class ShortBudget:
                                               self.budget.refs_around_s(p))
                    for p in plans)  # (a warm-up reads no drift references)
 
-    async def densify(self, axis: str, quarters: bool = False) -> None:
+    async def densify(self, axis: str, level: int = 0) -> None:
         """On a short budget, whose rounds will not sweep a table between its points: the
         ISO runs again at the midpoints of the first table's points where that table misses
         between them by more than BETWEEN_RATIO times what its scatter explains
@@ -262,29 +266,35 @@ class ShortBudget:
           behind the last runs and the plane's verdict, no midpoints fitted: rough-3's Y
           read 7.21 µm at the judge's targets, 1.34 with them in place of its last runs.)
           No scans read: none (the term would alias).
-        - ``quarters``: the quarter points, where the table with its midpoints (and its
+        - ``level`` QUARTERS: the quarter points, where the table with its midpoints (and its
           more runs) still misses between its points so, at DENSE_LEAST_RUNS: an extra
-          after a plain calibration's steps, held behind its grid and the plane's verdict."""
-        if not self._decidable(axis, quarters):
+          after a plain calibration's steps, held behind its grid and the plane's verdict.
+        - ``level`` EIGHTHS: the eighth points, where the table with its quarter points still
+          misses so: the same extra, after the quarter points and the more runs. (On the
+          quiet machine a perfect point between every two of rough-8's table points, its
+          quarter points read, took E at random parks from 4.53 to 2.80 µm on X and 2.09
+          to 1.24 on Y, with a reading's noise; its quarter points missed 9.5 and 2.2 x
+          their scatter.)"""
+        if not self._decidable(axis, level):
             return
         known = axis in self.s.lead_mm
         ident = self.record.state.setdefault("identify", {})  # (the report lists it)
-        names = BETWEEN[quarters]
+        names = BETWEEN[level]
         key, what = f"{names.kind}-{axis}", names.what
         if key not in ident:
-            ratio, miss_um = self.between(axis, quarters)
+            ratio, miss_um = self.between(axis, level)
             keep_s = 0.0
             if self.s.planar is not None and axis in self.s.planar:
-                keep_s = self.plane_held_s(plain=known or quarters)
-                if quarters and not self.record.done("before-xy"):  # and the plane's verdict
+                keep_s = self.plane_held_s(plain=known or level > 0)
+                if level > 0 and not self.record.done("before-xy"):  # and the plane's verdict
                     keep_s += self.budget.verdict_cost_s(self.plans.before_xy_plan())
             misses = ratio is not None and ratio > BETWEEN_RATIO
-            runs = self._midpoint_runs(axis, keep_s, quarters) if misses else 0
+            runs = self._midpoint_runs(axis, keep_s, level) if misses else 0
             ident[key] = {"misses_x_scatter": ratio, "miss_rms_um": miss_um,
                           "measured": bool(runs), "runs": runs}
             if misses:
                 need_s = self.budget.step_cost_worst_s(
-                    self.plans.midpoints_plan(axis, DENSE_LEAST_RUNS, quarters))
+                    self.plans.midpoints_plan(axis, DENSE_LEAST_RUNS, level))
                 net = " (net of its once-per-lead error)" if known else ""
                 where = "beside the plane's grid" if keep_s > 0.0 else "in the budget left"
                 self.say(f"{axis}: {names.table} misses {miss_um:.2f} µm RMS between its "
@@ -296,22 +306,25 @@ class ShortBudget:
         if ident[key]["measured"]:  # (an older state keeps no runs: the first table's)
             runs = ident[key].get("runs")
             await self.runner.step(f"{names.step}-{axis}",
-                                   lambda: self.plans.midpoints_plan(axis, runs, quarters),
+                                   lambda: self.plans.midpoints_plan(axis, runs, level),
                                    "off", self.axes.park(axis))  # fmt: skip
 
-    def _decidable(self, axis: str, quarters: bool = False, before_more: bool = False) -> bool:
+    def _decidable(self, axis: str, level: int = 0, before_more: bool = False) -> bool:
         """Whether the midpoints of ``axis`` can be decided: its first table read, and
         where its lead is known its cyclic scans too (the term its points are judged net
-        of); its quarter points, once its midpoints were read and its more runs decided."""
-        if quarters:
+        of); its quarter points, once its midpoints were read and its more runs decided;
+        its eighth points, once its quarter points were read."""
+        if level > 0:
             ident = self.record.state.get("identify", {})
-            return bool((ident.get(f"midpoints-{axis}") or {}).get("measured")) and (
+            below = BETWEEN[level - 1].kind
+            return bool((ident.get(f"{below}-{axis}") or {}).get("measured")) and (
                 before_more or "more_runs" in ident)
         return axis not in self.s.lead_mm or self.record.done(f"cyclic-{axis}")
 
-    def between(self, axis: str, quarters: bool = False) -> tuple[float | None, float | None]:
-        """How much the first table of ``axis`` misses between its points (with
-        ``quarters``, what the table through its points and midpoints is expected to,
+    def between(self, axis: str, level: int = 0) -> tuple[float | None, float | None]:
+        """How much the first table of ``axis`` misses between its points (at ``level`` 1
+        and 2, what the table through its points and midpoints, or through those and its
+        quarter points, is expected to,
         :func:`..fitting.table_cv.denser_miss`): over what its
         scatter explains, and in µm RMS (:func:`..fitting.table_cv.between_points`, net of
         the once-per-lead term where its scans were read); None, None where it cannot say.
@@ -321,8 +334,9 @@ class ShortBudget:
         scatter, and read its midpoints; the spline through the 7 misses 0.34 µm (1.0 x),
         and the table with the midpoints, levelled, read E 84.5 % over four judges against
         the plain calibration's 88.7 %."""
-        if quarters:
-            first_mm = self.runner.raw(f"iso-{axis}").target_mm
+        if level > 0:  # the points read before the last level's
+            first_mm = np.concatenate([self.runner.raw(f"{n}-{axis}").target_mm
+                                       for n in ISO_STEPS_BETWEEN[:level]])  # fmt: skip
             found = denser_miss(axis_deviations(self.iso_raw(axis), axis), first_mm,
                                 self.scanned(axis))  # fmt: skip
         else:
@@ -330,39 +344,39 @@ class ShortBudget:
                                    self.scanned(axis), curves=True)  # fmt: skip
         return (None, None) if found is None else (found[0], found[1] * 1e3)
 
-    def by_value(self, axes: list[str], quarters: bool = False,
+    def by_value(self, axes: list[str], level: int = 0,
                  before_more: bool = False) -> list[str]:  # fmt: skip
-        """``axes`` in the order their midpoints (or ``quarters``) buy most per
+        """``axes`` in the order what they read between their points at ``level`` buys most per
         machine-minute: what the table misses between its points (µm RMS) over their time
         at DENSE_LEAST_RUNS. Those that cannot be decided yet (lead known, no scans read;
         no midpoints read; the more runs not decided, unless ``before_more``) or are
         decided already keep their place at the end. (In axis order rough-9's X, missing
         1.55 µm, took the time Y's, missing 2.84 µm, needed.)"""
         ident = self.record.state.get("identify", {})
-        kind = BETWEEN[quarters].kind
+        kind = BETWEEN[level].kind
 
         def value(a: str) -> float:
-            if f"{kind}-{a}" in ident or not self._decidable(a, quarters, before_more):
+            if f"{kind}-{a}" in ident or not self._decidable(a, level, before_more):
                 return -1.0
-            miss_um = self.between(a, quarters)[1] or 0.0
+            miss_um = self.between(a, level)[1] or 0.0
             cost_s = self.budget.step_cost_s(
-                self.plans.midpoints_plan(a, DENSE_LEAST_RUNS, quarters))
+                self.plans.midpoints_plan(a, DENSE_LEAST_RUNS, level))
             return miss_um / max(cost_s, 1.0)
 
         return sorted(axes, key=value, reverse=True)
 
-    def _midpoint_runs(self, axis: str, keep_s: float, quarters: bool = False) -> int:
+    def _midpoint_runs(self, axis: str, keep_s: float, level: int = 0) -> int:
         """The most runs per target at which the midpoints of ``axis`` fit in the budget
         left beside ``keep_s``, 0 where none fit: the first table's down to
         DENSE_LEAST_RUNS where the lead is not known (more runs follow on the first
         targets), DENSE_LEAST_RUNS where it is (the first table's runs read the scatter
         and the reversal; the midpoints read the waves between, and leave room for the
         other axis's: at 4 runs rough-9's X left Y's none)."""
-        known = axis in self.s.lead_mm or quarters
+        known = axis in self.s.lead_mm or level > 0
         most = DENSE_LEAST_RUNS if known else self.budget.iso_runs()
         for runs in range(most, DENSE_LEAST_RUNS - 1, -1):
             need_s = self.budget.step_cost_worst_s(
-                self.plans.midpoints_plan(axis, runs, quarters))
+                self.plans.midpoints_plan(axis, runs, level))
             if self.budget.left_s() - need_s >= keep_s:
                 return runs
         return 0
@@ -394,7 +408,7 @@ class ShortBudget:
                          + (" beside the plane's grid" if plane else ""))  # fmt: skip
             self.record.save()
         for a in self._in_place(axes):  # the quarter points read in place of the more runs
-            await self.densify(a, quarters=True)
+            await self.densify(a, QUARTERS)
         await self._read_more(ident.get("more_runs_axes", axes), int(ident["more_runs"]))
 
     async def more_runs_later(self, axes: list[str]) -> None:
@@ -442,7 +456,7 @@ class ShortBudget:
         need_s = sum(self.budget.step_cost_worst_s(self.plans.more_runs_plan(
             a, self.table_runs() - self.budget.iso_runs())) for a in axes)
         need_s += sum(self.budget.step_cost_worst_s(self.plans.midpoints_plan(
-            a, DENSE_LEAST_RUNS, True)) for a in axes
+            a, DENSE_LEAST_RUNS, QUARTERS)) for a in axes
             if (ident.get(f"midpoints-{a}") or {}).get("measured"))  # fmt: skip
         if self.axes.plane_with(axes) and not self.record.done("before-xy"):
             need_s += self.budget.verdict_cost_s(self.plans.before_xy_plan())
@@ -483,18 +497,18 @@ class ShortBudget:
         ident = self.record.state.setdefault("identify", {})
         first, last = self.budget.iso_runs(), self.table_runs()
         held_s = 0.0
-        ready = [a for a in self.by_value(axes, quarters=True, before_more=True)
+        ready = [a for a in self.by_value(axes, QUARTERS, before_more=True)
                  if f"quarters-{a}" not in ident
                  and (ident.get(f"midpoints-{a}") or {}).get("measured")]  # fmt: skip
         if not ready or last <= first or self._both_fit(axes, room_s):
             return 0.0
         for a in ready:
-            ratio, miss_um = self.between(a, quarters=True)
+            ratio, miss_um = self.between(a, QUARTERS)
             s2 = self.scatter_mm2(a)
             if ratio is None or miss_um is None or ratio <= BETWEEN_RATIO or not np.isfinite(s2):
                 continue
             runs = QUARTER_RUNS_IN_PLACE
-            need_s = self.budget.step_cost_worst_s(self.plans.midpoints_plan(a, runs, True))
+            need_s = self.budget.step_cost_worst_s(self.plans.midpoints_plan(a, runs, QUARTERS))
             if not quarters_pay(miss_um * 1e-3, s2, runs, first, last) or \
                     held_s + need_s > room_s:
                 continue
@@ -502,7 +516,7 @@ class ShortBudget:
             ident[f"quarters-{a}"] = {"misses_x_scatter": ratio, "miss_rms_um": miss_um,
                                       "measured": True, "runs": runs,
                                       "instead_of_more_runs": True}  # fmt: skip
-            self.say(f"{a}: {BETWEEN[True].table} misses {miss_um:.2f} µm RMS between its "
+            self.say(f"{a}: {BETWEEN[QUARTERS].table} misses {miss_um:.2f} µm RMS between its "
                      f"points, {ratio:.1f} x what its scatter explains: its quarter points "
                      f"read in place of its more runs, one run each, going up (they take more "
                      "of its error off per reading)")  # fmt: skip
@@ -522,8 +536,8 @@ class ShortBudget:
     def iso_raw(self, axis: str) -> RawData:
         """The ISO runs of ``axis`` (:meth:`.planner.Planner.iso_steps`), as one run set: the
         first table's points with all their runs, its more runs as read (pooled, as a plain
-        calibration's 5 runs are: the table holds their mean state), and its midpoints and
-        quarter points each put on the level of the readings before them
+        calibration's 5 runs are: the table holds their mean state), and its midpoints,
+        quarter and eighth points each put on the level of the readings before them
         (:func:`..fitting.table_cv.levelled_midpoints`, net of the once-per-lead term): read
         between other points' runs, on a machine that has warmed or cooled meanwhile, they
         would put that as a step between neighbours. (At 1 x a plain calibration's time,
@@ -532,8 +546,8 @@ class ShortBudget:
         plain calibration's 97.5, pooled 97.4.)"""
         steps = self.plans.iso_steps(axis)
         base = [self.runner.raw(n) for n in steps if n in (f"iso-{axis}", f"iso-more-{axis}")]
-        later = [self.runner.raw(n) for n in steps if n in (f"iso-mid-{axis}",
-                                                            f"iso-quarter-{axis}")]  # fmt: skip
+        later = [self.runner.raw(n) for n in steps
+                 if n in [f"{b.step}-{axis}" for b in BETWEEN]]  # fmt: skip
         if not later:
             return concat_raw(base)
         cyclic = self.scanned(axis)
