@@ -108,7 +108,8 @@ class CommandChecks:
                      + (", then the plane's grid (9 nodes along the longer travel)" if plane
                         else "") + "; then, as the budget allows, "
                      + ("the plane's verdict (its random points), " if plane else "")
-                     + "the quarter points of a table that still misses, each axis's verdict "
+                     + "the quarter points of a table that still misses (its eighth "
+                     "points where it misses even so), each axis's verdict "
                      "(its after-run alone), the backlash tests, the warm-ups, the lead searches"
                      + ("; no round will refine the plane, so its grid is made denser with "
                         "what the budget then leaves (more readings than the xy-grid line "
