@@ -494,7 +494,8 @@ def test_a_table_still_missing_between_its_quarter_points_reads_its_eighth_point
     import asyncio
     from types import SimpleNamespace
 
-    from gateway.calibration.commissioning.short import EIGHTHS, ShortBudget
+    from gateway.calibration.commissioning.planner import EIGHTHS
+    from gateway.calibration.commissioning.short import ShortBudget
 
     misses = {"X": (9.5, 2.41), "Y": (2.2, 1.86), "Z": (1.1, 0.30)}  # (× scatter, µm RMS)
 

@@ -15,8 +15,8 @@ from ..plans.plans import (
     write_plan,
 )
 from ..plans.rawdata import read_raw_csv
+from .planner import EIGHTHS, QUARTERS
 from .settings import SHORT_WARMUP_S, BudgetSpent
-from .short import EIGHTHS, QUARTERS
 from .sizing import first_table_reading
 
 if TYPE_CHECKING:

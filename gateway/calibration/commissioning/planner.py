@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -26,10 +27,31 @@ if TYPE_CHECKING:
     from .rotary import RotarySteps
     from .thermal import ThermalSteps
 
-#: the ISO steps whose targets each level of points between is read between, in order: the
-#: midpoints (level 0) between the first table's, the quarter points (1) between those and
-#: the midpoints, the eighth points (2) between those and the quarter points
-ISO_STEPS_BETWEEN = ("iso", "iso-mid", "iso-quarter")
+
+
+@dataclass(frozen=True)
+class Between:
+    """What a short budget reads between a table's points, as it is named and said."""
+
+    kind: str  # the identification record's kind (``{kind}-{axis}``)
+    step: str  # the ISO step's name (``{step}-{axis}``)
+    what: str  # what is read, said
+    table: str  # the table judged, said
+
+
+#: what is read between a table's points, by level: its midpoints (0), its quarter points
+#: (1) and its eighth points (2), each level between all the points read before it
+BETWEEN = (Between("midpoints", "iso-mid", "midpoints", "the first table"),
+           Between("quarters", "iso-quarter", "quarter points", "the table with its midpoints"),
+           Between("eighths", "iso-eighth", "eighth points",
+                   "the table with its quarter points"))  # fmt: skip
+QUARTERS, EIGHTHS = 1, 2
+
+
+def steps_below(level: int) -> tuple[str, ...]:
+    """The ISO steps whose targets the points of ``level`` are read between: the first
+    table's and every level's before it."""
+    return ("iso", *(b.step for b in BETWEEN[:level]))
 
 
 class Planner:
@@ -53,12 +75,12 @@ class Planner:
         quarter (eighth) points, read going up only: their reversal is the table's, from
         its points read both ways (:func:`..fitting.fit.with_one_way_points`), for half the
         machine time."""
-        steps = [f"{n}-{axis}" for n in ISO_STEPS_BETWEEN[:level + 1]]
+        steps = [f"{n}-{axis}" for n in steps_below(level)]
         first = np.unique(np.concatenate([
             read_plan(self.record.dir / "plans" / f"{n}.plan").targets_mm(axis) for n in steps]))
         return targets_plan(axis, self.axes.travel(axis), (first[1:] + first[:-1]) / 2,
                             runs or self.budget.iso_runs(), kind="iso230-linear",
-                            note=("midpoints", "quarter points", "eighth points")[level],
+                            note=BETWEEN[level].what,
                             one_way=level > 0)  # fmt: skip
 
     def more_runs_plan(self, axis: str, more: int) -> Plan:
@@ -75,8 +97,8 @@ class Planner:
         """The ISO steps of ``axis``, in the order they are read: the first table's points,
         its midpoints, more runs, quarter and eighth points where a short budget read them
         (:meth:`.short.ShortBudget.densify`, :meth:`.short.ShortBudget.more_runs`)."""
-        steps = [f"iso-{axis}", f"iso-mid-{axis}", f"iso-more-{axis}", f"iso-quarter-{axis}",
-                 f"iso-eighth-{axis}"]
+        steps = [f"{n}-{axis}" for n in ("iso", BETWEEN[0].step, "iso-more",
+                                          *(b.step for b in BETWEEN[1:]))]
         return steps[:1] + [n for n in steps[1:] if self.record.done(n)]
 
     def iso_targets(self, axis: str) -> np.ndarray:

@@ -32,6 +32,7 @@ from ..thermal.heat_fit import (
     motion_heat_fit,
 )
 from ..thermal.run_levels import means_by, on_the_way, row_odometer_mm, run_levels_um
+from .planner import BETWEEN
 
 if TYPE_CHECKING:
     from .axes import Axes
@@ -43,7 +44,7 @@ Say = Callable[[str], None]
 
 #: the steps of an axis's ISO runs (the midpoints', quarter and eighth points' read other targets:
 #: their levels are a group of their own)
-STEPS = ("iso-{a}", "iso-more-{a}", "iso-mid-{a}", "iso-quarter-{a}", "iso-eighth-{a}")
+STEPS = ("iso-{a}", "iso-more-{a}", *(b.step + "-{a}" for b in BETWEEN))
 #: the least growth heat is fitted to, however well the levels stand out of their scatter
 #: (five times it: :func:`..thermal.heat_fit.least_growth_um`)
 RUN_MIN_SEEN_UM = 0.3

@@ -6,7 +6,6 @@ round will refine.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -22,7 +21,7 @@ from ..plans.plans import Plan, backlash_plan
 from ..plans.rawdata import RawData, axis_deviations, pooled_variance
 from ..plans.runner import read_raw_meta
 from ..plans.xy import even_grid
-from .planner import ISO_STEPS_BETWEEN
+from .planner import BETWEEN, QUARTERS, steps_below
 from .sizing import DENSE_LEAST_RUNS, fitting_grid, hold_each, max_grid_in
 from .steps import concat_raw
 
@@ -50,23 +49,6 @@ PLAIN_GRID_LINES = 9
 QUARTER_RUNS_IN_PLACE = 1
 
 
-@dataclass(frozen=True)
-class Between:
-    """What a short budget reads between a table's points, as it is named and said."""
-
-    kind: str  # the identification record's kind (``{kind}-{axis}``)
-    step: str  # the ISO step's name (``{step}-{axis}``)
-    what: str  # what is read, said
-    table: str  # the table judged, said
-
-
-#: what is read between a table's points, by level: its midpoints (0), its quarter points
-#: (1) and its eighth points (2), each level between all the points read before it
-BETWEEN = (Between("midpoints", "iso-mid", "midpoints", "the first table"),
-           Between("quarters", "iso-quarter", "quarter points", "the table with its midpoints"),
-           Between("eighths", "iso-eighth", "eighth points",
-                   "the table with its quarter points"))  # fmt: skip
-QUARTERS, EIGHTHS = 1, 2
 
 
 class ShortBudget:
@@ -336,7 +318,7 @@ class ShortBudget:
         the plain calibration's 88.7 %."""
         if level > 0:  # the points read before the last level's
             first_mm = np.concatenate([self.runner.raw(f"{n}-{axis}").target_mm
-                                       for n in ISO_STEPS_BETWEEN[:level]])  # fmt: skip
+                                       for n in steps_below(level - 1)])  # fmt: skip
             found = denser_miss(axis_deviations(self.iso_raw(axis), axis), first_mm,
                                 self.scanned(axis))  # fmt: skip
         else:
