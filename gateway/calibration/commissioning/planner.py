@@ -28,7 +28,6 @@ if TYPE_CHECKING:
     from .thermal import ThermalSteps
 
 
-
 @dataclass(frozen=True)
 class Between:
     """What a short budget reads between a table's points, as it is named and said."""
@@ -37,6 +36,10 @@ class Between:
     step: str  # the ISO step's name (``{step}-{axis}``)
     what: str  # what is read, said
     table: str  # the table judged, said
+
+    def key(self, axis: str) -> str:
+        """The identification record's key of ``axis``."""
+        return f"{self.kind}-{axis}"
 
 
 #: what is read between a table's points, by level: its midpoints (0), its quarter points

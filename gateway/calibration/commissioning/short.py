@@ -6,7 +6,7 @@ round will refine.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -262,7 +262,7 @@ class ShortBudget:
         known = axis in self.s.lead_mm
         ident = self.record.state.setdefault("identify", {})  # (the report lists it)
         names = BETWEEN[level]
-        key, what = f"{names.kind}-{axis}", names.what
+        key, what = names.key(axis), names.what
         if key not in ident:
             ratio, miss_um = self.between(axis, level)
             keep_s = 0.0
@@ -291,16 +291,19 @@ class ShortBudget:
                                    lambda: self.plans.midpoints_plan(axis, runs, level),
                                    "off", self.axes.park(axis))  # fmt: skip
 
+    def decided(self, axis: str, level: int) -> dict[str, Any]:
+        """What was decided of the points ``axis`` reads between its table's at ``level``
+        (its identification record; empty before)."""
+        return self.record.state.get("identify", {}).get(BETWEEN[level].key(axis)) or {}
+
     def _decidable(self, axis: str, level: int = 0, before_more: bool = False) -> bool:
         """Whether the midpoints of ``axis`` can be decided: its first table read, and
         where its lead is known its cyclic scans too (the term its points are judged net
         of); its quarter points, once its midpoints were read and its more runs decided;
         its eighth points, once its quarter points were read."""
         if level > 0:
-            ident = self.record.state.get("identify", {})
-            below = BETWEEN[level - 1].kind
-            return bool((ident.get(f"{below}-{axis}") or {}).get("measured")) and (
-                before_more or "more_runs" in ident)
+            return bool(self.decided(axis, level - 1).get("measured")) and (
+                before_more or "more_runs" in self.record.state.get("identify", {}))
         return axis not in self.s.lead_mm or self.record.done(f"cyclic-{axis}")
 
     def between(self, axis: str, level: int = 0) -> tuple[float | None, float | None]:
@@ -334,11 +337,8 @@ class ShortBudget:
         no midpoints read; the more runs not decided, unless ``before_more``) or are
         decided already keep their place at the end. (In axis order rough-9's X, missing
         1.55 µm, took the time Y's, missing 2.84 µm, needed.)"""
-        ident = self.record.state.get("identify", {})
-        kind = BETWEEN[level].kind
-
         def value(a: str) -> float:
-            if f"{kind}-{a}" in ident or not self._decidable(a, level, before_more):
+            if self.decided(a, level) or not self._decidable(a, level, before_more):
                 return -1.0
             miss_um = self.between(a, level)[1] or 0.0
             cost_s = self.budget.step_cost_s(
@@ -424,8 +424,7 @@ class ShortBudget:
     def _in_place(self, axes: list[str]) -> list[str]:
         """Those of ``axes`` that read their quarter points in place of their more runs
         (:meth:`_quarters_first`)."""
-        ident = self.record.state.get("identify", {})
-        return [a for a in axes if (ident.get(f"quarters-{a}") or {}).get("instead_of_more_runs")]
+        return [a for a in axes if self.decided(a, QUARTERS).get("instead_of_more_runs")]
 
     def _both_fit(self, axes: list[str], room_s: float) -> bool:
         """Whether ``room_s`` (s) holds every axis's more runs and, after them, the quarter
@@ -434,12 +433,11 @@ class ShortBudget:
         takes the other's place. (At 3 x a plain calibration's time, read at one run in
         place of the more runs and the more runs after them, rough-3's and rough-9's Y
         read 2.13 → 4.31 and 2.53 → 4.26 µm at the judge's targets.)"""
-        ident = self.record.state.get("identify", {})
         need_s = sum(self.budget.step_cost_worst_s(self.plans.more_runs_plan(
             a, self.table_runs() - self.budget.iso_runs())) for a in axes)
         need_s += sum(self.budget.step_cost_worst_s(self.plans.midpoints_plan(
             a, DENSE_LEAST_RUNS, QUARTERS)) for a in axes
-            if (ident.get(f"midpoints-{a}") or {}).get("measured"))  # fmt: skip
+            if self.decided(a, 0).get("measured"))  # fmt: skip
         if self.axes.plane_with(axes) and not self.record.done("before-xy"):
             need_s += self.budget.verdict_cost_s(self.plans.before_xy_plan())
         return need_s <= room_s
@@ -480,8 +478,8 @@ class ShortBudget:
         first, last = self.budget.iso_runs(), self.table_runs()
         held_s = 0.0
         ready = [a for a in self.by_value(axes, QUARTERS, before_more=True)
-                 if f"quarters-{a}" not in ident
-                 and (ident.get(f"midpoints-{a}") or {}).get("measured")]  # fmt: skip
+                 if BETWEEN[QUARTERS].key(a) not in ident
+                 and self.decided(a, 0).get("measured")]  # fmt: skip
         if not ready or last <= first or self._both_fit(axes, room_s):
             return 0.0
         for a in ready:
@@ -495,7 +493,7 @@ class ShortBudget:
                     held_s + need_s > room_s:
                 continue
             held_s += need_s
-            ident[f"quarters-{a}"] = {"misses_x_scatter": ratio, "miss_rms_um": miss_um,
+            ident[BETWEEN[QUARTERS].key(a)] = {"misses_x_scatter": ratio, "miss_rms_um": miss_um,
                                       "measured": True, "runs": runs,
                                       "instead_of_more_runs": True}  # fmt: skip
             self.say(f"{a}: {BETWEEN[QUARTERS].table} misses {miss_um:.2f} µm RMS between its "
