@@ -113,6 +113,10 @@ def test_a_kept_sensor_gives_way_to_motion_only_where_the_references_say_so(
     assert weighed["readings"] == 40
     assert weighed["replaces"] is not sensor_follows, weighed
     assert (steps.drift.replacing_motion("X") == MOTION) is not sensor_follows
+    # a sensor kept levels the readings itself: neither the references' drift nor a
+    # line between a table's sets is taken off them
+    assert steps.drift.sensor_kept("X") is sensor_follows
+    assert steps.drift.drift_taken_off("X") is not sensor_follows
     assert bool(record.state["notes"]) is not sensor_follows
     if sensor_follows:
         assert weighed["sensor_left_um"] < 0.2, weighed

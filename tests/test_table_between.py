@@ -142,6 +142,37 @@ def test_midpoints_are_levelled_net_of_the_once_per_lead_error_they_read_at_anot
             assert rms < bound if bound else rms > 1.0, (seed, rms)
 
 
+def test_a_line_between_the_sets_is_not_taken_for_heat_where_a_sensor_levels_them() -> None:
+    """The same screw read under its own sensor's compensation (no heat between the sets),
+    its once-per-lead term modelled at its mean amplitude (2.5 µm where it grows from 1 to
+    4): net of the model, the midpoints (read at its trough, the points at its crest) sit a
+    line away from the first points, and the line stands out. Without the tilt the
+    midpoints keep what they read (under 0.45 µm RMS from the screw on every seed, the
+    first points' spline missing its 37 mm waves in the offset); with it the line is taken
+    for heat (over 1.2)."""
+    from gateway.calibration.fitting.table_cv import levelled_midpoints
+    from gateway.calibration.plans.rawdata import axis_deviations
+    from gateway.compensation.cyclic import CyclicModel
+
+    truth = CyclicModel(5.0, np.array([0.0, 500.0]), np.zeros((2, 1)),
+                        np.array([[1e-3], [4e-3]]))  # fmt: skip
+    model = CyclicModel(5.0, np.array([0.0, 500.0]), np.zeros((2, 1)),
+                        np.array([[2.5e-3], [2.5e-3]]))  # fmt: skip
+
+    def screw_um(x: np.ndarray) -> np.ndarray:
+        return 2.0 * np.sin(2 * np.pi * x / 37.0) + truth.error_mm(x) * 1e3
+
+    first_x = np.arange(0.0, 501.0, 25.0)
+    mid_x = (first_x[1:] + first_x[:-1]) / 2
+    for seed in range(5):
+        first, mid = _raw(screw_um, first_x, 5, seed), _raw(screw_um, mid_x, 2, seed + 100)
+        for tilt, bound in ((False, 0.45), (True, None)):
+            raw = levelled_midpoints(first, mid, "X", model, tilt)
+            up = np.nanmean(axis_deviations(raw, "X").up_mm, axis=1) * 1e3
+            rms = float(np.sqrt(np.mean((up - screw_um(mid_x)) ** 2)))
+            assert rms < bound if bound else rms > 1.2, (seed, tilt, rms)
+
+
 def test_a_curved_error_read_at_few_midpoints_is_not_taken_for_heat() -> None:
     """smooth-2's Y: 7 uneven points over 150 mm, its error rising 10 µm in the last 20 mm,
     6 midpoints at 2 runs, no heat between. Levelled against a spline through the first

@@ -422,7 +422,15 @@ class DriftRefs:
         its sensor keeps what its compensation leaves, as it will in use."""
         if self.config.axes[axis].compensation.thermal is None:
             return self.drift_stands_out(axis)
-        return self.replacing_motion(axis) is not None
+        return not self.sensor_kept(axis)
+
+    def sensor_kept(self, axis: str) -> bool:
+        """Whether ``axis`` is read with its own sensor's compensation on, as it will run in
+        use: a thermal setting of the user's that heat from motion does not replace. Its
+        readings are then on one thermal level by that compensation (what it leaves is
+        kept, :meth:`drift_taken_off`), and nothing else takes heat off them."""
+        return self.config.axes[axis].compensation.thermal is not None \
+            and self.replacing_motion(axis) is None  # fmt: skip
 
     def pool_ref_scatter(self, axis: str, readings_mm: Sequence[float]) -> None:
         """Pool the scatter of one drift reference's back-to-back readings (kept in the

@@ -531,9 +531,11 @@ class ShortBudget:
         if not later:
             return concat_raw(base)
         cyclic = self.scanned(axis)
+        # a line between the sets is heat, unless the axis's own sensor levels them
+        tilt = not self.runner.drift.sensor_kept(axis)
         level = base  # each set against those read before it, put on the table's level
         for raw in later:
-            level.append(levelled_midpoints(concat_raw(level), raw, axis, cyclic))
+            level.append(levelled_midpoints(concat_raw(level), raw, axis, cyclic, tilt))
         return concat_raw(level)
 
     def scatter_mm2(self, axis: str) -> float:

@@ -220,17 +220,22 @@ def _through(x: NDArray[np.float64], y: NDArray[np.float64], at: NDArray[np.floa
 
 
 def levelled_midpoints(first: RawData, mid: RawData, axis: str,
-                       cyclic: CyclicModel | None = None) -> RawData:  # fmt: skip
+                       cyclic: CyclicModel | None = None, tilt: bool = True) -> RawData:
     """The midpoints' readings of ``axis`` (``mid``; or more runs on the same targets) put
     onto the level of the first table's (``first``): per run, their deviations minus the
     first table's means there (per direction of approach, :func:`_through`), their mean
-    taken off, and the straight line in position through them where its slope stands out
-    (:func:`_tilt`).
+    taken off, and with ``tilt`` the straight line in position through them where its
+    slope stands out (:func:`_tilt`).
     The midpoints are read later, on a machine that has warmed or cooled meanwhile; a line
     in position is what a screw's growth puts between the two sets (not what they read
     between the points, which a line through many midpoints leaves). With ``cyclic``, both
     compared net of that once-per-lead term (the midpoints read it at another phase, and
-    its amplitude changes along the travel)."""
+    its amplitude changes along the travel). No ``tilt`` where the axis's own sensor
+    follows its heat while both sets are read: a line between them is then what the table
+    misses between its points, not heat (rough-8's X, Δa 1 → 4.8 µm while read, every set
+    within 0.5 µm/m of the cold screw: the line taken off its midpoints tilted them
+    2.5 µm/m, and the quiet machine's E at random parks read 4.53 µm against 3.11
+    without it, a perfect table's 1.82)."""
     dev = axis_deviations(first, axis)
     cyc_first = _cyclic_mm(cyclic, dev.target_mm)
     means = {s: None if d is None else np.nanmean(d, axis=1) - cyc_first
@@ -252,6 +257,7 @@ def levelled_midpoints(first: RawData, mid: RawData, axis: str,
         if keep.sum() < 2:
             continue
         x = mid.target_mm[sel][keep]
-        line = float(np.mean(miss[keep])) + _tilt(x, miss[keep]) * (mid.target_mm[sel] - x.mean())
+        slope = _tilt(x, miss[keep]) if tilt else 0.0
+        line = float(np.mean(miss[keep])) + slope * (mid.target_mm[sel] - x.mean())
         actual[sel] = np.where(keep, actual[sel] - line, actual[sel])
     return replace(mid, actual_mm=actual)
