@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from gateway.calibration.fitting.table_cv import between_points
 from gateway.calibration.plans.rawdata import AxisDeviations, RawData
@@ -281,3 +282,35 @@ def test_quarter_points_are_bought_where_the_midpoints_showed_a_table_that_does_
             actual_um = float(np.sqrt(np.mean(
                 (np.interp(quarters, dense, truth(dense)) - truth(quarters)) ** 2)))
             assert 0.5 < miss_mm * 1e3 / actual_um < 2.0, (seed, miss_mm, actual_um)
+
+
+@pytest.mark.parametrize("kept", [True, False])
+def test_a_short_budget_levels_an_axis_that_keeps_its_sensor_by_the_offset_alone(
+        kept: bool) -> None:  # fmt: skip
+    """The table a short budget fits (:meth:`ShortBudget.iso_raw`), of a screw read with no
+    heat between its sets whose midpoints sit a line off its first points (a 25 mm wave
+    whose amplitude runs from −1.5 to 1.5 µm, read at its crests and troughs, beside 37 mm
+    waves): an axis
+    that keeps its sensor keeps the midpoints as read (under 0.45 µm RMS from the screw);
+    one that does not takes the line for heat (over 1 µm)."""
+    from types import SimpleNamespace
+
+    from gateway.calibration.commissioning.short import ShortBudget
+    from gateway.calibration.plans.rawdata import axis_deviations
+
+    def screw_um(x: np.ndarray) -> np.ndarray:  # a crest at every first point, a trough between
+        wave = 0.006 * (x - 250.0) * np.cos(2 * np.pi * x / 25.0)
+        return 2.0 * np.sin(2 * np.pi * x / 37.0) + wave
+
+    first_x = np.arange(0.0, 501.0, 25.0)
+    mid_x = (first_x[1:] + first_x[:-1]) / 2
+    raws = {"iso-X": _raw(screw_um, first_x, 5, 0), "iso-mid-X": _raw(screw_um, mid_x, 2, 100)}
+    drift = SimpleNamespace(sensor_kept=lambda a: kept)
+    short = ShortBudget(SimpleNamespace(s=SimpleNamespace(lead_mm={})), None, None,  # type: ignore[arg-type]
+                        SimpleNamespace(raw=raws.__getitem__, drift=drift),  # type: ignore[arg-type]
+                        SimpleNamespace(iso_steps=lambda a: list(raws)), None, print)  # type: ignore[arg-type]
+    dev = axis_deviations(short.iso_raw("X"), "X")
+    at = np.isin(dev.target_mm, mid_x)
+    up = np.nanmean(dev.up_mm[at], axis=1) * 1e3
+    rms = float(np.sqrt(np.mean((up - screw_um(mid_x)) ** 2)))
+    assert rms < 0.45 if kept else rms > 1.0, (kept, rms)
