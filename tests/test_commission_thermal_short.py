@@ -43,3 +43,39 @@ def test_a_short_budget_with_a_thermal_sensor_takes_the_plain_steps_first(
         summary = json.loads((rig.dir / "commission" / "summary.json").read_text())
         assert all(e.get("table_points", 0) > 0 for e in summary["axes"].values()), summary
 
+
+
+def test_a_short_budget_reads_no_drift_references_where_every_axis_keeps_its_sensor(
+        tmp_path: Path) -> None:  # fmt: skip
+    """X alone, on its Δa sensor, on a short budget that holds a plain calibration's steps
+    with the drift references: its readings are levelled by the sensor's compensation and
+    the references' drift is never taken off them, so none are read; said so, and X gets
+    its table."""
+    directory = tmp_path / "machine"
+    machine = small_machine(directory, seed=7)
+    original = yaml.safe_load((directory / "gateway.yaml").read_text())
+    fresh = tmp_path / "fresh"
+    from tests.test_service_helpers import Proc
+
+    proc = Proc(["-m", "gateway.cli", "sim", "--random-machine", "7", "--out", str(fresh)])
+    assert proc.popen.wait(timeout=60) == 0, proc.text()
+    written = yaml.safe_load((fresh / "gateway.yaml").read_text())
+    original["thermal_sources"] = written["thermal_sources"]
+    original["axes"]["X"]["compensation"]["thermal"] = written["axes"]["X"]["compensation"][
+        "thermal"]  # fmt: skip
+    delta_a = machine["instruments"]["delta_a"]
+    (directory / "gateway.yaml").write_text(yaml.safe_dump(original, sort_keys=False))
+    with running(directory, tmp_path / "m") as rig:
+        args = rig.commission_args("--axes", "X", "--budget-h", "0.3", "--delta-a",
+                                   f"127.0.0.1:{rig.sim_port}:{delta_a['unit']}:1")
+        at = args.index("--xy-device")  # (the plane is not commissioned: X alone)
+        args = args[:at] + args[at + 2:]
+        args[args.index("--lead-mm") + 1] = f"X={machine['axes']['X']['lead_mm']:g}"
+        proc = Proc(args)
+        assert proc.popen.wait(timeout=300) in (0, 1), proc.text()
+        state = json.loads((rig.dir / "commission" / "commission.json").read_text())
+        assert state["short"] and state["refs_off"], proc.text()
+        assert "no drift references: every axis keeps its own sensor" in proc.text()
+        assert not state.get("drift_log"), state.get("drift_log")
+        summary = json.loads((rig.dir / "commission" / "summary.json").read_text())
+        assert summary["axes"]["X"].get("table_points", 0) > 0, summary
