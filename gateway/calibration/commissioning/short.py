@@ -104,7 +104,9 @@ class ShortBudget:
         its compensation levels the readings, the references' drift is never taken off
         them, and a short budget's references would only log it. (At 1.5 x the plain
         calibration's time the temperature machines' references took 11 of their 51-57
-        minutes.)"""
+        minutes; without them rough-4 and rough-9 read a zone warm-up of X, whose heat from
+        motion replaced its sensor: 30.6 → 5.1 and 49.4 → 6.2 µm of heat left at the
+        judge's warm-up, one judge.)"""
         state = self.record.state
         if "refs_off" not in state:
             off = False
@@ -131,7 +133,8 @@ class ShortBudget:
                     off = True
                     note = ("no drift references: every axis keeps its own sensor, read with "
                             "its compensation on, and nothing is taken off its readings; "
-                            f"their {refs_s / 60:.1f} min go to the tables")  # fmt: skip
+                            f"their {refs_s / 60:.1f} min go to the steps after the plain "
+                            "calibration's")  # fmt: skip
                 if note is not None and self.record.note(note):
                     self.say(note)
             state["refs_off"] = off
