@@ -330,30 +330,6 @@ def test_the_travel_before_the_first_drift_reading_and_after_the_last_counts_too
     np.testing.assert_allclose(travel_m, [1.673, 0.0])
 
 
-def test_with_no_drift_references_the_steps_spans_time_the_travel_before_a_warm_up() -> None:
-    """A short budget whose axes all keep their sensors reads no drift references: the
-    travel before a warm-up is timed by the steps' own spans (both ends of every run that
-    ended before it), not counted as one stretch at the estimated speed just before it."""
-    from gateway.calibration.commissioning.thermal import spans_before, travel_before_warmup
-
-    def span(t0: float, t1: float, x0: float, x1: float) -> dict:
-        return {"at_s": [t0, t1], "odometer_mm": [{"X": x0, "Y": 0.0}, {"X": x1, "Y": 0.0}]}
-
-    steps = {"iso-X": {"parts": [{"span": span(100.0, 200.0, 50.0, 1050.0)},
-                                 {"span": span(210.0, 310.0, 1100.0, 2100.0)}]},
-             "cyclic-X": {"parts": [{"span": span(1310.0, 1400.0, 2150.0, 2650.0)}]},
-             "warmup-X": {"parts": [{"span": span(1500.0, 3300.0, 2700.0, 9000.0)}]}}
-    log = spans_before(steps, 1500.0)
-    assert [e["wall_s"] for e in log] == [100.0, 200.0, 210.0, 310.0, 1310.0, 1400.0]
-    start = {"odometer_mm": {"X": 2700.0, "Y": 0.0}, "wall_s": 1500.0}
-    travel_m, elapsed_s = travel_before_warmup(log, "X", ("X", "Y"), 100.0, True, start)
-    np.testing.assert_allclose(travel_m, [0.05, 1.0, 0.05, 1.0, 0.05, 0.5, 0.05])
-    np.testing.assert_allclose(elapsed_s, [0.5, 100.0, 10.0, 100.0, 1000.0, 90.0, 100.0])
-    # the same travel with no log at all: one stretch of 27 s just before the warm-up
-    travel_m, elapsed_s = travel_before_warmup([], "X", ("X", "Y"), 100.0, True, start)
-    np.testing.assert_allclose([travel_m.sum(), elapsed_s.sum()], [2.7, 27.0])
-
-
 def test_a_warm_up_not_timed_by_a_clock_counts_the_other_axes_at_the_speeds_found() -> None:
     """No clock (a sim at time_scale 0): the warm-up's model counts its own axis at the
     estimated speed and each other axis at the ratio a drift references' fit found
