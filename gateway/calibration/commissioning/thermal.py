@@ -297,8 +297,7 @@ class ThermalSteps:
     def _travel_before_warmup(self, axis: str, raw: RawData, plan: Plan
                               ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """:func:`travel_before_warmup` of this commissioning's drift log, on the clock the
-        warm-up's fit counts (``raw``'s own, where it is the machine's). No drift references
-        read: the steps' own spans time the travel instead (:func:`spans_before`)."""
+        warm-up's fit counts (``raw``'s own, where it is the machine's)."""
         state = self.record.state
         log = state.get("drift_log", [])[: state.get("warmup_log", {}).get(axis, 0)]
         timed = readings_clock_s(raw, plan, axis, CLOCK_COLUMNS) is not None
@@ -306,8 +305,6 @@ class ThermalSteps:
         span = parts[0].get("span") or {}
         start = ({"odometer_mm": span["odometer_mm"][0], "wall_s": span["at_s"][0]}
                  if span.get("odometer_mm") and span.get("at_s") else None)  # fmt: skip
-        if not log and start is not None:
-            log = spans_before(state.get("steps", {}), float(start["wall_s"]))
         return travel_before_warmup(log, axis, self.s.axes, self.s.speed_mm_s, timed, start)
 
     async def read_start_temperatures(self) -> None:
@@ -467,25 +464,6 @@ def start_growth_mm(x_mm: np.ndarray, origin_mm: float, length_mm: float, gain: 
     da = gain * delta_a_from_temperature(alpha_per_k, length_mm, temperature_c, reference_c)
     x = np.asarray(x_mm, dtype=np.float64)
     return ThermalStage(length_mm, origin_mm).inverse(x, da) - x
-
-
-def spans_before(steps: dict[str, Any], until_s: float) -> list[dict[str, Any]]:
-    """Drift-log-like entries (``odometer_mm`` per axis, ``wall_s``) at both ends of every
-    step's runs that ended by ``until_s``, in time order: where a commissioning with no
-    drift references (a short budget whose axes all keep their sensors) travelled when.
-    Counted as one stretch at the estimated speed instead, the travel before rough-4's X
-    warm-up at 3 x a plain calibration's time came out as heat just made, and its heat
-    from motion, replacing the sensor, left 24.6 % of the judge's warm-up where the
-    references' log left 1.2 %."""
-    out = []
-    for entry in steps.values():
-        for part in (entry or {}).get("parts") or []:
-            span = part.get("span") or {}
-            if not (span.get("at_s") and span.get("odometer_mm")) or span["at_s"][1] > until_s:
-                continue
-            out += [{"odometer_mm": span["odometer_mm"][k], "wall_s": float(span["at_s"][k])}
-                    for k in (0, 1)]  # fmt: skip
-    return sorted(out, key=lambda e: e["wall_s"])
 
 
 def travel_before_warmup(log: list[dict[str, Any]], axis: str, axes: list[str] | tuple[str, ...],
