@@ -493,8 +493,7 @@ class ShortBudget:
         first, last = self.budget.iso_runs(), self.table_runs()
         held_s = 0.0
         ready = [a for a in self.by_value(axes, QUARTERS, before_more=True)
-                 if BETWEEN[QUARTERS].key(a) not in ident
-                 and self.decided(a, 0).get("measured")]  # fmt: skip
+                 if not self.decided(a, QUARTERS) and self.decided(a, 0).get("measured")]
         if not ready or last <= first or self._both_fit(axes, room_s):
             return 0.0
         for a in ready:
@@ -508,9 +507,9 @@ class ShortBudget:
                     held_s + need_s > room_s:
                 continue
             held_s += need_s
-            ident[BETWEEN[QUARTERS].key(a)] = {"misses_x_scatter": ratio, "miss_rms_um": miss_um,
-                                      "measured": True, "runs": runs,
-                                      "instead_of_more_runs": True}  # fmt: skip
+            ident[BETWEEN[QUARTERS].key(a)] = {
+                "misses_x_scatter": ratio, "miss_rms_um": miss_um, "measured": True,
+                "runs": runs, "instead_of_more_runs": True}  # fmt: skip
             self.say(f"{a}: {BETWEEN[QUARTERS].table} misses {miss_um:.2f} µm RMS between its "
                      f"points, {ratio:.1f} x what its scatter explains: its quarter points "
                      f"read in place of its more runs, one run each, going up (they take more "
