@@ -1,6 +1,6 @@
 """Commissioning's scans of the once-per-lead term (`planner.cyclic_scans`): five one-way
-stations where the travel holds them, cheaper than a plain calibration's three two-way
-scans, and a term that changes along the screw read closer for it."""
+stations where the travel holds them (else a plain calibration's three two-way scans),
+cheaper than three two-way scans, and a term that changes along the screw read closer."""
 
 from __future__ import annotations
 
@@ -28,12 +28,12 @@ def test_five_one_way_stations_cost_fewer_readings_than_three_two_way():
     assert len(measured) < len(plain)
 
 
-def test_a_short_travel_keeps_the_plain_calibrations_three_stations():
-    plan = cyclic_scans("Y", (0.0, 60.0), 10.0)  # a scan with its take-up moves: 22 mm
-    st = stations_mm(plan)
-    assert len(st) == 3
-    assert len(stations_mm(cyclic_scans("Y", (0.0, 90.0), 10.0))) == 4
-    assert len(stations_mm(cyclic_scans("Y", (0.0, 2000.0), 10.0))) == SCAN_STATIONS
+def test_a_travel_short_of_five_scans_keeps_the_plain_calibrations_scans():
+    # a scan with its take-up moves: 34 mm at a 16 mm lead, five of them 170 mm
+    assert cyclic_scans("Y", (0.0, 150.0), 16.0) == cyclic_plan("Y", (0.0, 150.0), 16.0)
+    five = cyclic_scans("Y", (0.0, 170.0), 16.0)
+    assert len(stations_mm(five)) == SCAN_STATIONS
+    assert {m.direction for m in five.moves if m.role == "measure"} == {1}
 
 
 def true_term_um(x_mm: np.ndarray) -> np.ndarray:
