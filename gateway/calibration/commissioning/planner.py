@@ -51,34 +51,6 @@ BETWEEN = (Between("midpoints", "iso-mid", "midpoints", "the first table"),
 QUARTERS, EIGHTHS = 1, 2
 
 
-#: stations commissioning scans the once-per-lead term at, one way, where the travel holds
-#: them a scan apart (:func:`cyclic_scans`)
-SCAN_STATIONS = 5
-#: leads each of commissioning's scans covers (the plain calibration's: a shorter scan
-#: confuses the term with the table's local slope)
-SCAN_LEADS = 2.0
-
-
-def cyclic_scans(axis: str, travel_mm: tuple[float, float], lead_mm: float) -> Plan:
-    """Commissioning's dense scans of the once-per-lead term: SCAN_STATIONS stations spread
-    evenly over the travel (at 10, 30, … 90 %), each read one way over SCAN_LEADS leads,
-    where the travel holds them a scan apart; else a plain calibration's three two-way
-    scans. The term changes along a screw between a plain calibration's three stations,
-    and a table is taken net of it at its points: five one-way scans cost less than three
-    two-way ones and read it where they miss. (At 1.5 x the plain calibration's time, three
-    judges, the quiet machine's E on the pitch line: rough-7's Y 1.51 → 0.99 µm, rough-2's
-    X 1.29 → 1.12; E cut rough-3 X 92.9 → 95.2 %, rough-7 Y 89.3 → 94.6 %. The three
-    stations' middle one lay 0.2-4.4 µm off the line through the outer two on every rough
-    axis, their standard errors 0.03-0.12 µm. On rough-2's 150 mm Y four one-way scans
-    read one harmonic of its three, the two-way scans all three.)"""
-    lo, hi = float(travel_mm[0]), float(travel_mm[1])
-    span_mm = SCAN_LEADS * lead_mm + 2.0  # a scan and its take-up moves (1 mm each side)
-    if (hi - lo) < SCAN_STATIONS * span_mm:
-        return cyclic_plan(axis, (lo, hi), lead_mm)
-    stations = [lo + (i + 0.5) * (hi - lo) / SCAN_STATIONS for i in range(SCAN_STATIONS)]
-    return cyclic_plan(axis, (lo, hi), lead_mm, stations, leads=SCAN_LEADS, both_ways=False)
-
-
 def steps_below(level: int) -> tuple[str, ...]:
     """The ISO steps whose targets the points of ``level`` are read between: the first
     table's and every level's before it."""
@@ -154,7 +126,7 @@ class Planner:
             out.append((f"takeup-{a}", takeup_plan(a, travel)))  # if there is lost motion
             out.append((f"iso-{a}", self.iso_plan(a)))
             if a in self.s.lead_mm:
-                out.append((f"cyclic-{a}", cyclic_scans(a, travel, self.s.lead_mm[a])))
+                out.append((f"cyclic-{a}", cyclic_plan(a, travel, self.s.lead_mm[a])))
             elif not self.s.no_lead_search:
                 out.append((f"lead-{a}", self.lead_plan(a)))
         if self.s.planar is not None:
