@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from .compensation.thermal import (
     EndFold,
@@ -25,6 +26,7 @@ from .compensation.thermal import (
     motion_heat_one_m,
     travel_delta_a_mm,
     travel_integral,
+    travel_integral_rows,
     travel_swept,
     travel_weights,
 )
@@ -63,8 +65,7 @@ class TravelHistory:
 
     def move_to(self, x_mm: float) -> None:
         """The axis goes to ``x_mm``: the stretch from where it was is swept once (one
-        move in scalars: the gateway's path on every target write, 10 µs where
-        :meth:`moves_to` takes 30)."""
+        move in scalars: the gateway's path on every target write, about 10 µs)."""
         last, self.last_mm = self.last_mm, x_mm
         if last is None or x_mm == last:
             return
@@ -79,29 +80,58 @@ class TravelHistory:
 
     def moves_to(self, xs_mm: Sequence[float]) -> None:
         """The axis goes to each of ``xs_mm`` in turn, all at this clock reading: as many
-        :meth:`move_to` calls, summed at once (a fit replays a warm-up's thousands of moves
-        hundreds of times; tests/test_thermal_travel.py holds the two equal)."""
+        :meth:`move_to` calls, summed at once (tests/test_thermal_travel.py holds the two
+        equal)."""
+        self.replay(xs_mm, ())
+
+    def replay(self, xs_mm: Sequence[float], stops: Sequence[int]) -> NDArray[np.float64]:
+        """:meth:`moves_to` ``xs_mm``, returning the swept travel (one row a stop) as it
+        stood after each move of ``stops`` (indices into ``xs_mm``, increasing): a fit
+        replays a warm-up's thousands of moves and reads every stop, for each of a hundred
+        profiles (tests/test_thermal_travel.py holds it to the moves one by one)."""
         xs = np.asarray(xs_mm, dtype=np.float64)
+        at = np.asarray(stops, dtype=np.int64)
         if not xs.size:
-            return
+            return np.zeros((0, self.swept.size))
+        if at.size and (np.any(np.diff(at) <= 0) or at[0] < 0 or at[-1] >= xs.size):
+            raise ValueError("replay: stops must be increasing indices into the moves")
         came = np.concatenate([[xs[0] if self.last_mm is None else self.last_mm], xs[:-1]])
         self.last_mm = float(xs[-1])
-        moved = xs != came
-        if not moved.any():
-            return
-        came, xs = came[moved], xs[moved]
         fade = np.abs(xs - came) / self.profile.memory_mm
-        now = self.clock()
-        since_s, self.at_s = now - self.at_s, now
-        if self.profile.memory_s is not None:  # a pause cools the old zones too
-            fade[0] = max(fade[0], since_s / self.profile.memory_s)
-        # each move fades what was swept before it, then adds its own stretch
-        after = np.concatenate([np.cumsum(fade[::-1])[::-1][1:], [0.0]])  # fade still to come
-        self.swept *= math.exp(-float(fade.sum()))
-        self.swept += np.exp(-after) @ travel_swept(self.centres_mm[None, :],
-                                                   self.profile.bin_mm, came[:, None],
-                                                   xs[:, None])  # fmt: skip
+        moved = np.flatnonzero(xs != came)
+        if moved.size:
+            now = self.clock()
+            since_s, self.at_s = now - self.at_s, now
+            if self.profile.memory_s is not None:  # a pause cools the old zones too
+                fade[moved[0]] = max(fade[moved[0]], since_s / self.profile.memory_s)
+        # blocks of moves, each ending at a stop (and one more to the last move)
+        ends = at if at.size and at[-1] == xs.size - 1 else np.append(at, xs.size - 1)
+        faded = np.cumsum(fade)  # fade from the start to after each move
+        block = np.searchsorted(ends, np.arange(xs.size))
+        # only the bins the moves reach are swept: 30-odd of a history's hundreds
+        half = self.profile.bin_mm / 2.0
+        reach = np.flatnonzero((self.centres_mm + half > min(xs.min(), came.min())) &
+                               (self.centres_mm - half < max(xs.max(), came.max())))
+        cols = slice(reach[0], reach[-1] + 1) if reach.size else slice(0, 0)
+        stretch = travel_swept(self.centres_mm[None, cols], self.profile.bin_mm,
+                               came[:, None], xs[:, None])  # fmt: skip
+        stretch *= np.exp(-(faded[ends][block] - faded))[:, None]
+        added = np.add.reduceat(stretch, np.concatenate([[0], ends[:-1] + 1]), axis=0)
+        rows = np.empty((ends.size, self.swept.size))
+        state, before = self.swept, 0.0
+        for k, end in enumerate(ends):
+            state = state * math.exp(-(faded[end] - before))
+            state[cols] += added[k]
+            rows[k], before = state, faded[end]
+        self.swept = state.copy()
         self._integral = None
+        return rows[:at.size]
+
+    def integral_rows(self, at_mm: ArrayLike) -> NDArray[np.float64]:
+        """Rows that read W at each of ``at_mm`` off a swept-travel row (see
+        :func:`~gateway.compensation.thermal.travel_integral_rows`)."""
+        return travel_integral_rows(self.centres_mm, self.profile.bin_mm,
+                                    self.profile.spread_mm, self._fold, at_mm)  # fmt: skip
 
     def delta_a_mm(self, delta_a_mm: float, at_mm: float) -> float:
         """The Δa for the linear stage at ``at_mm`` (see travel_delta_a_mm)."""

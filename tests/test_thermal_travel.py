@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 
 from gateway.compensation.thermal import (
+    EndFold,
     ThermalStage,
     fold_at_ends,
     travel_delta_a_mm,
     travel_integral,
+    travel_weights,
 )
 from gateway.config import AxisThermal, TravelProfile
 from gateway.thermal_travel import TravelHistory
@@ -226,3 +228,45 @@ def test_moves_at_once_are_the_moves_one_by_one() -> None:
     assert by_hand.max() > 1.0  # (swept more than once somewhere: the fading counts)
     for at in (50.0, 333.0, 590.0):
         assert many.delta_a_mm(0.02, at) == pytest.approx(one.delta_a_mm(0.02, at), rel=1e-12)
+
+
+def test_a_replay_reads_every_stop_as_the_moves_one_by_one_would() -> None:
+    """``replay`` (a warm-up fit's: every stop of a replay at once) gives the swept travel
+    ``moves_to`` leaves stop by stop, and its read-out rows give W where ``delta_a_mm``
+    reads it: through the spread, the fold at the screw's ends and the integral."""
+    th = AxisThermal(source="x", length_mm=700.0, origin_mm=-40.0,
+                     profile=TravelProfile(spread_mm=60.0, memory_mm=900.0, memory_s=600.0,
+                                           screw_mm=(-40.0, 640.0)))  # fmt: skip
+    rng = np.random.default_rng(8)
+    targets = np.round(rng.uniform(0.0, 600.0, 60), 1)
+    targets[9] = targets[8]  # a move to where it stands
+    stops = np.array([0, 3, 8, 9, 10, 31, 59])
+    clock = [0.0]
+    whole, steps = (TravelHistory(th, th.profile, (0.0, 600.0), clock=lambda: clock[0])  # type: ignore[arg-type]
+                    for _ in range(2))  # fmt: skip
+    for h in (whole, steps):
+        h.move_to(300.0)
+    clock[0] = 120.0  # a pause before the first move
+    rows = whole.replay(targets, stops)
+    assert rows.shape == (stops.size, whole.swept.size)
+    places = np.array([-60.0, -40.0, 12.3, 300.0, 655.0, 700.0])
+    read = rows @ whole.integral_rows(places).T
+    came = 0
+    for k, stop in enumerate(stops):
+        steps.moves_to(targets[came:stop + 1])
+        came = stop + 1
+        assert np.allclose(rows[k], steps.swept, rtol=1e-12, atol=1e-12), k
+        weights = EndFold.of(steps.centres_mm, (-40.0, 640.0))(
+            travel_weights(steps.swept, 5.0, 60.0))
+        integral = travel_integral(steps.centres_mm, weights)
+        assert np.allclose(read[k], np.interp(places, steps.centres_mm, integral),
+                           rtol=1e-12, atol=1e-12), k  # fmt: skip
+        # and the Δa the gateway corrects with, from those numbers
+        at = float(targets[stop])
+        o, a_end = (np.interp(p, steps.centres_mm, integral) for p in (-40.0, 660.0))
+        share = (np.interp(at, steps.centres_mm, integral) - o) / (a_end - o)
+        assert np.isclose(steps.delta_a_mm(0.1, at), 0.1 * share * 700.0 / (at + 40.0),
+                          rtol=1e-12), k  # fmt: skip
+    steps.moves_to(targets[came:])
+    assert np.allclose(whole.swept, steps.swept, rtol=1e-12, atol=1e-12)
+    assert whole.last_mm == steps.last_mm == targets[-1]

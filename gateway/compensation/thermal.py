@@ -91,14 +91,19 @@ def travel_swept(centres_mm: ArrayLike, bin_mm: float, from_mm: ArrayLike, to_mm
     return np.clip(np.minimum(c + half, hi) - np.maximum(c - half, lo), 0.0, None) / bin_mm
 
 
+def _spread_kernel(bin_mm: float, spread_mm: float) -> NDArray[np.float64]:
+    """The Gaussian (``spread_mm``) sampled every ``bin_mm`` out to 3 σ, summing to 1."""
+    half = max(1, int(np.ceil(3.0 * spread_mm / bin_mm)))
+    u = np.arange(-half, half + 1) * bin_mm
+    kernel = np.exp(-0.5 * (u / spread_mm) ** 2)
+    return kernel / kernel.sum()
+
+
 def travel_weights(swept: ArrayLike, bin_mm: float, spread_mm: float) -> NDArray[np.float64]:
     """Heat weight per bin: the travel swept over each bin, spread along the screw by a
     Gaussian of ``spread_mm`` (conduction over a thermal time constant, about √(κτ))."""
     s = np.asarray(swept, dtype=np.float64)
-    half = max(1, int(np.ceil(3.0 * spread_mm / bin_mm)))
-    u = np.arange(-half, half + 1) * bin_mm
-    kernel = np.exp(-0.5 * (u / spread_mm) ** 2)
-    return np.convolve(s, kernel / kernel.sum(), mode="same")
+    return np.convolve(s, _spread_kernel(bin_mm, spread_mm), mode="same")
 
 
 def fold_at_ends(centres_mm: ArrayLike, weights: ArrayLike, ends_mm: tuple[float, float]
@@ -133,6 +138,20 @@ class EndFold:
             beyond.append((mask, i, k - i))
         return cls((x >= lo) & (x <= hi), tuple(beyond))
 
+    def adjoint(self, rows: ArrayLike) -> NDArray[np.float64]:
+        """``rows @ M`` (one row a read-out, shape (k, n)), M the fold's matrix
+        (``M @ w`` is ``self(w)``): what each bin's weight adds to each read-out."""
+        r = np.atleast_2d(np.asarray(rows, dtype=np.float64))
+        out = np.where(self.inside, r, 0.0)
+        for mask, i, share in self.beyond:
+            if not i.size:
+                continue
+            pulled = r[:, i] * (1.0 - share)
+            if r.shape[1] > 1:
+                pulled += r[:, i + 1] * share
+            out[:, mask] += pulled
+        return out
+
     def __call__(self, weights: ArrayLike) -> NDArray[np.float64]:
         w = np.asarray(weights, dtype=np.float64)
         out = np.where(self.inside, w, 0.0)
@@ -152,6 +171,36 @@ def travel_integral(centres_mm: ArrayLike, weights: ArrayLike) -> NDArray[np.flo
     x = np.asarray(centres_mm, dtype=np.float64)
     w = np.asarray(weights, dtype=np.float64)
     return np.concatenate([[0.0], np.cumsum((w[1:] + w[:-1]) / 2.0 * np.diff(x))])
+
+
+def travel_integral_rows(centres_mm: ArrayLike, bin_mm: float, spread_mm: float,
+                         fold: EndFold | None, at_mm: ArrayLike
+                         ) -> NDArray[np.float64]:  # fmt: skip
+    """W at each of ``at_mm`` as a linear read-out of the swept travel: row i · swept is
+    ``np.interp(at_mm[i], centres_mm, W)``, W made from swept by :func:`travel_weights`,
+    ``fold`` and :func:`travel_integral`. All three are linear, so a fit replaying a
+    warm-up reads every stop's W with one product instead of a convolution a stop (each
+    step below is the adjoint of one of theirs, taken in reverse order)."""
+    x = np.asarray(centres_mm, dtype=np.float64)
+    at = np.atleast_1d(np.asarray(at_mm, dtype=np.float64))
+    n = x.size
+    rows = np.zeros((at.size, n))
+    if n < 2:
+        return rows
+    # np.interp's weights, clamped at the ends
+    j = np.clip(np.searchsorted(x, at, side="right") - 1, 0, n - 2)
+    t = np.clip((at - x[j]) / (x[j + 1] - x[j]), 0.0, 1.0)
+    rows[np.arange(at.size), j] = 1.0 - t
+    rows[np.arange(at.size), j + 1] += t
+    # W = cumulative trapezoids of the weights
+    reach = np.cumsum(rows[:, :0:-1], axis=1)[:, ::-1] * (np.diff(x) / 2.0)
+    rows = np.zeros((at.size, n))
+    rows[:, :-1] += reach
+    rows[:, 1:] += reach
+    if fold is not None:
+        rows = fold.adjoint(rows)
+    # the spread: a symmetric kernel is its own adjoint
+    return np.array([travel_weights(row, bin_mm, spread_mm) for row in rows]).reshape(at.size, n)
 
 
 def travel_delta_a_mm(delta_a_mm: float, at_mm: float, centres_mm: ArrayLike,

@@ -171,17 +171,23 @@ def profile_fractions(plan: Plan, axis: str, thermal: AxisThermal, profile: Trav
     assert th.profile is not None
     history = TravelHistory(th, th.profile, travel_mm, clock=lambda: 0.0)
     k = plan.axes.index(axis)
-    out, going = [], []
-    for move in plan.moves:
-        x = float(move.target_mm[k])
-        going.append(x)
-        if move.measured:
-            history.moves_to(going)
-            going = []
-            lever = x - th.origin_mm
-            out.append(history.delta_a_mm(1.0, x) * lever / length_mm if abs(lever) >= 1.0
-                       else 0.0)  # fmt: skip
-    return np.asarray(out)
+    xs = np.array([float(move.target_mm[k]) for move in plan.moves])
+    stops = np.flatnonzero([move.measured for move in plan.moves])
+    if not stops.size:
+        return np.zeros(0)
+    swept = history.replay(xs, stops)
+    # growth(x) / Δa = ±(W(x) − W(o)) / (W(A) − W(o)) at each stop (travel_delta_a_mm)
+    o, a_point = th.origin_mm, th.origin_mm + history.toward * length_mm
+    places, which = np.unique(xs[stops], return_inverse=True)
+    w = swept @ history.integral_rows(np.concatenate([[o, a_point, history.centres_mm[-1]],
+                                                      places])).T  # fmt: skip
+    whole = w[:, 1] - w[:, 0]
+    lever = xs[stops] - o
+    weighed = (w[:, 2] > 0) & (np.abs(whole) >= 1e-12)
+    fraction = np.where(weighed, history.toward * (w[np.arange(stops.size), 3 + which]
+                                                   - w[:, 0]) / np.where(weighed, whole, 1.0),
+                        lever / length_mm)  # no weights yet: the linear stage's own share
+    return np.where(np.abs(lever) >= 1.0, fraction, 0.0)
 
 
 def thermal_shape_fit(raw: RawData, plan: Plan, axis: str, thermal: AxisThermal,
