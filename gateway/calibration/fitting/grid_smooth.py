@@ -84,22 +84,17 @@ def smooth_grid(values: ArrayLike) -> SmoothedGrid:
     uy2, ux2 = uy**2, ux**2
     lam_y = LAMBDAS if z.shape[0] >= MIN_LINES else LAMBDAS[:1]
     lam_x = LAMBDAS if z.shape[1] >= MIN_LINES else LAMBDAS[:1]
-    best: tuple[float, float, float, NDArray[np.float64], NDArray[np.float64]] | None = None
-    for ly in lam_y:
-        for lx in lam_x:
-            if lx == 0.0 and ly == 0.0:
-                continue  # the interpolant: nothing left out can be judged
-            w = 1.0 / (1.0 + lx * ex[None, :] + ly * ey[:, None])
-            fit = uy @ (w * zt) @ ux.T
-            hat = uy2 @ w @ ux2.T
-            loo = (z - fit) / np.maximum(1.0 - hat, 1e-9)
-            score = float(np.mean(loo**2))
-            if best is None or score < best[0]:
-                best = (score, float(lx), float(ly), fit, loo)
-    if best is None:  # a grid of one node each way
+    # every pair of weights at once: (ly, lx, ny, nx)
+    w = 1.0 / (1.0 + lam_x[None, :, None, None] * ex[None, None, None, :]
+               + lam_y[:, None, None, None] * ey[None, None, :, None])  # fmt: skip
+    fit = uy @ (w * zt) @ ux.T
+    loo = (z - fit) / np.maximum(1.0 - uy2 @ w @ ux2.T, 1e-9)
+    score = np.mean(loo**2, axis=(2, 3))
+    score[(lam_y[:, None] == 0.0) & (lam_x[None, :] == 0.0)] = np.inf  # the interpolant:
+    if not np.isfinite(score).any():  # nothing left out can be judged (one node each way)
         return SmoothedGrid(z.copy(), 0.0, 0.0, np.full_like(z, np.nan))
-    _, lx, ly, fit, loo = best
-    return SmoothedGrid(fit, lx, ly, loo)
+    iy, ix = np.unravel_index(int(np.argmin(score)), score.shape)  # the first, as searched
+    return SmoothedGrid(fit[iy, ix], float(lam_x[ix]), float(lam_y[iy]), loo[iy, ix])
 
 
 @dataclass(frozen=True)
