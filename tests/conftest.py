@@ -41,13 +41,14 @@ def pty_pair() -> Iterator[PtyPair]:
 #: with the most tests first, ran test_commission_recorded.py's 68 s, mostly waiting on the
 #: laser software's recordings, last and alone: 328 s, the other workers done at 235 s)
 LONG_FILES_S = {
-    "test_commission.py": 105, "test_commission_budget.py": 79,
-    "test_commission_recorded.py": 68, "test_commission_run_heat.py": 62, "test_sweep.py": 42,
-    "test_thermal_shape.py": 35, "test_commission_short.py": 34,
-    "test_commission_instruments.py": 33, "test_demo.py": 28, "test_calibration_e2e.py": 25,
-    "test_fuzz.py": 24, "test_cyclic_cal_e2e.py": 24, "test_cyclic_sim.py": 16,
-    "test_commission_verdict.py": 15, "test_commission_rotary.py": 15, "test_takeup.py": 14,
-    "test_service.py": 12, "test_bench_smoke.py": 11, "test_faults.py": 11,
+    "test_commission.py": 125, "test_commission_run_heat.py": 103,
+    "test_commission_recorded.py": 79, "test_commission_budget.py": 77,
+    "test_calibration_e2e.py": 50, "test_commission_short.py": 50, "test_sweep.py": 49,
+    "test_commission_instruments.py": 46, "test_demo.py": 46, "test_cyclic_cal_e2e.py": 42,
+    "test_fuzz.py": 36, "test_commission_verdict.py": 31,
+    "test_commission_thermal_short.py": 29, "test_cyclic_sim.py": 29,
+    "test_commission_rotary.py": 23, "test_faults.py": 19, "test_takeup.py": 17,
+    "test_service.py": 15, "test_thermal_shape.py": 14, "test_bench_smoke.py": 14,
 }  # fmt: skip
 
 
