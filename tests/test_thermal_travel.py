@@ -192,22 +192,33 @@ def test_a_pause_forgets_the_old_zone_with_memory_s() -> None:
     assert err[tau_s] < 0.4 * err[None], err
 
 
+def _screw() -> AxisThermal:
+    """A 700 mm screw fixed at −40 mm, its heat fading per 900 mm travelled or 600 s."""
+    return AxisThermal(source="x", length_mm=700.0, origin_mm=-40.0,
+                       profile=TravelProfile(spread_mm=60.0, memory_mm=900.0, memory_s=600.0,
+                                             screw_mm=(-40.0, 640.0)))  # fmt: skip
+
+
+def _histories_at_300(th: AxisThermal, clock: list[float]) -> tuple[TravelHistory, TravelHistory]:
+    """Two histories of ``th`` on one clock (``clock[0]``, s), each moved to 300 mm."""
+    pair = tuple(TravelHistory(th, th.profile, (0.0, 600.0), clock=lambda: clock[0])  # type: ignore[arg-type]
+                 for _ in range(2))  # fmt: skip
+    for h in pair:
+        h.move_to(300.0)
+    return pair  # type: ignore[return-value]
+
+
 def test_moves_at_once_are_the_moves_one_by_one() -> None:
     """``moves_to`` (a fit's replay) sweeps as ``move_to`` called for each move at the
     same clock reading, and as the sweep written out by hand: fade what was swept by the
     move's length over ``memory_mm``, then add the stretch it crossed (a pause before the
     first move fades by ``memory_s``; standing still sweeps nothing)."""
-    th = AxisThermal(source="x", length_mm=700.0, origin_mm=-40.0,
-                     profile=TravelProfile(spread_mm=60.0, memory_mm=900.0, memory_s=600.0,
-                                           screw_mm=(-40.0, 640.0)))  # fmt: skip
+    th = _screw()
     rng = np.random.default_rng(5)
     targets = np.round(rng.uniform(0.0, 600.0, 40), 1)
     targets[7] = targets[6]  # a move to where it stands
     clock = [0.0]
-    one, many = (TravelHistory(th, th.profile, (0.0, 600.0), clock=lambda: clock[0])  # type: ignore[arg-type]
-                 for _ in range(2))  # fmt: skip
-    for h in (one, many):
-        h.move_to(300.0)
+    one, many = _histories_at_300(th, clock)
     clock[0] = 120.0  # a pause: the first move fades by 120 / 600 at least
     for x in targets:
         one.move_to(float(x))
@@ -234,18 +245,13 @@ def test_a_replay_reads_every_stop_as_the_moves_one_by_one_would() -> None:
     """``replay`` (a warm-up fit's: every stop of a replay at once) gives the swept travel
     ``moves_to`` leaves stop by stop, and its read-out rows give W where ``delta_a_mm``
     reads it: through the spread, the fold at the screw's ends and the integral."""
-    th = AxisThermal(source="x", length_mm=700.0, origin_mm=-40.0,
-                     profile=TravelProfile(spread_mm=60.0, memory_mm=900.0, memory_s=600.0,
-                                           screw_mm=(-40.0, 640.0)))  # fmt: skip
+    th = _screw()
     rng = np.random.default_rng(8)
     targets = np.round(rng.uniform(0.0, 600.0, 60), 1)
     targets[9] = targets[8]  # a move to where it stands
     stops = np.array([0, 3, 8, 9, 10, 31, 59])
     clock = [0.0]
-    whole, steps = (TravelHistory(th, th.profile, (0.0, 600.0), clock=lambda: clock[0])  # type: ignore[arg-type]
-                    for _ in range(2))  # fmt: skip
-    for h in (whole, steps):
-        h.move_to(300.0)
+    whole, steps = _histories_at_300(th, clock)
     clock[0] = 120.0  # a pause before the first move
     rows = whole.replay(targets, stops)
     assert rows.shape == (stops.size, whole.swept.size)
