@@ -123,7 +123,7 @@ class TravelHistory:
             state = state * math.exp(-(faded[end] - before))
             state[cols] += added[k]
             rows[k], before = state, faded[end]
-        self.swept = state.copy()
+        self.swept = state
         self._integral = None
         return rows[:at.size]
 

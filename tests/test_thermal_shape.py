@@ -569,3 +569,40 @@ def test_a_light_growth_read_at_the_noise_is_not_refused_for_leaving_the_noise()
                 assert "scatter explains" in str(exc)
                 refused.append((len(places), seed))
     assert set(refused) <= {(5, 33)}, refused
+
+
+@pytest.mark.parametrize("origin_mm, screw_mm, memory_mm", [
+    (-59.0, (-59.0, 160.0), 100_000.0), (200.0, (-10.0, 200.0), 3000.0),
+    (-20.0, None, 100_000.0)])  # fmt: skip
+def test_a_fit_s_fractions_are_what_the_gateway_would_count_stop_by_stop(
+        origin_mm: float, screw_mm: tuple[float, float] | None,
+        memory_mm: float) -> None:  # fmt: skip
+    """``profile_fractions`` reads every stop of a warm-up at once (the gateway's hot path
+    keeps its scalar :meth:`TravelHistory.delta_a_mm`, four times faster on one target):
+    at each measured stop it equals that path, the plan's moves sent one stop at a time,
+    on either side of the travel's fixed end, with the screw's ends folded or not."""
+    from gateway.calibration.thermal.thermal_shape import profile_fractions
+    from gateway.config import TravelProfile
+    from gateway.thermal_travel import TravelHistory
+
+    plan = warmup_plan("X", (45.0, 105.0), 50.0, 1800.0, 132.0,
+                       places_mm=[33.0, 60.0, 75.0, 90.0, 117.0], also_mm=18.0,
+                       sensor=False)  # fmt: skip
+    thermal = AxisThermal(source="x", length_mm=300.0, origin_mm=origin_mm)
+    for spread_mm in (50.0, 300.0):
+        profile = TravelProfile(spread_mm=spread_mm, memory_mm=memory_mm, screw_mm=screw_mm)
+        for length_mm in (150.0, 480.0):
+            th = thermal.model_copy(update={"length_mm": length_mm, "profile": profile})
+            gateway = TravelHistory(th, profile, (0.0, 150.0), clock=lambda: 0.0)
+            by_stop, going = [], []
+            for move in plan.moves:
+                going.append(float(move.target_mm[0]))
+                if move.measured:
+                    gateway.moves_to(going)
+                    lever = going[-1] - origin_mm
+                    by_stop.append(gateway.delta_a_mm(1.0, going[-1]) * lever / length_mm
+                                   if abs(lever) >= 1.0 else 0.0)  # fmt: skip
+                    going = []
+            got = profile_fractions(plan, "X", thermal, profile, (0.0, 150.0), length_mm)
+            assert got.shape == (len(by_stop),)
+            assert np.allclose(got, by_stop, rtol=1e-12, atol=1e-12), (spread_mm, length_mm)

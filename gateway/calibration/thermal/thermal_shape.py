@@ -176,7 +176,9 @@ def profile_fractions(plan: Plan, axis: str, thermal: AxisThermal, profile: Trav
     if not stops.size:
         return np.zeros(0)
     swept = history.replay(xs, stops)
-    # growth(x) / Δa = ±(W(x) − W(o)) / (W(A) − W(o)) at each stop (travel_delta_a_mm)
+    # growth(x) / Δa = ±(W(x) − W(o)) / (W(A) − W(o)) at each stop: travel_delta_a_mm's
+    # arithmetic, every stop at once (the gateway keeps the scalar one for its hot path;
+    # tests/test_thermal_shape.py holds the two equal)
     o, a_point = th.origin_mm, th.origin_mm + history.toward * length_mm
     places, which = np.unique(xs[stops], return_inverse=True)
     w = swept @ history.integral_rows(np.concatenate([[o, a_point, history.centres_mm[-1]],
