@@ -148,28 +148,29 @@ def _read_up_um(commission: Path, axis: str) -> tuple[np.ndarray, np.ndarray]:
 
 def test_an_axis_no_heat_model_follows_keeps_the_state_its_runs_were_read_in(
         tmp_path: Path) -> None:  # fmt: skip
-    """At 1.0 h on random machine 19 the drift references are read and X's drift stands
-    out of their scatter, so it is taken off X's runs; but no heat model explains it (the
+    """At 1.0 h on random machine 22 the drift references are read and Y's drift stands
+    out of their scatter, so it is taken off Y's runs; but no heat model explains it (the
     heat never levelled off). Its table, fitted to the cold start, then met a machine
     that is never cold in use with nothing to follow the heat. Now the references' drift
-    is given back: the final config takes off, at X's targets, what the laser read there
-    in X's own runs (their mean), where the table as fitted was 0.36 µm off it."""
-    with _references_read(tmp_path, 19) as (rig, proc, state):
-        heat = state["identify"]["motion-X"]
+    is given back: the final config takes off, at Y's targets, what the laser read there
+    in Y's own runs (their mean): 0.19 µm RMS off it over its 25 targets, where the table
+    as fitted was 0.43 µm off (0.22 µm in the mean, the rest a tilt)."""
+    with _references_read(tmp_path, 22) as (rig, proc, state):
+        heat = state["identify"]["motion-Y"]
         assert not heat["fitted"] and "table_held_um" in heat, (heat, proc.text())
-        assert state["drift_off_at_fit"]["X"], state["drift_off_at_fit"]
-        assert "X: no heat model follows it, so its table keeps the state" in proc.text()
+        assert state["drift_off_at_fit"]["Y"], state["drift_off_at_fit"]
+        assert "Y: no heat model follows it, so its table keeps the state" in proc.text()
         commission = rig.dir / "commission"
-        targets, read_um = _read_up_um(commission, "X")
+        targets, read_um = _read_up_um(commission, "Y")
         data = yaml.safe_load(rig.config.read_text())
         off = {}
-        for name in ("x_pitch.csv", "x_pitch.as_read.csv"):
-            data["axes"]["X"]["compensation"]["pitch"]["file"] = f"commission/tables/{name}"
-            took_um = 1000.0 * table_deviation_mm(parse_config(data), rig.dir, "X", targets)
+        for name in ("y_pitch.csv", "y_pitch.as_read.csv"):
+            data["axes"]["Y"]["compensation"]["pitch"]["file"] = f"commission/tables/{name}"
+            took_um = 1000.0 * table_deviation_mm(parse_config(data), rig.dir, "Y", targets)
             off[name] = took_um - read_um
-        kept, fitted = off["x_pitch.csv"], off["x_pitch.as_read.csv"]
-        assert abs(kept.mean()) < 0.1 and np.sqrt(np.mean(kept**2)) < 0.2, kept
-        assert abs(fitted.mean()) > 0.2, fitted
+        kept_um, fitted_um = (float(np.sqrt(np.mean(v**2))) for v in off.values())
+        assert abs(off["y_pitch.csv"].mean()) < 0.1 and kept_um < 0.25, off
+        assert kept_um < 0.5 * fitted_um, (kept_um, fitted_um)
 
 
 def test_a_table_fitted_as_read_is_given_back_no_drift(tmp_path: Path) -> None:

@@ -7,7 +7,6 @@ from typing import TYPE_CHECKING
 
 from ...compensation.errors import TableError
 from ..fitting import adaptive
-from ..fitting.plans_scans import cyclic_plan
 from ..plans.plans import (
     Plan,
     backlash_from_raw,
@@ -15,7 +14,7 @@ from ..plans.plans import (
     write_plan,
 )
 from ..plans.rawdata import read_raw_csv
-from .planner import EIGHTHS, QUARTERS
+from .planner import EIGHTHS, QUARTERS, cyclic_scans
 from .settings import SHORT_WARMUP_S, BudgetSpent
 from .sizing import first_table_reading
 
@@ -109,7 +108,7 @@ class IdentifySteps:
         leads = self.record.state.setdefault("leads", {})
         if axis in self.s.lead_mm or axis in leads or self.s.no_lead_search:
             return
-        scans = cyclic_plan(axis, self.axes.travel(axis), min(adaptive.STANDARD_LEADS_MM))
+        scans = cyclic_scans(axis, self.axes.travel(axis), min(adaptive.STANDARD_LEADS_MM))
         cost_s = self.budget.step_cost_s
         need_s = cost_s(self.plans.lead_plan(axis)) + cost_s(scans)
         left_s = self.budget.left_s()
@@ -287,7 +286,7 @@ class IdentifySteps:
         plane's model cuts far more than a once-per-lead term."""
         if a not in self.s.lead_mm or self.record.done(f"cyclic-{a}"):
             return
-        scans = cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a])
+        scans = cyclic_scans(a, self.axes.travel(a), self.s.lead_mm[a])
         need_s = self.budget.step_cost_s(scans)
         keep_s = self.short.plane_held_s(plain=False) if a in (self.s.planar or ()) else 0.0
         said = f"{a}: no cyclic scans on this budget"
@@ -532,8 +531,9 @@ class IdentifySteps:
         await self._find_lead(a)
         await self._iso(a)
         if a in self.s.lead_mm:
-            await self.runner.step(f"cyclic-{a}", lambda: cyclic_plan(a, travel, self.s.lead_mm[a]),
-                            "off", self.axes.park(a))  # fmt: skip
+            await self.runner.step(f"cyclic-{a}",
+                                   lambda: cyclic_scans(a, travel, self.s.lead_mm[a]), "off",
+                                   self.axes.park(a))  # fmt: skip
         if not self.plans.alone_path(a).exists():  # (a short budget's verdict: no before-run)
             await self.runner.step(f"before-{a}", lambda: self.plans.before_plan(a), "off",
                                    self.axes.park(a))  # fmt: skip

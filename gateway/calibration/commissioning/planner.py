@@ -51,6 +51,38 @@ BETWEEN = (Between("midpoints", "iso-mid", "midpoints", "the first table"),
 QUARTERS, EIGHTHS = 1, 2
 
 
+#: stations commissioning scans the once-per-lead term at, one way, where the travel holds
+#: them a scan apart (:func:`cyclic_scans`)
+SCAN_STATIONS = 7
+#: leads each of commissioning's scans covers (the plain calibration's: a shorter scan
+#: confuses the term with the table's local slope)
+SCAN_LEADS = 2.0
+
+
+def cyclic_scans(axis: str, travel_mm: tuple[float, float], lead_mm: float) -> Plan:
+    """Commissioning's dense scans of the once-per-lead term: SCAN_STATIONS stations spread
+    evenly from one lead inside each end of the travel, each read one way over SCAN_LEADS
+    leads, where the travel holds them a scan apart; else a plain calibration's three
+    two-way scans.
+
+    The term is the screw's, the same both ways, so one way reads it for half a scan. Its
+    size and phase change along a screw, and a table is taken net of it at its points: a
+    term read at three stations leaves its miss in the table, which the spline between the
+    points turns into long waves. (Session 77, the ten rough machines' tables kept: the
+    truth's term sampled at 3 stations left 63.6 µm of the pitch line's peak to peak summed
+    over 20 axes, at 7 stations reaching one lead from each end 40.4, the truth's own term
+    24.7. At 1.5 x the plain calibration's time: the parks' E on the pitch line, summed,
+    39.1 → 33.6 µm, lower on 16 of 20 axes.) Seven one-way scans read 231 points on a
+    700 mm travel at a 5 mm lead, three two-way ones 198."""
+    lo, hi = float(travel_mm[0]), float(travel_mm[1])
+    span_mm = SCAN_LEADS * lead_mm + 2.0  # a scan and its take-up moves (1 mm each side)
+    if (hi - lo) < SCAN_STATIONS * span_mm:
+        return cyclic_plan(axis, (lo, hi), lead_mm)
+    edge = span_mm / 2.0 + 0.5  # the outer scans' take-up moves stay 0.5 mm inside the ends
+    stations = [float(v) for v in np.linspace(lo + edge, hi - edge, SCAN_STATIONS)]
+    return cyclic_plan(axis, (lo, hi), lead_mm, stations, leads=SCAN_LEADS, both_ways=False)
+
+
 def steps_below(level: int) -> tuple[str, ...]:
     """The ISO steps whose targets the points of ``level`` are read between: the first
     table's and every level's before it."""
@@ -126,7 +158,7 @@ class Planner:
             out.append((f"takeup-{a}", takeup_plan(a, travel)))  # if there is lost motion
             out.append((f"iso-{a}", self.iso_plan(a)))
             if a in self.s.lead_mm:
-                out.append((f"cyclic-{a}", cyclic_plan(a, travel, self.s.lead_mm[a])))
+                out.append((f"cyclic-{a}", cyclic_scans(a, travel, self.s.lead_mm[a])))
             elif not self.s.no_lead_search:
                 out.append((f"lead-{a}", self.lead_plan(a)))
         if self.s.planar is not None:

@@ -14,14 +14,13 @@ from ..fitting import adaptive
 from ..fitting.fit import one_way_split
 from ..fitting.iso230 import iso230_axis
 from ..fitting.outputs import scanned_cyclic
-from ..fitting.plans_scans import cyclic_plan
 from ..fitting.table_cv import between_points, denser_miss, levelled_midpoints, quarters_pay
 from ..fitting.takeup_fit import MIN_LOST_UM
 from ..plans.plans import Plan, backlash_plan
 from ..plans.rawdata import RawData, axis_deviations, pooled_variance
 from ..plans.runner import read_raw_meta
 from ..plans.xy import even_grid
-from .planner import BETWEEN, QUARTERS, steps_below
+from .planner import BETWEEN, QUARTERS, cyclic_scans, steps_below
 from .sizing import DENSE_LEAST_RUNS, fitting_grid, hold_each, max_grid_in
 from .steps import concat_raw
 
@@ -165,7 +164,7 @@ class ShortBudget:
         dense = self.plain_points(linear)
         steps = [(f"iso-{a}", self.plans.iso_plan(a, runs or self.table_runs(), dense.get(a)))
                  for a in linear]  # fmt: skip
-        steps += [(f"cyclic-{a}", cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a]))
+        steps += [(f"cyclic-{a}", cyclic_scans(a, self.axes.travel(a), self.s.lead_mm[a]))
                   for a in linear if a in self.s.lead_mm]  # fmt: skip
         if self.axes.plane_with(linear):
             steps.append(("xy-grid", self.plans.grid_plan(self.plain_grid())))
@@ -209,7 +208,7 @@ class ShortBudget:
         """Machine time (s) of the cyclic scans not made yet on ``axes`` whose lead is
         known, with the drift references a drift would call for."""
         return sum(self.budget.step_cost_worst_s(
-            cyclic_plan(a, self.axes.travel(a), self.s.lead_mm[a]))
+            cyclic_scans(a, self.axes.travel(a), self.s.lead_mm[a]))
             for a in axes if a in self.s.lead_mm and not self.record.done(f"cyclic-{a}"))
 
     def plane_held_s(self, plain: bool = True) -> float:

@@ -123,15 +123,17 @@ def cyclic_plan(
     speed_mm_s: float | None = None,
     dwell_s: float | None = None,
     kind: str = "cyclic",
+    both_ways: bool = True,
 ) -> Plan:
     """Dense scans for the cyclic (once-per-lead) screw error, issue 7.
 
     At each station (default 15 %, 50 %, 85 % of the travel): a ``takeup`` move
     ``takeup_mm`` below the scan, then ``per_lead`` (≥ 16) points per lead over ``leads``
-    (≥ 2) leads measured going up (+); a ``takeup`` move ``takeup_mm`` above, then the same
-    points measured going down (−). The take-up distance must exceed the backlash, so every
-    point of a direction is approached with the play taken up the same way. Run number =
-    station number (1, 2, …), so each scan is one run of the raw file.
+    (≥ 2) leads measured going up (+); with ``both_ways``, a ``takeup`` move ``takeup_mm``
+    above, then the same points measured going down (−). The take-up distance must exceed
+    the backlash, so every point of a direction is approached with the play taken up the
+    same way. Run number = station number (1, 2, …), so each scan is one run of the raw
+    file. (One way: the term is the screw's, the same both ways; the scan costs half.)
 
     ``kind="refine-scan"``: commissioning's short scans (``per_lead`` ≥ 8 over ``leads`` ≥ 1)
     that give a new table point its value as a mean over whole leads (no cyclic term
@@ -163,6 +165,8 @@ def cyclic_plan(
         above = float(_round(min(hi, targets[-1] + takeup_mm)))
         moves.append(Move(j, -1, "takeup", (below,), speed_mm_s))
         moves += [Move(j, +1, "measure", (float(t),), speed_mm_s, dwell_s) for t in targets]
+        if not both_ways:
+            continue
         moves.append(Move(j, +1, "takeup", (above,), speed_mm_s))
         moves += [
             Move(j, -1, "measure", (float(t),), speed_mm_s, dwell_s) for t in targets[::-1]
