@@ -1,6 +1,6 @@
 """Commissioning's scans of the once-per-lead term (`planner.cyclic_scans`): seven one-way
 stations reaching one lead from each end where the travel holds them (else a plain
-calibration's three two-way scans), at about the readings of three two-way scans, and a
+calibration's three two-way scans), fewer readings than three two-way scans, and a
 term that changes along the screw read closer."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ def stations_mm(plan: Plan) -> list[float]:
     return [float(s) for s in dict(plan.meta)["stations_mm"].split()]
 
 
-def test_seven_one_way_stations_reach_the_ends_at_about_three_two_way_scans_readings():
+def test_seven_one_way_stations_reach_the_ends_in_fewer_readings_than_three_two_way():
     plan = cyclic_scans("X", TRAVEL_MM, LEAD_MM)
     assert stations_mm(plan) == [6.5, 121.0, 235.5, 350.0, 464.5, 579.0, 693.5]
     moves = [m for m in plan.moves if m.run in (1, 7)]
@@ -29,7 +29,7 @@ def test_seven_one_way_stations_reach_the_ends_at_about_three_two_way_scans_read
     measured = [m for m in plan.moves if m.role == "measure"]
     assert {m.direction for m in measured} == {1}
     plain = [m for m in cyclic_plan("X", TRAVEL_MM, LEAD_MM).moves if m.role == "measure"]
-    assert len(plain) < len(measured) < 1.2 * len(plain)  # 231 against 198
+    assert len(measured) < len(plain)  # 175 against 198: no time from a plain calibration's
 
 
 def test_a_travel_short_of_seven_scans_keeps_the_plain_calibrations_scans():

@@ -49,13 +49,23 @@ class CyclicFit:
     residual_rms_um: float  # at the chosen K
 
 
+#: the fewest points per lead a dense scan reads (``compgw plan cyclic --per-lead``)
+DENSE_LEAST_PER_LEAD = 16
+
+
 def dense_scan_targets(
-    station_mm: float, lead_mm: float, *, per_lead: int = 16, leads: float = 2.0
+    station_mm: float,
+    lead_mm: float,
+    *,
+    per_lead: int = 16,
+    leads: float = 2.0,
+    least_per_lead: int = DENSE_LEAST_PER_LEAD,
 ) -> NDArray[np.float64]:
     """Targets of one dense scan centred on ``station_mm``: ``per_lead`` points per lead
-    (≥ 16) over ``leads`` leads (≥ 2)."""
-    if per_lead < 16 or leads < 2:
-        raise TableError("a dense scan needs ≥ 16 points per lead over ≥ 2 leads")
+    (≥ ``least_per_lead``) over ``leads`` leads (≥ 2)."""
+    if per_lead < least_per_lead or leads < 2:
+        raise TableError(f"a dense scan needs ≥ {least_per_lead} points per lead over ≥ 2 "
+                         "leads")  # fmt: skip
     n = round(per_lead * leads) + 1
     half = 0.5 * leads * lead_mm
     return np.linspace(station_mm - half, station_mm + half, n)

@@ -124,16 +124,18 @@ def cyclic_plan(
     dwell_s: float | None = None,
     kind: str = "cyclic",
     both_ways: bool = True,
+    least_per_lead: int = 16,
 ) -> Plan:
     """Dense scans for the cyclic (once-per-lead) screw error, issue 7.
 
     At each station (default 15 %, 50 %, 85 % of the travel): a ``takeup`` move
-    ``takeup_mm`` below the scan, then ``per_lead`` (≥ 16) points per lead over ``leads``
-    (≥ 2) leads measured going up (+); with ``both_ways``, a ``takeup`` move ``takeup_mm``
-    above, then the same points measured going down (−). The take-up distance must exceed
-    the backlash, so every point of a direction is approached with the play taken up the
-    same way. Run number = station number (1, 2, …), so each scan is one run of the raw
-    file. (One way: the term is the screw's, the same both ways; the scan costs half.)
+    ``takeup_mm`` below the scan, then ``per_lead`` (≥ ``least_per_lead``) points per lead
+    over ``leads`` (≥ 2) leads measured going up (+); with ``both_ways``, a ``takeup`` move
+    ``takeup_mm`` above, then the same points measured going down (−). The take-up distance
+    must exceed the backlash, so every point of a direction is approached with the play
+    taken up the same way. Run number = station number (1, 2, …), so each scan is one run
+    of the raw file. (One way: the term is the screw's, the same both ways; the scan costs
+    half.)
 
     ``kind="refine-scan"``: commissioning's short scans (``per_lead`` ≥ 8 over ``leads`` ≥ 1)
     that give a new table point its value as a mean over whole leads (no cyclic term
@@ -143,7 +145,8 @@ def cyclic_plan(
 
     def scan_targets(station: float) -> NDArray[np.float64]:
         if kind == "cyclic":
-            return dense_scan_targets(station, lead_mm, per_lead=per_lead, leads=leads)
+            return dense_scan_targets(station, lead_mm, per_lead=per_lead, leads=leads,
+                                      least_per_lead=least_per_lead)  # fmt: skip
         if per_lead < 8 or leads < 1:
             raise TableError("a refinement scan needs ≥ 8 points per lead over ≥ 1 lead")
         half = 0.5 * leads * lead_mm
