@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 from ...compensation.errors import TableError
 from ..plans.plans import Move, Plan, _meta, _round, _travel
+from .cyclic_fit import DENSE_LEAST_PER_LEAD, dense_scan_targets
 
 # -- warm-up (seed 002) ---------------------------------------------------------------------
 #: the shortest + approach of a warm-up's reference from the cycle's lower end (mm): more
@@ -124,7 +125,7 @@ def cyclic_plan(
     dwell_s: float | None = None,
     kind: str = "cyclic",
     both_ways: bool = True,
-    least_per_lead: int = 16,
+    least_per_lead: int = DENSE_LEAST_PER_LEAD,
 ) -> Plan:
     """Dense scans for the cyclic (once-per-lead) screw error, issue 7.
 
@@ -141,8 +142,6 @@ def cyclic_plan(
     that give a new table point its value as a mean over whole leads (no cyclic term
     aliased into it) and the cyclic term a new station.
     """
-    from .cyclic_fit import dense_scan_targets
-
     def scan_targets(station: float) -> NDArray[np.float64]:
         if kind == "cyclic":
             return dense_scan_targets(station, lead_mm, per_lead=per_lead, leads=leads,
