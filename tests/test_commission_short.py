@@ -533,3 +533,115 @@ def test_a_table_still_missing_between_its_quarter_points_reads_its_eighth_point
     assert steps == [("iso-eighth-X", 200.0)] and not ident["eighths-Y"]["measured"]
     ident, steps = run(1000.0, ("Y",))  # X's quarter points not read: none between them
     assert steps == [("iso-eighth-Y", 200.0)] and "eighths-X" not in ident
+
+
+def test_an_extra_holds_time_for_the_plane_s_verdict_only_where_the_verdict_fits() -> None:
+    """The eighth points wait behind the plane's grid and its verdict (random points read
+    before and after), but not behind a verdict the budget left cannot hold beside the
+    grid: at 1.5 x a plain calibration's time rough-8 held 18.2 minutes for a verdict that
+    then did not fit, and left X's eighth points unread (2.44 µm RMS between its points,
+    9.4 x its scatter)."""
+    import asyncio
+    from types import SimpleNamespace
+
+    from gateway.calibration.commissioning.planner import EIGHTHS
+    from gateway.calibration.commissioning.short import ShortBudget
+
+    misses = {"X": (9.4, 2.44), "Y": (5.3, 0.98)}  # (× scatter, µm RMS)
+    grid_s, verdict_s = 300.0, 400.0
+
+    def run(left_s: float) -> tuple[dict, list]:
+        steps: list = []
+        ident: dict = {f"quarters-{a}": {"measured": True} for a in "XY"}
+        ident["more_runs"] = 0
+        short = ShortBudget.__new__(ShortBudget)
+        short.s = SimpleNamespace(lead_mm={"X": 10.0, "Y": 16.0}, planar=("X", "Y"))
+        short.axes = SimpleNamespace(park=lambda a: {})
+        short.budget = SimpleNamespace(
+            iso_runs=lambda: 3, left_s=lambda: left_s - sum(p for _, p in steps),
+            step_cost_worst_s=lambda p: p, step_cost_s=lambda p: p,
+            verdict_cost_s=lambda p: verdict_s)  # fmt: skip
+        short.plans = SimpleNamespace(midpoints_plan=lambda a, runs, level=0: 100.0 * runs,
+                                      before_xy_plan=lambda: None)  # fmt: skip
+        short.plane_held_s = lambda plain=True: grid_s
+        short.record = SimpleNamespace(state={"identify": ident}, save=lambda: None,
+                                       done=lambda name: name != "before-xy")  # fmt: skip
+        short.between = lambda a, level=0: misses[a] if level == EIGHTHS else (None, None)
+        short.say = lambda text: None
+
+        async def step(name: str, plan: Any, *args: Any) -> None:
+            steps.append((name, plan()))
+
+        short.runner = SimpleNamespace(step=step)
+
+        async def extra() -> None:
+            for a in short.by_value(["Y", "X"], EIGHTHS):
+                await short.densify(a, EIGHTHS)
+
+        asyncio.run(extra())
+        return ident, steps
+
+    ident, steps = run(600.0)  # the verdict (400 s) does not fit beside the grid: not held
+    assert steps == [("iso-eighth-X", 200.0)] and not ident["eighths-Y"]["measured"]
+    ident, steps = run(750.0)  # it fits: held, and the eighth points wait behind it
+    assert steps == [] and not ident["eighths-X"]["measured"]
+    ident, steps = run(1000.0)  # both fit beside the grid: X's eighth points and the verdict
+    assert steps == [("iso-eighth-X", 200.0)] and not ident["eighths-Y"]["measured"]
+
+
+def test_a_table_still_missing_between_its_quarter_points_reads_eighths_before_more_runs(
+) -> None:  # fmt: skip
+    """An axis that read its quarter points in place of its more runs, and whose table
+    with them is still expected to miss between its points far beyond their scatter, reads
+    its eighth points in place of the more runs as well, one run each; the other axes read
+    their more runs; where both fit, both, the eighth points as the extra after. (At 1.5 x
+    a plain calibration's time rough-8's X read a 4th run on its 41 targets, 184 s, where
+    its table with its quarter points missed 2.44 µm RMS between them, 9.3 x its 0.23 µm
+    scatter: A − R 3.13 µm at the judge's targets.)"""
+    import asyncio
+    from types import SimpleNamespace
+
+    from gateway.calibration.commissioning.planner import EIGHTHS
+    from gateway.calibration.commissioning.short import ShortBudget
+
+    misses = {"X": (9.3, 2.44), "Y": (1.3, 0.3)}  # (× scatter, µm RMS)
+
+    def run(left_s: float) -> tuple[dict, list]:
+        steps: list = []
+        ident: dict = {f"quarters-{a}": {"measured": True, "instead_of_more_runs": True}
+                       for a in "XY"}  # fmt: skip
+        ident["more_runs"], ident["more_runs_axes"] = 0, []
+        short = ShortBudget.__new__(ShortBudget)
+        short.s = SimpleNamespace(lead_mm={"X": 10.0, "Y": 16.0}, runs=3, planar=None)
+        short.axes = SimpleNamespace(plane_with=lambda axes: False, park=lambda a: {})
+        short.budget = SimpleNamespace(
+            iso_runs=lambda: 3, left_s=lambda: left_s - sum(p for _, p in steps),
+            step_cost_worst_s=lambda p: p, step_cost_s=lambda p: p)  # fmt: skip
+        short.plans = SimpleNamespace(
+            midpoints_plan=lambda a, runs, level=0: 100.0 * runs * level,
+            more_runs_plan=lambda a, more: 50.0 * more)  # fmt: skip
+        short.record = SimpleNamespace(state={"identify": ident}, save=lambda: None,
+                                       done=lambda name: name.startswith("cyclic"))  # fmt: skip
+        short.scans_left_s = lambda axes: 0.0
+        short.between = lambda a, level=0: misses[a] if level == EIGHTHS else (None, None)
+        short.scatter_mm2 = lambda a: 0.23e-3**2
+        short.say = lambda text: None
+
+        async def step(name: str, plan: Any, *args: Any) -> None:
+            steps.append((name, plan()))
+
+        short.runner = SimpleNamespace(step=step)
+        asyncio.run(short.more_runs_later(["X", "Y"]))
+        return ident, steps
+
+    ident, steps = run(300.0)  # X's eighth points (200 s at one run), Y's two more runs
+    assert ident["eighths-X"] == {"misses_x_scatter": 9.3, "miss_rms_um": 2.44,
+                                  "measured": True, "runs": 1, "instead_of_more_runs": True}
+    assert "eighths-Y" not in ident and ident["more_runs_later_axes"] == ["Y"]
+    assert steps == [("iso-eighth-X", 200.0), ("iso-more-Y", 100.0)]
+    ident, steps = run(2000.0)  # both hold: the more runs, the eighth points an extra after
+    assert "eighths-X" not in ident and ident["more_runs_later"] == 2
+    assert steps == [("iso-more-X", 100.0), ("iso-more-Y", 100.0)]
+    ident, steps = run(150.0)  # X's eighth points do not fit: the more runs, on both
+    assert "eighths-X" not in ident and ident["more_runs_later"] == 1
+    assert [n for n, _ in steps] == ["iso-more-X", "iso-more-Y"]

@@ -20,7 +20,7 @@ from ..plans.plans import Plan, backlash_plan
 from ..plans.rawdata import RawData, axis_deviations, pooled_variance
 from ..plans.runner import read_raw_meta
 from ..plans.xy import even_grid
-from .planner import BETWEEN, QUARTERS, cyclic_scans, steps_below
+from .planner import BETWEEN, EIGHTHS, QUARTERS, cyclic_scans, steps_below
 from .sizing import DENSE_LEAST_RUNS, fitting_grid, hold_each, max_grid_in
 from .steps import concat_raw
 
@@ -43,8 +43,8 @@ SWITCH_READINGS = 4
 BETWEEN_RATIO = 2.0
 #: nodes along the longer travel of a grid the size of a plain calibration's (9 x 7)
 PLAIN_GRID_LINES = 9
-#: runs per target of the quarter points read in place of a table's more runs
-#: (:meth:`ShortBudget._quarters_first`)
+#: runs per target of the quarter (eighth) points read in place of a table's more runs
+#: (:meth:`ShortBudget._denser_first`)
 QUARTER_RUNS_IN_PLACE = 1
 
 
@@ -225,6 +225,19 @@ class ShortBudget:
         grid = self.plain_grid() if plain else self.s.grid
         return self.budget.step_cost_s(self.plans.grid_plan(grid))
 
+    def verdict_held_s(self, room_s: float) -> float:
+        """Machine time (s) an extra decided before the plane's verdict holds for it: its
+        random points read before and after, where ``room_s`` (the budget left beside what
+        is held already) holds them; none where it does not, or where they were read.
+        Held for a verdict that will not fit, the time buys nothing: at 1.5 x the plain
+        calibration's time rough-8 held 18.2 minutes for it, left X's eighth points unread
+        (their table missed 2.44 µm RMS between its points, 9.4 x its scatter), and then
+        had no room for the verdict either."""
+        if self.s.planar is None or self.record.done("before-xy"):
+            return 0.0
+        need_s = self.budget.verdict_cost_s(self.plans.before_xy_plan())
+        return need_s if need_s <= room_s else 0.0
+
     def first_need_s(self) -> float:
         """Machine time (s) of the first steps, the before- and after-runs and one round:
         its verification (the before-run's size) and the least refinement it may call for
@@ -282,8 +295,8 @@ class ShortBudget:
             keep_s = 0.0
             if self.s.planar is not None and axis in self.s.planar:
                 keep_s = self.plane_held_s(plain=known or level > 0)
-                if level > 0 and not self.record.done("before-xy"):  # and the plane's verdict
-                    keep_s += self.budget.verdict_cost_s(self.plans.before_xy_plan())
+                if level > 0:  # and the plane's verdict, where it fits
+                    keep_s += self.verdict_held_s(self.budget.left_s() - keep_s)
             misses = ratio is not None and ratio > BETWEEN_RATIO
             runs = self._midpoint_runs(axis, keep_s, level) if misses else 0
             ident[key] = {"misses_x_scatter": ratio, "miss_rms_um": miss_um,
@@ -386,7 +399,7 @@ class ShortBudget:
         holding the verdict first, smooth-0 read 4 runs and then had no room for the
         verdict after all; rough-3 read 2; the plain calibration reads 5: E 0.83 and 1.98
         µm at the judge's targets against 0.56 and 1.24.) An axis whose quarter points take
-        more off per reading reads them in their place (:meth:`_quarters_first`). Decided
+        more off per reading reads them in their place (:meth:`_denser_first`). Decided
         once."""
         ident = self.record.state.setdefault("identify", {})
         if "more_runs" not in ident:
@@ -394,7 +407,7 @@ class ShortBudget:
             plane = self.axes.plane_with(axes)
             held_s = (self.plane_held_s() if plane else 0.0) + self.scans_left_s(axes)
             room_s = self.budget.left_s() - held_s
-            room_s -= self._quarters_first(axes, room_s)
+            room_s -= self._denser_first(axes, room_s, QUARTERS)
             rest = [a for a in axes if a not in self._in_place(axes)]
             more = self._more_that_fit(rest, room_s)
             ident["more_runs"], ident["more_runs_axes"] = more, rest
@@ -409,24 +422,31 @@ class ShortBudget:
 
     async def more_runs_later(self, axes: list[str]) -> None:
         """The more runs of the axes that read their quarter points in their place
-        (:meth:`_quarters_first`), as an extra after the quarter points: where the budget
+        (:meth:`_denser_first`), as an extra after the quarter points: where the budget
         left holds them beside the scans not made yet, a plain calibration's grid and the
         plane's verdict (so a larger budget reads at least what a smaller one did: before,
-        at 3 x a plain calibration's time the rough machines read both). Decided once."""
+        at 3 x a plain calibration's time the rough machines read both). An axis whose
+        eighth points take more off per reading reads them in their place, in turn (at 1.5
+        x rough-8's X read a 4th run on its 41 targets, 184 s, where its table with its
+        quarter points missed 2.44 µm RMS between them, 9.3 x its scatter: E 3.41 µm at the
+        judge's targets, A − R 3.13). Decided once."""
         ident = self.record.state.setdefault("identify", {})
         if "more_runs_later" not in ident:
-            later = self._in_place(axes)
             keep_s = self.scans_left_s(axes)
             if self.axes.plane_with(axes):
                 keep_s += self.plane_held_s()
-                if not self.record.done("before-xy"):
-                    keep_s += self.budget.verdict_cost_s(self.plans.before_xy_plan())
-            more = self._more_that_fit(later, self.budget.left_s() - keep_s)
+                keep_s += self.verdict_held_s(self.budget.left_s() - keep_s)
+            room_s = self.budget.left_s() - keep_s
+            room_s -= self._denser_first(self._in_place(axes), room_s, EIGHTHS)
+            later = [a for a in self._in_place(axes) if a not in self._in_place(axes, EIGHTHS)]
+            more = self._more_that_fit(later, room_s)
             ident["more_runs_later"], ident["more_runs_later_axes"] = more, later
             if more:
                 self.say(f"{', '.join(later)}: {more} more ISO run(s) on the same targets "
                          "after the quarter points: the budget holds them")
             self.record.save()
+        for a in self._in_place(axes, EIGHTHS):  # the eighth points in place of the more runs
+            await self.densify(a, EIGHTHS)
         await self._read_more(ident["more_runs_later_axes"], int(ident["more_runs_later"]))
 
     async def _read_more(self, axes: list[str], more: int) -> None:
@@ -435,25 +455,26 @@ class ShortBudget:
             await self.runner.step(f"iso-more-{a}", lambda a=a: self.plans.more_runs_plan(a, more),
                                    "off", self.axes.park(a))  # fmt: skip
 
-    def _in_place(self, axes: list[str]) -> list[str]:
-        """Those of ``axes`` that read their quarter points in place of their more runs
-        (:meth:`_quarters_first`)."""
-        return [a for a in axes if self.decided(a, QUARTERS).get("instead_of_more_runs")]
+    def _in_place(self, axes: list[str], level: int = QUARTERS) -> list[str]:
+        """Those of ``axes`` that read their quarter (``level`` EIGHTHS: eighth) points in
+        place of their more runs (:meth:`_denser_first`)."""
+        return [a for a in axes if self.decided(a, level).get("instead_of_more_runs")]
 
-    def _both_fit(self, axes: list[str], room_s: float) -> bool:
+    def _both_fit(self, axes: list[str], room_s: float, level: int = QUARTERS) -> bool:
         """Whether ``room_s`` (s) holds every axis's more runs and, after them, the quarter
-        points of each whose midpoints were read, at DENSE_LEAST_RUNS, beside the plane's
-        verdict: then both are read, the quarter points as the extra they are, and none
-        takes the other's place. (At 3 x a plain calibration's time, read at one run in
-        place of the more runs and the more runs after them, rough-3's and rough-9's Y
-        read 2.13 → 4.31 and 2.53 → 4.26 µm at the judge's targets.)"""
+        (``level`` EIGHTHS: eighth) points of each whose points of the level before were
+        read, at DENSE_LEAST_RUNS, beside the plane's verdict: then both are read, the
+        denser points as the extra they are, and none takes the other's place. (At 3 x a
+        plain calibration's time, read at one run in place of the more runs and the more
+        runs after them, rough-3's and rough-9's Y read 2.13 → 4.31 and 2.53 → 4.26 µm at
+        the judge's targets.)"""
         need_s = sum(self.budget.step_cost_worst_s(self.plans.more_runs_plan(
             a, self.table_runs() - self.budget.iso_runs())) for a in axes)
         need_s += sum(self.budget.step_cost_worst_s(self.plans.midpoints_plan(
-            a, DENSE_LEAST_RUNS, QUARTERS)) for a in axes
-            if self.decided(a, 0).get("measured"))  # fmt: skip
-        if self.axes.plane_with(axes) and not self.record.done("before-xy"):
-            need_s += self.budget.verdict_cost_s(self.plans.before_xy_plan())
+            a, DENSE_LEAST_RUNS, level)) for a in axes
+            if self.decided(a, level - 1).get("measured"))  # fmt: skip
+        if self.axes.plane_with(axes):
+            need_s += self.verdict_held_s(room_s)
         return need_s <= room_s
 
     def more_runs_left_s(self, axes: list[str]) -> float:
@@ -476,43 +497,45 @@ class ShortBudget:
                 return k
         return 0
 
-    def _quarters_first(self, axes: list[str], room_s: float) -> float:
-        """Machine time (s) held in ``room_s`` for the quarter points of the axes whose
-        midpoints were read and whose table with them is still expected to miss between
-        its points by more than BETWEEN_RATIO times their scatter, and where those take
-        more of its error off per reading than its more runs would
-        (:func:`..fitting.table_cv.quarters_pay`): read in place of the more runs, one run
-        each (the runs before read the scatter; a miss of more than its scatter is taken
-        off most per reading so), the axis that misses most per minute first; none where
-        the budget holds both (:meth:`_both_fit`). Each is decided here and kept as the
-        extra's record. (At 1.5 x a plain calibration's time the rough machines' 4th and
-        5th runs cost what their midpoints had, on screws whose waves of 15-80 mm the
-        quarter points follow: rough-0's X read 2.77 → 1.68 µm at the judge's targets.)"""
+    def _denser_first(self, axes: list[str], room_s: float, level: int) -> float:
+        """Machine time (s) held in ``room_s`` for the quarter (``level`` EIGHTHS: eighth)
+        points of the axes whose points of the level before were read and whose table with
+        them is still expected to miss between its points by more than BETWEEN_RATIO times
+        their scatter, and where those take more of its error off per reading than its more
+        runs would (:func:`..fitting.table_cv.quarters_pay`): read in place of the more
+        runs, one run each (the runs before read the scatter; a miss of more than its
+        scatter is taken off most per reading so), the axis that misses most per minute
+        first; none where the budget holds both (:meth:`_both_fit`). Each is decided here
+        and kept as the extra's record. (At 1.5 x a plain calibration's time the rough
+        machines' 4th and 5th runs cost what their midpoints had, on screws whose waves of
+        15-80 mm the quarter points follow: rough-0's X read 2.77 → 1.68 µm at the judge's
+        targets.)"""
         ident = self.record.state.setdefault("identify", {})
         first, last = self.budget.iso_runs(), self.table_runs()
+        names = BETWEEN[level]
         held_s = 0.0
-        ready = [a for a in self.by_value(axes, QUARTERS, before_more=True)
-                 if not self.decided(a, QUARTERS) and self.decided(a, 0).get("measured")]
-        if not ready or last <= first or self._both_fit(axes, room_s):
+        ready = [a for a in self.by_value(axes, level, before_more=True)
+                 if not self.decided(a, level) and self.decided(a, level - 1).get("measured")]
+        if not ready or last <= first or self._both_fit(axes, room_s, level):
             return 0.0
         for a in ready:
-            ratio, miss_um = self.between(a, QUARTERS)
+            ratio, miss_um = self.between(a, level)
             s2 = self.scatter_mm2(a)
             if ratio is None or miss_um is None or ratio <= BETWEEN_RATIO or not np.isfinite(s2):
                 continue
             runs = QUARTER_RUNS_IN_PLACE
-            need_s = self.budget.step_cost_worst_s(self.plans.midpoints_plan(a, runs, QUARTERS))
+            need_s = self.budget.step_cost_worst_s(self.plans.midpoints_plan(a, runs, level))
             if not quarters_pay(miss_um * 1e-3, s2, runs, first, last) or \
                     held_s + need_s > room_s:
                 continue
             held_s += need_s
-            ident[BETWEEN[QUARTERS].key(a)] = {
+            ident[names.key(a)] = {
                 "misses_x_scatter": ratio, "miss_rms_um": miss_um, "measured": True,
                 "runs": runs, "instead_of_more_runs": True}  # fmt: skip
-            self.say(f"{a}: {BETWEEN[QUARTERS].table} misses {miss_um:.2f} µm RMS between its "
-                     f"points, {ratio:.1f} x what its scatter explains: its quarter points "
-                     f"read in place of its more runs, one run each, going up (they take more "
-                     "of its error off per reading)")  # fmt: skip
+            self.say(f"{a}: {names.table} misses {miss_um:.2f} µm RMS between its points, "
+                     f"{ratio:.1f} x what its scatter explains: its {names.what} read in "
+                     "place of its more runs, one run each, going up (they take more of its "
+                     "error off per reading)")  # fmt: skip
         self.record.save()
         return held_s
 
