@@ -483,6 +483,44 @@ def test_a_table_still_missing_between_its_points_reads_quarter_points_in_place_
     assert "quarters-X" not in ident and ident["more_runs"] == 2
 
 
+def _short_on_doubles(ident: dict, steps: list, misses: Mapping[str, tuple[float, float]],
+                      level: int, done: Any, **parts: Any) -> Any:
+    """A ShortBudget whose collaborators are doubles: its identification state ``ident``,
+    the steps it reads appended to ``steps`` as (name, machine time), its tables missing
+    ``misses`` (× scatter, µm RMS) between their points at ``level`` (nothing said at the
+    others), ``done`` telling which steps were read; ``parts`` (s, axes, budget, plans,
+    ...) set as they are."""
+    from types import SimpleNamespace
+
+    from gateway.calibration.commissioning.short import ShortBudget
+
+    short = ShortBudget.__new__(ShortBudget)
+    for name, part in parts.items():
+        setattr(short, name, part)
+    short.record = SimpleNamespace(state={"identify": ident}, save=lambda: None, done=done)
+    short.between = lambda a, at=0: misses[a] if at == level else (None, None)
+    short.say = lambda text: None
+
+    async def step(name: str, plan: Any, *args: Any) -> None:
+        steps.append((name, plan()))
+
+    short.runner = SimpleNamespace(step=step)
+    return short
+
+
+def _read_eighths(short: Any, axes: list[str]) -> None:
+    """The eighth points as the extra they are: by value, each where the budget holds it."""
+    import asyncio
+
+    from gateway.calibration.commissioning.planner import EIGHTHS
+
+    async def extra() -> None:
+        for a in short.by_value(axes, EIGHTHS):
+            await short.densify(a, EIGHTHS)
+
+    asyncio.run(extra())
+
+
 def test_a_table_still_missing_between_its_quarter_points_reads_its_eighth_points() -> None:
     """The eighth points are an extra after the quarter points: read, going up, where the
     table with its quarter points is still expected to miss between them beyond
@@ -491,11 +529,9 @@ def test_a_table_still_missing_between_its_quarter_points_reads_its_eighth_point
     quiet machine rough-8's tables with their quarter points, 9.5 and 2.2 x their
     scatter, left E 4.53 and 2.09 µm at random parks; a point between every two, read
     once, 2.80 and 1.24.)"""
-    import asyncio
     from types import SimpleNamespace
 
     from gateway.calibration.commissioning.planner import EIGHTHS
-    from gateway.calibration.commissioning.short import ShortBudget
 
     misses = {"X": (9.5, 2.41), "Y": (2.2, 1.86), "Z": (1.1, 0.30)}  # (× scatter, µm RMS)
 
@@ -503,27 +539,14 @@ def test_a_table_still_missing_between_its_quarter_points_reads_its_eighth_point
         steps: list = []
         ident: dict = {f"quarters-{a}": {"measured": a in quarters} for a in "XYZ"}
         ident["more_runs"] = 0
-        short = ShortBudget.__new__(ShortBudget)
-        short.s = SimpleNamespace(lead_mm={"X": 5.0, "Y": 16.0, "Z": 10.0}, planar=None)
-        short.axes = SimpleNamespace(park=lambda a: {})
-        short.budget = SimpleNamespace(iso_runs=lambda: 3, left_s=lambda: left_s - sum(
-            p for _, p in steps), step_cost_worst_s=lambda p: p, step_cost_s=lambda p: p)
-        short.plans = SimpleNamespace(midpoints_plan=lambda a, runs, level=0: 100.0 * runs)
-        short.record = SimpleNamespace(state={"identify": ident}, save=lambda: None,
-                                       done=lambda name: True)  # fmt: skip
-        short.between = lambda a, level=0: misses[a] if level == EIGHTHS else (None, None)
-        short.say = lambda text: None
-
-        async def step(name: str, plan: Any, *args: Any) -> None:
-            steps.append((name, plan()))
-
-        short.runner = SimpleNamespace(step=step)
-
-        async def extra() -> None:
-            for a in short.by_value(["Z", "Y", "X"], EIGHTHS):
-                await short.densify(a, EIGHTHS)
-
-        asyncio.run(extra())
+        short = _short_on_doubles(
+            ident, steps, misses, EIGHTHS, done=lambda name: True,
+            s=SimpleNamespace(lead_mm={"X": 5.0, "Y": 16.0, "Z": 10.0}, planar=None),
+            axes=SimpleNamespace(park=lambda a: {}),
+            budget=SimpleNamespace(iso_runs=lambda: 3, left_s=lambda: left_s - sum(
+                p for _, p in steps), step_cost_worst_s=lambda p: p, step_cost_s=lambda p: p),
+            plans=SimpleNamespace(midpoints_plan=lambda a, runs, level=0: 100.0 * runs))
+        _read_eighths(short, ["Z", "Y", "X"])
         return ident, steps
 
     ident, steps = run(1000.0, ("X", "Y", "Z"))  # X misses most per minute: first
@@ -541,11 +564,9 @@ def test_an_extra_holds_time_for_the_plane_s_verdict_only_where_the_verdict_fits
     grid: at 1.5 x a plain calibration's time rough-8 held 18.2 minutes for a verdict that
     then did not fit, and left X's eighth points unread (2.44 µm RMS between its points,
     9.4 x its scatter)."""
-    import asyncio
     from types import SimpleNamespace
 
     from gateway.calibration.commissioning.planner import EIGHTHS
-    from gateway.calibration.commissioning.short import ShortBudget
 
     misses = {"X": (9.4, 2.44), "Y": (5.3, 0.98)}  # (× scatter, µm RMS)
     grid_s, verdict_s = 300.0, 400.0
@@ -554,31 +575,18 @@ def test_an_extra_holds_time_for_the_plane_s_verdict_only_where_the_verdict_fits
         steps: list = []
         ident: dict = {f"quarters-{a}": {"measured": True} for a in "XY"}
         ident["more_runs"] = 0
-        short = ShortBudget.__new__(ShortBudget)
-        short.s = SimpleNamespace(lead_mm={"X": 10.0, "Y": 16.0}, planar=("X", "Y"))
-        short.axes = SimpleNamespace(park=lambda a: {})
-        short.budget = SimpleNamespace(
-            iso_runs=lambda: 3, left_s=lambda: left_s - sum(p for _, p in steps),
-            step_cost_worst_s=lambda p: p, step_cost_s=lambda p: p,
-            verdict_cost_s=lambda p: verdict_s)  # fmt: skip
-        short.plans = SimpleNamespace(midpoints_plan=lambda a, runs, level=0: 100.0 * runs,
-                                      before_xy_plan=lambda: None)  # fmt: skip
-        short.plane_held_s = lambda plain=True: grid_s
-        short.record = SimpleNamespace(state={"identify": ident}, save=lambda: None,
-                                       done=lambda name: name != "before-xy")  # fmt: skip
-        short.between = lambda a, level=0: misses[a] if level == EIGHTHS else (None, None)
-        short.say = lambda text: None
-
-        async def step(name: str, plan: Any, *args: Any) -> None:
-            steps.append((name, plan()))
-
-        short.runner = SimpleNamespace(step=step)
-
-        async def extra() -> None:
-            for a in short.by_value(["Y", "X"], EIGHTHS):
-                await short.densify(a, EIGHTHS)
-
-        asyncio.run(extra())
+        short = _short_on_doubles(
+            ident, steps, misses, EIGHTHS, done=lambda name: name != "before-xy",
+            s=SimpleNamespace(lead_mm={"X": 10.0, "Y": 16.0}, planar=("X", "Y")),
+            axes=SimpleNamespace(park=lambda a: {}),
+            budget=SimpleNamespace(
+                iso_runs=lambda: 3, left_s=lambda: left_s - sum(p for _, p in steps),
+                step_cost_worst_s=lambda p: p, step_cost_s=lambda p: p,
+                verdict_cost_s=lambda p: verdict_s),
+            plans=SimpleNamespace(midpoints_plan=lambda a, runs, level=0: 100.0 * runs,
+                                  before_xy_plan=lambda: None),
+            plane_held_s=lambda plain=True: grid_s)  # fmt: skip
+        _read_eighths(short, ["Y", "X"])
         return ident, steps
 
     ident, steps = run(600.0)  # the verdict (400 s) does not fit beside the grid: not held
@@ -602,7 +610,6 @@ def test_a_table_still_missing_between_its_quarter_points_reads_eighths_before_m
     from types import SimpleNamespace
 
     from gateway.calibration.commissioning.planner import EIGHTHS
-    from gateway.calibration.commissioning.short import ShortBudget
 
     misses = {"X": (9.3, 2.44), "Y": (1.3, 0.3)}  # (× scatter, µm RMS)
 
@@ -611,26 +618,16 @@ def test_a_table_still_missing_between_its_quarter_points_reads_eighths_before_m
         ident: dict = {f"quarters-{a}": {"measured": True, "instead_of_more_runs": True}
                        for a in "XY"}  # fmt: skip
         ident["more_runs"], ident["more_runs_axes"] = 0, []
-        short = ShortBudget.__new__(ShortBudget)
-        short.s = SimpleNamespace(lead_mm={"X": 10.0, "Y": 16.0}, runs=3, planar=None)
-        short.axes = SimpleNamespace(plane_with=lambda axes: False, park=lambda a: {})
-        short.budget = SimpleNamespace(
-            iso_runs=lambda: 3, left_s=lambda: left_s - sum(p for _, p in steps),
-            step_cost_worst_s=lambda p: p, step_cost_s=lambda p: p)  # fmt: skip
-        short.plans = SimpleNamespace(
-            midpoints_plan=lambda a, runs, level=0: 100.0 * runs * level,
-            more_runs_plan=lambda a, more: 50.0 * more)  # fmt: skip
-        short.record = SimpleNamespace(state={"identify": ident}, save=lambda: None,
-                                       done=lambda name: name.startswith("cyclic"))  # fmt: skip
-        short.scans_left_s = lambda axes: 0.0
-        short.between = lambda a, level=0: misses[a] if level == EIGHTHS else (None, None)
-        short.scatter_mm2 = lambda a: 0.23e-3**2
-        short.say = lambda text: None
-
-        async def step(name: str, plan: Any, *args: Any) -> None:
-            steps.append((name, plan()))
-
-        short.runner = SimpleNamespace(step=step)
+        short = _short_on_doubles(
+            ident, steps, misses, EIGHTHS, done=lambda name: name.startswith("cyclic"),
+            s=SimpleNamespace(lead_mm={"X": 10.0, "Y": 16.0}, runs=3, planar=None),
+            axes=SimpleNamespace(plane_with=lambda axes: False, park=lambda a: {}),
+            budget=SimpleNamespace(
+                iso_runs=lambda: 3, left_s=lambda: left_s - sum(p for _, p in steps),
+                step_cost_worst_s=lambda p: p, step_cost_s=lambda p: p),
+            plans=SimpleNamespace(midpoints_plan=lambda a, runs, level=0: 100.0 * runs * level,
+                                  more_runs_plan=lambda a, more: 50.0 * more),
+            scans_left_s=lambda axes: 0.0, scatter_mm2=lambda a: 0.23e-3**2)  # fmt: skip
         asyncio.run(short.more_runs_later(["X", "Y"]))
         return ident, steps
 
