@@ -37,8 +37,9 @@ test: $(STAMP) system-deps
 	@# a worker per core and one more, one BLAS thread each (tests/conftest.py says why): a
 	@# third of the suite's time is tests waiting on loopback replies and a laser's real-time
 	@# dwells, a core left idle with a worker per core (2 cores: 380 s, with 3 workers 328 s);
-	@# the files in tests/conftest.py's order, the longest first
-	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile --no-loadscope-reorder
+	@# the files in tests/conftest.py's order, the longest first; the 15 slowest tests named
+	@# at the end, so that every run measures where the suite's time goes
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m pytest -q -n $(WORKERS) --dist loadfile --no-loadscope-reorder --durations=15
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
