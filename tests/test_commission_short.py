@@ -426,10 +426,10 @@ def test_a_table_still_missing_between_its_points_reads_quarter_points_in_place_
     from types import SimpleNamespace
 
     from gateway.calibration.commissioning.short import ShortBudget
-    from gateway.calibration.fitting.table_cv import quarters_pay
+    from gateway.calibration.fitting.table_cv import denser_pays
 
-    assert quarters_pay(1.5e-3, 0.27e-3**2, 1, 3, 5)
-    assert not quarters_pay(0.2e-3, 0.27e-3**2, 1, 3, 5)  # within its scatter: more runs
+    assert denser_pays(1.5e-3, 0.27e-3**2, 1, 3, 5)
+    assert not denser_pays(0.2e-3, 0.27e-3**2, 1, 3, 5)  # within its scatter: more runs
 
     def cost_s(plan: Any) -> float:
         return plan  # plans are their machine time here

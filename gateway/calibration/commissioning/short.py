@@ -14,7 +14,7 @@ from ..fitting import adaptive
 from ..fitting.fit import one_way_split
 from ..fitting.iso230 import iso230_axis
 from ..fitting.outputs import scanned_cyclic
-from ..fitting.table_cv import between_points, denser_miss, levelled_midpoints, quarters_pay
+from ..fitting.table_cv import between_points, denser_miss, denser_pays, levelled_midpoints
 from ..fitting.takeup_fit import MIN_LOST_UM
 from ..plans.plans import Plan, backlash_plan
 from ..plans.rawdata import RawData, axis_deviations, pooled_variance
@@ -43,9 +43,9 @@ SWITCH_READINGS = 4
 BETWEEN_RATIO = 2.0
 #: nodes along the longer travel of a grid the size of a plain calibration's (9 x 7)
 PLAIN_GRID_LINES = 9
-#: runs per target of the quarter (eighth) points read in place of a table's more runs
+#: runs per target of the quarter or eighth points read in place of a table's more runs
 #: (:meth:`ShortBudget._denser_first`)
-QUARTER_RUNS_IN_PLACE = 1
+RUNS_IN_PLACE = 1
 
 
 
@@ -437,8 +437,9 @@ class ShortBudget:
                 keep_s += self.plane_held_s()
                 keep_s += self.verdict_held_s(self.budget.left_s() - keep_s)
             room_s = self.budget.left_s() - keep_s
-            room_s -= self._denser_first(self._in_place(axes), room_s, EIGHTHS)
-            later = [a for a in self._in_place(axes) if a not in self._in_place(axes, EIGHTHS)]
+            in_place = self._in_place(axes)
+            room_s -= self._denser_first(in_place, room_s, EIGHTHS)
+            later = [a for a in in_place if a not in self._in_place(in_place, EIGHTHS)]
             more = self._more_that_fit(later, room_s)
             ident["more_runs_later"], ident["more_runs_later_axes"] = more, later
             if more:
@@ -502,7 +503,7 @@ class ShortBudget:
         points of the axes whose points of the level before were read and whose table with
         them is still expected to miss between its points by more than BETWEEN_RATIO times
         their scatter, and where those take more of its error off per reading than its more
-        runs would (:func:`..fitting.table_cv.quarters_pay`): read in place of the more
+        runs would (:func:`..fitting.table_cv.denser_pays`): read in place of the more
         runs, one run each (the runs before read the scatter; a miss of more than its
         scatter is taken off most per reading so), the axis that misses most per minute
         first; none where the budget holds both (:meth:`_both_fit`). Each is decided here
@@ -523,9 +524,9 @@ class ShortBudget:
             s2 = self.scatter_mm2(a)
             if ratio is None or miss_um is None or ratio <= BETWEEN_RATIO or not np.isfinite(s2):
                 continue
-            runs = QUARTER_RUNS_IN_PLACE
+            runs = RUNS_IN_PLACE
             need_s = self.budget.step_cost_worst_s(self.plans.midpoints_plan(a, runs, level))
-            if not quarters_pay(miss_um * 1e-3, s2, runs, first, last) or \
+            if not denser_pays(miss_um * 1e-3, s2, runs, first, last) or \
                     held_s + need_s > room_s:
                 continue
             held_s += need_s

@@ -191,20 +191,21 @@ def denser_miss(dev: AxisDeviations, first_mm: NDArray[np.float64],
     return expected / float(np.sqrt(np.mean(var))), expected
 
 
-def quarters_pay(miss_mm: float, s2_mm2: float, quarter_runs: int, first_runs: int,
-                 all_runs: int) -> bool:
-    """Whether a table's quarter points, read at ``quarter_runs`` runs, take more of its
-    error off per reading than its more runs on the same targets (``first_runs`` up to
-    ``all_runs``): the variance each takes off per target and per run read, the miss
-    expected between its points (``miss_mm``, :func:`denser_miss`) less the quarter points'
-    own noise, against what the more runs take off the means' noise (``s2_mm2``: the runs'
-    variance). (At 1.5 x a plain calibration's time rough-0's X was expected to miss 1.5
-    µm RMS between its points, its scatter 0.27 µm: the 4th and 5th runs took 0.005 µm² off
-    per reading, the quarter points at one run 2.2.)"""
-    quarters = (miss_mm**2 - s2_mm2 / quarter_runs) / quarter_runs
+def denser_pays(miss_mm: float, s2_mm2: float, denser_runs: int, first_runs: int,
+                all_runs: int) -> bool:
+    """Whether a table's denser points (its quarter or eighth points), read at
+    ``denser_runs`` runs, take more of its error off per reading than its more runs on the
+    same targets (``first_runs`` up to ``all_runs``): the variance each takes off per
+    target and per run read, the miss expected between its points (``miss_mm``,
+    :func:`denser_miss`) less the denser points' own noise, against what the more runs
+    take off the means' noise (``s2_mm2``: the runs' variance). (At 1.5 x a plain
+    calibration's time rough-0's X was expected to miss 1.5 µm RMS between its points, its
+    scatter 0.27 µm: the 4th and 5th runs took 0.005 µm² off per reading, the quarter
+    points at one run 2.2.)"""
+    denser = (miss_mm**2 - s2_mm2 / denser_runs) / denser_runs
     more = all_runs - first_runs
     runs = s2_mm2 * (1 / first_runs - 1 / all_runs) / more if more > 0 else 0.0
-    return quarters > runs
+    return denser > runs
 
 
 def _through(x: NDArray[np.float64], y: NDArray[np.float64], at: NDArray[np.float64]
