@@ -44,7 +44,7 @@ LONG_FILES_S = {
     "test_commission.py": 125, "test_commission_run_heat.py": 103,
     "test_commission_recorded.py": 79, "test_commission_budget.py": 77,
     "test_calibration_e2e.py": 50, "test_commission_short.py": 50, "test_sweep.py": 49,
-    "test_commission_instruments.py": 46, "test_demo.py": 46, "test_cyclic_cal_e2e.py": 42,
+    "test_commission_instruments.py": 46, "test_demo.py": 46, "test_cyclic_cal_e2e.py": 22,
     "test_fuzz.py": 36, "test_commission_verdict.py": 31,
     "test_commission_thermal_short.py": 29, "test_cyclic_sim.py": 29,
     "test_commission_rotary.py": 23, "test_faults.py": 19, "test_takeup.py": 17,
