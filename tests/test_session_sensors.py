@@ -10,6 +10,8 @@ from pathlib import Path
 from gateway.calibration.fitting.plans_scans import warmup_plan
 from gateway.calibration.measuring.machine import Endpoint
 from gateway.calibration.measuring.session import Instruments, Session
+from gateway.calibration.plans.plans import iso230_linear_plan
+from gateway.calibration.plans.xy import xy_grid_plan
 from gateway.config import parse_config
 from tests.test_config import BASE
 
@@ -34,3 +36,17 @@ def test_a_warm_up_records_its_own_axis_s_sensor():
     assert not both._warmup_reads_temperature(x)  # X's a displacement (Δa) sensor
     assert not _session(delta_a=True, temperature=False)._warmup_reads_temperature(y)
     assert _session(delta_a=False, temperature=True)._warmup_reads_temperature(y)
+
+
+def test_an_iso_run_records_its_axis_s_screw_temperature_at_every_stop():
+    """As ISO 230-2 asks, and so that what a sensor's compensation took off each reading
+    can be given back where heat from motion replaces the sensor later: a run of one axis
+    whose thermal source is a temperature sensor, one given (a Δa sensor given records Δa
+    at every stop instead: run's order)."""
+    y = iso230_linear_plan("Y", (0, 600), step_mm=100, runs=1, overrun_mm=1)
+    x = iso230_linear_plan("X", (0, 800), step_mm=100, runs=1, overrun_mm=1)
+    assert _session(delta_a=False, temperature=True)._stops_read_temperature(y)
+    assert not _session(delta_a=False, temperature=True)._stops_read_temperature(x)  # Δa
+    assert not _session(delta_a=False, temperature=False)._stops_read_temperature(y)
+    grid = xy_grid_plan((0, 800), (0, 600), 3, 3)
+    assert not _session(delta_a=False, temperature=True)._stops_read_temperature(grid)

@@ -168,6 +168,7 @@ class Commission:
             raise CommissionAborted(f"{exc}; {where}") from exc
         self.drift.adopt_warmed_motion()
         self.thermal.motion_for_sensors()  # the after-run judges the final config's heat
+        self.run_heat.put_back_sensor(self.thermal.sensor_took_mm)  # tables read under it
         self.run_heat.put_back_refs()  # the identification's tables, by the final model
         try:  # on the screw the warm-up left warm: as the customer's laser will meet it
             await self.after.run()

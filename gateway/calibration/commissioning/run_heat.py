@@ -41,6 +41,9 @@ if TYPE_CHECKING:
     from .steps import StepRunner
 
 Say = Callable[[str], None]
+#: (axis, x_mm, temperature_c) → what its sensor's compensation took for growth since the
+#: cold start (mm)
+SensorGrowth = Callable[[str, np.ndarray, np.ndarray], np.ndarray]
 
 #: the steps of an axis's ISO runs (the midpoints', quarter and eighth points' read other targets:
 #: their levels are a group of their own)
@@ -160,6 +163,41 @@ class RunHeat:
                          "the second)")  # fmt: skip
         self.record.save()
 
+    def put_back_sensor(self, sensor_growth_mm: SensorGrowth) -> None:
+        """Per linear axis whose temperature sensor heat from motion replaces, whose table
+        only the identification's runs made, with no drift references read, and whose
+        sensor was read at each of its ISO readings: the table put back to the cold start
+        reading by reading, what the sensor's compensation took off each given back and the
+        model's growth taken off (:meth:`put_back`), so the reversal loses the heat between
+        a target's two passes too.
+
+        ``sensor_growth_mm(axis, x_mm, temperature_c)``: what the sensor's compensation
+        takes for growth at ``x_mm`` since the cold start (mm). (Rough-9's X at 1.5 x: read
+        under a sensor that explained its zone warm-up to 3.54 µm RMS, heat from motion to
+        0.28; its runs' reversal read 0.5-0.9 µm short between 450 and 700 mm, where a
+        backlash test read the truth's, and its table kept that.)"""
+        if self.record.state.get("drift_log") or self.record.state.get("rounds"):
+            return
+        ident = self.record.state.setdefault("identify", {})
+        for a in self.axes.ref_axes():
+            fitted = (ident.get(f"thermal-{a}") or {}).get("motion") or {}
+            model = self.record.tables.thermal_motion.get(a)
+            if model is None or not fitted.get("replaces_sensor") or "table_held_um" in fitted \
+                    or a not in self.record.tables.pitch:  # fmt: skip
+                continue
+            rows = self.rows(a)
+            if rows is None or not np.isfinite(rows.temperature_c).all():
+                continue  # (a state from before the runs read their sensor)
+            took_mm = sensor_growth_mm(a, rows.target_mm, rows.temperature_c)
+            held = self.put_back(a, rows, model, self.on_the_way(), took_mm)
+            fitted["table_held_um"] = held
+            self.say(f"{a}: its table, read with its temperature sensor's compensation on, "
+                     "put back to the cold start reading by reading: the sensor's "
+                     "compensation given back, the growth of the heat from motion that "
+                     f"replaces it taken off (it held {held[0]:+.2f} µm at the first "
+                     f"reference, {held[1]:+.2f} at the second)")  # fmt: skip
+        self.record.save()
+
     def _drift_off_at_fit(self, axis: str) -> bool:
         """Whether ``axis``'s table was fitted with the references' drift off its runs. The
         references read after it (the plane's grid and random points, with the tables on)
@@ -191,16 +229,20 @@ class RunHeat:
                          else span["at_s"][0] + data.column_mm("time_s"))[on]  # fmt: skip
                 odo = row_odometer_mm(row_s, tuple(span["at_s"]),  # type: ignore[arg-type]
                                       tuple(span["odometer_mm"]))  # type: ignore[arg-type]
+                temps = (data.column_mm("temperature_c") if "temperature_c" in data.extra
+                         else np.full(len(data), np.nan))  # fmt: skip
                 parts.append(Rows(k * RUN_STRIDE + data.run[on], data.target_mm[on],
                                   data.actual_mm[on] - data.target_mm[on],
-                                  data.direction[on] > 0, row_s, odo, taken[rows][on]))  # fmt: skip
+                                  data.direction[on] > 0, row_s, odo, taken[rows][on],
+                                  temps[on]))  # fmt: skip
         if not parts:
             return None
         return Rows(*(np.concatenate([getattr(p, f) for p in parts])
                       for f in ("run", "target_mm", "deviation_mm", "up", "at_s")),
                     {b: np.concatenate([p.odometer_mm[b] for p in parts])
                      for b in parts[0].odometer_mm},
-                    np.concatenate([p.taken_mm for p in parts]))  # fmt: skip
+                    np.concatenate([p.taken_mm for p in parts]),
+                    np.concatenate([p.temperature_c for p in parts]))  # fmt: skip
 
     def on_the_way(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The clock (s) and each axis's odometer (mm) at both ends of every step's runs
@@ -219,20 +261,26 @@ class RunHeat:
         return np.array(at), {b: np.array(v) for b, v in odo.items()}
 
     def put_back(self, axis: str, rows: Rows, thermal: dict[str, Any] | None,
-                 way: tuple[np.ndarray, dict[str, np.ndarray]]) -> list[float]:
+                 way: tuple[np.ndarray, dict[str, np.ndarray]],
+                 sensor_took_mm: np.ndarray | None = None) -> list[float]:  # fmt: skip
         """``axis``'s table less the growth the model ``thermal`` puts at each of its ISO
         readings, per target and direction (so the reversal loses the heat between its two
         passes too), the heat run through the points ``way`` (:meth:`on_the_way`),
         rewritten in place: the cold start's table (the one fitted kept as
         ``<name>.as_read.csv``); with no model (None), the drift the references took off
         given back: the runs' own state. Returns the growth the table held at the
-        references (µm, mean of both directions, beyond what the references took off)."""
+        references (µm, mean of both directions, beyond what the references took off).
+        ``sensor_took_mm``: what a temperature sensor's compensation took off each reading
+        since the cold start (mm), given back too."""
         grown_um = -rows.taken_mm * 1000.0  # the references' drift: given back
+        if sensor_took_mm is not None:
+            grown_um = grown_um - sensor_took_mm * 1000.0
         if thermal is not None:  # the model's growth, less what the references took off
             where, at_s, odo_mm = on_the_way(rows.at_s, rows.odometer_mm, *way)
             heat = heat_at_readings_m(thermal["motion"], axis,
                                       {b: v / 1000.0 for b, v in odo_mm.items()}, at_s)[where]
-            grown_um = grown_um + growth_at_um(thermal, heat, rows.target_mm)
+            grown_um = grown_um + growth_at_um(thermal, heat, rows.target_mm,
+                                               self.axes.travel(axis))
         path = self.record.config_dir / self.record.tables.pitch[axis]
         # the table as fitted, kept beside it first: an interrupted put-back, resumed,
         # starts from it again (never from a table already put back)
@@ -280,6 +328,7 @@ class Rows:
     at_s: np.ndarray
     odometer_mm: dict[str, np.ndarray]
     taken_mm: np.ndarray  # the drift the references' readings took off it (mm)
+    temperature_c: np.ndarray  # its screw's sensor at each reading (°C; NaN: not read)
 
 
 __all__ = ["RunHeat"]

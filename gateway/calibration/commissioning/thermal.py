@@ -339,6 +339,26 @@ class ThermalSteps:
         return start_growth_mm(x_mm, th.origin_mm, th.length_mm, th.gain, src.alpha_per_k,
                                float(t0), src.reference_c)  # fmt: skip
 
+    def sensor_took_mm(self, axis: str, x_mm: np.ndarray, temperature_c: np.ndarray
+                       ) -> np.ndarray:  # fmt: skip
+        """What ``axis``'s temperature sensor's compensation took for growth at ``x_mm`` at
+        these readings (°C) since the cold start (mm; none without a sensor or a start's
+        reading): the cold start's own growth is :meth:`_add_start_growth`'s."""
+        th = self.config.axes[axis].compensation.thermal
+        t0 = self.record.state.get("start_temperature_c", {}).get(axis)
+        x = np.asarray(x_mm, dtype=np.float64)
+        if th is None or th.source is None or t0 is None:
+            return np.zeros_like(x)
+        src = self.config.thermal_sources[th.source]
+
+        def took(xi: float, t_c: float) -> float:  # (the stage scales by one Δa at a time)
+            return float(start_growth_mm(np.array([xi]), th.origin_mm, th.length_mm, th.gain,
+                                         src.alpha_per_k, t_c, src.reference_c)[0])
+
+        temps = np.broadcast_to(np.asarray(temperature_c, dtype=np.float64), x.shape)
+        return np.array([took(xi, ti) - took(xi, float(t0))
+                         for xi, ti in zip(x.ravel(), temps.ravel())]).reshape(x.shape)
+
     def motion_for_sensors(self) -> None:
         """The heat-from-motion models that replace a temperature sensor, from the
         after-run on (it judges the final config). Not in the rounds: their tables were
