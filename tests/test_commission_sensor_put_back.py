@@ -155,3 +155,41 @@ def test_only_a_replaced_sensor_s_table_read_with_no_references_is_put_back(
     again = read_pitch_csv(tmp_path / "x_pitch.csv")
     heat.put_back_sensor(took)
     assert np.array_equal(read_pitch_csv(tmp_path / "x_pitch.csv").forward_mm, again.forward_mm)
+
+
+def test_a_travel_profile_s_share_at_each_reading_follows_the_steps_moves(
+        tmp_path: Path) -> None:  # fmt: skip
+    """RunHeat.profile_shares: the gateway's travel profile replayed over the axis's steps'
+    moves in their order; a target's down pass has the heat of the travel beyond it, so its
+    share of the whole elongation is less than its up pass's. None without a profile, or
+    where the readings are not the plans' stops."""
+    from gateway.calibration.plans.plans import iso230_linear_plan, write_plan
+
+    heat = _run_heat(tmp_path)
+    (heat.record.dir / "plans").mkdir(parents=True)
+    plan = iso230_linear_plan("X", (0.0, 1000.0), step_mm=25.0, runs=3, overrun_mm=1.0)
+    write_plan(heat.record.dir / "plans" / "iso-X.plan", plan)
+    heat.record.state["steps"] = {"iso-X": {}}
+    n = sum(m.measured for m in plan.moves)
+    x = plan.targets_mm()
+    up = np.array([m.direction > 0 for m in plan.moves if m.measured])
+    rows = Rows(np.ones(n, dtype=np.int64), x, np.zeros(n), up, np.arange(n, dtype=float),
+                {"X": np.zeros(n)}, np.zeros(n), np.full(n, START_C))  # fmt: skip
+    model = {"origin_mm": ORIGIN_MM, "length_mm": 1421.0,
+             "motion": {"delta_a_um_per_m": 0.53, "tau_s": 961.0, "speeds_mm_s": {}},
+             "profile": {"spread_mm": 125.0, "memory_mm": 96100.0, "memory_s": 961.0,
+                         "screw_mm": [ORIGIN_MM, 1046.0]}}  # fmt: skip
+    shares = heat.profile_shares("X", rows, model)
+    assert shares is not None and shares.shape == (n,)
+    assert np.all((shares >= 0.0) & (shares <= 1.0))
+    last = rows.run == 1  # the first run: each target's up and down pass
+    at = x[np.argmin(np.abs(x - 500.0))]  # (ISO 230-2 targets are uneven)
+    going_up = shares[last & up & (x == at)][0]
+    coming_down = shares[last & ~up & (x == at)][0]
+    assert coming_down < going_up, (going_up, coming_down)
+    assert heat.profile_shares("X", rows, {k: v for k, v in model.items() if k != "profile"}) \
+        is None  # fmt: skip
+    short = Rows(*(v[1:] if isinstance(v, np.ndarray) else {"X": v["X"][1:]}
+                   for v in (rows.run, rows.target_mm, rows.deviation_mm, rows.up, rows.at_s,
+                             rows.odometer_mm, rows.taken_mm, rows.temperature_c)))  # fmt: skip
+    assert heat.profile_shares("X", short, model) is None
