@@ -21,6 +21,7 @@ import numpy as np
 
 from ...compensation import PitchTable
 from ...compensation.errors import TableError
+from ...config import AxisThermal
 from ..fitting.fit import zeroed_at_origin
 from ..fitting.outputs import read_table, write_table
 from ..measuring.from_file import STOP_TIME
@@ -210,8 +211,6 @@ class RunHeat:
         heat of the down pass lies beyond the targets it passes: spread linearly over the
         travel's reach, it grew each target between its two passes (rough-9's X: reversal
         0.27 µm RMS off the truth's, 0.22 with the profile)."""
-        from ...config import AxisThermal
-
         if not thermal.get("profile"):
             return None
         th = AxisThermal.model_validate(thermal)
