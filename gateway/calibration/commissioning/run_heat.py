@@ -322,13 +322,8 @@ class RunHeat:
             where, at_s, odo_mm = on_the_way(rows.at_s, rows.odometer_mm, *way)
             heat = heat_at_readings_m(thermal["motion"], axis,
                                       {b: v / 1000.0 for b, v in odo_mm.items()}, at_s)[where]
-            if shares is not None:
-                per_m = float(thermal.get("gain", 1.0)) * float(
-                    thermal["motion"]["delta_a_um_per_m"])
-                grown_um = grown_um + per_m * heat * shares
-            else:
-                grown_um = grown_um + growth_at_um(thermal, heat, rows.target_mm,
-                                                   self.axes.travel(axis))
+            grown_um = grown_um + growth_at_um(thermal, heat, rows.target_mm,
+                                               self.axes.travel(axis), shares)
         path = self.record.config_dir / self.record.tables.pitch[axis]
         # the table as fitted, kept beside it first: an interrupted put-back, resumed,
         # starts from it again (never from a table already put back)

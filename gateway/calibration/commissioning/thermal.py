@@ -331,33 +331,36 @@ class ThermalSteps:
     def _start_growth_mm(self, axis: str, x_mm: np.ndarray) -> np.ndarray:
         """What the sensor's compensation took for growth at ``x_mm`` at the cold start (mm,
         the config's own thermal setting; zero at its reference temperature)."""
-        th = self.config.axes[axis].compensation.thermal
         t0 = self.record.state.get("start_temperature_c", {}).get(axis)
-        if th is None or th.source is None or t0 is None:
-            return np.zeros_like(x_mm)
+        return self._sensor_growth_mm(axis, x_mm, t0)
+
+    def _sensor_growth_mm(self, axis: str, x_mm: np.ndarray, temperature_c: float | None
+                          ) -> np.ndarray:  # fmt: skip
+        """What ``axis``'s temperature sensor's compensation takes for growth at ``x_mm`` at
+        ``temperature_c`` (mm; zeros without a sensor or a temperature)."""
+        th = self.config.axes[axis].compensation.thermal
+        if th is None or th.source is None or temperature_c is None:
+            return np.zeros_like(np.asarray(x_mm, dtype=np.float64))
         src = self.config.thermal_sources[th.source]
         return start_growth_mm(x_mm, th.origin_mm, th.length_mm, th.gain, src.alpha_per_k,
-                               float(t0), src.reference_c)  # fmt: skip
+                               float(temperature_c), src.reference_c)  # fmt: skip
 
     def sensor_took_mm(self, axis: str, x_mm: np.ndarray, temperature_c: np.ndarray
                        ) -> np.ndarray:  # fmt: skip
         """What ``axis``'s temperature sensor's compensation took for growth at ``x_mm`` at
         these readings (°C) since the cold start (mm; none without a sensor or a start's
-        reading): the cold start's own growth is :meth:`_add_start_growth`'s."""
-        th = self.config.axes[axis].compensation.thermal
-        t0 = self.record.state.get("start_temperature_c", {}).get(axis)
+        reading): the cold start's own growth is :meth:`_add_start_growth`'s. (The stage
+        scales by one Δa at a time: once per temperature read, a sensor's 0.01 °C steps.)"""
         x = np.asarray(x_mm, dtype=np.float64)
-        if th is None or th.source is None or t0 is None:
+        t0 = self.record.state.get("start_temperature_c", {}).get(axis)
+        if t0 is None:
             return np.zeros_like(x)
-        src = self.config.thermal_sources[th.source]
-
-        def took(xi: float, t_c: float) -> float:  # (the stage scales by one Δa at a time)
-            return float(start_growth_mm(np.array([xi]), th.origin_mm, th.length_mm, th.gain,
-                                         src.alpha_per_k, t_c, src.reference_c)[0])
-
         temps = np.broadcast_to(np.asarray(temperature_c, dtype=np.float64), x.shape)
-        return np.array([took(xi, ti) - took(xi, float(t0))
-                         for xi, ti in zip(x.ravel(), temps.ravel())]).reshape(x.shape)
+        took = np.empty_like(x)
+        for t_c in np.unique(temps):
+            at = temps == t_c
+            took[at] = self._sensor_growth_mm(axis, x[at], float(t_c))
+        return took - self._sensor_growth_mm(axis, x, float(t0))
 
     def motion_for_sensors(self) -> None:
         """The heat-from-motion models that replace a temperature sensor, from the

@@ -22,7 +22,7 @@ from typing import Any
 
 import yaml
 
-from ...config import GatewayConfig
+from ...config import GatewayConfig, ThermalSource
 from ...config_types import read_yaml
 from ...instruments.base import Instrument, InstrumentError
 from ...instruments.spec import InstrumentSpec
@@ -242,12 +242,19 @@ class Session:
         ins = self.instruments
         if ins.temperature is None:
             return False
-        thermal = self.config.axes[plan.axes[0]].compensation.thermal
-        source = (self.config.thermal_sources.get(thermal.source)
-                  if thermal is not None and thermal.source else None)  # fmt: skip
+        source = self._thermal_source(plan.axes[0])
         if source is not None:
             return source.kind == "temperature"
         return not ins.given("delta_a")
+
+    def _thermal_source(self, axis: str) -> ThermalSource | None:
+        """The thermal source ``axis``'s compensation reads, None without one (no thermal
+        setting, heat from motion, or an axis not in the config)."""
+        entry = self.config.axes.get(axis)
+        thermal = None if entry is None else entry.compensation.thermal
+        if thermal is None or not thermal.source:
+            return None
+        return self.config.thermal_sources.get(thermal.source)
 
     def _stops_read_temperature(self, plan: Plan) -> bool:
         """Whether a run of one axis records its screw's temperature at every stop (as ISO
@@ -258,10 +265,7 @@ class Session:
         short mid-travel)."""
         if self.instruments.temperature is None or len(plan.axes) != 1:
             return False
-        axis = self.config.axes.get(plan.axes[0])
-        thermal = None if axis is None else axis.compensation.thermal
-        source = (self.config.thermal_sources.get(thermal.source)
-                  if thermal is not None and thermal.source else None)  # fmt: skip
+        source = self._thermal_source(plan.axes[0])
         return source is not None and source.kind == "temperature"
 
     async def _temperature_fn(self, plan: Plan, links: Links):  # type: ignore[no-untyped-def]

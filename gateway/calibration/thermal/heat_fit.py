@@ -342,13 +342,17 @@ def modelled_growth_um(thermal: dict[str, Any], heat_m: ArrayLike,
 
 
 def growth_at_um(thermal: dict[str, Any], heat_m: ArrayLike, x_mm: ArrayLike,
-                 travel_mm: tuple[float, float] | None = None) -> NDArray[np.float64]:
+                 travel_mm: tuple[float, float] | None = None,
+                 share: ArrayLike | None = None) -> NDArray[np.float64]:  # fmt: skip
     """The growth (µm) a heat-from-motion ``thermal`` section predicts at ``x_mm`` for the
-    heat ``heat_m`` (m of travel; the two broadcast), as :func:`modelled_growth_um`."""
+    heat ``heat_m`` (m of travel; the two broadcast), as :func:`modelled_growth_um`; with
+    ``share``, the whole elongation's share at each ``x_mm`` as a travel profile counts it
+    (:func:`..thermal.thermal_shape.profile_fractions`) in place of the linear one."""
     origin = float(thermal["origin_mm"])
     span = float(thermal["length_mm"])
     if thermal.get("profile") and travel_mm is not None:
         span = max(abs(travel_mm[0] - origin), abs(travel_mm[1] - origin), 1.0)
-    lever = (np.asarray(x_mm, dtype=np.float64) - origin) / span
+    lever = ((np.asarray(x_mm, dtype=np.float64) - origin) / span if share is None
+             else np.asarray(share, dtype=np.float64))  # fmt: skip
     per_m = float(thermal.get("gain", 1.0)) * float(thermal["motion"]["delta_a_um_per_m"])
     return per_m * np.asarray(heat_m, dtype=np.float64) * lever
