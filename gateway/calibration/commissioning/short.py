@@ -342,8 +342,7 @@ class ShortBudget:
         them do not fit, the budget left would go to the plane's denser grid. (At 1.5 x a
         plain calibration's time rough-8's Y, its quarter points missing 0.98 µm RMS, 5.3
         x their scatter, had 100 s of the 270 its eighth points needed: its grid went from
-        a plain calibration's 9 x 7 to 10 x 8, and its E cut stayed 94.7 % over three
-        judges. Read at the 30 of 128 that fitted, 95.0 %; XY 98.0 → 97.8 %.)"""
+        a plain calibration's 9 x 7 to 10 x 8, XY 98 % cut, and its E cut stayed 94.7 %.)"""
         below = np.concatenate([self.runner.raw(f"{n}-{axis}").target_mm
                                 for n in steps_below(level - 1)])  # fmt: skip
         ranked, ratio = worst_between(axis_deviations(self.iso_raw(axis), axis), below,
