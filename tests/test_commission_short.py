@@ -24,7 +24,6 @@ from gateway.calibration.commissioning.sizing import (
     first_table_reading,
     fitting_grid,
     max_grid_in,
-    most_that_fit,
 )
 from gateway.calibration.fitting.adaptive import ISO_LEAST_POINTS, plain_points
 from gateway.calibration.plans.xy import even_grid
@@ -186,21 +185,6 @@ def test_a_short_budget_too_short_for_a_plain_grid_reads_the_densest_of_its_shap
     assert fitting_grid((9, 7), cost, cost((9, 7)) - 1.0) == (8, 6)
     assert fitting_grid((9, 7), cost, cost((5, 4)) + 1.0) == (5, 4)
     assert fitting_grid((9, 7), cost, cost((3, 3)) - 1.0) is None
-
-
-def test_a_budget_that_holds_part_of_a_level_s_points_reads_the_most_that_fit() -> None:
-    """Eighth points read one way at one run (1.9 s a point and 40 s of overrun and
-    return), taken where the table misses most: the most whose time is within what is
-    left; none where not even one fits."""
-    def cost(k: int) -> float:
-        return 40.0 + 1.9 * k
-
-    assert most_that_fit(128, cost, cost(47)) == 47
-    assert most_that_fit(128, cost, cost(47) + 1.0) == 47
-    assert most_that_fit(128, cost, cost(47) - 0.1) == 46
-    assert most_that_fit(128, cost, 1e9) == 128
-    assert most_that_fit(128, cost, 39.0) == 0
-    assert most_that_fit(0, cost, 1e9) == 0
 
 
 def test_a_short_budget_grid_keeps_its_cells_about_square() -> None:
@@ -464,7 +448,7 @@ def test_a_table_still_missing_between_its_points_reads_quarter_points_in_place_
         short.budget = SimpleNamespace(iso_runs=lambda: 3, left_s=lambda: left[0],
                                        step_cost_worst_s=cost_s, step_cost_s=cost_s)
         short.plans = SimpleNamespace(
-            midpoints_plan=lambda a, runs, level=0, only_mm=None: 100.0 * runs * (1 + level),
+            midpoints_plan=lambda a, runs, level=0: 100.0 * runs * (1 + level),
             more_runs_plan=lambda a, more: 50.0 * more)
         short.record = SimpleNamespace(state=state, done=lambda name: name.startswith("cyclic"),
                                        save=lambda: None)  # fmt: skip
@@ -511,7 +495,6 @@ def _short_on_doubles(ident: dict, steps: list, misses: Mapping[str, tuple[float
     from gateway.calibration.commissioning.short import ShortBudget
 
     short = ShortBudget.__new__(ShortBudget)
-    short.partial_mm = lambda a, at, room_s: None  # (none of a level's points in part)
     for name, part in parts.items():
         setattr(short, name, part)
     short.record = SimpleNamespace(state={"identify": ident}, save=lambda: None, done=done)
@@ -562,8 +545,7 @@ def test_a_table_still_missing_between_its_quarter_points_reads_its_eighth_point
             axes=SimpleNamespace(park=lambda a: {}),
             budget=SimpleNamespace(iso_runs=lambda: 3, left_s=lambda: left_s - sum(
                 p for _, p in steps), step_cost_worst_s=lambda p: p, step_cost_s=lambda p: p),
-            plans=SimpleNamespace(
-                midpoints_plan=lambda a, runs, level=0, only_mm=None: 100.0 * runs))
+            plans=SimpleNamespace(midpoints_plan=lambda a, runs, level=0: 100.0 * runs))
         _read_eighths(short, ["Z", "Y", "X"])
         return ident, steps
 
@@ -574,73 +556,6 @@ def test_a_table_still_missing_between_its_quarter_points_reads_its_eighth_point
     assert steps == [("iso-eighth-X", 200.0)] and not ident["eighths-Y"]["measured"]
     ident, steps = run(1000.0, ("Y",))  # X's quarter points not read: none between them
     assert steps == [("iso-eighth-Y", 200.0)] and "eighths-X" not in ident
-
-
-def test_eighth_points_the_budget_holds_only_in_part_go_where_the_table_misses() -> None:
-    """Where the budget left does not hold all of an axis's eighth points, it reads those
-    it holds, one run each, going up: where its table missed its quarter points most, and
-    only where by more than BETWEEN_RATIO times their scatter. A screw smooth over its
-    first half and wavy over its second (waves of 15-25 mm), read every 25 mm, at the
-    midpoints and at the quarter points: room for 10 reads 10, all on the wavy half; room
-    for all reads only those beside a quarter point that missed, 80 % of them or more on
-    the wavy half (a single read of a smooth stretch misses by chance too); no room for
-    one: none. (At 1.5 x a plain calibration's time
-    rough-8's Y had 100 s of the 270 its eighth points needed: its grid took them.)"""
-    import asyncio
-    from types import SimpleNamespace
-
-    from gateway.calibration.commissioning.planner import EIGHTHS
-    from gateway.calibration.commissioning.short import RUNS_IN_PLACE
-    from gateway.calibration.commissioning.steps import concat_raw
-    from tests.test_table_between import _raw
-
-    def screw_um(x: np.ndarray) -> np.ndarray:
-        waves = 2.0 * np.sin(2 * np.pi * x / 17.0) + 1.5 * np.sin(2 * np.pi * x / 23.0 + 1.0)
-        return 8.0 * np.sin(np.pi * x / 1000.0) + np.where(x > 250.0, waves, 0.0)
-
-    x = np.arange(0.0, 501.0, 25.0)
-    mid = (x[1:] + x[:-1]) / 2
-    dense = np.sort(np.concatenate([x, mid]))
-    quarters = (dense[1:] + dense[:-1]) / 2
-    every = np.sort(np.concatenate([dense, quarters]))
-    eighths = (every[1:] + every[:-1]) / 2
-    raws = {"iso-X": _raw(screw_um, x, 3, 0), "iso-mid-X": _raw(screw_um, mid, 2, 1),
-            "iso-quarter-X": _raw(screw_um, quarters, 1, 2)}  # fmt: skip
-
-    def cost_s(plan: tuple[int, ...]) -> float:  # 40 s of overrun, 2 s a point and run
-        return 40.0 + 2.0 * plan[0] * plan[1]
-
-    def run(left_s: float) -> tuple[dict, list]:
-        steps: list = []
-        ident: dict = {"quarters-X": {"measured": True}, "more_runs": 0}
-        short = _short_on_doubles(
-            ident, steps, {"X": (5.3, 0.98)}, EIGHTHS, done=lambda name: True,
-            s=SimpleNamespace(lead_mm={}, planar=None), axes=SimpleNamespace(park=lambda a: {}),
-            budget=SimpleNamespace(iso_runs=lambda: 3, left_s=lambda: left_s,
-                                   step_cost_worst_s=cost_s),
-            plans=SimpleNamespace(
-                midpoints_mm=lambda a, level: eighths,
-                midpoints_plan=lambda a, runs, level=0, only_mm=None: (
-                    runs, eighths.size if only_mm is None else len(only_mm),
-                    *(() if only_mm is None else only_mm))),
-            runner=None, iso_raw=lambda a: concat_raw(list(raws.values())),
-            scanned=lambda a: None)  # fmt: skip
-        short.runner.raw = raws.__getitem__
-        del short.partial_mm  # (the class's own)
-        asyncio.run(short.densify("X", EIGHTHS))
-        return ident, steps
-
-    ident, steps = run(cost_s((1, 10)) + 1.0)  # not all at 2 runs: 10 at one run
-    read = ident["eighths-X"]
-    assert read["measured"] and read["runs"] == RUNS_IN_PLACE == 1
-    assert len(read["targets_mm"]) == 10 and all(v > 250.0 for v in read["targets_mm"])
-    assert steps == [("iso-eighth-X", (1, 10, *read["targets_mm"]))]
-    assert read["targets_mm"] == sorted(read["targets_mm"])
-    ident, steps = run(cost_s((1, eighths.size)) + 1.0)  # room for all at one run: the misses
-    part = ident["eighths-X"]["targets_mm"]
-    assert 20 <= len(part) < eighths.size and np.mean(np.array(part) > 250.0) >= 0.8, part
-    ident, steps = run(cost_s((1, 1)) - 1.0)  # no room for one
-    assert steps == [] and not ident["eighths-X"]["measured"]
 
 
 def test_an_extra_holds_time_for_the_plane_s_verdict_only_where_the_verdict_fits() -> None:
@@ -668,9 +583,8 @@ def test_an_extra_holds_time_for_the_plane_s_verdict_only_where_the_verdict_fits
                 iso_runs=lambda: 3, left_s=lambda: left_s - sum(p for _, p in steps),
                 step_cost_worst_s=lambda p: p, step_cost_s=lambda p: p,
                 verdict_cost_s=lambda p: verdict_s),
-            plans=SimpleNamespace(
-                midpoints_plan=lambda a, runs, level=0, only_mm=None: 100.0 * runs,
-                before_xy_plan=lambda: None),
+            plans=SimpleNamespace(midpoints_plan=lambda a, runs, level=0: 100.0 * runs,
+                                  before_xy_plan=lambda: None),
             plane_held_s=lambda plain=True: grid_s)  # fmt: skip
         _read_eighths(short, ["Y", "X"])
         return ident, steps
@@ -711,9 +625,8 @@ def test_a_table_still_missing_between_its_quarter_points_reads_eighths_before_m
             budget=SimpleNamespace(
                 iso_runs=lambda: 3, left_s=lambda: left_s - sum(p for _, p in steps),
                 step_cost_worst_s=lambda p: p, step_cost_s=lambda p: p),
-            plans=SimpleNamespace(
-                midpoints_plan=lambda a, runs, level=0, only_mm=None: 100.0 * runs * level,
-                more_runs_plan=lambda a, more: 50.0 * more),
+            plans=SimpleNamespace(midpoints_plan=lambda a, runs, level=0: 100.0 * runs * level,
+                                  more_runs_plan=lambda a, more: 50.0 * more),
             scans_left_s=lambda axes: 0.0, scatter_mm2=lambda a: 0.23e-3**2)  # fmt: skip
         asyncio.run(short.more_runs_later(["X", "Y"]))
         return ident, steps

@@ -137,9 +137,7 @@ def _between(r: Record, u: Fmt, table: str, what: str) -> str:
     rms = f"{u(r['miss_rms_um'])} RMS, " if r.get("miss_rms_um") is not None else ""
     runs = f", {r['runs']} run{'s' if r['runs'] > 1 else ''} each" if r.get("runs") else ""
     instead = " in place of its more runs" if r.get("instead_of_more_runs") else ""
-    part = (f" ({len(r['targets_mm'])} of them, where it misses most: the budget held no "
-            "more)" if r.get("targets_mm") else "")
-    read = (f"read{instead or ' too'}{part}{runs}" if r.get("measured") else
+    read = (f"read{instead or ' too'}{runs}" if r.get("measured") else
             "not read (they did not fit beside the plane's grid, or it does not miss)")  # fmt: skip
     return f"{table} misses between its points {rms}{miss} what its scatter " \
            f"explains; its {what} {read}"

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -112,28 +111,21 @@ class Planner:
         self.rotary = rotary
         self.thermal = thermal
 
-    def midpoints_plan(self, axis: str, runs: int | None = None, level: int = 0,
-                       only_mm: Sequence[float] | None = None) -> Plan:  # fmt: skip
+    def midpoints_plan(self, axis: str, runs: int | None = None, level: int = 0
+                       ) -> Plan:  # fmt: skip
         """The ISO 230-2 cycle at the midpoints of the first table's points, ``runs`` runs
         per target (default: the first table's); at ``level`` 1 (2), at the midpoints of
         those points and their midpoints (and their quarter points): the first table's
         quarter (eighth) points, read going up only: their reversal is the table's, from
         its points read both ways (:func:`..fitting.fit.with_one_way_points`), for half the
-        machine time. With ``only_mm``, those of them only (a part the budget holds,
-        :meth:`.short.ShortBudget.partial_mm`)."""
-        targets = self.midpoints_mm(axis, level) if only_mm is None else only_mm
-        return targets_plan(axis, self.axes.travel(axis), targets,
-                            runs or self.budget.iso_runs(), kind="iso230-linear",
-                            note=BETWEEN[level].what,
-                            one_way=level > 0)  # fmt: skip
-
-    def midpoints_mm(self, axis: str, level: int = 0) -> np.ndarray:
-        """Every target (mm) of the points ``axis`` reads between its table's at ``level``:
-        the midpoints of all the points read below it."""
+        machine time."""
         steps = [f"{n}-{axis}" for n in steps_below(level)]
         first = np.unique(np.concatenate([
             read_plan(self.record.dir / "plans" / f"{n}.plan").targets_mm(axis) for n in steps]))
-        return (first[1:] + first[:-1]) / 2
+        return targets_plan(axis, self.axes.travel(axis), (first[1:] + first[:-1]) / 2,
+                            runs or self.budget.iso_runs(), kind="iso230-linear",
+                            note=BETWEEN[level].what,
+                            one_way=level > 0)  # fmt: skip
 
     def more_runs_plan(self, axis: str, more: int) -> Plan:
         """The first table's ISO runs again: ``more`` runs on the same targets, numbered on

@@ -14,20 +14,14 @@ from ..fitting import adaptive
 from ..fitting.fit import one_way_split
 from ..fitting.iso230 import iso230_axis
 from ..fitting.outputs import scanned_cyclic
-from ..fitting.table_cv import (
-    between_points,
-    denser_miss,
-    denser_pays,
-    levelled_midpoints,
-    worst_between,
-)
+from ..fitting.table_cv import between_points, denser_miss, denser_pays, levelled_midpoints
 from ..fitting.takeup_fit import MIN_LOST_UM
 from ..plans.plans import Plan, backlash_plan
 from ..plans.rawdata import RawData, axis_deviations, pooled_variance
 from ..plans.runner import read_raw_meta
 from ..plans.xy import even_grid
 from .planner import BETWEEN, EIGHTHS, QUARTERS, cyclic_scans, steps_below
-from .sizing import DENSE_LEAST_RUNS, fitting_grid, hold_each, max_grid_in, most_that_fit
+from .sizing import DENSE_LEAST_RUNS, fitting_grid, hold_each, max_grid_in
 from .steps import concat_raw
 
 if TYPE_CHECKING:
@@ -307,12 +301,6 @@ class ShortBudget:
             runs = self._midpoint_runs(axis, keep_s, level) if misses else 0
             ident[key] = {"misses_x_scatter": ratio, "miss_rms_um": miss_um,
                           "measured": bool(runs), "runs": runs}
-            part = None
-            if misses and not runs and level > 0:
-                part = self.partial_mm(axis, level, self.budget.left_s() - keep_s)
-            if part is not None:
-                ident[key].update(measured=True, runs=RUNS_IN_PLACE,
-                                  targets_mm=[float(v) for v in part])  # fmt: skip
             if misses:
                 need_s = self.budget.step_cost_worst_s(
                     self.plans.midpoints_plan(axis, DENSE_LEAST_RUNS, level))
@@ -322,35 +310,13 @@ class ShortBudget:
                          f"points, {ratio:.1f} x what its scatter explains{net}: " + (
                              f"its {what} read too, {runs} runs each" if runs else
                              f"its {what} ({need_s / 60:.1f} min at {DENSE_LEAST_RUNS} runs) "
-                             f"do not fit {where}") + (
-                             "" if part is None else f"; {part.size} of its "
-                             f"{self.plans.midpoints_mm(axis, level).size} read, one run "
-                             "each, going up, where it misses most"))  # fmt: skip
+                             f"do not fit {where}"))  # fmt: skip
             self.record.save()
         if ident[key]["measured"]:  # (an older state keeps no runs: the first table's)
-            runs, only = ident[key].get("runs"), ident[key].get("targets_mm")
+            runs = ident[key].get("runs")
             await self.runner.step(f"{names.step}-{axis}",
-                                   lambda: self.plans.midpoints_plan(axis, runs, level, only),
+                                   lambda: self.plans.midpoints_plan(axis, runs, level),
                                    "off", self.axes.park(axis))  # fmt: skip
-
-    def partial_mm(self, axis: str, level: int, room_s: float) -> np.ndarray | None:
-        """Those of the points ``axis`` reads between its table's at ``level`` (1, 2) that
-        ``room_s`` (s) holds at RUNS_IN_PLACE runs, going up, where the table read so far
-        misses most: each where the table missed its nearest point of the level before by
-        more than BETWEEN_RATIO times that point's scatter
-        (:func:`..fitting.table_cv.worst_between`); None where none fits. Where all of
-        them do not fit, the budget left would go to the plane's denser grid. (At 1.5 x a
-        plain calibration's time rough-8's Y, its quarter points missing 0.98 µm RMS, 5.3
-        x their scatter, had 100 s of the 270 its eighth points needed: its grid went from
-        a plain calibration's 9 x 7 to 10 x 8, XY 98 % cut, and its E cut stayed 94.7 %.)"""
-        below = np.concatenate([self.runner.raw(f"{n}-{axis}").target_mm
-                                for n in steps_below(level - 1)])  # fmt: skip
-        ranked, ratio = worst_between(axis_deviations(self.iso_raw(axis), axis), below,
-                                      self.plans.midpoints_mm(axis, level), self.scanned(axis))
-        ranked = ranked[ratio > BETWEEN_RATIO]
-        count = most_that_fit(ranked.size, lambda k: self.budget.step_cost_worst_s(
-            self.plans.midpoints_plan(axis, RUNS_IN_PLACE, level, ranked[:k])), room_s)
-        return np.sort(ranked[:count]) if count else None
 
     def decided(self, axis: str, level: int) -> dict[str, Any]:
         """What was decided of the points ``axis`` reads between its table's at ``level``

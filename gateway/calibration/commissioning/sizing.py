@@ -91,13 +91,3 @@ def max_grid_in(grid: tuple[int, int], cost_s: Callable[[tuple[int, int]], float
             break
         best = cand
     return best
-
-
-def most_that_fit(count: int, cost_s: Callable[[int], float], left_s: float) -> int:
-    """The most of ``count`` points, taken in their order, whose ``cost_s(k)`` (s, growing
-    with k) is within ``left_s``; 0 where not even one is."""
-    lo, hi = 0, count
-    while lo < hi:
-        mid = (lo + hi + 1) // 2
-        lo, hi = (mid, hi) if cost_s(mid) <= left_s else (lo, mid - 1)
-    return lo

@@ -145,50 +145,6 @@ def _tilt(x: NDArray[np.float64], miss: NDArray[np.float64]) -> float:
     return slope if abs(slope) > SLOPE_SIGNIFICANCE * se else 0.0
 
 
-def _denser_misses(dev: AxisDeviations, first_mm: NDArray[np.float64],
-                   cyclic: CyclicModel | None
-                   ) -> tuple[AxisDeviations, NDArray[np.float64], dict[str, NDArray[np.float64]],
-                              NDArray[np.float64]] | None:  # fmt: skip
-    """The first table of ``dev`` (its points at ``first_mm``), the other points' targets,
-    what the first table misses at each of them along each interpolation (mm, one row per
-    direction read; NaN where a point was not read that way) and each miss's variance
-    from the scatter (mm², same shape). None where no point but the first was read."""
-    near = np.abs(dev.target_mm[:, None] - np.asarray(first_mm)[None, :])
-    at_first = np.min(near, axis=1) <= TARGET_TOLERANCE_MM  # (as grouped: their mean)
-    sub = [None if d is None else d[at_first] for d in (dev.up_mm, dev.down_mm)]
-    first = replace(dev, target_mm=dev.target_mm[at_first], up_mm=sub[0], down_mm=sub[1])
-    mid_x = dev.target_mm[~at_first]
-    if mid_x.size == 0:
-        return None
-    s2, _ = pooled_variance(dev)
-    cyc, cyc_mid = _cyclic_mm(cyclic, first.target_mm), _cyclic_mm(cyclic, mid_x)
-    misses = {m: np.full((2, mid_x.size), np.nan) for m in METHODS}
-    var = np.full((2, mid_x.size), np.nan)
-    for row, (d_first, d) in enumerate(zip(sub, (dev.up_mm, dev.down_mm))):
-        if d_first is None or d is None:
-            continue
-        y = np.nanmean(d_first, axis=1) - cyc
-        k_first = float(np.mean(np.sum(np.isfinite(d_first), axis=1)))
-        d_mid = d[~at_first]
-        k_mid = np.sum(np.isfinite(d_mid), axis=1)
-        ok = k_mid > 0
-        got = np.nanmean(np.where(ok[:, None], d_mid, 0.0), axis=1) - cyc_mid
-        for method in METHODS:
-            if first.target_mm.size < (3 if method == "linear" else 5):
-                continue
-            misses[method][row, ok] = [_predict(first.target_mm, y, float(at), method) - g
-                                       for at, g in zip(mid_x[ok], got[ok])]  # fmt: skip
-        var[row, ok] = s2 * (1 / k_mid[ok] + 0.5 / k_first)
-    return first, mid_x, misses, var
-
-
-def _least(misses: dict[str, NDArray[np.float64]]) -> NDArray[np.float64] | None:
-    """The misses of the interpolation that misses least (RMS over all), None where none."""
-    rms = {m: float(np.sqrt(np.nanmean(np.square(v)))) for m, v in misses.items()
-           if np.isfinite(v).any()}  # fmt: skip
-    return misses[min(rms, key=rms.__getitem__)] if rms else None
-
-
 def denser_miss(dev: AxisDeviations, first_mm: NDArray[np.float64],
                 cyclic: CyclicModel | None = None) -> tuple[float, float] | None:  # fmt: skip
     """(ratio, miss RMS in mm): what a table read at its first points (``first_mm``) and at
@@ -200,41 +156,39 @@ def denser_miss(dev: AxisDeviations, first_mm: NDArray[np.float64],
     (slit-11358's Y: 4.84 → 0.91 µm RMS, its table through both then missed the truth by
     0.15), a rough screw's hardly (rough-9's Y: 6.10 → 4.39 µm). With ``cyclic``, net of
     that once-per-lead term. None where either cannot be said."""
-    found = _denser_misses(dev, first_mm, cyclic)
-    if found is None:
-        return None
-    first, _, misses, var = found
+    near = np.abs(dev.target_mm[:, None] - np.asarray(first_mm)[None, :])
+    at_first = np.min(near, axis=1) <= TARGET_TOLERANCE_MM  # (as grouped: their mean)
+    sub = [None if d is None else d[at_first] for d in (dev.up_mm, dev.down_mm)]
+    first = replace(dev, target_mm=dev.target_mm[at_first], up_mm=sub[0], down_mm=sub[1])
     coarse = between_points(first, cyclic, curves=True)
-    least = _least(misses)
-    if coarse is None or coarse[1] <= 0.0 or least is None or not np.isfinite(var).any():
+    mid_x = dev.target_mm[~at_first]
+    if coarse is None or coarse[1] <= 0.0 or mid_x.size == 0:
         return None
-    fine = float(np.sqrt(np.nanmean(np.square(least))))
+    s2, _ = pooled_variance(dev)
+    cyc, cyc_mid = _cyclic_mm(cyclic, first.target_mm), _cyclic_mm(cyclic, mid_x)
+    misses: dict[str, list[float]] = {m: [] for m in METHODS}
+    var = []
+    for d_first, d in zip(sub, (dev.up_mm, dev.down_mm)):
+        if d_first is None or d is None:
+            continue
+        y = np.nanmean(d_first, axis=1) - cyc
+        k_first = float(np.mean(np.sum(np.isfinite(d_first), axis=1)))
+        d_mid = d[~at_first]
+        k_mid = np.sum(np.isfinite(d_mid), axis=1)
+        ok = k_mid > 0
+        got = np.nanmean(np.where(ok[:, None], d_mid, 0.0), axis=1) - cyc_mid
+        for method in METHODS:
+            if first.target_mm.size < (3 if method == "linear" else 5):
+                continue
+            misses[method] += [_predict(first.target_mm, y, float(at), method) - g
+                               for at, g in zip(mid_x[ok], got[ok])]  # fmt: skip
+        var += list(s2 * (1 / k_mid[ok] + 0.5 / k_first))
+    rms = [float(np.sqrt(np.mean(np.square(v)))) for v in misses.values() if v]
+    if not rms or not var:
+        return None
+    fine = min(rms)
     expected = fine * min(1.0, fine / coarse[1])
-    return expected / float(np.sqrt(np.nanmean(var))), expected
-
-
-def worst_between(dev: AxisDeviations, first_mm: NDArray[np.float64], new_mm: NDArray[np.float64],
-                  cyclic: CyclicModel | None = None
-                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:  # fmt: skip
-    """(targets mm, ratio): ``new_mm`` (a denser level's targets), those where the table
-    misses most first, each with what the table through ``first_mm`` missed at its nearest
-    point of the last level read (the rest of ``dev``; RMS over the directions read, along
-    the interpolation that misses least overall; net of ``cyclic``) over what that point's
-    scatter explains. Ratio 0 where that cannot be said. Where a budget holds only some of
-    a level's points, they go where the screw is roughest."""
-    new_mm = np.asarray(new_mm, dtype=np.float64)
-    found = _denser_misses(dev, first_mm, cyclic)
-    least = None if found is None else _least(found[2])
-    if found is None or least is None or new_mm.size == 0:
-        return new_mm, np.zeros(new_mm.size)
-    read = np.isfinite(least) & np.isfinite(found[3])
-    count = np.maximum(np.sum(read, axis=0), 1)
-    miss2 = np.sum(np.where(read, least, 0.0) ** 2, axis=0) / count
-    var = np.sum(np.where(read, found[3], 0.0), axis=0) / count
-    ratio = np.where(var > 0.0, np.sqrt(miss2 / np.where(var > 0.0, var, 1.0)), 0.0)
-    near = np.argmin(np.abs(new_mm[:, None] - found[1][None, :]), axis=1)
-    order = np.argsort(-ratio[near], kind="stable")
-    return new_mm[order], ratio[near][order]
+    return expected / float(np.sqrt(np.mean(var))), expected
 
 
 def denser_pays(miss_mm: float, s2_mm2: float, denser_runs: int, first_runs: int,
