@@ -87,28 +87,31 @@ class Figure:
 
 
 # -- plots (matplotlib, Agg) -----------------------------------------------------------------
-def _pyplot():  # type: ignore[no-untyped-def]
-    import matplotlib
+def _subplots(rows: int, cols: int, figsize: tuple[float, float]):  # type: ignore[no-untyped-def]
+    """A figure and its panels (2-D), without pyplot: no figure manager to keep or close,
+    and the PNG rendered by Agg all the same (savefig picks it for the format)."""
+    from matplotlib.figure import Figure as MplFigure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    fig = MplFigure(figsize=figsize)
+    return fig, fig.subplots(rows, cols, squeeze=False)
 
 
 def _png(fig) -> bytes:  # type: ignore[no-untyped-def]
+    """The figure, laid out by tight_layout, as PNG bytes: one render. (tight_layout leaves
+    a placeholder layout engine behind, and savefig would draw the whole figure once more,
+    unrendered, for it before the render: the layout is done, so the engine goes.)"""
+    fig.tight_layout()
+    fig.set_layout_engine(None)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)  # laid out by tight_layout: one render
-    _pyplot().close(fig)
+    fig.savefig(buf, format="png", dpi=110)
     return buf.getvalue()
 
 
 def plot_axis(axis: str, results: dict[str, tuple[RawData, Iso230Result]],
               units: Units = LINEAR) -> bytes:  # fmt: skip
     """Deviation vs position, both directions, ±2s bands; one panel per phase."""
-    plt = _pyplot()
     k = units.per_um
-    fig, panels = plt.subplots(len(results), 1, figsize=(8, 3.2 * len(results)), squeeze=False)
+    fig, panels = _subplots(len(results), 1, figsize=(8, 3.2 * len(results)))
     for ax, (phase, (raw, iso)) in zip(panels[:, 0], results.items()):
         dev = axis_deviations(raw, axis)
         t = iso.target_mm
@@ -129,14 +132,12 @@ def plot_axis(axis: str, results: dict[str, tuple[RawData, Iso230Result]],
         ax.set_ylabel(f"deviation actual − target ({units.name})")
         ax.legend(fontsize=7, ncol=2)
         ax.grid(alpha=0.3)
-    fig.tight_layout()
     return _png(fig)
 
 
 def plot_xy(results: dict[str, RawData], axes: tuple[str, str]) -> tuple[bytes, dict[str, Any]]:
     """XY error field as arrows (one panel per phase) and the vector figures per phase."""
-    plt = _pyplot()
-    fig, panels = plt.subplots(1, len(results), figsize=(6.5 * len(results), 5), squeeze=False)
+    fig, panels = _subplots(1, len(results), figsize=(6.5 * len(results), 5))
     figures: dict[str, Any] = {}
     for ax, (phase, raw) in zip(panels[0], results.items()):
         meas = planar_measurement(raw, axes)
@@ -151,7 +152,6 @@ def plot_xy(results: dict[str, RawData], axes: tuple[str, str]) -> tuple[bytes, 
         ax.set_xlabel(f"{axes[0]} (mm)")
         ax.set_ylabel(f"{axes[1]} (mm)")
         ax.set_aspect("equal", adjustable="datalim")
-    fig.tight_layout()
     return _png(fig), figures
 
 
@@ -305,9 +305,8 @@ def plot_cyclic(axis: str, fit: Any, scans: list[Any], lead_mm: float, origin_mm
     with the fitted cyclic curve."""
     from ..fitting.cyclic_fit import station_fit_curves
 
-    plt = _pyplot()
     small = 1e3 * units.per_um  # table units → µm or arcsec
-    fig, panels = plt.subplots(len(scans), 1, figsize=(8, 2.6 * len(scans)), squeeze=False)
+    fig, panels = _subplots(len(scans), 1, figsize=(8, 2.6 * len(scans)))
     k = fit.harmonics
     for ax, (station, scan) in zip(panels[:, 0], scans):
         detrended, _ = station_fit_curves(scan, lead_mm, origin_mm, k)
@@ -334,7 +333,6 @@ def plot_cyclic(axis: str, fit: Any, scans: list[Any], lead_mm: float, origin_mm
         ax.set_ylabel(f"deviation − local trend ({units.name})")
         ax.legend(fontsize=7, ncol=3)
         ax.grid(alpha=0.3)
-    fig.tight_layout()
     return _png(fig)
 
 
