@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 
 # One BLAS thread per process: the suite runs a worker per core and one more, and OpenBLAS's second
 # thread spins on a core another worker is using (a sweep fit: 19 s of CPU for 11 s of
@@ -23,6 +24,23 @@ settings.register_profile("compgw", derandomize=True, database=None)
 settings.load_profile("compgw")
 
 __all__ = ["PtyPair", "pty_pair"]
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_collection(session: pytest.Session) -> object:
+    """Collected with bytecode written: each worker imports every test module, and pytest
+    rewrites a module's asserts as it imports it (7 s of CPU a worker for the suite's), its
+    rewritten copy kept in tests/__pycache__ only where bytecode is written. Where the
+    environment says not to (PYTHONDONTWRITEBYTECODE: the Makefile compiles the project's
+    modules for it), every worker rewrote them all on every run: 11 s a worker to collect,
+    4 s from the copies. Only while collecting: the processes the tests start are the
+    environment's."""
+    was = sys.dont_write_bytecode
+    sys.dont_write_bytecode = False
+    try:
+        return (yield)
+    finally:
+        sys.dont_write_bytecode = was
 
 
 @pytest.fixture
