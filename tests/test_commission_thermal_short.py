@@ -9,7 +9,8 @@ from pathlib import Path
 
 import yaml
 
-from tests.commission_rig import running, small_machine
+from tests.commission_rig import random_machine, running, small_machine
+from tests.test_service_helpers import Proc
 
 
 def test_a_short_budget_with_a_thermal_sensor_takes_the_plain_steps_first(
@@ -21,10 +22,7 @@ def test_a_short_budget_with_a_thermal_sensor_takes_the_plain_steps_first(
     machine = small_machine(directory, seed=7)
     original = yaml.safe_load((tmp_path / "machine" / "gateway.yaml").read_text())
     fresh = tmp_path / "fresh"
-    from tests.test_service_helpers import Proc
-
-    proc = Proc(["-m", "gateway.cli", "sim", "--random-machine", "7", "--out", str(fresh)])
-    assert proc.popen.wait(timeout=60) == 0, proc.text()
+    random_machine(fresh, seed=7)  # as `compgw sim --random-machine 7` writes it
     written = yaml.safe_load((fresh / "gateway.yaml").read_text())
     original["thermal_sources"] = written["thermal_sources"]  # the Δa sensor back, X on it
     original["axes"]["X"]["compensation"]["thermal"] = written["axes"]["X"]["compensation"][
@@ -55,10 +53,7 @@ def test_a_short_budget_reads_no_drift_references_where_every_axis_keeps_its_sen
     machine = small_machine(directory, seed=7)
     original = yaml.safe_load((directory / "gateway.yaml").read_text())
     fresh = tmp_path / "fresh"
-    from tests.test_service_helpers import Proc
-
-    proc = Proc(["-m", "gateway.cli", "sim", "--random-machine", "7", "--out", str(fresh)])
-    assert proc.popen.wait(timeout=60) == 0, proc.text()
+    random_machine(fresh, seed=7)
     written = yaml.safe_load((fresh / "gateway.yaml").read_text())
     original["thermal_sources"] = written["thermal_sources"]
     original["axes"]["X"]["compensation"]["thermal"] = written["axes"]["X"]["compensation"][
