@@ -1,5 +1,5 @@
 """Issue 7 on the simulated machine: a coarse table plus the cyclic stage fitted from three
-short dense scans, against the same coarse table alone, at 200 random off-grid positions."""
+short dense scans, against the same coarse table alone, at 100 random off-grid positions."""
 
 from __future__ import annotations
 
@@ -24,7 +24,9 @@ from sim.server import SimServer
 LEAD_MM = 10.0
 STATIONS_MM = [120.0, 400.0, 680.0]
 COARSE_MM = list(np.linspace(1.0, 799.0, 21))
-POSITIONS = 200
+#: (RMS coarse, coarse+cyclic: at 200 positions 1.31 and 0.35 µm, at 100 1.35 and 0.38, at 67
+#: 1.30 and 0.37: the cut is the same; the judging was two thirds of the test's 12.8 s of CPU)
+POSITIONS = 100
 VISITS = 3  # each position measured 3 times and averaged: the RMS measures the systematic
 # error between calibration points, not the 0.5 µm repeatability of each stop
 
