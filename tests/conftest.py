@@ -53,20 +53,21 @@ def pty_pair() -> Iterator[PtyPair]:
         pair.close()
 
 
-#: the suite's longest files (seconds of wall on 2 cores, 3 workers): run first, so that
-#: pytest-xdist's first round hands them out one a worker and the short files fill in around
-#: them (the Makefile keeps this order: `--no-loadscope-reorder`; xdist's own order, files
-#: with the most tests first, ran test_commission_recorded.py's 68 s, mostly waiting on the
-#: laser software's recordings, last and alone: 328 s, the other workers done at 235 s)
+#: the suite's longest files (seconds of wall on 2 cores, 3 workers, as a whole suite's run
+#: measured them in session 81): run first, so that pytest-xdist's first round hands them
+#: out one a worker and the short files fill in around them (the Makefile keeps this order:
+#: `--no-loadscope-reorder`; xdist's own order, files with the most tests first, ran
+#: test_commission_recorded.py's 68 s, mostly waiting on the laser software's recordings,
+#: last and alone: 328 s, the other workers done at 235 s)
 LONG_FILES_S = {
-    "test_commission.py": 125, "test_commission_run_heat.py": 103,
-    "test_commission_recorded.py": 79, "test_commission_budget.py": 77,
-    "test_calibration_e2e.py": 50, "test_commission_short.py": 50, "test_sweep.py": 49,
-    "test_commission_instruments.py": 46, "test_demo.py": 46, "test_cyclic_cal_e2e.py": 22,
-    "test_fuzz.py": 36, "test_commission_verdict.py": 31,
-    "test_commission_thermal_short.py": 29, "test_cyclic_sim.py": 29,
-    "test_commission_rotary.py": 23, "test_faults.py": 19, "test_takeup.py": 17,
-    "test_service.py": 15, "test_thermal_shape.py": 14, "test_bench_smoke.py": 14,
+    "test_commission.py": 155, "test_commission_budget.py": 130,
+    "test_commission_recorded.py": 82, "test_commission_run_heat.py": 80,
+    "test_commission_short.py": 56, "test_calibration_e2e.py": 55, "test_demo.py": 51,
+    "test_sweep.py": 51, "test_commission_instruments.py": 42,
+    "test_commission_rotary.py": 36, "test_commission_verdict.py": 35, "test_fuzz.py": 35,
+    "test_commission_thermal_short.py": 29, "test_faults.py": 20, "test_thermal_shape.py": 19,
+    "test_takeup.py": 18, "test_service.py": 17, "test_bench_smoke.py": 16,
+    "test_cyclic_sim.py": 14, "test_cyclic_cal_e2e.py": 12,
 }  # fmt: skip
 
 
