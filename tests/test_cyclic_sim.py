@@ -17,6 +17,7 @@ from gateway.calibration.fitting.cyclic_fit import (
 )
 from gateway.compensation import PitchTable
 from gateway.demos import tour as demo
+from gateway.event_loop import run_loop  # uvloop, as the daemon and the sim serve
 from gateway.formats import read_pitch_csv, write_cyclic, write_pitch_csv
 from sim.config import parse_config
 from sim.server import SimServer
@@ -110,7 +111,7 @@ async def experiment(tmp_path: Path, cyclic_error: bool, judge: bool = True):
 
 
 def test_cyclic_stage_halves_the_off_grid_error(tmp_path: Path):
-    fit, rms = asyncio.run(asyncio.wait_for(experiment(tmp_path, True), 120))
+    fit, rms = run_loop(asyncio.wait_for(experiment(tmp_path, True), 120))
     print(f"harmonics {fit.harmonics}, CV {fit.cv_rms_um}, RMS {rms}")
     assert fit.harmonics >= 1
     # the example machine: 1.5 µm once per 10 mm lead at phase 30° (sin 1.30, cos 0.75 µm)
@@ -123,7 +124,7 @@ def test_no_cyclic_error_no_cyclic_stage(tmp_path: Path):
     """Nothing added at all: no cyclic file, and the table net of it is the coarse table
     itself, value for value (so the two configs' off-grid RMS need not be read: they
     compensate alike)."""
-    fit, _ = asyncio.run(asyncio.wait_for(experiment(tmp_path, False, judge=False), 120))
+    fit, _ = run_loop(asyncio.wait_for(experiment(tmp_path, False, judge=False), 120))
     print(f"harmonics {fit.harmonics}, CV {fit.cv_rms_um}")
     assert fit.harmonics == 0 and fit.model is None
     assert not (tmp_path / "cyclic.yaml").exists()
