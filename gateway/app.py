@@ -24,6 +24,7 @@ import socket
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .compensation import Chain
 from .config import Bus as BusConfig
@@ -39,14 +40,10 @@ from .config import (
 from .config import warnings as config_warnings
 from .event_loop import run_loop
 from .machine_clock import MachineTime
-from .metrics import MetricsServer
-from .metrics import build as build_metrics
 from .modbus.downstream import Bus, RtuBus, TcpBus
-from .modbus.mbsecurity import TlsGate
 from .modbus.rtu_over_tcp import RtuOverTcpBus
 from .modbus.security import WriteGuard
 from .modbus.serialline import SerialLineLost
-from .modbus.tlsfiles import certificate_dates, server_context
 from .modbus.upstream import RtuServer, TcpServer
 from .router import Gateway
 from .sensors import SensorSet
@@ -54,6 +51,10 @@ from .service import EVERY, Notifier
 from .state_store import StateStore
 from .status import StatusUnit
 from .tables import build_chain
+
+if TYPE_CHECKING:
+    from .metrics import MetricsServer
+    from .modbus.mbsecurity import TlsGate
 
 log = logging.getLogger(__name__)
 
@@ -147,7 +148,10 @@ class GatewayApp:
         self.handler = self.write_guard.wrap(self.gateway.handle)
         self.fast_handler = self.write_guard.wrap_fast(self.gateway.handle_fast)
         self.metrics: MetricsServer | None = None
-        if config.metrics.port is not None:
+        if config.metrics.port is not None:  # (imported here: a gateway without them starts
+            from .metrics import MetricsServer  # without prometheus_client or cryptography)
+            from .metrics import build as build_metrics
+
             registry, request_metrics = build_metrics(self)
             self.handler = request_metrics.wrap(self.handler)
             self.fast_handler = request_metrics.wrap_fast(self.fast_handler)
@@ -201,6 +205,9 @@ class GatewayApp:
                 self.tcp = self._tcp_server(up.tcp)
                 await self.tcp.start()
             if up.tls is not None:  # raises ConfigError when its files cannot be used
+                from .modbus.mbsecurity import TlsGate
+                from .modbus.tlsfiles import certificate_dates, server_context
+
                 base = Path(self.source).resolve().parent if self.source is not None else None
                 context = server_context(up.tls, base)
                 for warning in certificate_dates(up.tls, base):
