@@ -16,7 +16,6 @@ Model file (YAML), paths relative to the model file::
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 
@@ -28,7 +27,7 @@ from ..config_types import read_yaml
 from .atomic import atomic_write_text
 from .lines import DEVIATION_DECIMALS as DEV
 from .lines import POSITION_DECIMALS as POS
-from .lines import csv_header, data_lines, fmt, parse_number
+from .lines import csv_header, data_lines, fmt, parse_numbers
 
 _HEADER = ("x_mm", "y_mm", "dx_um", "dy_um")
 _MODEL_KEYS = {"points", "model", "method", "degree"}
@@ -47,17 +46,7 @@ def read_planar_csv(path: str | os.PathLike[str]) -> PlanarMeasurement:
             raise TableError(
                 f"{path}: line {number}: expected 4 comma-separated numbers, got {len(cells)}"
             )
-        # a plane's points file holds thousands of rows, read at every reload: each row's
-        # numbers read at once, and cell by cell (to name the one at fault) only if one is
-        # not a finite number (or the sum overflows: then each is looked at)
-        try:
-            row: tuple[float, ...] | None = (float(cells[0]), float(cells[1]),
-                                             float(cells[2]), float(cells[3]))  # fmt: skip
-        except ValueError:
-            row = None
-        if row is None or not math.isfinite(row[0] + row[1] + row[2] + row[3]):
-            row = tuple(parse_number(path, number, n, c) for n, c in zip(_HEADER, cells))
-        values.append(row)
+        values.append(parse_numbers(path, number, _HEADER, cells))
         lines.append(number)
     if not values:
         raise TableError(f"{path}: no points after the header")
