@@ -19,3 +19,12 @@ def run_loop(main: Coroutine[Any, Any, T]) -> T:
     except ImportError:  # pragma: no cover - a pinned dependency on Linux
         return asyncio.run(main)
     return uvloop.run(main)
+
+
+def new_loop() -> asyncio.AbstractEventLoop:
+    """A new event loop for a thread of its own to run: uvloop's where it is installed."""
+    try:
+        import uvloop
+    except ImportError:  # pragma: no cover - a pinned dependency on Linux
+        return asyncio.new_event_loop()
+    return uvloop.new_event_loop()

@@ -20,6 +20,7 @@ from pymodbus.client import ModbusTcpClient
 
 from gateway.app import GatewayApp, load
 from gateway.cli import main as cli_main
+from gateway.event_loop import new_loop
 from gateway.sensors import ThermalState
 from sim.config import load_config as load_sim_config
 from sim.server import SimServer
@@ -82,14 +83,9 @@ class Bench:
 
     def __init__(self, directory: Path) -> None:
         self.dir = directory
-        # the loop `compgw run` and `compgw sim` serve on (gateway/event_loop.py): uvloop,
-        # where installed; asyncio's own spent about twice the CPU on the flows' requests
-        try:
-            import uvloop
-        except ImportError:  # pragma: no cover - a pinned dependency on Linux
-            self._loop = asyncio.new_event_loop()
-        else:
-            self._loop = uvloop.new_event_loop()
+        # the loop `compgw run` and `compgw sim` serve on: uvloop (asyncio's own spent about
+        # twice the CPU on the flows' requests)
+        self._loop = new_loop()
         self._ready = threading.Event()
         self._stop: asyncio.Event | None = None
         self._error: BaseException | None = None
